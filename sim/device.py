@@ -1,0 +1,53 @@
+"""Device selection for Warp kernels.
+
+Every kernel runs on ``cpu`` and ``cuda`` (DESIGN.md, Conventions). ``None`` or ``"auto"``
+picks ``cuda`` when a CUDA device is present, else ``cpu``.
+"""
+
+from __future__ import annotations
+
+import functools
+
+from sim.errors import WrinklesInputError
+
+
+@functools.cache
+def _warp():
+    import contextlib
+    import io
+    import logging
+
+    import warp as wp
+
+    wp.config.log_level = logging.ERROR
+    # Warp prints a driver warning on CPU-only machines; keep CLI output clean.
+    with contextlib.redirect_stderr(io.StringIO()):
+        wp.init()
+    return wp
+
+
+def warp():
+    """The initialised ``warp`` module (imported lazily, quiet)."""
+    return _warp()
+
+
+def resolve_device(device: str | None = None) -> str:
+    """Resolve a device name to a Warp device string.
+
+    Args:
+        device: ``None``/``"auto"`` (cuda when present, else cpu), ``"cpu"``, ``"cuda"`` or
+            ``"cuda:N"``.
+
+    Returns:
+        The Warp device alias.
+    """
+    wp = warp()
+    if device in (None, "", "auto"):
+        return "cuda" if wp.get_cuda_device_count() > 0 else "cpu"
+    if device == "cpu":
+        return "cpu"
+    if device.startswith("cuda"):
+        if wp.get_cuda_device_count() == 0:
+            raise WrinklesInputError(f"--device {device}: no CUDA device is available here (use cpu)")
+        return device
+    raise WrinklesInputError(f"--device {device}: unknown device (use auto, cpu, cuda or cuda:N)")

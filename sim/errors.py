@@ -1,0 +1,19 @@
+"""User-facing errors.
+
+A ``WrinklesInputError`` is a problem with something the user supplied (a file, a name, an
+array). The CLI prints its message on one line and exits with status 2, without a traceback
+(DESIGN.md, Conventions). Messages name the file (when there is one) and what is wrong.
+"""
+
+from __future__ import annotations
+
+import os
+
+
+class WrinklesInputError(ValueError):
+    """Bad user input: one-line message naming the file and the problem."""
+
+    def __init__(self, message: str, *, path: str | os.PathLike | None = None):
+        self.path = None if path is None else os.fspath(path)
+        msg = " ".join(str(message).split())  # always one line
+        super().__init__(f"{self.path}: {msg}" if self.path else msg)

@@ -1,0 +1,101 @@
+"""Plain data types that flow between stages (DESIGN.md, Core types).
+
+Arrays at module boundaries are numpy ``float32`` (positions), ``int32`` (indices).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim.errors import WrinklesInputError
+
+#: SMPL's 24 joints, names and order as SMPL (DESIGN.md, Conventions).
+SMPL_JOINT_NAMES: tuple[str, ...] = (
+    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
+    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar",
+    "right_collar", "head", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow",
+    "left_wrist", "right_wrist", "left_hand", "right_hand",
+)
+#: parent of each SMPL joint (-1 for the root).
+SMPL_PARENTS: tuple[int, ...] = (
+    -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
+)
+NUM_SMPL_JOINTS = 24
+
+
+@dataclass(frozen=True)
+class BodyFrames:
+    """A posed body over time.
+
+    Attributes:
+        vertices: skinned vertex positions [m], shape (T, V, 3), float32.
+        joints: joint positions [m], shape (T, J, 3), float32.
+        transforms: world transform of each joint's frame [m for translation], shape
+            (T, J, 4, 4), float32 (rotation = accumulated joint rotation, translation = joint
+            position).
+        faces: triangle indices, shape (F, 3), int32.
+    """
+
+    vertices: np.ndarray
+    joints: np.ndarray
+    transforms: np.ndarray
+    faces: np.ndarray
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.vertices.shape[0])
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A body motion in SMPL's convention.
+
+    Attributes:
+        poses: axis-angle joint rotations [rad] relative to the parent, shape (T, 24, 3),
+            float32, SMPL joint order (``SMPL_JOINT_NAMES``); joint 0 is the global orientation.
+        trans: root translation [m], shape (T, 3), float32 (Y up).
+        fps: frames per second [1/s].
+        name: a short label.
+        betas: body shape coefficients the motion was captured with, shape (B,), or None.
+        source: where it came from (file path, ``procedural:walk`` ...).
+    """
+
+    poses: np.ndarray
+    trans: np.ndarray
+    fps: float
+    name: str = "motion"
+    betas: np.ndarray | None = None
+    source: str = ""
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        poses = np.asarray(self.poses, dtype=np.float32)
+        trans = np.asarray(self.trans, dtype=np.float32)
+        object.__setattr__(self, "poses", poses)
+        object.__setattr__(self, "trans", trans)
+        where = self.source or self.name
+        if poses.ndim != 3 or poses.shape[1:] != (NUM_SMPL_JOINTS, 3):
+            raise WrinklesInputError(f"motion poses must have shape (T, 24, 3), got {poses.shape}",
+                                     path=where)
+        if trans.shape != (poses.shape[0], 3):
+            raise WrinklesInputError(
+                f"motion trans must have shape ({poses.shape[0]}, 3) to match the poses, got "
+                f"{trans.shape}", path=where)
+        if poses.shape[0] < 1:
+            raise WrinklesInputError("motion has no frames", path=where)
+        if not (np.all(np.isfinite(poses)) and np.all(np.isfinite(trans))):
+            bad = np.where(~(np.isfinite(poses).all(axis=(1, 2)) & np.isfinite(trans).all(axis=1)))[0]
+            raise WrinklesInputError(f"motion has NaN/inf values at frame {int(bad[0])}", path=where)
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise WrinklesInputError(f"motion fps must be positive, got {self.fps}", path=where)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.poses.shape[0])
+
+    @property
+    def duration(self) -> float:
+        """Length [s]."""
+        return self.num_frames / float(self.fps)
