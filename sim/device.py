@@ -13,16 +13,24 @@ from sim.errors import WrinklesInputError
 
 @functools.cache
 def _warp():
-    import contextlib
-    import io
     import logging
+    import os
+    import sys
 
     import warp as wp
 
     wp.config.log_level = logging.ERROR
-    # Warp prints a driver warning on CPU-only machines; keep CLI output clean.
-    with contextlib.redirect_stderr(io.StringIO()):
-        wp.init()
+    # Warp's native code prints a driver warning on CPU-only machines straight to fd 2;
+    # silence that one call at the file-descriptor level to keep CLI output clean.
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            wp.init()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
     return wp
 
 
