@@ -1,0 +1,79 @@
+"""The ``wrinkles`` command line.
+
+Each sub-command lives in its own module with ``add_arguments(parser)`` and ``run(args)``;
+``COMMANDS`` is the registry (STYLE.md 5: explicit registries, no import-by-string from user
+input). User errors (``WrinklesInputError``) print one line and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import textwrap
+
+from sim import __version__
+from sim.errors import WrinklesInputError
+
+EXIT_USAGE = 2
+
+
+def _commands() -> dict:
+    from pipelines import body_cmd, motions_cmd
+
+    return {
+        "body": body_cmd,
+        "motions": motions_cmd,
+    }
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="wrinkles",
+        description=textwrap.dedent("""\
+            wrinkles: garment animation with realistic wrinkles.
+            Warp cloth simulation on SMPL-convention bodies, learned wrinkle models, USD out.
+            Units are SI (metres, seconds, kilograms), Y is up."""),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Run 'wrinkles COMMAND --help' for the options of a command.",
+    )
+    parser.add_argument("--version", action="version", version=f"wrinkles {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, mod in _commands().items():
+        p = sub.add_parser(name, help=mod.HELP, description=mod.DESCRIPTION,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def add_common_arguments(p: argparse.ArgumentParser, *, seed: bool = True, device: bool = True) -> None:
+    """Options every heavy command shares."""
+    if device:
+        p.add_argument("--device", default="auto",
+                       help="Warp device: auto (cuda when present, else cpu), cpu, cuda, cuda:N "
+                            "(default: %(default)s)")
+    if seed:
+        p.add_argument("--seed", type=int, default=0,
+                       help="random seed; the same seed gives the same result on the same device "
+                            "(default: %(default)s)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return EXIT_USAGE
+    try:
+        return int(args._run(args) or 0)
+    except WrinklesInputError as e:
+        print(f"wrinkles {args.command}: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"wrinkles {args.command}: interrupted; no output was written", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

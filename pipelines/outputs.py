@@ -1,0 +1,90 @@
+"""All-or-nothing output files.
+
+Every output of a job is first written under a temporary name in its own directory; only when
+the whole job has succeeded are they renamed into place (``os.replace`` is atomic on one file
+system). On any error or interrupt the temporaries are removed, so a failed run leaves no
+partial output (DESIGN.md, Conventions).
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from pathlib import Path
+
+from sim.errors import WrinklesInputError
+
+
+def check_output_path(path: str | os.PathLike, allowed_suffixes: tuple[str, ...], what: str) -> Path:
+    """Validate an output path's suffix and make its directory.
+
+    Raises:
+        WrinklesInputError: the suffix is not one of ``allowed_suffixes``.
+    """
+    p = Path(path)
+    if p.suffix.lower() not in allowed_suffixes:
+        raise WrinklesInputError(
+            f"{what} must end in one of {', '.join(allowed_suffixes)} (got '{p.suffix or 'no suffix'}')",
+            path=p)
+    if p.exists() and p.is_dir():
+        raise WrinklesInputError(f"{what} is a directory", path=p)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise WrinklesInputError(f"cannot create the output directory: {e.strerror}", path=p.parent) from e
+    return p
+
+
+class OutputSet:
+    """A set of output files committed together.
+
+    Use::
+
+        with OutputSet() as out:
+            write_usd(out.temp(usd_path), ...)
+            write_video(out.temp(mp4_path), ...)
+        # all renamed into place here, or none on error
+    """
+
+    def __init__(self) -> None:
+        self._pending: list[tuple[Path, Path]] = []
+
+    def temp(self, final: str | os.PathLike) -> Path:
+        """A temporary path beside ``final`` with the same suffix (writers pick formats by it)."""
+        final = Path(final)
+        tmp = final.with_name(f".{final.stem}.partial-{uuid.uuid4().hex[:8]}{final.suffix}")
+        self._pending.append((tmp, final))
+        return tmp
+
+    def commit(self) -> list[Path]:
+        done = []
+        for tmp, final in self._pending:
+            if not tmp.exists():
+                raise RuntimeError(f"{final}: the writer produced no file")
+        for tmp, final in self._pending:
+            os.replace(tmp, final)
+            done.append(final)
+        self._pending.clear()
+        return done
+
+    def abort(self) -> None:
+        for tmp, _ in self._pending:
+            try:
+                tmp.unlink()
+            except FileNotFoundError:
+                pass
+        self._pending.clear()
+
+    def __enter__(self) -> OutputSet:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc_type is None:
+            try:
+                self.commit()
+            except BaseException:
+                self.abort()
+                raise
+        else:
+            self.abort()
+        return False
