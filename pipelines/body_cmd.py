@@ -150,8 +150,9 @@ def write_body_usd(path: Path, frames, fps: float, name: str, metadata: dict, *,
     from usd_io import write_stage
 
     with progress_bar(frames.num_frames, "writing USD", quiet=quiet) as advance:
-        write_stage(path, body=frames, fps=fps, metadata=json.loads(json.dumps(metadata)),
-                    progress=advance)
+        write_stage(path, body=frames, fps=fps, body_name="Body",
+                    metadata=json.loads(json.dumps(metadata)),
+                    progress=lambda done, total: advance(1))
 
 
 def _versions() -> dict[str, str]:

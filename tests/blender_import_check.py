@@ -1,0 +1,155 @@
+"""Import a wrinkles USD stage into Blender and compare what Blender sees with what we wrote.
+
+Run with Blender's Python (the PyPI ``bpy`` module, see scripts/setup-blender-venv.sh), not
+the project venv: it needs only ``bpy`` and ``numpy``::
+
+    .venv-blender/bin/python tests/blender_import_check.py STAGE.usdc EXPECTED.npz
+
+``EXPECTED.npz`` (written by tests/test_blender_import.py) holds ``fps``, ``start``, ``end``,
+``names`` (Blender object names = USD prim names) and per name ``points__<name>`` (T, V, 3)
+[m, Y up], ``faces__<name>`` (F, 3) and optionally ``corner_uvs__<name>`` (F, 3, 2).
+
+Checks, each within ``TOL`` [m]:
+  * every named mesh object exists and carries a Mesh Sequence Cache modifier;
+  * the scene frame range is the stage's time-code range;
+  * at every frame k the evaluated, world-space vertices equal our points at time code k,
+    converted Y up -> Z up as Blender does on import ((x, y, z) -> (x, -z, y));
+  * two different frames really differ (the animation is not frozen on one sample);
+  * loop topology and face-varying UVs (seams) equal ours.
+
+Prints one line ``WRINKLES_CHECK_RESULT {json}`` and exits 0 when all checks pass, 1 if not.
+Blender 4.5 does not read ``timeCodesPerSecond`` on import (the scene keeps its fps, 24);
+time code k always lands on frame k, so the script records the imported fps, sets the
+stage's fps and re-checks the positions, which must be unchanged.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import bpy
+import numpy as np
+
+#: position tolerance [m]: float32 points through Blender's float32 mesh and a 90 degree
+#: rotation matrix (exact up to rounding) stay far below this.
+TOL = 1e-4
+#: UV tolerance: float32 UVs are copied unchanged.
+UV_TOL = 1e-6
+MARKER = "WRINKLES_CHECK_RESULT"
+
+
+def y_up_to_blender(p: np.ndarray) -> np.ndarray:
+    """USD Y-up positions (..., 3) -> Blender Z-up world positions (x, -z, y)."""
+    return np.stack([p[..., 0], -p[..., 2], p[..., 1]], axis=-1)
+
+
+def world_vertices(name: str, frame: int) -> np.ndarray:
+    """Evaluated world-space vertex positions of object ``name`` at ``frame``, (V, 3)."""
+    scene = bpy.context.scene
+    scene.frame_set(frame)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    ob = bpy.data.objects[name].evaluated_get(depsgraph)
+    mesh = ob.data
+    co = np.empty(len(mesh.vertices) * 3, np.float32)
+    mesh.vertices.foreach_get("co", co)
+    m = np.array(ob.matrix_world, dtype=np.float64)
+    return (co.reshape(-1, 3).astype(np.float64) @ m[:3, :3].T + m[:3, 3]).astype(np.float32)
+
+
+def check_topology(name: str, faces: np.ndarray, corner_uvs: np.ndarray | None) -> dict:
+    """Blender's polygons / loops / UVs against our faces and per-corner UVs."""
+    mesh = bpy.data.objects[name].data
+    out: dict = {"polygons": len(mesh.polygons)}
+    totals = np.empty(len(mesh.polygons), np.int32)
+    mesh.polygons.foreach_get("loop_total", totals)
+    loop_verts = np.empty(len(mesh.loops), np.int32)
+    mesh.loops.foreach_get("vertex_index", loop_verts)
+    out["topology_ok"] = bool(len(mesh.polygons) == len(faces) and np.all(totals == 3)
+                              and np.array_equal(loop_verts.reshape(-1, 3), faces))
+    if corner_uvs is not None:
+        out["uv_layers"] = [layer.name for layer in mesh.uv_layers]
+        if not mesh.uv_layers:
+            out["uv_max_err"] = None
+        else:
+            uv = np.empty(len(mesh.loops) * 2, np.float32)
+            mesh.uv_layers[0].data.foreach_get("uv", uv)
+            if uv.size == corner_uvs.size:
+                out["uv_max_err"] = float(np.abs(uv.reshape(-1, 3, 2) - corner_uvs).max())
+            else:
+                out["uv_max_err"] = None
+    return out
+
+
+def main(stage_path: str, expected_path: str) -> int:
+    exp = np.load(expected_path)
+    names = [str(n) for n in exp["names"]]
+    fps, start, end = float(exp["fps"]), int(exp["start"]), int(exp["end"])
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    status = bpy.ops.wm.usd_import(filepath=stage_path)
+    scene = bpy.context.scene
+    res: dict = {
+        "blender": bpy.app.version_string,
+        "import": sorted(status),
+        "objects": sorted(f"{o.name}:{o.type}" for o in bpy.data.objects),
+        "frame_range": [scene.frame_start, scene.frame_end],
+        "fps_imported": scene.render.fps / scene.render.fps_base,
+        "meshes": {},
+    }
+    problems: list[str] = []
+    if res["frame_range"] != [start, end]:
+        problems.append(f"frame range {res['frame_range']} != [{start}, {end}]")
+    for name in names:
+        ob = bpy.data.objects.get(name)
+        if ob is None or ob.type != "MESH":
+            problems.append(f"no mesh object {name!r} after import")
+            continue
+        mat = ob.active_material
+        info: dict = {"modifiers": [m.type for m in ob.modifiers],
+                      "material": None if mat is None else mat.name}
+        if "MESH_SEQUENCE_CACHE" not in info["modifiers"]:
+            problems.append(f"{name}: no Mesh Sequence Cache modifier")
+        ours = y_up_to_blender(exp[f"points__{name}"])
+        errs, frames = [], {}
+        for k in range(start, end + 1):
+            frames[k] = world_vertices(name, k)
+            if frames[k].shape != ours[k - start].shape:
+                problems.append(f"{name}: frame {k} has {frames[k].shape[0]} vertices, "
+                                f"expected {ours.shape[1]}")
+                break
+            errs.append(float(np.abs(frames[k] - ours[k - start]).max()))
+        info["max_err_per_frame"] = errs
+        if len(errs) == end - start + 1:
+            info["first_last_max_diff"] = float(np.abs(frames[end] - frames[start]).max())
+            if max(errs) > TOL:
+                problems.append(f"{name}: positions differ by {max(errs):.3g} m > {TOL}")
+            if info["first_last_max_diff"] <= TOL:
+                problems.append(f"{name}: frames {start} and {end} are identical in Blender")
+        corner = exp[f"corner_uvs__{name}"] if f"corner_uvs__{name}" in exp else None
+        info.update(check_topology(name, exp[f"faces__{name}"], corner))
+        if not info["topology_ok"]:
+            problems.append(f"{name}: loop topology differs from our faces")
+        if corner is not None and (info["uv_max_err"] is None or info["uv_max_err"] > UV_TOL):
+            problems.append(f"{name}: UVs differ ({info['uv_max_err']})")
+        res["meshes"][name] = info
+    # Blender keeps its own fps; set the stage's and make sure time code k stays on frame k.
+    scene.render.fps, scene.render.fps_base = round(fps), round(fps) / fps
+    res["fps_after_setting"] = scene.render.fps / scene.render.fps_base
+    for name in names:
+        if name in res["meshes"] and res["meshes"][name]["max_err_per_frame"]:
+            k = end
+            err = float(np.abs(world_vertices(name, k)
+                               - y_up_to_blender(exp[f"points__{name}"][k - start])).max())
+            res["meshes"][name]["max_err_after_fps_change"] = err
+            if err > TOL:
+                problems.append(f"{name}: frame {k} moved after setting fps to {fps}")
+    res["problems"] = problems
+    print(MARKER, json.dumps(res), flush=True)
+    return 1 if problems else 0
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 3:
+        print(__doc__, file=sys.stderr)
+        sys.exit(2)
+    sys.exit(main(sys.argv[1], sys.argv[2]))

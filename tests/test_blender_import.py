@@ -1,0 +1,97 @@
+"""Our USD stages import into Blender 4.5 with the right frames, positions and UVs.
+
+Runs tests/blender_import_check.py in Blender's Python (PyPI ``bpy``), found at
+``$WRINKLES_BLENDER_PYTHON`` or ``.venv-blender/bin/python`` (make it with
+scripts/setup-blender-venv.sh); skipped when neither exists.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from sim.types import BodyFrames
+from usd_io import GarmentTrack, write_stage
+
+ROOT = Path(__file__).resolve().parents[1]
+CHECK_SCRIPT = ROOT / "tests" / "blender_import_check.py"
+FPS = 30.0  # not Blender's default 24, so a silently ignored fps would show
+START = 1
+T = 4
+SEED = 3
+#: one Blender run takes ~1-2 s; the limit only guards against a hung interpreter.
+TIMEOUT_S = 60
+
+
+def blender_python() -> Path | None:
+    """Blender's Python interpreter, or None when it is not installed."""
+    env = os.environ.get("WRINKLES_BLENDER_PYTHON")
+    path = Path(env) if env else ROOT / ".venv-blender" / "bin" / "python"
+    return path if path.is_file() else None
+
+
+def make_scene() -> tuple[BodyFrames, GarmentTrack]:
+    """A deforming icosphere body and a waving sheet whose UVs are split at every corner."""
+    rng = np.random.default_rng(SEED)
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    rest = np.asarray(sphere.vertices, np.float32) + np.float32([0.0, 1.0, 0.0])
+    t = np.arange(T, dtype=np.float32)[:, None, None]
+    verts = (rest[None] * (1.0 + 0.1 * t) + np.float32([0.0, 0.0, 0.05]) * t
+             + rng.normal(scale=0.01, size=(T, *rest.shape))).astype(np.float32)
+    body = BodyFrames(vertices=verts, joints=verts[:, :3].copy(),
+                      transforms=np.tile(np.eye(4, dtype=np.float32), (T, 3, 1, 1)),
+                      faces=np.asarray(sphere.faces, np.int32))
+    n = 6
+    xs, zs = np.meshgrid(np.linspace(-0.3, 0.3, n), np.linspace(-0.3, 0.3, n))
+    sheet = np.stack([xs, np.full_like(xs, 1.4), zs], -1).reshape(-1, 3).astype(np.float32)
+    quads = [(r * n + c, (r + 1) * n + c, r * n + c + 1, (r + 1) * n + c + 1)
+             for r in range(n - 1) for c in range(n - 1)]
+    faces = np.asarray([f for a, b, c, d in quads for f in ((a, b, c), (c, b, d))], np.int32)
+    wave = 0.05 * np.sin(3.0 * sheet[None, :, 0] + t[:, :, 0])
+    g_verts = np.repeat(sheet[None], T, 0)
+    g_verts[..., 1] += wave.astype(np.float32)
+    uv_faces = np.arange(faces.size, dtype=np.int32).reshape(-1, 3)  # every corner its own UV
+    uvs = (sheet[faces.reshape(-1)][:, [0, 2]] + 0.5
+           + 0.01 * np.repeat(np.arange(len(faces)), 3)[:, None] / len(faces)).astype(np.float32)
+    return body, GarmentTrack("sheet", g_verts, faces, uvs=uvs, uv_faces=uv_faces)
+
+
+@pytest.mark.parametrize("suffix", [".usdc", ".usda"])
+def test_blender_imports_our_stage(tmp_path: Path, suffix: str) -> None:
+    python = blender_python()
+    if python is None:
+        pytest.skip("Blender's Python not found: run scripts/setup-blender-venv.sh or set "
+                    "WRINKLES_BLENDER_PYTHON")
+    body, garment = make_scene()
+    stage = write_stage(tmp_path / f"anim{suffix}", body=body, fps=FPS, garments=[garment],
+                        start_time_code=START)
+    expected = tmp_path / "expected.npz"
+    np.savez(expected, fps=FPS, start=START, end=START + T - 1, names=np.array(["Body", "sheet"]),
+             points__Body=body.vertices, faces__Body=body.faces,
+             points__sheet=garment.vertices, faces__sheet=garment.faces,
+             corner_uvs__sheet=garment.uvs[garment.uv_faces])
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
+    proc = subprocess.run([str(python), str(CHECK_SCRIPT), str(stage), str(expected)],
+                          cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=TIMEOUT_S)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("WRINKLES_CHECK_RESULT ")]
+    assert lines, f"check script printed no result (rc {proc.returncode}):\n{proc.stderr[-3000:]}"
+    res = json.loads(lines[-1].split(" ", 1)[1])
+    assert res["problems"] == [], json.dumps(res, indent=1)
+    assert proc.returncode == 0
+    assert res["frame_range"] == [START, START + T - 1]
+    assert res["fps_after_setting"] == pytest.approx(FPS)
+    for name in ("Body", "sheet"):
+        info = res["meshes"][name]
+        assert "MESH_SEQUENCE_CACHE" in info["modifiers"]
+        assert len(info["max_err_per_frame"]) == T
+        assert max(info["max_err_per_frame"]) <= 1e-4
+        assert info["first_last_max_diff"] > 1e-2
+        assert info["topology_ok"]
+    assert res["meshes"]["sheet"]["uv_max_err"] <= 1e-6

@@ -1,0 +1,352 @@
+"""Write animated body and garment meshes to a USD stage (DESIGN.md, "On disk: USD").
+
+Stage layout::
+
+    /World                      Xform, default prim
+    /World/Body                 Mesh, time-sampled points + extent, skin material
+    /World/BodyJoints           Points (purpose "guide"), time-sampled joint positions
+    /World/Garments/<name>      Mesh, time-sampled points, primvars:st, cloth material
+    /World/Looks/<name>Material UsdPreviewSurface materials
+
+Joints are a sibling of ``/World/Body`` rather than a child: a gprim nested in a gprim breaks
+``usdGeomValidators:EncapsulationChecker``.
+
+Units SI, Y up: ``upAxis = Y``, ``metersPerUnit = 1``, ``timeCodesPerSecond =
+framesPerSecond = fps``; frame ``k`` is time code ``start_time_code + k``. The file appears
+only when complete (written in a temporary directory beside it, then renamed).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdShade, UsdUtils, Vt
+
+from sim.errors import WrinklesInputError
+from sim.types import BodyFrames
+
+WORLD_PATH = "/World"
+BODY_PATH = "/World/Body"
+JOINTS_PATH = "/World/BodyJoints"
+GARMENTS_PATH = "/World/Garments"
+LOOKS_PATH = "/World/Looks"
+#: customLayerData key holding the provenance dict as a JSON string.
+METADATA_KEY = "wrinkles:metadata"
+#: file suffix -> Sdf file-format argument (".usd" is written as crate, i.e. usdc).
+SUFFIX_FORMATS: dict[str, str] = {".usda": "usda", ".usdc": "usdc", ".usd": "usdc",
+                                  ".usdz": "usdc"}
+
+SKIN_COLOR: tuple[float, float, float] = (0.80, 0.57, 0.47)
+CLOTH_COLOR: tuple[float, float, float] = (0.20, 0.33, 0.60)
+#: display radius of the joint points [m].
+JOINT_WIDTH = 0.03
+
+#: progress(frames_done, frames_total); raising from it aborts the write (nothing is left).
+ProgressFn = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class GarmentTrack:
+    """One garment's animation, ready to write.
+
+    Attributes:
+        name: prim name under ``/World/Garments`` (made a valid USD identifier).
+        vertices: positions [m], shape (T, V, 3), float32.
+        faces: triangle indices into ``vertices``, shape (F, 3), int32.
+        uvs: texture coordinates, shape (U, 2), or None.
+        uv_faces: per-corner indices into ``uvs``, shape (F, 3) (seams allowed), or None for
+            per-vertex UVs (then U == V).
+        normals: vertex normals, shape (T, V, 3) or (V, 3), or None.
+        color: linear RGB diffuse colour of the cloth material, each in [0, 1].
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray | None = None
+    uv_faces: np.ndarray | None = None
+    normals: np.ndarray | None = None
+    color: tuple[float, float, float] = CLOTH_COLOR
+
+
+# ----------------------------------------------------------------------------- checks
+
+
+def _positions(a: np.ndarray, what: str) -> np.ndarray:
+    """(T, V, 3) float32, finite, or ValueError naming ``what``."""
+    a = np.ascontiguousarray(a, dtype=np.float32)
+    if a.ndim != 3 or a.shape[2] != 3 or a.shape[0] < 1 or a.shape[1] < 1:
+        raise ValueError(f"{what} must have shape (T, V, 3) with T, V >= 1, got {a.shape}")
+    if not np.isfinite(a).all():
+        frame = int(np.where(~np.isfinite(a).all(axis=(1, 2)))[0][0])
+        raise ValueError(f"{what} has NaN/inf values at frame {frame}")
+    return a
+
+
+def _faces(f: np.ndarray, n: int, what: str) -> np.ndarray:
+    """(F, 3) int32 indices in [0, n), or ValueError naming ``what``."""
+    f = np.ascontiguousarray(f)
+    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] < 1 or not np.issubdtype(f.dtype, np.integer):
+        raise ValueError(f"{what} must be integer with shape (F, 3), got {f.dtype} {f.shape}")
+    if f.min() < 0 or f.max() >= n:
+        raise ValueError(f"{what} indices must lie in [0, {n}), got [{f.min()}, {f.max()}]")
+    return f.astype(np.int32)
+
+
+def _check_garment(g: GarmentTrack) -> GarmentTrack:
+    verts = _positions(g.vertices, f"garment {g.name!r} vertices")
+    faces = _faces(g.faces, verts.shape[1], f"garment {g.name!r} faces")
+    uvs, uv_faces = g.uvs, g.uv_faces
+    if uvs is not None:
+        uvs = np.ascontiguousarray(uvs, dtype=np.float32)
+        if uvs.ndim != 2 or uvs.shape[1] != 2 or not np.isfinite(uvs).all():
+            raise ValueError(f"garment {g.name!r} uvs must be finite with shape (U, 2), got "
+                             f"{uvs.shape}")
+        if uv_faces is not None:
+            uv_faces = _faces(uv_faces, uvs.shape[0], f"garment {g.name!r} uv_faces")
+            if uv_faces.shape != faces.shape:
+                raise ValueError(f"garment {g.name!r} uv_faces shape {uv_faces.shape} must "
+                                 f"match faces {faces.shape}")
+        elif uvs.shape[0] != verts.shape[1]:
+            raise ValueError(f"garment {g.name!r} has {uvs.shape[0]} uvs but "
+                             f"{verts.shape[1]} vertices and no uv_faces")
+    elif uv_faces is not None:
+        raise ValueError(f"garment {g.name!r} has uv_faces but no uvs")
+    normals = g.normals
+    if normals is not None:
+        normals = np.ascontiguousarray(normals, dtype=np.float32)
+        if normals.shape not in (verts.shape, verts.shape[1:]):
+            raise ValueError(f"garment {g.name!r} normals must have shape {verts.shape} or "
+                             f"{verts.shape[1:]}, got {normals.shape}")
+    color = tuple(float(c) for c in g.color)
+    if len(color) != 3 or not all(0.0 <= c <= 1.0 for c in color):
+        raise ValueError(f"garment {g.name!r} color must be 3 floats in [0, 1], got {g.color}")
+    return GarmentTrack(g.name, verts, faces, uvs, uv_faces, normals, color)
+
+
+def _metadata_json(metadata: dict | None) -> str:
+    try:
+        return json.dumps(metadata or {}, sort_keys=True)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"write_stage metadata must be JSON-serialisable: {exc}") from exc
+
+
+# ----------------------------------------------------------------------------- authoring
+
+
+def _define_material(stage: Usd.Stage, name: str, color: Sequence[float],
+                     roughness: float) -> UsdShade.Material:
+    """A ``UsdPreviewSurface`` material at ``/World/Looks/<name>``."""
+    material = UsdShade.Material.Define(stage, f"{LOOKS_PATH}/{name}")
+    shader = UsdShade.Shader.Define(stage, f"{LOOKS_PATH}/{name}/PreviewSurface")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
+    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(roughness))
+    shader.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
+    material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    return material
+
+
+def _define_mesh(stage: Usd.Stage, path: str, faces: np.ndarray, color: Sequence[float],
+                 material: UsdShade.Material, double_sided: bool) -> UsdGeom.Mesh:
+    """A triangle mesh with static topology; points are authored per frame later."""
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(faces.reshape(-1)))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
+    mesh.CreateDoubleSidedAttr(bool(double_sided))
+    mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray([Gf.Vec3f(*color)]))
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+    return mesh
+
+
+def _author_uvs(mesh: UsdGeom.Mesh, g: GarmentTrack) -> None:
+    """``primvars:st``: faceVarying, indexed by ``uv_faces`` (seams), or per-vertex."""
+    if g.uvs is None:
+        return
+    api = UsdGeom.PrimvarsAPI(mesh.GetPrim())
+    interp = UsdGeom.Tokens.faceVarying if g.uv_faces is not None else UsdGeom.Tokens.vertex
+    st = api.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, interp)
+    st.Set(Vt.Vec2fArray.FromNumpy(g.uvs))
+    if g.uv_faces is not None:
+        st.SetIndices(Vt.IntArray.FromNumpy(g.uv_faces.reshape(-1)))
+
+
+def _extents(vertices: np.ndarray) -> np.ndarray:
+    """Per-frame bounding boxes [m], shape (T, 2, 3), float32."""
+    return np.stack([vertices.min(axis=1), vertices.max(axis=1)], axis=1)
+
+
+def _stage_path(final: Path) -> tuple[Path, str]:
+    """Validate the output suffix; return (path, Sdf format)."""
+    suffix = final.suffix.lower()
+    if suffix not in SUFFIX_FORMATS:
+        raise WrinklesInputError(
+            f"unknown USD suffix {final.suffix!r}; use one of {sorted(SUFFIX_FORMATS)}",
+            path=final)
+    return final, SUFFIX_FORMATS[suffix]
+
+
+def write_stage(
+    path: str | os.PathLike,
+    *,
+    body: BodyFrames | None,
+    fps: float,
+    garments: Sequence[GarmentTrack] = (),
+    body_name: str = "Body",
+    metadata: dict | None = None,
+    start_time_code: int = 0,
+    write_joints: bool = True,
+    progress: ProgressFn | None = None,
+) -> Path:
+    """Write an animated body and garments to a USD file, atomically.
+
+    Args:
+        path: output file; ``.usda`` (text), ``.usdc`` / ``.usd`` (binary crate) or ``.usdz``
+            (package). Parent directories are created.
+        body: the body over time (vertices [m] (T, V, 3), joints [m] (T, J, 3), faces (F, 3)),
+            or None for garments only.
+        fps: frames per second [1/s]; becomes ``timeCodesPerSecond`` and ``framesPerSecond``.
+        garments: garment tracks; each must have the same T as the body (and each other).
+        body_name: prim name of the body under ``/World`` (default ``Body``; readers look
+            for ``/World/Body``).
+        metadata: provenance (command, config, versions ...), JSON-serialisable; stored as a
+            JSON string in the root layer's ``customLayerData["wrinkles:metadata"]``.
+        start_time_code: time code of frame 0.
+        write_joints: also write the body joints as a guide ``UsdGeom.Points``.
+        progress: called as ``progress(frames_done, frames_total)`` after each frame; an
+            exception raised from it aborts the write and leaves no file behind.
+
+    Returns:
+        The path written.
+
+    Raises:
+        WrinklesInputError: unknown suffix.
+        ValueError: bad shapes, NaN/inf, mismatched frame counts, duplicate garment names,
+            non-JSON metadata, non-positive fps.
+    """
+    final, fmt = _stage_path(Path(path))
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"write_stage fps must be positive, got {fps}")
+    tracks = [_check_garment(g) for g in garments]
+    body_verts = None if body is None else _positions(body.vertices, "body vertices")
+    body_faces = None
+    if body is not None:
+        body_faces = _faces(body.faces, body_verts.shape[1], "body faces")
+    counts = ([] if body_verts is None else [body_verts.shape[0]]) + [
+        g.vertices.shape[0] for g in tracks]
+    if not counts:
+        raise ValueError("write_stage needs a body or at least one garment")
+    if len(set(counts)) != 1:
+        raise ValueError(f"body and garments must have the same number of frames, got {counts}")
+    n_frames = counts[0]
+    names = [Tf.MakeValidIdentifier(g.name) for g in tracks]
+    if len(set(names)) != len(names):
+        raise ValueError(f"garment names must be unique as USD identifiers, got {names}")
+    if not Tf.IsValidIdentifier(body_name):
+        raise ValueError(f"body_name must be a valid USD identifier, got {body_name!r}")
+    joints = None
+    if body is not None and write_joints and body.joints is not None:
+        joints = _positions(body.joints, "body joints")
+        if joints.shape[0] != n_frames:
+            raise ValueError(f"body joints have {joints.shape[0]} frames, vertices {n_frames}")
+    meta_json = _metadata_json(metadata)
+
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp_dir = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial",
+                                    dir=final.parent))
+    try:
+        layer_path = tmp_dir / (final.stem + (".usdc" if final.suffix.lower() == ".usdz"
+                                              else final.suffix))
+        layer = Sdf.Layer.CreateNew(str(layer_path), args={"format": fmt})
+        if layer is None:
+            raise OSError(f"{final}: cannot create a USD layer at {layer_path}")
+        stage = Usd.Stage.Open(layer)
+        _author(stage, body_verts=body_verts, body_faces=body_faces, body_name=body_name,
+                joints=joints, tracks=tracks, names=names, fps=float(fps),
+                start=int(start_time_code), n_frames=n_frames, meta_json=meta_json,
+                progress=progress)
+        layer.Save()
+        del stage, layer
+        if final.suffix.lower() == ".usdz":
+            packaged = tmp_dir / (final.stem + ".usdz")
+            if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(layer_path)), str(packaged)):
+                raise OSError(f"{final}: could not create the usdz package")
+            layer_path = packaged
+        os.replace(layer_path, final)
+    finally:
+        shutil.rmtree(tmp_dir, ignore_errors=True)
+    return final
+
+
+def _author(stage: Usd.Stage, *, body_verts: np.ndarray | None, body_faces: np.ndarray | None,
+            body_name: str, joints: np.ndarray | None, tracks: list[GarmentTrack],
+            names: list[str], fps: float, start: int, n_frames: int, meta_json: str,
+            progress: ProgressFn | None) -> None:
+    """Author everything into ``stage`` (see ``write_stage``)."""
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetTimeCodesPerSecond(fps)
+    stage.SetFramesPerSecond(fps)
+    stage.SetStartTimeCode(start)
+    stage.SetEndTimeCode(start + n_frames - 1)
+    layer_data = {METADATA_KEY: meta_json, "wrinkles:usdVersion": ".".join(
+        str(v) for v in Usd.GetVersion())}
+    stage.GetRootLayer().customLayerData = layer_data
+
+    world = UsdGeom.Xform.Define(stage, WORLD_PATH)
+    stage.SetDefaultPrim(world.GetPrim())
+    UsdGeom.Scope.Define(stage, LOOKS_PATH)
+
+    # (points attribute, extent attribute, vertices (T, V, 3), extents (T, 2, 3))
+    animated: list[tuple[Usd.Attribute, Usd.Attribute | None, np.ndarray, np.ndarray | None]] = []
+    if body_verts is not None:
+        mat = _define_material(stage, f"{body_name}Material", SKIN_COLOR, roughness=0.6)
+        mesh = _define_mesh(stage, f"{WORLD_PATH}/{body_name}", body_faces, SKIN_COLOR, mat,
+                            double_sided=False)
+        animated.append((mesh.CreatePointsAttr(), mesh.CreateExtentAttr(), body_verts,
+                         _extents(body_verts)))
+    if joints is not None:
+        pts = UsdGeom.Points.Define(stage, f"{WORLD_PATH}/{body_name}Joints")
+        pts.CreatePurposeAttr(UsdGeom.Tokens.guide)
+        pts.CreateWidthsAttr(Vt.FloatArray([JOINT_WIDTH]))
+        pts.SetWidthsInterpolation(UsdGeom.Tokens.constant)
+        half = np.float32(JOINT_WIDTH / 2)
+        ext = _extents(joints) + np.array([-half, half], np.float32)[None, :, None]
+        animated.append((pts.CreatePointsAttr(), pts.CreateExtentAttr(), joints, ext))
+    if tracks:
+        UsdGeom.Scope.Define(stage, GARMENTS_PATH)
+    for g, name in zip(tracks, names, strict=True):
+        mat = _define_material(stage, f"{name}Material", g.color, roughness=0.9)
+        mesh = _define_mesh(stage, f"{GARMENTS_PATH}/{name}", g.faces, g.color, mat,
+                            double_sided=True)
+        if name != g.name:
+            mesh.GetPrim().SetCustomDataByKey("wrinkles:name", g.name)
+        _author_uvs(mesh, g)
+        animated.append((mesh.CreatePointsAttr(), mesh.CreateExtentAttr(), g.vertices,
+                         _extents(g.vertices)))
+        if g.normals is not None:
+            mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+            normals = mesh.CreateNormalsAttr()
+            if g.normals.ndim == 2:
+                normals.Set(Vt.Vec3fArray.FromNumpy(g.normals))
+            else:
+                animated.append((normals, None, g.normals, None))
+
+    for k in range(n_frames):
+        t = Usd.TimeCode(start + k)
+        with Sdf.ChangeBlock():
+            for attr, ext_attr, values, exts in animated:
+                attr.Set(Vt.Vec3fArray.FromNumpy(values[k]), t)
+                if ext_attr is not None:
+                    ext_attr.Set(Vt.Vec3fArray.FromNumpy(exts[k]), t)
+        if progress is not None:
+            progress(k + 1, n_frames)
