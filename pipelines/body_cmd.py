@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from sim.bodies import load_body
     from sim.bodies.placement import ground
     from sim.device import resolve_device
-    from sim.motions import load_motion
+    from sim.motions import accepts_parameter, load_motion
 
     t0 = time.perf_counter()
     out_usd = check_output_path(args.out, USD_SUFFIXES, "--out")
@@ -93,7 +93,9 @@ def run(args: argparse.Namespace) -> int:
     body = load_body(args.body)
     betas = parse_body_shape(body, args.shape)
     params = parse_params(args.param)
-    motion = load_motion(args.motion, fps=args.fps, duration=args.duration, seed=args.seed, **params)
+    if accepts_parameter(args.motion, "seed"):
+        params.setdefault("seed", args.seed)
+    motion = load_motion(args.motion, fps=args.fps, duration=args.duration, **params)
 
     with progress_bar(motion.num_frames, "skinning", quiet=args.quiet) as advance:
         frames = body.pose_motion(motion, betas, device=device, progress=advance)
@@ -152,7 +154,7 @@ def write_body_usd(path: Path, frames, fps: float, name: str, metadata: dict, *,
     with progress_bar(frames.num_frames, "writing USD", quiet=quiet) as advance:
         write_stage(path, body=frames, fps=fps, body_name="Body",
                     metadata=json.loads(json.dumps(metadata)),
-                    progress=lambda done, total: advance(1))
+                    progress=advance)
 
 
 def _versions() -> dict[str, str]:

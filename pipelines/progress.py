@@ -7,11 +7,17 @@ import contextlib
 
 @contextlib.contextmanager
 def progress_bar(total: int, desc: str, *, quiet: bool = False, unit: str = "frame"):
-    """Yield a callable ``advance(n)`` that moves a tqdm bar by ``n``."""
+    """Yield a callback ``progress(done, total)`` (the convention of every long function in
+    wrinkles) that drives a tqdm bar."""
     if quiet:
-        yield lambda n=1: None
+        yield lambda done, total=None: None
         return
     from tqdm import tqdm
 
-    with tqdm(total=total, desc=desc, unit=unit, dynamic_ncols=True, leave=False) as bar:
-        yield lambda n=1: bar.update(n)
+    # disable=None: no bar when stderr is not a terminal (CI logs, pipes)
+    with tqdm(total=total, desc=desc, unit=unit, dynamic_ncols=True, leave=False, disable=None) as bar:
+
+        def progress(done: int, total: int | None = None) -> None:
+            bar.update(done - bar.n)
+
+        yield progress

@@ -81,7 +81,8 @@ class BodyModel:
             raise bad(f"weights must have shape ({V}, {J}), got {self.weights.shape}")
         if len(self.joint_names) != J:
             raise bad(f"{len(self.joint_names)} joint names for {J} joints")
-        if self.parents[0] != -1 or np.any(self.parents[1:] >= np.arange(1, J)) or np.any(self.parents[1:] < 0):
+        par = self.parents
+        if par[0] != -1 or np.any(par[1:] >= np.arange(1, J)) or np.any(par[1:] < 0):
             raise bad("kintree parents must have the root first and each parent before its child")
         if self.posedirs is not None:
             pd = np.ascontiguousarray(self.posedirs, dtype=np.float32)
@@ -99,7 +100,9 @@ class BodyModel:
         if m.shape != (NUM_SMPL_JOINTS,):
             raise bad(f"body_joint_map must have 24 entries, got {m.shape}")
         object.__setattr__(self, "body_joint_map", m)
-        rp = np.zeros((J, 3), np.float32) if self.rest_pose is None else np.asarray(self.rest_pose, np.float32)
+        rp = np.zeros((J, 3), np.float32)
+        if self.rest_pose is not None:
+            rp = np.asarray(self.rest_pose, np.float32)
         if rp.shape != (J, 3):
             raise bad(f"rest_pose must have shape ({J}, 3), got {rp.shape}")
         object.__setattr__(self, "rest_pose", rp)
@@ -179,7 +182,7 @@ class BodyModel:
             poses: axis-angle [rad], (T, 24, 3) SMPL order or (T, J, 3).
             trans: root translation [m], (T, 3); None for zeros.
             device: Warp device.
-            progress: optional callable(n_frames_done).
+            progress: optional callable ``progress(frames_done, frames_total)``.
 
         Returns:
             BodyFrames (vertices (T, V, 3) [m], joints (T, J, 3) [m], transforms (T, J, 4, 4)).

@@ -147,7 +147,7 @@ class Skinner:
             full_poses: axis-angle [rad], shape (T, J, 3).
             trans: root translation [m], shape (T, 3).
             chunk: frames per launch (bounds device memory).
-            progress: optional callable(n_frames_done) for progress bars.
+            progress: optional callable ``progress(frames_done, frames_total)``.
 
         Returns:
             BodyFrames with vertices (T, V, 3), joints (T, J, 3), transforms (T, J, 4, 4).
@@ -162,7 +162,7 @@ class Skinner:
             verts[s:e] = v_d.numpy()
             transforms[s:e] = g_d.numpy()
             if progress is not None:
-                progress(e - s)
+                progress(e, T)
         joints = np.ascontiguousarray(transforms[:, :, :3, 3])
         return BodyFrames(vertices=verts, joints=joints, transforms=transforms,
                           faces=self.model.faces)

@@ -1,0 +1,301 @@
+"""Walking and running from normative sagittal joint-angle curves.
+
+Normative data (degrees, flexion / dorsiflexion positive, over one gait cycle from the right
+heel strike, 0-100 %) are stored as key points of the published mean curves and
+interpolated with a periodic cubic Hermite spline:
+
+- walking: after Perry & Burnfield (2010), *Gait Analysis: Normal and Pathological
+  Function*, 2nd ed., chapters on hip, knee and ankle, and Winter (1991), *The Biomechanics
+  and Motor Control of Human Gait*, 2nd ed. (natural cadence): hip 30 deg at initial contact,
+  peak extension -10 deg near 50 %, peak flexion ~35 deg in late swing; knee ~18 deg loading
+  response, ~40 deg at toe-off (62 %), peak ~60 deg at ~72 %; ankle -6 deg plantarflexion after
+  contact, +10 deg dorsiflexion in terminal stance, -16 deg after push-off.
+- running: after Novacheck (1998), "The biomechanics of running", *Gait & Posture* 7:77-95
+  (running at about 3.2 m/s): toe-off at ~39 %, knee ~40 deg at mid-stance and ~95 deg in
+  swing, ankle ~20 deg dorsiflexion at mid-stance, ~-24 deg after toe-off.
+
+The key points are read off the published mean curves to about +-3 deg; they reproduce the
+curves' shape and extremes, not the original tabulated values.
+
+Hip angles in these sources are thigh-to-pelvis with the pelvis tilted forward
+(``pelvic_tilt``, ~10 deg walking, ~15 deg running); SMPL's rest pelvis is upright, so the
+tilt is subtracted to keep the thigh's angle to the vertical right.
+
+Cadence: walking stride length ``L = 1.41 (v / 1.3)^0.5`` m, the square-root growth of stride
+with speed (cf. Grieve 1968, "Gait patterns and the speed of walking"), giving 110 steps/min at
+1.3 m/s; running stride frequency ``f = 1.25 + 0.04 v`` Hz (runners speed up mostly by longer
+strides; Cavanagh & Kram 1989, ~1.35-1.45 Hz at 3-5 m/s).
+
+Stride calibration: the normative curves belong to one stride length; at another speed /
+stride the hip curve is scaled about its mean so that the stance foot, carried back by the
+leg, moves at the root's speed (:func:`stride_calibration`) and does not slide.
+
+Vertical motion: walking takes the root height from forward kinematics (the lowest heel/toe
+contact stays on the floor, which yields the ~3-4 cm double-bump oscillation of the pelvis);
+running uses the spring-mass model: during stance ``y = y_td - (v0 / w) sin(w tau)`` with
+``w = pi / t_stance``, during flight the ballistic ``y = y_td + v0 tau - g tau^2 / 2`` with
+``v0 = g t_flight / 2``, so the root leaves and meets the ground with the same speed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.motions.procedural import (
+    D2R,
+    GRAVITY,
+    PoseBuilder,
+    check_params,
+    ground_trans_y,
+    make_motion,
+    smoothstep,
+    time_axis,
+)
+from sim.types import Motion
+
+# (percent of the gait cycle, degrees); periodic, the value at 100 % is the one at 0 %.
+WALK_HIP = ((0, 30), (10, 28), (30, 10), (52, -10), (62, 2), (75, 24), (87, 34), (95, 31))
+WALK_KNEE = ((0, 5), (15, 18), (28, 10), (40, 4), (50, 10), (62, 40), (72, 60), (82, 45),
+             (92, 12), (97, 4))
+WALK_ANKLE = ((0, 0), (7, -6), (15, -1), (30, 5), (45, 10), (52, 7), (62, -16), (68, -12),
+              (78, -1), (90, 1))
+WALK_TOE_OFF = 0.62
+
+RUN_HIP = ((0, 35), (12, 27), (28, 5), (42, -12), (55, 0), (70, 30), (85, 45), (94, 40))
+RUN_KNEE = ((0, 18), (14, 40), (28, 25), (39, 15), (48, 35), (60, 75), (70, 95), (80, 80),
+            (90, 40), (96, 22))
+RUN_ANKLE = ((0, 5), (14, 20), (28, 10), (39, -20), (46, -24), (56, -8), (70, 5), (85, 10),
+             (94, 7))
+RUN_TOE_OFF = 0.39
+
+
+def periodic_curve(keys: tuple[tuple[float, float], ...], phase: np.ndarray) -> np.ndarray:
+    """Periodic cubic Hermite interpolation of (percent, value) key points.
+
+    Tangents are central differences over the neighbouring keys (non-uniform
+    Catmull-Rom), so the curve is C1 and passes through every key.
+
+    Args:
+        keys: (percent in [0, 100), value) pairs, increasing percent.
+        phase: cycle phase, any real (wrapped into [0, 1)), shape (...,).
+
+    Returns:
+        values, shape (...,).
+    """
+    x = np.array([k[0] for k in keys], dtype=np.float64) / 100.0
+    y = np.array([k[1] for k in keys], dtype=np.float64)
+    n = x.size
+    xe = np.concatenate([x[-1:] - 1.0, x, x[:1] + 1.0, x[1:2] + 1.0])
+    ye = np.concatenate([y[-1:], y, y[:1], y[1:2]])
+    m = (ye[2:] - ye[:-2]) / (xe[2:] - xe[:-2])  # tangents at keys 0..n (n = wrap of 0)
+    u = np.mod(np.asarray(phase, dtype=np.float64), 1.0)
+    i = np.clip(np.searchsorted(x, u, side="right") - 1, 0, n - 1)
+    x0, x1 = xe[i + 1], xe[i + 2]
+    y0, y1 = ye[i + 1], ye[i + 2]
+    h = x1 - x0
+    s = (u - x0) / h
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+    return h00 * y0 + h10 * h * m[i] + h01 * y1 + h11 * h * m[i + 1]
+
+
+def walk_stride_length(speed: float) -> float:
+    """Walking stride length [m] (two steps) at ``speed`` [m/s] (module docstring)."""
+    return 1.41 * np.sqrt(max(speed, 1e-6) / 1.3)
+
+
+def run_stride_frequency(speed: float) -> float:
+    """Running stride frequency [Hz] at ``speed`` [m/s] (module docstring)."""
+    return 1.25 + 0.04 * speed
+
+
+@dataclass(frozen=True)
+class _GaitStyle:
+    hip: tuple
+    knee: tuple
+    ankle: tuple
+    toe_off: float
+    pelvic_tilt: float  # [deg]
+    lean: float  # trunk lean [deg]
+    pelvis_yaw: float  # [deg]
+    pelvis_roll: float  # [deg]
+    arm_down: float  # [deg]
+    arm_gain: float  # shoulder flexion per degree of opposite hip flexion
+    elbow: float  # [deg]
+
+
+_WALK = _GaitStyle(WALK_HIP, WALK_KNEE, WALK_ANKLE, WALK_TOE_OFF, 10.0, 2.0, 4.0, 4.0, 78.0,
+                   0.6, 20.0)
+_RUN = _GaitStyle(RUN_HIP, RUN_KNEE, RUN_ANKLE, RUN_TOE_OFF, 15.0, 6.0, 5.0, 5.0, 72.0,
+                  0.8, 85.0)
+
+
+def _warp(phase: np.ndarray, duty: float, toe_off: float) -> np.ndarray:
+    """Map stride phase to the normative curve's phase so stance lasts ``duty`` of the stride."""
+    u = np.mod(phase, 1.0)
+    return np.where(u < duty, u * toe_off / duty,
+                    toe_off + (u - duty) * (1.0 - toe_off) / (1.0 - duty))
+
+
+def gait_pose(style: _GaitStyle, phase: np.ndarray, *, duty: float | None = None,
+              arm_swing: float = 1.0, hip_scale: float = 1.0) -> np.ndarray:
+    """Full-body gait pose at stride phase(s) (0 = right heel strike).
+
+    Args:
+        style: walking or running constants.
+        phase: stride phase of the right leg, shape (T,).
+        duty: stance fraction of the stride (None: the data's own toe-off).
+        arm_swing: scale of the arm swing.
+        hip_scale: scale of the hip flexion curve about its mean (stride calibration).
+
+    Returns:
+        axis-angle [rad], shape (T, 24, 3).
+    """
+    phase = np.asarray(phase, dtype=np.float64)
+    d = style.toe_off if duty is None else duty
+    pb = PoseBuilder(phase.shape)
+    hips = {}
+    lean = style.lean * D2R
+    yaw = style.pelvis_yaw * D2R * np.cos(2 * np.pi * phase)  # right hip forward at 0
+    roll = -style.pelvis_roll * D2R * np.sin(2 * np.pi * phase)  # swing side drops
+    pb.rot("pelvis", "y", yaw).rot("pelvis", "x", lean).rot("pelvis", "z", roll)
+    mean_hip = float(np.mean(periodic_curve(style.hip, np.linspace(0, 1, 64, endpoint=False))))
+    for side, off in (("right", 0.0), ("left", 0.5)):
+        u = _warp(phase + off, d, style.toe_off)
+        hips[side] = mean_hip + hip_scale * (periodic_curve(style.hip, u) - mean_hip)
+        pb.rot(f"{side}_hip", "z", -roll)
+        pb.rot(f"{side}_hip", "x", -(hips[side] - style.pelvic_tilt) * D2R - lean)
+        pb.rot(f"{side}_knee", "x", periodic_curve(style.knee, u) * D2R)
+        pb.rot(f"{side}_ankle", "x", -periodic_curve(style.ankle, u) * D2R)
+    for j in ("spine1", "spine2", "spine3"):
+        pb.rot(j, "y", -0.5 * yaw)  # thorax counter-rotates against the pelvis
+    pb.rot("neck", "y", 0.5 * yaw).rot("neck", "x", -lean)
+    for side, other in (("left", "right"), ("right", "left")):
+        flex = arm_swing * style.arm_gain * (hips[other] - mean_hip) * D2R
+        sg = 1.0 if side == "left" else -1.0
+        pb.rot(f"{side}_shoulder", "z", -sg * style.arm_down * D2R)
+        pb.rot(f"{side}_shoulder", "x", -flex)
+        pb.rot(f"{side}_elbow", "y", -sg * (style.elbow * D2R + 0.3 * np.maximum(flex, 0.0)))
+    return pb.axis_angle()
+
+
+def _stance_speed(style: _GaitStyle, duty: float, f: float, hip_scale: float) -> float:
+    """Backward speed [m/s] of the right ankle relative to the pelvis in mid-stance (the speed
+    the leg can carry the body at, without foot sliding), stride frequency ``f`` [Hz]."""
+    from sim.motions.retarget import forward_kinematics
+
+    ph = np.linspace(0.15 * duty, 0.75 * duty, 16)
+    _, P = forward_kinematics(gait_pose(style, ph, duty=duty, hip_scale=hip_scale))
+    z = P[:, 8, 2]  # right ankle
+    return float(-(z[-1] - z[0]) / (ph[-1] - ph[0]) * f)
+
+
+def stride_calibration(style: _GaitStyle, duty: float, f: float, speed: float) -> float:
+    """Hip-curve scale so the stance foot does not slide at ``speed`` [m/s]: the normative
+    curves are for one stride length; longer strides need a larger hip excursion (and the
+    reverse). Three fixed-point steps ``s <- s * speed / v(s)``, clipped to [0.5, 2]."""
+    s = 1.0
+    for _ in range(3):
+        v = _stance_speed(style, duty, f, s)
+        if v <= 1e-6:
+            break
+        s = float(np.clip(s * speed / v, 0.5, 2.0))
+    return s
+
+
+def _ramped_phase(t: np.ndarray, w: np.ndarray, rate: float, fps: float) -> np.ndarray:
+    """Integral of ``rate * w(t)`` from 0 (trapezoid-free: exact rate per frame once w = 1)."""
+    return np.concatenate([[0.0], np.cumsum(rate * w[:-1] / fps)])
+
+
+@dataclass(frozen=True)
+class WalkParams:
+    """Attributes: duration [s]; fps [1/s]; speed: forward speed along +Z [m/s]; stride: stride
+    length (two steps) [m], 0 for the speed-dependent default; arm_swing: arm swing scale (0
+    keeps the arms still); ramp: blend-in time from the rest T-pose (speed and pose) [s]."""
+
+    duration: float = 4.0
+    fps: float = 30.0
+    speed: float = 1.3
+    stride: float = 0.0
+    arm_swing: float = 1.0
+    ramp: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_params(self, speed=(0.0, 3.0), stride=(0.0, 3.0), arm_swing=(0.0, 3.0),
+                     ramp=(1e-3, 1e5))
+
+
+def walk(p: WalkParams) -> Motion:
+    """Straight walk along +Z from normative gait curves (see the module docstring)."""
+    t = time_axis(p.duration, p.fps)
+    w = smoothstep(t / p.ramp)
+    stride = p.stride if p.stride > 0 else walk_stride_length(p.speed)
+    f = p.speed / stride
+    phase = _ramped_phase(t, w, f, p.fps)
+    k = stride_calibration(_WALK, WALK_TOE_OFF, f, p.speed) if p.speed > 0 else 1.0
+    poses = w[:, None, None] * gait_pose(_WALK, phase, arm_swing=p.arm_swing, hip_scale=k)
+    trans = np.zeros((t.size, 3))
+    trans[:, 2] = _ramped_phase(t, w, p.speed, p.fps)
+    trans[:, 1] = ground_trans_y(poses)
+    return make_motion("walk", p, poses, trans, phase=phase.astype(np.float32),
+                       stride_frequency=f, stride_length=stride, toe_off=WALK_TOE_OFF,
+                       hip_scale=k)
+
+
+@dataclass(frozen=True)
+class RunParams:
+    """Attributes: duration [s]; fps [1/s]; speed: forward speed along +Z [m/s]; stride: stride
+    length [m], 0 for the speed-dependent default; duty: stance fraction of the stride (< 0.5
+    gives a flight phase); arm_swing: arm swing scale; ramp: blend-in time from rest [s]."""
+
+    duration: float = 4.0
+    fps: float = 30.0
+    speed: float = 3.5
+    stride: float = 0.0
+    duty: float = 0.35
+    arm_swing: float = 1.0
+    ramp: float = 1.0
+
+    def __post_init__(self) -> None:
+        check_params(self, speed=(0.5, 10.0), stride=(0.0, 6.0), duty=(0.2, 0.49),
+                     arm_swing=(0.0, 3.0), ramp=(1e-3, 1e5))
+
+
+def spring_mass_height(step_time: np.ndarray, t_stance: float, t_flight: float) -> np.ndarray:
+    """Root height [m] relative to touchdown over a running step (module docstring).
+
+    Args:
+        step_time: time since the last touchdown [s], shape (...,), in [0, t_stance + t_flight).
+        t_stance, t_flight: contact and flight times of one step [s].
+    """
+    v0 = 0.5 * GRAVITY * t_flight
+    omega = np.pi / t_stance
+    tau = np.asarray(step_time, dtype=np.float64)
+    stance = -(v0 / omega) * np.sin(omega * np.minimum(tau, t_stance))
+    tf = np.maximum(tau - t_stance, 0.0)
+    return np.where(tau < t_stance, stance, v0 * tf - 0.5 * GRAVITY * tf**2)
+
+
+def run(p: RunParams) -> Motion:
+    """Straight run along +Z: normative running curves time-warped to ``duty``, spring-mass
+    vertical motion with a ballistic flight phase, forward trunk lean, bent-elbow arm swing."""
+    t = time_axis(p.duration, p.fps)
+    w = smoothstep(t / p.ramp)
+    f = p.speed / p.stride if p.stride > 0 else run_stride_frequency(p.speed)
+    phase = _ramped_phase(t, w, f, p.fps)
+    k = stride_calibration(_RUN, p.duty, f, p.speed)
+    poses = w[:, None, None] * gait_pose(_RUN, phase, duty=p.duty, arm_swing=p.arm_swing,
+                                         hip_scale=k)
+    t_stance, t_flight = p.duty / f, (0.5 - p.duty) / f
+    y_td = float(ground_trans_y(gait_pose(_RUN, np.zeros(1), duty=p.duty, hip_scale=k))[0])
+    step_time = np.mod(phase, 0.5) / f
+    y_run = y_td + spring_mass_height(step_time, t_stance, t_flight)
+    trans = np.zeros((t.size, 3))
+    trans[:, 2] = _ramped_phase(t, w, p.speed, p.fps)
+    trans[:, 1] = (1.0 - w) * ground_trans_y(poses) + w * y_run
+    return make_motion("run", p, poses, trans, phase=phase.astype(np.float32),
+                       stride_frequency=f, stride_length=p.speed / f, duty=p.duty,
+                       t_stance=t_stance, t_flight=t_flight, hip_scale=k)
