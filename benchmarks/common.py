@@ -47,8 +47,10 @@ def machine(device: str) -> dict:
 
 def write_result(name: str, result: dict) -> Path:
     """Print and write ``benchmarks/results/<name>.json`` (and $OUT/<name>.json when set)."""
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    argv = ["-m", spec.name, *sys.argv[1:]] if spec is not None else sys.argv
     result = {"benchmark": name, "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-              "command": " ".join([Path(sys.executable).name, *sys.argv]), **result}
+              "command": " ".join(["python", *argv]), **result}
     text = json.dumps(result, indent=2)
     print(text)
     RESULTS.mkdir(exist_ok=True)

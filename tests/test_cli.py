@@ -1,0 +1,149 @@
+"""The ``wrinkles`` CLI end to end on tiny CPU configurations, and its handling of bad input:
+one line naming the file and the problem, exit status 2, no traceback, no partial output."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipelines.cli import main
+
+
+def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """Run the CLI in a fresh interpreter, as a user would."""
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.run([sys.executable, "-m", "pipelines.cli", *args], capture_output=True,
+                          text=True, cwd=cwd, env=env, timeout=300)
+
+
+def assert_user_error(proc: subprocess.CompletedProcess, *needles: str) -> None:
+    assert proc.returncode == 2, proc.stderr
+    err = proc.stderr.strip()
+    assert "Traceback" not in err, err
+    assert len(err.splitlines()) == 1, err
+    for n in needles:
+        assert n in err, err
+
+
+def test_help_lists_commands(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert "body" in out and "motions" in out
+
+
+def test_body_help_explains_itself(capsys):
+    with pytest.raises(SystemExit):
+        main(["body", "--help"])
+    out = capsys.readouterr().out
+    for flag in ("--motion", "--shape", "--out", "--preview", "--device", "--seed", "examples:"):
+        assert flag in out
+
+
+def test_motions_lists_library(capsys):
+    assert main(["motions", "--params"]) == 0
+    out = capsys.readouterr().out
+    for name in ("walk", "run", "jump", "squat", "arm_raise", "torso_twist", "random", "rest_to_apose"):
+        assert name in out
+    assert "--param" in out
+
+
+def test_body_writes_usd_and_preview(tmp_path):
+    from usd_io import read_stage, validate_stage
+
+    usd = tmp_path / "walk.usda"
+    mp4 = tmp_path / "walk.mp4"
+    rc = main(["body", "--motion", "walk", "--param", "ramp=0.1", "--duration", "0.5", "--fps", "10",
+               "--out", str(usd),
+               "--preview", str(mp4), "--device", "cpu", "--quiet"])
+    assert rc == 0
+    st = read_stage(usd)
+    assert st.fps == 10
+    pts = st.body.points
+    assert pts.shape[0] == 5
+    # grounded: the lowest vertex of frame 0 is on the floor
+    assert abs(float(pts[0, :, 1].min())) < 1e-5
+    # the walker moves forward (+Z), at about the default 1.3 m/s once past the 0.1 s ramp
+    assert pts[-1, :, 2].mean() > pts[0, :, 2].mean() + 0.3
+    assert validate_stage(usd) == []
+    assert mp4.stat().st_size > 1000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.mp4", "walk.usda"]
+
+
+def test_same_seed_same_output(tmp_path):
+    outs = []
+    for k in range(2):
+        p = tmp_path / f"r{k}.usda"
+        assert main(["body", "--motion", "random", "--duration", "0.3", "--fps", "10", "--seed", "3",
+                     "--out", str(p), "--device", "cpu", "--quiet"]) == 0
+        from usd_io import read_stage
+
+        outs.append(read_stage(p).body.points)
+    np.testing.assert_array_equal(outs[0], outs[1])
+
+
+def write(path: Path, data: bytes | str) -> Path:
+    path.write_bytes(data if isinstance(data, bytes) else data.encode())
+    return path
+
+
+@pytest.mark.parametrize("case", ["unknown_motion", "bad_bvh", "corrupt_model", "missing_model",
+                                  "nan_amass", "bad_suffix", "bad_shape", "bad_param"])
+def test_bad_input_is_one_line_exit_2_no_output(tmp_path, case):
+    out = tmp_path / "o.usda"
+    args = ["body", "--out", str(out), "--device", "cpu", "--quiet", "--duration", "0.2"]
+    needles: tuple[str, ...]
+    if case == "unknown_motion":
+        args += ["--motion", "moonwalk"]
+        needles = ("moonwalk", "walk")
+    elif case == "bad_bvh":
+        f = write(tmp_path / "broken.bvh", "HIERARCHY\nROOT Hips\n{\n  OFFSET 0 0\n")
+        args += ["--motion", str(f)]
+        needles = ("broken.bvh",)
+    elif case == "corrupt_model":
+        f = write(tmp_path / "SMPL_BROKEN.npz", b"PK\x03\x04 this is not a zip")
+        args += ["--body", str(f)]
+        needles = ("SMPL_BROKEN.npz",)
+    elif case == "missing_model":
+        args += ["--body", str(tmp_path / "nope.pkl")]
+        needles = ("nope.pkl",)
+    elif case == "nan_amass":
+        f = tmp_path / "clip.npz"
+        poses = np.zeros((10, 156), np.float32)
+        poses[4, 7] = np.nan
+        np.savez(f, poses=poses, trans=np.zeros((10, 3)), mocap_framerate=30.0, betas=np.zeros(16))
+        args += ["--motion", str(f)]
+        needles = ("clip.npz", "NaN")
+    elif case == "bad_suffix":
+        args[args.index("--out") + 1] = str(tmp_path / "o.obj")
+        needles = ("o.obj", "--out")
+    elif case == "bad_shape":
+        args += ["--shape", "height=abc"]
+        needles = ("height",)
+    else:
+        args += ["--param", "wings=2"]
+        needles = ("wings",)
+    proc = run_cli(*args)
+    assert_user_error(proc, *needles)
+    assert list(tmp_path.glob("o.*")) == []
+    assert not any(p.name.startswith(".o.") for p in tmp_path.iterdir())
+
+
+def test_interrupted_preview_leaves_nothing(tmp_path, monkeypatch):
+    """An error in the last writer removes the files the earlier writers produced."""
+    import pipelines.preview as preview
+
+    def boom(*a, **k):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(preview, "write_video", boom)
+    with pytest.raises(RuntimeError):
+        main(["body", "--motion", "squat", "--duration", "0.2", "--fps", "10", "--device", "cpu",
+              "--out", str(tmp_path / "a.usda"), "--preview", str(tmp_path / "a.mp4"), "--quiet"])
+    assert list(tmp_path.iterdir()) == []
