@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from sim.bodies import load_body
     from sim.bodies.placement import ground
     from sim.device import resolve_device
-    from sim.motions import accepts_parameter, load_motion
+    from sim.motions import MotionSkeleton, accepts_parameter, load_motion
 
     t0 = time.perf_counter()
     out_usd = check_output_path(args.out, USD_SUFFIXES, "--out")
@@ -95,7 +95,9 @@ def run(args: argparse.Namespace) -> int:
     params = parse_params(args.param)
     if accepts_parameter(args.motion, "seed"):
         params.setdefault("seed", args.seed)
-    motion = load_motion(args.motion, fps=args.fps, duration=args.duration, **params)
+    # procedural motions place the feet with this body's own joints and soles
+    motion = load_motion(args.motion, fps=args.fps, duration=args.duration,
+                         skeleton=MotionSkeleton.from_body(body, betas), **params)
 
     with progress_bar(motion.num_frames, "skinning", quiet=args.quiet) as advance:
         frames = body.pose_motion(motion, betas, device=device, progress=advance)

@@ -1,7 +1,8 @@
 """Motions: loaders (AMASS, BVH), resampling, retargeting and the procedural library.
 
-Everything runs on CPU without a body mesh: kinematics are checked by forward kinematics on
-SMPL's approximate skeleton (``sim.motions.retarget.SMPL_REST_JOINTS``).
+Everything runs on CPU. Kinematics are checked by forward kinematics on SMPL's approximate
+skeleton (``sim.motions.retarget.SMPL_REST_JOINTS``); the body-aware tests at the end skin the
+embedded default body (numpy/Warp on cpu) and measure the lowest vertex against the floor.
 """
 
 from __future__ import annotations
@@ -24,14 +25,14 @@ from sim.motions import (
 from sim.motions.bvh import parse_bvh, resolve_joint_map
 from sim.motions.limits import JOINT_LIMITS, limit_violation, within_limits
 from sim.motions.procedural import (
-    _REST_FLOOR,
     GRAVITY,
     JOINT,
     center_of_mass,
     contact_heights,
 )
 from sim.motions.resample import resample_times, slerp_axis_angle
-from sim.motions.retarget import BONE_CHILD, forward_kinematics
+from sim.motions.retarget import BONE_CHILD, SMPL_REST_JOINTS, forward_kinematics
+from sim.motions.skeleton import MotionSkeleton
 from sim.rotations import axis_angle_to_matrix
 from sim.types import Motion
 
@@ -43,6 +44,9 @@ MIXAMO = DATA / "mixamo_style.bvh"
 TOL_ROT = 1e-5      # float32 storage of axis-angle [rad]
 TOL_DIR = 1e-4      # unit bone directions after float32 poses
 TOL_POS = 1e-5      # positions [m] after float32 trans
+TOL_FLOOR = 0.01    # [m] lowest skinned vertex from the floor, body-aware motions
+
+_REST_FLOOR = MotionSkeleton.default().rest_floor  # the approximate skeleton's floor
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -557,3 +561,128 @@ def test_rest_to_apose_and_arm_raise_end_poses():
             assert np.degrees(np.arccos(-arm[1])) == pytest.approx(160.0, abs=4.0)
             if style == "front":
                 assert arm[2] > 0.2  # went up in front, not to the side
+
+
+# --- body-aware procedural motions (skinned on the default body, cpu) -------------------------
+
+@pytest.fixture(scope="module")
+def default_body():
+    from sim.bodies import load_body
+
+    return load_body()
+
+
+def _floor_heights(body, motion: Motion, betas=None) -> np.ndarray:
+    """Lowest skinned vertex per frame [m] after grounding frame 0 (the rest pose)."""
+    from sim.bodies.placement import ground
+
+    frames, _ = ground(body.pose_motion(motion, betas, device="cpu"))
+    return frames.vertices[:, :, 1].min(axis=1)
+
+
+def test_skeleton_default_and_from_body(default_body):
+    d = MotionSkeleton.default()
+    assert d is MotionSkeleton.default()
+    np.testing.assert_array_equal(d.rest_joints, SMPL_REST_JOINTS)
+    assert d.num_contacts == 4
+    assert d.rest_floor == pytest.approx(min(SMPL_REST_JOINTS[7, 1] - 0.075,
+                                             SMPL_REST_JOINTS[10, 1] - 0.02))
+    b = default_body
+    s = MotionSkeleton.from_body(b)
+    np.testing.assert_allclose(s.rest_joints, b.rest_joints()[b.body_joint_map], atol=1e-6)
+    # the contact points are sole vertices: the lowest is the rest mesh's lowest vertex
+    assert s.rest_floor == pytest.approx(float(b.rest_mesh()[:, 1].min()), abs=1e-6)
+    assert set(s.contact_foot.tolist()) == {0, 1}
+    np.testing.assert_allclose(s.contact_weights.sum(axis=1), 1.0)
+    left = s.contact_points[s.contact_foot == 0]
+    assert np.all(left[:, 0] > 0.03)  # the left foot is on +X
+    # the contacts are posed like the skinned mesh: the lowest equals the lowest vertex
+    m = procedural_motion("walk", duration=1.5, fps=10.0, skeleton=s)
+    G, P = s.forward_kinematics(m.poses, m.trans)
+    frames = b.pose_motion(m, device="cpu")
+    np.testing.assert_allclose(s.contact_heights(G, P).min(axis=1),
+                               frames.vertices[:, :, 1].min(axis=1), atol=1e-3)
+    # a body without some SMPL joints: they keep the default offsets from their parents
+    class NoHands:
+        def __init__(self, body):
+            self._b, self.weights, self.parents = body, body.weights, body.parents
+            self.body_joint_map = body.body_joint_map.copy()
+            self.body_joint_map[22:] = -1
+
+        def rest_joints(self, betas=None):
+            return self._b.rest_joints(betas)
+
+        def rest_mesh(self, betas=None):
+            return self._b.rest_mesh(betas)
+
+    h = MotionSkeleton.from_body(NoHands(b))
+    for j, w in ((22, 20), (23, 21)):
+        np.testing.assert_allclose(h.rest_joints[j] - h.rest_joints[w],
+                                   SMPL_REST_JOINTS[j] - SMPL_REST_JOINTS[w], atol=1e-9)
+    assert h.rest_floor == pytest.approx(s.rest_floor)
+
+
+@pytest.mark.parametrize("name", ["walk", "idle", "squat"])
+def test_body_aware_feet_stay_on_floor(default_body, name):
+    sk = MotionSkeleton.from_body(default_body)
+    m = load_motion(name, fps=30.0, duration=2.0, skeleton=sk)
+    low = _floor_heights(default_body, m)
+    np.testing.assert_allclose(low, 0.0, atol=TOL_FLOOR)
+
+
+def test_body_aware_walk_stance_foot_does_not_slide(default_body):
+    fps = 30.0
+    sk = MotionSkeleton.from_body(default_body)
+    m = procedural_motion("walk", duration=3.0, fps=fps, speed=1.2, stride=1.2, skeleton=sk)
+    _, P = sk.forward_kinematics(m.poses, m.trans)
+    ph = np.mod(m.extra["phase"], 1.0)
+    mid = (np.arange(m.num_frames) > 40) & (ph > 0.1) & (ph < 0.45)
+    assert mid.sum() >= 5
+    vz = np.gradient(P[:, JOINT["right_ankle"], 2]) * fps
+    assert abs(vz[mid].mean()) < 0.05
+
+
+def test_body_aware_run_never_sinks_and_flies(default_body):
+    sk = MotionSkeleton.from_body(default_body)
+    m = procedural_motion("run", duration=2.0, fps=60.0, skeleton=sk)
+    low = _floor_heights(default_body, m)
+    assert low.min() > -TOL_FLOOR
+    phase = np.mod(m.extra["phase"], 0.5)
+    steady = np.arange(m.num_frames) > 1.2 * m.fps
+    fly = steady & (phase > m.extra["duty"] + 0.02) & (phase < 0.48)
+    assert fly.sum() >= 3 and np.all(low[fly] > 0.002)
+    stance = steady & (phase > 0.05) & (phase < m.extra["duty"] - 0.05)
+    np.testing.assert_allclose(low[stance], 0.0, atol=TOL_FLOOR)  # stance foot on the floor
+
+
+def test_body_aware_jump_lands_on_floor(default_body):
+    sk = MotionSkeleton.from_body(default_body)
+    m = procedural_motion("jump", duration=3.0, fps=30.0, height=0.3, skeleton=sk)
+    low = _floor_heights(default_body, m)
+    t = np.arange(m.num_frames) / m.fps
+    t0, tf = m.extra["takeoff_time"], m.extra["flight_time"]
+    assert np.all(low[t < t0] > -TOL_FLOOR) and np.all(low[t < t0] < TOL_FLOOR)
+    assert low[(t > t0 + 0.3 * tf) & (t < t0 + 0.7 * tf)].min() > 0.2  # in the air
+    np.testing.assert_allclose(low[t >= t0 + tf], 0.0, atol=TOL_FLOOR)  # landed
+
+
+def test_body_aware_taller_shape(default_body):
+    betas = np.zeros(default_body.num_betas)
+    betas[0] = 2.0
+    s0 = MotionSkeleton.from_body(default_body)
+    s2 = MotionSkeleton.from_body(default_body, betas)
+
+    def leg(s):
+        J = s.rest_joints
+        return sum(np.linalg.norm(J[JOINT[b]] - J[JOINT[a]]) for a, b in
+                   (("left_hip", "left_knee"), ("left_knee", "left_ankle")))
+
+    assert leg(s2) > leg(s0) + 0.05
+    m = load_motion("walk", fps=30.0, duration=2.0, skeleton=s2)
+    low = _floor_heights(default_body, m, betas)
+    np.testing.assert_allclose(low, 0.0, atol=TOL_FLOOR)
+    # longer legs: the calibrated hip swing is smaller for the same speed and stride
+    d = load_motion("walk", fps=30.0, duration=2.0, skeleton=s0)
+    assert m.extra["hip_scale"] < d.extra["hip_scale"]
+    # files ignore the skeleton
+    assert load_motion(str(CMU), skeleton=s2).num_frames == load_motion(str(CMU)).num_frames

@@ -25,10 +25,11 @@ from sim.motions.amass import load_amass
 from sim.motions.bvh import load_bvh
 from sim.motions.procedural import MotionSpec
 from sim.motions.resample import resample_motion, trim_motion
+from sim.motions.skeleton import MotionSkeleton
 from sim.types import Motion
 
 __all__ = [
-    "PROCEDURAL_MOTIONS", "MotionSpec", "list_motions", "load_motion", "procedural_motion",
+    "PROCEDURAL_MOTIONS", "MotionSkeleton", "MotionSpec", "list_motions", "load_motion", "procedural_motion",
     "load_amass", "load_bvh", "resample_motion", "trim_motion",
 ]
 
@@ -69,11 +70,15 @@ def _unknown(what: str, bad: list[str], allowed: list[str], where: str) -> Wrink
                               f"{', '.join(allowed) or 'none'}", path=where)
 
 
-def procedural_motion(name: str, **params) -> Motion:
+def procedural_motion(name: str, *, skeleton: MotionSkeleton | None = None,
+                      **params) -> Motion:
     """Generate a registered procedural motion.
 
     Args:
         name: a key of ``PROCEDURAL_MOTIONS``.
+        skeleton: the body's skeleton and foot contacts
+            (``MotionSkeleton.from_body(body, betas)``) so the feet meet the floor on that
+            body; None for SMPL's approximate skeleton (``MotionSkeleton.default()``).
         **params: fields of that motion's params dataclass (``duration`` [s], ``fps`` ...).
 
     Raises:
@@ -92,11 +97,12 @@ def procedural_motion(name: str, **params) -> Motion:
         p = spec.params(**params)
     except TypeError as e:  # pragma: no cover - names are checked above
         raise WrinklesInputError(str(e), path=f"procedural:{name}") from None
-    return spec.generate(p)
+    return spec.generate(p, skeleton=skeleton)
 
 
 def load_motion(spec: str | os.PathLike, *, fps: float | None = None,
-                duration: float | None = None, **params) -> Motion:
+                duration: float | None = None, skeleton: MotionSkeleton | None = None,
+                **params) -> Motion:
     """Load or generate a motion.
 
     Args:
@@ -106,6 +112,8 @@ def load_motion(spec: str | os.PathLike, *, fps: float | None = None,
             it (slerp). None keeps the default / the file's rate.
         duration: length [s]; procedural motions are generated for it, files are cut to it
             (error when the file is shorter). None keeps the default / the whole file.
+        skeleton: procedural motions are built on it (see :func:`procedural_motion`);
+            ignored for files.
         **params: procedural params fields, or the file loader's keyword options
             (``load_amass``: pelvis_offset, up_axis, source_fps; ``load_bvh``: joint_map,
             scale, rest, rest_joints).
@@ -119,7 +127,7 @@ def load_motion(spec: str | os.PathLike, *, fps: float | None = None,
     text = os.fspath(spec)
     if text in PROCEDURAL_MOTIONS:
         extra = {k: v for k, v in (("fps", fps), ("duration", duration)) if v is not None}
-        return procedural_motion(text, **extra, **params)
+        return procedural_motion(text, skeleton=skeleton, **extra, **params)
     ext = Path(text).suffix.lower()
     if ext in _FILE_LOADERS:
         loader = _FILE_LOADERS[ext]

@@ -34,7 +34,10 @@ Vertical motion: walking takes the root height from forward kinematics (the lowe
 contact stays on the floor, which yields the ~3-4 cm double-bump oscillation of the pelvis);
 running uses the spring-mass model: during stance ``y = y_td - (v0 / w) sin(w tau)`` with
 ``w = pi / t_stance``, during flight the ballistic ``y = y_td + v0 tau - g tau^2 / 2`` with
-``v0 = g t_flight / 2``, so the root leaves and meets the ground with the same speed.
+``v0 = g t_flight / 2``, so the root leaves and meets the ground with the same speed. The
+normative leg curves flex less in stance than that spring compresses, so the root is never
+below the height where the lowest foot contact touches the floor: the stance foot does not
+sink (the flight phase, where the feet are above the floor, stays ballistic).
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ from sim.motions.procedural import (
     smoothstep,
     time_axis,
 )
+from sim.motions.skeleton import MotionSkeleton, resolve_skeleton
 from sim.types import Motion
 
 # (percent of the gait cycle, degrees); periodic, the value at 100 % is the one at 0 %.
@@ -181,24 +185,25 @@ def gait_pose(style: _GaitStyle, phase: np.ndarray, *, duty: float | None = None
     return pb.axis_angle()
 
 
-def _stance_speed(style: _GaitStyle, duty: float, f: float, hip_scale: float) -> float:
+def _stance_speed(style: _GaitStyle, duty: float, f: float, hip_scale: float,
+                  skeleton: MotionSkeleton | None = None) -> float:
     """Backward speed [m/s] of the right ankle relative to the pelvis in mid-stance (the speed
     the leg can carry the body at, without foot sliding), stride frequency ``f`` [Hz]."""
-    from sim.motions.retarget import forward_kinematics
-
     ph = np.linspace(0.15 * duty, 0.75 * duty, 16)
-    _, P = forward_kinematics(gait_pose(style, ph, duty=duty, hip_scale=hip_scale))
+    _, P = resolve_skeleton(skeleton).forward_kinematics(
+        gait_pose(style, ph, duty=duty, hip_scale=hip_scale))
     z = P[:, 8, 2]  # right ankle
     return float(-(z[-1] - z[0]) / (ph[-1] - ph[0]) * f)
 
 
-def stride_calibration(style: _GaitStyle, duty: float, f: float, speed: float) -> float:
+def stride_calibration(style: _GaitStyle, duty: float, f: float, speed: float,
+                       skeleton: MotionSkeleton | None = None) -> float:
     """Hip-curve scale so the stance foot does not slide at ``speed`` [m/s]: the normative
     curves are for one stride length; longer strides need a larger hip excursion (and the
     reverse). Three fixed-point steps ``s <- s * speed / v(s)``, clipped to [0.5, 2]."""
     s = 1.0
     for _ in range(3):
-        v = _stance_speed(style, duty, f, s)
+        v = _stance_speed(style, duty, f, s, skeleton)
         if v <= 1e-6:
             break
         s = float(np.clip(s * speed / v, 0.5, 2.0))
@@ -228,18 +233,18 @@ class WalkParams:
                      ramp=(1e-3, 1e5))
 
 
-def walk(p: WalkParams) -> Motion:
+def walk(p: WalkParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Straight walk along +Z from normative gait curves (see the module docstring)."""
     t = time_axis(p.duration, p.fps)
     w = smoothstep(t / p.ramp)
     stride = p.stride if p.stride > 0 else walk_stride_length(p.speed)
     f = p.speed / stride
     phase = _ramped_phase(t, w, f, p.fps)
-    k = stride_calibration(_WALK, WALK_TOE_OFF, f, p.speed) if p.speed > 0 else 1.0
+    k = stride_calibration(_WALK, WALK_TOE_OFF, f, p.speed, skeleton) if p.speed > 0 else 1.0
     poses = w[:, None, None] * gait_pose(_WALK, phase, arm_swing=p.arm_swing, hip_scale=k)
     trans = np.zeros((t.size, 3))
     trans[:, 2] = _ramped_phase(t, w, p.speed, p.fps)
-    trans[:, 1] = ground_trans_y(poses)
+    trans[:, 1] = ground_trans_y(poses, skeleton)
     return make_motion("walk", p, poses, trans, phase=phase.astype(np.float32),
                        stride_frequency=f, stride_length=stride, toe_off=WALK_TOE_OFF,
                        hip_scale=k)
@@ -279,23 +284,27 @@ def spring_mass_height(step_time: np.ndarray, t_stance: float, t_flight: float) 
     return np.where(tau < t_stance, stance, v0 * tf - 0.5 * GRAVITY * tf**2)
 
 
-def run(p: RunParams) -> Motion:
+def run(p: RunParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Straight run along +Z: normative running curves time-warped to ``duty``, spring-mass
     vertical motion with a ballistic flight phase, forward trunk lean, bent-elbow arm swing."""
     t = time_axis(p.duration, p.fps)
     w = smoothstep(t / p.ramp)
     f = p.speed / p.stride if p.stride > 0 else run_stride_frequency(p.speed)
     phase = _ramped_phase(t, w, f, p.fps)
-    k = stride_calibration(_RUN, p.duty, f, p.speed)
+    k = stride_calibration(_RUN, p.duty, f, p.speed, skeleton)
     poses = w[:, None, None] * gait_pose(_RUN, phase, duty=p.duty, arm_swing=p.arm_swing,
                                          hip_scale=k)
     t_stance, t_flight = p.duty / f, (0.5 - p.duty) / f
-    y_td = float(ground_trans_y(gait_pose(_RUN, np.zeros(1), duty=p.duty, hip_scale=k))[0])
+    y_td = float(ground_trans_y(gait_pose(_RUN, np.zeros(1), duty=p.duty, hip_scale=k),
+                                skeleton)[0])
     step_time = np.mod(phase, 0.5) / f
     y_run = y_td + spring_mass_height(step_time, t_stance, t_flight)
     trans = np.zeros((t.size, 3))
     trans[:, 2] = _ramped_phase(t, w, p.speed, p.fps)
-    trans[:, 1] = (1.0 - w) * ground_trans_y(poses) + w * y_run
+    ground = ground_trans_y(poses, skeleton)
+    # the spring-mass stance dips deeper than the normative leg curves flex (2-4 cm): raise it
+    # wherever it would push the stance foot into the floor (flight stays ballistic)
+    trans[:, 1] = np.maximum((1.0 - w) * ground + w * y_run, ground)
     return make_motion("run", p, poses, trans, phase=phase.astype(np.float32),
                        stride_frequency=f, stride_length=p.speed / f, duty=p.duty,
                        t_stance=t_stance, t_flight=t_flight, hip_scale=k)

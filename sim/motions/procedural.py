@@ -4,8 +4,10 @@ Every generator takes a frozen params dataclass and returns a ``Motion`` at ``pa
 lasting ``params.duration`` (``round(duration * fps)`` frames). Every motion starts at the rest
 T-pose (poses 0, trans 0) and leaves it with zero velocity (a smoothstep ramp), so a garment
 draped on the rest body can follow. ``trans`` is relative to standing at rest: the feet stay
-on the rest floor level (heel/toe contact points found by forward kinematics on SMPL's
-approximate skeleton, ``sim.motions.retarget.SMPL_REST_JOINTS``); no height offset is added.
+on the rest floor level (sole contact points found by forward kinematics on a
+``MotionSkeleton``: the body's own joints and soles via ``MotionSkeleton.from_body``, or SMPL's
+approximate skeleton ``sim.motions.retarget.SMPL_REST_JOINTS`` with heel/toe points when no
+skeleton is given); no height offset is added. Every generator takes ``skeleton=None``.
 
 Signs of SMPL joint rotations are listed in ``sim.motions.limits``. Angles in params are in
 degrees (``*_deg``), times in seconds, lengths in metres.
@@ -20,7 +22,7 @@ import numpy as np
 
 from sim.errors import WrinklesInputError
 from sim.motions.limits import JOINT_LIMITS
-from sim.motions.retarget import SMPL_REST_JOINTS, forward_kinematics
+from sim.motions.skeleton import MotionSkeleton, resolve_skeleton
 from sim.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from sim.types import NUM_SMPL_JOINTS, SMPL_JOINT_NAMES, Motion
 
@@ -28,11 +30,6 @@ D2R = np.pi / 180.0
 GRAVITY = 9.81  # [m/s^2]
 JOINT = {n: i for i, n in enumerate(SMPL_JOINT_NAMES)}
 _AX = {"x": 0, "y": 1, "z": 2}
-
-# Foot contact points in the ankle / foot (toe-ball) joint frames [m], at rest roughly the
-# heel and the tip of the sole of SMPL's neutral body.
-_HEEL = np.array([0.0, -0.075, -0.045])
-_TOE = np.array([0.0, -0.02, 0.045])
 
 # Segment masses (fraction of body mass) and centre-of-mass positions along the segment
 # (fraction from the proximal joint), Winter (2009) "Biomechanics and Motor Control of Human
@@ -155,41 +152,38 @@ def flat_feet_pose(pb: PoseBuilder, knee, dorsi, lean, rise=0.0) -> PoseBuilder:
     return pb
 
 
-def contact_heights(G: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """Height [m] of the heel and toe contact points of both feet, shape (..., 4)."""
-    pts = []
-    for side in ("left", "right"):
-        a, f = JOINT[f"{side}_ankle"], JOINT[f"{side}_foot"]
-        pts.append(P[..., a, 1] + G[..., a, 1, :] @ _HEEL)
-        pts.append(P[..., f, 1] + G[..., f, 1, :] @ _TOE)
-    return np.stack(pts, axis=-1)
+def contact_heights(G: np.ndarray, P: np.ndarray,
+                    skeleton: MotionSkeleton | None = None) -> np.ndarray:
+    """Height [m] of the skeleton's foot contact points, shape (..., N); for the default
+    skeleton N = 4: left heel, left toe, right heel, right toe."""
+    return resolve_skeleton(skeleton).contact_heights(G, P)
 
 
-_REST_FLOOR = float(contact_heights(*forward_kinematics(np.zeros((24, 3)))).min())
-
-
-def ground_trans_y(poses: np.ndarray) -> np.ndarray:
+def ground_trans_y(poses: np.ndarray, skeleton: MotionSkeleton | None = None) -> np.ndarray:
     """Vertical root translation [m] putting the lowest foot contact point on the rest floor.
 
     Args:
         poses: axis-angle [rad], shape (..., 24, 3).
+        skeleton: the skeleton (None: the default).
 
     Returns:
         shape (...,): 0 for the rest pose.
     """
-    G, P = forward_kinematics(poses)
-    return _REST_FLOOR - contact_heights(G, P).min(axis=-1)
+    sk = resolve_skeleton(skeleton)
+    G, P = sk.forward_kinematics(poses)
+    return sk.rest_floor - sk.contact_heights(G, P).min(axis=-1)
 
 
-def feet_fixed_trans(poses: np.ndarray) -> np.ndarray:
+def feet_fixed_trans(poses: np.ndarray, skeleton: MotionSkeleton | None = None) -> np.ndarray:
     """Root translation [m] keeping the ankles' midpoint over its rest spot (x, z) and the
     lowest foot contact on the floor (y), shape (..., 3)."""
-    G, P = forward_kinematics(poses)
+    sk = resolve_skeleton(skeleton)
+    G, P = sk.forward_kinematics(poses)
     la, ra = JOINT["left_ankle"], JOINT["right_ankle"]
     mid = 0.5 * (P[..., la, :] + P[..., ra, :])
-    rest_mid = 0.5 * (SMPL_REST_JOINTS[la] + SMPL_REST_JOINTS[ra])
+    rest_mid = 0.5 * (sk.rest_joints[la] + sk.rest_joints[ra])
     out = rest_mid - mid
-    out[..., 1] = _REST_FLOOR - contact_heights(G, P).min(axis=-1)
+    out[..., 1] = sk.rest_floor - sk.contact_heights(G, P).min(axis=-1)
     return out
 
 
@@ -207,7 +201,7 @@ _LEAN_GRID = np.linspace(-10.0, 80.0, 46) * D2R
 
 
 def balance_lean(knee: np.ndarray, dorsi: np.ndarray, *, down=0.0, flex=0.0, elbow=0.0,
-                 arms_level: bool = False) -> np.ndarray:
+                 arms_level: bool = False, skeleton: MotionSkeleton | None = None) -> np.ndarray:
     """Trunk lean [rad] at the pelvis that keeps the centre of mass over the feet.
 
     The target is the rest pose's horizontal distance from the ankles to the centre of mass
@@ -217,6 +211,7 @@ def balance_lean(knee: np.ndarray, dorsi: np.ndarray, *, down=0.0, flex=0.0, elb
         knee, dorsi: knee flexion and ankle dorsiflexion [rad], shape (T,).
         down, flex, elbow: arm pose as in :func:`arms` (scalars or (T,)).
         arms_level: add the lean to ``flex`` so the arms keep their angle to the vertical.
+        skeleton: the skeleton (None: the default).
 
     Returns:
         lean [rad], shape (T,).
@@ -232,10 +227,11 @@ def balance_lean(knee: np.ndarray, dorsi: np.ndarray, *, down=0.0, flex=0.0, elb
 
     pb = flat_feet_pose(PoseBuilder(bshape), col(knee), col(dorsi), lean)
     arms(pb, col(down), col(flex) + (lean if arms_level else 0.0), col(elbow))
-    _, P = forward_kinematics(pb.axis_angle())
+    sk = resolve_skeleton(skeleton)
+    _, P = sk.forward_kinematics(pb.axis_angle())
     ankles = 0.5 * (P[..., JOINT["left_ankle"], 2] + P[..., JOINT["right_ankle"], 2])
     f = center_of_mass(P)[..., 2] - ankles
-    _, P0 = forward_kinematics(np.zeros((24, 3)))
+    P0 = sk.rest_joints
     target = center_of_mass(P0)[2] - 0.5 * (P0[JOINT["left_ankle"], 2] + P0[JOINT["right_ankle"], 2])
     out = np.empty(T)
     for t in range(T):  # f rises with the lean: interpolate where it crosses the target
@@ -268,7 +264,7 @@ class RestToAPoseParams:
         check_params(self, angle_deg=(-30.0, 85.0), start=(0.0, 1e5), transition=(1e-3, 1e5))
 
 
-def rest_to_apose(p: RestToAPoseParams) -> Motion:
+def rest_to_apose(p: RestToAPoseParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """T-pose -> A-pose (arms lowered by ``angle_deg``, collars following by 15 %), then hold."""
     t = time_axis(p.duration, p.fps)
     w = smoothstep((t - p.start) / p.transition)
@@ -300,7 +296,7 @@ class ArmRaiseParams:
         check_choice(self, "arms", ("both", "left", "right"))
 
 
-def arm_raise(p: ArmRaiseParams) -> Motion:
+def arm_raise(p: ArmRaiseParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Arms from the T-pose down to the sides, then raised and lowered (side or front)."""
     t = time_axis(p.duration, p.fps)
     hang = 75.0 * D2R  # arm at the side: 15 deg from vertical (SMPL's arm clears the hip)
@@ -344,7 +340,7 @@ class TorsoTwistParams:
                      arm_angle_deg=(0.0, 80.0))
 
 
-def torso_twist(p: TorsoTwistParams) -> Motion:
+def torso_twist(p: TorsoTwistParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Trunk rotation about the vertical axis, shared by the three spine joints, head
     partly counter-rotating; the arms go to an A-pose during the first half period."""
     t = time_axis(p.duration, p.fps)
@@ -373,7 +369,7 @@ class SquatParams:
         check_params(self, depth_deg=(0.0, 130.0), period=(0.3, 1e5), ramp=(1e-3, 1e5))
 
 
-def squat(p: SquatParams) -> Motion:
+def squat(p: SquatParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Bodyweight squat with arms held forward: knee flexion, ankle dorsiflexion (0.3 x knee,
     at most 35 deg), feet flat; the trunk lean is solved per frame so the centre of mass
     stays over the feet (:func:`balance_lean`), the pelvis moving back and down."""
@@ -383,12 +379,12 @@ def squat(p: SquatParams) -> Motion:
     knee = p.depth_deg * D2R * cyc
     dorsi = np.minimum(0.3 * knee, 35.0 * D2R)
     down, flex = 90.0 * D2R * w, 90.0 * D2R * w
-    lean = balance_lean(knee, dorsi, down=down, flex=flex, arms_level=True)
+    lean = balance_lean(knee, dorsi, down=down, flex=flex, arms_level=True, skeleton=skeleton)
     pb = flat_feet_pose(PoseBuilder(t.shape), knee, dorsi, lean)
     arms(pb, down, flex + lean)
     pb.rot("neck", "x", -0.5 * lean)
     poses = pb.axis_angle()
-    return make_motion("squat", p, poses, feet_fixed_trans(poses))
+    return make_motion("squat", p, poses, feet_fixed_trans(poses, skeleton))
 
 
 @dataclass(frozen=True)
@@ -420,17 +416,17 @@ def _jump_keys(p: JumpParams) -> dict[str, np.ndarray]:
     }
 
 
-def _jump_pose(vals: np.ndarray) -> np.ndarray:
+def _jump_pose(vals: np.ndarray, skeleton: MotionSkeleton | None = None) -> np.ndarray:
     """(T, 6) key values -> axis-angle poses (T, 24, 3) with a balancing lean."""
     knee, dorsi, rise, down, flex, elbow = vals.T
-    lean = balance_lean(knee, dorsi, down=down, flex=flex, elbow=elbow)
+    lean = balance_lean(knee, dorsi, down=down, flex=flex, elbow=elbow, skeleton=skeleton)
     pb = flat_feet_pose(PoseBuilder(knee.shape), knee, dorsi, lean, rise)
     arms(pb, down, flex, elbow)
     pb.rot("neck", "x", -0.5 * lean)
     return pb.axis_angle()
 
 
-def jump(p: JumpParams) -> Motion:
+def jump(p: JumpParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Countermovement vertical jump: stand, crouch (arms back), push off (arms up, ankles
     plantarflexed), ballistic flight where the root follows ``y0 + v0 t - g t^2 / 2`` exactly
     with ``v0 = sqrt(2 g height)``, landing with knee flexion, recovery to standing."""
@@ -439,7 +435,8 @@ def jump(p: JumpParams) -> Motion:
     v0 = np.sqrt(2.0 * GRAVITY * p.height)
     t_flight = 2.0 * v0 / GRAVITY
     # push-off time from the root rise between crouch and take-off: mean speed v0 / 2
-    y_c, y_to = (float(ground_trans_y(_jump_pose(key[k][None]))[0]) for k in ("crouch", "takeoff"))
+    y_c, y_to = (float(ground_trans_y(_jump_pose(key[k][None], skeleton), skeleton)[0])
+                 for k in ("crouch", "takeoff"))
     t_push = float(np.clip(2.0 * (y_to - y_c) / max(v0, 1e-3), 0.15, 0.5))
     phases = [("tpose", "stand", p.ramp, "smooth"), ("stand", "stand", 0.2, "smooth"),
               ("stand", "crouch", 0.45, "smooth"), ("crouch", "takeoff", t_push, "accel"),
@@ -460,8 +457,8 @@ def jump(p: JumpParams) -> Motion:
             t_takeoff = t0
         t0 += dt
     vals[t >= t0] = key["stand"]
-    poses = _jump_pose(vals)
-    trans = feet_fixed_trans(poses)
+    poses = _jump_pose(vals, skeleton)
+    trans = feet_fixed_trans(poses, skeleton)
     if flight.any():
         tau = t[flight] - t_takeoff
         trans[flight, 1] = y_to + v0 * tau - 0.5 * GRAVITY * tau**2
@@ -488,7 +485,7 @@ class RandomParams:
                                      path="procedural:random")
 
 
-def random_motion(p: RandomParams) -> Motion:
+def random_motion(p: RandomParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Smooth random motion inside the joint-limit table (``sim.motions.limits``).
 
     Each axis-angle component is ``w(t) * amplitude * (c + h * tanh(g(t)))`` with ``c, h`` the
@@ -508,7 +505,7 @@ def random_motion(p: RandomParams) -> Motion:
     w = smoothstep(t / p.ramp)[:, None, None]
     poses = w * p.amplitude * (c + h * np.tanh(g))
     trans = np.zeros((t.size, 3))
-    trans[:, 1] = ground_trans_y(poses)
+    trans[:, 1] = ground_trans_y(poses, skeleton)
     return make_motion("random", p, poses, trans)
 
 
@@ -527,7 +524,7 @@ class IdleParams:
         check_params(self, sway_deg=(0.0, 10.0), breathing=(0.0, 2.0), ramp=(1e-3, 1e5))
 
 
-def idle(p: IdleParams) -> Motion:
+def idle(p: IdleParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Standing idle: arms at the sides, breathing (spine), weight shift (pelvis roll
     compensated at the hips, feet fixed) and slow head turns."""
     t = time_axis(p.duration, p.fps)
@@ -542,7 +539,7 @@ def idle(p: IdleParams) -> Motion:
     pb.rot("neck", "y", 10.0 * D2R * np.sin(2.0 * np.pi * 0.1 * t) * w)
     arms(pb, 75.0 * D2R * w, 0.0, 10.0 * D2R * w)
     poses = pb.axis_angle()
-    return make_motion("idle", p, poses, feet_fixed_trans(poses))
+    return make_motion("idle", p, poses, feet_fixed_trans(poses, skeleton))
 
 
 @dataclass(frozen=True)
@@ -560,7 +557,7 @@ class WaveParams:
         check_params(self, frequency=(0.0, 5.0), amplitude_deg=(0.0, 60.0), ramp=(1e-3, 1e5))
 
 
-def wave(p: WaveParams) -> Motion:
+def wave(p: WaveParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Right hand raised beside the head (upper arm 10 deg above horizontal, rotated so the
     forearm points up) waving at the elbow; the left arm hangs."""
     t = time_axis(p.duration, p.fps)
