@@ -36,13 +36,29 @@ FLOOR_COLOR: tuple[float, float, float] = (0.93, 0.93, 0.94)
 GRID_COLOR: tuple[float, float, float] = (0.78, 0.79, 0.81)
 #: floor grid spacing [m].
 GRID_SPACING = 0.25
+#: the grid extends at least this far beyond the motion's footprint [m].
+GRID_MARGIN = 1.0
+#: floor sits this far below the lowest vertex of the sequence [m] (no z-fighting with feet).
+FLOOR_GAP = 1e-3
+#: contact shadow height above the floor [m]; grid lines sit at half of it.
+SHADOW_LIFT = 2e-3
+SHADOW_COLOR: tuple[float, float, float] = (0.80, 0.81, 0.83)
+#: horizontal lean of the contact shadow away from the key light (0 = straight down).
+SHADOW_LEAN = 0.35
+#: lights as ((right, up, back) in camera axes, intensity): key, fill, rim, floor bounce.
+LIGHT_RIG: tuple[tuple[tuple[float, float, float], float], ...] = (
+    ((-0.75, 0.85, 0.9), 0.95),
+    ((0.9, 0.25, 0.8), 0.45),
+    ((0.3, 0.9, -1.0), 0.50),
+    ((0.0, -1.0, 0.3), 0.12),
+)
 
 #: camera views: name -> (azimuth [deg] about +Y measured from +Z toward +X,
 #: elevation [deg] above the horizontal). Bodies face +Z, so "front" looks at their front.
 CAMERA_VIEWS: dict[str, tuple[float, float]] = {
-    "front": (0.0, 8.0),
-    "side": (90.0, 8.0),
-    "three_quarter": (35.0, 12.0),
+    "front": (0.0, 10.0),
+    "side": (90.0, 10.0),
+    "three_quarter": (35.0, 14.0),
 }
 #: vertical field of view of the camera [deg] (VTK's default).
 VIEW_ANGLE_DEG = 30.0
@@ -233,6 +249,39 @@ def fit_camera(low: np.ndarray, high: np.ndarray, view: str, aspect: float,
                       float(view_angle))
 
 
+def light_rig(pose: CameraPose) -> list[tuple[np.ndarray, float]]:
+    """Three-point lighting for a camera: (unit direction target -> light, intensity) pairs.
+
+    Key from camera-left above, fill from camera-right low, rim from behind above, and a
+    faint bounce from below; fixed in the world once the camera is fixed.
+    """
+    back = np.asarray(pose.position, np.float64) - np.asarray(pose.focal_point, np.float64)
+    back /= np.linalg.norm(back)
+    up = np.asarray(pose.view_up, np.float64)
+    right = np.cross(up, back)
+    rig = []
+    for (a, b, c), intensity in LIGHT_RIG:
+        d = a * right + b * up + c * back
+        rig.append((d / np.linalg.norm(d), intensity))
+    return rig
+
+
+def shadow_direction(pose: CameraPose) -> np.ndarray:
+    """Direction light travels for the contact shadow: mostly down, leaning away from the key."""
+    key = light_rig(pose)[0][0]
+    d = -np.array([SHADOW_LEAN * key[0], 1.0, SHADOW_LEAN * key[2]])
+    return d / np.linalg.norm(d)
+
+
+def project_to_floor(points: np.ndarray, floor_y: float, direction: np.ndarray) -> np.ndarray:
+    """Project points [m], shape (V, 3), along ``direction`` (y < 0) onto the plane y = floor_y."""
+    p = points.astype(np.float32, copy=True)
+    s = (p[:, 1] - floor_y) / float(direction[1])
+    p -= s[:, None] * np.asarray(direction, np.float32)[None, :]
+    p[:, 1] = floor_y
+    return p
+
+
 # --------------------------------------------------------------------------- optional deps
 
 
@@ -256,7 +305,8 @@ def _import_imageio_ffmpeg():
     try:
         import imageio_ffmpeg
     except ImportError as exc:  # pragma: no cover
-        raise WrinklesInputError(f"writing MP4 previews needs imageio-ffmpeg ({exc}); {_INSTALL_HINT}") from None
+        raise WrinklesInputError(
+            f"writing MP4 previews needs imageio-ffmpeg ({exc}); {_INSTALL_HINT}") from None
     return imageio_ffmpeg
 
 
@@ -267,12 +317,14 @@ class _Scene:
     """A pyvista plotter with the meshes, floor, lights and a fixed camera; renders frames."""
 
     def __init__(self, meshes: Sequence[PreviewMesh], size: tuple[int, int], camera: str,
-                 *, floor: bool, anti_aliasing: bool):
+                 *, floor: bool, shadows: bool, anti_aliasing: bool):
         pv = _import_pyvista()
         self.meshes = list(meshes)
         self.size = (int(size[0]), int(size[1]))
         low, high = sequence_bounds(self.meshes)
         pose = fit_camera(low, high, camera, self.size[0] / self.size[1])
+        self.floor_y = float(low[1]) - FLOOR_GAP
+        self.shadow_dir = shadow_direction(pose)
         with pv.vtk_verbosity("off"):  # silences VTK's "no X server" probe before EGL
             self.plotter = pv.Plotter(off_screen=True, window_size=list(self.size),
                                       lighting="none")
@@ -280,6 +332,10 @@ class _Scene:
         try:
             pl.set_background(BACKGROUND_BOTTOM, top=BACKGROUND_TOP)
             self.polys = [self._add_mesh(pv, m) for m in self.meshes]
+            # planar contact shadows of the opaque meshes (VTK's shadow-map pass fails
+            # under EGL/Mesa, and a flattened silhouette is cheap and steady)
+            self.shadows = [self._add_shadow(pv, m) if floor and shadows and m.opacity >= 1.0
+                            else None for m in self.meshes]
             if floor:
                 self._add_floor(pv, low, high, pose)
             self._add_lights(pv, pose)
@@ -295,17 +351,21 @@ class _Scene:
             pl.close()
             raise
 
-    def _add_mesh(self, pv, m: PreviewMesh):
-        nf = len(m.faces)
-        cells = np.empty((nf, 4), dtype=np.int64)
+    @staticmethod
+    def _polydata(pv, points: np.ndarray, faces: np.ndarray):
+        cells = np.empty((len(faces), 4), dtype=np.int64)
         cells[:, 0] = 3
-        cells[:, 1:] = m.faces
-        poly = pv.PolyData(m.frame(0).astype(np.float32), cells.ravel())
+        cells[:, 1:] = faces
+        return pv.PolyData(points.astype(np.float32), cells.ravel())
+
+    def _add_mesh(self, pv, m: PreviewMesh):
+        poly = self._polydata(pv, m.frame(0), m.faces)
         poly.point_data.active_normals = vertex_normals(m.frame(0), m.faces)
-        kw = dict(opacity=m.opacity, smooth_shading=False, ambient=0.18, diffuse=0.82,
+        kw = dict(opacity=m.opacity, smooth_shading=False, ambient=0.2, diffuse=0.8,
                   specular=0.12, specular_power=25.0, show_scalar_bar=False)
         if m.scalars is not None:
-            lo, hi = m.clim if m.clim is not None else (float(m.scalars.min()), float(m.scalars.max()))
+            lo, hi = m.clim if m.clim is not None else (float(m.scalars.min()),
+                                                         float(m.scalars.max()))
             poly.point_data["scalars"] = m.frame_scalars(0)
             kw.update(scalars="scalars", cmap=m.cmap, clim=(lo, hi if hi > lo else lo + 1e-6))
         else:
@@ -314,23 +374,35 @@ class _Scene:
         actor.prop.interpolation = "gouraud" if m.smooth else "flat"
         return poly
 
+    def _add_shadow(self, pv, m: PreviewMesh):
+        pts = project_to_floor(m.frame(0), self.floor_y + SHADOW_LIFT, self.shadow_dir)
+        poly = self._polydata(pv, pts, m.faces)
+        # unlit and opaque, so overlapping flattened triangles give one even tone
+        self.plotter.add_mesh(poly, color=SHADOW_COLOR, lighting=False, show_scalar_bar=False)
+        return poly
+
     def _add_floor(self, pv, low, high, pose: CameraPose) -> None:
-        y0 = float(low[1]) - 1e-3  # a millimetre below the lowest vertex: no z-fighting
+        y0 = self.floor_y
         span = float(max(high[0] - low[0], high[2] - low[2], high[1] - low[1], 0.5))
         cx, cz = 0.5 * (low[0] + high[0]), 0.5 * (low[2] + high[2])
         # the floor runs far beyond the frame so its far edge melts into the background
         far = 40.0 * span
         plane = pv.Plane(center=(cx, y0, cz), direction=(0.0, 1.0, 0.0), i_size=2 * far,
                          j_size=2 * far)
-        self.plotter.add_mesh(plane, color=FLOOR_COLOR, ambient=0.55, diffuse=0.45,
-                              specular=0.0, show_scalar_bar=False)
-        half = 1.5 * span  # the grid covers the neighbourhood of the motion only
-        # grid lines on round multiples of GRID_SPACING, slightly above the floor
-        ys = y0 + 5e-4
-        xs = np.arange(math.ceil((cx - half) / GRID_SPACING), math.floor((cx + half) / GRID_SPACING) + 1)
-        zs = np.arange(math.ceil((cz - half) / GRID_SPACING), math.floor((cz + half) / GRID_SPACING) + 1)
-        segs = [((x * GRID_SPACING, ys, cz - half), (x * GRID_SPACING, ys, cz + half)) for x in xs]
-        segs += [((cx - half, ys, z * GRID_SPACING), (cx + half, ys, z * GRID_SPACING)) for z in zs]
+        # directional lights shade a plane evenly, so the floor is drawn unlit (cheaper)
+        self.plotter.add_mesh(plane, color=FLOOR_COLOR, lighting=False, show_scalar_bar=False)
+        # the grid covers the motion's footprint plus a margin; farther out its lines
+        # would crowd into moire near the horizon; toward the camera it runs to the
+        # camera's foot, so the foreground never shows the grid's edge
+        margin = max(GRID_MARGIN, 0.25 * span)
+        cam_x, cam_z = pose.position[0], pose.position[2]
+        x_lo, x_hi = min(float(low[0]) - margin, cam_x), max(float(high[0]) + margin, cam_x)
+        z_lo, z_hi = min(float(low[2]) - margin, cam_z), max(float(high[2]) + margin, cam_z)
+        ys = y0 + 0.5 * SHADOW_LIFT
+        xs = np.arange(math.ceil(x_lo / GRID_SPACING), math.floor(x_hi / GRID_SPACING) + 1)
+        zs = np.arange(math.ceil(z_lo / GRID_SPACING), math.floor(z_hi / GRID_SPACING) + 1)
+        segs = [((x * GRID_SPACING, ys, z_lo), (x * GRID_SPACING, ys, z_hi)) for x in xs]
+        segs += [((x_lo, ys, z * GRID_SPACING), (x_hi, ys, z * GRID_SPACING)) for z in zs]
         if segs:
             pts = np.asarray(segs, dtype=np.float32).reshape(-1, 3)
             lines = np.column_stack([np.full(len(segs), 2), np.arange(0, 2 * len(segs), 2),
@@ -340,23 +412,11 @@ class _Scene:
                                   show_scalar_bar=False)
 
     def _add_lights(self, pv, pose: CameraPose) -> None:
-        """Soft three-point rig, fixed in the world relative to the camera direction."""
+        """Soft three-point rig (plus a faint floor bounce), placed relative to the camera."""
         focal = np.asarray(pose.focal_point)
-        back = np.asarray(pose.position) - focal
-        dist = float(np.linalg.norm(back))
-        back /= dist
-        up = np.asarray(pose.view_up)
-        right = np.cross(up, back)
-        rig = (  # (direction toward the light in camera axes right/up/back, intensity)
-            ((-0.75, 0.85, 0.9), 0.95),   # key: camera-left, above, in front
-            ((0.9, 0.25, 0.8), 0.45),     # fill: camera-right, low
-            ((0.3, 0.9, -1.0), 0.50),     # rim: behind, above
-            ((0.0, -1.0, 0.3), 0.12),     # bounce from the floor
-        )
-        for (a, b, c), intensity in rig:
-            d = a * right + b * up + c * back
-            d /= np.linalg.norm(d)
-            light = pv.Light(position=tuple((focal + 3.0 * dist * d).tolist()),
+        dist = float(np.linalg.norm(np.asarray(pose.position) - focal))
+        for direction, intensity in light_rig(pose):
+            light = pv.Light(position=tuple((focal + 3.0 * dist * direction).tolist()),
                              focal_point=tuple(focal.tolist()), intensity=intensity,
                              light_type="scene light")
             light.positional = False
@@ -364,13 +424,18 @@ class _Scene:
 
     def render(self, t: int) -> np.ndarray:
         """Frame ``t`` as an RGB image, shape (H, W, 3) uint8."""
-        for m, poly in zip(self.meshes, self.polys):
+        for m, poly, shadow in zip(self.meshes, self.polys, self.shadows, strict=True):
             if m.num_frames > 1:
                 v = m.frame(t)
                 poly.points[:] = v
                 poly.GetPoints().Modified()
                 poly.point_data["Normals"][:] = vertex_normals(v, m.faces)
                 poly.point_data.GetNormals().Modified()
+                if shadow is not None:
+                    shadow.points[:] = project_to_floor(v, self.floor_y + SHADOW_LIFT,
+                                                        self.shadow_dir)
+                    shadow.GetPoints().Modified()
+                    shadow.Modified()
             s = m.frame_scalars(t)
             if s is not None and m.scalars.shape[0] > 1:
                 poly.point_data["scalars"][:] = s
@@ -396,10 +461,12 @@ def _check_size(size: tuple[int, int]) -> tuple[int, int]:
 
 def render_frames(meshes: Sequence[PreviewMesh], frame_indices: Iterable[int] | None = None, *,
                   size: tuple[int, int] = (640, 480), camera: str = "front", floor: bool = True,
-                  anti_aliasing: bool = True) -> Iterator[np.ndarray]:
+                  shadows: bool = True, anti_aliasing: bool = True) -> Iterator[np.ndarray]:
     """Render frames of an animated scene off-screen.
 
-    One plotter serves all frames; the camera is fitted once to the whole sequence.
+    One plotter serves all frames; the camera is fitted once to the whole sequence. This is
+    a generator: arguments are checked, and the scene built, when the first frame is asked
+    for; closing the generator early releases the plotter.
 
     Args:
         meshes: what to draw (body, garments ...); all animated meshes share one frame count.
@@ -407,6 +474,7 @@ def render_frames(meshes: Sequence[PreviewMesh], frame_indices: Iterable[int] | 
         size: image (width, height) [px].
         camera: a name from ``CAMERA_VIEWS`` ("front", "side", "three_quarter").
         floor: draw a floor with a 25 cm grid at the lowest point of the sequence.
+        shadows: draw flat contact shadows of the opaque meshes on the floor.
         anti_aliasing: supersampled anti-aliasing (SSAA).
 
     Yields:
@@ -419,7 +487,8 @@ def render_frames(meshes: Sequence[PreviewMesh], frame_indices: Iterable[int] | 
         if not 0 <= i < n:
             raise WrinklesInputError(f"frame index {i} is out of range [0, {n - 1}]")
     view_direction(camera)  # validate before building a scene
-    scene = _Scene(meshes, size, camera, floor=floor, anti_aliasing=anti_aliasing)
+    scene = _Scene(meshes, size, camera, floor=floor, shadows=shadows,
+                   anti_aliasing=anti_aliasing)
     try:
         for i in indices:
             yield scene.render(i)
