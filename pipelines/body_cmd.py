@@ -57,6 +57,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default: %(default)s)")
     p.add_argument("--preview", default=None, help="preview video to write (.mp4 or .gif)")
     p.add_argument("--sheet", default=None, help="contact sheet PNG to write (8 frames)")
+    p.add_argument("--camera", default="three_quarter", choices=("front", "side", "three_quarter"),
+                   help="preview camera, fitted once to the whole motion (default: %(default)s)")
     p.add_argument("--no-ground", action="store_true",
                    help="keep the motion's own height instead of standing frame 0 on the floor")
     add_common_arguments(p)
@@ -121,9 +123,10 @@ def run(args: argparse.Namespace) -> int:
             meshes = frames_to_preview_meshes(frames)
             if out_preview:
                 with progress_bar(frames.num_frames, "preview", quiet=args.quiet) as advance:
-                    write_video(meshes, outputs.temp(out_preview), fps=motion.fps, progress=advance)
+                    write_video(meshes, outputs.temp(out_preview), fps=motion.fps, camera=args.camera,
+                                progress=advance)
             if out_sheet:
-                write_contact_sheet(meshes, outputs.temp(out_sheet))
+                write_contact_sheet(meshes, outputs.temp(out_sheet), fps=motion.fps, camera=args.camera)
     written = [p for p in (out_usd, out_preview, out_sheet) if p]
     if not args.quiet:
         print(f"{motion.name}: {motion.num_frames} frames at {motion.fps:g} fps, body "

@@ -5,4 +5,4 @@ set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 bash "$root/scripts/setup.sh"
 cd "$root"
-exec .venv/bin/wrinkles body --motion walk --out out/walk.usda --preview out/walk.mp4 --sheet out/walk.png "$@"
+exec .venv/bin/wrinkles body --motion walk --camera front --out out/walk.usda --preview out/walk.mp4 --sheet out/walk.png "$@"
