@@ -1,0 +1,250 @@
+"""Quality gates for simulated garment sequences (issue 3, "Quality gates").
+
+Computed for every simulated sequence and stored with it: edge strain (max, mean), the fraction
+of garment vertices inside the body, self-intersections, and non-finite values. ``check_frame``
+is the in-simulation guard: it stops a run with a ``SimulationError`` naming the frame and the
+cause (NaN, explosion).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from sim.device import resolve_device, warp
+
+
+class SimulationError(RuntimeError):
+    """A simulation blew up; the message names the frame and the cause."""
+
+    def __init__(self, frame: int, cause: str):
+        self.frame = int(frame)
+        self.cause = cause
+        super().__init__(f"simulation failed at frame {frame}: {cause}")
+
+
+@dataclass(frozen=True)
+class QualityGates:
+    """Thresholds a sequence must meet.
+
+    Attributes:
+        max_edge_strain: largest |l/l0 - 1| allowed on any edge in any frame [-].
+        max_inside_fraction: largest fraction of garment vertices inside the body in any frame.
+        max_self_intersections: largest number of edge-face crossings in any frame.
+    """
+
+    max_edge_strain: float = 0.35
+    max_inside_fraction: float = 0.01
+    max_self_intersections: int = 0
+
+
+@dataclass(frozen=True)
+class QualityReport:
+    """Quality statistics of a garment sequence (T frames).
+
+    Attributes:
+        max_edge_strain: max over edges and frames of |l/l0 - 1|.
+        mean_edge_strain: mean over edges and frames of |l/l0 - 1|.
+        max_stretch / max_compression: max of (l/l0 - 1) and of (1 - l/l0).
+        inside_fraction: per frame, fraction of garment vertices inside the body, shape (T,).
+        self_intersections: per frame, number of edge-face crossings, shape (T,).
+        finite: every position finite.
+    """
+
+    max_edge_strain: float
+    mean_edge_strain: float
+    max_stretch: float
+    max_compression: float
+    inside_fraction: np.ndarray
+    self_intersections: np.ndarray
+    finite: bool
+
+    def failures(self, gates: QualityGates) -> list[str]:
+        """Human-readable reasons this sequence fails ``gates`` (empty when it passes)."""
+        out = []
+        if not self.finite:
+            out.append("non-finite vertex positions")
+        if self.max_edge_strain > gates.max_edge_strain:
+            out.append(f"max edge strain {self.max_edge_strain:.3f} > {gates.max_edge_strain}")
+        worst = float(self.inside_fraction.max()) if self.inside_fraction.size else 0.0
+        if worst > gates.max_inside_fraction:
+            f = int(np.argmax(self.inside_fraction))
+            out.append(f"{100 * worst:.2f}% of vertices inside the body at frame {f} "
+                       f"(gate {100 * gates.max_inside_fraction:.2f}%)")
+        si = int(self.self_intersections.max()) if self.self_intersections.size else 0
+        if si > gates.max_self_intersections:
+            f = int(np.argmax(self.self_intersections))
+            out.append(f"{si} self-intersection crossings at frame {f} (gate {gates.max_self_intersections})")
+        return out
+
+    def to_json(self) -> dict:
+        """JSON-ready summary (per-frame arrays as lists)."""
+        d = asdict(self)
+        d["inside_fraction"] = [float(v) for v in self.inside_fraction]
+        d["self_intersections"] = [int(v) for v in self.self_intersections]
+        d["max_inside_fraction"] = float(self.inside_fraction.max()) if self.inside_fraction.size else 0.0
+        d["max_self_intersections"] = int(self.self_intersections.max()) if self.self_intersections.size else 0
+        return d
+
+
+def unique_edges(faces: np.ndarray) -> np.ndarray:
+    """Undirected edges of a triangle mesh, shape (E, 2), int32, each once (i < j)."""
+    f = np.asarray(faces, dtype=np.int64)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    e.sort(axis=1)
+    return np.unique(e, axis=0).astype(np.int32)
+
+
+def edge_strain(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray, *,
+                device: str | None = None) -> np.ndarray:
+    """Engineering strain l/l0 - 1 of every edge in every frame.
+
+    Args:
+        vertices: positions [m], shape (T, V, 3).
+        rest_vertices: rest positions [m], shape (V, 3).
+        faces: (F, 3) int.
+
+    Returns:
+        (T, E) float32, edges as in :func:`unique_edges`.
+    """
+    wp = warp()
+    from sim import quality_kernels as K
+
+    d = resolve_device(device)
+    edges = unique_edges(faces)
+    rest = np.linalg.norm(rest_vertices[edges[:, 1]] - rest_vertices[edges[:, 0]], axis=1)
+    x = wp.array(np.ascontiguousarray(vertices, np.float32), dtype=wp.vec3, device=d)
+    out = wp.empty((vertices.shape[0], edges.shape[0]), dtype=float, device=d)
+    wp.launch(K.edge_strain_kernel, dim=out.shape,
+              inputs=[x, wp.array(edges, dtype=int, device=d),
+                      wp.array(np.maximum(rest, 1e-12).astype(np.float32), dtype=float, device=d)],
+              outputs=[out], device=d)
+    return out.numpy()
+
+
+def inside_fraction(points: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, *,
+                    device: str | None = None, max_dist: float = 10.0) -> np.ndarray:
+    """Per frame, the fraction of ``points`` inside the closed body mesh.
+
+    Args:
+        points: garment positions [m], shape (T, V, 3).
+        body_vertices: body positions [m], shape (T, Vb, 3) (or (Vb, 3) for a static body).
+        body_faces: (Fb, 3) int, outward wound.
+
+    Returns:
+        (T,) float.
+    """
+    wp = warp()
+    from sim import quality_kernels as K
+
+    d = resolve_device(device)
+    T = points.shape[0]
+    bv = np.asarray(body_vertices, np.float32)
+    if bv.ndim == 2:
+        bv = np.broadcast_to(bv, (T, *bv.shape))
+    mesh_pts = wp.array(np.ascontiguousarray(bv[0]), dtype=wp.vec3, device=d)
+    mesh = wp.Mesh(points=mesh_pts, indices=wp.array(np.asarray(body_faces, np.int32).ravel(),
+                                                     dtype=wp.int32, device=d))
+    inside = wp.empty(points.shape[1], dtype=int, device=d)
+    out = np.empty(T)
+    for t in range(T):
+        if t > 0 and bv is not None:
+            mesh_pts.assign(np.ascontiguousarray(bv[t]))
+            mesh.refit()
+        x = wp.array(np.ascontiguousarray(points[t], np.float32), dtype=wp.vec3, device=d)
+        wp.launch(K.inside_mesh_kernel, dim=points.shape[1], inputs=[mesh.id, x, float(max_dist)],
+                  outputs=[inside], device=d)
+        out[t] = inside.numpy().mean()
+    return out
+
+
+def self_intersections(vertices: np.ndarray, faces: np.ndarray, *, device: str | None = None) -> np.ndarray:
+    """Per frame, the number of edge-face crossings between non-adjacent elements.
+
+    Args:
+        vertices: positions [m], shape (T, V, 3).
+        faces: (F, 3) int.
+
+    Returns:
+        (T,) int.
+    """
+    wp = warp()
+    from sim import quality_kernels as K
+
+    d = resolve_device(device)
+    faces = np.asarray(faces, np.int32)
+    edges = unique_edges(faces)
+    edges_d = wp.array(edges, dtype=int, device=d)
+    faces_d = wp.array(faces, dtype=int, device=d)
+    pts = wp.array(np.ascontiguousarray(vertices[0], np.float32), dtype=wp.vec3, device=d)
+    mesh = wp.Mesh(points=pts, indices=wp.array(faces.ravel(), dtype=wp.int32, device=d))
+    count = wp.zeros(1, dtype=int, device=d)
+    per_edge = wp.empty(edges.shape[0], dtype=int, device=d)
+    out = np.empty(vertices.shape[0], dtype=np.int64)
+    for t in range(vertices.shape[0]):
+        if t > 0:
+            pts.assign(np.ascontiguousarray(vertices[t], np.float32))
+            mesh.refit()
+        count.zero_()
+        wp.launch(K.self_intersection_kernel, dim=edges.shape[0],
+                  inputs=[mesh.id, pts, edges_d, faces_d], outputs=[count, per_edge], device=d)
+        out[t] = int(count.numpy()[0])
+    return out
+
+
+def evaluate_sequence(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,
+                      body_vertices: np.ndarray | None = None, body_faces: np.ndarray | None = None,
+                      *, device: str | None = None) -> QualityReport:
+    """All quality statistics of a garment sequence.
+
+    Args:
+        vertices: garment positions [m], shape (T, V, 3).
+        rest_vertices: garment rest positions [m], shape (V, 3).
+        faces: garment triangles (F, 3).
+        body_vertices: body positions [m], (T, Vb, 3) or (Vb, 3); None skips the inside test.
+        body_faces: body triangles (Fb, 3).
+    """
+    vertices = np.asarray(vertices, np.float32)
+    T = vertices.shape[0]
+    finite = bool(np.all(np.isfinite(vertices)))
+    if not finite:
+        nan = np.full(T, np.nan)
+        return QualityReport(float("inf"), float("inf"), float("inf"), float("inf"), nan,
+                             np.full(T, -1), False)
+    s = edge_strain(vertices, rest_vertices, faces, device=device)
+    inside = (inside_fraction(vertices, body_vertices, body_faces, device=device)
+              if body_vertices is not None else np.zeros(T))
+    si = self_intersections(vertices, faces, device=device)
+    a = np.abs(s)
+    return QualityReport(
+        max_edge_strain=float(a.max()), mean_edge_strain=float(a.mean()),
+        max_stretch=float(max(s.max(), 0.0)), max_compression=float(max(-s.min(), 0.0)),
+        inside_fraction=inside, self_intersections=si, finite=True)
+
+
+def check_frame(positions: np.ndarray, frame: int, *, rest_edge_length: float | None = None,
+                bound: float = 100.0) -> None:
+    """Stop a run that has blown up.
+
+    Args:
+        positions: (V, 3) [m] of one frame.
+        frame: frame index (for the message).
+        rest_edge_length: typical rest edge length [m]; with it, any vertex farther than 1000
+            edge lengths from the mean position also counts as an explosion.
+        bound: |coordinate| above this [m] is an explosion.
+
+    Raises:
+        SimulationError: naming the frame and the cause.
+    """
+    p = np.asarray(positions)
+    bad = ~np.isfinite(p).all(axis=1)
+    if bad.any():
+        raise SimulationError(frame, f"{int(bad.sum())} vertices became NaN/inf (first: vertex {int(np.argmax(bad))})")
+    far = np.abs(p).max(axis=1) > bound
+    if far.any():
+        raise SimulationError(frame, f"explosion: vertex {int(np.argmax(far))} left the {bound:g} m box")
+    if rest_edge_length is not None:
+        spread = np.linalg.norm(p - p.mean(axis=0), axis=1).max()
+        if spread > 1000.0 * rest_edge_length:
+            raise SimulationError(frame, f"explosion: garment spread {spread:.1f} m")

@@ -1,0 +1,100 @@
+"""Warp kernels for the simulation quality gates (see ``sim/quality.py``).
+
+Kernel arguments: inputs first, outputs with an ``_out`` suffix.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+
+@wp.kernel
+def edge_strain_kernel(
+    x: wp.array2d(dtype=wp.vec3),
+    edges: wp.array2d(dtype=int),
+    rest_length: wp.array(dtype=float),
+    strain_out: wp.array2d(dtype=float),
+):
+    """Engineering strain l / l0 - 1 of each edge in each frame. x: (T, V); out: (T, E)."""
+    t, e = wp.tid()
+    d = x[t, edges[e, 1]] - x[t, edges[e, 0]]
+    strain_out[t, e] = wp.length(d) / rest_length[e] - 1.0
+
+
+@wp.kernel
+def inside_mesh_kernel(
+    mesh: wp.uint64,
+    x: wp.array(dtype=wp.vec3),
+    max_dist: float,
+    inside_out: wp.array(dtype=int),
+):
+    """1 where a point is inside the (closed, outward-wound) mesh, by its angle-weighted
+    pseudo-normal sign; points farther than ``max_dist`` from the surface count as outside."""
+    i = wp.tid()
+    q = wp.mesh_query_point_sign_normal(mesh, x[i], max_dist)
+    inside = 0
+    if q.result:
+        if q.sign < 0.0:
+            inside = 1
+    inside_out[i] = inside
+
+
+@wp.func
+def segment_hits_triangle(p: wp.vec3, q: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> int:
+    """Moller-Trumbore for the segment p-q against triangle abc (1 on a proper crossing)."""
+    d = q - p
+    e1 = b - a
+    e2 = c - a
+    h = wp.cross(d, e2)
+    det = wp.dot(e1, h)
+    # (near-)coplanar segment and triangle: no transversal crossing (relative threshold)
+    if wp.abs(det) <= 1.0e-6 * wp.length(d) * wp.length(e1) * wp.length(e2):
+        return 0
+    inv = 1.0 / det
+    s = p - a
+    u = inv * wp.dot(s, h)
+    if u < 0.0 or u > 1.0:
+        return 0
+    qv = wp.cross(s, e1)
+    v = inv * wp.dot(d, qv)
+    if v < 0.0 or u + v > 1.0:
+        return 0
+    t = inv * wp.dot(e2, qv)
+    if t < 0.0 or t > 1.0:
+        return 0
+    return 1
+
+
+@wp.kernel
+def self_intersection_kernel(
+    mesh: wp.uint64,
+    x: wp.array(dtype=wp.vec3),
+    edges: wp.array2d(dtype=int),
+    faces: wp.array2d(dtype=int),
+    count_out: wp.array(dtype=int),
+    edge_hit_out: wp.array(dtype=int),
+):
+    """Count crossings of mesh edges through non-adjacent faces of the same mesh.
+
+    One thread per edge; candidate faces from the mesh BVH over the edge's bounding box. A pair
+    of intersecting triangles produces at least two edge-face crossings.
+    """
+    e = wp.tid()
+    i0 = edges[e, 0]
+    i1 = edges[e, 1]
+    p = x[i0]
+    q = x[i1]
+    lo = wp.min(p, q)
+    hi = wp.max(p, q)
+    query = wp.mesh_query_aabb(mesh, lo, hi)
+    f = 0
+    hits = 0
+    while wp.mesh_query_aabb_next(query, f):
+        a = faces[f, 0]
+        b = faces[f, 1]
+        c = faces[f, 2]
+        if a != i0 and a != i1 and b != i0 and b != i1 and c != i0 and c != i1:
+            hits += segment_hits_triangle(p, q, x[a], x[b], x[c])
+    edge_hit_out[e] = hits
+    if hits > 0:
+        wp.atomic_add(count_out, 0, hits)

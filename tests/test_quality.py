@@ -1,0 +1,113 @@
+"""Quality-gate kernels on exact cases: strain of a scaled mesh, points in a sphere,
+crossing vs separated sheets, explosion detection."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from sim.quality import (
+    QualityGates,
+    SimulationError,
+    check_frame,
+    edge_strain,
+    evaluate_sequence,
+    inside_fraction,
+    self_intersections,
+    unique_edges,
+)
+
+
+def grid(n: int = 6, size: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n vertex square sheet in the XZ plane, (V, 3) and (F, 3)."""
+    u = np.linspace(0, size, n)
+    X, Z = np.meshgrid(u, u, indexing="ij")
+    v = np.stack([X.ravel(), np.zeros(n * n), Z.ravel()], axis=1).astype(np.float32)
+    f = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            f += [[a, b, c], [a, c, d]]
+    return v, np.array(f, np.int32)
+
+
+def test_unique_edges_counts():
+    v, f = grid(4)
+    # n x n grid with diagonals: 2 n (n-1) axis edges + (n-1)^2 diagonals
+    assert unique_edges(f).shape[0] == 2 * 4 * 3 + 9
+
+
+def test_edge_strain_of_scaled_mesh_is_exact(device):
+    v, f = grid(5)
+    seq = np.stack([v, v * 1.1, v * 0.8])
+    s = edge_strain(seq, v, f, device=device)
+    np.testing.assert_allclose(s[0], 0.0, atol=1e-6)
+    np.testing.assert_allclose(s[1], 0.1, atol=1e-5)
+    np.testing.assert_allclose(s[2], -0.2, atol=1e-5)
+
+
+def test_inside_fraction_sphere(device):
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-1.5, 1.5, size=(2000, 3)).astype(np.float32)
+    r = np.linalg.norm(pts, axis=1)
+    keep = np.abs(r - 1.0) > 0.03  # away from the tessellated surface
+    pts = pts[keep]
+    expect = float((np.linalg.norm(pts, axis=1) < 1.0).mean())
+    got = inside_fraction(pts[None], sphere.vertices, sphere.faces, device=device)
+    np.testing.assert_allclose(got[0], expect, atol=1e-9)
+    # the body moves away in frame 1: nothing inside
+    moved = np.stack([sphere.vertices, sphere.vertices + [10.0, 0, 0]])
+    got2 = inside_fraction(np.stack([pts, pts]), moved, sphere.faces, device=device)
+    assert got2[0] == pytest.approx(expect) and got2[1] == 0.0
+
+
+def test_self_intersections_detects_crossing_sheets(device):
+    v, f = grid(6)
+    # two parallel sheets 1 cm apart: no crossing
+    v2 = v + [0.0, 0.01, 0.0]
+    V = np.concatenate([v, v2])
+    F = np.concatenate([f, f + len(v)])
+    assert self_intersections(V[None], F, device=device)[0] == 0
+    # the second sheet stood up through the middle of the first: crossings
+    v3 = v[:, [0, 2, 1]] + [0.0, -0.5, 0.0]  # XY plane sheet, spans y in [-0.5, 0.5]
+    v3[:, 2] += 0.5 + 1e-3
+    V2 = np.concatenate([v, v3])
+    n = self_intersections(V2[None], F, device=device)[0]
+    assert n >= 2
+
+
+def test_self_intersections_zero_for_flat_and_folded_sheet(device):
+    v, f = grid(8)
+    folded = v.copy()
+    # fold along x = 0.5 without crossing: the far half lifted into a tent
+    m = folded[:, 0] > 0.5
+    folded[m, 1] = (folded[m, 0] - 0.5) * 0.8
+    assert self_intersections(np.stack([v, folded]), f, device=device).tolist() == [0, 0]
+
+
+def test_evaluate_sequence_and_gates():
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+    v, f = grid(6, size=1.0)
+    v = v + [-0.5, 0.3, -0.5]  # sheet above the sphere
+    seq = np.stack([v, v * [1.0, 1.0, 1.0], v + [0, -0.3, 0]])  # last frame: cuts the sphere
+    rep = evaluate_sequence(seq, v, f, sphere.vertices, sphere.faces, device="cpu")
+    assert rep.finite
+    assert rep.inside_fraction[0] == 0.0 and rep.inside_fraction[2] > 0.0
+    fails = rep.failures(QualityGates(max_inside_fraction=0.0))
+    assert any("frame 2" in s for s in fails)
+    assert rep.failures(QualityGates(max_inside_fraction=1.0)) == []
+    d = rep.to_json()
+    assert d["max_inside_fraction"] == pytest.approx(rep.inside_fraction.max())
+
+
+def test_check_frame_names_frame_and_cause():
+    p = np.zeros((10, 3))
+    check_frame(p, 0)
+    p[3, 1] = np.nan
+    with pytest.raises(SimulationError, match="frame 7.*NaN"):
+        check_frame(p, 7)
+    p[3, 1] = 1e6
+    with pytest.raises(SimulationError, match="frame 2.*explosion"):
+        check_frame(p, 2)
