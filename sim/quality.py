@@ -75,7 +75,8 @@ class QualityReport:
         si = int(self.self_intersections.max()) if self.self_intersections.size else 0
         if si > gates.max_self_intersections:
             f = int(np.argmax(self.self_intersections))
-            out.append(f"{si} self-intersection crossings at frame {f} (gate {gates.max_self_intersections})")
+            out.append(f"{si} self-intersection crossings at frame {f} "
+                       f"(gate {gates.max_self_intersections})")
         return out
 
     def to_json(self) -> dict:
@@ -159,7 +160,8 @@ def inside_fraction(points: np.ndarray, body_vertices: np.ndarray, body_faces: n
     return out
 
 
-def self_intersections(vertices: np.ndarray, faces: np.ndarray, *, device: str | None = None) -> np.ndarray:
+def self_intersections(vertices: np.ndarray, faces: np.ndarray, *,
+                       device: str | None = None) -> np.ndarray:
     """Per frame, the number of edge-face crossings between non-adjacent elements.
 
     Args:
@@ -240,7 +242,8 @@ def check_frame(positions: np.ndarray, frame: int, *, rest_edge_length: float | 
     p = np.asarray(positions)
     bad = ~np.isfinite(p).all(axis=1)
     if bad.any():
-        raise SimulationError(frame, f"{int(bad.sum())} vertices became NaN/inf (first: vertex {int(np.argmax(bad))})")
+        first = int(np.argmax(bad))
+        raise SimulationError(frame, f"{int(bad.sum())} vertices became NaN/inf (first: vertex {first})")
     far = np.abs(p).max(axis=1) > bound
     if far.any():
         raise SimulationError(frame, f"explosion: vertex {int(np.argmax(far))} left the {bound:g} m box")
