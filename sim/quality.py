@@ -84,8 +84,9 @@ class QualityReport:
         d = asdict(self)
         d["inside_fraction"] = [float(v) for v in self.inside_fraction]
         d["self_intersections"] = [int(v) for v in self.self_intersections]
-        d["max_inside_fraction"] = float(self.inside_fraction.max()) if self.inside_fraction.size else 0.0
-        d["max_self_intersections"] = int(self.self_intersections.max()) if self.self_intersections.size else 0
+        inside, si = self.inside_fraction, self.self_intersections
+        d["max_inside_fraction"] = float(inside.max()) if inside.size else 0.0
+        d["max_self_intersections"] = int(si.max()) if si.size else 0
         return d
 
 
