@@ -32,7 +32,7 @@ def inside_mesh_kernel(
     pseudo-normal sign; points farther than ``max_dist`` from the surface count as outside."""
     i = wp.tid()
     q = wp.mesh_query_point_sign_normal(mesh, x[i], max_dist)
-    inside = 0
+    inside = int(0)
     if q.result:
         if q.sign < 0.0:
             inside = 1
@@ -87,8 +87,8 @@ def self_intersection_kernel(
     lo = wp.min(p, q)
     hi = wp.max(p, q)
     query = wp.mesh_query_aabb(mesh, lo, hi)
-    f = 0
-    hits = 0
+    f = int(0)
+    hits = int(0)
     while wp.mesh_query_aabb_next(query, f):
         a = faces[f, 0]
         b = faces[f, 1]

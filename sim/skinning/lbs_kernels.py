@@ -92,7 +92,7 @@ def forward_kinematics_kernel(
             base = 9 * (j - 1)
             for r in range(3):
                 for c in range(3):
-                    eye = 0.0
+                    eye = float(0.0)
                     if r == c:
                         eye = 1.0
                     pose_feature_out[t, base + 3 * r + c] = R[r, c] - eye
