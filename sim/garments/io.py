@@ -1,0 +1,149 @@
+"""Import a user garment (OBJ / PLY / GLB via trimesh, USD via ``usd_io``) with its UVs.
+
+Repairs what is safe to repair (duplicate vertices merged while UV seams are kept, tiny
+disconnected pieces dropped, zero-area faces removed when the result stays manifold) and
+refuses the rest with a one-line ``WrinklesInputError`` naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from sim.errors import WrinklesInputError
+from sim.garments.materials import Material, get_material
+from sim.garments.types import Garment
+
+MERGE_TOL = 1e-6
+"""Vertices closer than 1 µm are one vertex (exporters split them along UV seams) [m]."""
+TINY_COMPONENT = 0.05
+"""Components with fewer than 5 % of the faces are stray pieces and are dropped."""
+DEGENERATE_AREA = 1e-12
+"""Faces below 1e-12 m² (1 µm × 1 µm) have no usable normal [m²]."""
+MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".off", ".stl")
+USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+
+
+def _read(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """(points (V,3), faces (F,3), uvs (U,2) | None, uv_faces (F,3) | None) of the first mesh."""
+    suffix = path.suffix.lower()
+    if suffix in USD_SUFFIXES:
+        from usd_io import read_stage  # the only pxr user (DESIGN.md, Layout)
+
+        stage = read_stage(path)
+        meshes = list(stage.garments.values()) or [m for m in stage.meshes.values()
+                                                    if m.path != "/World/Body"]
+        if not meshes:
+            raise WrinklesInputError("no garment mesh in the stage", path=path)
+        m = meshes[0]
+        uv_faces = m.uv_faces
+        if m.uvs is not None and uv_faces is None:
+            uv_faces = m.faces
+        return m.points[0], m.faces, m.uvs, uv_faces
+    if suffix not in MESH_SUFFIXES:
+        raise WrinklesInputError(f"unsupported garment format {suffix!r}; expected one of "
+                                 f"{', '.join(MESH_SUFFIXES + USD_SUFFIXES)}", path=path)
+    import trimesh
+
+    try:
+        loaded = trimesh.load(path, process=False, maintain_order=True)
+    except Exception as exc:  # trimesh raises many types for broken files
+        raise WrinklesInputError(f"cannot read mesh: {type(exc).__name__}: {exc}", path=path) from None
+    if isinstance(loaded, trimesh.Scene):
+        geoms = [g for g in loaded.geometry.values() if isinstance(g, trimesh.Trimesh)]
+        if not geoms:
+            raise WrinklesInputError("no triangle mesh in the file", path=path)
+        loaded = geoms[0]
+    if not isinstance(loaded, trimesh.Trimesh):
+        raise WrinklesInputError(f"not a triangle mesh ({type(loaded).__name__})", path=path)
+    uv = getattr(loaded.visual, "uv", None)
+    points = np.asarray(loaded.vertices, np.float64)
+    faces = np.asarray(loaded.faces, np.int64)
+    if uv is None or len(uv) != len(points):
+        return points, faces, None, None
+    # trimesh splits vertices along UV seams: per-vertex UVs, uv_faces == faces before merging
+    return points, faces, np.asarray(uv, np.float64), faces.copy()
+
+
+def _edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return np.unique(e, axis=0, return_counts=True)
+
+
+def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton", name: str | None = None,
+                 require_uvs: bool = True) -> Garment:
+    """Read a garment mesh, repair it, and check it is a usable cloth mesh.
+
+    Args:
+        path: .obj, .ply, .glb/.gltf, .off, .stl or .usd/.usda/.usdc/.usdz (frame 0).
+        material: preset name or ``Material``.
+        name: garment name (default: the file stem).
+        require_uvs: refuse meshes without UVs.
+
+    Returns:
+        Garment with category "imported", one panel per UV island is not inferred (panel 0).
+
+    Raises:
+        WrinklesInputError: unreadable, empty, no UVs, non-manifold, or degenerate beyond repair.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise WrinklesInputError("no such file", path=path)
+    points, faces, uvs, uv_faces = _read(path)
+    if len(points) == 0 or len(faces) == 0:
+        raise WrinklesInputError("the mesh is empty", path=path)
+    if not np.all(np.isfinite(points)):
+        raise WrinklesInputError("vertex positions contain NaN/inf", path=path)
+    if uvs is None and require_uvs:
+        raise WrinklesInputError("the mesh has no UVs (texture coordinates); UVs are required", path=path)
+    if uvs is None:
+        uvs, uv_faces = np.zeros((1, 2)), np.zeros_like(faces)
+    # 1. merge duplicate positions (UV seams stay: uv_faces keep their own indices)
+    key = np.round(points / MERGE_TOL).astype(np.int64)
+    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    faces = rank[inv.reshape(-1)][faces]
+    points = points[first[order]]
+    # 2. drop faces that collapsed to an edge/point, then zero-area faces
+    tri = points[faces]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    same = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 2] == faces[:, 0])
+    keep = ~same & (area > DEGENERATE_AREA)
+    n_degenerate = int((~keep).sum())
+    faces, uv_faces = faces[keep], uv_faces[keep]
+    if len(faces) == 0:
+        raise WrinklesInputError("every face is degenerate (zero area)", path=path)
+    # 3. manifold check
+    edges, counts = _edge_counts(faces)
+    bad = counts > 2
+    if bad.any():
+        a, b = edges[bad][0]
+        extra = f" (after removing {n_degenerate} degenerate faces)" if n_degenerate else ""
+        raise WrinklesInputError(f"{int(bad.sum())} non-manifold edges (in more than 2 faces){extra}, "
+                                 f"e.g. vertices {a}-{b}", path=path)
+    # 4. drop tiny disconnected components
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(points)
+    adj = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, label = connected_components(adj, directed=False)
+    face_label = label[faces[:, 0]]
+    sizes = np.bincount(face_label)
+    keep = sizes[face_label] >= TINY_COMPONENT * len(faces)
+    faces, uv_faces = faces[keep], uv_faces[keep]
+    # 5. compact vertices and UVs
+    used = np.unique(faces)
+    remap = np.full(n, -1, np.int64)
+    remap[used] = np.arange(len(used))
+    used_uv = np.unique(uv_faces)
+    remap_uv = np.full(len(uvs), -1, np.int64)
+    remap_uv[used_uv] = np.arange(len(used_uv))
+    return Garment(rest_vertices=points[used].astype(np.float32), faces=remap[faces].astype(np.int32),
+                   uvs=uvs[used_uv].astype(np.float32), uv_faces=remap_uv[uv_faces].astype(np.int32),
+                   material=get_material(material), attachments={}, category="imported",
+                   name=name or path.stem, panel_ids=np.zeros(len(faces), np.int32), panel_names=("mesh",))

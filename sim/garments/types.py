@@ -1,0 +1,75 @@
+"""The ``Garment`` type (DESIGN.md, Core types)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim.errors import WrinklesInputError
+from sim.garments.materials import Material
+
+
+@dataclass(frozen=True)
+class Garment:
+    """A garment at rest: a triangle mesh with UVs, panels, a material and attachment sets.
+
+    Attributes:
+        rest_vertices: positions [m], shape (V, 3), float32, body rest pose (Y up, facing +Z).
+        faces: triangle vertex indices, shape (F, 3), int32, outward-facing (counter-clockwise).
+        uvs: texture coordinates in [0, 1]², shape (U, 2), float32; UV vertices are split
+            along seams, so U >= V in general.
+        uv_faces: per-corner indices into ``uvs``, shape (F, 3), int32.
+        material: the cloth.
+        attachments: named vertex index sets (int32 arrays), e.g. "waistband", "shoulders".
+        category: template category ("straight_skirt", ...) or "imported".
+        name: garment name (USD prim name).
+        panel_ids: sewing-pattern panel of each face, shape (F,), int32.
+        panel_names: name of each panel id.
+    """
+
+    rest_vertices: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray
+    uv_faces: np.ndarray
+    material: Material
+    attachments: dict[str, np.ndarray] = field(default_factory=dict)
+    category: str = "imported"
+    name: str = "garment"
+    panel_ids: np.ndarray | None = None
+    panel_names: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        v = np.ascontiguousarray(self.rest_vertices, dtype=np.float32)
+        f = np.ascontiguousarray(self.faces, dtype=np.int32)
+        uv = np.ascontiguousarray(self.uvs, dtype=np.float32)
+        uf = np.ascontiguousarray(self.uv_faces, dtype=np.int32)
+        where = f"garment {self.name!r}"
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) < 3:
+            raise WrinklesInputError(f"{where}: rest_vertices must be (V, 3), got {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) < 1 or f.min() < 0 or f.max() >= len(v):
+            raise WrinklesInputError(f"{where}: faces must be (F, 3) indices into {len(v)} vertices")
+        if uf.shape != f.shape or uv.ndim != 2 or uv.shape[1] != 2 or uf.min() < 0 or uf.max() >= len(uv):
+            raise WrinklesInputError(f"{where}: uv_faces must be (F, 3) indices into uvs (U, 2)")
+        pid = np.zeros(len(f), np.int32) if self.panel_ids is None else np.asarray(self.panel_ids, np.int32)
+        if pid.shape != (len(f),):
+            raise WrinklesInputError(f"{where}: panel_ids must have shape ({len(f)},), got {pid.shape}")
+        att = {str(k): np.asarray(a, dtype=np.int32).reshape(-1) for k, a in self.attachments.items()}
+        for k, a in att.items():
+            if a.size and (a.min() < 0 or a.max() >= len(v)):
+                raise WrinklesInputError(f"{where}: attachment {k!r} has indices outside [0, {len(v) - 1}]")
+        arrays = (("rest_vertices", v), ("faces", f), ("uvs", uv), ("uv_faces", uf), ("panel_ids", pid))
+        for name, arr in arrays:
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "attachments", att)
+        names = tuple(self.panel_names) or tuple(f"panel{i}" for i in range(int(pid.max()) + 1))
+        object.__setattr__(self, "panel_names", names)
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.rest_vertices.shape[0])
+
+    @property
+    def num_faces(self) -> int:
+        return int(self.faces.shape[0])
