@@ -1,0 +1,212 @@
+"""Cloth energies as Warp functions: StVK membrane and dihedral-angle bending.
+
+Each energy comes with its per-vertex gradient and 3x3 Hessian block, the quantities a
+Vertex Block Descent iteration needs (Chen et al. 2024, Eq. 9-10). The same functions give
+physics losses later (DESIGN.md: "physics energies that double as learning losses").
+
+Conventions:
+    * Membrane (Saint Venant-Kirchhoff on a triangle): ``F = Ds Dm^-1`` (3x2),
+      ``G = (F^T F - I) / 2``, ``psi = mu |G|_F^2 + lam/2 tr(G)^2`` [J/m^2], energy
+      ``E = A psi`` [J] with rest area ``A`` [m^2] (Bonet & Wood, Nonlinear Continuum
+      Mechanics, Eq. 6.27 restricted to 2D). The vertex gradient is ``A P g_i`` with the first
+      Piola stress ``P = F (2 mu G + lam tr(G) I)`` and ``g_i`` the vertex's row of the shape
+      derivative (``F = sum_i x_i g_i^T``).
+    * Bending (discrete shells, Grinspun et al. 2003; hinge gradient as in Bridson et al.
+      2003 / Tamstorf & Grinspun 2013): ``E = k_e/2 (theta - theta_rest)^2`` per interior edge
+      with ``k_e = k_b 3 |e|^2 / (A_1 + A_2)`` from the rest shape, ``k_b`` [N m]. This
+      approximates ``k_b/2 * integral kappa^2 dA``.
+
+Hinge layout: ``(o0, o1, a, b)``: ``a -> b`` is the shared edge in the orientation of the
+triangle ``(a, b, o0)``; the other triangle is ``(b, a, o1)``. ``theta`` is 0 for a flat
+hinge.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+
+@wp.func
+def stvk_shape_row(dm_inv: wp.mat22, local: int) -> wp.vec2:
+    """Row ``g_i`` of the shape derivative for local vertex ``local`` (F = sum_i x_i g_i^T)."""
+    g1 = wp.vec2(dm_inv[0, 0], dm_inv[0, 1])
+    g2 = wp.vec2(dm_inv[1, 0], dm_inv[1, 1])
+    if local == 1:
+        return g1
+    if local == 2:
+        return g2
+    return -(g1 + g2)
+
+
+@wp.func
+def stvk_energy(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: float, mu: float,
+                lam: float) -> float:
+    """StVK membrane energy [J] of one triangle (module docstring)."""
+    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
+    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
+    g00 = 0.5 * (wp.dot(f0, f0) - 1.0)
+    g11 = 0.5 * (wp.dot(f1, f1) - 1.0)
+    g01 = 0.5 * wp.dot(f0, f1)
+    tr = g00 + g11
+    return area * (mu * (g00 * g00 + 2.0 * g01 * g01 + g11 * g11) + 0.5 * lam * tr * tr)
+
+
+@wp.func
+def stvk_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: float,
+                              mu: float, lam: float, local: int):
+    """Force ``-dE/dx_local`` [N] and Hessian block ``d2E/dx_local^2`` [N/m] of the StVK
+    membrane energy.
+
+    The Hessian is exact except that the term ``(g^T S g) I`` is clamped at zero under
+    compression, which keeps the block positive semi-definite (the VBD step needs a descent
+    direction; Chen et al. 2024, Sec. 3.4).
+    """
+    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
+    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
+    g00 = 0.5 * (wp.dot(f0, f0) - 1.0)
+    g11 = 0.5 * (wp.dot(f1, f1) - 1.0)
+    g01 = 0.5 * wp.dot(f0, f1)
+    tr = g00 + g11
+    # second Piola-Kirchhoff stress S = 2 mu G + lam tr(G) I (2x2, symmetric)
+    s00 = 2.0 * mu * g00 + lam * tr
+    s11 = 2.0 * mu * g11 + lam * tr
+    s01 = 2.0 * mu * g01
+    g = stvk_shape_row(dm_inv, local)
+    # P g = F S g
+    sg0 = s00 * g[0] + s01 * g[1]
+    sg1 = s01 * g[0] + s11 * g[1]
+    force = -area * (f0 * sg0 + f1 * sg1)
+    fg = f0 * g[0] + f1 * g[1]
+    gsg = wp.max(g[0] * sg0 + g[1] * sg1, 0.0)
+    gg = wp.dot(g, g)
+    hess = area * (gsg * wp.identity(n=3, dtype=float) + (mu + lam) * wp.outer(fg, fg)
+                   + (mu * gg) * (wp.outer(f0, f0) + wp.outer(f1, f1)))
+    return force, hess
+
+
+@wp.func
+def dihedral_angle(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3) -> float:
+    """Signed dihedral angle [rad] of the hinge ``(o0, o1, a, b)``; 0 when flat."""
+    e = xb - xa
+    na = wp.cross(e, xo0 - xa)
+    nb = wp.cross(xa - xb, xo1 - xb)
+    la = wp.length(na)
+    lb = wp.length(nb)
+    le = wp.length(e)
+    if la < 1.0e-12 or lb < 1.0e-12 or le < 1.0e-12:
+        return 0.0
+    na = na / la
+    nb = nb / lb
+    return wp.atan2(wp.dot(wp.cross(na, nb), e / le), wp.dot(na, nb))
+
+
+@wp.func
+def bending_energy(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3, rest_angle: float,
+                   k_edge: float) -> float:
+    """Hinge bending energy ``k_e/2 (theta - theta_rest)^2`` [J]."""
+    d = dihedral_angle(xo0, xo1, xa, xb) - rest_angle
+    return 0.5 * k_edge * d * d
+
+
+@wp.func
+def dihedral_angle_gradient(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3, local: int) -> wp.vec3:
+    """``d theta / d x_local`` for local index 0..3 = (o0, o1, a, b).
+
+    Opposite vertices: ``-n / h`` (unit normal over height above the hinge); hinge vertices
+    take the complementary barycentric share, so the four gradients sum to zero.
+    """
+    e = xb - xa
+    le = wp.length(e)
+    na = wp.cross(e, xo0 - xa)
+    nb = wp.cross(xa - xb, xo1 - xb)
+    la = wp.length(na)
+    lb = wp.length(nb)
+    if la < 1.0e-12 or lb < 1.0e-12 or le < 1.0e-12:
+        return wp.vec3(0.0)
+    # n/h = n_unnormalised |e| / |n|^2   (h = |n| / |e|)
+    ga = -na * (le / (la * la))
+    gb = -nb * (le / (lb * lb))
+    if local == 0:
+        return ga
+    if local == 1:
+        return gb
+    ta = wp.dot(xo0 - xa, e) / (le * le)
+    tb = wp.dot(xo1 - xa, e) / (le * le)
+    if local == 2:
+        return -(1.0 - ta) * ga - (1.0 - tb) * gb
+    return -ta * ga - tb * gb
+
+
+@wp.func
+def bending_vertex_force_hessian(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3, rest_angle: float,
+                                 k_edge: float, local: int):
+    """Force [N] and Gauss-Newton Hessian block ``k_e g g^T`` [N/m] of the hinge energy.
+
+    The Hessian drops ``k_e (theta - theta_rest) d2theta``: exact at the rest angle, always
+    positive semi-definite.
+    """
+    d = dihedral_angle(xo0, xo1, xa, xb) - rest_angle
+    g = dihedral_angle_gradient(xo0, xo1, xa, xb, local)
+    return -k_edge * d * g, k_edge * wp.outer(g, g)
+
+
+@wp.kernel
+def membrane_energy_kernel(
+    x: wp.array(dtype=wp.vec3),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    tri_dm_inv: wp.array(dtype=wp.mat22),
+    tri_area: wp.array(dtype=float),
+    tri_mu: wp.array(dtype=float),
+    tri_lam: wp.array(dtype=float),
+    energy_out: wp.array(dtype=float),
+):
+    """Per-triangle StVK membrane energy [J]."""
+    t = wp.tid()
+    i = tri_indices[t]
+    energy_out[t] = stvk_energy(x[i[0]], x[i[1]], x[i[2]], tri_dm_inv[t], tri_area[t], tri_mu[t], tri_lam[t])
+
+
+@wp.kernel
+def bending_energy_kernel(
+    x: wp.array(dtype=wp.vec3),
+    edge_indices: wp.array(dtype=wp.vec4i),
+    edge_rest_angle: wp.array(dtype=float),
+    edge_stiffness: wp.array(dtype=float),
+    energy_out: wp.array(dtype=float),
+):
+    """Per-hinge bending energy [J]."""
+    e = wp.tid()
+    i = edge_indices[e]
+    energy_out[e] = bending_energy(x[i[0]], x[i[1]], x[i[2]], x[i[3]], edge_rest_angle[e], edge_stiffness[e])
+
+
+@wp.kernel
+def membrane_vertex_derivatives_kernel(
+    x: wp.array(dtype=wp.vec3),
+    dm_inv: wp.mat22,
+    area: float,
+    mu: float,
+    lam: float,
+    force_out: wp.array(dtype=wp.vec3),
+    hessian_out: wp.array(dtype=wp.mat33),
+):
+    """Force and Hessian block of one triangle ``x[0..2]`` at each of its vertices (tests, losses)."""
+    k = wp.tid()
+    f, h = stvk_vertex_force_hessian(x[0], x[1], x[2], dm_inv, area, mu, lam, k)
+    force_out[k] = f
+    hessian_out[k] = h
+
+
+@wp.kernel
+def bending_vertex_derivatives_kernel(
+    x: wp.array(dtype=wp.vec3),
+    rest_angle: float,
+    k_edge: float,
+    force_out: wp.array(dtype=wp.vec3),
+    hessian_out: wp.array(dtype=wp.mat33),
+):
+    """Force and Gauss-Newton Hessian of one hinge ``x[0..3] = (o0, o1, a, b)`` per vertex."""
+    k = wp.tid()
+    f, h = bending_vertex_force_hessian(x[0], x[1], x[2], x[3], rest_angle, k_edge, k)
+    force_out[k] = f
+    hessian_out[k] = h

@@ -1,0 +1,368 @@
+"""Static cloth data: ``ClothModelBuilder`` (numpy) and ``ClothModel`` (Warp arrays on a device).
+
+A model holds any number of independent cloth *instances* (garments, or the same garment in
+several sequences) so that one kernel launch advances all of them (DESIGN.md, Core types).
+Every particle carries its instance id; per-instance data (thickness, friction, which body
+mesh it collides with) is indexed by it. Instances never interact.
+
+Built once: rest-shape inverse ``Dm^-1`` and area per triangle, bending hinges with rest
+angle and stiffness, lumped masses, vertex -> triangle / hinge adjacency (CSR) and a graph
+colouring. Colours are computed per instance and merged by colour index, so an instance in a
+batch is updated in exactly the same order as alone (bit-identical results).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from sim.cloth.coloring import greedy_coloring, vertex_adjacency
+from sim.device import resolve_device, warp
+
+
+class ClothMaterialLike(Protocol):
+    """Any object with these attributes (e.g. ``sim.garments.materials.Material``).
+
+    density [kg/m^2], mu and lam (2D Lame parameters) [N/m], bending [N m], damping
+    (Rayleigh stiffness-proportional coefficient) [s], friction (Coulomb, cloth vs body) [-],
+    thickness (collision distance kept from the body) [m].
+    """
+
+    density: float
+    mu: float
+    lam: float
+    bending: float
+    damping: float
+    friction: float
+    thickness: float
+
+
+@dataclass(frozen=True)
+class ClothMaterialParams:
+    """Plain material parameters for the solver (units as in ``ClothMaterialLike``)."""
+
+    density: float = 0.2
+    mu: float = 500.0
+    lam: float = 200.0
+    bending: float = 1.0e-5
+    damping: float = 1.0e-3
+    friction: float = 0.3
+    thickness: float = 0.004
+
+
+def triangle_rest_data(rest: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rest-shape ``Dm^-1`` (F, 2, 2) and area (F,) [m^2] in each triangle's own 2D frame.
+
+    Args:
+        rest: rest positions [m], (V, 3).
+        faces: int (F, 3).
+    """
+    x = rest.astype(np.float64)
+    e1 = x[faces[:, 1]] - x[faces[:, 0]]
+    e2 = x[faces[:, 2]] - x[faces[:, 0]]
+    n = np.cross(e1, e2)
+    twice_area = np.linalg.norm(n, axis=1)
+    if np.any(twice_area < 1e-14):
+        bad = int(np.argmin(twice_area))
+        raise ValueError(f"cloth mesh: face {bad} has zero rest area (degenerate triangle)")
+    t0 = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
+    t1 = np.cross(n / twice_area[:, None], t0)
+    dm = np.empty((len(faces), 2, 2))
+    dm[:, 0, 0] = np.sum(e1 * t0, axis=1)
+    dm[:, 0, 1] = np.sum(e2 * t0, axis=1)
+    dm[:, 1, 0] = np.sum(e1 * t1, axis=1)
+    dm[:, 1, 1] = np.sum(e2 * t1, axis=1)
+    return np.linalg.inv(dm), 0.5 * twice_area
+
+
+def build_hinges(faces: np.ndarray) -> np.ndarray:
+    """Interior edges as hinges ``(o0, o1, a, b)`` (layout in ``sim.cloth.energies``).
+
+    Edges with more than two faces (non-manifold) get no hinge.
+    """
+    f = faces.astype(np.int64)
+    a = f.reshape(-1)
+    b = np.roll(f, -1, axis=1).reshape(-1)
+    o = np.roll(f, -2, axis=1).reshape(-1)
+    key = np.minimum(a, b) * (int(a.max(initial=0)) + 1) + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    key_s = key[order]
+    hinges = []
+    start = 0
+    while start < len(order):
+        end = start
+        while end < len(order) and key_s[end] == key_s[start]:
+            end += 1
+        if end - start == 2:
+            h0, h1 = order[start], order[start + 1]
+            hinges.append((o[h0], o[h1], a[h0], b[h0]))
+        start = end
+    return np.asarray(hinges, dtype=np.int32).reshape(-1, 4)
+
+
+def dihedral_angles(x: np.ndarray, hinges: np.ndarray) -> np.ndarray:
+    """Signed dihedral angles [rad] of hinges at positions ``x`` (numpy float64 reference)."""
+    x = x.astype(np.float64)
+    xo0, xo1, xa, xb = (x[hinges[:, k]] for k in range(4))
+    e = xb - xa
+    na = np.cross(e, xo0 - xa)
+    nb = np.cross(xa - xb, xo1 - xb)
+    na /= np.linalg.norm(na, axis=1, keepdims=True)
+    nb /= np.linalg.norm(nb, axis=1, keepdims=True)
+    en = e / np.linalg.norm(e, axis=1, keepdims=True)
+    return np.arctan2(np.sum(np.cross(na, nb) * en, axis=1), np.sum(na * nb, axis=1))
+
+
+def _csr(num_rows: int, rows: np.ndarray, payload: list[np.ndarray]) -> tuple[np.ndarray, ...]:
+    order = np.argsort(rows, kind="stable")
+    offsets = np.zeros(num_rows + 1, dtype=np.int32)
+    np.add.at(offsets, rows + 1, 1)
+    return (np.cumsum(offsets).astype(np.int32), *(p[order].astype(np.int32) for p in payload))
+
+
+@dataclass
+class _Instance:
+    vertices: np.ndarray
+    rest: np.ndarray
+    faces: np.ndarray
+    hinges: np.ndarray
+    pinned: np.ndarray
+    material: Any
+    colors: np.ndarray
+
+
+class ClothModelBuilder:
+    """Collects cloth instances (numpy) and finalises them into a ``ClothModel``.
+
+    Args:
+        gravity: gravitational acceleration [m/s^2], shared by all instances (Y up).
+    """
+
+    def __init__(self, *, gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)):
+        self.gravity = tuple(float(g) for g in gravity)
+        self._instances: list[_Instance] = []
+
+    def add_cloth(self, vertices: np.ndarray, faces: np.ndarray, material: ClothMaterialLike, *,
+                  pinned: np.ndarray | None = None, rest_vertices: np.ndarray | None = None) -> int:
+        """Add one cloth instance.
+
+        Args:
+            vertices: initial positions [m], (V, 3).
+            faces: int (F, 3), consistently oriented.
+            material: object with ``density, mu, lam, bending, damping, friction, thickness``.
+            pinned: optional bool mask (V,) or index array: vertices that follow
+                ``ClothControl.pin_targets`` instead of being simulated (attachments).
+            rest_vertices: rest shape [m], (V, 3); defaults to ``vertices``.
+
+        Returns:
+            The instance index.
+        """
+        v = np.asarray(vertices, dtype=np.float32).reshape(-1, 3)
+        f = np.asarray(faces, dtype=np.int32).reshape(-1, 3)
+        if len(f) == 0 or f.min() < 0 or f.max() >= len(v):
+            raise ValueError(f"cloth mesh: faces must index 0..{len(v) - 1} (got {len(f)} faces)")
+        for name in ("density", "mu", "lam", "bending", "damping", "friction", "thickness"):
+            if not hasattr(material, name):
+                raise ValueError(f"cloth material: missing field '{name}' (needs density, mu, lam, bending,"
+                                 " damping, friction, thickness)")
+        if material.density <= 0.0:
+            raise ValueError(f"cloth material: density must be > 0 kg/m^2, got {material.density}")
+        rest = v if rest_vertices is None else np.asarray(rest_vertices, dtype=np.float32).reshape(-1, 3)
+        mask = np.zeros(len(v), dtype=bool)
+        if pinned is not None:
+            p = np.asarray(pinned)
+            if p.dtype == bool:
+                mask[:] = p
+            else:
+                mask[p.astype(np.int64)] = True
+        hinges = build_hinges(f)
+        colors = greedy_coloring(vertex_adjacency(len(v), f, hinges))
+        self._instances.append(_Instance(v, rest, f, hinges, mask, material, colors))
+        return len(self._instances) - 1
+
+    def finalize(self, device: str | None = None) -> ClothModel:
+        """Upload all instances to ``device`` (None: cuda when present, else cpu)."""
+        if not self._instances:
+            raise ValueError("ClothModelBuilder.finalize: no cloth instances were added")
+        wp = warp()
+        d = resolve_device(device)
+        pos, rest, mass, flags, inst_of = [], [], [], [], []
+        faces, dm_inv, area, mu, lam, damp = [], [], [], [], [], []
+        hinges, rest_angle, k_edge, e_damp = [], [], [], []
+        thickness, friction, starts = [], [], []
+        offset = 0
+        for k, ins in enumerate(self._instances):
+            m = ins.material
+            nv = len(ins.vertices)
+            starts.append(offset)
+            dinv, a = triangle_rest_data(ins.rest, ins.faces)
+            vm = np.zeros(nv)
+            np.add.at(vm, ins.faces.reshape(-1), np.repeat(a * m.density / 3.0, 3))
+            pos.append(ins.vertices)
+            rest.append(ins.rest)
+            mass.append(vm)
+            flags.append(ins.pinned.astype(np.int32))
+            inst_of.append(np.full(nv, k, dtype=np.int32))
+            faces.append(ins.faces + offset)
+            dm_inv.append(dinv)
+            area.append(a)
+            mu.append(np.full(len(a), m.mu))
+            lam.append(np.full(len(a), m.lam))
+            damp.append(np.full(len(a), m.damping))
+            if len(ins.hinges):
+                # k_e = k_b 3 |e|^2 / (A_1 + A_2) (rest shape), Grinspun et al. 2003
+                edge_len2 = np.sum((ins.rest[ins.hinges[:, 3]] - ins.rest[ins.hinges[:, 2]]) ** 2, axis=1)
+                tri_of_edge = _hinge_face_areas(ins.faces, ins.hinges, a)
+                hinges.append(ins.hinges + offset)
+                rest_angle.append(dihedral_angles(ins.rest, ins.hinges))
+                k_edge.append(m.bending * 3.0 * edge_len2 / tri_of_edge)
+                e_damp.append(np.full(len(ins.hinges), m.damping))
+            thickness.append(m.thickness)
+            friction.append(m.friction)
+            offset += nv
+        f_all = np.concatenate(faces)
+        h_all = np.concatenate(hinges) if hinges else np.zeros((0, 4), np.int32)
+        n = offset
+        # vertex -> (triangle, local corner) and vertex -> (hinge, local slot) adjacency, CSR
+        tri_ids = np.repeat(np.arange(len(f_all)), 3)
+        vt = _csr(n, f_all.reshape(-1), [tri_ids, np.tile(np.arange(3), len(f_all))])
+        edge_ids = np.repeat(np.arange(len(h_all)), 4)
+        ve = _csr(n, h_all.reshape(-1).astype(np.int64), [edge_ids, np.tile(np.arange(4), len(h_all))])
+        # merge per-instance colourings by colour index (see module docstring)
+        colors = np.concatenate([ins.colors for ins in self._instances])
+        color_order = np.argsort(colors, kind="stable").astype(np.int32)
+        counts = np.bincount(colors)
+        color_offsets = np.concatenate([[0], np.cumsum(counts)]).astype(int).tolist()
+
+        def arr(a, dtype):
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=d)
+
+        cat = np.concatenate
+
+        def per_edge(parts):
+            return cat(parts).astype(np.float32) if parts else np.zeros(0, np.float32)
+        return ClothModel(
+            device=d,
+            particle_count=n,
+            tri_count=len(f_all),
+            edge_count=len(h_all),
+            instance_count=len(self._instances),
+            gravity=self.gravity,
+            instance_starts=np.asarray(starts + [n], dtype=np.int64),
+            faces=f_all,
+            hinges=h_all,
+            colors=colors,
+            color_offsets=color_offsets,
+            particle_q=arr(cat(pos).astype(np.float32), wp.vec3),
+            particle_rest=arr(cat(rest).astype(np.float32), wp.vec3),
+            particle_mass=arr(cat(mass).astype(np.float32), float),
+            particle_flags=arr(cat(flags), wp.int32),
+            particle_instance=arr(cat(inst_of), wp.int32),
+            tri_indices=arr(f_all.astype(np.int32), wp.vec3i),
+            tri_dm_inv=arr(cat(dm_inv).astype(np.float32), wp.mat22),
+            tri_area=arr(cat(area).astype(np.float32), float),
+            tri_mu=arr(cat(mu).astype(np.float32), float),
+            tri_lam=arr(cat(lam).astype(np.float32), float),
+            tri_damping=arr(cat(damp).astype(np.float32), float),
+            edge_indices=arr(h_all.astype(np.int32).reshape(-1, 4), wp.vec4i),
+            edge_rest_angle=arr(per_edge(rest_angle), float),
+            edge_stiffness=arr(per_edge(k_edge), float),
+            edge_damping=arr(per_edge(e_damp), float),
+            vertex_tri_offsets=arr(vt[0], wp.int32),
+            vertex_tri_ids=arr(vt[1], wp.int32),
+            vertex_tri_local=arr(vt[2], wp.int32),
+            vertex_edge_offsets=arr(ve[0], wp.int32),
+            vertex_edge_ids=arr(ve[1], wp.int32),
+            vertex_edge_local=arr(ve[2], wp.int32),
+            color_vertices=arr(color_order, wp.int32),
+            instance_thickness=arr(np.asarray(thickness, np.float32), float),
+            instance_friction=arr(np.asarray(friction, np.float32), float),
+        )
+
+
+def _hinge_face_areas(faces: np.ndarray, hinges: np.ndarray, areas: np.ndarray) -> np.ndarray:
+    """A_1 + A_2 of the two triangles of each hinge, found by their directed edges."""
+    n = int(faces.max()) + 1
+    keys = {}
+    for t, (i, j, k) in enumerate(faces.astype(np.int64)):
+        for a, b in ((i, j), (j, k), (k, i)):
+            keys[a * n + b] = t
+    a_idx = hinges[:, 2].astype(np.int64)
+    b_idx = hinges[:, 3].astype(np.int64)
+    t_a = np.array([keys[a * n + b] for a, b in zip(a_idx, b_idx, strict=True)])
+    t_b = np.array([keys[b * n + a] for a, b in zip(a_idx, b_idx, strict=True)])
+    return areas[t_a] + areas[t_b]
+
+
+@dataclass
+class ClothModel:
+    """Static cloth data on one device (build with ``ClothModelBuilder``).
+
+    Per particle (``particle_count``): ``particle_q`` initial positions [m], ``particle_rest``
+    rest positions [m], ``particle_mass`` lumped mass [kg], ``particle_flags`` (1: pinned,
+    follows ``ClothControl.pin_targets``), ``particle_instance`` instance id.
+    Per triangle: ``tri_indices``, ``tri_dm_inv`` (rest ``Dm^-1``, 1/m), ``tri_area`` [m^2],
+    ``tri_mu``/``tri_lam`` [N/m], ``tri_damping`` [s]. Per hinge: ``edge_indices``
+    (o0, o1, a, b), ``edge_rest_angle`` [rad], ``edge_stiffness`` k_e [N m], ``edge_damping`` [s].
+    Per instance: ``instance_thickness`` [m], ``instance_friction``; ``instance_starts`` (host,
+    (I+1,)) slices the particle range of each instance. ``color_vertices`` lists particles by
+    colour; colour ``c`` is ``color_vertices[color_offsets[c]:color_offsets[c+1]]``.
+    """
+
+    device: str
+    particle_count: int
+    tri_count: int
+    edge_count: int
+    instance_count: int
+    gravity: tuple[float, float, float]
+    instance_starts: np.ndarray
+    faces: np.ndarray
+    hinges: np.ndarray
+    colors: np.ndarray
+    color_offsets: list[int]
+    particle_q: Any
+    particle_rest: Any
+    particle_mass: Any
+    particle_flags: Any
+    particle_instance: Any
+    tri_indices: Any
+    tri_dm_inv: Any
+    tri_area: Any
+    tri_mu: Any
+    tri_lam: Any
+    tri_damping: Any
+    edge_indices: Any
+    edge_rest_angle: Any
+    edge_stiffness: Any
+    edge_damping: Any
+    vertex_tri_offsets: Any
+    vertex_tri_ids: Any
+    vertex_tri_local: Any
+    vertex_edge_offsets: Any
+    vertex_edge_ids: Any
+    vertex_edge_local: Any
+    color_vertices: Any
+    instance_thickness: Any
+    instance_friction: Any
+
+    @property
+    def color_count(self) -> int:
+        return len(self.color_offsets) - 1
+
+    def instance_slice(self, instance: int) -> slice:
+        """Particle range of one instance."""
+        return slice(int(self.instance_starts[instance]), int(self.instance_starts[instance + 1]))
+
+    def state(self):
+        """A ``ClothState`` at the initial positions, at rest."""
+        from sim.cloth.state import ClothState
+
+        return ClothState.from_model(self)
+
+    def control(self):
+        """A ``ClothControl`` with pins at the initial positions and no bodies."""
+        from sim.cloth.state import ClothControl
+
+        return ClothControl.from_model(self)

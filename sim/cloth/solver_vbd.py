@@ -1,0 +1,139 @@
+"""``SolverVBD``: Vertex Block Descent cloth solver (Chen et al. 2024).
+
+``step(state_in, state_out, control, dt)`` advances every instance of the model by ``dt``
+[s] in ``substeps`` implicit-Euler substeps, each solved by ``iterations`` Gauss-Seidel sweeps
+over the vertex colouring. Per substep:
+
+1. bodies move to the substep's end (linear in time between the step's two body frames) and
+   their BVHs are refit;
+2. ``forward_kernel``: inertial target and initial guess; pinned particles placed;
+3. ``body_contact_kernel``: one contact plane per particle against its instance's body,
+   found from the particle's substep-start position (outside the body) against the body's
+   substep-end placement;
+4. ``iterations`` x colours launches of ``solve_color_kernel``;
+5. ``velocity_kernel``.
+
+Substep safety: contact is found against the body where it will be at the end of each
+substep, and the sign test classifies a particle the body has overtaken correctly as long as
+the body moves less than half its local thickness per substep (5 m/s at 30 fps with 10
+substeps: 1.7 cm). The contact energy is a half-space penalty, so the particle is pushed back
+out however far its initial guess went.
+
+No host synchronisation, numpy or allocation inside ``step``: all buffers are allocated in
+the constructor; the step can be captured in a CUDA graph once bodies and pins are uploaded.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from sim.cloth import vbd_kernels as K
+from sim.cloth.model import ClothModel
+from sim.cloth.state import ClothControl, ClothState
+from sim.device import warp
+
+
+@dataclass(frozen=True)
+class VBDConfig:
+    """Solver settings.
+
+    Attributes:
+        substeps: implicit-Euler substeps per ``step``.
+        iterations: Gauss-Seidel sweeps (over all colours) per substep.
+        contact_stiffness: body contact penalty stiffness [N/m].
+        contact_margin: distance [m] within which body contacts are detected; must exceed the
+            cloth thickness plus the relative cloth/body motion of one substep.
+        friction_epsilon: tangential speed [m/s] below which friction is smoothed (static).
+    """
+
+    substeps: int = 10
+    iterations: int = 10
+    contact_stiffness: float = 1.0e5
+    contact_margin: float = 0.05
+    friction_epsilon: float = 1.0e-2
+
+    def __post_init__(self):
+        for name in ("substeps", "iterations"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"VBDConfig.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("contact_stiffness", "contact_margin", "friction_epsilon"):
+            if getattr(self, name) <= 0.0:
+                raise ValueError(f"VBDConfig.{name} must be > 0, got {getattr(self, name)}")
+
+
+class SolverVBD:
+    """Vertex Block Descent for a (batched) ``ClothModel``.
+
+    Args:
+        model: the cloth model.
+        config: solver settings.
+    """
+
+    def __init__(self, model: ClothModel, config: VBDConfig | None = None):
+        wp = warp()
+        self.model = model
+        self.config = config or VBDConfig()
+        d = model.device
+        n = model.particle_count
+        self._x_prev = wp.zeros(n, dtype=wp.vec3, device=d)
+        self._y = wp.zeros(n, dtype=wp.vec3, device=d)
+        self._x_step_start = wp.zeros(n, dtype=wp.vec3, device=d)
+        self._contact_point = wp.zeros(n, dtype=wp.vec3, device=d)
+        self._contact_normal = wp.zeros(n, dtype=wp.vec3, device=d)
+        self._contact_body_velocity = wp.zeros(n, dtype=wp.vec3, device=d)
+        self._contact_active = wp.zeros(n, dtype=wp.int32, device=d)
+        self._gravity = wp.vec3(*model.gravity)
+
+    def step(self, state_in: ClothState, state_out: ClothState, control: ClothControl, dt: float) -> None:
+        """Advance by ``dt`` [s]; ``state_out`` may be ``state_in``.
+
+        Pinned particles move linearly from their ``state_in`` positions to
+        ``control.pin_targets``; bodies from ``points_start`` to ``points_end``.
+        """
+        wp = warp()
+        m = self.model
+        cfg = self.config
+        d = m.device
+        n = m.particle_count
+        x = state_out.positions
+        v = state_out.velocities
+        if state_out is not state_in:
+            wp.copy(x, state_in.positions)
+            wp.copy(v, state_in.velocities)
+            wp.copy(state_out.accelerations, state_in.accelerations)
+        wp.copy(self._x_step_start, x)
+        h = dt / cfg.substeps
+        eps_u = cfg.friction_epsilon * h
+        for s in range(cfg.substeps):
+            alpha = (s + 1) / cfg.substeps
+            for body in control.bodies:
+                body.place(alpha, dt)
+            wp.launch(K.forward_kernel, dim=n,
+                      inputs=[x, v, state_out.accelerations, m.particle_flags, self._x_step_start,
+                              control.pin_targets,
+                              self._gravity, h, alpha],
+                      outputs=[self._x_prev, self._y, x], device=d)
+            if control.bodies:
+                wp.launch(K.body_contact_kernel, dim=n,
+                          inputs=[self._x_prev, m.particle_instance, control.instance_body,
+                                  cfg.contact_margin],
+                          outputs=[self._contact_point, self._contact_normal, self._contact_body_velocity,
+                                   self._contact_active], device=d)
+            else:
+                self._contact_active.zero_()
+            for _ in range(cfg.iterations):
+                for c in range(m.color_count):
+                    start, end = m.color_offsets[c], m.color_offsets[c + 1]
+                    wp.launch(K.solve_color_kernel, dim=end - start,
+                              inputs=[m.color_vertices, start, self._x_prev, self._y, m.particle_mass,
+                                      m.particle_flags, m.particle_instance, m.tri_indices, m.tri_dm_inv,
+                                      m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping, m.edge_indices,
+                                      m.edge_rest_angle, m.edge_stiffness, m.edge_damping,
+                                      m.vertex_tri_offsets, m.vertex_tri_ids, m.vertex_tri_local,
+                                      m.vertex_edge_offsets, m.vertex_edge_ids, m.vertex_edge_local,
+                                      self._contact_point, self._contact_normal, self._contact_body_velocity,
+                                      self._contact_active, m.instance_thickness, m.instance_friction,
+                                      cfg.contact_stiffness, eps_u, h],
+                              outputs=[x], device=d)
+            wp.launch(K.velocity_kernel, dim=n, inputs=[x, self._x_prev, 1.0 / h],
+                      outputs=[v, state_out.accelerations], device=d)

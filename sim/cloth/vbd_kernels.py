@@ -1,0 +1,231 @@
+"""Warp kernels of the Vertex Block Descent cloth solver (Chen et al. 2024, "Vertex Block
+Descent", SIGGRAPH). Inputs first, outputs with an ``_out`` suffix; ``x_inout`` is read and
+written in place (Gauss-Seidel). Every kernel is a per-particle gather: no atomics, so results
+are deterministic on every device.
+
+One substep of length ``h`` minimises the incremental potential (Chen et al. 2024, Eq. 1)
+    G(x) = sum_i m_i/(2 h^2) |x_i - y_i|^2 + E_membrane(x) + E_bending(x) + E_contact(x)
+         + E_damping + E_friction,    y = x_prev + h v + h^2 g,
+by per-vertex Newton steps ``dx_i = H_i^-1 f_i`` (Eq. 9-10) swept colour by colour.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from sim.cloth.energies import bending_vertex_force_hessian, stvk_vertex_force_hessian
+
+PINNED = wp.constant(1)
+
+
+@wp.kernel
+def forward_kernel(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    a: wp.array(dtype=wp.vec3),
+    flags: wp.array(dtype=wp.int32),
+    x_step_start: wp.array(dtype=wp.vec3),
+    pin_targets: wp.array(dtype=wp.vec3),
+    gravity: wp.vec3,
+    h: float,
+    pin_alpha: float,
+    x_prev_out: wp.array(dtype=wp.vec3),
+    y_out: wp.array(dtype=wp.vec3),
+    x_out: wp.array(dtype=wp.vec3),
+):
+    """Start a substep: remember ``x``, inertial target ``y = x + h v + h^2 g`` (Eq. 2) and the
+    initial guess ``x + h v + h^2 a_g g/|g|`` with ``a_g`` the previous substep's acceleration
+    along gravity clamped to [0, |g|] (Chen et al. 2024, Sec. 3.7, adaptive initialisation).
+
+    With a truncated iteration count the inertial guess ``y`` biases resting cloth (the fixed
+    point of a few sweeps started from ``y`` is not the equilibrium); the adaptive guess is
+    ``x`` at rest and ``y`` in free fall. Pinned particles move linearly from their
+    step-start position to the pin target.
+    """
+    i = wp.tid()
+    xi = x[i]
+    x_prev_out[i] = xi
+    if flags[i] == PINNED:
+        s = x_step_start[i]
+        p = s + pin_alpha * (pin_targets[i] - s)
+        y_out[i] = p
+        x_out[i] = p
+    else:
+        vi = v[i]
+        y_out[i] = xi + h * vi + (h * h) * gravity
+        g_len = wp.length(gravity)
+        guess = xi + h * vi
+        if g_len > 0.0:
+            g_dir = gravity / g_len
+            a_g = wp.clamp(wp.dot(a[i], g_dir), 0.0, g_len)
+            guess = guess + (h * h * a_g) * g_dir
+        x_out[i] = guess
+
+
+@wp.kernel
+def body_contact_kernel(
+    x: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    instance_body: wp.array(dtype=wp.uint64),
+    margin: float,
+    contact_point_out: wp.array(dtype=wp.vec3),
+    contact_normal_out: wp.array(dtype=wp.vec3),
+    contact_body_velocity_out: wp.array(dtype=wp.vec3),
+    contact_active_out: wp.array(dtype=wp.int32),
+):
+    """Closest body point within ``margin`` of each particle; the contact plane (point, outward
+    normal) is then held fixed for the substep's iterations. The sign test (winding / normal)
+    tells inside from outside, so a particle the body has moved past by less than its
+    half-thickness is still pushed out on the correct side."""
+    i = wp.tid()
+    contact_active_out[i] = 0
+    mesh = instance_body[particle_instance[i]]
+    if mesh == wp.uint64(0):
+        return
+    xi = x[i]
+    q = wp.mesh_query_point_sign_normal(mesh, xi, margin)
+    if not q.result:
+        return
+    p = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
+    d = xi - p
+    dl = wp.length(d)
+    n = wp.mesh_eval_face_normal(mesh, q.face)
+    if dl > 1.0e-6:
+        n = d * (q.sign / dl)
+    contact_point_out[i] = p
+    contact_normal_out[i] = n
+    contact_body_velocity_out[i] = wp.mesh_eval_velocity(mesh, q.face, q.u, q.v)
+    contact_active_out[i] = 1
+
+
+@wp.func
+def contact_force_hessian(
+    xi: wp.vec3,
+    xi_prev: wp.vec3,
+    p: wp.vec3,
+    n: wp.vec3,
+    body_v: wp.vec3,
+    thickness: float,
+    k_contact: float,
+    mu: float,
+    eps_u: float,
+    h: float,
+):
+    """One-sided quadratic penalty ``k/2 (thickness - n.(x - p))^2`` and smoothed Coulomb
+    friction on the tangential displacement relative to the body (Chen et al. 2024, Sec. 4.2,
+    IPC's lazy friction: normal force and tangent basis fixed over the substep)."""
+    f = wp.vec3(0.0)
+    H = wp.mat33(0.0)
+    d = wp.dot(n, xi - p)
+    pen = thickness - d
+    if pen > 0.0:
+        lam_n = k_contact * pen
+        f = n * lam_n
+        H = k_contact * wp.outer(n, n)
+        if mu > 0.0:
+            T = wp.identity(n=3, dtype=float) - wp.outer(n, n)
+            u = T * ((xi - xi_prev) - h * body_v)
+            ul = wp.length(u)
+            # f1(u)/u with f1 the C1 ramp of IPC (Li et al. 2020, Eq. 13)
+            c = 1.0 / wp.max(ul, 1.0e-12)
+            if ul < eps_u:
+                c = 2.0 / eps_u - ul / (eps_u * eps_u)
+            f = f - (mu * lam_n * c) * u
+            H = H + (mu * lam_n * c) * T
+    return f, H
+
+
+@wp.kernel
+def solve_color_kernel(
+    color_vertices: wp.array(dtype=wp.int32),
+    color_start: int,
+    x_prev: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    flags: wp.array(dtype=wp.int32),
+    particle_instance: wp.array(dtype=wp.int32),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    tri_dm_inv: wp.array(dtype=wp.mat22),
+    tri_area: wp.array(dtype=float),
+    tri_mu: wp.array(dtype=float),
+    tri_lam: wp.array(dtype=float),
+    tri_damping: wp.array(dtype=float),
+    edge_indices: wp.array(dtype=wp.vec4i),
+    edge_rest_angle: wp.array(dtype=float),
+    edge_stiffness: wp.array(dtype=float),
+    edge_damping: wp.array(dtype=float),
+    vertex_tri_offsets: wp.array(dtype=wp.int32),
+    vertex_tri_ids: wp.array(dtype=wp.int32),
+    vertex_tri_local: wp.array(dtype=wp.int32),
+    vertex_edge_offsets: wp.array(dtype=wp.int32),
+    vertex_edge_ids: wp.array(dtype=wp.int32),
+    vertex_edge_local: wp.array(dtype=wp.int32),
+    contact_point: wp.array(dtype=wp.vec3),
+    contact_normal: wp.array(dtype=wp.vec3),
+    contact_body_velocity: wp.array(dtype=wp.vec3),
+    contact_active: wp.array(dtype=wp.int32),
+    instance_thickness: wp.array(dtype=float),
+    instance_friction: wp.array(dtype=float),
+    k_contact: float,
+    eps_u: float,
+    h: float,
+    x_inout: wp.array(dtype=wp.vec3),
+):
+    """One VBD Newton step for every particle of one colour (Chen et al. 2024, Alg. 1)."""
+    tid = wp.tid()
+    i = color_vertices[color_start + tid]
+    if flags[i] == PINNED:
+        return
+    xi = x_inout[i]
+    xp = x_prev[i]
+    inv_h = 1.0 / h
+    # inertia: m/h^2 (y - x), Hessian m/h^2 I
+    mh = mass[i] * inv_h * inv_h
+    f = mh * (y[i] - xi)
+    H = mh * wp.identity(n=3, dtype=float)
+
+    for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
+        t = vertex_tri_ids[k]
+        tri = tri_indices[t]
+        fe, he = stvk_vertex_force_hessian(x_inout[tri[0]], x_inout[tri[1]], x_inout[tri[2]], tri_dm_inv[t],
+                                           tri_area[t], tri_mu[t], tri_lam[t], vertex_tri_local[k])
+        # Rayleigh damping, stiffness-proportional: f_d = -(k_d/h) H (x - x_prev)
+        kd = tri_damping[t] * inv_h
+        f = f + fe - kd * (he * (xi - xp))
+        H = H + (1.0 + kd) * he
+
+    for k in range(vertex_edge_offsets[i], vertex_edge_offsets[i + 1]):
+        e = vertex_edge_ids[k]
+        q = edge_indices[e]
+        fb, hb = bending_vertex_force_hessian(x_inout[q[0]], x_inout[q[1]], x_inout[q[2]], x_inout[q[3]],
+                                              edge_rest_angle[e], edge_stiffness[e], vertex_edge_local[k])
+        kd = edge_damping[e] * inv_h
+        f = f + fb - kd * (hb * (xi - xp))
+        H = H + (1.0 + kd) * hb
+
+    if contact_active[i] != 0:
+        inst = particle_instance[i]
+        fc, hc = contact_force_hessian(xi, xp, contact_point[i], contact_normal[i], contact_body_velocity[i],
+                                       instance_thickness[inst], k_contact, instance_friction[inst], eps_u, h)
+        f = f + fc
+        H = H + hc
+
+    # the block is symmetric positive definite (inertia + PSD terms); guard tiny determinants
+    if wp.abs(wp.determinant(H)) > 1.0e-20:
+        x_inout[i] = xi + wp.inverse(H) * f
+
+
+@wp.kernel
+def velocity_kernel(
+    x: wp.array(dtype=wp.vec3),
+    x_prev: wp.array(dtype=wp.vec3),
+    inv_h: float,
+    v_inout: wp.array(dtype=wp.vec3),
+    a_out: wp.array(dtype=wp.vec3),
+):
+    """Implicit-Euler velocity ``v = (x - x_prev) / h``; acceleration of the substep (for the
+    next initial guess)."""
+    i = wp.tid()
+    v_new = (x[i] - x_prev[i]) * inv_h
+    a_out[i] = (v_new - v_inout[i]) * inv_h
+    v_inout[i] = v_new

@@ -1,0 +1,355 @@
+"""Cloth solver (sim/cloth): energies against finite differences, and physics with exact or
+analytic answers (free fall, hanging strip, pins, body contact, batching, determinism)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim.cloth import (
+    BodyCollider,
+    ClothMaterialParams,
+    ClothModelBuilder,
+    SolverVBD,
+    VBDConfig,
+)
+from sim.cloth.coloring import validate_coloring, vertex_adjacency
+from sim.cloth.model import build_hinges, dihedral_angles, triangle_rest_data
+from sim.device import warp
+
+G = 9.81
+
+
+def grid(nx: int, ny: int, width: float, length: float, *,
+         plane: str = "xy") -> tuple[np.ndarray, np.ndarray]:
+    """Regular triangulated sheet: x in [0, width], second axis from 0 to -length (xy) or
+    0 to +length (xz, horizontal). Faces point to +z (xy) or +y (xz)."""
+    xs = np.linspace(0.0, width, nx)
+    ys = np.linspace(0.0, length, ny)
+    X, Y = np.meshgrid(xs, ys)
+    if plane == "xy":
+        v = np.stack([X.ravel(), -Y.ravel(), np.zeros(X.size)], axis=1)
+    else:
+        v = np.stack([X.ravel(), np.zeros(X.size), Y.ravel()], axis=1)
+    f = []
+    for j in range(ny - 1):
+        for i in range(nx - 1):
+            a = j * nx + i
+            b, c = a + 1, a + nx
+            f += [(a, c, b), (b, c, c + 1)]
+    return v.astype(np.float32), np.asarray(f, dtype=np.int32)
+
+
+def uv_sphere(center, radius: float, n_lat: int = 16, n_lon: int = 24) -> tuple[np.ndarray, np.ndarray]:
+    """Closed, outward-oriented sphere mesh."""
+    v = [(0.0, radius, 0.0)]
+    for i in range(1, n_lat):
+        th = np.pi * i / n_lat
+        for j in range(n_lon):
+            ph = 2 * np.pi * j / n_lon
+            s = radius * np.sin(th)
+            v.append((s * np.cos(ph), radius * np.cos(th), s * np.sin(ph)))
+    v.append((0.0, -radius, 0.0))
+    f = []
+    bottom = len(v) - 1
+    for j in range(n_lon):
+        f.append((0, 1 + (j + 1) % n_lon, 1 + j))
+    for i in range(n_lat - 2):
+        r0, r1 = 1 + i * n_lon, 1 + (i + 1) * n_lon
+        for j in range(n_lon):
+            j1 = (j + 1) % n_lon
+            f += [(r0 + j, r0 + j1, r1 + j), (r0 + j1, r1 + j1, r1 + j)]
+    r = 1 + (n_lat - 2) * n_lon
+    for j in range(n_lon):
+        f.append((bottom, r + j, r + (j + 1) % n_lon))
+    v = np.asarray(v, dtype=np.float32) + np.asarray(center, dtype=np.float32)
+    f = np.asarray(f, dtype=np.int32)
+    # outward orientation: positive signed volume
+    a, b, c = (v[f[:, k]].astype(np.float64) - np.asarray(center) for k in range(3))
+    assert np.sum(np.einsum("ij,ij->i", a, np.cross(b, c))) > 0
+    return v, f
+
+
+def simulate(model, solver, control, steps: int, dt: float, *, body=None, body_path=None):
+    state = model.state()
+    frames = []
+    for k in range(steps):
+        if body is not None and body_path is not None:
+            body.set_frame(body_path(k), body_path(k + 1))
+        solver.step(state, state, control, dt)
+        frames.append(state.positions.numpy().copy())
+    return np.stack(frames)
+
+
+# --- energies against finite differences (numpy float64 references) ---------------------
+
+def stvk_energy_np(x: np.ndarray, dm_inv: np.ndarray, area: float, mu: float, lam: float) -> float:
+    ds = np.stack([x[1] - x[0], x[2] - x[0]], axis=1)
+    F = ds @ dm_inv
+    E = 0.5 * (F.T @ F - np.eye(2))
+    return area * (mu * np.sum(E * E) + 0.5 * lam * np.trace(E) ** 2)
+
+
+def bending_energy_np(x: np.ndarray, rest_angle: float, k: float) -> float:
+    th = dihedral_angles(x, np.array([[0, 1, 2, 3]]))[0]
+    return 0.5 * k * (th - rest_angle) ** 2
+
+
+def fd_gradient_hessian(energy, x: np.ndarray, vertex: int, h: float = 1e-5):
+    """Central differences of ``energy`` in float64: gradient (3,), Hessian block (3, 3)."""
+    grad = np.zeros(3)
+    hess = np.zeros((3, 3))
+
+    def e_at(da, db):
+        y = x.copy()
+        y[vertex] += da + db
+        return energy(y)
+
+    eye = np.eye(3) * h
+    for a in range(3):
+        grad[a] = (e_at(eye[a], 0) - e_at(-eye[a], 0)) / (2 * h)
+        for b in range(3):
+            hess[a, b] = (e_at(eye[a], eye[b]) - e_at(eye[a], -eye[b]) - e_at(-eye[a], eye[b])
+                          + e_at(-eye[a], -eye[b])) / (4 * h * h)
+    return grad, hess
+
+
+def test_membrane_force_and_hessian_match_finite_differences(device):
+    from sim.cloth import energies
+
+    wp = warp()
+    rest = np.array([[0, 0, 0], [0.1, 0, 0], [0.03, 0.08, 0]], dtype=np.float64)
+    dm_inv, area = triangle_rest_data(rest, np.array([[0, 1, 2]]))
+    mu, lam = 300.0, 120.0
+    # stretched (tension in both directions, so the compression clamp is inactive) and rotated
+    rng = np.random.default_rng(3)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    jitter = np.array([[0, 0, 0], [0, 0.004, 0.003], [0.002, 0, -0.004]])
+    x = (rest @ np.diag([1.12, 1.08, 1.0]) + jitter) @ q.T
+    x32 = wp.array(x.astype(np.float32), dtype=wp.vec3, device=device)
+    f_out = wp.zeros(3, dtype=wp.vec3, device=device)
+    h_out = wp.zeros(3, dtype=wp.mat33, device=device)
+    wp.launch(energies.membrane_vertex_derivatives_kernel, dim=3,
+              inputs=[x32, wp.mat22(*dm_inv[0].astype(np.float32).ravel()), float(area[0]), mu, lam],
+              outputs=[f_out, h_out], device=device)
+    e_out = wp.zeros(1, dtype=float, device=device)
+    wp.launch(energies.membrane_energy_kernel, dim=1,
+              inputs=[x32, wp.array([[0, 1, 2]], dtype=wp.vec3i, device=device),
+                      wp.array(dm_inv.astype(np.float32), dtype=wp.mat22, device=device),
+                      wp.array(area.astype(np.float32), dtype=float, device=device),
+                      wp.array([mu], dtype=float, device=device),
+                      wp.array([lam], dtype=float, device=device)],
+              outputs=[e_out], device=device)
+
+    def energy(y):
+        return stvk_energy_np(y, dm_inv[0], area[0], mu, lam)
+
+    np.testing.assert_allclose(e_out.numpy()[0], energy(x), rtol=1e-4)
+    forces, hessians = f_out.numpy(), h_out.numpy()
+    for k in range(3):
+        grad, hess = fd_gradient_hessian(energy, x, k)
+        scale = np.abs(grad).max()
+        np.testing.assert_allclose(forces[k], -grad, rtol=1e-3, atol=1e-3 * scale)
+        np.testing.assert_allclose(hessians[k], hess, rtol=1e-3, atol=1e-3 * np.abs(hess).max())
+
+
+def test_bending_force_and_hessian_match_finite_differences(device):
+    from sim.cloth import energies
+
+    wp = warp()
+    # hinge (o0, o1, a, b): triangles (a, b, o0) and (b, a, o1), folded out of plane
+    x = np.array([[0.05, 0.09, 0.02], [0.06, -0.08, 0.03], [0.0, 0.0, 0.0], [0.1, 0.01, 0.0]])
+    theta = dihedral_angles(x, np.array([[0, 1, 2, 3]]))[0]
+    assert abs(theta) > 0.2
+    k = 2e-3
+    f_out = wp.zeros(4, dtype=wp.vec3, device=device)
+    h_out = wp.zeros(4, dtype=wp.mat33, device=device)
+    x32 = wp.array(x.astype(np.float32), dtype=wp.vec3, device=device)
+    # gradient away from the rest angle
+    rest_angle = theta - 0.3
+    wp.launch(energies.bending_vertex_derivatives_kernel, dim=4, inputs=[x32, float(rest_angle), k],
+              outputs=[f_out, h_out], device=device)
+    for v in range(4):
+        grad, _ = fd_gradient_hessian(lambda y: bending_energy_np(y, rest_angle, k), x, v)
+        np.testing.assert_allclose(f_out.numpy()[v], -grad, rtol=1e-3, atol=1e-3 * np.abs(grad).max())
+    np.testing.assert_allclose(f_out.numpy().sum(axis=0), 0.0, atol=1e-6)  # translation invariance
+    # the Gauss-Newton Hessian is exact at the rest angle
+    wp.launch(energies.bending_vertex_derivatives_kernel, dim=4, inputs=[x32, float(theta), k],
+              outputs=[f_out, h_out], device=device)
+    for v in range(4):
+        _, hess = fd_gradient_hessian(lambda y: bending_energy_np(y, theta, k), x, v, h=1e-4)
+        np.testing.assert_allclose(h_out.numpy()[v], hess, rtol=2e-3, atol=2e-3 * np.abs(hess).max())
+
+
+def test_hinges_and_coloring():
+    v, f = grid(6, 5, 0.5, 0.4)
+    hinges = build_hinges(f)
+    assert len(hinges) == (3 * len(f) - (2 * 5 + 2 * 4)) // 2  # interior edges
+    np.testing.assert_allclose(dihedral_angles(v, hinges), 0.0, atol=1e-6)
+    b = ClothModelBuilder()
+    b.add_cloth(v, f, ClothMaterialParams())
+    m = b.finalize("cpu")
+    assert validate_coloring(vertex_adjacency(len(v), f, hinges), m.colors)
+
+
+# --- physics -------------------------------------------------------------------------------
+
+def test_free_fall_matches_implicit_euler_and_half_g_t2(device):
+    v, f = grid(6, 6, 0.5, 0.5)
+    b = ClothModelBuilder()
+    b.add_cloth(v, f, ClothMaterialParams(damping=0.0, bending=1e-4))
+    m = b.finalize(device)
+    cfg = VBDConfig(substeps=4, iterations=3)
+    steps, dt = 12, 1.0 / 30.0
+    x = simulate(m, SolverVBD(m, cfg), m.control(), steps, dt)[-1]
+    n = steps * cfg.substeps
+    h = dt / cfg.substeps
+    drop_discrete = G * h * h * n * (n + 1) / 2  # implicit Euler: x_n = x_0 - g h^2 n(n+1)/2
+    t = steps * dt
+    np.testing.assert_allclose(v[:, 1] - x[:, 1], drop_discrete, rtol=1e-4)
+    np.testing.assert_allclose(x[:, [0, 2]], v[:, [0, 2]], atol=1e-5)  # rigid translation: no elastic force
+    np.testing.assert_allclose(v[:, 1] - x[:, 1], 0.5 * G * t * t, rtol=1.5 / n)  # O(h) from 1/2 g t^2
+
+
+def hanging_elongation(L: float, rho: float, mu: float, lam: float) -> float:
+    """Analytic elongation [m] of a hanging StVK strip under its own weight (uniaxial, laterally
+    free): nominal stress s * E (s^2 - 1)/2 = rho g (L - Y) at rest height Y,
+    E = 4 mu (mu + lam) / (2 mu + lam) (2D Young's modulus)."""
+    E = 4 * mu * (mu + lam) / (2 * mu + lam)
+    Y = np.linspace(0.0, L, 2001)
+    s = np.empty_like(Y)
+    for k, y in enumerate(Y):
+        r = np.roots([E / 2, 0.0, -E / 2, -rho * G * (L - y)])
+        s[k] = np.max(r[np.abs(r.imag) < 1e-9].real)
+    return float(np.trapezoid(s - 1.0, Y))
+
+
+def test_hanging_strip_reaches_analytic_stretch(device):
+    W, L, nx, ny = 0.1, 1.0, 3, 21
+    mat = ClothMaterialParams(density=0.2, mu=15.0, lam=10.0, bending=1e-7, damping=1e-3, friction=0.0)
+    v, f = grid(nx, ny, W, L)
+    b = ClothModelBuilder()
+    b.add_cloth(v, f, mat, pinned=np.arange(nx))
+    m = b.finalize(device)
+    x = simulate(m, SolverVBD(m, VBDConfig(substeps=5, iterations=10)), m.control(), 150, 1.0 / 30.0)
+    delta_sim = -(x[-1, -nx:, 1].mean()) - L
+    delta = hanging_elongation(L, mat.density, mat.mu, mat.lam)
+    assert 0.01 < delta < 0.05
+    np.testing.assert_allclose(delta_sim, delta, rtol=0.04)
+    # at rest: the last two frames agree
+    np.testing.assert_allclose(x[-1], x[-2], atol=2e-4)
+
+
+def test_pinned_vertices_stay_exactly_put(device):
+    v, f = grid(8, 8, 0.5, 0.5, plane="xz")
+    pins = np.array([0, 7, 3])
+    b = ClothModelBuilder()
+    b.add_cloth(v, f, ClothMaterialParams(), pinned=pins)
+    m = b.finalize(device)
+    x = simulate(m, SolverVBD(m, VBDConfig(substeps=3, iterations=3)), m.control(), 15, 1.0 / 30.0)
+    np.testing.assert_array_equal(x[:, pins], np.broadcast_to(v[pins], x[:, pins].shape))
+    assert x[-1, :, 1].min() < -0.2  # the rest swings down
+
+
+def drop_on_sphere(device, steps: int = 30):
+    v, f = grid(13, 13, 0.6, 0.6, plane="xz")
+    v = v + np.array([-0.3, 0.25, -0.3], dtype=np.float32)
+    b = ClothModelBuilder()
+    b.add_cloth(v, f, ClothMaterialParams(bending=1e-5, friction=0.5, thickness=0.005))
+    m = b.finalize(device)
+    sv, sf = uv_sphere((0.0, 0.0, 0.0), 0.2)
+    body = BodyCollider(sv, sf, device=device)
+    control = m.control()
+    control.set_body(0, body)
+    solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5))
+    return m, solver, control, body, sv
+
+
+def test_cloth_dropped_on_sphere_settles_outside(device):
+    m, solver, control, body, _ = drop_on_sphere(device)
+    x = simulate(m, solver, control, 30, 1.0 / 30.0)
+    for frame in x:
+        assert body.signed_distance(frame).min() > 0.0
+    top = np.abs(x[-1, :, 0]) + np.abs(x[-1, :, 2]) < 0.05
+    # resting on top of the (polyhedral, radius 0.2 m) sphere at about the thickness
+    assert np.all(x[-1, top, 1] > 0.19)
+    assert np.all(x[-1, top, 1] < 0.215)
+
+
+def test_fast_sphere_through_hanging_cloth_does_not_tunnel(device):
+    """A sphere at 5 m/s hits a hanging curtain; no cloth vertex is ever inside it."""
+    v, f = grid(15, 15, 0.8, 0.8)
+    v = v + np.array([-0.4, 1.0, 0.0], dtype=np.float32)
+    b = ClothModelBuilder()
+    b.add_cloth(v, f, ClothMaterialParams(mu=200.0, lam=100.0, friction=0.3, thickness=0.005),
+                pinned=np.arange(15))
+    m = b.finalize(device)
+    sv, sf = uv_sphere((0.0, 0.0, 0.0), 0.12)
+    start = np.array([0.0, 0.6, -0.3], dtype=np.float32)
+    dt, speed = 1.0 / 30.0, 5.0
+
+    def path(k):
+        return sv + start + np.array([0.0, 0.0, min(speed * dt * k, 0.6)], dtype=np.float32)
+
+    body = BodyCollider(path(0), sf, device=device)
+    control = m.control()
+    control.set_body(0, body)
+    solver = SolverVBD(m, VBDConfig(substeps=10, iterations=5))
+    state = m.state()
+    for k in range(8):
+        body.set_frame(path(k), path(k + 1))
+        solver.step(state, state, control, dt)
+        assert body.signed_distance(state.positions).min() > 0.0, f"frame {k}: a vertex is inside the body"
+    x = state.positions.numpy()
+    # body ends at z = +0.3 (moved 0.6 m at 5 m/s): the curtain wraps round its front
+    assert x[:, 2].max() > 0.3
+    assert np.all(np.isfinite(x))
+
+
+def test_determinism_bit_identical(device):
+    runs = []
+    for _ in range(2):
+        m, solver, control, _, _ = drop_on_sphere(device)
+        runs.append(simulate(m, solver, control, 6, 1.0 / 30.0))
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
+def test_batched_instances_match_separate_runs(device):
+    mat_a = ClothMaterialParams(mu=100.0, lam=50.0, bending=1e-5, friction=0.4)
+    mat_b = ClothMaterialParams(density=0.3, mu=300.0, lam=80.0, bending=5e-5, damping=5e-3)
+    va, fa = grid(9, 7, 0.4, 0.3, plane="xz")
+    va = va + np.array([-0.2, 0.22, -0.15], dtype=np.float32)
+    vb, fb = grid(6, 10, 0.3, 0.5)
+    sv, sf = uv_sphere((0.0, 0.0, 0.0), 0.2)
+    cfg = VBDConfig(substeps=3, iterations=4)
+
+    def build(parts):
+        b = ClothModelBuilder()
+        for vv, ff, mat, pins in parts:
+            b.add_cloth(vv, ff, mat, pinned=pins)
+        m = b.finalize(device)
+        control = m.control()
+        body = BodyCollider(sv, sf, device=device)
+        for i, (vv, *_rest) in enumerate(parts):
+            if vv is va:
+                control.set_body(i, body)
+        return m, control
+
+    part_a = (va, fa, mat_a, None)
+    part_b = (vb, fb, mat_b, np.array([0, 5]))
+    m, c = build([part_a, part_b])
+    both = simulate(m, SolverVBD(m, cfg), c, 8, 1.0 / 30.0)
+    for i, part in enumerate([part_a, part_b]):
+        ms, cs = build([part])
+        alone = simulate(ms, SolverVBD(ms, cfg), cs, 8, 1.0 / 30.0)
+        np.testing.assert_array_equal(both[:, m.instance_slice(i)], alone)
+
+
+def test_invalid_inputs_raise():
+    v, f = grid(3, 3, 0.1, 0.1)
+    with pytest.raises(ValueError, match="faces"):
+        ClothModelBuilder().add_cloth(v, f + 100, ClothMaterialParams())
+    with pytest.raises(ValueError, match="missing field 'density'"):
+        ClothModelBuilder().add_cloth(v, f, object())
+    with pytest.raises(ValueError, match="substeps"):
+        VBDConfig(substeps=0)
