@@ -52,6 +52,21 @@ class ClothMaterialParams:
     thickness: float = 0.004
 
 
+def as_cloth_params(material: Any) -> Any:
+    """Solver parameters from a ``sim.garments.Material`` (E, nu, B in SI) or anything that
+    already has ``density, mu, lam, bending, damping, friction, thickness``.
+
+    The solver's membrane is isotropic StVK: mu, lam are the plane-stress Lame parameters of
+    the material's (E, nu); its separate in-plane shear stiffness is not used yet.
+    """
+    if hasattr(material, "mu") or not hasattr(material, "lame_mu"):
+        return material
+    return ClothMaterialParams(
+        density=float(material.density), mu=float(material.lame_mu), lam=float(material.lame_lambda),
+        bending=float(material.bending_stiffness), damping=float(material.damping),
+        friction=float(material.friction), thickness=float(material.thickness))
+
+
 def triangle_rest_data(rest: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rest-shape ``Dm^-1`` (F, 2, 2) and area (F,) [m^2] in each triangle's own 2D frame.
 
@@ -163,6 +178,7 @@ class ClothModelBuilder:
         f = np.asarray(faces, dtype=np.int32).reshape(-1, 3)
         if len(f) == 0 or f.min() < 0 or f.max() >= len(v):
             raise ValueError(f"cloth mesh: faces must index 0..{len(v) - 1} (got {len(f)} faces)")
+        material = as_cloth_params(material)
         for name in ("density", "mu", "lam", "bending", "damping", "friction", "thickness"):
             if not hasattr(material, name):
                 raise ValueError(f"cloth material: missing field '{name}' (needs density, mu, lam, bending,"
