@@ -28,8 +28,8 @@ def sheet(n: int, size: float, y: float):
 
 def build(instances: int, n: int, device: str, substeps: int, iterations: int):
     from sim.cloth import BodyCollider, ClothModelBuilder, SolverVBD
-    from sim.cloth.solver_vbd import VBDConfig
     from sim.cloth.model import ClothMaterialParams
+    from sim.cloth.solver_vbd import VBDConfig
     from tests.test_cloth_solver import uv_sphere
 
     # the "cotton" preset of sim/garments/materials.py (E = 4 kN/m, nu = 0.3, plane stress),
@@ -109,7 +109,9 @@ def main() -> None:
                 run = lambda g=cap.graph: wp.capture_launch(g)  # noqa: E731
                 mode = "graph"
             except Exception:
-                run = lambda: solver_b.step(st, st, control_b, dt)  # noqa: E731
+                def run(s=solver_b, x=st, c=control_b):
+                    s.step(x, x, c, dt)
+
                 mode = "launches"
             run()
             wp.synchronize_device(device)
