@@ -110,29 +110,61 @@ def test_outside_body_at_rest(body, garments, shape):
 
 
 @pytest.mark.parametrize("category", list(TEMPLATES))
-def test_attachments_on_waist_boundary(garments, category):
+def test_attachments_on_the_right_boundary(body, garments, category):
     g = garments[(category, "mean")]
-    for att in TEMPLATES[category].attachments:
-        idx = g.attachments[att]
-        assert idx.size > 10
+    assert set(TEMPLATES[category].attachments) <= set(g.attachments)
     edges, counts = _edges(g.faces)
     boundary = np.unique(edges[counts == 1])
-    wb = g.attachments["waistband"]
-    assert np.isin(wb, boundary).all()
-    y = g.rest_vertices[:, 1]
-    np.testing.assert_allclose(y[wb], y.max(), atol=1e-5)
+    v = g.rest_vertices
+    hem = g.attachments["hem"]
+    assert hem.size > 10 and np.isin(hem, boundary).all()
+    if "waistband" in g.attachments:  # bottoms: waistband at the top, nothing else open
+        wb = g.attachments["waistband"]
+        assert wb.size > 10 and np.isin(wb, boundary).all() and not np.isin(hem, wb).any()
+        np.testing.assert_allclose(v[wb, 1], v[:, 1].max(), atol=1e-5)
+        assert np.isin(boundary, np.concatenate([wb, hem])).all()  # one hem loop per leg
+    if "shoulders" in g.attachments:  # tops: a line across each strap, on top of the shoulder
+        sh = g.attachments["shoulders"]
+        j = body.rest_joints(None)
+        assert (v[sh, 0] > 0).sum() >= 3 and (v[sh, 0] < 0).sum() >= 3
+        assert np.all(v[sh, 1] > j[16, 1]) and np.all(np.abs(v[sh, 0]) < abs(j[16, 0]))
+        # each line ends on the neckline and, without sleeves, on the open armhole
+        assert np.isin(sh, boundary).sum() == (2 if "cuffs" in g.attachments else 4)
+        assert v[sh, 1].mean() > np.percentile(v[:, 1], 97)  # near the top of the garment
+    if "cuffs" in g.attachments:  # sleeves: an open ring at the end of each arm
+        cuffs = g.attachments["cuffs"]
+        assert np.isin(cuffs, boundary).all()
+        x = v[cuffs, 0]
+        j = body.rest_joints(None)
+        assert (x > j[16, 0]).sum() > 10 and (x < j[17, 0]).sum() > 10
+        assert np.all(np.abs(x) > abs(j[16, 0]))
 
 
-def test_deterministic(body):
-    a = make_garment("flared_skirt", body, parse_shape("weight=0.7"), length=0.5)
-    b = make_garment("flared_skirt", body, parse_shape("weight=0.7"), length=0.5)
+def test_trousers_split_into_two_legs(garments):
+    g = garments[("trousers", "mean")]
+    assert g.panel_names == ("front", "back", "left_leg", "right_leg")
+    hem = g.attachments["hem"]
+    x = g.rest_vertices[hem, 0]
+    assert (x > 0).sum() > 10 and (x < 0).sum() > 10  # a hem loop around each leg
+    # the legs never cross the mid-sagittal plane below the crotch bridge
+    legs = np.unique(g.faces[g.panel_ids >= 2])
+    v = g.rest_vertices
+    below = v[legs, 1] < v[g.attachments["waistband"], 1].min() - 0.45
+    assert np.all(np.abs(v[legs][below, 0]) > 0.001)
+
+
+@pytest.mark.parametrize("category", list(TEMPLATES))
+def test_deterministic(body, category):
+    a = make_garment(category, body, parse_shape("weight=0.7"), resolution=0.04)
+    b = make_garment(category, body, parse_shape("weight=0.7"), resolution=0.04)
     np.testing.assert_array_equal(a.rest_vertices, b.rest_vertices)
     np.testing.assert_array_equal(a.faces, b.faces)
     np.testing.assert_array_equal(a.uvs, b.uvs)
 
 
-def test_fine_resolution_vertex_count(body):
-    g = make_garment("flared_skirt", body, resolution="fine")
+@pytest.mark.parametrize("category", ["flared_skirt", "trousers", "long_sleeve"])
+def test_fine_resolution_vertex_count(body, category):
+    g = make_garment(category, body, resolution="fine")
     assert 10_000 < g.num_vertices < 30_000
 
 
@@ -146,6 +178,12 @@ def test_params_and_errors(body):
         make_garment("straight_skirt", body, lenght=0.4)
     with pytest.raises(WrinklesInputError, match="resolution"):
         make_garment("straight_skirt", body, resolution="ultra")
+    with pytest.raises(WrinklesInputError, match="no leg"):
+        make_garment("trousers", body, length=0.3)
+    with pytest.raises(WrinklesInputError, match="sleeve_length"):
+        make_garment("t_shirt", body, sleeve_length=0.01)
+    short = make_garment("dress", body, length=0.6)
+    assert short.num_vertices < make_garment("dress", body).num_vertices
 
 
 def test_stitch_orientation():

@@ -26,10 +26,21 @@ class Panel:
     Attributes:
         name: e.g. "front", "back".
         rows: open polylines [m], each shape (n_i, 3) with n_i >= 2, top to bottom.
+        top: attachment set the first row belongs to (None: an inner row, e.g. a crotch loop).
+        bottom: attachment set the last row belongs to (None: sewn to another panel).
+        local_spacing: UV v of each point is its distance to the previous row (accumulated),
+            instead of one v per row from the rows' mid-points: rows stay straight in UV only
+            when they are parallel in 3D. For rows that converge (a crotch loop blending into
+            a leg ring).
+        marks: (row index, attachment name) pairs for inner rows, e.g. the shoulder line.
     """
 
     name: str
     rows: tuple[np.ndarray, ...]
+    top: str | None = "waistband"
+    bottom: str | None = "hem"
+    local_spacing: bool = False
+    marks: tuple[tuple[int, str], ...] = ()
 
 
 def arc_length(points: np.ndarray) -> np.ndarray:
@@ -56,6 +67,15 @@ def resample(points: np.ndarray, h: float, *, min_segments: int = 1) -> np.ndarr
     out = np.stack([np.interp(t, s, points[:, k]) for k in range(3)], axis=1)
     out[0], out[-1] = points[0], points[-1]
     return out
+
+
+def _distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Distance [m] of every point (N, 3) to an open polyline (M, 3)."""
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    t = np.einsum("nmk,mk->nm", points[:, None] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-18)
+    q = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
+    return np.linalg.norm(points[:, None] - q, axis=2).min(axis=1)
 
 
 def stitch(n_a: int, s_a: np.ndarray, n_b: int, s_b: np.ndarray) -> np.ndarray:
@@ -113,6 +133,7 @@ def sew(panels: list[Panel]) -> SewnMesh:
         starts = np.cumsum([0] + [len(r) for r in rows])
         v = 0.0
         prev_mid = None
+        prev_v = np.zeros(0)
         row_offsets = []
         for k, r in enumerate(rows):
             s = arc_length(r)
@@ -120,7 +141,16 @@ def sew(panels: list[Panel]) -> SewnMesh:
             if prev_mid is not None:
                 v -= float(np.linalg.norm(mid - prev_mid))
             prev_mid = mid
-            uvs.append(np.stack([s - s[-1] / 2, np.full_like(s, v)], axis=1))
+            vs = np.full_like(s, v)
+            if panel.local_spacing and k > 0:
+                # v follows the local distance to the previous row (rows not parallel)
+                sp = arc_length(rows[k - 1])
+                d = _distance_to_polyline(r, rows[k - 1])
+                w = np.ones(min(7, len(d) // 2 * 2 - 1)) / min(7, len(d) // 2 * 2 - 1)
+                d = np.convolve(np.pad(d, len(w) // 2, mode="edge"), w, mode="valid")  # denoise
+                vs = np.interp(s / s[-1], sp / sp[-1], prev_v) - d
+            prev_v = vs
+            uvs.append(np.stack([s - s[-1] / 2, vs], axis=1))
             pts.append(r)
             uv_panel.append(np.full(len(r), p_id))
             row_offsets.append(base + starts[k])

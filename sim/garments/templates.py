@@ -1,5 +1,7 @@
 """Procedural garment templates fitted to a body's rest shape.
 
+Skirts, shorts / trousers (hip tube split into two legs at a crotch bridge), tank top / dress /
+t-shirt / long sleeve (body tube, bibs, shoulder straps, optional sleeves on the armholes).
 Each template measures the body's rest mesh with horizontal slabs (cross-section hulls at the
 height of every pattern row), adds ease and a clearance margin, and lays out sewing-pattern
 panels as rows of arcs around the body (``sim.garments.panels``). The panels are sewn by
@@ -15,7 +17,7 @@ from scipy.spatial import ConvexHull
 
 from sim.errors import WrinklesInputError
 from sim.garments.materials import Material, get_material
-from sim.garments.panels import Panel, pack_uvs, resample, sew
+from sim.garments.panels import Panel, arc_length, pack_uvs, resample, sew
 from sim.garments.types import Garment
 
 RESOLUTIONS = {"coarse": 0.025, "fine": 0.009}
@@ -54,13 +56,27 @@ class BodyMeasure:
     vertices: np.ndarray  # (V, 3) [m]
     joints: np.ndarray  # (24, 3) [m]
     torso_mask: np.ndarray  # (V,) vertices not dominated by arm joints
+    faces: np.ndarray | None = None  # (F, 3) body triangles
 
     @classmethod
     def of(cls, body, betas: np.ndarray | None) -> BodyMeasure:
         v = np.asarray(body.rest_mesh(betas), np.float64)
         j = np.asarray(body.rest_joints(betas), np.float64)
         w = np.asarray(body.weights)
-        return cls(v, j, w[:, list(ARM_JOINTS)].sum(axis=1) < 0.5)
+        return cls(v, j, w[:, list(ARM_JOINTS)].sum(axis=1) < 0.5, np.asarray(body.faces, np.int64))
+
+    def band(self, y0: float, y1: float, mask: np.ndarray, axis: int = 1) -> np.ndarray:
+        """Masked vertices of every body triangle reaching into [y0, y1] along ``axis`` [m]:
+        (x, z) for the vertical axis 1, (z, y) for axis 0 (sagittal slices).
+
+        Conservative where body vertices are sparse: the triangles that cross the band bring
+        their vertices on both sides of it.
+        """
+        fy = self.vertices[self.faces, axis]
+        hit = (fy.min(axis=1) <= y1) & (fy.max(axis=1) >= y0)
+        idx = np.unique(self.faces[hit])
+        idx = idx[mask[idx]]
+        return self.vertices[idx][:, [0, 2] if axis == 1 else [2, 1]]
 
     def slab(self, y: float, half: float, mask: np.ndarray | None = None) -> np.ndarray:
         """(x, z) of the body vertices with |vertex y − y| <= half [m]."""
@@ -154,6 +170,398 @@ def skirt_panels(m: BodyMeasure, p: SkirtParams, h: float, thickness: float) -> 
 
 
 @dataclass(frozen=True)
+class PantsParams:
+    """Parameters of shorts and trousers.
+
+    Attributes:
+        length: waist-to-hem length along the body axis (outseam) [m]; trousers stop above
+            the ankle joint.
+        ease: looseness around the hips and the legs [m].
+        waist_ease: looseness at the waistband [m].
+        crotch_ease: extra gap below the body's crotch [m].
+        waist_offset: waistband height above SMPL's spine1 joint [m].
+    """
+
+    length: float = 1.0
+    ease: float = 0.015
+    waist_ease: float = 0.004
+    crotch_ease: float = 0.02
+    waist_offset: float = 0.0
+
+
+LEG_CLIP = 0.0015
+BLEND = 0.06
+"""Height over which a leg's rows blend from the crotch loop to the leg's own hull [m]."""
+"""Leg tubes stay at |x| >= 1.5 mm so the two legs never cross between the thighs [m]."""
+
+
+def _polar(poly_xz: np.ndarray, center: np.ndarray, theta: np.ndarray):
+    """Ray casts from ``center`` at angles ``theta`` against the closed polygon ``poly_xz``.
+
+    Returns:
+        (r, edge, s): distance to the nearest hit, the polygon edge hit and the parameter
+        along it (edge k runs from vertex k to k + 1, cyclically).
+    """
+    d = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    a = poly_xz - center
+    e = np.roll(a, -1, axis=0) - a
+    den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (a[None, :, 0] * e[None, :, 1] - a[None, :, 1] * e[None, :, 0]) / den
+        s = (a[None, :, 0] * d[:, None, 1] - a[None, :, 1] * d[:, None, 0]) / den
+    ok = (s >= -1e-9) & (s <= 1 + 1e-9) & (t > 0)
+    tt = np.where(ok, t, np.inf)
+    edge = tt.argmin(axis=1)
+    rows = np.arange(len(theta))
+    return tt[rows, edge], edge, np.clip(s[rows, edge], 0.0, 1.0)
+
+
+def _clip_half_plane(poly: np.ndarray, sign: float, x0: float) -> np.ndarray:
+    """Part of a convex polygon (K, 2) with sign * x >= x0 (Sutherland-Hodgman, one plane)."""
+    out = []
+    n = len(poly)
+    for k in range(n):
+        p, q = poly[k], poly[(k + 1) % n]
+        fp, fq = sign * p[0] - x0, sign * q[0] - x0
+        if fp >= 0:
+            out.append(p)
+        if fp * fq < 0:
+            out.append(p + (q - p) * (fp / (fp - fq)))
+    return np.asarray(out)
+
+
+def _crotch_height(m: BodyMeasure) -> float:
+    """Lowest point where the body surface crosses the mid-sagittal plane x = 0 between the
+    hips and the knees [m] (edges crossing the plane, interpolated)."""
+    v = m.vertices
+    j = m.joints
+    e = m.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    a, b = v[e[:, 0]], v[e[:, 1]]
+    cross = (a[:, 0] * b[:, 0] < 0) & (np.minimum(a[:, 1], b[:, 1]) > j[4, 1]) \
+        & (np.maximum(a[:, 1], b[:, 1]) < j[1, 1] + 0.05)
+    if not cross.any():
+        raise WrinklesInputError("cannot find the crotch of this body (no surface crosses the "
+                                 "mid-plane between hips and knees)")
+    a, b = a[cross], b[cross]
+    t = a[:, 0] / (a[:, 0] - b[:, 0])
+    return float((a[:, 1] + t * (b[:, 1] - a[:, 1])).min())
+
+
+def pants_panels(m: BodyMeasure, p: PantsParams, h: float, thickness: float) -> list[Panel]:
+    """Shorts / trousers: a hip tube (front, back) from the waist to just above the crotch,
+    split into two leg tubes.
+
+    The hip ring at the split height is cut at the sides, the front centre F and the back
+    centre B. A bridge curve in the mid-sagittal plane runs F → C → B below the crotch; each
+    leg's first row is the closed loop (half hip ring + bridge), opened at C (the inseam).
+    The next leg rows blend from that loop to the offset hull of the leg (their inner points
+    dip with the bridge and rise back), so every strip has near-uniform height.
+    """
+    j = m.joints
+    v = m.vertices
+    hv = h * np.sqrt(3) / 2
+    half = max(hv, 0.01)
+    margin = thickness + CLEARANCE
+    y_waist = j[3, 1] + p.waist_offset
+    y_cr = _crotch_height(m)
+    y_c = y_cr + 0.4 * hv  # the split row, just above the body's crotch
+    y_lowest = j[7, 1] + 0.05  # trousers stop above the ankle joint (the foot is not a tube)
+    y_hem = max(y_waist - p.length, y_lowest)
+    if y_waist - y_c < 2 * hv:
+        raise WrinklesInputError("waist is too close to the crotch for these pants")
+    n_leg = int(round((y_c - y_hem) / hv))
+    if n_leg < 3:
+        raise WrinklesInputError(f"pants length {p.length} m leaves no leg at edge length {h} m "
+                                 f"(the crotch is {y_waist - y_c:.3f} m below the waist)")
+    y_hip = j[1, 1]
+
+    def ease_at(y: float) -> float:
+        t = _smoothstep((y_waist - y) / max(y_waist - y_hip, 1e-3))
+        return margin + p.waist_ease + (p.ease - p.waist_ease) * float(t)
+
+    # hip tube
+    n_up = max(2, int(round((y_waist - y_c) / hv))) + 1
+    front, back = [], []
+    ring = None
+    for y in np.linspace(y_waist, y_c, n_up):
+        hull = offset_hull(m.band(float(y) - half, float(y) + half, m.torso_mask), ease_at(float(y)))
+        ring = polar_ring(hull, np.array([0.0, hull[:, 1].mean()]), float(y))
+        hn = _RING_SAMPLES // 2
+        front.append(resample(ring[: hn + 1], h, min_segments=2))
+        back.append(resample(ring[hn:], h, min_segments=2))
+    qn = _RING_SAMPLES // 4
+    q = [resample(ring[k * qn: (k + 1) * qn + 1], h, min_segments=1) for k in range(4)]
+    front[-1] = np.concatenate([q[0], q[1][1:]])
+    back[-1] = np.concatenate([q[2], q[3][1:]])
+    f_pt, b_pt = ring[qn], ring[3 * qn]
+    # bridge F -> C -> B in the plane of F and B, below the crotch
+    depth = (y_c - y_cr) + margin + p.crotch_ease
+    phi = np.linspace(0.0, np.pi, 201)
+    t = (1 - np.cos(phi)) / 2
+    bridge = f_pt[None] + t[:, None] * (b_pt - f_pt)[None]
+    bridge[:, 1] = y_c - depth * np.sqrt(np.sin(phi).clip(0.0))
+    bridge[0], bridge[-1] = f_pt, b_pt
+    fh = resample(bridge[:101], h, min_segments=1)  # F -> C
+    bh = resample(bridge[100:], h, min_segments=1)  # C -> B
+    panels = [Panel("front", tuple(front), bottom=None, local_spacing=True),
+              Panel("back", tuple(back), bottom=None, local_spacing=True)]
+    n_blend = max(2, int(round(BLEND / hv)))
+    n_fade = max(1, min(n_leg, max(n_blend, int(np.ceil(depth / (0.4 * hv))))))
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        if sign > 0:  # counter-clockwise seen from above, starting at the inseam point C
+            loop = np.concatenate([bh, q[3][1:], q[0][1:], fh[1:]])
+            theta = np.pi + np.linspace(0.0, 2 * np.pi, _RING_SAMPLES + 1)
+        else:
+            loop = np.concatenate([fh[::-1], q[1][1:], q[2][1:], bh[::-1][1:]])
+            theta = np.linspace(0.0, 2 * np.pi, _RING_SAMPLES + 1)
+        leg_mask = m.torso_mask & (sign * v[:, 0] > 0)
+
+        def leg_hull(y0: float, y1: float, off: float, leg_mask=leg_mask, sign=sign) -> np.ndarray:
+            return _clip_half_plane(offset_hull(m.band(y0 - half, y1 + half, leg_mask), off), sign, LEG_CLIP)
+
+        h0 = leg_hull(y_c - hv, y_c - hv, ease_at(y_c - hv))
+        c0 = h0.mean(axis=0)
+        r_d, edge, s_d = _polar(loop[:, [0, 2]], c0, theta)
+        y_d = loop[edge, 1] + s_d * (np.roll(loop[:, 1], -1)[edge] - loop[edge, 1])
+        rows = [loop]
+        for k in range(1, n_leg + 1):
+            s = float(_smoothstep(k / n_blend))
+            s_y = min(1.0, k / n_fade)  # linear: the inner side rows stay >= 0.6 hv apart
+            yk = (1 - s_y) * y_d + s_y * y_c - k * hv
+            hull = leg_hull(float(yk.min()), float(yk.max()), ease_at(float(yk.mean())))
+            c = c0 if k < max(n_blend, n_fade) else hull.mean(axis=0)
+            r_l = _polar(hull, c, theta)[0]
+            r = np.maximum((1 - s) * r_d + s * r_l, r_l)
+            row = np.stack([c[0] + r * np.cos(theta), yk, c[1] + r * np.sin(theta)], axis=1)
+            row[-1] = row[0]
+            rows.append(resample(row, h, min_segments=3))
+        panels.append(Panel(f"{side}_leg", tuple(rows), top=None, local_spacing=True))
+    return panels
+
+
+@dataclass(frozen=True)
+class TopParams:
+    """Parameters of the tank top.
+
+    Attributes:
+        length: from the top of the body tube (below the armpit) down to the hem [m].
+        ease: looseness around the torso [m].
+        armhole_depth: how far below the armpit the armhole's lowest point lies [m].
+        strap_width: shoulder strap width [m].
+        neck_ease: gap between the neck and the inner edge of a strap [m].
+        front_rise, back_rise: neckline heights above the armhole's lowest point [m].
+        flare: extra radius at the hem relative to the hips [-] (dresses).
+        sleeve_length: sleeve length from the shoulder joint along the arm [m]; 0 = none
+            (the armholes stay open); sleeves stop 3 cm before the wrist.
+    """
+
+    length: float = 0.4
+    ease: float = 0.02
+    armhole_depth: float = 0.03
+    strap_width: float = 0.06
+    neck_ease: float = 0.02
+    front_rise: float = 0.08
+    back_rise: float = 0.10
+    flare: float = 0.0
+    sleeve_length: float = 0.0
+
+
+def _cut_indices(half_ring: np.ndarray, xs: list[float]) -> list[int]:
+    """Indices of the samples of a half ring (x monotonic) nearest to each x in ``xs``."""
+    return [int(np.argmin(np.abs(half_ring[:, 0] - x))) for x in xs]
+
+
+def _pieces(row: np.ndarray, cuts: list[int], h: float) -> list[np.ndarray]:
+    """A dense polyline cut at sample indices, each piece resampled at ``h`` (ends exact)."""
+    idx = [0, *cuts, len(row) - 1]
+    if np.any(np.diff(idx) < 1):
+        raise WrinklesInputError("strap edges fall outside the body's cross-section; reduce "
+                                 "strap_width or neck_ease")
+    return [resample(row[a: b + 1], h, min_segments=1) for a, b in zip(idx[:-1], idx[1:], strict=True)]
+
+
+def _join(pieces: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate([pieces[0]] + [q[1:] for q in pieces[1:]])
+
+
+def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) -> list[Panel]:
+    """Tank top: a body tube (front, back) hanging from below the armpits to the hem, a front
+    and a back bib between the armholes up to the necklines, and two shoulder straps.
+
+    Every row is an arc of the body's offset cross-section hull. The bibs' bottom rows are
+    the middle of the tube's top row, their top rows carry the straps' ends as exact sample
+    points. A strap's rows run across its width and follow the shoulder's sagittal section
+    (offset hull of the body in the (z, y) plane at that x) from the front neckline, over the
+    shoulder, to the back neckline; its middle row is the ``shoulders`` attachment.
+    """
+    j = m.joints
+    v = m.vertices
+    hv = h * np.sqrt(3) / 2
+    half = max(hv, 0.01)
+    margin = thickness + CLEARANCE
+    every = np.ones(len(v), bool)
+    arm = ~m.torso_mask & (np.abs(v[:, 0]) < abs(j[16, 0]) + 0.06)
+    y_top = float(v[arm, 1].min()) - p.armhole_depth
+    y_floor = v[:, 1].min() + 0.03
+    length = min(p.length, y_top - y_floor)
+    if length < 4 * h:
+        raise WrinklesInputError(f"top length {p.length} m is too short for edge length {h} m")
+    # the neck's half width halfway up the neck fixes where the straps start
+    y_neck = 0.5 * (j[12, 1] + j[15, 1])
+    neck = m.torso_mask & (np.abs(v[:, 1] - y_neck) < 0.015) & (np.abs(v[:, 0]) < abs(j[16, 0]))
+    x_in = float(np.abs(v[neck, 0]).max()) + margin + p.neck_ease
+    x_out = min(x_in + p.strap_width, 0.93 * abs(j[16, 0]))  # stays inside the shoulder joint
+    if x_out - x_in < 0.03:
+        raise WrinklesInputError(f"strap_width {p.strap_width} m: the shoulder is too narrow for a strap")
+    hn = _RING_SAMPLES // 2
+    n_rows = max(3, int(round(length / hv)) + 1)
+    y_hip, y_hem = j[1, 1], y_top - length
+    front, back = [], []
+    acc = m.band(y_top, y_top + half, m.torso_mask)
+    for k, y in enumerate(y_top - np.linspace(0.0, length, n_rows)):
+        acc = np.concatenate([acc, m.band(float(y) - half, float(y) + half, m.torso_mask)])
+        acc = acc[ConvexHull(acc).vertices]  # hanging cloth: hull of all that is above
+        hull = offset_hull(acc, margin + p.ease)
+        center = np.array([0.0, hull[:, 1].mean()])
+        if p.flare and y < y_hip:
+            grow = p.flare * float(_smoothstep((y_hip - y) / (y_hip - y_hem)))
+            hull = center + (hull - center) * (1.0 + grow)
+        ring = polar_ring(hull, center, float(y))
+        if k > 0:
+            front.append(resample(ring[: hn + 1], h, min_segments=2))
+            back.append(resample(ring[hn:], h, min_segments=2))
+            continue
+        fp = _pieces(ring[: hn + 1], _cut_indices(ring[: hn + 1], [x_out, -x_out]), h)
+        bp = _pieces(ring[hn:], _cut_indices(ring[hn:], [-x_out, x_out]), h)
+        front.append(_join(fp))
+        back.append(_join(bp))
+        bib_bottom = {"front": fp[1], "back": bp[1]}
+        tube_top = (fp, bp)
+    panels = [Panel("front", tuple(front), top=None), Panel("back", tuple(back), top=None)]
+    # bibs between the armholes, from the necklines down to the tube
+    bib_mask = np.abs(v[:, 0]) <= x_out + 0.03
+    ends, bibs, strap_rows = {}, {}, {}
+    for name, rise, xs in (("front", p.front_rise, [x_out, x_in, -x_in, -x_out]),
+                           ("back", p.back_rise, [-x_out, -x_in, x_in, x_out])):
+        n_bib = max(1, int(round(rise / hv)))
+        rows = []
+        for y in y_top + rise * np.linspace(1.0, 0.0, n_bib + 1)[:-1]:
+            hull = offset_hull(m.band(float(y) - half, float(y) + half, bib_mask), margin + p.ease)
+            ring = polar_ring(hull, np.array([0.0, hull[:, 1].mean()]), float(y))
+            hr = ring[: hn + 1] if name == "front" else ring[hn:]
+            cuts = _cut_indices(hr, xs)
+            if not rows:  # the neckline row: strap ends as exact pieces
+                tp = _pieces(hr[cuts[0]: cuts[3] + 1], [c - cuts[0] for c in cuts[1:3]], h)
+                rows.append(_join(tp))
+                ends[name] = tp
+            else:
+                rows.append(resample(hr[cuts[0]: cuts[3] + 1], h, min_segments=2))
+        rows.append(bib_bottom[name])
+        panels.append(Panel(f"{name}_bib", tuple(rows), top=None, bottom=None, local_spacing=True))
+        bibs[name] = rows
+    # straps, rows running towards +x: (front end reversed, back end)
+    straps = {"left": (ends["front"][0][::-1], ends["back"][2]),
+              "right": (ends["front"][2][::-1], ends["back"][0])}
+    for side, (fe, be) in straps.items():
+        n_u = max(len(fe), len(be), 3)
+        u = np.linspace(0.0, 1.0, n_u)
+        sf, sb = arc_length(fe), arc_length(be)
+        fe_u = np.stack([np.interp(u * sf[-1], sf, fe[:, c]) for c in range(3)], axis=1)
+        be_u = np.stack([np.interp(u * sb[-1], sb, be[:, c]) for c in range(3)], axis=1)
+        half_x = 0.6 * p.strap_width / (n_u - 1) + 0.003  # the columns' slices overlap
+        paths = []
+        t = np.linspace(0.0, 1.0, 181)
+        for a, b in zip(fe_u, be_u, strict=True):
+            x = 0.5 * (a[0] + b[0])
+            pts = m.band(x - half_x, x + half_x, every, axis=0)
+            pts = pts[(pts[:, 1] >= min(a[1], b[1]) - 0.02) & (pts[:, 1] <= j[12, 1] + 0.04)]
+            hull = offset_hull(pts, margin + 0.005)
+            c = np.array([0.5 * (a[2] + b[2]), min(a[1], b[1])])
+            phi_a = np.arctan2(a[1] - c[1], a[2] - c[0])
+            phi_b = np.arctan2(b[1] - c[1], b[2] - c[0])
+            phi = phi_a + t * (phi_b - phi_a)
+            r = _polar(hull, c, phi)[0]
+            path = np.stack([a[0] + t * (b[0] - a[0]), c[1] + r * np.sin(phi), c[0] + r * np.cos(phi)],
+                            axis=1)
+            path[0], path[-1] = a, b
+            paths.append(path)
+        s_mid = arc_length(paths[len(paths) // 2])
+        n_k = max(4, int(round(s_mid[-1] / hv)))
+        n_k += n_k % 2  # even: a middle row on the shoulder line
+        t_k = np.interp(np.linspace(0.0, s_mid[-1], n_k + 1), s_mid, t)
+        rows = [fe]
+        for tk in t_k[1:-1]:
+            row = np.stack([[np.interp(tk, t, pa[:, c]) for c in range(3)] for pa in paths])
+            rows.append(resample(row, h, min_segments=2))
+        rows.append(be)
+        panels.append(Panel(f"{side}_strap", tuple(rows), top=None, bottom=None,
+                            local_spacing=True, marks=((n_k // 2, "shoulders"),)))
+        strap_rows[side] = rows
+    if p.sleeve_length <= 0:
+        return panels
+    fp, bp = tube_top
+    outer = {"left": (lambda r: r[-1]), "right": (lambda r: r[0])}
+    for side, sign in (("left", 1.0), ("right", -1.0)):
+        # armhole loop, starting at the side point S of the tube's top row
+        f_edge = np.stack([r[0] if sign > 0 else r[-1] for r in bibs["front"]])  # top -> bottom
+        b_edge = np.stack([r[-1] if sign > 0 else r[0] for r in bibs["back"]])
+        s_edge = np.stack([outer[side](r) for r in strap_rows[side]])  # front -> back
+        if sign > 0:
+            loop = np.concatenate([fp[0], f_edge[::-1][1:], s_edge[1:], b_edge[1:], bp[2][1:]])
+        else:
+            loop = np.concatenate([fp[2][::-1], f_edge[::-1][1:], s_edge[1:], b_edge[1:], bp[0][::-1][1:]])
+        panels.append(_sleeve_panel(m, p, h, margin, loop, sign, y_top, side))
+    return panels
+
+
+def _sleeve_panel(m: BodyMeasure, p: TopParams, h: float, margin: float, loop: np.ndarray, sign: float,
+                  y_top: float, side: str) -> Panel:
+    """A sleeve: its first row is the armhole loop; rows blend into rings around the arm
+    (planes x = const, the T-pose arm runs along ±x) and end at ``sleeve_length`` from the
+    shoulder joint (at most just before the wrist)."""
+    j, v = m.joints, m.vertices
+    hv = h * np.sqrt(3) / 2
+    half = max(hv, 0.01)
+    js, jw = (16, 20) if sign > 0 else (17, 21)
+    x_ref = float((sign * loop[:, 0]).max())
+    x_end = min(sign * j[js, 0] + p.sleeve_length, sign * j[jw, 0] - 0.03)
+    n_sl = int(round((x_end - x_ref) / hv))
+    if n_sl < 2:
+        raise WrinklesInputError(f"sleeve_length {p.sleeve_length} m is too short for edge length {h} m")
+    x_d = sign * loop[:, 0]
+    n_fade = max(2, min(n_sl, int(np.ceil((x_ref - x_d.min()) / (0.4 * hv)))))
+    n_blend = max(2, int(round(BLEND / hv)))
+    mask = (sign * v[:, 0] > 0) & (v[:, 1] >= y_top - 0.005)
+
+    def arm_hull(x0: float, x1: float) -> np.ndarray:
+        pts = m.band(sign * x0 if sign > 0 else -x1, sign * x1 if sign > 0 else -x0, mask, axis=0)
+        return offset_hull(pts, margin + p.ease)  # (z, y)
+
+    h0 = arm_hull(x_ref, x_ref + hv)
+    c0 = h0.mean(axis=0)
+    # the left loop is walked backwards (mirror image), so both sleeves' windings match the body
+    if sign > 0:
+        loop = loop[::-1].copy()
+    theta = np.arctan2(*(loop[0, [1, 2]] - c0[::-1])) - sign * np.linspace(0.0, 2 * np.pi, _RING_SAMPLES + 1)
+    qz = loop[:, [2, 1]]
+    r_d, edge, s_d = _polar(qz, c0, theta)
+    xd = x_d[edge] + s_d * (np.roll(x_d, -1)[edge] - x_d[edge])
+    rows = [loop]
+    for k in range(1, n_sl + 1):
+        s = float(_smoothstep(k / n_blend))
+        s_x = min(1.0, k / n_fade)
+        xk = (1 - s_x) * xd + s_x * x_ref + k * hv
+        hull = arm_hull(float(xk.min()) - half, float(xk.max()) + half)
+        c = c0 if k < max(n_blend, n_fade) else hull.mean(axis=0)
+        r_a = _polar(hull, c, theta)[0]
+        r = np.maximum((1 - s) * r_d + s * r_a, r_a)
+        row = np.stack([sign * xk, c[1] + r * np.sin(theta), c[0] + r * np.cos(theta)], axis=1)
+        row[-1] = row[0]
+        rows.append(resample(row, h, min_segments=3))
+    return Panel(f"{side}_sleeve", tuple(rows), top=None, bottom="cuffs", local_spacing=True)
+
+
+@dataclass(frozen=True)
 class Template:
     """A registry entry: parameter class, defaults and the panel builder."""
 
@@ -163,10 +571,22 @@ class Template:
     attachments: tuple[str, ...]
 
 
+_SLEEVED = {"length": 0.42, "strap_width": 0.1, "front_rise": 0.11, "back_rise": 0.13}
+"""Shirts: wide shoulder panels (up to the shoulder joint) and higher necklines than a tank top."""
+
 TEMPLATES: dict[str, Template] = {
     "straight_skirt": Template(SkirtParams, {}, skirt_panels, ("waistband",)),
     "flared_skirt": Template(SkirtParams, {"flare": 0.6, "length": 0.6, "ease": 0.02}, skirt_panels,
                              ("waistband",)),
+    "shorts": Template(PantsParams, {"length": 0.45, "ease": 0.02}, pants_panels, ("waistband", "hem")),
+    "trousers": Template(PantsParams, {}, pants_panels, ("waistband", "hem")),
+    "tank_top": Template(TopParams, {}, tank_top_panels, ("shoulders", "hem")),
+    "t_shirt": Template(TopParams, {**_SLEEVED, "sleeve_length": 0.2}, tank_top_panels,
+                        ("shoulders", "hem", "cuffs")),
+    "long_sleeve": Template(TopParams, {**_SLEEVED, "sleeve_length": 1.0}, tank_top_panels,
+                            ("shoulders", "hem", "cuffs")),
+    "dress": Template(TopParams, {"length": 0.95, "flare": 0.35, "ease": 0.025}, tank_top_panels,
+                      ("shoulders", "hem")),
 }
 """Garment categories (registry) → template."""
 
@@ -232,9 +652,15 @@ def make_garment(category: str, body, betas: np.ndarray | None = None, *,
     uv_faces = sewn.uv_faces
     if flip:
         faces, uv_faces = faces[:, ::-1], uv_faces[:, ::-1]
-    top = np.unique(np.concatenate([rows[0] for rows in sewn.row_vertices]))
-    hem = np.unique(np.concatenate([rows[-1] for rows in sewn.row_vertices]))
-    att = {"waistband": top, "hem": hem}
+    att: dict[str, list[np.ndarray]] = {}
+    for pn, rows in zip(panels, sewn.row_vertices, strict=True):
+        if pn.top:
+            att.setdefault(pn.top, []).append(rows[0])
+        if pn.bottom:
+            att.setdefault(pn.bottom, []).append(rows[-1])
+        for k, mark in pn.marks:
+            att.setdefault(mark, []).append(rows[k])
+    att = {k: np.unique(np.concatenate(a)) for k, a in att.items()}
     return Garment(rest_vertices=v.astype(np.float32), faces=faces.astype(np.int32),
                    uvs=pack_uvs(sewn.uvs_m, sewn.uv_panel), uv_faces=uv_faces.astype(np.int32),
                    material=mat, attachments=att, category=category, name=name or category,
