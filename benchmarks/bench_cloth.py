@@ -28,15 +28,11 @@ def sheet(n: int, size: float, y: float):
 
 def build(instances: int, n: int, device: str, substeps: int, iterations: int):
     from sim.cloth import BodyCollider, ClothModelBuilder, SolverVBD
-    from sim.cloth.model import ClothMaterialParams
     from sim.cloth.solver_vbd import VBDConfig
+    from sim.garments.materials import get_material
     from tests.test_cloth_solver import uv_sphere
 
-    # the "cotton" preset of sim/garments/materials.py (E = 4 kN/m, nu = 0.3, plane stress),
-    # spelled out so this benchmark does not depend on the garment templates
-    E, nu = 4.0e3, 0.30
-    mat = ClothMaterialParams(density=0.15, mu=E / (2 * (1 + nu)), lam=E * nu / (1 - nu * nu),
-                              bending=0.08 * 9.80665e-5, damping=2e-3, friction=0.40, thickness=3.0e-4)
+    mat = get_material("cotton")
     b = ClothModelBuilder()
     v, f = sheet(n, 1.0, 0.35)
     for _ in range(instances):

@@ -151,7 +151,7 @@ def inside_fraction(points: np.ndarray, body_vertices: np.ndarray, body_faces: n
     inside = wp.empty(points.shape[1], dtype=int, device=d)
     out = np.empty(T)
     for t in range(T):
-        if t > 0 and bv is not None:
+        if t > 0:
             mesh_pts.assign(np.ascontiguousarray(bv[t]))
             mesh.refit()
         x = wp.array(np.ascontiguousarray(points[t], np.float32), dtype=wp.vec3, device=d)
