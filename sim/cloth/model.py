@@ -246,6 +246,17 @@ class ClothModelBuilder:
         vt = _csr(n, f_all.reshape(-1), [tri_ids, np.tile(np.arange(3), len(f_all))])
         edge_ids = np.repeat(np.arange(len(h_all)), 4)
         ve = _csr(n, h_all.reshape(-1).astype(np.int64), [edge_ids, np.tile(np.arange(4), len(h_all))])
+        # every mesh edge (boundary included) for edge-edge self-contact, and vertex -> edge
+        me_all = mesh_edges(f_all)
+        me_ids = np.repeat(np.arange(len(me_all)), 2)
+        vme = _csr(n, me_all.reshape(-1).astype(np.int64), [me_ids, np.tile(np.arange(2), len(me_all))])
+        inst_all = np.concatenate(inst_of)
+        # each vertex is "owned" by its first incident triangle (dedups vertex candidates
+        # gathered through triangles; see sim.cloth.self_contact)
+        owner = np.full(n, -1, dtype=np.int64)
+        flat = f_all.reshape(-1)
+        first = np.unique(flat, return_index=True)
+        owner[first[0]] = first[1] // 3
         # merge per-instance colourings by colour index (see module docstring)
         colors = np.concatenate([ins.colors for ins in self._instances])
         color_order = np.argsort(colors, kind="stable").astype(np.int32)
@@ -293,9 +304,24 @@ class ClothModelBuilder:
             vertex_edge_ids=arr(ve[1], wp.int32),
             vertex_edge_local=arr(ve[2], wp.int32),
             color_vertices=arr(color_order, wp.int32),
+            mesh_edge_indices=arr(me_all.astype(np.int32).reshape(-1, 2), wp.vec2i),
+            vertex_mesh_edge_offsets=arr(vme[0], wp.int32),
+            vertex_mesh_edge_ids=arr(vme[1], wp.int32),
+            vertex_mesh_edge_local=arr(vme[2], wp.int32),
+            vertex_owner_tri=arr(owner.astype(np.int32), wp.int32),
+            tri_instance=arr(inst_all[f_all[:, 0]].astype(np.int32), wp.int32),
+            mesh_edge_instance=arr(inst_all[me_all[:, 0]].astype(np.int32), wp.int32),
             instance_thickness=arr(np.asarray(thickness, np.float32), float),
             instance_friction=arr(np.asarray(friction, np.float32), float),
         )
+
+
+def mesh_edges(faces: np.ndarray) -> np.ndarray:
+    """Unique undirected edges ``(a, b)``, ``a < b``, of a triangle mesh, int32 (E, 2), sorted."""
+    f = faces.astype(np.int64).reshape(-1, 3)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    e.sort(axis=1)
+    return np.unique(e, axis=0).astype(np.int32).reshape(-1, 2)
 
 
 def _hinge_face_areas(faces: np.ndarray, hinges: np.ndarray, areas: np.ndarray) -> np.ndarray:
@@ -325,6 +351,9 @@ class ClothModel:
     Per instance: ``instance_thickness`` [m], ``instance_friction``; ``instance_starts`` (host,
     (I+1,)) slices the particle range of each instance. ``color_vertices`` lists particles by
     colour; colour ``c`` is ``color_vertices[color_offsets[c]:color_offsets[c+1]]``.
+    Self-contact data: ``mesh_edge_indices`` (every undirected edge, vec2i (E,)) with vertex ->
+    edge CSR ``vertex_mesh_edge_*``, ``vertex_owner_tri`` (first incident triangle),
+    ``tri_instance`` / ``mesh_edge_instance`` (BVH groups: instances never collide).
     """
 
     device: str
@@ -362,6 +391,13 @@ class ClothModel:
     color_vertices: Any
     instance_thickness: Any
     instance_friction: Any
+    mesh_edge_indices: Any
+    vertex_mesh_edge_offsets: Any
+    vertex_mesh_edge_ids: Any
+    vertex_mesh_edge_local: Any
+    vertex_owner_tri: Any
+    tri_instance: Any
+    mesh_edge_instance: Any
 
     @property
     def color_count(self) -> int:

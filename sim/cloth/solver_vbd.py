@@ -10,8 +10,10 @@ over the vertex colouring. Per substep:
 3. ``body_contact_kernel``: one contact plane per particle against its instance's body,
    found from the particle's substep-start position (outside the body) against the body's
    substep-end placement;
-4. ``iterations`` x colours launches of ``solve_color_kernel``;
-5. ``velocity_kernel``.
+4. with ``self_contact``: refit the cloth BVHs, find vertex-triangle and edge-edge pairs and
+   per-vertex displacement bounds (``sim.cloth.self_contact``);
+5. ``iterations`` x colours launches of ``solve_color_kernel``;
+6. ``velocity_kernel``.
 
 Substep safety: contact is found against the body where it will be at the end of each
 substep, and the sign test classifies a particle the body has overtaken correctly as long as
@@ -29,6 +31,7 @@ from dataclasses import dataclass
 
 from sim.cloth import vbd_kernels as K
 from sim.cloth.model import ClothModel
+from sim.cloth.self_contact import SelfContact, disabled_data
 from sim.cloth.state import ClothControl, ClothState
 from sim.device import warp
 
@@ -44,6 +47,17 @@ class VBDConfig:
         contact_margin: distance [m] within which body contacts are detected; must exceed the
             cloth thickness plus the relative cloth/body motion of one substep.
         friction_epsilon: tangential speed [m/s] below which friction is smoothed (static).
+        self_contact: cloth-cloth collision (vertex-triangle and edge-edge) on/off.
+        self_contact_radius: distance [m] kept between cloth surfaces.
+        self_contact_margin: smallest query radius [m] of the intersection-free displacement
+            bounds; a vertex moves at most ``relaxation x`` its distance to the nearest
+            non-incident primitive (capped at the query radius) per substep.
+        self_contact_stiffness: penalty stiffness [N/m] of a cloth-cloth pair.
+        self_contact_friction: cloth-cloth Coulomb friction coefficient.
+        self_contact_relaxation: gamma of the bounds (< 0.5 keeps the guarantee).
+        self_contact_speed_factor: query radius at least this times |v| h, so fast cloth with
+            space around it is not slowed by the bounds.
+        self_contact_capacity: pairs stored per vertex, triangle and edge.
     """
 
     substeps: int = 10
@@ -51,14 +65,32 @@ class VBDConfig:
     contact_stiffness: float = 1.0e5
     contact_margin: float = 0.05
     friction_epsilon: float = 1.0e-2
+    self_contact: bool = False
+    self_contact_radius: float = 0.003
+    self_contact_margin: float = 0.01
+    self_contact_stiffness: float = 1.0e4
+    self_contact_friction: float = 0.2
+    self_contact_relaxation: float = 0.45
+    self_contact_speed_factor: float = 2.5
+    self_contact_capacity: int = 8
 
     def __post_init__(self):
         for name in ("substeps", "iterations"):
             if getattr(self, name) < 1:
                 raise ValueError(f"VBDConfig.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("contact_stiffness", "contact_margin", "friction_epsilon"):
+        for name in ("contact_stiffness", "contact_margin", "friction_epsilon", "self_contact_radius",
+                     "self_contact_margin", "self_contact_stiffness", "self_contact_speed_factor",
+                     "self_contact_capacity"):
             if getattr(self, name) <= 0.0:
                 raise ValueError(f"VBDConfig.{name} must be > 0, got {getattr(self, name)}")
+        if not 0.0 < self.self_contact_relaxation < 0.5:
+            raise ValueError("VBDConfig.self_contact_relaxation must be in (0, 0.5), got "
+                             f"{self.self_contact_relaxation}")
+        if self.self_contact_friction < 0.0:
+            raise ValueError(f"VBDConfig.self_contact_friction must be >= 0, got "
+                             f"{self.self_contact_friction}")
+        if self.self_contact_margin < self.self_contact_radius:
+            raise ValueError("VBDConfig.self_contact_margin must be >= self_contact_radius")
 
 
 class SolverVBD:
@@ -83,6 +115,17 @@ class SolverVBD:
         self._contact_body_velocity = wp.zeros(n, dtype=wp.vec3, device=d)
         self._contact_active = wp.zeros(n, dtype=wp.int32, device=d)
         self._gravity = wp.vec3(*model.gravity)
+        cfg = self.config
+        if cfg.self_contact:
+            self.self_contact = SelfContact(
+                model, radius=cfg.self_contact_radius, margin=cfg.self_contact_margin,
+                stiffness=cfg.self_contact_stiffness, friction=cfg.self_contact_friction,
+                relaxation=cfg.self_contact_relaxation, speed_factor=cfg.self_contact_speed_factor,
+                capacity=cfg.self_contact_capacity)
+            self._sc_data = self.self_contact.data
+        else:
+            self.self_contact = None
+            self._sc_data = disabled_data(d)
 
     def step(self, state_in: ClothState, state_out: ClothState, control: ClothControl, dt: float) -> None:
         """Advance by ``dt`` [s]; ``state_out`` may be ``state_in``.
@@ -121,6 +164,8 @@ class SolverVBD:
                                    self._contact_active], device=d)
             else:
                 self._contact_active.zero_()
+            if self.self_contact is not None:
+                self.self_contact.detect(self._x_prev, v, h)
             for _ in range(cfg.iterations):
                 for c in range(m.color_count):
                     start, end = m.color_offsets[c], m.color_offsets[c + 1]
@@ -133,7 +178,7 @@ class SolverVBD:
                                       m.vertex_edge_offsets, m.vertex_edge_ids, m.vertex_edge_local,
                                       self._contact_point, self._contact_normal, self._contact_body_velocity,
                                       self._contact_active, m.instance_thickness, m.instance_friction,
-                                      cfg.contact_stiffness, eps_u, h],
+                                      cfg.contact_stiffness, eps_u, h, self._sc_data],
                               outputs=[x], device=d)
             wp.launch(K.velocity_kernel, dim=n, inputs=[x, self._x_prev, 1.0 / h],
                       outputs=[v, state_out.accelerations], device=d)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import warp as wp
 
 from sim.cloth.energies import bending_vertex_force_hessian, stvk_vertex_force_hessian
+from sim.cloth.self_contact import SelfContactData, apply_bound, self_contact_force_hessian
 
 PINNED = wp.constant(1)
 
@@ -169,6 +170,7 @@ def solve_color_kernel(
     k_contact: float,
     eps_u: float,
     h: float,
+    sc: SelfContactData,
     x_inout: wp.array(dtype=wp.vec3),
 ):
     """One VBD Newton step for every particle of one colour (Chen et al. 2024, Alg. 1)."""
@@ -210,9 +212,20 @@ def solve_color_kernel(
         f = f + fc
         H = H + hc
 
+    if sc.enabled != 0:
+        fs, hs = self_contact_force_hessian(i, x_inout, x_prev, tri_indices, vertex_tri_offsets,
+                                            vertex_tri_ids, vertex_tri_local, sc, eps_u)
+        f = f + fs
+        H = H + hs
+
     # the block is symmetric positive definite (inertia + PSD terms); guard tiny determinants
+    x_new = xi
     if wp.abs(wp.determinant(H)) > 1.0e-20:
-        x_inout[i] = xi + wp.inverse(H) * f
+        x_new = xi + wp.inverse(H) * f
+    if sc.enabled != 0:
+        # self-contact displacement bound (sim.cloth.self_contact): stays intersection-free
+        x_new = apply_bound(x_new, xp, sc.bound[i])
+    x_inout[i] = x_new
 
 
 @wp.kernel

@@ -1,0 +1,498 @@
+"""Cloth self-contact for the VBD solver: vertex-triangle and edge-edge proximity, penalty
+energies, and per-vertex displacement bounds that keep the cloth intersection-free.
+
+Method (after Chen et al. 2024, "Vertex Block Descent", Sec. 4, and the conservative bounds
+of Chen et al. 2025, "Offset Geometric Contact"):
+
+* Detection, once per substep at the substep-start positions ``x0`` (intersection-free):
+  two grouped BVHs (one group per cloth instance, so batched instances never collide) over
+  triangle and edge bounding boxes. For every vertex, every triangle and every edge a query
+  with radius ``r = max(margin, speed_factor |v| h)`` finds the nearest non-incident
+  primitive distance ``d_min`` and records the pairs closer than the contact radius ``r_c``:
+  per vertex its triangles (VT), per triangle its vertices (TV, the same pairs seen from the
+  triangle; a vertex is reached through its "owner" triangle so it is visited once), per edge
+  its edges (EE). Gathering from both sides makes the solve a per-vertex gather without
+  atomics (deterministic on every device).
+* Energy of a pair at distance ``d`` (closest points recomputed from the current positions
+  each iteration): ``k/2 (r_c - d)^2`` for ``d < r_c``, with lazy IPC friction on the relative
+  tangential displacement over the substep.
+* Bound: vertex ``i`` may move at most ``b_i = gamma min(d_min(i), d_min(incident triangles),
+  d_min(incident edges))`` from ``x0`` during the substep, ``gamma < 1/2``. Two primitives at
+  distance ``d`` then move together by at most ``2 gamma d < d``: no vertex crosses a
+  triangle and no edge crosses an edge, provided the substep started intersection-free.
+  The query radius grows with a vertex's speed, so fast cloth with space around it is not
+  held back.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from sim.device import warp
+
+
+@wp.struct
+class SelfContactData:
+    """Self-contact buffers and settings passed to the solve kernel as one argument.
+
+    ``enabled`` 0 turns everything off (the arrays may then be empty)."""
+
+    enabled: int
+    radius: float
+    stiffness: float
+    friction: float
+    vt_capacity: int
+    tv_capacity: int
+    ee_capacity: int
+    vt_count: wp.array(dtype=wp.int32)
+    vt_tri: wp.array(dtype=wp.int32)
+    tv_count: wp.array(dtype=wp.int32)
+    tv_vertex: wp.array(dtype=wp.int32)
+    ee_count: wp.array(dtype=wp.int32)
+    ee_edge: wp.array(dtype=wp.int32)
+    mesh_edges: wp.array(dtype=wp.vec2i)
+    vertex_edge_offsets: wp.array(dtype=wp.int32)
+    vertex_edge_ids: wp.array(dtype=wp.int32)
+    vertex_edge_local: wp.array(dtype=wp.int32)
+    bound: wp.array(dtype=float)
+
+
+@wp.func
+def triangle_closest_bary(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> wp.vec3:
+    """Barycentric weights (of a, b, c) of the point of triangle abc closest to ``p``
+    (Ericson, Real-Time Collision Detection, 5.1.5)."""
+    ab = b - a
+    ac = c - a
+    ap = p - a
+    d1 = wp.dot(ab, ap)
+    d2 = wp.dot(ac, ap)
+    if d1 <= 0.0 and d2 <= 0.0:
+        return wp.vec3(1.0, 0.0, 0.0)
+    bp = p - b
+    d3 = wp.dot(ab, bp)
+    d4 = wp.dot(ac, bp)
+    if d3 >= 0.0 and d4 <= d3:
+        return wp.vec3(0.0, 1.0, 0.0)
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+        v = d1 / (d1 - d3)
+        return wp.vec3(1.0 - v, v, 0.0)
+    cp = p - c
+    d5 = wp.dot(ab, cp)
+    d6 = wp.dot(ac, cp)
+    if d6 >= 0.0 and d5 <= d6:
+        return wp.vec3(0.0, 0.0, 1.0)
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+        w = d2 / (d2 - d6)
+        return wp.vec3(1.0 - w, 0.0, w)
+    va = d3 * d6 - d5 * d4
+    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        return wp.vec3(0.0, 1.0 - w, w)
+    denom = 1.0 / (va + vb + vc)
+    v = vb * denom
+    w = vc * denom
+    return wp.vec3(1.0 - v - w, v, w)
+
+
+@wp.func
+def pair_force_hessian(diff: wp.vec3, rel_disp: wp.vec3, w: float, radius: float, k: float, mu: float,
+                       eps_u: float):
+    """Force on and Hessian block of a vertex taking part with signed weight ``w`` in a contact
+    pair whose closest points differ by ``diff = p_a - p_b`` (``w > 0`` on side a, ``< 0`` on
+    side b). Energy ``k/2 (radius - |diff|)^2``; friction opposes the tangential part of the
+    pair's relative displacement ``rel_disp`` over the substep (lazy IPC friction, smoothed
+    below ``eps_u``)."""
+    f = wp.vec3(0.0)
+    H = wp.mat33(0.0)
+    d = wp.length(diff)
+    if d >= radius or d < 1.0e-9:
+        return f, H
+    n = diff / d
+    lam = k * (radius - d)
+    f = (w * lam) * n
+    H = (w * w * k) * wp.outer(n, n)
+    if mu > 0.0:
+        T = wp.identity(n=3, dtype=float) - wp.outer(n, n)
+        u = T * rel_disp
+        ul = wp.length(u)
+        c = 1.0 / wp.max(ul, 1.0e-12)
+        if ul < eps_u:
+            c = 2.0 / eps_u - ul / (eps_u * eps_u)
+        f = f - (w * mu * lam * c) * u
+        H = H + (w * w * mu * lam * c) * T
+    return f, H
+
+
+@wp.func
+def self_contact_force_hessian(
+    i: int,
+    x: wp.array(dtype=wp.vec3),
+    x0: wp.array(dtype=wp.vec3),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    vertex_tri_offsets: wp.array(dtype=wp.int32),
+    vertex_tri_ids: wp.array(dtype=wp.int32),
+    vertex_tri_local: wp.array(dtype=wp.int32),
+    sc: SelfContactData,
+    eps_u: float,
+):
+    """Sum of the self-contact forces on vertex ``i`` and their Hessian blocks: as the point
+    of its VT pairs, as a corner of its triangles' TV pairs, as an end of its edges' EE pairs."""
+    f = wp.vec3(0.0)
+    H = wp.mat33(0.0)
+    r = sc.radius
+    k = sc.stiffness
+    mu = sc.friction
+    xi = x[i]
+    di = xi - x0[i]
+    # i as the point of vertex-triangle pairs
+    for s in range(sc.vt_count[i]):
+        t = sc.vt_tri[i * sc.vt_capacity + s]
+        tri = tri_indices[t]
+        a = x[tri[0]]
+        b = x[tri[1]]
+        c = x[tri[2]]
+        w = triangle_closest_bary(xi, a, b, c)
+        p = w[0] * a + w[1] * b + w[2] * c
+        dp = w[0] * (a - x0[tri[0]]) + w[1] * (b - x0[tri[1]]) + w[2] * (c - x0[tri[2]])
+        fc, hc = pair_force_hessian(xi - p, di - dp, 1.0, r, k, mu, eps_u)
+        f = f + fc
+        H = H + hc
+    # i as a corner of triangles that vertices are close to
+    for kk in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
+        t = vertex_tri_ids[kk]
+        corner = vertex_tri_local[kk]
+        tri = tri_indices[t]
+        a = x[tri[0]]
+        b = x[tri[1]]
+        c = x[tri[2]]
+        for s in range(sc.tv_count[t]):
+            u = sc.tv_vertex[t * sc.tv_capacity + s]
+            xu = x[u]
+            w = triangle_closest_bary(xu, a, b, c)
+            p = w[0] * a + w[1] * b + w[2] * c
+            dp = w[0] * (a - x0[tri[0]]) + w[1] * (b - x0[tri[1]]) + w[2] * (c - x0[tri[2]])
+            fc, hc = pair_force_hessian(xu - p, (xu - x0[u]) - dp, -w[corner], r, k, mu, eps_u)
+            f = f + fc
+            H = H + hc
+    # i as an end of edges close to other edges
+    for kk in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
+        e = sc.vertex_edge_ids[kk]
+        end = sc.vertex_edge_local[kk]
+        ea = sc.mesh_edges[e]
+        p1 = x[ea[0]]
+        q1 = x[ea[1]]
+        for s in range(sc.ee_count[e]):
+            e2 = sc.ee_edge[e * sc.ee_capacity + s]
+            eb = sc.mesh_edges[e2]
+            p2 = x[eb[0]]
+            q2 = x[eb[1]]
+            st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
+            pa = p1 + st[0] * (q1 - p1)
+            pb = p2 + st[1] * (q2 - p2)
+            da = (1.0 - st[0]) * (p1 - x0[ea[0]]) + st[0] * (q1 - x0[ea[1]])
+            db = (1.0 - st[1]) * (p2 - x0[eb[0]]) + st[1] * (q2 - x0[eb[1]])
+            we = 1.0 - st[0]
+            if end == 1:
+                we = st[0]
+            fc, hc = pair_force_hessian(pa - pb, da - db, we, r, k, mu, eps_u)
+            f = f + fc
+            H = H + hc
+    return f, H
+
+
+@wp.func
+def apply_bound(x_new: wp.vec3, x_start: wp.vec3, bound: float) -> wp.vec3:
+    """Truncate the displacement from the substep start to ``bound`` [m]."""
+    dx = x_new - x_start
+    dl = wp.length(dx)
+    if dl > bound:
+        return x_start + dx * (bound / dl)
+    return x_new
+
+
+@wp.func
+def query_radius(margin: float, speed: float, h: float, speed_factor: float) -> float:
+    return wp.max(margin, speed_factor * speed * h)
+
+
+@wp.kernel
+def primitive_bounds_kernel(
+    x: wp.array(dtype=wp.vec3),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    mesh_edges: wp.array(dtype=wp.vec2i),
+    tri_count: int,
+    lowers_tri_out: wp.array(dtype=wp.vec3),
+    uppers_tri_out: wp.array(dtype=wp.vec3),
+    lowers_edge_out: wp.array(dtype=wp.vec3),
+    uppers_edge_out: wp.array(dtype=wp.vec3),
+):
+    """Axis-aligned boxes of every triangle (threads < tri_count) and edge (the rest)."""
+    k = wp.tid()
+    if k < tri_count:
+        t = tri_indices[k]
+        a = x[t[0]]
+        b = x[t[1]]
+        c = x[t[2]]
+        lowers_tri_out[k] = wp.min(wp.min(a, b), c)
+        uppers_tri_out[k] = wp.max(wp.max(a, b), c)
+    else:
+        e = mesh_edges[k - tri_count]
+        a = x[e[0]]
+        b = x[e[1]]
+        lowers_edge_out[k - tri_count] = wp.min(a, b)
+        uppers_edge_out[k - tri_count] = wp.max(a, b)
+
+
+@wp.kernel
+def detect_vertex_kernel(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    tri_bvh: wp.uint64,
+    margin: float,
+    speed_factor: float,
+    h: float,
+    sc: SelfContactData,
+    dmin_out: wp.array(dtype=float),
+):
+    """Per vertex: nearest non-incident triangle distance and the VT pairs within the radius."""
+    i = wp.tid()
+    xi = x[i]
+    inst = particle_instance[i]
+    r = query_radius(margin, wp.length(v[i]), h, speed_factor)
+    root = wp.bvh_get_group_root(tri_bvh, inst)
+    query = wp.bvh_query_aabb(tri_bvh, xi - wp.vec3(r), xi + wp.vec3(r), root)
+    t = int(0)
+    dmin = r
+    count = int(0)
+    while wp.bvh_query_next(query, t):
+        tri = tri_indices[t]
+        if tri[0] == i or tri[1] == i or tri[2] == i:
+            continue
+        if particle_instance[tri[0]] != inst:
+            continue
+        a = x[tri[0]]
+        b = x[tri[1]]
+        c = x[tri[2]]
+        w = triangle_closest_bary(xi, a, b, c)
+        d = wp.length(xi - (w[0] * a + w[1] * b + w[2] * c))
+        dmin = wp.min(dmin, d)
+        if d < sc.radius and count < sc.vt_capacity:
+            sc.vt_tri[i * sc.vt_capacity + count] = t
+            count += 1
+    sc.vt_count[i] = count
+    dmin_out[i] = dmin
+
+
+@wp.kernel
+def detect_triangle_kernel(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    vertex_owner_tri: wp.array(dtype=wp.int32),
+    tri_bvh: wp.uint64,
+    margin: float,
+    speed_factor: float,
+    h: float,
+    sc: SelfContactData,
+    dmin_out: wp.array(dtype=float),
+):
+    """Per triangle: nearest non-incident vertex distance and the TV pairs within the radius.
+    Candidate vertices come from nearby triangles; each vertex only through its owner."""
+    t = wp.tid()
+    tri = tri_indices[t]
+    a = x[tri[0]]
+    b = x[tri[1]]
+    c = x[tri[2]]
+    inst = particle_instance[tri[0]]
+    speed = wp.max(wp.max(wp.length(v[tri[0]]), wp.length(v[tri[1]])), wp.length(v[tri[2]]))
+    r = query_radius(margin, speed, h, speed_factor)
+    lo = wp.min(wp.min(a, b), c) - wp.vec3(r)
+    hi = wp.max(wp.max(a, b), c) + wp.vec3(r)
+    root = wp.bvh_get_group_root(tri_bvh, inst)
+    query = wp.bvh_query_aabb(tri_bvh, lo, hi, root)
+    t2 = int(0)
+    dmin = r
+    count = int(0)
+    while wp.bvh_query_next(query, t2):
+        other = tri_indices[t2]
+        if particle_instance[other[0]] != inst:
+            continue
+        for j in range(3):
+            u = other[j]
+            if vertex_owner_tri[u] == t2 and u != tri[0] and u != tri[1] and u != tri[2]:
+                xu = x[u]
+                w = triangle_closest_bary(xu, a, b, c)
+                d = wp.length(xu - (w[0] * a + w[1] * b + w[2] * c))
+                dmin = wp.min(dmin, d)
+                if d < sc.radius and count < sc.tv_capacity:
+                    sc.tv_vertex[t * sc.tv_capacity + count] = u
+                    count += 1
+    sc.tv_count[t] = count
+    dmin_out[t] = dmin
+
+
+@wp.kernel
+def detect_edge_kernel(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    edge_bvh: wp.uint64,
+    margin: float,
+    speed_factor: float,
+    h: float,
+    sc: SelfContactData,
+    dmin_out: wp.array(dtype=float),
+):
+    """Per edge: nearest edge (sharing no vertex) distance and the EE pairs within the radius."""
+    e = wp.tid()
+    ea = sc.mesh_edges[e]
+    p1 = x[ea[0]]
+    q1 = x[ea[1]]
+    inst = particle_instance[ea[0]]
+    speed = wp.max(wp.length(v[ea[0]]), wp.length(v[ea[1]]))
+    r = query_radius(margin, speed, h, speed_factor)
+    root = wp.bvh_get_group_root(edge_bvh, inst)
+    query = wp.bvh_query_aabb(edge_bvh, wp.min(p1, q1) - wp.vec3(r), wp.max(p1, q1) + wp.vec3(r), root)
+    e2 = int(0)
+    dmin = r
+    count = int(0)
+    while wp.bvh_query_next(query, e2):
+        eb = sc.mesh_edges[e2]
+        if eb[0] == ea[0] or eb[0] == ea[1] or eb[1] == ea[0] or eb[1] == ea[1]:
+            continue
+        if particle_instance[eb[0]] != inst:
+            continue
+        st = wp.closest_point_edge_edge(p1, q1, x[eb[0]], x[eb[1]], 1.0e-12)
+        d = st[2]
+        dmin = wp.min(dmin, d)
+        if d < sc.radius and count < sc.ee_capacity:
+            sc.ee_edge[e * sc.ee_capacity + count] = e2
+            count += 1
+    sc.ee_count[e] = count
+    dmin_out[e] = dmin
+
+
+@wp.kernel
+def bound_kernel(
+    dmin_vertex: wp.array(dtype=float),
+    dmin_tri: wp.array(dtype=float),
+    dmin_edge: wp.array(dtype=float),
+    vertex_tri_offsets: wp.array(dtype=wp.int32),
+    vertex_tri_ids: wp.array(dtype=wp.int32),
+    relaxation: float,
+    sc: SelfContactData,
+):
+    """``b_i = gamma min(d_min(i), d_min(incident triangles), d_min(incident edges))``."""
+    i = wp.tid()
+    b = dmin_vertex[i]
+    for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
+        b = wp.min(b, dmin_tri[vertex_tri_ids[k]])
+    for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
+        b = wp.min(b, dmin_edge[sc.vertex_edge_ids[k]])
+    sc.bound[i] = relaxation * b
+
+
+class SelfContact:
+    """Self-contact buffers, BVHs and detection for one ``ClothModel``.
+
+    Args:
+        model: the cloth model.
+        radius: contact distance [m] between cloth surfaces (pairs closer are pushed apart).
+        margin: minimum query radius [m] of the displacement bounds.
+        stiffness: penalty stiffness [N/m].
+        friction: cloth-cloth Coulomb friction coefficient.
+        relaxation: gamma of the bounds, < 0.5.
+        speed_factor: the query radius is at least ``speed_factor |v| h``.
+        capacity: pairs kept per vertex / triangle / edge.
+    """
+
+    def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
+                 relaxation: float, speed_factor: float, capacity: int):
+        w = warp()
+        d = model.device
+        self.model = model
+        self.margin = float(margin)
+        self.relaxation = float(relaxation)
+        self.speed_factor = float(speed_factor)
+        n, nt, ne = model.particle_count, model.tri_count, model.mesh_edge_indices.shape[0]
+        sc = SelfContactData()
+        sc.enabled = 1
+        sc.radius = float(radius)
+        sc.stiffness = float(stiffness)
+        sc.friction = float(friction)
+        sc.vt_capacity = sc.tv_capacity = sc.ee_capacity = int(capacity)
+        sc.vt_count = w.zeros(n, dtype=w.int32, device=d)
+        sc.vt_tri = w.zeros(n * capacity, dtype=w.int32, device=d)
+        sc.tv_count = w.zeros(nt, dtype=w.int32, device=d)
+        sc.tv_vertex = w.zeros(nt * capacity, dtype=w.int32, device=d)
+        sc.ee_count = w.zeros(ne, dtype=w.int32, device=d)
+        sc.ee_edge = w.zeros(ne * capacity, dtype=w.int32, device=d)
+        sc.mesh_edges = model.mesh_edge_indices
+        sc.vertex_edge_offsets = model.vertex_mesh_edge_offsets
+        sc.vertex_edge_ids = model.vertex_mesh_edge_ids
+        sc.vertex_edge_local = model.vertex_mesh_edge_local
+        sc.bound = w.zeros(n, dtype=float, device=d)
+        self.data = sc
+        self._dmin_v = w.zeros(n, dtype=float, device=d)
+        self._dmin_t = w.zeros(nt, dtype=float, device=d)
+        self._dmin_e = w.zeros(ne, dtype=float, device=d)
+        self._lo_t = w.zeros(nt, dtype=w.vec3, device=d)
+        self._hi_t = w.zeros(nt, dtype=w.vec3, device=d)
+        self._lo_e = w.zeros(ne, dtype=w.vec3, device=d)
+        self._hi_e = w.zeros(ne, dtype=w.vec3, device=d)
+        self._update_bounds(model.particle_q)
+        self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
+        self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
+
+    def _update_bounds(self, x) -> None:
+        m = self.model
+        warp().launch(primitive_bounds_kernel, dim=m.tri_count + self._lo_e.shape[0],
+                      inputs=[x, m.tri_indices, m.mesh_edge_indices, m.tri_count],
+                      outputs=[self._lo_t, self._hi_t, self._lo_e, self._hi_e], device=m.device)
+
+    def detect(self, x0, v, h: float) -> None:
+        """Refit the BVHs at ``x0`` (substep start) and find pairs and bounds; ``v`` [m/s] are
+        the velocities the substep starts with."""
+        w = warp()
+        m = self.model
+        d = m.device
+        sc = self.data
+        self._update_bounds(x0)
+        self.tri_bvh.refit()
+        self.edge_bvh.refit()
+        common = [self.margin, self.speed_factor, h, sc]
+        w.launch(detect_vertex_kernel, dim=m.particle_count,
+                 inputs=[x0, v, m.particle_instance, m.tri_indices, self.tri_bvh.id, *common],
+                 outputs=[self._dmin_v], device=d)
+        w.launch(detect_triangle_kernel, dim=m.tri_count,
+                 inputs=[x0, v, m.particle_instance, m.tri_indices, m.vertex_owner_tri, self.tri_bvh.id,
+                         *common],
+                 outputs=[self._dmin_t], device=d)
+        w.launch(detect_edge_kernel, dim=self._lo_e.shape[0],
+                 inputs=[x0, v, m.particle_instance, self.edge_bvh.id, *common],
+                 outputs=[self._dmin_e], device=d)
+        w.launch(bound_kernel, dim=m.particle_count,
+                 inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.vertex_tri_offsets, m.vertex_tri_ids,
+                         self.relaxation, sc], device=d)
+
+
+def disabled_data(device) -> SelfContactData:
+    """A ``SelfContactData`` with ``enabled = 0`` and empty arrays."""
+    w = warp()
+    sc = SelfContactData()
+    sc.enabled = 0
+    sc.radius = 0.0
+    sc.stiffness = 0.0
+    sc.friction = 0.0
+    sc.vt_capacity = sc.tv_capacity = sc.ee_capacity = 0
+    empty_i = w.zeros(1, dtype=w.int32, device=device)
+    sc.vt_count = sc.vt_tri = sc.tv_count = sc.tv_vertex = sc.ee_count = sc.ee_edge = empty_i
+    sc.vertex_edge_offsets = sc.vertex_edge_ids = sc.vertex_edge_local = empty_i
+    sc.mesh_edges = w.zeros(1, dtype=w.vec2i, device=device)
+    sc.bound = w.zeros(1, dtype=float, device=device)
+    return sc

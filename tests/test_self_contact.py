@@ -1,0 +1,249 @@
+"""Cloth self-contact (sim.cloth.self_contact): geometry against numpy, forces against finite
+differences of the contact energy, and the physics: stacked layers never pass through each
+other, the bounds keep the cloth intersection-free, instances in a batch never collide."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from sim.cloth import ClothMaterialParams, ClothModelBuilder, SolverVBD, VBDConfig
+from sim.cloth.model import mesh_edges
+from sim.cloth.self_contact import (
+    SelfContact,
+    SelfContactData,
+    self_contact_force_hessian,
+    triangle_closest_bary,
+)
+from sim.quality import self_intersections
+from tests.test_cloth_solver import grid, simulate
+
+
+@wp.kernel
+def _bary_kernel(p: wp.array(dtype=wp.vec3), a: wp.vec3, b: wp.vec3, c: wp.vec3,
+                 out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = triangle_closest_bary(p[i], a, b, c)
+
+
+def closest_point_triangle_np(p, a, b, c, n=200):
+    """Brute force: the closest of a dense barycentric sampling, refined by projection."""
+    best, best_d = None, np.inf
+    s = np.linspace(0.0, 1.0, n)
+    u, v = np.meshgrid(s, s)
+    m = u + v <= 1.0
+    pts = a + u[m, None] * (b - a) + v[m, None] * (c - a)
+    d = np.linalg.norm(pts - p, axis=1)
+    k = int(np.argmin(d))
+    best, best_d = pts[k], d[k]
+    return best, best_d
+
+
+def test_closest_point_on_triangle_matches_brute_force(device):
+    rng = np.random.default_rng(3)
+    a, b, c = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.1, 0.0]), np.array([0.3, 0.8, 0.2])
+    p = rng.uniform(-0.8, 1.6, size=(200, 3)).astype(np.float32)
+    out = wp.zeros(len(p), dtype=wp.vec3, device=device)
+    wp.launch(_bary_kernel, dim=len(p), inputs=[wp.array(p, dtype=wp.vec3, device=device), wp.vec3(*a),
+                                                 wp.vec3(*b), wp.vec3(*c)], outputs=[out], device=device)
+    w = out.numpy().astype(np.float64)
+    assert np.all(w >= -1e-6) and np.allclose(w.sum(axis=1), 1.0, atol=1e-5)
+    q = w[:, :1] * a + w[:, 1:2] * b + w[:, 2:] * c
+    for i in range(len(p)):
+        _, d_ref = closest_point_triangle_np(p[i].astype(np.float64), a, b, c)
+        d = np.linalg.norm(q[i] - p[i])
+        # the sampled reference is an upper bound within its grid spacing
+        assert d <= d_ref + 1e-5
+        assert d >= d_ref - 0.01
+
+
+def two_layers(n: int = 4, gap: float = 0.002, angle: float = 0.5):
+    """A flat square sheet and a smaller, rotated sheet ``gap`` above it (one mesh)."""
+    v0, f0 = grid(n, n, 0.04, 0.04, plane="xz")
+    v1, f1 = grid(n, n, 0.03, 0.03, plane="xz")
+    ca, sa = np.cos(angle), np.sin(angle)
+    rot = np.array([[ca, 0, -sa], [0, 1, 0], [sa, 0, ca]], dtype=np.float32)
+    v1 = (v1 - v1.mean(axis=0)) @ rot.T + v0.mean(axis=0) + np.array([0.001, gap, 0.002], np.float32)
+    return np.concatenate([v0, v1]), np.concatenate([f0, f1 + len(v0)]).astype(np.int32)
+
+
+def contact_pairs_np(x, faces, reach):
+    """Vertex-triangle and edge-edge (no shared vertex) pairs closer than ``reach``."""
+    vt = [(i, t) for i in range(len(x)) for t, f in enumerate(faces)
+          if i not in f and np.linalg.norm(x[i] - x[f].mean(axis=0)) < reach + 0.015]
+    edges = mesh_edges(faces)
+    ee = [(a, b) for a in range(len(edges)) for b in range(a + 1, len(edges))
+          if not set(edges[a]) & set(edges[b])
+          and np.linalg.norm(x[edges[a]].mean(axis=0) - x[edges[b]].mean(axis=0)) < reach + 0.015]
+    return vt, [(edges[a], edges[b]) for a, b in ee]
+
+
+def contact_energy_np(x, faces, pairs, radius, k):
+    """Sum over vertex-triangle pairs and unordered edge-edge pairs of ``k/2 (radius - d)^2``
+    for ``d < radius``."""
+    vt, ee = pairs
+    e_total = 0.0
+    for i, t in vt:
+        f = faces[t]
+        w = _bary_np(x[i], x[f[0]], x[f[1]], x[f[2]])
+        d = np.linalg.norm(x[i] - (w[0] * x[f[0]] + w[1] * x[f[1]] + w[2] * x[f[2]]))
+        if d < radius:
+            e_total += 0.5 * k * (radius - d) ** 2
+    for ea, eb in ee:
+        d = _segment_distance_np(x[ea[0]], x[ea[1]], x[eb[0]], x[eb[1]])
+        if d < radius:
+            e_total += 0.5 * k * (radius - d) ** 2
+    return e_total
+
+
+def _bary_np(p, a, b, c):
+    """Exact closest point (projection + edges) in float64."""
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n)
+    q = p - np.dot(p - a, n) * n
+    m = np.array([b - a, c - a]).T
+    uv, *_ = np.linalg.lstsq(m, q - a, rcond=None)
+    if uv[0] >= 0 and uv[1] >= 0 and uv.sum() <= 1:
+        return np.array([1 - uv.sum(), uv[0], uv[1]])
+    best = None
+    for (i, j) in ((0, 1), (1, 2), (2, 0)):
+        pts = (a, b, c)
+        s = np.clip(np.dot(p - pts[i], pts[j] - pts[i]) / np.dot(pts[j] - pts[i], pts[j] - pts[i]), 0, 1)
+        w = np.zeros(3)
+        w[i], w[j] = 1 - s, s
+        d = np.linalg.norm(p - (pts[i] + s * (pts[j] - pts[i])))
+        if best is None or d < best[0]:
+            best = (d, w)
+    return best[1]
+
+
+def _segment_distance_np(p1, q1, p2, q2):
+    """Exact segment-segment distance (Ericson, Real-Time Collision Detection, 5.1.9)."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e, f = np.dot(d1, d1), np.dot(d2, d2), np.dot(d2, r)
+    c, b = np.dot(d1, r), np.dot(d1, d2)
+    denom = a * e - b * b
+    s = np.clip((b * f - c * e) / denom, 0.0, 1.0) if denom > 1e-18 else 0.0
+    t = (b * s + f) / e
+    if t < 0.0:
+        t, s = 0.0, np.clip(-c / a, 0.0, 1.0)
+    elif t > 1.0:
+        t, s = 1.0, np.clip((b - c) / a, 0.0, 1.0)
+    return np.linalg.norm((p1 + s * d1) - (p2 + t * d2))
+
+
+@wp.kernel
+def _force_kernel(x: wp.array(dtype=wp.vec3), tri_indices: wp.array(dtype=wp.vec3i),
+                  vt_off: wp.array(dtype=wp.int32), vt_ids: wp.array(dtype=wp.int32),
+                  vt_local: wp.array(dtype=wp.int32), sc: SelfContactData,
+                  f_out: wp.array(dtype=wp.vec3), h_out: wp.array(dtype=wp.mat33)):
+    i = wp.tid()
+    f, h = self_contact_force_hessian(i, x, x, tri_indices, vt_off, vt_ids, vt_local, sc, 1.0e-3)
+    f_out[i] = f
+    h_out[i] = h
+
+
+def test_self_contact_forces_match_finite_differences(device):
+    x, faces = two_layers()
+    radius, k = 0.004, 1.0e3
+    b = ClothModelBuilder()
+    b.add_cloth(x, faces, ClothMaterialParams())
+    m = b.finalize(device)
+    sc = SelfContact(m, radius=radius, margin=0.01, stiffness=k, friction=0.0, relaxation=0.45,
+                     speed_factor=2.5, capacity=32)
+    xd = wp.array(x, dtype=wp.vec3, device=device)
+    sc.detect(xd, wp.zeros_like(xd), 1.0 / 300.0)
+    f = wp.zeros(len(x), dtype=wp.vec3, device=device)
+    hs = wp.zeros(len(x), dtype=wp.mat33, device=device)
+    wp.launch(_force_kernel, dim=len(x), inputs=[xd, m.tri_indices, m.vertex_tri_offsets, m.vertex_tri_ids,
+                                                 m.vertex_tri_local, sc.data], outputs=[f, hs], device=device)
+    f, hs = f.numpy().astype(np.float64), hs.numpy().astype(np.float64)
+    x64 = x.astype(np.float64)
+    pairs = contact_pairs_np(x64, faces, radius)
+    assert contact_energy_np(x64, faces, pairs, radius, k) > 0.0  # the layers are in contact
+    eps = 1e-6
+    checked = 0
+    for i in range(len(x)):
+        g = np.zeros(3)
+        for a in range(3):
+            xp, xm = x64.copy(), x64.copy()
+            xp[i, a] += eps
+            xm[i, a] -= eps
+            e_p = contact_energy_np(xp, faces, pairs, radius, k)
+            g[a] = (e_p - contact_energy_np(xm, faces, pairs, radius, k)) / (2 * eps)
+        np.testing.assert_allclose(f[i], -g, atol=2e-3 * max(1.0, np.abs(g).max()) + 1e-6)
+        if np.abs(g).max() > 1e-4:
+            checked += 1
+            # the Hessian block is the PSD Gauss-Newton part: symmetric, >= 0
+            assert np.allclose(hs[i], hs[i].T, atol=1e-3 * np.abs(hs[i]).max())
+            assert np.linalg.eigvalsh(0.5 * (hs[i] + hs[i].T)).min() > -1e-3 * np.abs(hs[i]).max()
+    assert checked >= 8
+
+
+def stacked_layers(device, self_contact: bool, n: int = 13, frames: int = 12):
+    """A sheet pinned at its corners and a second sheet dropped onto it at 3 m/s (one mesh)."""
+    v, f = grid(n, n, 0.5, 0.5, plane="xz")
+    top = v + np.array([0.011, 0.03, 0.013], np.float32)
+    x = np.concatenate([v, top])
+    faces = np.concatenate([f, f + len(v)])
+    b = ClothModelBuilder()
+    b.add_cloth(x, faces, ClothMaterialParams(mu=300.0, lam=100.0, thickness=0.003),
+                pinned=[0, n - 1, n * (n - 1), n * n - 1])
+    m = b.finalize(device)
+    solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5, self_contact=self_contact))
+    state = m.state()
+    vel = np.zeros_like(x)
+    vel[len(v):, 1] = -3.0
+    state.velocities.assign(vel)
+    out = []
+    for _ in range(frames):
+        solver.step(state, state, m.control(), 1.0 / 30.0)
+        out.append(state.positions.numpy())
+    return np.stack(out), faces, len(v), n
+
+
+def _center_gap(x, nv, n):
+    """Height of the top sheet above the bottom one at the centre (same grid index)."""
+    c = (n // 2) * n + n // 2
+    return x[:, nv + c, 1] - x[:, c, 1]
+
+
+def test_two_stacked_layers_never_pass_through_each_other(device):
+    x, faces, nv, n = stacked_layers(device, True)
+    assert np.all(np.isfinite(x))
+    assert np.all(self_intersections(x, faces, device=device) == 0)
+    gap = _center_gap(x, nv, n)
+    assert np.all(gap > 0.0)
+    assert gap[-1] > 0.5 * VBDConfig().self_contact_radius
+    assert gap[-1] < 0.03  # it did land on the lower sheet
+    # without self-contact the same drop goes straight through
+    x_off, *_ = stacked_layers(device, False)
+    assert _center_gap(x_off, nv, n).min() < -0.02
+
+
+def test_instances_do_not_collide_with_each_other(device):
+    """Two overlapping sheets as separate instances of one model fall through each other
+    exactly as alone (self-contact only acts within an instance)."""
+    v, f = grid(7, 7, 0.3, 0.3, plane="xz")
+    cfg = VBDConfig(substeps=3, iterations=3, self_contact=True)
+
+    def run(parts):
+        b = ClothModelBuilder()
+        for vv in parts:
+            b.add_cloth(vv, f, ClothMaterialParams())
+        m = b.finalize(device)
+        return simulate(m, SolverVBD(m, cfg), m.control(), 5, 1.0 / 30.0)
+
+    lower = v
+    upper = v + np.array([0.01, 0.005, 0.02], np.float32)
+    both = run([lower, upper])
+    np.testing.assert_allclose(both[:, :len(v)], run([lower]), atol=1e-6)
+    np.testing.assert_allclose(both[:, len(v):], run([upper]), atol=1e-6)
+
+
+def test_self_contact_config_is_checked():
+    with pytest.raises(ValueError, match="relaxation"):
+        VBDConfig(self_contact_relaxation=0.6)
+    with pytest.raises(ValueError, match="margin"):
+        VBDConfig(self_contact_radius=0.02, self_contact_margin=0.01)
