@@ -1,8 +1,10 @@
 """Import a user garment (OBJ / PLY / GLB via trimesh, USD via ``usd_io``) with its UVs.
 
-Repairs what is safe to repair (duplicate vertices merged while UV seams are kept, tiny
-disconnected pieces dropped, zero-area faces removed when the result stays manifold) and
-refuses the rest with a one-line ``WrinklesInputError`` naming the file.
+Repairs what is safe to repair (duplicate vertices merged while UV seams are kept, faces that
+collapse to an edge or a point once duplicates are merged dropped, tiny disconnected pieces
+dropped) and refuses the rest with a one-line ``WrinklesInputError`` naming the file: no UVs,
+non-manifold edges, degenerate triangles (three distinct vertices, no area: removing one leaves
+a crack, so the mesh needs fixing in the modelling tool).
 """
 
 from __future__ import annotations
@@ -22,6 +24,9 @@ TINY_COMPONENT = 0.05
 """Components with fewer than 5 % of the faces are stray pieces and are dropped."""
 DEGENERATE_AREA = 1e-12
 """Faces below 1e-12 m² (1 µm × 1 µm) have no usable normal [m²]."""
+DEGENERATE_ASPECT = 1e-6
+"""A face whose height is below 2e-6 × its longest edge (area / longest² < 1e-6) is a
+needle with a vertex on the opposite edge (a T-junction) [-]."""
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".off", ".stl")
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 
@@ -32,7 +37,7 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.nda
     if suffix in USD_SUFFIXES:
         from usd_io import read_stage  # the only pxr user (DESIGN.md, Layout)
 
-        stage = read_stage(path)
+        stage = read_stage(path, require_body=False)  # a garment file has no body
         meshes = list(stage.garments.values()) or [m for m in stage.meshes.values()
                                                     if m.path != "/World/Body"]
         if not meshes:
@@ -41,14 +46,18 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.nda
         uv_faces = m.uv_faces
         if m.uvs is not None and uv_faces is None:
             uv_faces = m.faces
-        return m.points[0], m.faces, m.uvs, uv_faces
+        points = np.asarray(m.points[0], np.float64) * stage.meters_per_unit  # to metres
+        if stage.up_axis.upper() == "Z":  # to Y up: (x, y, z) -> (x, z, -y)
+            points = np.stack([points[:, 0], points[:, 2], -points[:, 1]], axis=1)
+        return points, m.faces, m.uvs, uv_faces
     if suffix not in MESH_SUFFIXES:
         raise WrinklesInputError(f"unsupported garment format {suffix!r}; expected one of "
                                  f"{', '.join(MESH_SUFFIXES + USD_SUFFIXES)}", path=path)
     import trimesh
 
     try:
-        loaded = trimesh.load(path, process=False, maintain_order=True)
+        # no maintain_order: with it, the OBJ reader keeps one UV per position and loses seams
+        loaded = trimesh.load(path, process=False)
     except Exception as exc:  # trimesh raises many types for broken files
         raise WrinklesInputError(f"cannot read mesh: {type(exc).__name__}: {exc}", path=path) from None
     if isinstance(loaded, trimesh.Scene):
@@ -77,16 +86,19 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     """Read a garment mesh, repair it, and check it is a usable cloth mesh.
 
     Args:
-        path: .obj, .ply, .glb/.gltf, .off, .stl or .usd/.usda/.usdc/.usdz (frame 0).
+        path: .obj, .ply, .glb/.gltf, .off, .stl (read as metres, Y up) or
+            .usd/.usda/.usdc/.usdz (frame 0; the stage's metersPerUnit and upAxis are applied).
         material: preset name or ``Material``.
         name: garment name (default: the file stem).
         require_uvs: refuse meshes without UVs.
 
     Returns:
-        Garment with category "imported", one panel per UV island is not inferred (panel 0).
+        Garment with category "imported", all faces in one panel (``"mesh"``; UV islands are
+        not turned into panels), no attachments.
 
     Raises:
-        WrinklesInputError: unreadable, empty, no UVs, non-manifold, or degenerate beyond repair.
+        WrinklesInputError: unreadable, empty, no UVs (when required), non-manifold edges,
+            degenerate triangles.
     """
     path = Path(path)
     if not path.is_file():
@@ -100,6 +112,12 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
         raise WrinklesInputError("the mesh has no UVs (texture coordinates); UVs are required", path=path)
     if uvs is None:
         uvs, uv_faces = np.zeros((1, 2)), np.zeros_like(faces)
+    elif require_uvs:
+        d1, d2 = uvs[uv_faces[:, 1]] - uvs[uv_faces[:, 0]], uvs[uv_faces[:, 2]] - uvs[uv_faces[:, 0]]
+        uv_area = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]).sum()
+        if not np.all(np.isfinite(uvs)) or uv_area <= 1e-12:
+            raise WrinklesInputError("the mesh's UVs are NaN/inf or all collapsed (zero UV area); "
+                                     "UVs are required", path=path)
     # 1. merge duplicate positions (UV seams stay: uv_faces keep their own indices)
     key = np.round(points / MERGE_TOL).astype(np.int64)
     _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
@@ -108,13 +126,22 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     rank[order] = np.arange(len(order))
     faces = rank[inv.reshape(-1)][faces]
     points = points[first[order]]
-    # 2. drop faces that collapsed to an edge/point, then zero-area faces
+    # 2. drop faces that collapsed to an edge or a point (repair); refuse flat ones with three
+    #    distinct vertices (removing them would open a crack along their longest edge)
+    same = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 2] == faces[:, 0])
     tri = points[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    same = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 2] == faces[:, 0])
-    keep = ~same & (area > DEGENERATE_AREA)
-    n_degenerate = int((~keep).sum())
-    faces, uv_faces = faces[keep], uv_faces[keep]
+    longest = np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=2).max(axis=1)
+    flat = ~same & ((area <= DEGENERATE_AREA) | (area <= DEGENERATE_ASPECT * longest ** 2))
+    if flat.any():
+        k = int(np.flatnonzero(flat)[0])
+        x, y, z = tri[k].mean(axis=0)
+        raise WrinklesInputError(
+            f"{int(flat.sum())} degenerate triangle(s) with three distinct vertices and no area, e.g. "
+            f"face {k} at ({x:.4g}, {y:.4g}, {z:.4g}); fix the mesh (merge the vertex that lies on "
+            "the opposite edge, or flip that edge)", path=path)
+    n_degenerate = int(same.sum())
+    faces, uv_faces = faces[~same], uv_faces[~same]
     if len(faces) == 0:
         raise WrinklesInputError("every face is degenerate (zero area)", path=path)
     # 3. manifold check
@@ -122,9 +149,10 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     bad = counts > 2
     if bad.any():
         a, b = edges[bad][0]
-        extra = f" (after removing {n_degenerate} degenerate faces)" if n_degenerate else ""
+        x, y, z = 0.5 * (points[a] + points[b])
+        extra = f" (after removing {n_degenerate} collapsed faces)" if n_degenerate else ""
         raise WrinklesInputError(f"{int(bad.sum())} non-manifold edges (in more than 2 faces){extra}, "
-                                 f"e.g. vertices {a}-{b}", path=path)
+                                 f"e.g. the edge at ({x:.4g}, {y:.4g}, {z:.4g})", path=path)
     # 4. drop tiny disconnected components
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components

@@ -4,9 +4,9 @@ A panel is a stack of *rows*: open polylines in 3D, ordered from the top of the 
 bottom, all running the same way (counter-clockwise seen from above for a body tube). Rows are
 resampled at a target edge length ``h`` and consecutive rows are stitched into a triangle
 strip. Rows of neighbouring panels share their end points exactly (the same floats), so
-welding coincident points sews the seams. The panel's flattening is the pattern: u = arc length
-along the row (centred), v = accumulated distance between row mid-points; these are the UVs
-(in metres before packing), so UV distortion is only the small shear between rows.
+welding coincident points sews the seams. Each panel also gets a first flattening from its
+rows: u = arc length along the row (centred), v = accumulated distance between rows (in
+metres); ``sim.garments.uv`` relaxes it (ARAP) into the panel's pattern piece and packs the UVs.
 """
 
 from __future__ import annotations
@@ -78,23 +78,31 @@ def _distance_to_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
     return np.linalg.norm(points[:, None] - q, axis=2).min(axis=1)
 
 
-def stitch(n_a: int, s_a: np.ndarray, n_b: int, s_b: np.ndarray) -> np.ndarray:
-    """Triangulate the strip between two open rows by advancing along normalised arc length.
+def stitch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Triangulate the strip between two open rows, shortest diagonal first.
 
     Row A (upper) has local indices 0..n_a-1, row B (lower) n_a..n_a+n_b-1. Every triangle is
-    (A_i, B_j, next), which keeps a consistent orientation.
+    (A_i, B_j, next), which keeps a consistent orientation. At each step the strip advances on
+    the row whose new diagonal is shorter (|A_i B_j+1| vs |A_i+1 B_j|; Fuchs, Kedem & Uselton
+    1977, greedy form): where the rows' samples do not line up (a sleeve cap against an arm
+    ring) this avoids the fans of slivers that matching by arc length makes.
 
     Args:
-        n_a, n_b: numbers of points.
-        s_a, s_b: normalised arc-length parameters in [0, 1], shapes (n_a,), (n_b,).
+        a, b: the rows' points [m], shapes (n_a, 3), (n_b, 3), both running the same way.
 
     Returns:
         faces (n_a + n_b - 2, 3), int64, local indices.
     """
+    n_a, n_b = len(a), len(b)
     i = j = 0
     faces = []
     while i < n_a - 1 or j < n_b - 1:
-        advance_b = i == n_a - 1 or (j < n_b - 1 and s_b[j + 1] <= s_a[i + 1])
+        if i == n_a - 1:
+            advance_b = True
+        elif j == n_b - 1:
+            advance_b = False
+        else:
+            advance_b = float(np.sum((a[i] - b[j + 1]) ** 2)) <= float(np.sum((a[i + 1] - b[j]) ** 2))
         if advance_b:
             faces.append((i, n_a + j, n_a + j + 1))
             j += 1
@@ -156,8 +164,7 @@ def sew(panels: list[Panel]) -> SewnMesh:
             row_offsets.append(base + starts[k])
             if k > 0:
                 a = rows[k - 1]
-                sa = arc_length(a)
-                f = stitch(len(a), sa / sa[-1], len(r), s / s[-1])
+                f = stitch(a, r)
                 local = np.where(f < len(a), f + base + starts[k - 1], f - len(a) + base + starts[k])
                 faces.append(local)
                 pids.append(np.full(len(f), p_id))
@@ -178,39 +185,3 @@ def sew(panels: list[Panel]) -> SewnMesh:
     return SewnMesh(vertices=vertices, faces=vid[corner], uvs_m=np.concatenate(uvs), uv_faces=corner,
                     panel_ids=np.concatenate(pids), uv_panel=np.concatenate(uv_panel),
                     row_vertices=row_vertices)
-
-
-def pack_uvs(uvs_m: np.ndarray, uv_panel: np.ndarray, *, margin: float = 0.02) -> np.ndarray:
-    """Pack panel-local UVs [m] into [0, 1]² with one common scale (shelf packing).
-
-    Panels keep their relative sizes (one texel covers the same cloth area everywhere).
-
-    Args:
-        uvs_m: (U, 2) [m]; uv_panel: (U,) panel id of each UV vertex.
-        margin: gap between panels and around the border, as a fraction of the unit square
-            (0.02 = 5 px at 256²).
-
-    Returns:
-        (U, 2) float32 in [margin, 1 − margin].
-    """
-    ids = np.unique(uv_panel)
-    lo = np.array([uvs_m[uv_panel == i].min(0) for i in ids])
-    size = np.array([uvs_m[uv_panel == i].max(0) for i in ids]) - lo
-    gap = margin * max(size[:, 0].sum(), size[:, 1].max())
-    target_w = max(size[:, 0].max(), np.sqrt((size + gap).prod(axis=1).sum()) * 1.1)
-    order = np.argsort(-size[:, 1], kind="stable")
-    place = np.zeros_like(size)
-    x = y = shelf_h = 0.0
-    for i in order:
-        if x > 0 and x + size[i, 0] > target_w:
-            x, y, shelf_h = 0.0, y + shelf_h + gap, 0.0
-        place[i] = (x, y)
-        x += size[i, 0] + gap
-        shelf_h = max(shelf_h, size[i, 1])
-    total = max((place + size).max(axis=0).max(), 1e-9)
-    scale = (1.0 - 2.0 * margin) / total
-    out = np.empty_like(uvs_m)
-    for k, i in enumerate(ids):
-        m = uv_panel == i
-        out[m] = (uvs_m[m] - lo[k] + place[k]) * scale + margin
-    return out.astype(np.float32)

@@ -5,7 +5,8 @@ t-shirt / long sleeve (body tube, bibs, shoulder straps, optional sleeves on the
 Each template measures the body's rest mesh with horizontal slabs (cross-section hulls at the
 height of every pattern row), adds ease and a clearance margin, and lays out sewing-pattern
 panels as rows of arcs around the body (``sim.garments.panels``). The panels are sewn by
-welding their shared side-seam points; the pattern coordinates are the UVs.
+welding their shared seam points; each panel is flattened into its pattern piece (ARAP,
+``sim.garments.uv``) and the pieces are packed into [0, 1]²: those are the UVs.
 """
 
 from __future__ import annotations
@@ -17,11 +18,12 @@ from scipy.spatial import ConvexHull
 
 from sim.errors import WrinklesInputError
 from sim.garments.materials import Material, get_material
-from sim.garments.panels import Panel, arc_length, pack_uvs, resample, sew
+from sim.garments.panels import Panel, arc_length, resample, sew
 from sim.garments.types import Garment
+from sim.garments.uv import flatten_panels, pack_uvs
 
-RESOLUTIONS = {"coarse": 0.025, "fine": 0.009}
-"""Named target mean edge lengths [m]."""
+RESOLUTIONS = ("coarse", "fine")
+"""Named resolutions: each template's ``coarse`` / ``fine`` edge length (``Template``)."""
 CLEARANCE = 0.005
 """Gap kept between the body and the cloth's mid-surface, on top of the cloth thickness [m]."""
 ARM_JOINTS = tuple(range(16, 24))
@@ -190,9 +192,9 @@ class PantsParams:
 
 
 LEG_CLIP = 0.0015
+"""Leg tubes stay at |x| >= 1.5 mm so the two legs never cross between the thighs [m]."""
 BLEND = 0.06
 """Height over which a leg's rows blend from the crotch loop to the leg's own hull [m]."""
-"""Leg tubes stay at |x| >= 1.5 mm so the two legs never cross between the thighs [m]."""
 
 
 def _polar(poly_xz: np.ndarray, center: np.ndarray, theta: np.ndarray):
@@ -214,6 +216,23 @@ def _polar(poly_xz: np.ndarray, center: np.ndarray, theta: np.ndarray):
     edge = tt.argmin(axis=1)
     rows = np.arange(len(theta))
     return tt[rows, edge], edge, np.clip(s[rows, edge], 0.0, 1.0)
+
+
+def _centroid(poly: np.ndarray) -> np.ndarray:
+    """Area centroid of a simple polygon (K, 2) (smooth in the polygon, unlike the vertex mean)."""
+    a, b = poly, np.roll(poly, -1, axis=0)
+    cr = a[:, 0] * b[:, 1] - b[:, 0] * a[:, 1]
+    return ((a + b) * cr[:, None]).sum(0) / (3.0 * cr.sum())
+
+
+def _row_center(c0: np.ndarray, hull: np.ndarray, k: int, n: int) -> np.ndarray:
+    """Polar centre of a branch row (leg, sleeve): the first rows (k < 0) share ``c0``, so their
+    radii blend with the loop's; then the centre glides to the row hull's centroid over ``n``
+    rows, so the seam at the row's start angle runs straight (a jump makes sliver triangles)."""
+    if k < 0:
+        return c0
+    c = _centroid(hull)
+    return c0 + float(_smoothstep((k + 1) / max(n, 1))) * (c - c0)
 
 
 def _clip_half_plane(poly: np.ndarray, sign: float, x0: float) -> np.ndarray:
@@ -297,7 +316,7 @@ def pants_panels(m: BodyMeasure, p: PantsParams, h: float, thickness: float) -> 
     # bridge F -> C -> B in the plane of F and B, below the crotch
     depth = (y_c - y_cr) + margin + p.crotch_ease
     phi = np.linspace(0.0, np.pi, 201)
-    t = (1 - np.cos(phi)) / 2
+    t = phi / np.pi  # even in the plane: the ends of the bridge stay less steep than (1 - cos)/2
     bridge = f_pt[None] + t[:, None] * (b_pt - f_pt)[None]
     bridge[:, 1] = y_c - depth * np.sqrt(np.sin(phi).clip(0.0))
     bridge[0], bridge[-1] = f_pt, b_pt
@@ -329,7 +348,7 @@ def pants_panels(m: BodyMeasure, p: PantsParams, h: float, thickness: float) -> 
             s_y = min(1.0, k / n_fade)  # linear: the inner side rows stay >= 0.6 hv apart
             yk = (1 - s_y) * y_d + s_y * y_c - k * hv
             hull = leg_hull(float(yk.min()), float(yk.max()), ease_at(float(yk.mean())))
-            c = c0 if k < max(n_blend, n_fade) else hull.mean(axis=0)
+            c = _row_center(c0, hull, k - max(n_blend, n_fade), n_blend)
             r_l = _polar(hull, c, theta)[0]
             r = np.maximum((1 - s) * r_d + s * r_l, r_l)
             row = np.stack([c[0] + r * np.cos(theta), yk, c[1] + r * np.sin(theta)], axis=1)
@@ -341,7 +360,7 @@ def pants_panels(m: BodyMeasure, p: PantsParams, h: float, thickness: float) -> 
 
 @dataclass(frozen=True)
 class TopParams:
-    """Parameters of the tank top.
+    """Parameters of the tank top, t-shirt, long sleeve and dress.
 
     Attributes:
         length: from the top of the body tube (below the armpit) down to the hem [m].
@@ -552,7 +571,7 @@ def _sleeve_panel(m: BodyMeasure, p: TopParams, h: float, margin: float, loop: n
         s_x = min(1.0, k / n_fade)
         xk = (1 - s_x) * xd + s_x * x_ref + k * hv
         hull = arm_hull(float(xk.min()) - half, float(xk.max()) + half)
-        c = c0 if k < max(n_blend, n_fade) else hull.mean(axis=0)
+        c = _row_center(c0, hull, k - max(n_blend, n_fade), n_blend)
         r_a = _polar(hull, c, theta)[0]
         r = np.maximum((1 - s) * r_d + s * r_a, r_a)
         row = np.stack([sign * xk, c[1] + r * np.sin(theta), c[0] + r * np.cos(theta)], axis=1)
@@ -563,45 +582,100 @@ def _sleeve_panel(m: BodyMeasure, p: TopParams, h: float, margin: float, loop: n
 
 @dataclass(frozen=True)
 class Template:
-    """A registry entry: parameter class, defaults and the panel builder."""
+    """A registry entry.
+
+    Attributes:
+        params: the frozen parameter dataclass; defaults: this template's overrides of it.
+        build: ``build(measure, params, h, thickness) -> list[Panel]``.
+        attachments: the attachment sets every garment of this template has.
+        description: one line for listings.
+        coarse, fine: edge lengths [m] of the named resolutions, chosen so that the garment on
+            the default (mean) body has about 3,000 and 20,000 vertices; the edge length, not
+            the count, stays fixed across body shapes and parameters.
+        vertices: (coarse, fine) vertex counts on the default body with the defaults, as
+            measured (listed by ``wrinkles garments``; tests/test_garments.py keeps them true).
+    """
 
     params: type
     defaults: dict
     build: object
     attachments: tuple[str, ...]
+    description: str
+    coarse: float
+    fine: float
+    vertices: tuple[int, int]
 
 
 _SLEEVED = {"length": 0.42, "strap_width": 0.1, "front_rise": 0.11, "back_rise": 0.13}
 """Shirts: wide shoulder panels (up to the shoulder joint) and higher necklines than a tank top."""
 
 TEMPLATES: dict[str, Template] = {
-    "straight_skirt": Template(SkirtParams, {}, skirt_panels, ("waistband",)),
+    "straight_skirt": Template(SkirtParams, {}, skirt_panels, ("waistband", "hem"),
+                               "knee-length straight skirt hanging from the waist", 0.0155, 0.006,
+                               (2963, 19526)),
     "flared_skirt": Template(SkirtParams, {"flare": 0.6, "length": 0.6, "ease": 0.02}, skirt_panels,
-                             ("waistband",)),
-    "shorts": Template(PantsParams, {"length": 0.45, "ease": 0.02}, pants_panels, ("waistband", "hem")),
-    "trousers": Template(PantsParams, {}, pants_panels, ("waistband", "hem")),
-    "tank_top": Template(TopParams, {}, tank_top_panels, ("shoulders", "hem")),
+                             ("waistband", "hem"), "A-line skirt widening below the hips", 0.018, 0.007,
+                             (2970, 19569)),
+    "shorts": Template(PantsParams, {"length": 0.45, "ease": 0.02}, pants_panels, ("waistband", "hem"),
+                       "shorts: hip tube split into two legs at the crotch", 0.0145, 0.0055, (3112, 21188)),
+    "trousers": Template(PantsParams, {}, pants_panels, ("waistband", "hem"),
+                         "full-length trousers, hem above the ankle", 0.02, 0.0075, (3046, 21410)),
+    "tank_top": Template(TopParams, {}, tank_top_panels, ("shoulders", "hem"),
+                         "sleeveless top with shoulder straps", 0.015, 0.006, (3147, 19074)),
     "t_shirt": Template(TopParams, {**_SLEEVED, "sleeve_length": 0.2}, tank_top_panels,
-                        ("shoulders", "hem", "cuffs")),
+                        ("shoulders", "hem", "cuffs"), "short-sleeved shirt", 0.018, 0.007, (3002, 19359)),
     "long_sleeve": Template(TopParams, {**_SLEEVED, "sleeve_length": 1.0}, tank_top_panels,
-                            ("shoulders", "hem", "cuffs")),
+                            ("shoulders", "hem", "cuffs"), "long-sleeved shirt, cuffs before the wrists",
+                            0.02, 0.0075, (3018, 21227)),
     "dress": Template(TopParams, {"length": 0.95, "flare": 0.35, "ease": 0.025}, tank_top_panels,
-                      ("shoulders", "hem")),
+                      ("shoulders", "hem"), "sleeveless strap dress flaring below the hips", 0.0235, 0.009,
+                      (3117, 20614)),
 }
 """Garment categories (registry) → template."""
 
 
-def resolve_resolution(resolution: str | float) -> float:
-    """Target mean edge length [m] for "coarse", "fine" or a number of metres."""
+def resolve_resolution(resolution: str | float, category: str) -> float:
+    """Target mean edge length [m] of ``category`` for "coarse", "fine" or a number of metres."""
     if isinstance(resolution, str):
         if resolution not in RESOLUTIONS:
             raise WrinklesInputError(f"unknown resolution {resolution!r}; expected one of "
                                      f"{', '.join(RESOLUTIONS)} or an edge length in metres")
-        return RESOLUTIONS[resolution]
+        return getattr(TEMPLATES[category], resolution)
     h = float(resolution)
     if not 0.003 <= h <= 0.2:
         raise WrinklesInputError(f"resolution {resolution} m is outside [0.003, 0.2] m")
     return h
+
+
+def template_parameters(category: str) -> list[tuple[str, float, str, str]]:
+    """A template's parameters as ``(name, default, unit, meaning)``, from its params class's
+    ``Attributes:`` docstring (entries ``name: text [unit] more text``)."""
+    import re
+
+    if category not in TEMPLATES:
+        raise WrinklesInputError(f"unknown garment category {category!r}; expected one of "
+                                 f"{', '.join(TEMPLATES)}")
+    t = TEMPLATES[category]
+    doc = (t.params.__doc__ or "").split("Attributes:", 1)[-1]
+    docs: dict[str, str] = {}
+    names: list[str] = []
+    for line in doc.splitlines():
+        m = re.match(r"\s{8}([a-z_0-9]+(?:, [a-z_0-9]+)*): (.*)", line)
+        if m:
+            names = m.group(1).split(", ")
+            for n in names:
+                docs[n] = m.group(2).strip()
+        elif line.strip() and names:
+            for n in names:
+                docs[n] += " " + line.strip()
+    p = make_params(category)
+    out = []
+    for f in fields(t.params):
+        text = docs.get(f.name, "")
+        unit = re.search(r"\[([^\]]*)\]", text)
+        meaning = re.sub(r"\s*\[[^\]]*\]", "", text, count=1).strip()
+        out.append((f.name, getattr(p, f.name), unit.group(1) if unit else "", meaning))
+    return out
 
 
 def make_params(category: str, **params: float):
@@ -627,7 +701,8 @@ def make_garment(category: str, body, betas: np.ndarray | None = None, *,
         category: a key of ``TEMPLATES``.
         body: a ``BodyModel`` (``rest_mesh``, ``rest_joints``, ``weights``).
         betas: shape coefficients, shape (B,); None = mean shape.
-        resolution: "coarse" (25 mm edges), "fine" (9 mm) or a target edge length [m].
+        resolution: "coarse" (~3k vertices on the default body), "fine" (~20k) or a target
+            edge length [m] (``Template.coarse`` / ``fine`` give each template's edge lengths).
         material: preset name or a ``Material``.
         name: garment name (default: the category).
         **params: fields of the category's params dataclass (e.g. ``length``, ``ease``).
@@ -636,7 +711,7 @@ def make_garment(category: str, body, betas: np.ndarray | None = None, *,
         The garment; deterministic for equal arguments.
     """
     p = make_params(category, **params)
-    h = resolve_resolution(resolution)
+    h = resolve_resolution(resolution, category)
     mat = get_material(material)
     meas = BodyMeasure.of(body, betas)
     panels = TEMPLATES[category].build(meas, p, h, mat.thickness)
@@ -661,8 +736,11 @@ def make_garment(category: str, body, betas: np.ndarray | None = None, *,
         for k, mark in pn.marks:
             att.setdefault(mark, []).append(rows[k])
     att = {k: np.unique(np.concatenate(a)) for k, a in att.items()}
+    uv_points = np.empty((len(sewn.uvs_m), 3))
+    uv_points[sewn.uv_faces] = v[sewn.faces]
+    uvs_m = flatten_panels(uv_points, sewn.uv_faces, sewn.uvs_m, sewn.uv_panel)
     return Garment(rest_vertices=v.astype(np.float32), faces=faces.astype(np.int32),
-                   uvs=pack_uvs(sewn.uvs_m, sewn.uv_panel), uv_faces=uv_faces.astype(np.int32),
+                   uvs=pack_uvs(uvs_m, sewn.uv_panel), uv_faces=uv_faces.astype(np.int32),
                    material=mat, attachments=att, category=category, name=name or category,
                    panel_ids=sewn.panel_ids.astype(np.int32),
                    panel_names=tuple(pn.name for pn in panels))

@@ -1,0 +1,109 @@
+"""``wrinkles garments``: the listing, the JSON catalogue, exports that load back, bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pipelines.cli import main
+from sim.garments import MATERIALS, TEMPLATES, load_garment
+from tests.test_cli import assert_user_error, run_cli
+
+
+def test_lists_every_template_with_counts_and_attachments(capsys):
+    assert main(["garments"]) == 0
+    out = capsys.readouterr().out
+    for name, t in TEMPLATES.items():
+        line = next(ln for ln in out.splitlines() if ln.startswith(name + " "))
+        assert f"{t.vertices[0]:,} v" in line and f"{t.vertices[1]:,} v" in line
+        assert ", ".join(t.attachments) in line
+    for m in MATERIALS:
+        assert m in out
+
+
+def test_params_and_json(capsys):
+    assert main(["garments", "--params"]) == 0
+    out = capsys.readouterr().out
+    assert "--param sleeve_length=0.2 [m]" in out and "--param crotch_ease=0.02 [m]" in out
+    assert main(["garments", "--json"]) == 0
+    cat = json.loads(capsys.readouterr().out)
+    assert [t["name"] for t in cat["templates"]] == list(TEMPLATES)
+    for t in cat["templates"]:
+        assert t["resolutions"]["fine"]["edge_m"] < t["resolutions"]["coarse"]["edge_m"]
+        for p in t["parameters"]:  # every parameter documented: a unit and a meaning
+            assert p["unit"] in ("m", "-") and len(p["meaning"]) > 10, p
+    assert {m["name"] for m in cat["materials"]} == set(MATERIALS)
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".ply", ".glb", ".usda"])
+def test_export_loads_back_with_the_same_mesh_and_uvs(tmp_path, capsys, suffix):
+    from sim.bodies import load_body
+    from sim.bodies.default import parse_shape
+    from sim.garments import make_garment
+
+    out, png = tmp_path / f"skirt{suffix}", tmp_path / "skirt_uv.png"
+    args = ["garments", "--export", "flared-skirt", "--out", str(out), "--resolution", "0.04",
+            "--shape", "weight=0.7", "--param", "length=0.5"]
+    assert main(args + (["--uv-image", str(png), "--uv-image-size", "256"] if suffix == ".obj" else [])) == 0
+    assert "flared_skirt:" in capsys.readouterr().out
+    want = make_garment("flared_skirt", load_body(), parse_shape("weight=0.7"), resolution=0.04, length=0.5)
+    g = load_garment(out)
+    assert g.num_vertices == want.num_vertices and g.num_faces == want.num_faces
+    assert len(g.uvs) == len(want.uvs)  # seams kept
+    np.testing.assert_allclose(g.rest_vertices[g.faces], want.rest_vertices[want.faces], atol=1e-6)
+    np.testing.assert_allclose(g.uvs[g.uv_faces], want.uvs[want.uv_faces], atol=1e-6)
+    if suffix == ".usda":
+        from usd_io import validate_stage
+
+        assert validate_stage(out) == []
+    if suffix == ".obj":
+        from PIL import Image
+
+        with Image.open(png) as im:
+            assert im.size == (256, 256)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [out.name] + ([png.name] if suffix == ".obj" else []))  # no temporaries left
+
+
+@pytest.mark.parametrize("args, needles", [
+    (["--export", "cape", "--out", "x.obj"], ["unknown template", "t_shirt"]),
+    (["--export", "t_shirt"], ["--export needs --out"]),
+    (["--export", "t_shirt", "--out", "x.stl"], ["x.stl", "--out must end in"]),
+    (["--out", "x.obj"], ["need --export"]),
+    (["--export", "t_shirt", "--out", "x.obj", "--param", "lenght=0.4"], ["unknown parameter", "length"]),
+    (["--export", "t_shirt", "--out", "x.obj", "--resolution", "ultra"], ["--resolution 'ultra'"]),
+    (["--export", "t_shirt", "--out", "x.obj", "--material", "tweed"], ["unknown material", "denim"]),
+])
+def test_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, monkeypatch, args, needles):
+    monkeypatch.chdir(tmp_path)
+    code = main(["garments", *args])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and err.startswith("wrinkles garments: error:"), err
+    for n in needles:
+        assert n in err, err
+    assert not list(tmp_path.iterdir())
+
+
+class _Boom(RuntimeError):
+    pass
+
+
+def test_failure_midway_leaves_nothing(tmp_path, monkeypatch):
+    from pipelines import garments_cmd
+
+    def boom(*a, **k):
+        raise _Boom("drawing failed")
+
+    monkeypatch.setattr(garments_cmd, "draw_uv_layout", boom)
+    with pytest.raises(_Boom):
+        main(["garments", "--export", "shorts", "--resolution", "0.05", "--out", str(tmp_path / "s.obj"),
+              "--uv-image", str(tmp_path / "s.png")])
+    assert not list(tmp_path.iterdir())  # the OBJ written before the failure is gone too
+
+
+def test_cli_process_user_error(tmp_path):
+    proc = run_cli("garments", "--export", "dress", "--out", "x.fbx", cwd=tmp_path)
+    assert_user_error(proc, "x.fbx", "--out")
+    assert not list(tmp_path.iterdir())
