@@ -85,6 +85,58 @@ def stvk_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.
 
 
 @wp.func
+def green_strain(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22) -> wp.vec3:
+    """Green-Lagrange strain ``G = (F^T F - I)/2`` of a triangle as ``(G00, G11, G01)``."""
+    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
+    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
+    return wp.vec3(0.5 * (wp.dot(f0, f0) - 1.0), 0.5 * (wp.dot(f1, f1) - 1.0), 0.5 * wp.dot(f0, f1))
+
+
+@wp.func
+def stvk_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: float,
+                                     mu: float, lam: float, strain_prev: wp.vec3, kd_over_h: float,
+                                     local: int):
+    """StVK force and Hessian block (as ``stvk_vertex_force_hessian``) plus strain-rate damping.
+
+    Damping is Rayleigh stiffness-proportional on the strain rate: the viscous second
+    Piola-Kirchhoff stress is ``(k_d/h) C:(G - G_prev)`` with ``C`` the elastic tensor
+    (``2 mu``, ``lam``), ``G_prev`` the strain at the substep start and ``k_d`` [s] the
+    material's damping. It vanishes for rigid motion (no drag on a falling or moving garment;
+    cf. the per-vertex form of Chen et al. 2024, Eq. 14, which damps absolute motion and
+    over-damps fine meshes). Its Hessian block is ``k_d/h`` times the material part of the
+    elastic block (positive semi-definite).
+    """
+    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
+    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
+    g00 = 0.5 * (wp.dot(f0, f0) - 1.0)
+    g11 = 0.5 * (wp.dot(f1, f1) - 1.0)
+    g01 = 0.5 * wp.dot(f0, f1)
+    tr = g00 + g11
+    s00 = 2.0 * mu * g00 + lam * tr
+    s11 = 2.0 * mu * g11 + lam * tr
+    s01 = 2.0 * mu * g01
+    d00 = g00 - strain_prev[0]
+    d11 = g11 - strain_prev[1]
+    d01 = g01 - strain_prev[2]
+    dtr = d00 + d11
+    v00 = kd_over_h * (2.0 * mu * d00 + lam * dtr)
+    v11 = kd_over_h * (2.0 * mu * d11 + lam * dtr)
+    v01 = kd_over_h * (2.0 * mu * d01)
+    g = stvk_shape_row(dm_inv, local)
+    sg0 = s00 * g[0] + s01 * g[1]
+    sg1 = s01 * g[0] + s11 * g[1]
+    vg0 = v00 * g[0] + v01 * g[1]
+    vg1 = v01 * g[0] + v11 * g[1]
+    force = -area * (f0 * (sg0 + vg0) + f1 * (sg1 + vg1))
+    fg = f0 * g[0] + f1 * g[1]
+    gsg = wp.max(g[0] * sg0 + g[1] * sg1, 0.0)
+    gg = wp.dot(g, g)
+    material = (mu + lam) * wp.outer(fg, fg) + (mu * gg) * (wp.outer(f0, f0) + wp.outer(f1, f1))
+    hess = area * (gsg * wp.identity(n=3, dtype=float) + (1.0 + kd_over_h) * material)
+    return force, hess
+
+
+@wp.func
 def dihedral_angle(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3) -> float:
     """Signed dihedral angle [rad] of the hinge ``(o0, o1, a, b)``; 0 when flat."""
     e = xb - xa
@@ -148,6 +200,18 @@ def bending_vertex_force_hessian(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp
     d = dihedral_angle(xo0, xo1, xa, xb) - rest_angle
     g = dihedral_angle_gradient(xo0, xo1, xa, xb, local)
     return -k_edge * d * g, k_edge * wp.outer(g, g)
+
+
+@wp.func
+def bending_damped_vertex_force_hessian(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3,
+                                        rest_angle: float, k_edge: float, angle_prev: float,
+                                        kd_over_h: float, local: int):
+    """Hinge force and Gauss-Newton Hessian plus damping of the angle rate:
+    ``f_d = -(k_d/h) k_e (theta - theta_prev) dtheta/dx``, Hessian ``(k_d/h) k_e g g^T``."""
+    theta = dihedral_angle(xo0, xo1, xa, xb)
+    g = dihedral_angle_gradient(xo0, xo1, xa, xb, local)
+    f = -k_edge * ((theta - rest_angle) + kd_over_h * (theta - angle_prev)) * g
+    return f, (k_edge * (1.0 + kd_over_h)) * wp.outer(g, g)
 
 
 @wp.kernel

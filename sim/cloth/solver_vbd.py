@@ -7,6 +7,7 @@ over the vertex colouring. Per substep:
 1. bodies move to the substep's end (linear in time between the step's two body frames) and
    their BVHs are refit;
 2. ``forward_kernel``: inertial target and initial guess; pinned particles placed;
+   ``previous_deformation_kernel``: substep-start strains and hinge angles (damping reference);
 3. ``body_contact_kernel``: one contact plane per particle against its instance's body,
    found from the particle's substep-start position (outside the body) against the body's
    substep-end placement;
@@ -47,6 +48,9 @@ class VBDConfig:
         contact_margin: distance [m] within which body contacts are detected; must exceed the
             cloth thickness plus the relative cloth/body motion of one substep.
         friction_epsilon: tangential speed [m/s] below which friction is smoothed (static).
+        air_damping: mass-proportional Rayleigh damping alpha [1/s] (force ``-alpha m v``): the
+            linear drag of still air that lets garments come to rest; the material's damping
+            [s] acts on strain and bending rates only and leaves rigid motion undamped.
         self_contact: cloth-cloth collision (vertex-triangle and edge-edge) on/off.
         self_contact_radius: distance [m] kept between cloth surfaces.
         self_contact_margin: smallest query radius [m] of the intersection-free displacement
@@ -65,6 +69,7 @@ class VBDConfig:
     contact_stiffness: float = 1.0e5
     contact_margin: float = 0.05
     friction_epsilon: float = 1.0e-2
+    air_damping: float = 0.5
     self_contact: bool = False
     self_contact_radius: float = 0.003
     self_contact_margin: float = 0.01
@@ -86,6 +91,8 @@ class VBDConfig:
         if not 0.0 < self.self_contact_relaxation < 0.5:
             raise ValueError("VBDConfig.self_contact_relaxation must be in (0, 0.5), got "
                              f"{self.self_contact_relaxation}")
+        if self.air_damping < 0.0:
+            raise ValueError(f"VBDConfig.air_damping must be >= 0 1/s, got {self.air_damping}")
         if self.self_contact_friction < 0.0:
             raise ValueError(f"VBDConfig.self_contact_friction must be >= 0, got "
                              f"{self.self_contact_friction}")
@@ -115,6 +122,8 @@ class SolverVBD:
         self._contact_body_velocity = wp.zeros(n, dtype=wp.vec3, device=d)
         self._contact_active = wp.zeros(n, dtype=wp.int32, device=d)
         self._gravity = wp.vec3(*model.gravity)
+        self._tri_strain_prev = wp.zeros(model.tri_count, dtype=wp.vec3, device=d)
+        self._edge_angle_prev = wp.zeros(max(model.edge_count, 1), dtype=float, device=d)
         cfg = self.config
         if cfg.self_contact:
             self.self_contact = SelfContact(
@@ -156,6 +165,9 @@ class SolverVBD:
                               control.pin_targets,
                               self._gravity, h, alpha],
                       outputs=[self._x_prev, self._y, x], device=d)
+            wp.launch(K.previous_deformation_kernel, dim=m.tri_count + m.edge_count,
+                      inputs=[self._x_prev, m.tri_indices, m.tri_dm_inv, m.edge_indices, m.tri_count],
+                      outputs=[self._tri_strain_prev, self._edge_angle_prev], device=d)
             if control.bodies:
                 wp.launch(K.body_contact_kernel, dim=n,
                           inputs=[self._x_prev, m.particle_instance, control.instance_body,
@@ -172,13 +184,14 @@ class SolverVBD:
                     wp.launch(K.solve_color_kernel, dim=end - start,
                               inputs=[m.color_vertices, start, self._x_prev, self._y, m.particle_mass,
                                       m.particle_flags, m.particle_instance, m.tri_indices, m.tri_dm_inv,
-                                      m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping, m.edge_indices,
-                                      m.edge_rest_angle, m.edge_stiffness, m.edge_damping,
+                                      m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping, self._tri_strain_prev,
+                                      m.edge_indices, m.edge_rest_angle, m.edge_stiffness, m.edge_damping,
+                                      self._edge_angle_prev,
                                       m.vertex_tri_offsets, m.vertex_tri_ids, m.vertex_tri_local,
                                       m.vertex_edge_offsets, m.vertex_edge_ids, m.vertex_edge_local,
                                       self._contact_point, self._contact_normal, self._contact_body_velocity,
                                       self._contact_active, m.instance_thickness, m.instance_friction,
-                                      cfg.contact_stiffness, eps_u, h, self._sc_data],
+                                      cfg.contact_stiffness, eps_u, h, cfg.air_damping, self._sc_data],
                               outputs=[x], device=d)
             wp.launch(K.velocity_kernel, dim=n, inputs=[x, self._x_prev, 1.0 / h],
                       outputs=[v, state_out.accelerations], device=d)

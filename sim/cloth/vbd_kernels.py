@@ -13,7 +13,12 @@ from __future__ import annotations
 
 import warp as wp
 
-from sim.cloth.energies import bending_vertex_force_hessian, stvk_vertex_force_hessian
+from sim.cloth.energies import (
+    bending_damped_vertex_force_hessian,
+    dihedral_angle,
+    green_strain,
+    stvk_damped_vertex_force_hessian,
+)
 from sim.cloth.self_contact import SelfContactData, apply_bound, self_contact_force_hessian
 
 PINNED = wp.constant(1)
@@ -99,6 +104,28 @@ def body_contact_kernel(
     contact_active_out[i] = 1
 
 
+@wp.kernel
+def previous_deformation_kernel(
+    x_prev: wp.array(dtype=wp.vec3),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    tri_dm_inv: wp.array(dtype=wp.mat22),
+    edge_indices: wp.array(dtype=wp.vec4i),
+    tri_count: int,
+    tri_strain_out: wp.array(dtype=wp.vec3),
+    edge_angle_out: wp.array(dtype=float),
+):
+    """Green strain of every triangle (threads < tri_count) and dihedral angle of every hinge
+    (the rest) at the substep start: the reference of the strain-rate damping."""
+    k = wp.tid()
+    if k < tri_count:
+        t = tri_indices[k]
+        tri_strain_out[k] = green_strain(x_prev[t[0]], x_prev[t[1]], x_prev[t[2]], tri_dm_inv[k])
+    else:
+        e = k - tri_count
+        q = edge_indices[e]
+        edge_angle_out[e] = dihedral_angle(x_prev[q[0]], x_prev[q[1]], x_prev[q[2]], x_prev[q[3]])
+
+
 @wp.func
 def contact_force_hessian(
     xi: wp.vec3,
@@ -151,10 +178,12 @@ def solve_color_kernel(
     tri_mu: wp.array(dtype=float),
     tri_lam: wp.array(dtype=float),
     tri_damping: wp.array(dtype=float),
+    tri_strain_prev: wp.array(dtype=wp.vec3),
     edge_indices: wp.array(dtype=wp.vec4i),
     edge_rest_angle: wp.array(dtype=float),
     edge_stiffness: wp.array(dtype=float),
     edge_damping: wp.array(dtype=float),
+    edge_angle_prev: wp.array(dtype=float),
     vertex_tri_offsets: wp.array(dtype=wp.int32),
     vertex_tri_ids: wp.array(dtype=wp.int32),
     vertex_tri_local: wp.array(dtype=wp.int32),
@@ -170,6 +199,7 @@ def solve_color_kernel(
     k_contact: float,
     eps_u: float,
     h: float,
+    air_damping: float,
     sc: SelfContactData,
     x_inout: wp.array(dtype=wp.vec3),
 ):
@@ -183,27 +213,29 @@ def solve_color_kernel(
     inv_h = 1.0 / h
     # inertia: m/h^2 (y - x), Hessian m/h^2 I
     mh = mass[i] * inv_h * inv_h
-    f = mh * (y[i] - xi)
-    H = mh * wp.identity(n=3, dtype=float)
+    # mass-proportional (air) damping alpha m v with v = (x - x_prev)/h
+    ca = air_damping * mass[i] * inv_h
+    f = mh * (y[i] - xi) - ca * (xi - xp)
+    H = (mh + ca) * wp.identity(n=3, dtype=float)
 
+    # membrane and bending with strain-rate damping against the substep-start deformation
     for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
         t = vertex_tri_ids[k]
         tri = tri_indices[t]
-        fe, he = stvk_vertex_force_hessian(x_inout[tri[0]], x_inout[tri[1]], x_inout[tri[2]], tri_dm_inv[t],
-                                           tri_area[t], tri_mu[t], tri_lam[t], vertex_tri_local[k])
-        # Rayleigh damping, stiffness-proportional: f_d = -(k_d/h) H (x - x_prev)
-        kd = tri_damping[t] * inv_h
-        f = f + fe - kd * (he * (xi - xp))
-        H = H + (1.0 + kd) * he
+        fe, he = stvk_damped_vertex_force_hessian(
+            x_inout[tri[0]], x_inout[tri[1]], x_inout[tri[2]], tri_dm_inv[t], tri_area[t], tri_mu[t],
+            tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h, vertex_tri_local[k])
+        f = f + fe
+        H = H + he
 
     for k in range(vertex_edge_offsets[i], vertex_edge_offsets[i + 1]):
         e = vertex_edge_ids[k]
         q = edge_indices[e]
-        fb, hb = bending_vertex_force_hessian(x_inout[q[0]], x_inout[q[1]], x_inout[q[2]], x_inout[q[3]],
-                                              edge_rest_angle[e], edge_stiffness[e], vertex_edge_local[k])
-        kd = edge_damping[e] * inv_h
-        f = f + fb - kd * (hb * (xi - xp))
-        H = H + (1.0 + kd) * hb
+        fb, hb = bending_damped_vertex_force_hessian(
+            x_inout[q[0]], x_inout[q[1]], x_inout[q[2]], x_inout[q[3]], edge_rest_angle[e], edge_stiffness[e],
+            edge_angle_prev[e], edge_damping[e] * inv_h, vertex_edge_local[k])
+        f = f + fb
+        H = H + hb
 
     if contact_active[i] != 0:
         inst = particle_instance[i]
