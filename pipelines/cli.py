@@ -18,11 +18,13 @@ EXIT_USAGE = 2
 
 
 def _commands() -> dict:
-    from pipelines import body_cmd, motions_cmd
+    from pipelines import body_cmd, garments_cmd, motions_cmd, simulate_cmd
 
     return {
         "body": body_cmd,
         "motions": motions_cmd,
+        "garments": garments_cmd,
+        "simulate": simulate_cmd,
     }
 
 

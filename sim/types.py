@@ -6,10 +6,14 @@ Arrays at module boundaries are numpy ``float32`` (positions), ``int32`` (indice
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sim.errors import WrinklesInputError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from sim.garments.types import Garment
 
 #: SMPL's 24 joints, names and order as SMPL (DESIGN.md, Conventions).
 SMPL_JOINT_NAMES: tuple[str, ...] = (
@@ -99,3 +103,41 @@ class Motion:
     def duration(self) -> float:
         """Length [s]."""
         return self.num_frames / float(self.fps)
+
+
+@dataclass(frozen=True)
+class GarmentSequence:
+    """A garment animated on a body: what simulation and inference produce (DESIGN.md, Core
+    types).
+
+    Attributes:
+        vertices: garment positions [m], shape (T, V, 3), float32, V = ``garment.num_vertices``
+            (same vertex order and faces as the garment).
+        body: the body over the same T frames.
+        garment: the garment (rest mesh, faces, UVs, material, attachments).
+        motion: the motion of the T frames (``poses`` (T, 24, 3), ``trans`` (T, 3)).
+        fps: frames per second [1/s].
+        provenance: JSON-ready record of how it was made: resolved config, seed, device,
+            package versions, frame bookkeeping (e.g. ``prelude_frames``).
+    """
+
+    vertices: np.ndarray
+    body: BodyFrames
+    garment: Garment
+    motion: Motion
+    fps: float
+    provenance: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        v = np.ascontiguousarray(self.vertices, dtype=np.float32)
+        if v.ndim != 3 or v.shape[2] != 3 or v.shape[1] != self.garment.num_vertices:
+            raise ValueError(f"GarmentSequence vertices must have shape (T, {self.garment.num_vertices}, 3), "
+                             f"got {v.shape}")
+        if self.body.num_frames != v.shape[0] or self.motion.num_frames != v.shape[0]:
+            raise ValueError(f"GarmentSequence: {v.shape[0]} garment frames, {self.body.num_frames} body "
+                             f"frames, {self.motion.num_frames} motion frames (must be equal)")
+        object.__setattr__(self, "vertices", v)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.vertices.shape[0])

@@ -1,0 +1,129 @@
+"""Command-line options shared by the commands that pose a body with a motion (``wrinkles body``,
+``wrinkles simulate``): their arguments, parsing, and loading the body and motion they name."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.errors import WrinklesInputError
+
+
+def add_motion_arguments(p: argparse.ArgumentParser) -> None:
+    """``--motion``, ``--param``, ``--duration``, ``--fps``."""
+    p.add_argument("--motion", default="walk",
+                   help="procedural motion name, or an AMASS .npz / .bvh file (default: %(default)s)")
+    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                   help="a procedural motion parameter, e.g. --param speed=1.6 (repeatable; "
+                        "'wrinkles motions --params' lists each motion's parameters)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="length of a procedural motion [s], or where to cut a file (default: the "
+                        "motion's own)")
+    p.add_argument("--fps", type=float, default=30.0,
+                   help="output frame rate [1/s]; files are resampled to it (default: %(default)s)")
+
+
+def add_body_arguments(p: argparse.ArgumentParser) -> None:
+    """``--body``, ``--shape``."""
+    p.add_argument("--body", default="default",
+                   help="'default' (embedded body) or an SMPL/SMPL-H/SMPL-X model file (.npz/.pkl)")
+    p.add_argument("--shape", default=None,
+                   help="body shape: comma-separated betas ('0.5,-1.2') or, for the default body, "
+                        "named phenotype values ('height=0.8,weight=0.3')")
+
+
+def parse_params(items: list[str], flag: str = "--param") -> dict[str, float | str]:
+    """``["speed=1.5", "side=left"]`` -> ``{"speed": 1.5, "side": "left"}`` (numbers where they parse)."""
+    out: dict[str, float | str] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise WrinklesInputError(f"{flag} {item!r}: expected KEY=VALUE")
+        try:
+            out[key.strip()] = float(value)
+        except ValueError:
+            out[key.strip()] = value.strip()
+    return out
+
+
+def parse_numbers(items: list[str], flag: str) -> dict[str, float]:
+    """Like ``parse_params`` but every value must be a number."""
+    out = {}
+    for key, value in parse_params(items, flag).items():
+        if not isinstance(value, float) or not np.isfinite(value):
+            raise WrinklesInputError(f"{flag} {key}={value}: the value must be a finite number")
+        out[key] = value
+    return out
+
+
+def parse_body_shape(body, spec: str | None) -> np.ndarray | None:
+    """Betas from ``--shape`` for this body (phenotype names only for the default body)."""
+    if spec is None:
+        return None
+    if body.kind == "default":
+        from sim.bodies.default import parse_shape
+
+        return parse_shape(spec)
+    try:
+        return np.array([float(x) for x in spec.split(",") if x.strip()], dtype=np.float32)
+    except ValueError as e:
+        raise WrinklesInputError(
+            f"--shape {spec!r}: an SMPL-family body takes comma-separated betas "
+            f"(named phenotypes are for the default body)") from e
+
+
+def check_fps(fps: float) -> None:
+    if not (np.isfinite(fps) and fps > 0):
+        raise WrinklesInputError(f"--fps must be a positive number, got {fps}")
+
+
+@dataclass(frozen=True)
+class BodyAndMotion:
+    """What ``--body/--shape/--motion/--param/--duration/--fps`` resolve to.
+
+    Attributes:
+        body: the ``BodyModel``.
+        betas: the shape used (B,): ``--shape``, else the motion's own (AMASS), else the mean.
+        motion: the motion at ``--fps``.
+        params: the procedural parameters (with the seed where the motion takes one).
+    """
+
+    body: object
+    betas: np.ndarray
+    motion: object
+    params: dict
+
+
+def load_body_and_motion(args: argparse.Namespace) -> BodyAndMotion:
+    """Load the body and motion the shared options name (``args.seed`` seeds random motions)."""
+    from sim.bodies import load_body
+    from sim.motions import MotionSkeleton, accepts_parameter, load_motion
+    from sim.simulate import resolve_betas
+
+    check_fps(args.fps)
+    body = load_body(args.body)
+    shape = parse_body_shape(body, args.shape)
+    params = parse_params(args.param)
+    if accepts_parameter(args.motion, "seed"):
+        params.setdefault("seed", args.seed)
+    # procedural motions place the feet with this body's own joints and soles
+    motion = load_motion(args.motion, fps=args.fps, duration=args.duration,
+                         skeleton=MotionSkeleton.from_body(body, shape), **params)
+    return BodyAndMotion(body, resolve_betas(body, motion, shape), motion, params)
+
+
+def package_versions(*extra: str) -> dict[str, str]:
+    """Installed versions of wrinkles' core packages and ``extra`` ones."""
+    import importlib.metadata as md
+
+    from sim.simulate import package_versions as core
+
+    out = core()
+    for pkg in extra:
+        try:
+            out[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            pass
+    return out

@@ -1,0 +1,315 @@
+"""``wrinkles simulate``: dress a garment on a body, simulate it through a motion, write USD,
+the quality report and previews."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipelines.outputs import OutputSet, check_output_path
+from pipelines.progress import progress_bar
+from sim.errors import WrinklesInputError
+
+HELP = "simulate a garment on a moving body; write USD (body + garment with UVs) and previews"
+DESCRIPTION = """\
+Dress a garment on a body and simulate it through a motion with the Warp cloth solver (VBD).
+
+The garment is placed on the body in its rest pose and settles there (--settle seconds), then
+the body blends from rest into the motion's first pose (--blend seconds) and plays the motion.
+That prelude is dropped from the output: the sequence starts at the motion's first frame with
+the garment at rest on the body (--keep-prelude keeps it). Attachment sets named by --pin
+(default: waistband) follow the skin; everything else is free cloth.
+
+Every frame is checked for NaN/explosion: a run that blows up stops with one line naming the
+frame and the cause, exit status 1, and writes nothing. Every sequence gets a quality report
+(edge strain, fraction of garment vertices inside the body, self-intersections) judged against
+quality gates (--gate); a sequence that fails them is an error (exit 1, nothing written)
+unless --allow-failed-gates. The report is stored in the stage's metadata and in a sidecar
+<out stem>.quality.json with the gates, the resolved config and the seed.
+
+--garment is a template (straight_skirt, flared_skirt, shorts, trousers, tank_top, t_shirt,
+long_sleeve, dress; aliases such as tshirt, tee, skirt, pants, tank) fitted to the body's
+shape, or a garment file (.obj/.ply/.glb/.gltf/.off/.stl/.usd*) with UVs, modelled around the
+body in its rest pose. --body/--shape/--motion/--param/--duration/--fps are those of
+'wrinkles body'.
+
+examples:
+  wrinkles simulate --garment tshirt --motion walk --material cotton --out tshirt_walk.usda \\
+      --preview tshirt_walk.mp4
+  wrinkles simulate --garment straight_skirt --garment-param length=0.45 --motion squat \\
+      --shape height=0.9,weight=0.3 --resolution fine --out skirt.usdc --sheet skirt.png
+  wrinkles simulate --garment trousers --material denim --motion run --duration 2 \\
+      --substeps 20 --self-collision --out jeans_run.usda
+  wrinkles simulate --garment my_dress.obj --material silk --motion CMU_01_01.npz \\
+      --fps 30 --out dress.usda --allow-failed-gates
+"""
+
+USD_SUFFIXES = (".usda", ".usdc", ".usd")
+PREVIEW_SUFFIXES = (".mp4", ".gif")
+GARMENT_ALIASES: dict[str, str] = {
+    "tshirt": "t_shirt", "tee": "t_shirt", "shirt": "t_shirt", "skirt": "straight_skirt",
+    "pants": "trousers", "jeans": "trousers", "tank": "tank_top", "longsleeve": "long_sleeve",
+}
+"""Extra names accepted by ``--garment`` (hyphens/underscores/case are ignored anyway)."""
+CLOTH_PREVIEW_COLOR: tuple[float, float, float] = (0.22, 0.38, 0.72)
+PREVIEW_CLOTH_LIFT = 0.003
+"""Previews draw the garment this far out along its normals [m] so skin a fraction of a
+millimetre below the cloth does not show through it (display only; USD holds the true points)."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from pipelines.cli import add_common_arguments
+    from pipelines.options import add_body_arguments, add_motion_arguments
+
+    g = p.add_argument_group("garment")
+    g.add_argument("--garment", default="t_shirt",
+                   help="template name or alias, or a garment mesh file with UVs (default: %(default)s)")
+    g.add_argument("--garment-param", action="append", default=[], metavar="KEY=VALUE",
+                   help="a template parameter [m or -], e.g. length=0.5, ease=0.02, sleeve_length=0.5 "
+                        "(repeatable; an unknown key lists the template's parameters)")
+    g.add_argument("--resolution", default="coarse",
+                   help="template mesh resolution: coarse (25 mm edges), fine (9 mm) or an edge "
+                        "length in metres (default: %(default)s)")
+    g.add_argument("--material", default="cotton",
+                   help="material preset: cotton, denim, silk, polyester, jersey_knit, leather "
+                        "(default: %(default)s)")
+    g.add_argument("--material-param", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a material field in SI units, e.g. damping=2e-5, friction=0.3, "
+                        "thickness=0.001 (repeatable)")
+    m = p.add_argument_group("body and motion")
+    add_motion_arguments(m)
+    add_body_arguments(m)
+    m.add_argument("--no-ground", action="store_true",
+                   help="keep the motion's own height instead of standing its first frame on the floor")
+    s = p.add_argument_group("simulation")
+    s.add_argument("--substeps", type=int, default=10,
+                   help="solver substeps per frame (default: %(default)s)")
+    s.add_argument("--iterations", type=int, default=10,
+                   help="VBD iterations per substep (default: %(default)s)")
+    s.add_argument("--settle", type=float, default=1.0,
+                   help="seconds the garment settles on the body at rest (default: %(default)s)")
+    s.add_argument("--blend", type=float, default=1.0,
+                   help="seconds of the transition from rest to the motion's first pose "
+                        "(default: %(default)s)")
+    s.add_argument("--keep-prelude", action="store_true",
+                   help="keep the settle and blend frames in the outputs")
+    s.add_argument("--pin", default="waistband",
+                   help="comma-separated attachment sets pinned to the skin (waistband, shoulders, hem, "
+                        "cuffs) or 'none' (default: %(default)s)")
+    s.add_argument("--self-collision", dest="self_collision", action=argparse.BooleanOptionalAction,
+                   default=None, help="cloth self-collision on/off (default: the solver's default)")
+    s.add_argument("--solver-param", action="append", default=[], metavar="KEY=VALUE",
+                   help="a further VBD solver setting, e.g. contact_stiffness=2e5 (repeatable)")
+    s.add_argument("--gate", action="append", default=[], metavar="KEY=VALUE",
+                   help="a quality gate: max_edge_strain (default 0.35), max_inside_fraction (0.01), "
+                        "max_self_intersections (0) (repeatable)")
+    s.add_argument("--allow-failed-gates", action="store_true",
+                   help="write the outputs of a sequence that fails the quality gates (exit 0)")
+    o = p.add_argument_group("outputs")
+    o.add_argument("--out", default=None,
+                   help="USD stage to write: .usda, .usdc or .usd (default: out/GARMENT_MOTION.usda); "
+                        "the quality report goes beside it as <stem>.quality.json")
+    o.add_argument("--preview", default=None, help="preview video to write (.mp4 or .gif)")
+    o.add_argument("--sheet", default=None, help="contact sheet PNG to write (8 frames)")
+    o.add_argument("--camera", default="three_quarter", choices=("front", "side", "three_quarter"),
+                   help="preview camera, fitted once to the whole sequence (default: %(default)s)")
+    add_common_arguments(p)
+
+
+# ------------------------------------------------------------------------------- parsing
+
+
+def resolve_template(name: str) -> str:
+    """A template category from a name or alias (case, '-' and '_' ignored)."""
+    from sim.garments import TEMPLATES
+
+    key = name.strip().lower().replace("-", "_").replace(" ", "_")
+    compact = key.replace("_", "")
+    for t in TEMPLATES:
+        if key == t or compact == t.replace("_", ""):
+            return t
+    if compact in GARMENT_ALIASES:
+        return GARMENT_ALIASES[compact]
+    raise WrinklesInputError(f"--garment {name!r}: unknown garment; expected a template ("
+                             f"{', '.join(TEMPLATES)}), an alias ({', '.join(GARMENT_ALIASES)}) or a "
+                             "mesh file (.obj, .ply, .glb, .usd ...)")
+
+
+def is_garment_file(spec: str) -> bool:
+    from sim.garments.io import MESH_SUFFIXES, USD_SUFFIXES
+
+    return Path(spec).suffix.lower() in MESH_SUFFIXES + USD_SUFFIXES or os.sep in spec or "/" in spec
+
+
+def parse_resolution(spec: str) -> str | float:
+    if spec in ("coarse", "fine"):
+        return spec
+    try:
+        return float(spec)
+    except ValueError:
+        raise WrinklesInputError(f"--resolution {spec!r}: expected coarse, fine or an edge length in "
+                                 "metres") from None
+
+
+def parse_pins(spec: str) -> tuple[str, ...]:
+    names = tuple(s.strip() for s in spec.split(",") if s.strip())
+    return () if names in ((), ("none",)) else names
+
+
+def build_config(args: argparse.Namespace, device: str):
+    """The ``SimulationConfig`` of the command line (validated)."""
+    from pipelines.options import parse_numbers
+    from sim.quality import QualityGates
+    from sim.simulate import SimulationConfig
+
+    gates = parse_numbers(args.gate, "--gate")
+    if "max_self_intersections" in gates:
+        gates["max_self_intersections"] = int(gates["max_self_intersections"])
+    known = {f for f in QualityGates.__dataclass_fields__}
+    if set(gates) - known:
+        raise WrinklesInputError(f"--gate: unknown gate(s) {sorted(set(gates) - known)}; expected "
+                                 f"{', '.join(sorted(known))}")
+    return SimulationConfig(
+        fps=float(args.fps), substeps=args.substeps, iterations=args.iterations,
+        settle_seconds=args.settle, blend_seconds=args.blend, keep_prelude=args.keep_prelude,
+        pinned=parse_pins(args.pin), ground=not args.no_ground, self_contact=args.self_collision,
+        solver=parse_numbers(args.solver_param, "--solver-param"), gates=QualityGates(**gates),
+        device=device)
+
+
+def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
+    """The garment ``--garment`` names, with ``--material`` (+ overrides) and its parameters."""
+    from pipelines.options import parse_numbers
+    from sim.garments import get_material, load_garment, make_garment
+
+    material = get_material(args.material)
+    overrides = parse_numbers(args.material_param, "--material-param")
+    if overrides:
+        material = material.with_(name=f"{material.name}*", **overrides)
+    params = parse_numbers(args.garment_param, "--garment-param")
+    if is_garment_file(args.garment):
+        if params:
+            raise WrinklesInputError(f"--garment-param applies to templates, not to a garment file "
+                                     f"({args.garment})")
+        return load_garment(args.garment, material=material)
+    category = resolve_template(args.garment)
+    return make_garment(category, body, betas, resolution=parse_resolution(args.resolution),
+                        material=material, **params)
+
+
+# ------------------------------------------------------------------------------- the command
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipelines.options import check_fps, load_body_and_motion, package_versions, parse_numbers
+    from sim.device import resolve_device
+    from sim.quality import SimulationError
+    from sim.simulate import simulate
+
+    t0 = time.perf_counter()
+    check_fps(args.fps)
+    garment_label = Path(args.garment).stem if is_garment_file(args.garment) else args.garment
+    out_usd = check_output_path(args.out or f"out/{garment_label}_{Path(args.motion).stem}.usda",
+                                USD_SUFFIXES, "--out")
+    out_json = out_usd.with_name(out_usd.stem + ".quality.json")
+    out_preview = check_output_path(args.preview, PREVIEW_SUFFIXES, "--preview") if args.preview else None
+    out_sheet = check_output_path(args.sheet, (".png",), "--sheet") if args.sheet else None
+    if not is_garment_file(args.garment):
+        resolve_template(args.garment)  # fail fast, before loading anything
+    parse_resolution(args.resolution)
+    device = resolve_device(args.device)
+    config = build_config(args, device)
+
+    bm = load_body_and_motion(args)
+    garment = load_garment_arg(args, bm.body, bm.betas)
+
+    total = config.solver_steps(bm.motion.num_frames)
+    try:
+        with progress_bar(total, f"simulating {garment.name}", quiet=args.quiet) as advance:
+            result = simulate(garment, bm.body, bm.motion, betas=bm.betas, config=config, seed=args.seed,
+                              progress=advance)
+    except SimulationError as e:
+        print(f"wrinkles simulate: {e}", file=sys.stderr)
+        return 1
+    seq, quality = result.sequence, result.quality
+    if result.failed_gates and not args.allow_failed_gates:
+        print(f"wrinkles simulate: quality gates failed: {'; '.join(result.failed_gates)} "
+              "(nothing written; --allow-failed-gates writes it anyway)", file=sys.stderr)
+        return 1
+
+    report = {
+        "passed": result.passed,
+        "failed_gates": list(result.failed_gates),
+        "gates": config.to_dict()["gates"],
+        "quality": quality.to_json(),
+        "config": config.to_dict(),
+        "seed": args.seed,
+    }
+    metadata = {
+        "command": "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+        **report,
+        "provenance": {**seq.provenance, "versions": package_versions("usd-core")},
+        "motion_params": bm.params,
+        "garment_params": parse_numbers(args.garment_param, "--garment-param"),
+        "material": dataclasses.asdict(garment.material),
+    }
+    metadata = json.loads(json.dumps(metadata))
+    with OutputSet() as outputs:
+        write_sequence_usd(outputs.temp(out_usd), seq, metadata, quiet=args.quiet)
+        outputs_json = outputs.temp(out_json)
+        outputs_json.write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
+        if out_preview or out_sheet:
+            from pipelines.preview import write_contact_sheet, write_video
+
+            meshes = preview_meshes(seq)
+            if out_preview:
+                with progress_bar(seq.num_frames, "preview", quiet=args.quiet) as advance:
+                    write_video(meshes, outputs.temp(out_preview), fps=seq.fps, camera=args.camera,
+                                progress=advance)
+            if out_sheet:
+                write_contact_sheet(meshes, outputs.temp(out_sheet), fps=seq.fps, camera=args.camera)
+    if not args.quiet:
+        inside = 100.0 * float(quality.inside_fraction.max())
+        print(f"{garment.name} ({garment.num_vertices} vertices, {garment.material.name}) on "
+              f"{bm.motion.name}: {seq.num_frames} frames at {seq.fps:g} fps, {device}, "
+              f"{time.perf_counter() - t0:.1f} s")
+        print(f"  edge strain max {quality.max_edge_strain:.3f} mean {quality.mean_edge_strain:.4f}, "
+              f"inside the body max {inside:.2f}%, self-intersections max "
+              f"{int(quality.self_intersections.max())}: "
+              + ("gates passed" if result.passed else "GATES FAILED: " + "; ".join(result.failed_gates)))
+        for p in (out_usd, out_json, out_preview, out_sheet):
+            if p:
+                print(f"  wrote {p}")
+    return 0
+
+
+def write_sequence_usd(path: Path, seq, metadata: dict, *, quiet: bool) -> None:
+    """Body and garment (UVs, per-frame normals) in one stage."""
+    from pipelines.preview import vertex_normals
+    from usd_io import GarmentTrack, write_stage
+
+    g = seq.garment
+    normals = np.stack([vertex_normals(v, g.faces) for v in seq.vertices])
+    track = GarmentTrack(name=g.name, vertices=seq.vertices, faces=g.faces, uvs=g.uvs, uv_faces=g.uv_faces,
+                         normals=normals)
+    with progress_bar(seq.num_frames, "writing USD", quiet=quiet) as advance:
+        write_stage(path, body=seq.body, fps=seq.fps, garments=[track], body_name="Body", metadata=metadata,
+                    progress=advance)
+
+
+def preview_meshes(seq) -> list:
+    """Body in clay, the garment in blue over it (lifted ``PREVIEW_CLOTH_LIFT`` along its normals)."""
+    from pipelines.preview import PreviewMesh, frames_to_preview_meshes, vertex_normals
+
+    g = seq.garment
+    lifted = np.stack([v + PREVIEW_CLOTH_LIFT * vertex_normals(v, g.faces) for v in seq.vertices])
+    return [*frames_to_preview_meshes(seq.body),
+            PreviewMesh(name=g.name, vertices=lifted, faces=g.faces, color=CLOTH_PREVIEW_COLOR)]

@@ -1,0 +1,557 @@
+"""The sequence driver: dress a garment on a body, settle it, blend the body in from rest, play
+the motion, and return a ``GarmentSequence`` with its quality report (issue 3, "Dressing" and
+"Quality gates").
+
+Timeline of one run at ``fps`` (one solver step of ``1/fps`` per frame, ``substeps`` inside)::
+
+    frame 0            the garment placed on the body in rest pose (``sim.dressing``)
+    settle_seconds     body static at rest; garment falls onto it and comes to rest
+    blend_seconds      body slerped from rest into the motion's first pose (``blend_from_rest``)
+    motion             the motion, frame by frame
+
+The settle and blend frames are the *prelude*; by default they are dropped, so a sequence
+starts at the motion's first frame with the garment at rest and collision-free
+(``SimulationConfig.keep_prelude`` keeps them). Attachment sets named in
+``SimulationConfig.pinned`` follow the skin (``sim.dressing.AttachmentPins``); the rest is
+free. Every frame is checked for NaN and explosion (``SimulationError`` naming the frame and
+the cause); every sequence gets a ``QualityReport`` judged against ``SimulationConfig.gates``.
+
+Several garments / sequences run batched in one ``ClothModel`` (``simulate_batch``): one
+launch advances all of them; instances never interact. The body of each sequence is uploaded
+to the device once; per frame the host copies two frames device-to-device into the collider,
+launches the step (replayed from a CUDA graph on CUDA, plain launches on CPU), and reads the
+positions back for the checks and the output. Nothing runs on the host per substep.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from sim.errors import WrinklesInputError
+from sim.garments.types import Garment
+from sim.quality import (
+    QualityGates,
+    QualityReport,
+    SimulationError,
+    check_frame,
+    evaluate_sequence,
+    unique_edges,
+)
+from sim.types import BodyFrames, GarmentSequence, Motion
+
+DEFAULT_PINNED: tuple[str, ...] = ("waistband",)
+"""Attachment sets pinned to the body by default: an elastic waistband grips the waist. Tops
+hang on the shoulders by contact and friction: pinning their shoulder line to the skin drags
+it with the deltoid, whose skin stretches and folds as the arm moves (edge strain up to 0.9 on
+the walk's T-pose-to-arms-down ramp against 0.6 free). Hems and cuffs stay free."""
+
+ProgressFn = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """Settings of a simulation run (saved with every output; ``from_dict`` refuses unknown keys).
+
+    Attributes:
+        fps: output frame rate [1/s]; the solver takes one step of ``1/fps`` per frame and the
+            motion is resampled to it.
+        substeps: implicit-Euler substeps per frame.
+        iterations: VBD Gauss-Seidel sweeps per substep.
+        settle_seconds: time [s] the garment settles on the static rest body before the body
+            moves.
+        blend_seconds: time [s] of the eased transition from rest into the motion's first pose.
+        settle_relax: zero the garment's velocities after every settle frame (kinetic damping:
+            the settle converges to static equilibrium instead of swinging).
+        keep_prelude: keep the settle and blend frames in the output (default: the sequence
+            starts at the motion's first frame).
+        pinned: attachment sets pinned to the body (names a garment does not define are
+            skipped; an imported garment has none).
+        ground: stand the body on the floor (y = 0) at the motion's first frame.
+        self_contact: cloth self-contact on/off in the solver; None keeps the solver's default.
+        solver: further ``VBDConfig`` fields by name (``contact_stiffness`` [N/m] ...).
+        gates: quality thresholds a sequence must meet.
+        max_speed: explosion test: a garment vertex faster than this over one frame [m/s].
+        max_stretch: explosion test: an edge longer than this many times its rest length [-].
+        max_distance: explosion test: a garment vertex farther than this from the body's root
+            joint [m].
+        device: Warp device ("auto": cuda when present, else cpu).
+    """
+
+    fps: float = 30.0
+    substeps: int = 10
+    iterations: int = 10
+    settle_seconds: float = 1.0
+    blend_seconds: float = 1.0
+    settle_relax: bool = True
+    keep_prelude: bool = False
+    pinned: tuple[str, ...] = DEFAULT_PINNED
+    ground: bool = True
+    self_contact: bool | None = None
+    solver: dict = field(default_factory=dict)
+    gates: QualityGates = field(default_factory=QualityGates)
+    max_speed: float = 50.0
+    max_stretch: float = 3.0
+    max_distance: float = 3.0
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pinned", tuple(str(p) for p in self.pinned))
+        object.__setattr__(self, "solver", dict(self.solver))
+        if isinstance(self.gates, dict):
+            object.__setattr__(self, "gates", _from_fields(QualityGates, self.gates, "gates"))
+
+        def bad(name: str, rule: str) -> WrinklesInputError:
+            return WrinklesInputError(f"simulation config: {name} must be {rule}, "
+                                      f"got {getattr(self, name)!r}")
+
+        for name in ("fps", "max_speed", "max_stretch", "max_distance"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise bad(name, "a positive number")
+        for name in ("substeps", "iterations"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+                raise bad(name, "an integer >= 1")
+        for name in ("settle_seconds", "blend_seconds"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
+                raise bad(name, "a number of seconds >= 0")
+        if self.max_stretch <= 1.0:
+            raise bad("max_stretch", "> 1")
+        self.vbd_config()  # validates solver / self_contact
+
+    @property
+    def settle_frames(self) -> int:
+        """Frames of the settle phase (as ``blend_from_rest`` rounds its ``hold``)."""
+        return int(round(self.settle_seconds * self.fps))
+
+    @property
+    def blend_frames(self) -> int:
+        """Frames of the blend from rest (as ``blend_from_rest`` rounds them)."""
+        return int(round(self.blend_seconds * self.fps))
+
+    def solver_steps(self, motion_frames: int) -> int:
+        """Solver steps (one per frame) of a run over a motion of ``motion_frames`` frames."""
+        return self.settle_frames + self.blend_frames + int(motion_frames) - 1
+
+    # --- solver settings -----------------------------------------------------------------
+    def vbd_config(self):
+        """The ``VBDConfig`` of these settings (``substeps``, ``iterations``, ``self_contact``
+        and ``solver`` overrides).
+
+        Raises:
+            WrinklesInputError: an unknown solver field, or self-contact requested from a
+                solver that has no ``self_contact`` option.
+        """
+        from sim.cloth import VBDConfig
+
+        allowed = {f.name for f in dataclasses.fields(VBDConfig)}
+        kw: dict[str, Any] = {"substeps": self.substeps, "iterations": self.iterations}
+        unknown = sorted(set(self.solver) - allowed)
+        if unknown:
+            raise WrinklesInputError(f"simulation config: unknown solver option(s) {unknown}; "
+                                     f"expected {', '.join(sorted(allowed))}")
+        kw.update(self.solver)
+        if self.self_contact is not None:
+            if "self_contact" in allowed:
+                kw["self_contact"] = bool(self.self_contact)
+            elif self.self_contact:
+                raise WrinklesInputError("self-contact was requested but this build's VBD solver has no "
+                                         "'self_contact' option yet")
+        try:
+            return VBDConfig(**kw)
+        except (TypeError, ValueError) as e:
+            raise WrinklesInputError(f"simulation config: {e}") from None
+
+    # --- (de)serialisation ---------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """JSON-ready dict (``from_dict`` inverts it)."""
+        d = dataclasses.asdict(self)
+        d["pinned"] = list(self.pinned)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SimulationConfig:
+        """Build from a dict; unknown keys are an error (they list the known ones)."""
+        d = dict(d)
+        if "pinned" in d:
+            d["pinned"] = tuple(d["pinned"])
+        return _from_fields(cls, d, "simulation config")
+
+
+def _from_fields(cls, d: dict, what: str):
+    allowed = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(d) - set(allowed))
+    if unknown:
+        raise WrinklesInputError(f"{what}: unknown key(s) {unknown}; expected {', '.join(allowed)}")
+    return cls(**d)
+
+
+@dataclass(frozen=True)
+class SimulationJob:
+    """One sequence to simulate.
+
+    Attributes:
+        garment: the garment, at rest around ``body``'s rest mesh with ``betas``.
+        body: a ``sim.bodies.BodyModel``.
+        motion: the motion (resampled to the config's fps when it differs).
+        betas: body shape (B,); None: the motion's own betas, else the mean shape.
+        name: label used in error messages (default: garment name and motion name).
+    """
+
+    garment: Garment
+    body: Any
+    motion: Motion
+    betas: np.ndarray | None = None
+    name: str = ""
+
+    @property
+    def label(self) -> str:
+        return self.name or f"{self.garment.name}/{self.motion.name}"
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """A simulated sequence with its quality report.
+
+    Attributes:
+        sequence: the garment sequence (provenance holds the resolved config).
+        quality: quality statistics of every output frame.
+        failed_gates: human-readable reasons the sequence fails ``config.gates`` (empty: passes).
+    """
+
+    sequence: GarmentSequence
+    quality: QualityReport
+    failed_gates: tuple[str, ...]
+
+    @property
+    def passed(self) -> bool:
+        return not self.failed_gates
+
+
+def resolve_betas(body, motion: Motion, betas: np.ndarray | None) -> np.ndarray:
+    """The shape a run uses: ``betas`` if given, else the motion's own (AMASS files carry the
+    subject's), else the mean shape; zero-padded / cut to the body's ``num_betas``, float32 (B,)."""
+    b = betas if betas is not None else motion.betas
+    if b is None:
+        return body.full_betas(None)
+    b = np.asarray(b, np.float32).reshape(-1)
+    if betas is None and b.size > body.num_betas:  # a file's betas beyond the model's basis
+        b = b[: body.num_betas]
+    return body.full_betas(b)
+
+
+def package_versions() -> dict[str, str]:
+    """Installed versions of the packages a result depends on."""
+    import importlib.metadata as md
+
+    out = {}
+    for pkg in ("wrinkles", "warp-lang", "numpy"):
+        try:
+            out[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            pass
+    return out
+
+
+# ------------------------------------------------------------------------------- the driver
+
+
+@dataclass
+class _Track:
+    """Host-side bookkeeping of one job."""
+
+    job: SimulationJob
+    motion: Motion  # the input motion at the config's fps
+    timeline: Motion  # prelude + motion
+    frames: BodyFrames  # the body over the timeline (grounded)
+    betas: np.ndarray
+    n_settle: int
+    n_blend: int
+    first_out: int  # timeline index of output frame 0
+    placement: np.ndarray  # (3,) garment translation from its rest mesh
+    ground_dy: float
+    pinned: np.ndarray  # garment-local pinned vertex ids
+    span: slice = field(default_factory=lambda: slice(0, 0))  # particle range in the model
+    out: np.ndarray | None = None  # (T_out, V, 3)
+    collider: Any = None
+    body_points: Any = None  # Warp (T, V_body) body positions on the device
+
+    @property
+    def length(self) -> int:
+        return self.frames.num_frames
+
+
+def _prepare(job: SimulationJob, cfg: SimulationConfig, device: str, cache: dict) -> _Track:
+    from sim.bodies.placement import floor_offset, translate_frames
+    from sim.dressing import attachment_vertices, place_garment
+    from sim.motions.blend import blend_from_rest
+    from sim.motions.resample import resample_motion
+
+    motion = job.motion
+    if abs(float(motion.fps) - float(cfg.fps)) > 1e-9:
+        motion = resample_motion(motion, cfg.fps)
+    betas = resolve_betas(job.body, motion, job.betas)
+    timeline, n_prelude = blend_from_rest(motion, cfg.blend_seconds, hold=cfg.settle_seconds)
+    n_settle = cfg.settle_frames
+    key = _body_key(job, betas)
+    if key not in cache:  # garments sharing a body, shape and motion share its skinning
+        frames = job.body.pose(betas, timeline.poses, timeline.trans, device=device)
+        dy = floor_offset(frames, frame=n_prelude) if cfg.ground else 0.0
+        if dy:
+            frames = translate_frames(frames, np.array([0.0, dy, 0.0]))
+        cache[key] = (frames, dy)
+    frames, dy = cache[key]
+    # timeline frame 0 is the rest pose at the motion's first root translation (pose() of zero
+    # rotations is rest_mesh + trans), so the garment built on the rest mesh moves by the same
+    placement = timeline.trans[0].astype(np.float64) + np.array([0.0, dy, 0.0])
+    x0 = place_garment(job.garment.rest_vertices, placement)
+    pinned = attachment_vertices(job.garment.attachments, cfg.pinned)
+    tr = _Track(job=job, motion=motion, timeline=timeline, frames=frames, betas=betas, n_settle=n_settle,
+                n_blend=n_prelude - n_settle, first_out=0 if cfg.keep_prelude else n_prelude,
+                placement=placement, ground_dy=float(dy), pinned=pinned)
+    tr.out = np.empty((tr.length - tr.first_out, job.garment.num_vertices, 3), np.float32)
+    if tr.first_out == 0:
+        tr.out[0] = x0
+    return tr
+
+
+def _body_key(job: SimulationJob, betas: np.ndarray) -> tuple:
+    return (id(job.body), id(job.motion), betas.tobytes())
+
+
+class _FrameChecker:
+    """Per-frame NaN / explosion tests of one garment (host, on the frame's positions)."""
+
+    def __init__(self, garment: Garment, cfg: SimulationConfig):
+        self.edges = unique_edges(garment.faces)
+        rest = garment.rest_vertices
+        self.rest_len = np.linalg.norm(rest[self.edges[:, 1]] - rest[self.edges[:, 0]], axis=1)
+        self.mean_edge = float(self.rest_len.mean())
+        self.cfg = cfg
+
+    def __call__(self, x: np.ndarray, x_prev: np.ndarray, root: np.ndarray, frame: int, phase: str) -> None:
+        cfg = self.cfg
+        try:
+            check_frame(x, frame, rest_edge_length=self.mean_edge, bound=1.0e4)
+        except SimulationError as e:
+            raise SimulationError(frame, phase + e.cause) from None
+        dist = np.linalg.norm(x - root, axis=1)
+        if dist.max() > cfg.max_distance:
+            i = int(np.argmax(dist))
+            raise SimulationError(frame, f"{phase}explosion: vertex {i} is {dist[i]:.2f} m from the body's "
+                                         f"root joint (limit {cfg.max_distance:g} m)")
+        speed = np.linalg.norm(x - x_prev, axis=1) * cfg.fps
+        if speed.max() > cfg.max_speed:
+            i = int(np.argmax(speed))
+            raise SimulationError(frame, f"{phase}explosion: vertex {i} moved at {speed[i]:.1f} m/s "
+                                         f"(limit {cfg.max_speed:g} m/s)")
+        length = np.linalg.norm(x[self.edges[:, 1]] - x[self.edges[:, 0]], axis=1)
+        ratio = length / self.rest_len
+        if ratio.max() > cfg.max_stretch:
+            e = int(np.argmax(ratio))
+            a, b = (int(v) for v in self.edges[e])
+            raise SimulationError(frame, f"{phase}explosion: edge {a}-{b} stretched to {ratio[e]:.1f}x its "
+                                         f"rest length (limit {cfg.max_stretch:g}x)")
+
+
+class _BatchScreen:
+    """The ``_FrameChecker`` tests vectorised over every instance of a batch at once; the
+    per-garment checker runs only on an instance the screen flags, to word the error."""
+
+    def __init__(self, tracks: list[_Track], checkers: list[_FrameChecker], cfg: SimulationConfig):
+        self.cfg = cfg
+        self.count = len(tracks)
+        self.inst = np.concatenate([np.full(tr.span.stop - tr.span.start, k) for k, tr in enumerate(tracks)])
+        self.edges = np.concatenate([c.edges + tr.span.start for c, tr in zip(checkers, tracks, strict=True)])
+        self.edge_inst = self.inst[self.edges[:, 0]]
+        self.rest_len = np.concatenate([c.rest_len for c in checkers])
+
+    def __call__(self, x: np.ndarray, x_prev: np.ndarray, roots: np.ndarray) -> np.ndarray:
+        """Instances (bool (I,)) with a non-finite, too distant, too fast vertex or a too long edge."""
+        cfg = self.cfg
+        with np.errstate(invalid="ignore", over="ignore"):
+            bad = ~np.isfinite(x).all(axis=1)
+            bad |= ~(np.linalg.norm(x - roots[self.inst], axis=1) <= cfg.max_distance)
+            bad |= ~(np.linalg.norm(x - x_prev, axis=1) * cfg.fps <= cfg.max_speed)
+            ratio = np.linalg.norm(x[self.edges[:, 1]] - x[self.edges[:, 0]], axis=1) / self.rest_len
+            bad_edge = ~(ratio <= cfg.max_stretch)
+        flags = np.zeros(self.count, bool)
+        flags[self.inst[bad]] = True
+        flags[self.edge_inst[bad_edge]] = True
+        return flags
+
+
+def simulate(garment: Garment, body, motion: Motion, *, betas: np.ndarray | None = None,
+             config: SimulationConfig | None = None, solver=None, seed: int = 0,
+             progress: ProgressFn | None = None) -> SimulationResult:
+    """Dress ``garment`` on ``body``, play ``motion``, and judge the result.
+
+    Args:
+        garment: the garment at rest around the body's rest mesh (shape ``betas``).
+        body: a ``sim.bodies.BodyModel``.
+        motion: the motion.
+        betas: body shape (B,); None: the motion's own, else the mean shape.
+        config: settings (default ``SimulationConfig()``).
+        solver: a ``VBDConfig`` used instead of ``config.vbd_config()``.
+        seed: recorded in the provenance (the simulation itself is deterministic).
+        progress: ``progress(frames_done, frames_total)`` over solver frames.
+
+    Returns:
+        The sequence (vertices (T, V, 3) [m], T = the motion's frames, or prelude + motion
+        with ``keep_prelude``) and its quality report.
+
+    Raises:
+        SimulationError: NaN or explosion; names the output frame (negative inside a dropped
+            prelude) and the cause.
+        WrinklesInputError: bad config.
+    """
+    job = SimulationJob(garment, body, motion, betas)
+    return simulate_batch([job], config=config, solver=solver, seed=seed, progress=progress)[0]
+
+
+def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | None = None, solver=None,
+                   seed: int = 0, progress: ProgressFn | None = None) -> list[SimulationResult]:
+    """Simulate several sequences in one batched cloth model (see ``simulate``).
+
+    Sequences may differ in garment, body, shape and motion length; a shorter one holds its
+    body's last frame until the longest ends (its output stops at its own end). Jobs with the
+    same body model, motion object and betas share one body collider.
+
+    Raises:
+        SimulationError: the first sequence that blows up, named in the cause.
+    """
+    from sim.cloth import BodyCollider, ClothModelBuilder, SolverVBD
+    from sim.device import resolve_device, warp
+    from sim.dressing import AttachmentPins, bind_to_surface, place_garment
+
+    if not jobs:
+        raise ValueError("simulate_batch: no jobs")
+    wp = warp()
+    cfg = config or SimulationConfig()
+    vbd = solver if solver is not None else cfg.vbd_config()
+    device = resolve_device(cfg.device)
+    skinned: dict = {}
+    tracks = [_prepare(j, cfg, device, skinned) for j in jobs]
+    n_prelude = tracks[0].n_settle + tracks[0].n_blend
+
+    builder = ClothModelBuilder()
+    bindings = []
+    for tr in tracks:
+        g = tr.job.garment
+        x0 = place_garment(g.rest_vertices, tr.placement)
+        builder.add_cloth(x0, g.faces, g.material, pinned=tr.pinned, rest_vertices=g.rest_vertices)
+        try:
+            bindings.append(bind_to_surface(x0, tr.frames.vertices[0], tr.job.body.faces, vertices=tr.pinned,
+                                            device=device))
+        except ValueError as e:
+            raise WrinklesInputError(f"{tr.job.label}: {e}") from None
+    model = builder.finalize(device)
+    control = model.control()
+    colliders: dict[tuple, tuple[Any, Any, int]] = {}
+    pins = []
+    for k, (tr, binding) in enumerate(zip(tracks, bindings, strict=True)):
+        tr.span = model.instance_slice(k)
+        key = _body_key(tr.job, tr.betas)
+        if key not in colliders:
+            c = BodyCollider(tr.frames.vertices[0], tr.job.body.faces, device=device)
+            seq = wp.array(np.ascontiguousarray(tr.frames.vertices), dtype=wp.vec3, device=device)
+            colliders[key] = (c, seq, tr.length)
+        tr.collider, tr.body_points, _ = colliders[key]
+        control.set_body(k, tr.collider)
+        pins.append(AttachmentPins(binding, tr.span.start, tr.collider.points_end, device=device))
+    solver_vbd = SolverVBD(model, vbd)
+    state = model.state()
+    dt = 1.0 / cfg.fps
+    checkers = [_FrameChecker(tr.job.garment, cfg) for tr in tracks]
+    screen = _BatchScreen(tracks, checkers, cfg)
+
+    def step() -> None:
+        for p in pins:
+            p.launch(control.pin_targets)
+        solver_vbd.step(state, state, control, dt)
+
+    graph = None
+    use_graph = wp.get_device(device).is_cuda
+    total = max(tr.length for tr in tracks) - 1
+    x_prev = state.positions.numpy().copy()  # on CPU .numpy() is a view of the live buffer
+    for t in range(total):
+        for c, seq, length in colliders.values():
+            c.set_frame(seq[min(t, length - 1)], seq[min(t + 1, length - 1)])
+        if use_graph and graph is None:
+            try:
+                with wp.ScopedCapture(device=device) as cap:
+                    step()
+                graph = cap.graph
+            except Exception:  # capture unsupported here (driver, mempool): plain launches
+                use_graph = False
+        if graph is not None:
+            wp.capture_launch(graph)
+        else:
+            step()
+        if cfg.settle_relax and t + 1 <= tracks[0].n_settle:
+            state.velocities.zero_()
+        x = state.positions.numpy().copy()
+        frame = t + 1
+        active = [tr for tr in tracks if frame < tr.length]
+        roots = np.stack([tr.frames.joints[min(frame, tr.length - 1), 0] for tr in tracks])
+        flagged = screen(x, x_prev, roots)
+        for k, (tr, check) in enumerate(zip(tracks, checkers, strict=True)):
+            if frame >= tr.length or not flagged[k]:
+                continue
+            phase = ""
+            if frame <= n_prelude:
+                phase = "while settling: " if frame <= tr.n_settle else "while blending from rest: "
+            if len(tracks) > 1:
+                phase = f"{tr.job.label}: {phase}"
+            check(x[tr.span], x_prev[tr.span], roots[k], frame - tr.first_out, phase)
+        for tr in active:
+            if frame >= tr.first_out:
+                tr.out[frame - tr.first_out] = x[tr.span]
+        x_prev = x
+        if progress is not None:
+            progress(t + 1, total)
+
+    results = []
+    for tr in tracks:
+        results.append(_finish(tr, cfg, vbd, device, seed, graph is not None))
+    return results
+
+
+def _finish(tr: _Track, cfg: SimulationConfig, vbd, device: str, seed: int, graph: bool) -> SimulationResult:
+    g = tr.job.garment
+    body = tr.job.body
+    f0 = tr.first_out
+    fr = tr.frames
+    frames = BodyFrames(vertices=fr.vertices[f0:], joints=fr.joints[f0:], transforms=fr.transforms[f0:],
+                        faces=fr.faces)
+    motion = tr.motion if f0 == tr.n_settle + tr.n_blend else replace(
+        tr.timeline, poses=tr.timeline.poses[f0:], trans=tr.timeline.trans[f0:])
+    quality = evaluate_sequence(tr.out, g.rest_vertices, g.faces, frames.vertices, body.faces, device=device)
+    provenance = {
+        "config": cfg.to_dict(),
+        "solver": dataclasses.asdict(vbd),
+        "seed": int(seed),
+        "device": device,
+        "cuda_graph": bool(graph),
+        "versions": package_versions(),
+        "garment": {"name": g.name, "category": g.category, "vertices": g.num_vertices, "faces": g.num_faces,
+                    "material": g.material.name,
+                    "pinned_sets": [n for n in cfg.pinned if n in g.attachments],
+                    "pinned_vertices": int(tr.pinned.size)},
+        "body": {"name": getattr(body, "name", "body"), "source": getattr(body, "source", ""),
+                 "betas": [float(b) for b in tr.betas]},
+        "motion": {"name": tr.motion.name, "source": tr.motion.source, "frames": tr.motion.num_frames},
+        "frames": {"output": int(tr.out.shape[0]), "settle": tr.n_settle, "blend": tr.n_blend,
+                   "prelude_kept": bool(cfg.keep_prelude), "first_output_timeline_frame": f0},
+        "ground_offset_m": tr.ground_dy,
+        "placement_m": [float(v) for v in tr.placement],
+    }
+    seq = GarmentSequence(vertices=tr.out, body=frames, garment=g, motion=motion, fps=float(cfg.fps),
+                          provenance=provenance)
+    return SimulationResult(seq, quality, tuple(quality.failures(cfg.gates)))

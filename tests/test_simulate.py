@@ -1,0 +1,312 @@
+"""Dressing and the sequence driver (sim/dressing.py, sim/simulate.py) and ``wrinkles simulate``,
+on tiny CPU configurations: coarse garments (5 cm edges, a few hundred vertices), fractions of a
+second of motion, few substeps."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pipelines.cli import main
+from sim.errors import WrinklesInputError
+from sim.quality import SimulationError
+from sim.simulate import SimulationConfig, SimulationJob, simulate, simulate_batch
+
+RES = 0.05  # template edge length [m]: ~300 (skirt) to ~450 (t-shirt) vertices
+FAST = dict(fps=30.0, substeps=4, iterations=4, settle_seconds=0.6, blend_seconds=0.2, device="cpu")
+
+
+@pytest.fixture(scope="module")
+def body():
+    from sim.bodies import load_body
+
+    return load_body()
+
+
+@pytest.fixture(scope="module")
+def skirt(body):
+    from sim.garments import make_garment
+
+    return make_garment("straight_skirt", body, resolution=RES)
+
+
+def walk(body, duration: float):
+    from sim.motions import MotionSkeleton, load_motion
+
+    return load_motion("walk", fps=30, duration=duration, skeleton=MotionSkeleton.from_body(body, None),
+                       ramp=0.2)
+
+
+@pytest.fixture(scope="module")
+def prelude_run(body, skirt):
+    """The skirt on a 0.3 s walk with the settle/blend prelude kept."""
+    cfg = SimulationConfig(**FAST, keep_prelude=True)
+    return simulate(skirt, body, walk(body, 0.3), config=cfg), cfg
+
+
+@pytest.fixture(scope="module")
+def plain_run(body, skirt):
+    return simulate(skirt, body, walk(body, 0.3), config=SimulationConfig(**FAST))
+
+
+# ------------------------------------------------------------------------------- config
+
+
+def test_config_round_trips_and_refuses_unknown_keys():
+    from sim.quality import QualityGates
+
+    cfg = SimulationConfig(fps=24.0, substeps=7, pinned=("waistband", "shoulders"),
+                           solver={"contact_margin": 0.03}, gates=QualityGates(max_edge_strain=0.5))
+    d = json.loads(json.dumps(cfg.to_dict()))
+    assert SimulationConfig.from_dict(d) == cfg
+    assert cfg.vbd_config().contact_margin == 0.03 and cfg.vbd_config().substeps == 7
+    with pytest.raises(WrinklesInputError, match="substep"):
+        SimulationConfig.from_dict({**d, "substep": 3})
+    with pytest.raises(WrinklesInputError, match="max_strain"):
+        SimulationConfig.from_dict({**d, "gates": {"max_strain": 1.0}})
+    with pytest.raises(WrinklesInputError, match="warp_speed"):
+        SimulationConfig(solver={"warp_speed": 9.0})
+    with pytest.raises(WrinklesInputError, match="substeps"):
+        SimulationConfig(substeps=0)
+    with pytest.raises(WrinklesInputError, match="blend_seconds"):
+        SimulationConfig(blend_seconds=-1.0)
+    assert SimulationConfig(fps=30, settle_seconds=0.5, blend_seconds=1.0).solver_steps(60) == 15 + 30 + 59
+
+
+def test_surface_binding_kernel_matches_numpy_and_round_trips(body, skirt, device):
+    from sim.device import warp
+    from sim.dressing import AttachmentPins, bind_to_surface
+    from sim.simulate import resolve_betas
+
+    wp = warp()
+    rest = body.rest_mesh(resolve_betas(body, walk(body, 0.1), None))
+    x = np.asarray(skirt.rest_vertices)
+    bnd = bind_to_surface(x, rest, body.faces, vertices=skirt.attachments["waistband"], device=device)
+    # at the pose it was bound in, the binding gives the points back
+    np.testing.assert_allclose(bnd.targets(rest), x[bnd.vertices], atol=1e-5)
+    # on a posed body the Warp kernel and the numpy reference agree
+    posed = body.pose(None, np.full((1, 24, 3), 0.2, np.float32), device=device).vertices[0]
+    pts = wp.array(posed, dtype=wp.vec3, device=device)
+    targets = wp.zeros(len(x), dtype=wp.vec3, device=device)
+    AttachmentPins(bnd, 0, pts, device=device).launch(targets)
+    np.testing.assert_allclose(targets.numpy()[bnd.vertices], bnd.targets(posed), atol=1e-5)
+    # the clearance to the skin is kept: same distance to the bound triangle's plane
+    assert np.all(np.abs(bnd.offset[:, 2]) < 0.05)
+
+
+# ------------------------------------------------------------------------------- dressing
+
+
+def test_dressing_starts_collision_free_at_rest(prelude_run):
+    res, cfg = prelude_run
+    seq = res.sequence
+    p = seq.provenance["frames"]
+    first = p["settle"] + p["blend"]
+    assert seq.num_frames == first + 9 and p["first_output_timeline_frame"] == 0
+    q = res.quality
+    assert q.inside_fraction[first] == 0.0
+    assert q.self_intersections[first] == 0
+    assert q.inside_fraction[: first + 1].max() == 0.0
+    # settled: the garment barely moves over the last settle frame (a free fall from rest
+    # would move it g dt^2 / 2 = 5.4 mm in one frame; the first settle frame moves it 15 mm)
+    v = seq.vertices
+    step = np.linalg.norm(v[p["settle"]] - v[p["settle"] - 1], axis=1)
+    assert step.max() < 1.5e-3, step.max()
+    # the body does not move while the garment settles
+    np.testing.assert_array_equal(seq.body.vertices[0], seq.body.vertices[p["settle"]])
+
+
+def test_pinned_waistband_follows_the_body(prelude_run, body, skirt):
+    from sim.dressing import bind_to_surface
+
+    res, _ = prelude_run
+    seq = res.sequence
+    band = skirt.attachments["waistband"]
+    assert seq.provenance["garment"]["pinned_sets"] == ["waistband"]
+    bnd = bind_to_surface(seq.vertices[0], seq.body.vertices[0], body.faces, vertices=band, device="cpu")
+    for t in range(seq.num_frames):
+        np.testing.assert_allclose(seq.vertices[t, band], bnd.targets(seq.body.vertices[t]), atol=2e-5)
+    # the walk moves the body, and the waistband with it
+    assert np.linalg.norm(seq.vertices[-1, band] - seq.vertices[0, band], axis=1).min() > 0.01
+
+
+def test_prelude_dropped_by_default_same_seed_same_result(prelude_run, plain_run, body, skirt):
+    kept, _ = prelude_run
+    seq = plain_run.sequence
+    first = seq.provenance["frames"]["settle"] + seq.provenance["frames"]["blend"]
+    assert seq.num_frames == 9 and seq.motion.num_frames == 9 and seq.body.num_frames == 9
+    np.testing.assert_array_equal(seq.vertices, kept.sequence.vertices[first:])
+    np.testing.assert_array_equal(seq.body.vertices, kept.sequence.body.vertices[first:])
+    assert plain_run.quality.inside_fraction[0] == 0.0
+    # the body stands on the floor at the motion's first frame
+    assert abs(float(seq.body.vertices[0, :, 1].min())) < 1e-5
+    again = simulate(skirt, body, walk(body, 0.3), config=SimulationConfig(**FAST))
+    np.testing.assert_array_equal(again.sequence.vertices, seq.vertices)
+    assert again.sequence.provenance["config"] == seq.provenance["config"]
+
+
+def test_batched_sequences_match_separate_runs(body, skirt, plain_run):
+    from sim.garments import make_garment
+
+    top = make_garment("tank_top", body, resolution=RES)
+    cfg = SimulationConfig(**FAST)
+    short = walk(body, 0.2)
+    jobs = [SimulationJob(skirt, body, walk(body, 0.3)), SimulationJob(top, body, short)]
+    both = simulate_batch(jobs, config=cfg)
+    assert [r.sequence.num_frames for r in both] == [9, 6]
+    np.testing.assert_array_equal(both[0].sequence.vertices, plain_run.sequence.vertices)
+    alone = simulate(top, body, short, config=cfg)
+    np.testing.assert_array_equal(both[1].sequence.vertices, alone.sequence.vertices)
+
+
+def test_driver_on_each_device(body, skirt, device):
+    """On CUDA one frame's step is captured in a CUDA graph and replayed."""
+    res = simulate(skirt, body, walk(body, 0.2), config=SimulationConfig(**{**FAST, "device": device}))
+    assert res.sequence.provenance["cuda_graph"] == (device == "cuda")
+    assert res.sequence.provenance["device"].startswith(device)
+    assert res.quality.finite and res.quality.inside_fraction[0] == 0.0
+
+
+# ------------------------------------------------------------------------------- failures
+
+
+class _NaNAtStep:
+    """A SolverVBD whose ``n``-th step leaves a NaN in particle 3."""
+
+    def __init__(self, n: int):
+        from sim.cloth import SolverVBD
+
+        outer = self
+
+        class Solver(SolverVBD):
+            calls = 0
+
+            def step(self, state_in, state_out, control, dt):
+                super().step(state_in, state_out, control, dt)
+                Solver.calls += 1
+                if Solver.calls == outer.n:
+                    x = state_out.positions.numpy()
+                    x[3] = np.nan
+                    state_out.positions.assign(x)
+
+        self.n = n
+        self.cls = Solver
+
+
+def test_nan_stops_the_run_naming_the_frame(body, skirt, monkeypatch):
+    import sim.cloth
+
+    cfg = SimulationConfig(**{**FAST, "settle_seconds": 0.1, "blend_seconds": 0.1})  # prelude: 6 frames
+    monkeypatch.setattr(sim.cloth, "SolverVBD", _NaNAtStep(8).cls)
+    with pytest.raises(SimulationError) as e:
+        simulate(skirt, body, walk(body, 0.3), config=cfg)
+    assert e.value.frame == 2  # timeline frame 8 = output frame 8 - 6
+    assert "NaN" in e.value.cause and "frame 2" in str(e.value)
+
+
+def test_explosion_in_the_prelude_is_named(body, skirt):
+    cfg = SimulationConfig(**FAST, max_speed=1e-4)  # any motion at all "explodes"
+    with pytest.raises(SimulationError) as e:
+        simulate(skirt, body, walk(body, 0.3), config=cfg)
+    assert e.value.frame < 0 and "while settling" in e.value.cause and "m/s" in e.value.cause
+
+
+# ------------------------------------------------------------------------------- CLI
+
+CLI_FAST = ["--resolution", str(RES), "--duration", "0.2", "--settle", "0.4", "--blend", "0.1",
+            "--substeps", "4", "--iterations", "4", "--param", "ramp=0.2", "--device", "cpu", "--quiet"]
+
+
+def test_simulate_help_explains_itself(capsys):
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    out = capsys.readouterr().out
+    for flag in ("--garment", "--garment-param", "--material", "--motion", "--shape", "--out", "--preview",
+                 "--self-collision", "--allow-failed-gates", "--seed", "examples:", "quality.json"):
+        assert flag in out
+
+
+def test_cli_writes_body_and_garment_with_uvs_and_quality(tmp_path):
+    from usd_io import read_stage, validate_stage
+
+    out = tmp_path / "tee_walk.usda"
+    rc = main(["simulate", "--garment", "tshirt", "--motion", "walk", "--material", "cotton",
+               "--shape", "height=0.6", "--out", str(out), "--allow-failed-gates", *CLI_FAST])
+    assert rc == 0
+    st = read_stage(out)
+    assert st.fps == 30 and st.body.points.shape[0] == 6
+    g = st.garments["t_shirt"]
+    assert g.points.shape[0] == 6 and g.uvs is not None and g.uv_faces is not None
+    assert g.uv_faces.shape == g.faces.shape and g.uvs.min() >= 0.0 and g.uvs.max() <= 1.0
+    md = st.metadata
+    assert md["quality"]["inside_fraction"][0] == 0.0 and md["quality"]["self_intersections"][0] == 0
+    assert set(md["gates"]) == {"max_edge_strain", "max_inside_fraction", "max_self_intersections"}
+    assert md["config"]["substeps"] == 4 and md["seed"] == 0
+    side = json.loads((tmp_path / "tee_walk.quality.json").read_text())
+    assert side["quality"] == md["quality"] and side["config"] == md["config"]
+    assert validate_stage(out) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["tee_walk.quality.json", "tee_walk.usda"]
+
+
+def test_cli_failed_gates_exit_1_nothing_written(tmp_path, capsys):
+    out = tmp_path / "s.usda"
+    rc = main(["simulate", "--garment", "skirt", "--out", str(out), "--gate", "max_edge_strain=1e-9",
+               "--preview", str(tmp_path / "s.gif"), *CLI_FAST])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and len(err.splitlines()) == 1, err
+    assert "max edge strain" in err and "--allow-failed-gates" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_explosion_is_one_line_nothing_written(tmp_path, capsys, monkeypatch):
+    import sim.cloth
+
+    monkeypatch.setattr(sim.cloth, "SolverVBD", _NaNAtStep(18).cls)  # prelude 12 + 3 frames: output frame 3
+    rc = main(["simulate", "--garment", "skirt", "--out", str(tmp_path / "s.usda"), *CLI_FAST])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and err == ("wrinkles simulate: simulation failed at frame 3: 1 vertices became NaN/inf "
+                               "(first: vertex 3)")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("case", ["unknown_garment", "unknown_material", "unknown_garment_param",
+                                  "bad_garment_param", "bad_suffix", "missing_garment_file", "bad_resolution",
+                                  "bad_material_param", "params_for_file"])
+def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
+    out = tmp_path / "o.usda"
+    args = ["simulate", "--out", str(out), *CLI_FAST]
+    if case == "unknown_garment":
+        args += ["--garment", "poncho"]
+        needles = ("poncho", "t_shirt")
+    elif case == "unknown_material":
+        args += ["--material", "kevlar"]
+        needles = ("kevlar", "cotton")
+    elif case == "unknown_garment_param":
+        args += ["--garment-param", "wings=2"]
+        needles = ("wings", "sleeve_length")
+    elif case == "bad_garment_param":
+        args += ["--garment-param", "length=long"]
+        needles = ("--garment-param", "length")
+    elif case == "bad_suffix":
+        args[args.index("--out") + 1] = str(tmp_path / "o.abc")
+        needles = ("o.abc", "--out")
+    elif case == "missing_garment_file":
+        args += ["--garment", str(tmp_path / "nope.obj")]
+        needles = ("nope.obj", "no such file")
+    elif case == "bad_resolution":
+        args += ["--resolution", "medium"]
+        needles = ("medium", "coarse")
+    elif case == "bad_material_param":
+        args += ["--material-param", "stiffness=3"]
+        needles = ("stiffness", "youngs_modulus")
+    else:
+        args += ["--garment", str(tmp_path / "nope.obj"), "--garment-param", "length=0.5"]
+        needles = ("--garment-param",)
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    for n in needles:
+        assert n in err, err
+    assert list(tmp_path.iterdir()) == []
