@@ -11,6 +11,7 @@ capture, and batched throughput (N independent sheets in one model).
 from __future__ import annotations
 
 import argparse
+import json
 import time
 
 import numpy as np
@@ -26,7 +27,8 @@ def sheet(n: int, size: float, y: float):
     return v, f
 
 
-def build(instances: int, n: int, device: str, substeps: int, iterations: int):
+def build(instances: int, n: int, device: str, substeps: int, iterations: int, *, self_contact: bool = False,
+          lanes: int = 16):
     from sim.cloth import BodyCollider, ClothModelBuilder, SolverVBD
     from sim.cloth.solver_vbd import VBDConfig
     from sim.garments.materials import get_material
@@ -44,7 +46,8 @@ def build(instances: int, n: int, device: str, substeps: int, iterations: int):
     control = model.control()
     for i in range(instances):
         control.set_body(i, body)
-    solver = SolverVBD(model, VBDConfig(substeps=substeps, iterations=iterations))
+    solver = SolverVBD(model, VBDConfig(substeps=substeps, iterations=iterations, self_contact=self_contact,
+                                        lanes=lanes))
     return model, solver, control, sf.shape[0]
 
 
@@ -56,7 +59,11 @@ def main() -> None:
     ap.add_argument("--substeps", type=int, default=10)
     ap.add_argument("--iterations", type=int, default=10)
     ap.add_argument("--batch", default="1,16,64,256")
+    ap.add_argument("--self-contact", action="store_true", help="cloth self-collision on")
+    ap.add_argument("--lanes", type=int, default=16, help="GPU threads per particle in the solve")
+    ap.add_argument("--tag", default="", help="suffix of the result file name")
     args = ap.parse_args()
+    opts = {"self_contact": args.self_contact, "lanes": args.lanes}
 
     from sim.device import resolve_device, warp
 
@@ -65,7 +72,7 @@ def main() -> None:
     dt = 1.0 / 30.0
     fig: dict = {}
 
-    model, solver, control, body_tris = build(1, args.n, device, args.substeps, args.iterations)
+    model, solver, control, body_tris = build(1, args.n, device, args.substeps, args.iterations, **opts)
     state = model.state()
     for _ in range(3):
         solver.step(state, state, control, dt)
@@ -96,7 +103,8 @@ def main() -> None:
 
         batch = {}
         for nb in [int(s) for s in args.batch.split(",")]:
-            model_b, solver_b, control_b, _ = build(nb, args.n, device, args.substeps, args.iterations)
+            model_b, solver_b, control_b, _ = build(nb, args.n, device, args.substeps,
+                                                    args.iterations, **opts)
             st = model_b.state()
             solver_b.step(st, st, control_b, dt)
             try:
@@ -121,11 +129,13 @@ def main() -> None:
                               "garment_frames_per_s": nb * frames / el}
         fig["batched"] = batch
 
-    write_result(f"cloth_core_{device.split(':')[0]}", {
+    print(json.dumps(fig, indent=1))
+    write_result(f"cloth_core_{device.split(':')[0]}{args.tag}", {
         "machine": machine(device),
         "sizes": {"cloth_vertices": model.particle_count, "body_triangles": body_tris,
                   "substeps": args.substeps, "iterations": args.iterations, "dt": dt,
-                  "colors": model.color_count, "self_collision": False},
+                  "colors": model.color_count, "self_collision": args.self_contact,
+                  "lanes": args.lanes},
         "figures": fig,
         "note": "sheet on a static sphere; not the t-shirt-on-body benchmark of issue 3",
     })

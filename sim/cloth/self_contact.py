@@ -128,6 +128,8 @@ def pair_force_hessian(diff: wp.vec3, rel_disp: wp.vec3, w: float, radius: float
 @wp.func
 def self_contact_force_hessian(
     i: int,
+    lane: int,
+    stride: int,
     x: wp.array(dtype=wp.vec3),
     x0: wp.array(dtype=wp.vec3),
     tri_indices: wp.array(dtype=wp.vec3i),
@@ -138,7 +140,8 @@ def self_contact_force_hessian(
     eps_u: float,
 ):
     """Sum of the self-contact forces on vertex ``i`` and their Hessian blocks: as the point
-    of its VT pairs, as a corner of its triangles' TV pairs, as an end of its edges' EE pairs."""
+    of its VT pairs, as a corner of its triangles' TV pairs, as an end of its edges' EE pairs.
+    This lane's share only: items ``lane, lane + stride, ...`` of each list."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
     r = sc.radius
@@ -147,7 +150,7 @@ def self_contact_force_hessian(
     xi = x[i]
     di = xi - x0[i]
     # i as the point of vertex-triangle pairs
-    for s in range(sc.vt_count[i]):
+    for s in range(lane, sc.vt_count[i], stride):
         t = sc.vt_tri[i * sc.vt_capacity + s]
         tri = tri_indices[t]
         a = x[tri[0]]
@@ -160,7 +163,7 @@ def self_contact_force_hessian(
         f = f + fc
         H = H + hc
     # i as a corner of triangles that vertices are close to
-    for kk in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
+    for kk in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
         t = vertex_tri_ids[kk]
         corner = vertex_tri_local[kk]
         tri = tri_indices[t]
@@ -177,7 +180,7 @@ def self_contact_force_hessian(
             f = f + fc
             H = H + hc
     # i as an end of edges close to other edges
-    for kk in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
+    for kk in range(sc.vertex_edge_offsets[i] + lane, sc.vertex_edge_offsets[i + 1], stride):
         e = sc.vertex_edge_ids[kk]
         end = sc.vertex_edge_local[kk]
         ea = sc.mesh_edges[e]

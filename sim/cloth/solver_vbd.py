@@ -48,6 +48,7 @@ class VBDConfig:
         contact_margin: distance [m] within which body contacts are detected; must exceed the
             cloth thickness plus the relative cloth/body motion of one substep.
         friction_epsilon: tangential speed [m/s] below which friction is smoothed (static).
+        lanes: GPU threads that share one particle's solve (tiled launch; 1 on CPU).
         air_damping: mass-proportional Rayleigh damping alpha [1/s] (force ``-alpha m v``): the
             linear drag of still air that lets garments come to rest; the material's damping
             [s] acts on strain and bending rates only and leaves rigid motion undamped.
@@ -70,6 +71,7 @@ class VBDConfig:
     contact_margin: float = 0.05
     friction_epsilon: float = 1.0e-2
     air_damping: float = 0.5
+    lanes: int = 16
     self_contact: bool = False
     self_contact_radius: float = 0.003
     self_contact_margin: float = 0.01
@@ -83,6 +85,8 @@ class VBDConfig:
         for name in ("substeps", "iterations"):
             if getattr(self, name) < 1:
                 raise ValueError(f"VBDConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.lanes < 1 or self.lanes > 256:
+            raise ValueError(f"VBDConfig.lanes must be in 1..256, got {self.lanes}")
         for name in ("contact_stiffness", "contact_margin", "friction_epsilon", "self_contact_radius",
                      "self_contact_margin", "self_contact_stiffness", "self_contact_speed_factor",
                      "self_contact_capacity"):
@@ -122,6 +126,8 @@ class SolverVBD:
         self._contact_body_velocity = wp.zeros(n, dtype=wp.vec3, device=d)
         self._contact_active = wp.zeros(n, dtype=wp.int32, device=d)
         self._gravity = wp.vec3(*model.gravity)
+        # lanes per particle in the solve (Warp runs tiles with one lane on the CPU)
+        self._block = self.config.lanes if wp.get_device(d).is_cuda else 1
         self._tri_strain_prev = wp.zeros(model.tri_count, dtype=wp.vec3, device=d)
         self._edge_angle_prev = wp.zeros(max(model.edge_count, 1), dtype=float, device=d)
         cfg = self.config
@@ -181,17 +187,18 @@ class SolverVBD:
             for _ in range(cfg.iterations):
                 for c in range(m.color_count):
                     start, end = m.color_offsets[c], m.color_offsets[c + 1]
-                    wp.launch(K.solve_color_kernel, dim=end - start,
-                              inputs=[m.color_vertices, start, self._x_prev, self._y, m.particle_mass,
-                                      m.particle_flags, m.particle_instance, m.tri_indices, m.tri_dm_inv,
-                                      m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping, self._tri_strain_prev,
-                                      m.edge_indices, m.edge_rest_angle, m.edge_stiffness, m.edge_damping,
-                                      self._edge_angle_prev,
-                                      m.vertex_tri_offsets, m.vertex_tri_ids, m.vertex_tri_local,
-                                      m.vertex_edge_offsets, m.vertex_edge_ids, m.vertex_edge_local,
-                                      self._contact_point, self._contact_normal, self._contact_body_velocity,
-                                      self._contact_active, m.instance_thickness, m.instance_friction,
-                                      cfg.contact_stiffness, eps_u, h, cfg.air_damping, self._sc_data],
-                              outputs=[x], device=d)
+                    wp.launch_tiled(
+                        K.solve_color_kernel, dim=[end - start], block_dim=self._block,
+                        inputs=[self._block, m.color_vertices, start, self._x_prev, self._y, m.particle_mass,
+                                m.particle_flags, m.particle_instance, m.tri_indices, m.tri_dm_inv,
+                                m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping, self._tri_strain_prev,
+                                m.edge_indices, m.edge_rest_angle, m.edge_stiffness, m.edge_damping,
+                                self._edge_angle_prev, m.vertex_tri_offsets, m.vertex_tri_ids,
+                                m.vertex_tri_local, m.vertex_edge_offsets, m.vertex_edge_ids,
+                                m.vertex_edge_local, self._contact_point, self._contact_normal,
+                                self._contact_body_velocity, self._contact_active, m.instance_thickness,
+                                m.instance_friction, cfg.contact_stiffness, eps_u, h, cfg.air_damping,
+                                self._sc_data],
+                        outputs=[x], device=d)
             wp.launch(K.velocity_kernel, dim=n, inputs=[x, self._x_prev, 1.0 / h],
                       outputs=[v, state_out.accelerations], device=d)
