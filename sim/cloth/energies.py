@@ -137,6 +137,89 @@ def stvk_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_i
 
 
 @wp.func
+def corotated_frame(f0: wp.vec3, f1: wp.vec3):
+    """Polar decomposition of the 3x2 deformation gradient ``F = [f0 f1] = R S``: returns the
+    columns of ``R`` (3x2, orthonormal) and ``tr S`` (``S = sqrt(F^T F)``, 2x2)."""
+    a = wp.dot(f0, f0)
+    b = wp.dot(f0, f1)
+    c = wp.dot(f1, f1)
+    det = wp.max(a * c - b * b, 1.0e-20)
+    sd = wp.sqrt(det)
+    tr_s = wp.sqrt(a + c + 2.0 * sd)
+    # S = (C + sqrt(det C) I) / tr S ; S^-1 = adj(S) / det S, det S = sqrt(det C)
+    s00 = (a + sd) / tr_s
+    s11 = (c + sd) / tr_s
+    s01 = b / tr_s
+    inv_det_s = 1.0 / sd
+    i00 = s11 * inv_det_s
+    i11 = s00 * inv_det_s
+    i01 = -s01 * inv_det_s
+    r0 = f0 * i00 + f1 * i01
+    r1 = f0 * i01 + f1 * i11
+    return r0, r1, tr_s
+
+
+@wp.func
+def corotated_energy(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: float, mu: float,
+                     lam: float) -> float:
+    """Co-rotated linear membrane energy [J]: ``A (mu |F - R|^2 + lam/2 (tr S - 2)^2)``."""
+    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
+    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
+    r0, r1, tr_s = corotated_frame(f0, f1)
+    d0 = f0 - r0
+    d1 = f1 - r1
+    return area * (mu * (wp.dot(d0, d0) + wp.dot(d1, d1)) + 0.5 * lam * (tr_s - 2.0) * (tr_s - 2.0))
+
+
+@wp.func
+def corotated_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22,
+                                          area: float, mu: float, lam: float, strain_prev: wp.vec3,
+                                          kd_over_h: float, local: int):
+    """Co-rotated linear membrane (``corotated_energy``) force and Hessian block with the same
+    strain-rate damping as ``stvk_damped_vertex_force_hessian``.
+
+    Unlike StVK it resists compression as stiffly as stretch (StVK's stress vanishes as a
+    triangle collapses), so compressed cloth buckles out of plane into wrinkles instead of
+    shrinking in plane. First Piola stress ``P = 2 mu (F - R) + lam (tr S - 2) R``; the Hessian
+    block is the positive semi-definite part ``A (2 mu |g|^2 T + lam (R g)(R g)^T)`` with ``T``
+    the projector onto the triangle's plane (the rotation's derivative dropped; moving one
+    vertex off the plane only rotates the triangle to first order).
+    """
+    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
+    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
+    r0, r1, tr_s = corotated_frame(f0, f1)
+    g = stvk_shape_row(dm_inv, local)
+    fg = f0 * g[0] + f1 * g[1]
+    rg = r0 * g[0] + r1 * g[1]
+    pg = 2.0 * mu * (fg - rg) + lam * (tr_s - 2.0) * rg
+    # viscous part: (k_d/h) C:(G - G_prev) as a second Piola stress, P_v g = F S_v g
+    g00 = 0.5 * (wp.dot(f0, f0) - 1.0)
+    g11 = 0.5 * (wp.dot(f1, f1) - 1.0)
+    g01 = 0.5 * wp.dot(f0, f1)
+    d00 = g00 - strain_prev[0]
+    d11 = g11 - strain_prev[1]
+    d01 = g01 - strain_prev[2]
+    dtr = d00 + d11
+    v00 = kd_over_h * (2.0 * mu * d00 + lam * dtr)
+    v11 = kd_over_h * (2.0 * mu * d11 + lam * dtr)
+    v01 = kd_over_h * (2.0 * mu * d01)
+    vg0 = v00 * g[0] + v01 * g[1]
+    vg1 = v01 * g[0] + v11 * g[1]
+    force = -area * (pg + f0 * vg0 + f1 * vg1)
+    gg = wp.dot(g, g)
+    material = (mu + lam) * wp.outer(fg, fg) + (mu * gg) * (wp.outer(f0, f0) + wp.outer(f1, f1))
+    # out-of-plane motion of one vertex only rotates the triangle to first order: no stiffness
+    nrm = wp.cross(x1 - x0, x2 - x0)
+    nl = wp.length(nrm)
+    tangent = wp.identity(n=3, dtype=float)
+    if nl > 1.0e-20:
+        nrm = nrm / nl
+        tangent = tangent - wp.outer(nrm, nrm)
+    hess = area * ((2.0 * mu * gg) * tangent + lam * wp.outer(rg, rg) + kd_over_h * material)
+    return force, hess
+
+
+@wp.func
 def dihedral_angle(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3) -> float:
     """Signed dihedral angle [rad] of the hinge ``(o0, o1, a, b)``; 0 when flat."""
     e = xb - xa
@@ -259,6 +342,27 @@ def membrane_vertex_derivatives_kernel(
     f, h = stvk_vertex_force_hessian(x[0], x[1], x[2], dm_inv, area, mu, lam, k)
     force_out[k] = f
     hessian_out[k] = h
+
+
+@wp.kernel
+def corotated_vertex_derivatives_kernel(
+    x: wp.array(dtype=wp.vec3),
+    dm_inv: wp.mat22,
+    area: float,
+    mu: float,
+    lam: float,
+    force_out: wp.array(dtype=wp.vec3),
+    hessian_out: wp.array(dtype=wp.mat33),
+    energy_out: wp.array(dtype=float),
+):
+    """Co-rotated membrane force and Hessian block of one triangle ``x[0..2]`` per vertex
+    (no damping), and its energy (tests)."""
+    k = wp.tid()
+    s = green_strain(x[0], x[1], x[2], dm_inv)
+    f, h = corotated_damped_vertex_force_hessian(x[0], x[1], x[2], dm_inv, area, mu, lam, s, 0.0, k)
+    force_out[k] = f
+    hessian_out[k] = h
+    energy_out[k] = corotated_energy(x[0], x[1], x[2], dm_inv, area, mu, lam)
 
 
 @wp.kernel

@@ -26,6 +26,7 @@ of Chen et al. 2025, "Offset Geometric Contact"):
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from sim.device import warp
@@ -55,6 +56,9 @@ class SelfContactData:
     vertex_edge_ids: wp.array(dtype=wp.int32)
     vertex_edge_local: wp.array(dtype=wp.int32)
     bound: wp.array(dtype=float)
+    rest: wp.array(dtype=wp.vec3)
+    component: wp.array(dtype=wp.int32)
+    instance_exclusion: wp.array(dtype=float)
 
 
 @wp.func
@@ -206,6 +210,12 @@ def self_contact_force_hessian(
 
 
 @wp.func
+def rest_near(sc: SelfContactData, a: int, b: int, excl: float) -> bool:
+    """Surface neighbours: same connected piece of cloth and closer than ``excl`` at rest."""
+    return sc.component[a] == sc.component[b] and wp.length(sc.rest[a] - sc.rest[b]) < excl
+
+
+@wp.func
 def apply_bound(x_new: wp.vec3, x_start: wp.vec3, bound: float) -> wp.vec3:
     """Truncate the displacement from the substep start to ``bound`` [m]."""
     dx = x_new - x_start
@@ -277,6 +287,9 @@ def detect_vertex_kernel(
             continue
         if particle_instance[tri[0]] != inst:
             continue
+        excl = sc.instance_exclusion[inst]
+        if rest_near(sc, i, tri[0], excl) or rest_near(sc, i, tri[1], excl) or rest_near(sc, i, tri[2], excl):
+            continue
         a = x[tri[0]]
         b = x[tri[1]]
         c = x[tri[2]]
@@ -325,9 +338,12 @@ def detect_triangle_kernel(
         other = tri_indices[t2]
         if particle_instance[other[0]] != inst:
             continue
+        excl = sc.instance_exclusion[inst]
         for j in range(3):
             u = other[j]
-            if vertex_owner_tri[u] == t2 and u != tri[0] and u != tri[1] and u != tri[2]:
+            far = not (rest_near(sc, u, tri[0], excl) or rest_near(sc, u, tri[1], excl)
+                       or rest_near(sc, u, tri[2], excl))
+            if vertex_owner_tri[u] == t2 and far:
                 xu = x[u]
                 w = triangle_closest_bary(xu, a, b, c)
                 d = wp.length(xu - (w[0] * a + w[1] * b + w[2] * c))
@@ -370,6 +386,10 @@ def detect_edge_kernel(
             continue
         if particle_instance[eb[0]] != inst:
             continue
+        excl = sc.instance_exclusion[inst]
+        if (rest_near(sc, ea[0], eb[0], excl) or rest_near(sc, ea[0], eb[1], excl)
+                or rest_near(sc, ea[1], eb[0], excl) or rest_near(sc, ea[1], eb[1], excl)):
+            continue
         st = wp.closest_point_edge_edge(p1, q1, x[eb[0]], x[eb[1]], 1.0e-12)
         d = st[2]
         dmin = wp.min(dmin, d)
@@ -410,12 +430,15 @@ class SelfContact:
         stiffness: penalty stiffness [N/m].
         friction: cloth-cloth Coulomb friction coefficient.
         relaxation: gamma of the bounds, < 0.5.
+        rest_exclusion: pairs of one connected piece closer than this [m] in the rest shape (at
+            least 2.5 mean edge lengths of their instance) are left to the elastic forces: they
+            are neighbours on the surface, not layers that met.
         speed_factor: the query radius is at least ``speed_factor |v| h``.
         capacity: pairs kept per vertex / triangle / edge.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
-                 relaxation: float, speed_factor: float, capacity: int):
+                 relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0):
         w = warp()
         d = model.device
         self.model = model
@@ -440,6 +463,9 @@ class SelfContact:
         sc.vertex_edge_ids = model.vertex_mesh_edge_ids
         sc.vertex_edge_local = model.vertex_mesh_edge_local
         sc.bound = w.zeros(n, dtype=float, device=d)
+        sc.rest = model.particle_rest
+        sc.component = w.array(self._components(model), dtype=w.int32, device=d)
+        sc.instance_exclusion = w.array(self._exclusions(model, rest_exclusion), dtype=float, device=d)
         self.data = sc
         self._dmin_v = w.zeros(n, dtype=float, device=d)
         self._dmin_t = w.zeros(nt, dtype=float, device=d)
@@ -451,6 +477,28 @@ class SelfContact:
         self._update_bounds(model.particle_q)
         self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
         self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
+
+    @staticmethod
+    def _components(model) -> np.ndarray:
+        """Connected-component id of every particle (separate pieces of cloth, e.g. layers)."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        e = model.mesh_edge_indices.numpy()
+        n = model.particle_count
+        adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+        return connected_components(adj, directed=False)[1].astype(np.int32)
+
+    @staticmethod
+    def _exclusions(model, rest_exclusion: float) -> np.ndarray:
+        """Per instance: max(rest_exclusion, 2.5 x mean rest edge length) [m]."""
+        rest = model.particle_rest.numpy()
+        edges = model.mesh_edge_indices.numpy()
+        length = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
+        inst = model.particle_instance.numpy()[edges[:, 0]]
+        mean = np.bincount(inst, weights=length, minlength=model.instance_count) / np.maximum(
+            np.bincount(inst, minlength=model.instance_count), 1)
+        return np.maximum(float(rest_exclusion), 2.5 * mean).astype(np.float32)
 
     def _update_bounds(self, x) -> None:
         m = self.model
@@ -498,4 +546,7 @@ def disabled_data(device) -> SelfContactData:
     sc.vertex_edge_offsets = sc.vertex_edge_ids = sc.vertex_edge_local = empty_i
     sc.mesh_edges = w.zeros(1, dtype=w.vec2i, device=device)
     sc.bound = w.zeros(1, dtype=float, device=device)
+    sc.rest = w.zeros(1, dtype=w.vec3, device=device)
+    sc.component = w.zeros(1, dtype=w.int32, device=device)
+    sc.instance_exclusion = w.zeros(1, dtype=float, device=device)
     return sc

@@ -48,6 +48,8 @@ class VBDConfig:
         contact_margin: distance [m] within which body contacts are detected; must exceed the
             cloth thickness plus the relative cloth/body motion of one substep.
         friction_epsilon: tangential speed [m/s] below which friction is smoothed (static).
+        membrane: "corotated" (co-rotated linear FEM: resists compression, so cloth buckles
+            into wrinkles) or "stvk" (Saint Venant-Kirchhoff: softens under compression).
         lanes: GPU threads that share one particle's solve (tiled launch; 1 on CPU).
         air_damping: mass-proportional Rayleigh damping alpha [1/s] (force ``-alpha m v``): the
             linear drag of still air that lets garments come to rest; the material's damping
@@ -63,6 +65,10 @@ class VBDConfig:
         self_contact_speed_factor: query radius at least this times |v| h, so fast cloth with
             space around it is not slowed by the bounds.
         self_contact_capacity: pairs stored per vertex, triangle and edge.
+        self_contact_rest_exclusion: pairs closer than this [m] in the rest shape (at least 2.5
+            mean edge lengths) are surface neighbours left to the elastic forces; without this,
+            2-ring neighbours at one edge length would cap the cloth's speed at about
+            ``relaxation x edge / h``.
     """
 
     substeps: int = 10
@@ -72,6 +78,7 @@ class VBDConfig:
     friction_epsilon: float = 1.0e-2
     air_damping: float = 0.5
     lanes: int = 16
+    membrane: str = "stvk"
     self_contact: bool = False
     self_contact_radius: float = 0.003
     self_contact_margin: float = 0.01
@@ -80,11 +87,14 @@ class VBDConfig:
     self_contact_relaxation: float = 0.45
     self_contact_speed_factor: float = 2.5
     self_contact_capacity: int = 8
+    self_contact_rest_exclusion: float = 0.025
 
     def __post_init__(self):
         for name in ("substeps", "iterations"):
             if getattr(self, name) < 1:
                 raise ValueError(f"VBDConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.membrane not in ("stvk", "corotated"):
+            raise ValueError(f"VBDConfig.membrane must be 'stvk' or 'corotated', got {self.membrane!r}")
         if self.lanes < 1 or self.lanes > 256:
             raise ValueError(f"VBDConfig.lanes must be in 1..256, got {self.lanes}")
         for name in ("contact_stiffness", "contact_margin", "friction_epsilon", "self_contact_radius",
@@ -128,6 +138,7 @@ class SolverVBD:
         self._gravity = wp.vec3(*model.gravity)
         # lanes per particle in the solve (Warp runs tiles with one lane on the CPU)
         self._block = self.config.lanes if wp.get_device(d).is_cuda else 1
+        self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
         self._tri_strain_prev = wp.zeros(model.tri_count, dtype=wp.vec3, device=d)
         self._edge_angle_prev = wp.zeros(max(model.edge_count, 1), dtype=float, device=d)
         cfg = self.config
@@ -136,7 +147,7 @@ class SolverVBD:
                 model, radius=cfg.self_contact_radius, margin=cfg.self_contact_margin,
                 stiffness=cfg.self_contact_stiffness, friction=cfg.self_contact_friction,
                 relaxation=cfg.self_contact_relaxation, speed_factor=cfg.self_contact_speed_factor,
-                capacity=cfg.self_contact_capacity)
+                capacity=cfg.self_contact_capacity, rest_exclusion=cfg.self_contact_rest_exclusion)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
@@ -189,11 +200,11 @@ class SolverVBD:
                     start, end = m.color_offsets[c], m.color_offsets[c + 1]
                     wp.launch_tiled(
                         K.solve_color_kernel, dim=[end - start], block_dim=self._block,
-                        inputs=[self._block, m.color_vertices, start, self._x_prev, self._y, m.particle_mass,
-                                m.particle_flags, m.particle_instance, m.tri_indices, m.tri_dm_inv,
-                                m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping, self._tri_strain_prev,
-                                m.edge_indices, m.edge_rest_angle, m.edge_stiffness, m.edge_damping,
-                                self._edge_angle_prev, m.vertex_tri_offsets, m.vertex_tri_ids,
+                        inputs=[self._block, self._membrane, m.color_vertices, start, self._x_prev, self._y,
+                                m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
+                                m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
+                                self._tri_strain_prev, m.edge_indices, m.edge_rest_angle, m.edge_stiffness,
+                                m.edge_damping, self._edge_angle_prev, m.vertex_tri_offsets, m.vertex_tri_ids,
                                 m.vertex_tri_local, m.vertex_edge_offsets, m.vertex_edge_ids,
                                 m.vertex_edge_local, self._contact_point, self._contact_normal,
                                 self._contact_body_velocity, self._contact_active, m.instance_thickness,

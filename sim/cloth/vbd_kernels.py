@@ -15,6 +15,7 @@ import warp as wp
 
 from sim.cloth.energies import (
     bending_damped_vertex_force_hessian,
+    corotated_damped_vertex_force_hessian,
     dihedral_angle,
     green_strain,
     stvk_damped_vertex_force_hessian,
@@ -22,6 +23,8 @@ from sim.cloth.energies import (
 from sim.cloth.self_contact import SelfContactData, apply_bound, self_contact_force_hessian
 
 PINNED = wp.constant(1)
+MEMBRANE_STVK = wp.constant(0)
+MEMBRANE_COROTATED = wp.constant(1)
 
 
 @wp.kernel
@@ -166,6 +169,7 @@ def contact_force_hessian(
 @wp.kernel
 def solve_color_kernel(
     stride: int,
+    membrane: int,
     color_vertices: wp.array(dtype=wp.int32),
     color_start: int,
     x_prev: wp.array(dtype=wp.vec3),
@@ -223,9 +227,14 @@ def solve_color_kernel(
     for k in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
         t = vertex_tri_ids[k]
         tri = tri_indices[t]
-        fe, he = stvk_damped_vertex_force_hessian(
-            x_inout[tri[0]], x_inout[tri[1]], x_inout[tri[2]], tri_dm_inv[t], tri_area[t], tri_mu[t],
-            tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h, vertex_tri_local[k])
+        if membrane == MEMBRANE_COROTATED:
+            fe, he = corotated_damped_vertex_force_hessian(
+                x_inout[tri[0]], x_inout[tri[1]], x_inout[tri[2]], tri_dm_inv[t], tri_area[t], tri_mu[t],
+                tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h, vertex_tri_local[k])
+        else:
+            fe, he = stvk_damped_vertex_force_hessian(
+                x_inout[tri[0]], x_inout[tri[1]], x_inout[tri[2]], tri_dm_inv[t], tri_area[t], tri_mu[t],
+                tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h, vertex_tri_local[k])
         f = f + fe
         H = H + he
 
@@ -255,18 +264,24 @@ def solve_color_kernel(
     f = f + mh * (y[i] - xi) - ca * (xi - xp)
     H = H + (mh + ca) * wp.identity(n=3, dtype=float)
 
+    bounded = sc.enabled != 0
     if contact_active[i] != 0:
         inst = particle_instance[i]
+        thickness = instance_thickness[inst]
         fc, hc = contact_force_hessian(xi, xp, contact_point[i], contact_normal[i], contact_body_velocity[i],
-                                       instance_thickness[inst], k_contact, instance_friction[inst], eps_u, h)
+                                       thickness, k_contact, instance_friction[inst], eps_u, h)
         f = f + fc
         H = H + hc
+        # a particle the body is pushing is not held by the self-contact bound: where the body
+        # squeezes cloth layers together (armpits, between the legs) the body wins
+        if wp.dot(contact_normal[i], xi - contact_point[i]) < thickness + sc.radius:
+            bounded = False
 
     # the block is symmetric positive definite (inertia + PSD terms); guard tiny determinants
     x_new = xi
     if wp.abs(wp.determinant(H)) > 1.0e-20:
         x_new = xi + wp.inverse(H) * f
-    if sc.enabled != 0:
+    if bounded:
         # self-contact displacement bound (sim.cloth.self_contact): stays intersection-free
         x_new = apply_bound(x_new, xp, sc.bound[i])
     x_inout[i] = x_new
