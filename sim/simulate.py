@@ -26,6 +26,7 @@ positions back for the checks and the output. Nothing runs on the host per subst
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -223,11 +224,14 @@ class SimulationResult:
         sequence: the garment sequence (provenance holds the resolved config).
         quality: quality statistics of every output frame.
         failed_gates: human-readable reasons the sequence fails ``config.gates`` (empty: passes).
+        step_ms: wall time [ms] of each solver frame of the output (launch to device
+            synchronisation; the host copy and checks excluded), shared by a batch.
     """
 
     sequence: GarmentSequence
     quality: QualityReport
     failed_gates: tuple[str, ...]
+    step_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def passed(self) -> bool:
@@ -480,6 +484,7 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
     use_graph = wp.get_device(device).is_cuda
     total = max(tr.length for tr in tracks) - 1
     x_prev = state.positions.numpy().copy()  # on CPU .numpy() is a view of the live buffer
+    step_ms = np.zeros(total)
     for t in range(total):
         for c, seq, length in colliders.values():
             c.set_frame(seq[min(t, length - 1)], seq[min(t + 1, length - 1)])
@@ -490,10 +495,13 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
                 graph = cap.graph
             except Exception:  # capture unsupported here (driver, mempool): plain launches
                 use_graph = False
+        t_start = time.perf_counter()
         if graph is not None:
             wp.capture_launch(graph)
         else:
             step()
+        wp.synchronize_device(device)
+        step_ms[t] = 1000.0 * (time.perf_counter() - t_start)
         if cfg.settle_relax and t + 1 <= tracks[0].n_settle:
             state.velocities.zero_()
         x = state.positions.numpy().copy()
@@ -519,7 +527,9 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
 
     results = []
     for tr in tracks:
-        results.append(_finish(tr, cfg, vbd, device, seed, graph is not None))
+        res = _finish(tr, cfg, vbd, device, seed, graph is not None)
+        # frame k of the output is solver step k - 1 + first_out (the first is the captured one)
+        results.append(replace(res, step_ms=step_ms[max(tr.first_out, 1):tr.length - 1]))
     return results
 
 

@@ -1,0 +1,152 @@
+"""Issue 3 benchmark: a ~5k-vertex t-shirt on the default body, walk and run, body and self
+collision on; milliseconds per 30 fps frame, quality gates; optionally Newton's SolverVBD on
+the same scene in the same run; batched garment-frames per second.
+
+    python -m benchmarks.bench_tshirt --device cuda --newton --batch 1,16,64,256
+    python -m benchmarks.bench_tshirt --device cpu --vertices 1000 --seconds 1   (CI scale)
+
+Our side runs the full pipeline (``sim.simulate``: settle on the rest body, blend into the
+motion, CUDA graph per frame). ``ms_per_frame`` is the mean wall time of the solver frames of
+the motion (launch to device synchronisation; host copies and checks excluded). Newton starts
+from our dressed state at the motion's first frame and plays the same body frames at the same
+substeps x iterations (``benchmarks/newton_ref.py``). Quality for both: ``sim.quality``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+
+import numpy as np
+
+from benchmarks.common import machine, write_result
+
+
+def build_garment(body, vertices: int):
+    """The t-shirt template at the edge length that gives about ``vertices`` vertices."""
+    from sim.garments import make_garment
+    from sim.garments.templates import TEMPLATES
+
+    t = TEMPLATES["t_shirt"]
+    edge = t.coarse * math.sqrt(t.vertices[0] / float(vertices))
+    return make_garment("t_shirt", body, None, resolution=edge), edge
+
+
+def quality_dict(q) -> dict:
+    return {"max_edge_strain": q.max_edge_strain, "mean_edge_strain": q.mean_edge_strain,
+            "max_stretch": q.max_stretch, "max_compression": q.max_compression,
+            "inside_fraction_max": float(np.max(q.inside_fraction)),
+            "inside_fraction_mean": float(np.mean(q.inside_fraction)),
+            "self_intersections_max": int(np.max(q.self_intersections)),
+            "self_intersections_mean": float(np.mean(q.self_intersections)), "finite": bool(q.finite)}
+
+
+def run_ours(garment, body, motion, cfg, batch: int = 1) -> dict:
+    from sim.quality import SimulationError
+    from sim.simulate import SimulationJob, simulate_batch
+
+    jobs = [SimulationJob(garment, body, motion, None) for _ in range(batch)]
+    t0 = time.perf_counter()
+    try:
+        results = simulate_batch(jobs, config=cfg)
+    except SimulationError as e:
+        return {"error": str(e), "wall_s": time.perf_counter() - t0}
+    r = results[0]
+    ms = r.step_ms
+    out = {"ms_per_frame": float(ms.mean()), "ms_per_frame_median": float(np.median(ms)),
+           "frames": int(len(ms)), "garment_frames_per_s": 1000.0 * batch / float(ms.mean()),
+           "wall_s": time.perf_counter() - t0, "failed_gates": list(r.failed_gates)}
+    if batch == 1:
+        out["quality"] = quality_dict(r.quality)
+        out["_result"] = r
+    return out
+
+
+def run_newton(r, garment, body, cfg, device: str) -> dict:
+    from benchmarks.newton_ref import run_newton_vbd
+    from sim.cloth.model import as_cloth_params
+    from sim.quality import evaluate_sequence
+
+    seq = r.sequence
+    mat = as_cloth_params(garment.material)
+    scene = {
+        "garment_positions": seq.vertices[0], "garment_rest_positions": garment.rest_vertices,
+        "garment_faces": garment.faces, "pinned": np.zeros(0, np.int64),
+        "pin_targets": np.zeros((0, 0, 3), np.float32),
+        "density": mat.density, "mu": mat.mu, "lam": mat.lam, "bending": mat.bending, "damping": mat.damping,
+        "friction": mat.friction, "thickness": mat.thickness,
+        "body_faces": body.faces, "body_vertices": seq.body.vertices, "fps": cfg.fps,
+    }
+    t0 = time.perf_counter()
+    res = run_newton_vbd(scene, device=device, substeps=cfg.substeps, iterations=cfg.iterations,
+                         self_contact=True, use_graph=device.startswith("cuda"))
+    x = res["positions"]
+    q = evaluate_sequence(x, garment.rest_vertices, garment.faces, seq.body.vertices, body.faces,
+                          device=device)
+    return {"ms_per_frame": res["ms_per_frame"], "graph": res.get("graph"), "quality": quality_dict(q),
+            "newton_version": res.get("newton_version"), "notes": res.get("notes"),
+            "wall_s": time.perf_counter() - t0}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: %(default)s)")
+    ap.add_argument("--motions", default="walk,run")
+    ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s]")
+    ap.add_argument("--substeps", type=int, default=10)
+    ap.add_argument("--iterations", type=int, default=10)
+    ap.add_argument("--no-self-contact", action="store_true")
+    ap.add_argument("--solver", default="{}", help="JSON dict of extra VBDConfig fields")
+    ap.add_argument("--newton", action="store_true", help="also run Newton's SolverVBD (needs newton)")
+    ap.add_argument("--batch", default="", help="batch sizes for garment-frames/s, e.g. 1,16,64,256")
+    ap.add_argument("--tag", default="")
+    args = ap.parse_args()
+
+    from sim.bodies.default import load_default_body
+    from sim.device import resolve_device
+    from sim.motions import load_motion
+    from sim.simulate import SimulationConfig
+
+    device = resolve_device(args.device)
+    body = load_default_body()
+    garment, edge = build_garment(body, args.vertices)
+    cfg = SimulationConfig(fps=30.0, substeps=args.substeps, iterations=args.iterations,
+                           self_contact=not args.no_self_contact, solver=json.loads(args.solver),
+                           device=device)
+    fig: dict = {}
+    for name in args.motions.split(","):
+        motion = load_motion(name, fps=30.0, duration=args.seconds)
+        ours = run_ours(garment, body, motion, cfg)
+        r = ours.pop("_result", None)
+        entry = {"ours": ours}
+        print(name, "ours", json.dumps(ours, indent=1), flush=True)
+        if args.newton and r is not None:
+            try:
+                entry["newton"] = run_newton(r, garment, body, cfg, device)
+            except Exception as e:  # report, do not hide
+                entry["newton"] = {"error": f"{type(e).__name__}: {e}"}
+            print(name, "newton", json.dumps(entry["newton"], indent=1, default=str), flush=True)
+        fig[name] = entry
+    if args.batch:
+        motion = load_motion(args.motions.split(",")[0], fps=30.0, duration=args.seconds)
+        batch = {}
+        for nb in [int(s) for s in args.batch.split(",")]:
+            batch[str(nb)] = run_ours(garment, body, motion, cfg, batch=nb)
+            print("batch", nb, json.dumps(batch[str(nb)]), flush=True)
+        fig["batched"] = batch
+    write_result(f"tshirt_{device.split(':')[0]}{args.tag}", {
+        "machine": machine(device),
+        "sizes": {"garment_vertices": garment.num_vertices, "garment_faces": garment.num_faces,
+                  "edge_m": edge, "body_vertices": int(body.num_vertices) if hasattr(body, "num_vertices")
+                  else None, "fps": 30.0, "seconds": args.seconds, "substeps": args.substeps,
+                  "iterations": args.iterations, "self_contact": not args.no_self_contact},
+        "config": cfg.to_dict(),
+        "figures": fig,
+    })
+
+
+if __name__ == "__main__":
+    main()
