@@ -8,7 +8,8 @@ of Chen et al. 2025, "Offset Geometric Contact"):
   two grouped BVHs (one group per cloth instance, so batched instances never collide) over
   triangle and edge bounding boxes. For every vertex, every triangle and every edge a query
   with radius ``r = max(margin, speed_factor |v| h)`` finds the nearest non-incident
-  primitive distance ``d_min`` and records the pairs closer than the contact radius ``r_c``:
+  primitive distance ``d_min`` and records the pairs closer than ``margin`` (their energy acts
+  once they come within the contact radius ``r_c`` during the substep's iterations):
   per vertex its triangles (VT), per triangle its vertices (TV, the same pairs seen from the
   triangle; a vertex is reached through its "owner" triangle so it is visited once), per edge
   its edges (EE). Gathering from both sides makes the solve a per-vertex gather without
@@ -39,6 +40,7 @@ class SelfContactData:
     ``enabled`` 0 turns everything off (the arrays may then be empty)."""
 
     enabled: int
+    use_bounds: int
     radius: float
     stiffness: float
     friction: float
@@ -101,19 +103,31 @@ def triangle_closest_bary(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> wp.
 
 
 @wp.func
-def pair_force_hessian(diff: wp.vec3, rel_disp: wp.vec3, w: float, radius: float, k: float, mu: float,
-                       eps_u: float):
+def pair_force_hessian(diff: wp.vec3, diff0: wp.vec3, rel_disp: wp.vec3, w: float, radius: float, k: float,
+                       mu: float, eps_u: float):
     """Force on and Hessian block of a vertex taking part with signed weight ``w`` in a contact
-    pair whose closest points differ by ``diff = p_a - p_b`` (``w > 0`` on side a, ``< 0`` on
-    side b). Energy ``k/2 (radius - |diff|)^2``; friction opposes the tangential part of the
-    pair's relative displacement ``rel_disp`` over the substep (lazy IPC friction, smoothed
-    below ``eps_u``)."""
+    pair whose closest points differ by ``diff = p_a - p_b`` now and by ``diff0`` at the substep
+    start (``w > 0`` on side a, ``< 0`` on side b). Energy ``k/2 (radius - d)^2`` for ``d <
+    radius``, with ``d`` the distance signed by the side the pair started on: a pair that
+    crossed within the substep (``diff . diff0 < 0``) is pushed back, not further through.
+    Friction opposes the tangential part of the pair's relative displacement ``rel_disp`` over
+    the substep (lazy IPC friction, smoothed below ``eps_u``)."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
     d = wp.length(diff)
-    if d >= radius or d < 1.0e-9:
+    n = wp.vec3(0.0)
+    if d > 1.0e-9:
+        n = diff / d
+    else:
+        l0 = wp.length(diff0)
+        if l0 < 1.0e-9:
+            return f, H
+        n = diff0 / l0
+    if wp.dot(diff, diff0) < 0.0:
+        n = -n
+        d = -d
+    if d >= radius:
         return f, H
-    n = diff / d
     lam = k * (radius - d)
     f = (w * lam) * n
     H = (w * w * k) * wp.outer(n, n)
@@ -162,8 +176,8 @@ def self_contact_force_hessian(
         c = x[tri[2]]
         w = triangle_closest_bary(xi, a, b, c)
         p = w[0] * a + w[1] * b + w[2] * c
-        dp = w[0] * (a - x0[tri[0]]) + w[1] * (b - x0[tri[1]]) + w[2] * (c - x0[tri[2]])
-        fc, hc = pair_force_hessian(xi - p, di - dp, 1.0, r, k, mu, eps_u)
+        p0 = w[0] * x0[tri[0]] + w[1] * x0[tri[1]] + w[2] * x0[tri[2]]
+        fc, hc = pair_force_hessian(xi - p, x0[i] - p0, di - (p - p0), 1.0, r, k, mu, eps_u)
         f = f + fc
         H = H + hc
     # i as a corner of triangles that vertices are close to
@@ -179,8 +193,9 @@ def self_contact_force_hessian(
             xu = x[u]
             w = triangle_closest_bary(xu, a, b, c)
             p = w[0] * a + w[1] * b + w[2] * c
-            dp = w[0] * (a - x0[tri[0]]) + w[1] * (b - x0[tri[1]]) + w[2] * (c - x0[tri[2]])
-            fc, hc = pair_force_hessian(xu - p, (xu - x0[u]) - dp, -w[corner], r, k, mu, eps_u)
+            p0 = w[0] * x0[tri[0]] + w[1] * x0[tri[1]] + w[2] * x0[tri[2]]
+            fc, hc = pair_force_hessian(xu - p, x0[u] - p0, (xu - x0[u]) - (p - p0), -w[corner], r, k, mu,
+                                        eps_u)
             f = f + fc
             H = H + hc
     # i as an end of edges close to other edges
@@ -198,12 +213,12 @@ def self_contact_force_hessian(
             st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
             pa = p1 + st[0] * (q1 - p1)
             pb = p2 + st[1] * (q2 - p2)
-            da = (1.0 - st[0]) * (p1 - x0[ea[0]]) + st[0] * (q1 - x0[ea[1]])
-            db = (1.0 - st[1]) * (p2 - x0[eb[0]]) + st[1] * (q2 - x0[eb[1]])
+            pa0 = (1.0 - st[0]) * x0[ea[0]] + st[0] * x0[ea[1]]
+            pb0 = (1.0 - st[1]) * x0[eb[0]] + st[1] * x0[eb[1]]
             we = 1.0 - st[0]
             if end == 1:
                 we = st[0]
-            fc, hc = pair_force_hessian(pa - pb, da - db, we, r, k, mu, eps_u)
+            fc, hc = pair_force_hessian(pa - pb, pa0 - pb0, (pa - pa0) - (pb - pb0), we, r, k, mu, eps_u)
             f = f + fc
             H = H + hc
     return f, H
@@ -296,7 +311,7 @@ def detect_vertex_kernel(
         w = triangle_closest_bary(xi, a, b, c)
         d = wp.length(xi - (w[0] * a + w[1] * b + w[2] * c))
         dmin = wp.min(dmin, d)
-        if d < sc.radius and count < sc.vt_capacity:
+        if d < margin and count < sc.vt_capacity:
             sc.vt_tri[i * sc.vt_capacity + count] = t
             count += 1
     sc.vt_count[i] = count
@@ -348,7 +363,7 @@ def detect_triangle_kernel(
                 w = triangle_closest_bary(xu, a, b, c)
                 d = wp.length(xu - (w[0] * a + w[1] * b + w[2] * c))
                 dmin = wp.min(dmin, d)
-                if d < sc.radius and count < sc.tv_capacity:
+                if d < margin and count < sc.tv_capacity:
                     sc.tv_vertex[t * sc.tv_capacity + count] = u
                     count += 1
     sc.tv_count[t] = count
@@ -393,7 +408,7 @@ def detect_edge_kernel(
         st = wp.closest_point_edge_edge(p1, q1, x[eb[0]], x[eb[1]], 1.0e-12)
         d = st[2]
         dmin = wp.min(dmin, d)
-        if d < sc.radius and count < sc.ee_capacity:
+        if d < margin and count < sc.ee_capacity:
             sc.ee_edge[e * sc.ee_capacity + count] = e2
             count += 1
     sc.ee_count[e] = count
@@ -434,11 +449,13 @@ class SelfContact:
             least 2.5 mean edge lengths of their instance) are left to the elastic forces: they
             are neighbours on the surface, not layers that met.
         speed_factor: the query radius is at least ``speed_factor |v| h``.
+        bounds: apply the displacement bounds (intersection-free guarantee); off: penalty only.
         capacity: pairs kept per vertex / triangle / edge.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
-                 relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0):
+                 relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
+                 bounds: bool = True):
         w = warp()
         d = model.device
         self.model = model
@@ -448,6 +465,7 @@ class SelfContact:
         n, nt, ne = model.particle_count, model.tri_count, model.mesh_edge_indices.shape[0]
         sc = SelfContactData()
         sc.enabled = 1
+        sc.use_bounds = 1 if bounds else 0
         sc.radius = float(radius)
         sc.stiffness = float(stiffness)
         sc.friction = float(friction)
@@ -537,6 +555,7 @@ def disabled_data(device) -> SelfContactData:
     w = warp()
     sc = SelfContactData()
     sc.enabled = 0
+    sc.use_bounds = 0
     sc.radius = 0.0
     sc.stiffness = 0.0
     sc.friction = 0.0

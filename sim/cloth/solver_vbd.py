@@ -65,6 +65,10 @@ class VBDConfig:
         self_contact_speed_factor: query radius at least this times |v| h, so fast cloth with
             space around it is not slowed by the bounds.
         self_contact_capacity: pairs stored per vertex, triangle and edge.
+        self_contact_bounds: per-vertex displacement bounds that make the cloth provably
+            intersection-free (tested: stacked layers at 3 m/s). Off by default: the bounds are
+            absolute per substep, and on a walking body they hold back sleeves whose layers
+            touch until edges tear (t-shirt walk explodes); off, contact is penalty only.
         self_contact_rest_exclusion: pairs closer than this [m] in the rest shape (at least 2.5
             mean edge lengths) are surface neighbours left to the elastic forces; without this,
             2-ring neighbours at one edge length would cap the cloth's speed at about
@@ -86,8 +90,9 @@ class VBDConfig:
     self_contact_friction: float = 0.2
     self_contact_relaxation: float = 0.45
     self_contact_speed_factor: float = 2.5
-    self_contact_capacity: int = 8
+    self_contact_capacity: int = 16
     self_contact_rest_exclusion: float = 0.025
+    self_contact_bounds: bool = False
 
     def __post_init__(self):
         for name in ("substeps", "iterations"):
@@ -147,7 +152,8 @@ class SolverVBD:
                 model, radius=cfg.self_contact_radius, margin=cfg.self_contact_margin,
                 stiffness=cfg.self_contact_stiffness, friction=cfg.self_contact_friction,
                 relaxation=cfg.self_contact_relaxation, speed_factor=cfg.self_contact_speed_factor,
-                capacity=cfg.self_contact_capacity, rest_exclusion=cfg.self_contact_rest_exclusion)
+                capacity=cfg.self_contact_capacity, rest_exclusion=cfg.self_contact_rest_exclusion,
+                bounds=cfg.self_contact_bounds)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None

@@ -264,7 +264,12 @@ def solve_color_kernel(
     f = f + mh * (y[i] - xi) - ca * (xi - xp)
     H = H + (mh + ca) * wp.identity(n=3, dtype=float)
 
-    bounded = sc.enabled != 0
+    bounded = sc.enabled != 0 and sc.use_bounds != 0
+    # the bound limits motion relative to the body surface nearby (the skin's displacement over
+    # the substep), so layers riding on a moving limb together are not held back
+    x_ref = xp
+    if contact_active[i] != 0:
+        x_ref = xp + h * contact_body_velocity[i]
     if contact_active[i] != 0:
         inst = particle_instance[i]
         thickness = instance_thickness[inst]
@@ -283,7 +288,7 @@ def solve_color_kernel(
         x_new = xi + wp.inverse(H) * f
     if bounded:
         # self-contact displacement bound (sim.cloth.self_contact): stays intersection-free
-        x_new = apply_bound(x_new, xp, sc.bound[i])
+        x_new = apply_bound(x_new, x_ref, sc.bound[i])
     x_inout[i] = x_new
 
 
