@@ -48,7 +48,8 @@ def test_closest_point_on_triangle_matches_brute_force(device):
     wp.launch(_bary_kernel, dim=len(p), inputs=[wp.array(p, dtype=wp.vec3, device=device), wp.vec3(*a),
                                                  wp.vec3(*b), wp.vec3(*c)], outputs=[out], device=device)
     w = out.numpy().astype(np.float64)
-    assert np.all(w >= -1e-6) and np.allclose(w.sum(axis=1), 1.0, atol=1e-5)
+    assert np.all(w >= -1e-6)
+    np.testing.assert_allclose(w.sum(axis=1), 1.0, atol=1e-5)
     q = w[:, :1] * a + w[:, 1:2] * b + w[:, 2:] * c
     for i in range(len(p)):
         _, d_ref = closest_point_triangle_np(p[i].astype(np.float64), a, b, c)
@@ -176,7 +177,7 @@ def test_self_contact_forces_match_finite_differences(device):
         if np.abs(g).max() > 1e-4:
             checked += 1
             # the Hessian block is the PSD Gauss-Newton part: symmetric, >= 0
-            assert np.allclose(hs[i], hs[i].T, atol=1e-3 * np.abs(hs[i]).max())
+            np.testing.assert_allclose(hs[i], hs[i].T, atol=1e-3 * np.abs(hs[i]).max())
             assert np.linalg.eigvalsh(0.5 * (hs[i] + hs[i].T)).min() > -1e-3 * np.abs(hs[i]).max()
     assert checked >= 8
 
