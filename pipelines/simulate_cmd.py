@@ -54,11 +54,6 @@ examples:
 
 USD_SUFFIXES = (".usda", ".usdc", ".usd")
 PREVIEW_SUFFIXES = (".mp4", ".gif")
-GARMENT_ALIASES: dict[str, str] = {
-    "tshirt": "t_shirt", "tee": "t_shirt", "shirt": "t_shirt", "skirt": "straight_skirt",
-    "pants": "trousers", "jeans": "trousers", "tank": "tank_top", "longsleeve": "long_sleeve",
-}
-"""Extra names accepted by ``--garment`` (hyphens/underscores/case are ignored anyway)."""
 CLOTH_PREVIEW_COLOR: tuple[float, float, float] = (0.22, 0.38, 0.72)
 PREVIEW_CLOTH_LIFT = 0.003
 """Previews draw the garment this far out along its normals [m] so skin a fraction of a
@@ -129,15 +124,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def resolve_template(name: str) -> str:
     """A template category from a name or alias (case, '-' and '_' ignored)."""
-    from sim.garments import TEMPLATES
+    from sim.garments.templates import GARMENT_ALIASES, TEMPLATES, template_name
 
-    key = name.strip().lower().replace("-", "_").replace(" ", "_")
-    compact = key.replace("_", "")
-    for t in TEMPLATES:
-        if key == t or compact == t.replace("_", ""):
-            return t
-    if compact in GARMENT_ALIASES:
-        return GARMENT_ALIASES[compact]
+    found = template_name(name)
+    if found is not None:
+        return found
     raise WrinklesInputError(f"--garment {name!r}: unknown garment; expected a template ("
                              f"{', '.join(TEMPLATES)}), an alias ({', '.join(GARMENT_ALIASES)}) or a "
                              "mesh file (.obj, .ply, .glb, .usd ...)")

@@ -93,6 +93,29 @@ def green_strain(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22) -> wp.
 
 
 @wp.func
+def viscous_stress_g(strain: wp.vec3, strain_prev: wp.vec3, g: wp.vec2, mu: float, lam: float,
+                     kd_over_h: float) -> wp.vec2:
+    """``S_v g`` of the strain-rate damping: viscous second Piola stress
+    ``S_v = (k_d/h) C:(G - G_prev)`` (``C``: ``2 mu``, ``lam``; strains as (G00, G11, G01))."""
+    d00 = strain[0] - strain_prev[0]
+    d11 = strain[1] - strain_prev[1]
+    d01 = strain[2] - strain_prev[2]
+    dtr = d00 + d11
+    v00 = kd_over_h * (2.0 * mu * d00 + lam * dtr)
+    v11 = kd_over_h * (2.0 * mu * d11 + lam * dtr)
+    v01 = kd_over_h * (2.0 * mu * d01)
+    return wp.vec2(v00 * g[0] + v01 * g[1], v01 * g[0] + v11 * g[1])
+
+
+@wp.func
+def membrane_material_hessian(f0: wp.vec3, f1: wp.vec3, g: wp.vec2, mu: float, lam: float) -> wp.mat33:
+    """Material (stress-free) part of the StVK vertex Hessian block per unit area."""
+    fg = f0 * g[0] + f1 * g[1]
+    gg = wp.dot(g, g)
+    return (mu + lam) * wp.outer(fg, fg) + (mu * gg) * (wp.outer(f0, f0) + wp.outer(f1, f1))
+
+
+@wp.func
 def stvk_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: float,
                                      mu: float, lam: float, strain_prev: wp.vec3, kd_over_h: float,
                                      local: int):
@@ -115,23 +138,13 @@ def stvk_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_i
     s00 = 2.0 * mu * g00 + lam * tr
     s11 = 2.0 * mu * g11 + lam * tr
     s01 = 2.0 * mu * g01
-    d00 = g00 - strain_prev[0]
-    d11 = g11 - strain_prev[1]
-    d01 = g01 - strain_prev[2]
-    dtr = d00 + d11
-    v00 = kd_over_h * (2.0 * mu * d00 + lam * dtr)
-    v11 = kd_over_h * (2.0 * mu * d11 + lam * dtr)
-    v01 = kd_over_h * (2.0 * mu * d01)
     g = stvk_shape_row(dm_inv, local)
     sg0 = s00 * g[0] + s01 * g[1]
     sg1 = s01 * g[0] + s11 * g[1]
-    vg0 = v00 * g[0] + v01 * g[1]
-    vg1 = v01 * g[0] + v11 * g[1]
-    force = -area * (f0 * (sg0 + vg0) + f1 * (sg1 + vg1))
-    fg = f0 * g[0] + f1 * g[1]
+    vg = viscous_stress_g(wp.vec3(g00, g11, g01), strain_prev, g, mu, lam, kd_over_h)
+    force = -area * (f0 * (sg0 + vg[0]) + f1 * (sg1 + vg[1]))
     gsg = wp.max(g[0] * sg0 + g[1] * sg1, 0.0)
-    gg = wp.dot(g, g)
-    material = (mu + lam) * wp.outer(fg, fg) + (mu * gg) * (wp.outer(f0, f0) + wp.outer(f1, f1))
+    material = membrane_material_hessian(f0, f1, g, mu, lam)
     hess = area * (gsg * wp.identity(n=3, dtype=float) + (1.0 + kd_over_h) * material)
     return force, hess
 
@@ -193,21 +206,10 @@ def corotated_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3,
     rg = r0 * g[0] + r1 * g[1]
     pg = 2.0 * mu * (fg - rg) + lam * (tr_s - 2.0) * rg
     # viscous part: (k_d/h) C:(G - G_prev) as a second Piola stress, P_v g = F S_v g
-    g00 = 0.5 * (wp.dot(f0, f0) - 1.0)
-    g11 = 0.5 * (wp.dot(f1, f1) - 1.0)
-    g01 = 0.5 * wp.dot(f0, f1)
-    d00 = g00 - strain_prev[0]
-    d11 = g11 - strain_prev[1]
-    d01 = g01 - strain_prev[2]
-    dtr = d00 + d11
-    v00 = kd_over_h * (2.0 * mu * d00 + lam * dtr)
-    v11 = kd_over_h * (2.0 * mu * d11 + lam * dtr)
-    v01 = kd_over_h * (2.0 * mu * d01)
-    vg0 = v00 * g[0] + v01 * g[1]
-    vg1 = v01 * g[0] + v11 * g[1]
-    force = -area * (pg + f0 * vg0 + f1 * vg1)
+    vg = viscous_stress_g(green_strain(x0, x1, x2, dm_inv), strain_prev, g, mu, lam, kd_over_h)
+    force = -area * (pg + f0 * vg[0] + f1 * vg[1])
     gg = wp.dot(g, g)
-    material = (mu + lam) * wp.outer(fg, fg) + (mu * gg) * (wp.outer(f0, f0) + wp.outer(f1, f1))
+    material = membrane_material_hessian(f0, f1, g, mu, lam)
     # out-of-plane motion of one vertex only rotates the triangle to first order: no stiffness
     nrm = wp.cross(x1 - x0, x2 - x0)
     nl = wp.length(nrm)

@@ -231,6 +231,17 @@ def rest_near(sc: SelfContactData, a: int, b: int, excl: float) -> bool:
 
 
 @wp.func
+def rest_near_triangle(sc: SelfContactData, v: int, tri: wp.vec3i, excl: float) -> bool:
+    return rest_near(sc, v, tri[0], excl) or rest_near(sc, v, tri[1], excl) or rest_near(sc, v, tri[2], excl)
+
+
+@wp.func
+def point_triangle_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> float:
+    w = triangle_closest_bary(p, a, b, c)
+    return wp.length(p - (w[0] * a + w[1] * b + w[2] * c))
+
+
+@wp.func
 def apply_bound(x_new: wp.vec3, x_start: wp.vec3, bound: float) -> wp.vec3:
     """Truncate the displacement from the substep start to ``bound`` [m]."""
     dx = x_new - x_start
@@ -303,13 +314,9 @@ def detect_vertex_kernel(
         if particle_instance[tri[0]] != inst:
             continue
         excl = sc.instance_exclusion[inst]
-        if rest_near(sc, i, tri[0], excl) or rest_near(sc, i, tri[1], excl) or rest_near(sc, i, tri[2], excl):
+        if rest_near_triangle(sc, i, tri, excl):
             continue
-        a = x[tri[0]]
-        b = x[tri[1]]
-        c = x[tri[2]]
-        w = triangle_closest_bary(xi, a, b, c)
-        d = wp.length(xi - (w[0] * a + w[1] * b + w[2] * c))
+        d = point_triangle_distance(xi, x[tri[0]], x[tri[1]], x[tri[2]])
         dmin = wp.min(dmin, d)
         if d < margin and count < sc.vt_capacity:
             sc.vt_tri[i * sc.vt_capacity + count] = t
@@ -356,12 +363,8 @@ def detect_triangle_kernel(
         excl = sc.instance_exclusion[inst]
         for j in range(3):
             u = other[j]
-            far = not (rest_near(sc, u, tri[0], excl) or rest_near(sc, u, tri[1], excl)
-                       or rest_near(sc, u, tri[2], excl))
-            if vertex_owner_tri[u] == t2 and far:
-                xu = x[u]
-                w = triangle_closest_bary(xu, a, b, c)
-                d = wp.length(xu - (w[0] * a + w[1] * b + w[2] * c))
+            if vertex_owner_tri[u] == t2 and not rest_near_triangle(sc, u, tri, excl):
+                d = point_triangle_distance(x[u], a, b, c)
                 dmin = wp.min(dmin, d)
                 if d < margin and count < sc.tv_capacity:
                     sc.tv_vertex[t * sc.tv_capacity + count] = u

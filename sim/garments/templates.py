@@ -631,6 +631,23 @@ TEMPLATES: dict[str, Template] = {
                       ("shoulders", "hem"), "sleeveless strap dress flaring below the hips", 0.0235, 0.009,
                       (3117, 20614)),
 }
+
+GARMENT_ALIASES: dict[str, str] = {
+    "tshirt": "t_shirt", "tee": "t_shirt", "shirt": "t_shirt", "skirt": "straight_skirt",
+    "pants": "trousers", "jeans": "trousers", "tank": "tank_top", "longsleeve": "long_sleeve",
+}
+"""Other names of templates (hyphens, underscores, spaces and case are ignored anyway)."""
+
+
+def template_name(name: str) -> str | None:
+    """The template category a name or alias refers to (case, '-', '_' and ' ' ignored); None
+    when it names none."""
+    key = name.strip().lower().replace("-", "_").replace(" ", "_")
+    compact = key.replace("_", "")
+    for t in TEMPLATES:
+        if key == t or compact == t.replace("_", ""):
+            return t
+    return GARMENT_ALIASES.get(compact)
 """Garment categories (registry) → template."""
 
 
