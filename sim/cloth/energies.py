@@ -151,24 +151,60 @@ def stvk_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_i
 
 @wp.func
 def corotated_frame(f0: wp.vec3, f1: wp.vec3):
-    """Polar decomposition of the 3x2 deformation gradient ``F = [f0 f1] = R S``: returns the
-    columns of ``R`` (3x2, orthonormal) and ``tr S`` (``S = sqrt(F^T F)``, 2x2)."""
-    a = wp.dot(f0, f0)
-    b = wp.dot(f0, f1)
-    c = wp.dot(f1, f1)
-    det = wp.max(a * c - b * b, 1.0e-20)
-    sd = wp.sqrt(det)
-    tr_s = wp.sqrt(a + c + 2.0 * sd)
-    # S = (C + sqrt(det C) I) / tr S ; S^-1 = adj(S) / det S, det S = sqrt(det C)
-    s00 = (a + sd) / tr_s
-    s11 = (c + sd) / tr_s
-    s01 = b / tr_s
-    inv_det_s = 1.0 / sd
-    i00 = s11 * inv_det_s
-    i11 = s00 * inv_det_s
-    i01 = -s01 * inv_det_s
-    r0 = f0 * i00 + f1 * i01
-    r1 = f0 * i01 + f1 * i11
+    """Rotation of the 3x2 deformation gradient ``F = [f0 f1] = R S``: returns the columns of
+    ``R`` (3x2, orthonormal) and ``tr S = tr(R^T F)``.
+
+    Robust to degenerate triangles (collapsed to a segment or a point): ``F`` is written in an
+    orthonormal basis ``(u, w)`` of a plane containing both columns, oriented so that the 2x2
+    matrix has ``det >= 0``, and the 2x2 rotation comes from ``atan2`` (no inverse of ``S``).
+    """
+    l0 = wp.dot(f0, f0)
+    l1 = wp.dot(f1, f1)
+    ref = f0
+    other = f1
+    if l1 > l0:
+        ref = f1
+        other = f0
+    lr = wp.length(ref)
+    if lr < 1.0e-20:
+        return wp.vec3(1.0, 0.0, 0.0), wp.vec3(0.0, 1.0, 0.0), 0.0
+    u = ref / lr
+    # w: unit vector in the plane of (f0, f1), perpendicular to u, on the side of ``other``
+    perp = other - wp.dot(other, u) * u
+    pl = wp.length(perp)
+    w = wp.vec3(0.0)
+    if pl > 1.0e-9 * lr:
+        w = perp / pl
+    else:  # f0 parallel to f1: any plane through u
+        axis = wp.vec3(1.0, 0.0, 0.0)
+        if wp.abs(u[0]) > 0.9:
+            axis = wp.vec3(0.0, 1.0, 0.0)
+        w = wp.normalize(wp.cross(wp.cross(u, axis), u))
+    # 2x2 F in (u, w): columns f0, f1
+    a00 = wp.dot(u, f0)
+    a10 = wp.dot(w, f0)
+    a01 = wp.dot(u, f1)
+    a11 = wp.dot(w, f1)
+    if l1 > l0:  # u along f1, w on f0's side: swap axes so det >= 0
+        t0 = a00
+        t1 = a01
+        a00 = a10
+        a01 = a11
+        a10 = t0
+        a11 = t1
+        tmp = u
+        u = w
+        w = tmp
+    sx = a00 + a11
+    sy = a10 - a01
+    tr_s = wp.sqrt(sx * sx + sy * sy)
+    c = 1.0
+    s = 0.0
+    if tr_s > 1.0e-20:
+        c = sx / tr_s
+        s = sy / tr_s
+    r0 = c * u + s * w
+    r1 = -s * u + c * w
     return r0, r1, tr_s
 
 
@@ -194,9 +230,10 @@ def corotated_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3,
     Unlike StVK it resists compression as stiffly as stretch (StVK's stress vanishes as a
     triangle collapses), so compressed cloth buckles out of plane into wrinkles instead of
     shrinking in plane. First Piola stress ``P = 2 mu (F - R) + lam (tr S - 2) R``; the Hessian
-    block is the positive semi-definite part ``A (2 mu |g|^2 T + lam (R g)(R g)^T)`` with ``T``
-    the projector onto the triangle's plane (the rotation's derivative dropped; moving one
-    vertex off the plane only rotates the triangle to first order).
+    block is the positive semi-definite ``A (2 mu |g|^2 T + k_n n n^T + lam (R g)(R g)^T)`` with
+    ``T`` the projector onto the triangle's plane (the rotation's derivative dropped) and
+    ``k_n = max(0, g^T S2 g)`` the exact out-of-plane stiffness of a stressed triangle (second
+    Piola stress ``S2``; 0 under compression).
     """
     f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
     f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
@@ -210,14 +247,25 @@ def corotated_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3,
     force = -area * (pg + f0 * vg[0] + f1 * vg[1])
     gg = wp.dot(g, g)
     material = membrane_material_hessian(f0, f1, g, mu, lam)
-    # out-of-plane motion of one vertex only rotates the triangle to first order: no stiffness
     nrm = wp.cross(x1 - x0, x2 - x0)
     nl = wp.length(nrm)
     tangent = wp.identity(n=3, dtype=float)
+    normal_part = wp.mat33(0.0)
     if nl > 1.0e-20:
         nrm = nrm / nl
         tangent = tangent - wp.outer(nrm, nrm)
-    hess = area * ((2.0 * mu * gg) * tangent + lam * wp.outer(rg, rg) + kd_over_h * material)
+        # out of plane the triangle's own stress is the stiffness (a string under tension):
+        # F -> F + d n g^T changes C by d^2 g g^T, so d2E/dd2 = A g^T S2 g with the second Piola
+        # stress S2 = 2 mu I + (lam (tr S - 2) - 2 mu) S^-1; clamped at 0 (compressed cloth
+        # buckles: no stiffness). Without it a taut triangle's Newton step overshoots.
+        s00 = wp.dot(r0, f0)
+        s11 = wp.dot(r1, f1)
+        s01 = 0.5 * (wp.dot(r0, f1) + wp.dot(r1, f0))
+        det_s = wp.max(s00 * s11 - s01 * s01, 1.0e-4)
+        g_sinv_g = (s11 * g[0] * g[0] - 2.0 * s01 * g[0] * g[1] + s00 * g[1] * g[1]) / det_s
+        kn = 2.0 * mu * gg + (lam * (tr_s - 2.0) - 2.0 * mu) * g_sinv_g
+        normal_part = wp.max(kn, 0.0) * wp.outer(nrm, nrm)
+    hess = area * ((2.0 * mu * gg) * tangent + normal_part + lam * wp.outer(rg, rg) + kd_over_h * material)
     return force, hess
 
 

@@ -225,20 +225,29 @@ def self_contact_force_hessian(
 
 
 @wp.func
-def rest_near(sc: SelfContactData, a: int, b: int, excl: float) -> bool:
-    """Surface neighbours: same connected piece of cloth and closer than ``excl`` at rest."""
-    return sc.component[a] == sc.component[b] and wp.length(sc.rest[a] - sc.rest[b]) < excl
+def point_triangle_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> float:
+    w = triangle_closest_bary(p, a, b, c)
+    return wp.length(p - (w[0] * a + w[1] * b + w[2] * c))
 
 
 @wp.func
 def rest_near_triangle(sc: SelfContactData, v: int, tri: wp.vec3i, excl: float) -> bool:
-    return rest_near(sc, v, tri[0], excl) or rest_near(sc, v, tri[1], excl) or rest_near(sc, v, tri[2], excl)
+    """Surface neighbours: vertex ``v`` and triangle ``tri`` of one connected piece of cloth were
+    closer than ``excl`` in the rest shape (incident pairs are at distance 0)."""
+    if sc.component[v] != sc.component[tri[0]]:
+        return False
+    d = point_triangle_distance(sc.rest[v], sc.rest[tri[0]], sc.rest[tri[1]], sc.rest[tri[2]])
+    return d < excl
 
 
 @wp.func
-def point_triangle_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> float:
-    w = triangle_closest_bary(p, a, b, c)
-    return wp.length(p - (w[0] * a + w[1] * b + w[2] * c))
+def rest_near_edges(sc: SelfContactData, ea: wp.vec2i, eb: wp.vec2i, excl: float) -> bool:
+    """Surface neighbours: edges ``ea`` and ``eb`` of one connected piece were closer than
+    ``excl`` in the rest shape."""
+    if sc.component[ea[0]] != sc.component[eb[0]]:
+        return False
+    st = wp.closest_point_edge_edge(sc.rest[ea[0]], sc.rest[ea[1]], sc.rest[eb[0]], sc.rest[eb[1]], 1.0e-12)
+    return st[2] < excl
 
 
 @wp.func
@@ -405,8 +414,7 @@ def detect_edge_kernel(
         if particle_instance[eb[0]] != inst:
             continue
         excl = sc.instance_exclusion[inst]
-        if (rest_near(sc, ea[0], eb[0], excl) or rest_near(sc, ea[0], eb[1], excl)
-                or rest_near(sc, ea[1], eb[0], excl) or rest_near(sc, ea[1], eb[1], excl)):
+        if rest_near_edges(sc, ea, eb, excl):
             continue
         st = wp.closest_point_edge_edge(p1, q1, x[eb[0]], x[eb[1]], 1.0e-12)
         d = st[2]
@@ -448,9 +456,11 @@ class SelfContact:
         stiffness: penalty stiffness [N/m].
         friction: cloth-cloth Coulomb friction coefficient.
         relaxation: gamma of the bounds, < 0.5.
-        rest_exclusion: pairs of one connected piece closer than this [m] in the rest shape (at
-            least 2.5 mean edge lengths of their instance) are left to the elastic forces: they
-            are neighbours on the surface, not layers that met.
+        rest_exclusion: pairs (vertex-triangle, edge-edge) of one connected piece closer than
+            this [m] in the rest shape (at least ``radius``; incident pairs are at 0) are left to
+            the elastic forces: they are neighbours on the surface, not layers that met. Pairs
+            farther apart at rest, even a ring or two away, are in contact when a fold brings
+            them together.
         speed_factor: the query radius is at least ``speed_factor |v| h``.
         bounds: apply the displacement bounds (intersection-free guarantee); off: penalty only.
         capacity: pairs kept per vertex / triangle / edge.
@@ -486,7 +496,7 @@ class SelfContact:
         sc.bound = w.zeros(n, dtype=float, device=d)
         sc.rest = model.particle_rest
         sc.component = w.array(self._components(model), dtype=w.int32, device=d)
-        sc.instance_exclusion = w.array(self._exclusions(model, rest_exclusion), dtype=float, device=d)
+        sc.instance_exclusion = w.array(self._exclusions(model, rest_exclusion, radius), dtype=float, device=d)
         self.data = sc
         self._dmin_v = w.zeros(n, dtype=float, device=d)
         self._dmin_t = w.zeros(nt, dtype=float, device=d)
@@ -511,15 +521,10 @@ class SelfContact:
         return connected_components(adj, directed=False)[1].astype(np.int32)
 
     @staticmethod
-    def _exclusions(model, rest_exclusion: float) -> np.ndarray:
-        """Per instance: max(rest_exclusion, 2.5 x mean rest edge length) [m]."""
-        rest = model.particle_rest.numpy()
-        edges = model.mesh_edge_indices.numpy()
-        length = np.linalg.norm(rest[edges[:, 0]] - rest[edges[:, 1]], axis=1)
-        inst = model.particle_instance.numpy()[edges[:, 0]]
-        mean = np.bincount(inst, weights=length, minlength=model.instance_count) / np.maximum(
-            np.bincount(inst, minlength=model.instance_count), 1)
-        return np.maximum(float(rest_exclusion), 2.5 * mean).astype(np.float32)
+    def _exclusions(model, rest_exclusion: float, radius: float) -> np.ndarray:
+        """Per instance: max(rest_exclusion, radius) [m] (every instance the same; kept per
+        instance so batched garments could differ)."""
+        return np.full(max(model.instance_count, 1), max(float(rest_exclusion), float(radius)), np.float32)
 
     def _update_bounds(self, x) -> None:
         m = self.model

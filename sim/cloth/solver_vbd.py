@@ -48,8 +48,10 @@ class VBDConfig:
         contact_margin: distance [m] within which body contacts are detected; must exceed the
             cloth thickness plus the relative cloth/body motion of one substep.
         friction_epsilon: tangential speed [m/s] below which friction is smoothed (static).
-        membrane: "corotated" (co-rotated linear FEM: resists compression, so cloth buckles
-            into wrinkles) or "stvk" (Saint Venant-Kirchhoff: softens under compression).
+        membrane: "corotated" (default; co-rotated linear FEM: resists compression, so cloth
+            buckles into wrinkles instead of shrinking in plane) or "stvk" (Saint
+            Venant-Kirchhoff: its stress vanishes as a triangle collapses, so squeezed cloth
+            shrinks to under half its rest length).
         lanes: GPU threads that share one particle's solve (tiled launch; 1 on CPU).
         air_damping: mass-proportional Rayleigh damping alpha [1/s] (force ``-alpha m v``): the
             linear drag of still air that lets garments come to rest; the material's damping
@@ -69,10 +71,12 @@ class VBDConfig:
             intersection-free (tested: stacked layers at 3 m/s). Off by default: the bounds are
             absolute per substep, and on a walking body they hold back sleeves whose layers
             touch until edges tear (t-shirt walk explodes); off, contact is penalty only.
-        self_contact_rest_exclusion: pairs closer than this [m] in the rest shape (at least 2.5
-            mean edge lengths) are surface neighbours left to the elastic forces; without this,
-            2-ring neighbours at one edge length would cap the cloth's speed at about
-            ``relaxation x edge / h``.
+        self_contact_rest_exclusion: vertex-triangle and edge-edge pairs closer than this [m]
+            in the rest shape (at least ``self_contact_radius``: incident pairs, and panels that
+            meet at a seam) are surface neighbours left to the elastic forces. Everything else,
+            a ring or two away included, is in contact once a fold brings it together (an
+            exclusion of 2.5 edge lengths let sleeves crumple through themselves: hundreds of
+            crossings on the t-shirt walk).
     """
 
     substeps: int = 10
@@ -82,7 +86,7 @@ class VBDConfig:
     friction_epsilon: float = 1.0e-2
     air_damping: float = 0.5
     lanes: int = 16
-    membrane: str = "stvk"
+    membrane: str = "corotated"
     self_contact: bool = False
     self_contact_radius: float = 0.003
     self_contact_margin: float = 0.01
@@ -91,7 +95,7 @@ class VBDConfig:
     self_contact_relaxation: float = 0.45
     self_contact_speed_factor: float = 2.5
     self_contact_capacity: int = 16
-    self_contact_rest_exclusion: float = 0.025
+    self_contact_rest_exclusion: float = 0.0
     self_contact_bounds: bool = False
 
     def __post_init__(self):
