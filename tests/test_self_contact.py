@@ -260,3 +260,40 @@ def test_self_contact_config_is_checked():
         VBDConfig(self_contact_relaxation=0.6)
     with pytest.raises(ValueError, match="margin"):
         VBDConfig(self_contact_radius=0.02, self_contact_margin=0.01)
+
+
+def test_a_fold_of_one_sheet_is_in_contact_a_ring_away(device):
+    """A sheet folded flat onto itself (zero fold radius at column ``m``): the vertex one
+    column past the fold lies 2 mm above the column before it, two edges away on the surface.
+    It is a contact pair (the exclusion is by the pair's own rest distance, not by a few edge
+    lengths: a sleeve that crumples is two rings meeting); pairs incident at the fold, at rest
+    distance 0, are not."""
+    nx, ny, e, gap = 11, 4, 0.02, 0.002
+    v, f = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
+    b = ClothModelBuilder()
+    b.add_cloth(v.astype(np.float32), f, ClothMaterialParams())
+    m = b.finalize(device)
+    mid = 5
+    col = np.arange(len(v)) % nx
+    folded = v.copy()
+    over = col > mid
+    folded[over, 0] = (2 * mid - col[over]) * e
+    folded[over, 1] = gap
+    sc = SelfContact(m, radius=0.003, margin=0.01, stiffness=1e4, friction=0.0, relaxation=0.45,
+                     speed_factor=2.5, capacity=16)
+    x0 = wp.array(folded.astype(np.float32), dtype=wp.vec3, device=device)
+    sc.detect(x0, wp.zeros(len(v), dtype=wp.vec3, device=device), 1.0 / 300.0)
+    count = sc.data.vt_count.numpy()
+    tri = sc.data.vt_tri.numpy().reshape(len(v), 16)
+    faces = np.asarray(f)
+    for j in range(1, ny - 1):
+        i = j * nx + mid + 1  # one column past the fold, above column mid - 1
+        partners = faces[tri[i, :count[i]]]
+        assert count[i] > 0, "a vertex folded onto its own sheet two edges away must be in contact"
+        assert np.all(col[partners] <= mid)  # the layer below
+        assert not np.any(partners == i)  # never its own triangles
+    # the fold line itself: close to everything around it, but only through incident or rest-near pairs
+    for j in range(ny):
+        i = j * nx + mid
+        partners = faces[tri[i, :count[i]]]
+        assert not np.any(partners == i)

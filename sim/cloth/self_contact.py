@@ -496,7 +496,8 @@ class SelfContact:
         sc.bound = w.zeros(n, dtype=float, device=d)
         sc.rest = model.particle_rest
         sc.component = w.array(self._components(model), dtype=w.int32, device=d)
-        sc.instance_exclusion = w.array(self._exclusions(model, rest_exclusion, radius), dtype=float, device=d)
+        excl = self._exclusions(model, rest_exclusion, radius)
+        sc.instance_exclusion = w.array(excl, dtype=float, device=d)
         self.data = sc
         self._dmin_v = w.zeros(n, dtype=float, device=d)
         self._dmin_t = w.zeros(nt, dtype=float, device=d)

@@ -130,10 +130,10 @@ class _GaitStyle:
     elbow: float  # [deg]
 
 
-_WALK = _GaitStyle(WALK_HIP, WALK_KNEE, WALK_ANKLE, WALK_TOE_OFF, 10.0, 2.0, 4.0, 4.0, 78.0,
+_WALK = _GaitStyle(WALK_HIP, WALK_KNEE, WALK_ANKLE, WALK_TOE_OFF, 10.0, 2.0, 4.0, 4.0, 64.0,
                    0.6, 20.0)
-_RUN = _GaitStyle(RUN_HIP, RUN_KNEE, RUN_ANKLE, RUN_TOE_OFF, 15.0, 6.0, 5.0, 5.0, 72.0,
-                  0.8, 85.0)
+_RUN = _GaitStyle(RUN_HIP, RUN_KNEE, RUN_ANKLE, RUN_TOE_OFF, 15.0, 6.0, 5.0, 5.0, 60.0,
+                  0.8, 55.0)
 
 
 def _warp(phase: np.ndarray, duty: float, toe_off: float) -> np.ndarray:
