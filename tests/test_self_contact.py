@@ -297,3 +297,32 @@ def test_a_fold_of_one_sheet_is_in_contact_a_ring_away(device):
         i = j * nx + mid
         partners = faces[tri[i, :count[i]]]
         assert not np.any(partners == i)
+
+
+def test_full_pair_lists_keep_the_closest_pairs(device):
+    """With room for 2 pairs, a vertex lying over many triangles keeps the 2 closest, whatever
+    order the BVH finds them in (first-found lists let a crumple's near neighbours crowd out the
+    layer that is actually touching)."""
+    nx, ny, e = 11, 6, 0.01
+    v, f = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
+    # one instance, two pieces: the sheet and a small triangle 4 mm over it
+    probe = np.array([[0.052, 0.004, 0.021], [0.053, 0.004, 0.021], [0.052, 0.004, 0.022]], np.float32)
+    b = ClothModelBuilder()
+    b.add_cloth(np.concatenate([v.astype(np.float32), probe]),
+                np.concatenate([np.asarray(f), np.array([[len(v), len(v) + 2, len(v) + 1]])]),
+                ClothMaterialParams())
+    m = b.finalize(device)
+    x = m.particle_q.numpy()
+    sc = SelfContact(m, radius=0.003, margin=0.012, stiffness=1e4, friction=0.0, relaxation=0.45,
+                     speed_factor=2.5, capacity=2)
+    sc.detect(m.particle_q, wp.zeros(len(x), dtype=wp.vec3, device=device), 1.0 / 300.0)
+    i = len(v)  # the probe triangle's first vertex, 4 mm over the sheet
+    count = int(sc.data.vt_count.numpy()[i])
+    stored = sc.data.vt_tri.numpy().reshape(-1, 2)[i, :count]
+    faces = np.asarray(f)
+    d_all = np.array([closest_point_triangle_np(x[i].astype(np.float64), *x[faces[t]].astype(np.float64))[1]
+                      for t in range(len(faces))])
+    assert (d_all < 0.012).sum() > 2  # more candidates than room
+    assert count == 2
+    d_stored = np.sort(d_all[stored])
+    np.testing.assert_allclose(d_stored, np.sort(d_all)[:2], atol=2e-4)

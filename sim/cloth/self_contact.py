@@ -53,6 +53,9 @@ class SelfContactData:
     tv_vertex: wp.array(dtype=wp.int32)
     ee_count: wp.array(dtype=wp.int32)
     ee_edge: wp.array(dtype=wp.int32)
+    vt_dist: wp.array(dtype=float)
+    tv_dist: wp.array(dtype=float)
+    ee_dist: wp.array(dtype=float)
     mesh_edges: wp.array(dtype=wp.vec2i)
     vertex_edge_offsets: wp.array(dtype=wp.int32)
     vertex_edge_ids: wp.array(dtype=wp.int32)
@@ -265,6 +268,29 @@ def query_radius(margin: float, speed: float, h: float, speed_factor: float) -> 
     return wp.max(margin, speed_factor * speed * h)
 
 
+@wp.func
+def keep_closest(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), base: int, count: int,
+                 capacity: int, item: int, d: float) -> int:
+    """Add pair ``item`` at distance ``d`` to the list ``ids[base : base + capacity]``; when the
+    list is full, it replaces the farthest stored pair if closer. Returns the new count. (Keeping
+    the first pairs found would let a crumpled region's nearby neighbours crowd out the layer
+    that is actually closest.)"""
+    if count < capacity:
+        ids[base + count] = item
+        dist[base + count] = d
+        return count + 1
+    far = int(0)
+    far_d = dist[base]
+    for k in range(1, capacity):
+        if dist[base + k] > far_d:
+            far_d = dist[base + k]
+            far = k
+    if d < far_d:
+        ids[base + far] = item
+        dist[base + far] = d
+    return count
+
+
 @wp.kernel
 def primitive_bounds_kernel(
     x: wp.array(dtype=wp.vec3),
@@ -327,9 +353,8 @@ def detect_vertex_kernel(
             continue
         d = point_triangle_distance(xi, x[tri[0]], x[tri[1]], x[tri[2]])
         dmin = wp.min(dmin, d)
-        if d < margin and count < sc.vt_capacity:
-            sc.vt_tri[i * sc.vt_capacity + count] = t
-            count += 1
+        if d < r:
+            count = keep_closest(sc.vt_tri, sc.vt_dist, i * sc.vt_capacity, count, sc.vt_capacity, t, d)
     sc.vt_count[i] = count
     dmin_out[i] = dmin
 
@@ -375,9 +400,9 @@ def detect_triangle_kernel(
             if vertex_owner_tri[u] == t2 and not rest_near_triangle(sc, u, tri, excl):
                 d = point_triangle_distance(x[u], a, b, c)
                 dmin = wp.min(dmin, d)
-                if d < margin and count < sc.tv_capacity:
-                    sc.tv_vertex[t * sc.tv_capacity + count] = u
-                    count += 1
+                if d < r:
+                    count = keep_closest(sc.tv_vertex, sc.tv_dist, t * sc.tv_capacity, count,
+                                         sc.tv_capacity, u, d)
     sc.tv_count[t] = count
     dmin_out[t] = dmin
 
@@ -419,9 +444,9 @@ def detect_edge_kernel(
         st = wp.closest_point_edge_edge(p1, q1, x[eb[0]], x[eb[1]], 1.0e-12)
         d = st[2]
         dmin = wp.min(dmin, d)
-        if d < margin and count < sc.ee_capacity:
-            sc.ee_edge[e * sc.ee_capacity + count] = e2
-            count += 1
+        if d < r:
+            count = keep_closest(sc.ee_edge, sc.ee_dist, e * sc.ee_capacity, count,
+                                 sc.ee_capacity, e2, d)
     sc.ee_count[e] = count
     dmin_out[e] = dmin
 
@@ -489,6 +514,9 @@ class SelfContact:
         sc.tv_vertex = w.zeros(nt * capacity, dtype=w.int32, device=d)
         sc.ee_count = w.zeros(ne, dtype=w.int32, device=d)
         sc.ee_edge = w.zeros(ne * capacity, dtype=w.int32, device=d)
+        sc.vt_dist = w.zeros(n * capacity, dtype=float, device=d)
+        sc.tv_dist = w.zeros(nt * capacity, dtype=float, device=d)
+        sc.ee_dist = w.zeros(ne * capacity, dtype=float, device=d)
         sc.mesh_edges = model.mesh_edge_indices
         sc.vertex_edge_offsets = model.vertex_mesh_edge_offsets
         sc.vertex_edge_ids = model.vertex_mesh_edge_ids
@@ -574,6 +602,7 @@ def disabled_data(device) -> SelfContactData:
     sc.vertex_edge_offsets = sc.vertex_edge_ids = sc.vertex_edge_local = empty_i
     sc.mesh_edges = w.zeros(1, dtype=w.vec2i, device=device)
     sc.bound = w.zeros(1, dtype=float, device=device)
+    sc.vt_dist = sc.tv_dist = sc.ee_dist = sc.bound
     sc.rest = w.zeros(1, dtype=w.vec3, device=device)
     sc.component = w.zeros(1, dtype=w.int32, device=device)
     sc.instance_exclusion = w.zeros(1, dtype=float, device=device)

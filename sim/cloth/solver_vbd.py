@@ -77,6 +77,10 @@ class VBDConfig:
             a ring or two away included, is in contact once a fold brings it together (an
             exclusion of 2.5 edge lengths let sleeves crumple through themselves: hundreds of
             crossings on the t-shirt walk).
+        self_contact_interval: detect self-contact pairs every this many substeps (1: every
+            substep). The query radius grows with the motion it must cover (``speed_factor x |v|
+            x h x interval``); contact forces, signs and friction are still evaluated every
+            iteration from the current positions.
     """
 
     substeps: int = 10
@@ -97,11 +101,15 @@ class VBDConfig:
     self_contact_capacity: int = 16
     self_contact_rest_exclusion: float = 0.0
     self_contact_bounds: bool = False
+    self_contact_interval: int = 1
 
     def __post_init__(self):
-        for name in ("substeps", "iterations"):
+        for name in ("substeps", "iterations", "self_contact_interval"):
             if getattr(self, name) < 1:
                 raise ValueError(f"VBDConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.self_contact_bounds and self.self_contact_interval != 1:
+            raise ValueError("VBDConfig.self_contact_interval must be 1 with self_contact_bounds (the bounds "
+                             f"hold for one substep), got {self.self_contact_interval}")
         if self.membrane not in ("stvk", "corotated"):
             raise ValueError(f"VBDConfig.membrane must be 'stvk' or 'corotated', got {self.membrane!r}")
         if self.lanes < 1 or self.lanes > 256:
@@ -203,8 +211,9 @@ class SolverVBD:
                                    self._contact_active], device=d)
             else:
                 self._contact_active.zero_()
-            if self.self_contact is not None:
-                self.self_contact.detect(self._x_prev, v, h)
+            if self.self_contact is not None and s % cfg.self_contact_interval == 0:
+                # pairs found now serve the next ``interval`` substeps: the query covers that motion
+                self.self_contact.detect(self._x_prev, v, h * cfg.self_contact_interval)
             for _ in range(cfg.iterations):
                 for c in range(m.color_count):
                     start, end = m.color_offsets[c], m.color_offsets[c + 1]
