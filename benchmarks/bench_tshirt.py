@@ -135,6 +135,8 @@ def main() -> None:
         batch = {}
         for nb in [int(s) for s in args.batch.split(",")]:
             batch[str(nb)] = run_ours(garment, body, motion, cfg, batch=nb)
+            batch[str(nb)].pop("_result", None)
+            batch[str(nb)].pop("quality", None)
             print("batch", nb, json.dumps(batch[str(nb)]), flush=True)
         fig["batched"] = batch
     write_result(f"tshirt_{device.split(':')[0]}{args.tag}", {
