@@ -43,7 +43,9 @@ def quality_dict(q) -> dict:
             "self_intersections_mean": float(np.mean(q.self_intersections)), "finite": bool(q.finite)}
 
 
-def run_ours(garment, body, motion, cfg, batch: int = 1) -> dict:
+def run_ours(garment, body, motion, cfg, batch: int = 1):
+    """Figures of one (batched) run, JSON-ready, and the first sequence's ``SimulationResult``
+    (None when the run stopped)."""
     from sim.quality import SimulationError
     from sim.simulate import SimulationJob, simulate_batch
 
@@ -52,7 +54,7 @@ def run_ours(garment, body, motion, cfg, batch: int = 1) -> dict:
     try:
         results = simulate_batch(jobs, config=cfg)
     except SimulationError as e:
-        return {"error": str(e), "wall_s": time.perf_counter() - t0}
+        return {"error": str(e), "wall_s": time.perf_counter() - t0}, None
     r = results[0]
     ms = r.step_ms
     out = {"ms_per_frame": float(ms.mean()), "ms_per_frame_median": float(np.median(ms)),
@@ -60,8 +62,7 @@ def run_ours(garment, body, motion, cfg, batch: int = 1) -> dict:
            "wall_s": time.perf_counter() - t0, "failed_gates": list(r.failed_gates)}
     if batch == 1:
         out["quality"] = quality_dict(r.quality)
-        out["_result"] = r
-    return out
+    return out, r
 
 
 def run_newton(r, garment, body, cfg, device: str) -> dict:
@@ -119,8 +120,7 @@ def main() -> None:
     fig: dict = {}
     for name in args.motions.split(","):
         motion = load_motion(name, fps=30.0, duration=args.seconds)
-        ours = run_ours(garment, body, motion, cfg)
-        r = ours.pop("_result", None)
+        ours, r = run_ours(garment, body, motion, cfg)
         entry = {"ours": ours}
         print(name, "ours", json.dumps(ours, indent=1), flush=True)
         if args.newton and r is not None:
@@ -134,9 +134,7 @@ def main() -> None:
         motion = load_motion(args.motions.split(",")[0], fps=30.0, duration=args.seconds)
         batch = {}
         for nb in [int(s) for s in args.batch.split(",")]:
-            batch[str(nb)] = run_ours(garment, body, motion, cfg, batch=nb)
-            batch[str(nb)].pop("_result", None)
-            batch[str(nb)].pop("quality", None)
+            batch[str(nb)], _ = run_ours(garment, body, motion, cfg, batch=nb)
             print("batch", nb, json.dumps(batch[str(nb)]), flush=True)
         fig["batched"] = batch
     write_result(f"tshirt_{device.split(':')[0]}{args.tag}", {

@@ -161,13 +161,15 @@ def inside_fraction(points: np.ndarray, body_vertices: np.ndarray, body_faces: n
     return out
 
 
-def self_intersections(vertices: np.ndarray, faces: np.ndarray, *,
-                       device: str | None = None) -> np.ndarray:
+def self_intersections(vertices: np.ndarray, faces: np.ndarray, *, device: str | None = None,
+                       edge_mask: np.ndarray | None = None) -> np.ndarray:
     """Per frame, the number of edge-face crossings between non-adjacent elements.
 
     Args:
         vertices: positions [m], shape (T, V, 3).
         faces: (F, 3) int.
+        edge_mask: count only the crossings of these edges, bool (E,) over
+            :func:`unique_edges` ``(faces)``; None: every edge.
 
     Returns:
         (T,) int.
@@ -192,7 +194,7 @@ def self_intersections(vertices: np.ndarray, faces: np.ndarray, *,
         count.zero_()
         wp.launch(K.self_intersection_kernel, dim=edges.shape[0],
                   inputs=[mesh.id, pts, edges_d, faces_d], outputs=[count, per_edge], device=d)
-        out[t] = int(count.numpy()[0])
+        out[t] = int(count.numpy()[0]) if edge_mask is None else int(per_edge.numpy()[edge_mask].sum())
     return out
 
 

@@ -694,32 +694,14 @@ def test_gait_arms_do_not_cut_into_the_body(default_body, name):
     from the torso, or an elbow bent past ~60 degrees, pushes its skin through the torso or the
     forearm, and a sleeve caught there has no room (a trapped sleeve tore on the t-shirt run).
     The gaits keep the arm skin clear (the toes' crossings are the template's own, at rest)."""
+    from sim.quality import self_intersections, unique_edges
+
     m = load_motion(name, fps=30.0, duration=2.0)
     frames = default_body.pose(np.zeros(default_body.num_betas, np.float32), m.poses, m.trans, device="cpu")
-    arms = _arm_skin_crossings(default_body, frames.vertices[20::4], frames.faces)
+    edges = unique_edges(frames.faces)
+    arm_joints = [default_body.joint_names.index(n)
+                  for n in ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow")]
+    arm_vertex = np.isin(np.argmax(default_body.weights, axis=1), arm_joints)
+    arms = self_intersections(frames.vertices[20::4], frames.faces, device="cpu",
+                              edge_mask=arm_vertex[edges[:, 0]] & arm_vertex[edges[:, 1]])
     assert arms.max() == 0, f"{name}: arm skin crosses the body in {np.count_nonzero(arms)} frames"
-
-
-def _arm_skin_crossings(body, vertices, faces):
-    """Per frame, crossing edges whose vertices are skinned mostly to a shoulder or elbow."""
-    from sim import quality_kernels as K
-    from sim.device import warp
-    from sim.quality import unique_edges
-
-    wp = warp()
-    faces = np.asarray(faces, np.int32)
-    edges = unique_edges(faces)
-    arm_joints = [body.joint_names.index(n) for n in ("left_shoulder", "right_shoulder", "left_elbow",
-                                                       "right_elbow")]
-    arm_vertex = np.isin(np.argmax(body.weights, axis=1), arm_joints)
-    out = []
-    for v in vertices:
-        pts = wp.array(np.ascontiguousarray(v, np.float32), dtype=wp.vec3, device="cpu")
-        mesh = wp.Mesh(points=pts, indices=wp.array(faces.ravel(), dtype=wp.int32, device="cpu"))
-        count = wp.zeros(1, dtype=int, device="cpu")
-        hit = wp.zeros(len(edges), dtype=int, device="cpu")
-        wp.launch(K.self_intersection_kernel, dim=len(edges), inputs=[mesh.id, pts, edges, faces],
-                  outputs=[count, hit], device="cpu")
-        crossing = hit.numpy() > 0
-        out.append(int(np.count_nonzero(crossing & arm_vertex[edges[:, 0]] & arm_vertex[edges[:, 1]])))
-    return np.array(out)

@@ -76,6 +76,10 @@ def test_self_intersections_detects_crossing_sheets(device):
     V2 = np.concatenate([v, v3])
     n = self_intersections(V2[None], F, device=device)[0]
     assert n >= 2
+    # edge_mask: the crossings of the standing sheet's edges and of the lying sheet's add up
+    standing = unique_edges(F)[:, 0] >= len(v)
+    part = [self_intersections(V2[None], F, device=device, edge_mask=m)[0] for m in (standing, ~standing)]
+    assert part[0] > 0 and part[1] > 0 and part[0] + part[1] == n
 
 
 def test_self_intersections_zero_for_flat_and_folded_sheet(device):

@@ -155,26 +155,23 @@ def corotated_frame(f0: wp.vec3, f1: wp.vec3):
     ``R`` (3x2, orthonormal) and ``tr S = tr(R^T F)``.
 
     Robust to degenerate triangles (collapsed to a segment or a point): ``F`` is written in an
-    orthonormal basis ``(u, w)`` of a plane containing both columns, oriented so that the 2x2
-    matrix has ``det >= 0``, and the 2x2 rotation comes from ``atan2`` (no inverse of ``S``).
+    orthonormal basis ``(u, w)`` of a plane containing both columns, oriented by the normal so
+    that the 2x2 matrix has ``det >= 0``, and the 2x2 rotation comes from ``atan2`` (no inverse
+    of ``S``).
     """
-    l0 = wp.dot(f0, f0)
-    l1 = wp.dot(f1, f1)
+    # u along the longer column; w = n x u with n = f0 x f1 puts both columns at det >= 0
     ref = f0
-    other = f1
-    if l1 > l0:
+    if wp.dot(f1, f1) > wp.dot(f0, f0):
         ref = f1
-        other = f0
     lr = wp.length(ref)
     if lr < 1.0e-20:
         return wp.vec3(1.0, 0.0, 0.0), wp.vec3(0.0, 1.0, 0.0), 0.0
     u = ref / lr
-    # w: unit vector in the plane of (f0, f1), perpendicular to u, on the side of ``other``
-    perp = other - wp.dot(other, u) * u
-    pl = wp.length(perp)
+    wn = wp.cross(wp.cross(f0, f1), u)
+    wl = wp.length(wn)
     w = wp.vec3(0.0)
-    if pl > 1.0e-9 * lr:
-        w = perp / pl
+    if wl > 1.0e-9 * lr * lr:
+        w = wn / wl
     else:  # f0 parallel to f1: any plane through u
         axis = wp.vec3(1.0, 0.0, 0.0)
         if wp.abs(u[0]) > 0.9:
@@ -185,16 +182,6 @@ def corotated_frame(f0: wp.vec3, f1: wp.vec3):
     a10 = wp.dot(w, f0)
     a01 = wp.dot(u, f1)
     a11 = wp.dot(w, f1)
-    if l1 > l0:  # u along f1, w on f0's side: swap axes so det >= 0
-        t0 = a00
-        t1 = a01
-        a00 = a10
-        a01 = a11
-        a10 = t0
-        a11 = t1
-        tmp = u
-        u = w
-        w = tmp
     sx = a00 + a11
     sy = a10 - a01
     tr_s = wp.sqrt(sx * sx + sy * sy)

@@ -63,7 +63,7 @@ class SelfContactData:
     bound: wp.array(dtype=float)
     rest: wp.array(dtype=wp.vec3)
     component: wp.array(dtype=wp.int32)
-    instance_exclusion: wp.array(dtype=float)
+    exclusion: float
 
 
 @wp.func
@@ -234,23 +234,23 @@ def point_triangle_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> f
 
 
 @wp.func
-def rest_near_triangle(sc: SelfContactData, v: int, tri: wp.vec3i, excl: float) -> bool:
+def rest_near_triangle(sc: SelfContactData, v: int, tri: wp.vec3i) -> bool:
     """Surface neighbours: vertex ``v`` and triangle ``tri`` of one connected piece of cloth were
-    closer than ``excl`` in the rest shape (incident pairs are at distance 0)."""
+    closer than ``sc.exclusion`` in the rest shape (incident pairs are at distance 0)."""
     if sc.component[v] != sc.component[tri[0]]:
         return False
     d = point_triangle_distance(sc.rest[v], sc.rest[tri[0]], sc.rest[tri[1]], sc.rest[tri[2]])
-    return d < excl
+    return d < sc.exclusion
 
 
 @wp.func
-def rest_near_edges(sc: SelfContactData, ea: wp.vec2i, eb: wp.vec2i, excl: float) -> bool:
+def rest_near_edges(sc: SelfContactData, ea: wp.vec2i, eb: wp.vec2i) -> bool:
     """Surface neighbours: edges ``ea`` and ``eb`` of one connected piece were closer than
-    ``excl`` in the rest shape."""
+    ``sc.exclusion`` in the rest shape."""
     if sc.component[ea[0]] != sc.component[eb[0]]:
         return False
     st = wp.closest_point_edge_edge(sc.rest[ea[0]], sc.rest[ea[1]], sc.rest[eb[0]], sc.rest[eb[1]], 1.0e-12)
-    return st[2] < excl
+    return st[2] < sc.exclusion
 
 
 @wp.func
@@ -348,8 +348,7 @@ def detect_vertex_kernel(
             continue
         if particle_instance[tri[0]] != inst:
             continue
-        excl = sc.instance_exclusion[inst]
-        if rest_near_triangle(sc, i, tri, excl):
+        if rest_near_triangle(sc, i, tri):
             continue
         d = point_triangle_distance(xi, x[tri[0]], x[tri[1]], x[tri[2]])
         dmin = wp.min(dmin, d)
@@ -394,10 +393,9 @@ def detect_triangle_kernel(
         other = tri_indices[t2]
         if particle_instance[other[0]] != inst:
             continue
-        excl = sc.instance_exclusion[inst]
         for j in range(3):
             u = other[j]
-            if vertex_owner_tri[u] == t2 and not rest_near_triangle(sc, u, tri, excl):
+            if vertex_owner_tri[u] == t2 and not rest_near_triangle(sc, u, tri):
                 d = point_triangle_distance(x[u], a, b, c)
                 dmin = wp.min(dmin, d)
                 if d < r:
@@ -438,8 +436,7 @@ def detect_edge_kernel(
             continue
         if particle_instance[eb[0]] != inst:
             continue
-        excl = sc.instance_exclusion[inst]
-        if rest_near_edges(sc, ea, eb, excl):
+        if rest_near_edges(sc, ea, eb):
             continue
         st = wp.closest_point_edge_edge(p1, q1, x[eb[0]], x[eb[1]], 1.0e-12)
         d = st[2]
@@ -524,8 +521,7 @@ class SelfContact:
         sc.bound = w.zeros(n, dtype=float, device=d)
         sc.rest = model.particle_rest
         sc.component = w.array(self._components(model), dtype=w.int32, device=d)
-        excl = self._exclusions(model, rest_exclusion, radius)
-        sc.instance_exclusion = w.array(excl, dtype=float, device=d)
+        sc.exclusion = max(float(rest_exclusion), float(radius))
         self.data = sc
         self._dmin_v = w.zeros(n, dtype=float, device=d)
         self._dmin_t = w.zeros(nt, dtype=float, device=d)
@@ -548,12 +544,6 @@ class SelfContact:
         n = model.particle_count
         adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
         return connected_components(adj, directed=False)[1].astype(np.int32)
-
-    @staticmethod
-    def _exclusions(model, rest_exclusion: float, radius: float) -> np.ndarray:
-        """Per instance: max(rest_exclusion, radius) [m] (every instance the same; kept per
-        instance so batched garments could differ)."""
-        return np.full(max(model.instance_count, 1), max(float(rest_exclusion), float(radius)), np.float32)
 
     def _update_bounds(self, x) -> None:
         m = self.model
@@ -605,5 +595,5 @@ def disabled_data(device) -> SelfContactData:
     sc.vt_dist = sc.tv_dist = sc.ee_dist = sc.bound
     sc.rest = w.zeros(1, dtype=w.vec3, device=device)
     sc.component = w.zeros(1, dtype=w.int32, device=device)
-    sc.instance_exclusion = w.zeros(1, dtype=float, device=device)
+    sc.exclusion = 0.0
     return sc
