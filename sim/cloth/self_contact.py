@@ -183,16 +183,22 @@ def self_contact_force_hessian(
         fc, hc = pair_force_hessian(xi - p, x0[i] - p0, di - (p - p0), 1.0, r, k, mu, eps_u)
         f = f + fc
         H = H + hc
-    # i as a corner of triangles that vertices are close to
-    for kk in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
+    # i as a corner of triangles that vertices are close to. The lanes split the flattened
+    # (incident triangle, pair slot) range, not the triangles: a vertex has ~6 triangles, so a
+    # per-triangle split left most lanes idle and the rest with up to ``capacity`` pairs each
+    cap = sc.tv_capacity
+    tri_start = vertex_tri_offsets[i]
+    for j in range(lane, (vertex_tri_offsets[i + 1] - tri_start) * cap, stride):
+        kk = tri_start + j // cap
+        s = j % cap
         t = vertex_tri_ids[kk]
-        corner = vertex_tri_local[kk]
-        tri = tri_indices[t]
-        a = x[tri[0]]
-        b = x[tri[1]]
-        c = x[tri[2]]
-        for s in range(sc.tv_count[t]):
-            u = sc.tv_vertex[t * sc.tv_capacity + s]
+        if s < sc.tv_count[t]:
+            corner = vertex_tri_local[kk]
+            tri = tri_indices[t]
+            a = x[tri[0]]
+            b = x[tri[1]]
+            c = x[tri[2]]
+            u = sc.tv_vertex[t * cap + s]
             xu = x[u]
             w = triangle_closest_bary(xu, a, b, c)
             p = w[0] * a + w[1] * b + w[2] * c
@@ -201,15 +207,19 @@ def self_contact_force_hessian(
                                         eps_u)
             f = f + fc
             H = H + hc
-    # i as an end of edges close to other edges
-    for kk in range(sc.vertex_edge_offsets[i] + lane, sc.vertex_edge_offsets[i + 1], stride):
+    # i as an end of edges close to other edges (lanes split (incident edge, pair slot) alike)
+    ecap = sc.ee_capacity
+    edge_start = sc.vertex_edge_offsets[i]
+    for j in range(lane, (sc.vertex_edge_offsets[i + 1] - edge_start) * ecap, stride):
+        kk = edge_start + j // ecap
+        s = j % ecap
         e = sc.vertex_edge_ids[kk]
-        end = sc.vertex_edge_local[kk]
-        ea = sc.mesh_edges[e]
-        p1 = x[ea[0]]
-        q1 = x[ea[1]]
-        for s in range(sc.ee_count[e]):
-            e2 = sc.ee_edge[e * sc.ee_capacity + s]
+        if s < sc.ee_count[e]:
+            end = sc.vertex_edge_local[kk]
+            ea = sc.mesh_edges[e]
+            p1 = x[ea[0]]
+            q1 = x[ea[1]]
+            e2 = sc.ee_edge[e * ecap + s]
             eb = sc.mesh_edges[e2]
             p2 = x[eb[0]]
             q2 = x[eb[1]]

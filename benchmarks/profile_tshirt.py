@@ -1,0 +1,175 @@
+# ruff: noqa: B023  (closures timed immediately, inside the loop iteration)
+"""Phase timings of the t-shirt step mid-motion (development aid, see docs/BENCHMARKS.md).
+
+Simulates the benchmark scene (``bench_tshirt``: ~5k-vertex t-shirt, default body, walk),
+then, on the live end state, times: the whole solver step (plain launches and CUDA graph),
+self-contact detection, one Gauss-Seidel sweep with and without the self-contact terms, and
+whole steps of solver variants (lanes, capacity, iterations). Pair statistics are printed too.
+
+``python -m benchmarks.profile_tshirt --device cuda --seconds 1``
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+
+import numpy as np
+
+from benchmarks.bench_tshirt import build_garment
+from benchmarks.common import machine, write_result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--vertices", type=int, default=5000)
+    ap.add_argument("--motion", default="walk")
+    ap.add_argument("--seconds", type=float, default=1.0)
+    ap.add_argument("--repeats", type=int, default=10)
+    ap.add_argument("--variants", default='[{"lanes": 8}, {"lanes": 32}, {"self_contact_capacity": 8}, '
+                    '{"iterations": 5}, {"self_contact": false}]',
+                    help="JSON list of VBDConfig overrides timed as whole graphed steps")
+    args = ap.parse_args()
+
+    import sim.cloth as cloth
+    from sim.bodies.default import load_default_body
+    from sim.cloth import self_contact as SC
+    from sim.cloth import vbd_kernels as K
+    from sim.cloth.self_contact import disabled_data
+    from sim.device import resolve_device, warp
+    from sim.motions import load_motion
+    from sim.simulate import SimulationConfig, SimulationJob, simulate_batch
+
+    wp = warp()
+    device = resolve_device(args.device)
+    body = load_default_body()
+    garment, _ = build_garment(body, args.vertices)
+    motion = load_motion(args.motion, fps=30.0, duration=args.seconds)
+    cfg = SimulationConfig(fps=30.0, self_contact=True, device=device)
+
+    seen: dict = {}
+    base_cls = cloth.SolverVBD
+
+    class Recording(base_cls):
+        def step(self, state_in, state_out, control, dt):
+            seen.update(solver=self, state=state_out, control=control, dt=dt)
+            super().step(state_in, state_out, control, dt)
+
+    cloth.SolverVBD = Recording
+    try:
+        t0 = time.perf_counter()
+        simulate_batch([SimulationJob(garment, body, motion)], config=cfg)
+        sim_s = time.perf_counter() - t0
+    finally:
+        cloth.SolverVBD = base_cls
+    solver, state, control, dt = seen["solver"], seen["state"], seen["control"], seen["dt"]
+    m = solver.model
+    vcfg = solver.config
+    h = dt / vcfg.substeps
+
+    def timed(fn, graph: bool = False) -> float:
+        fn()
+        wp.synchronize_device(device)
+        run = fn
+        if graph and wp.get_device(device).is_cuda:
+            with wp.ScopedCapture(device=device) as cap:
+                fn()
+            run = lambda: wp.capture_launch(cap.graph)  # noqa: E731
+        run()
+        wp.synchronize_device(device)
+        t = time.perf_counter()
+        for _ in range(args.repeats):
+            run()
+        wp.synchronize_device(device)
+        return 1000.0 * (time.perf_counter() - t) / args.repeats
+
+    def sweep(sc_data):
+        def fn():
+            for c in range(m.color_count):
+                start, end = m.color_offsets[c], m.color_offsets[c + 1]
+                wp.launch_tiled(
+                    K.solve_color_kernel, dim=[end - start], block_dim=solver._block,
+                    inputs=[solver._block, solver._membrane, m.color_vertices, start, solver._x_prev,
+                            solver._y, m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
+                            m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
+                            solver._tri_strain_prev, m.edge_indices, m.edge_rest_angle, m.edge_stiffness,
+                            m.edge_damping, solver._edge_angle_prev, m.vertex_tri_offsets, m.vertex_tri_ids,
+                            m.vertex_tri_local, m.vertex_edge_offsets, m.vertex_edge_ids,
+                            m.vertex_edge_local, solver._contact_point, solver._contact_normal,
+                            solver._contact_body_velocity, solver._contact_active, m.instance_thickness,
+                            m.instance_friction, vcfg.contact_stiffness, vcfg.friction_epsilon * h, h,
+                            vcfg.air_damping, sc_data],
+                    outputs=[state.positions], device=device)
+        return fn
+
+    sc = solver.self_contact
+    common = [sc.margin, sc.speed_factor, h, sc.data]
+    x, v = state.positions, state.velocities
+    sizes = np.diff(np.asarray(m.color_offsets))
+    saved = (wp.clone(x), wp.clone(v))
+
+    def restore():
+        wp.copy(x, saved[0])
+        wp.copy(v, saved[1])
+
+    def kernels(tag: str) -> dict:
+        return {
+            f"detect_vertex{tag}_ms": timed(lambda: wp.launch(
+                SC.detect_vertex_kernel, dim=m.particle_count,
+                inputs=[x, v, m.particle_instance, m.tri_indices, sc.tri_bvh.id, *common],
+                outputs=[sc._dmin_v], device=device), graph=True),
+            f"detect_triangle{tag}_ms": timed(lambda: wp.launch(
+                SC.detect_triangle_kernel, dim=m.tri_count,
+                inputs=[x, v, m.particle_instance, m.tri_indices, m.vertex_owner_tri, sc.tri_bvh.id, *common],
+                outputs=[sc._dmin_t], device=device), graph=True),
+            f"detect_edge{tag}_ms": timed(lambda: wp.launch(
+                SC.detect_edge_kernel, dim=sc._lo_e.shape[0],
+                inputs=[x, v, m.particle_instance, sc.edge_bvh.id, *common],
+                outputs=[sc._dmin_e], device=device), graph=True),
+        }
+
+    res = {
+        "simulate_s": sim_s,
+        "colors": int(m.color_count),
+        "color_sizes": [int(s) for s in sizes],
+        "step_plain_ms": restore() or timed(lambda: solver.step(state, state, control, dt)),
+        "step_graph_ms": restore() or timed(lambda: solver.step(state, state, control, dt), graph=True),
+        "detect_plain_ms": timed(lambda: sc.detect(x, v, h)),
+        "detect_graph_ms": timed(lambda: sc.detect(x, v, h), graph=True),
+        "bounds_boxes_ms": timed(lambda: sc._update_bounds(x), graph=True),
+        "refit_tri_ms": timed(lambda: sc.tri_bvh.refit(), graph=True),
+        "refit_edge_ms": timed(lambda: sc.edge_bvh.refit(), graph=True),
+        **kernels(""),
+        "sweep_sc_graph_ms": timed(sweep(sc.data), graph=True),
+        "sweep_nosc_graph_ms": timed(sweep(disabled_data(device)), graph=True),
+    }
+    for name in ("vt", "tv", "ee"):
+        cnt = getattr(sc.data, f"{name}_count").numpy()
+        cap = getattr(sc.data, f"{name}_capacity")
+        res[f"{name}_pairs"] = {"mean": float(cnt.mean()), "max": int(cnt.max()),
+                                "full_fraction": float((cnt >= cap).mean())}
+    restore()
+    sc._update_bounds(x)
+    res["rebuild_tri_ms"] = timed(lambda: sc.tri_bvh.rebuild(), graph=True)
+    res["rebuild_edge_ms"] = timed(lambda: sc.edge_bvh.rebuild(), graph=True)
+    res.update(kernels("_rebuilt"))
+    print(json.dumps(res, indent=1), flush=True)
+    variants = {}
+    for over in json.loads(args.variants):
+        restore()
+        s2 = base_cls(m, dataclasses.replace(vcfg, **over))
+        variants[json.dumps(over)] = timed(lambda: s2.step(state, state, control, dt), graph=True)
+        print(json.dumps(over), f"{variants[json.dumps(over)]:.2f} ms/step", flush=True)
+    res["variants_step_graph_ms"] = variants
+    write_result(f"profile_tshirt_{device.split(':')[0]}", {
+        "machine": machine(device),
+        "sizes": {"garment_vertices": garment.num_vertices, "motion": args.motion, "seconds": args.seconds,
+                  "substeps": vcfg.substeps, "iterations": vcfg.iterations},
+        "figures": res})
+
+
+if __name__ == "__main__":
+    main()
