@@ -18,13 +18,14 @@ EXIT_USAGE = 2
 
 
 def _commands() -> dict:
-    from pipelines import body_cmd, garments_cmd, motions_cmd, simulate_cmd
+    from pipelines import body_cmd, dataset_cmd, garments_cmd, motions_cmd, simulate_cmd
 
     return {
         "body": body_cmd,
         "motions": motions_cmd,
         "garments": garments_cmd,
         "simulate": simulate_cmd,
+        "dataset": dataset_cmd,
     }
 
 

@@ -1,0 +1,145 @@
+"""``wrinkles dataset``: generate synthetic garment datasets, inspect them, report on them."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from sim.errors import WrinklesInputError
+
+HELP = "generate a synthetic garment dataset (resumable, sharded); info, report, combine"
+DESCRIPTION = """\
+Synthetic garment datasets for the wrinkle models (sim.datasets; layout in sim/datasets/storage.py,
+arrays in sim/datasets/schema.py).
+
+  generate  sample garments, materials, body shapes and motions from a TOML config, simulate
+            each sequence at fine (and coarse) resolution, reject those that fail the quality
+            gates (logged with why in rejections.jsonl), derive the base surface, wrinkle field,
+            Green-Lagrange strain, normals and UV images, and store one file per sequence.
+            Resumable (--resume) and sharded (--shard i/n); the same config and seed give
+            byte-identical sequence files on the same device.
+  info      counts and statistics of a dataset
+  report    PNGs: contact sheet of renders, example UV images, histograms
+  combine   rebuild manifest.json from the shard parts (after copying shards together)
+
+examples:
+  wrinkles dataset generate --config sample --out data/sample
+  wrinkles dataset generate --config my.toml --out data/big --shard 0/4 --device cuda:0
+  wrinkles dataset generate --config my.toml --out data/big --shard 0/4 --resume
+  wrinkles dataset info data/sample
+  wrinkles dataset report data/sample
+"""
+
+
+def _shard(text: str) -> tuple[int, int]:
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--shard {text!r}: expected i/n, e.g. 0/4") from None
+    if not (n >= 1 and 0 <= i < n):
+        raise argparse.ArgumentTypeError(f"--shard {text!r}: need n >= 1 and 0 <= i < n")
+    return i, n
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from pipelines.cli import add_common_arguments
+
+    sub = p.add_subparsers(dest="dataset_command", metavar="ACTION")
+    g = sub.add_parser("generate", help="generate (or resume) a dataset from a config",
+                       description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    g.add_argument("--config", required=True,
+                   help="generator config: a TOML file, or 'sample' (the shipped small config, "
+                        "pipelines/configs/sample.toml; runs on a CPU in about a minute)")
+    g.add_argument("--out", required=True, help="dataset directory")
+    g.add_argument("--shard", type=_shard, default=(0, 1), metavar="i/n",
+                   help="make sequences i, i+n, i+2n, ... (default: 0/1, all of them)")
+    g.add_argument("--resume", action="store_true", help="continue a started shard")
+    g.add_argument("--batch", type=int, default=1,
+                   help="sequences simulated together in one batched model (GPU throughput; "
+                        "default: %(default)s)")
+    add_common_arguments(g, seed=False)
+    g.set_defaults(_action=run_generate)
+
+    i = sub.add_parser("info", help="print counts and statistics of a dataset")
+    i.add_argument("root", help="dataset directory")
+    i.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    i.set_defaults(_action=run_info)
+
+    from pipelines.dataset_report import REPORT_DESCRIPTION, REPORT_HELP, add_report_arguments
+
+    r = sub.add_parser("report", help=REPORT_HELP, description=REPORT_DESCRIPTION,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_report_arguments(r)
+    r.set_defaults(_action=_run_report)
+
+    c = sub.add_parser("combine", help="rebuild manifest.json from parts/ (shards copied together)")
+    c.add_argument("root", help="dataset directory")
+    c.add_argument("--verify", action="store_true", help="re-hash every sequence file")
+    c.set_defaults(_action=run_combine)
+
+
+def run(args: argparse.Namespace) -> int:
+    action = getattr(args, "_action", None)
+    if action is None:
+        print("wrinkles dataset: choose an action: generate, info, report, combine "
+              "(wrinkles dataset --help)", file=sys.stderr)
+        return 2
+    return action(args)
+
+
+def _run_report(args: argparse.Namespace) -> int:
+    from pipelines.dataset_report import run_report
+
+    return run_report(args)
+
+
+def run_generate(args: argparse.Namespace) -> int:
+    from pipelines.progress import progress_bar
+    from sim.datasets.config import load_config
+    from sim.datasets.generate import generate
+    from sim.datasets.sampling import sample_sequences, shard_indices
+    from sim.device import resolve_device
+
+    cfg = load_config(args.config)  # every check, user motion files included, before simulating
+    device = resolve_device(args.device)
+    shard, shards = args.shard
+    n = len(shard_indices(len(sample_sequences(cfg)), shard, shards))
+    t0 = time.perf_counter()
+    try:
+        with progress_bar(n, f"dataset shard {shard}/{shards}", quiet=args.quiet, unit="seq") as advance:
+            summary = generate(cfg, args.out, shard=shard, shards=shards, resume=args.resume,
+                               batch=args.batch, device=device, progress=advance,
+                               log=None if args.quiet else (lambda s: print(s, file=sys.stderr)))
+    except KeyboardInterrupt:
+        print("wrinkles dataset generate: interrupted; finished sequences are kept, run again with --resume "
+              "to continue", file=sys.stderr)
+        return 130
+    gfs = summary.garment_frames / summary.seconds if summary.seconds > 0 else 0.0
+    print(f"{args.out}: {summary.accepted} accepted, {summary.rejected} rejected, "
+          f"{summary.skipped} already done, {summary.recovered} recovered; "
+          f"{summary.garment_frames} frames, {summary.bytes / 2**20:.1f} MiB in "
+          f"{time.perf_counter() - t0:.1f} s ({gfs:.1f} garment-frames/s, {device})")
+    return 0
+
+
+def run_combine(args: argparse.Namespace) -> int:
+    from sim.datasets import storage as S
+
+    root = Path(args.root)
+    cfg_path = root / "config.json"
+    if not cfg_path.exists():
+        raise WrinklesInputError("no config.json: not a dataset directory", path=root)
+    m = S.combine_parts(root, config=json.loads(cfg_path.read_text()), verify=args.verify)
+    print(f"{root / S.MANIFEST}: {len(m['sequences'])} sequences, {len(m['rejected'])} rejected")
+    return 0
+
+
+def run_info(args: argparse.Namespace) -> int:
+    from sim.datasets.info import dataset_statistics, format_statistics
+
+    stats = dataset_statistics(args.root)
+    print(json.dumps(stats, indent=1) if args.json else format_statistics(stats))
+    return 0

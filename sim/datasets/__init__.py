@@ -1,0 +1,1 @@
+"""Synthetic garment datasets: storage, the sequence schema, config, sampling, derived data."""

@@ -1,0 +1,98 @@
+"""Per-frame quantities of a simulated sequence (``sim.datasets.schema``): base surface,
+wrinkle field in the base's local frame, Green-Lagrange strain, normals and UV images.
+
+Frames are processed in chunks of ``CHUNK`` so a thousand-frame, 30k-vertex sequence never
+holds more than a chunk of frames, normal frames and images in memory at once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.datasets.config import DeriveConfig
+
+CHUNK = 64
+
+
+def _unit(a: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(a, axis=-1, keepdims=True)
+    return a / np.maximum(n, 1e-12)
+
+
+class Deriver:
+    """Everything derived from one garment's simulated frames (operators built once).
+
+    Args:
+        garment: the fine ``Garment`` (rest mesh, UV layout).
+        config: smoothing length and image resolution.
+        device: Warp device.
+    """
+
+    def __init__(self, garment, config: DeriveConfig, *, device: str | None = None):
+        from sim.geometry.frames import SurfaceFrames
+        from sim.geometry.smoothing import BaseSmoother
+        from sim.geometry.strain import GreenStrain
+
+        self.garment = garment
+        self.config = config
+        self.smoother = BaseSmoother(garment.rest_vertices, garment.faces, length=config.smoothing_length)
+        self.frames = SurfaceFrames.from_garment(garment, device=device)
+        self.strain = GreenStrain(garment.rest_vertices, garment.faces, device=device)
+        self.raster = None
+        if config.image_resolution:
+            from sim.geometry.uv_raster import UVRasterizer
+
+            self.raster = UVRasterizer(garment.uvs, garment.uv_faces, config.image_resolution, device=device)
+        self.uv_vertex = self.frames.uv_vertex
+
+    def __call__(self, fine: np.ndarray) -> dict[str, np.ndarray]:
+        """The per-frame arrays of ``sim.datasets.schema`` (fine/*, images/*) for positions
+        ``fine`` [m], shape (T, V, 3)."""
+        T = fine.shape[0]
+        parts: dict[str, list[np.ndarray]] = {}
+        for s in range(0, T, CHUNK):
+            for k, v in self._chunk(np.ascontiguousarray(fine[s:s + CHUNK], dtype=np.float32)).items():
+                parts.setdefault(k, []).append(v)
+        g = self.garment
+        out = {k: np.concatenate(v, axis=0) for k, v in parts.items()}
+        out.update({"fine/rest_vertices": g.rest_vertices, "fine/faces": g.faces, "fine/uvs": g.uvs,
+                    "fine/uv_faces": g.uv_faces})
+        if self.raster is not None:
+            out["images/mask"] = self.raster.mask.astype(np.uint8)
+        return out
+
+    def _chunk(self, fine: np.ndarray) -> dict[str, np.ndarray]:
+        base = self.smoother.smooth(fine)
+        wrinkle = self.frames.encode(fine, base)
+        st = self.strain.compute(base)
+        normals = self.frames.normals(fine)
+        out = {"fine/vertices": fine, "fine/base": base.astype(np.float32), "fine/wrinkle": wrinkle,
+               "fine/strain": st.face, "fine/strain_norm": st.face_norm, "fine/normals": normals}
+        if self.raster is None:
+            return out
+        uvv = np.maximum(self.uv_vertex, 0)
+        fr = self.frames.frames(base)  # (T, U, 3, 3): columns t1, t2, n
+        n = _unit(fr[..., 2])
+        t1 = _unit(fr[..., 0] - np.sum(fr[..., 0] * n, axis=-1, keepdims=True) * n)
+        b = np.cross(n, t1)
+        nf = normals[:, uvv]  # fine normals at each UV vertex
+        tangent = np.stack([np.sum(nf * t1, -1), np.sum(nf * b, -1), np.sum(nf * n, -1)], axis=-1)
+        r = self.raster
+        f16 = np.float16
+        out["images/strain_norm"] = r.rasterize(st.vertex_norm[:, uvv, None], per="uv").astype(f16)
+        out["images/wrinkle"] = r.rasterize(wrinkle, per="uv").astype(f16)
+        out["images/normal_world"] = r.rasterize(nf, per="uv").astype(f16)
+        out["images/normal_tangent"] = r.rasterize(tangent.astype(np.float32), per="uv").astype(f16)
+        return out
+
+
+def coarse_arrays(garment, vertices: np.ndarray, *, device: str | None = None) -> dict[str, np.ndarray]:
+    """``coarse/*`` arrays of a simulated coarse garment, positions [m] (T, Vc, 3)."""
+    from sim.geometry.strain import GreenStrain
+
+    gs = GreenStrain(garment.rest_vertices, garment.faces, device=device)
+    norm = np.concatenate([gs.compute(vertices[s:s + CHUNK]).face_norm
+                           for s in range(0, len(vertices), CHUNK)])
+    return {"coarse/vertices": np.asarray(vertices, np.float32), "coarse/strain_norm": norm,
+            "coarse/rest_vertices": garment.rest_vertices, "coarse/faces": garment.faces,
+            "coarse/uvs": garment.uvs, "coarse/uv_faces": garment.uv_faces}

@@ -1,0 +1,288 @@
+"""Generate a dataset: sample, simulate (fine and coarse), gate, derive, store; resumable.
+
+``generate(cfg, out, shard=i, shards=n, resume=...)`` makes the sequences of shard ``i``
+(indices ``i, i + n, ...``) in groups of ``batch`` (one batched simulation each; a group's
+fine and coarse garments share one model). After every group the shard's part file
+(``parts/shard-i-of-n.json``) is rewritten atomically; a sequence file appears only when
+complete. A run killed at any point and started again with ``resume=True`` skips what is
+recorded, recovers a sequence file written just before the kill (its manifest entry is inside
+it), and redoes the rest, in the same groups: on one device, the same config, seed and batch
+give byte-identical sequence files however often the run was interrupted.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sim.datasets import storage as S
+from sim.datasets.config import DatasetConfig
+from sim.datasets.sampling import SequenceSpec, sample_sequences, shard_indices
+from sim.errors import WrinklesInputError
+
+Log = Callable[[str], None]
+
+
+@dataclass
+class GenerateSummary:
+    """What one ``generate`` call did."""
+
+    accepted: int = 0
+    rejected: int = 0
+    skipped: int = 0
+    recovered: int = 0
+    seconds: float = 0.0
+    garment_frames: int = 0
+    bytes: int = 0
+
+
+def _entry_quality(q, wrinkle: np.ndarray, strain_norm: np.ndarray) -> dict:
+    return {"max_edge_strain": float(q.max_edge_strain), "mean_edge_strain": float(q.mean_edge_strain),
+            "max_stretch": float(q.max_stretch), "max_compression": float(q.max_compression),
+            "inside_fraction_max": float(q.inside_fraction.max(initial=0.0)),
+            "inside_fraction_mean": float(q.inside_fraction.mean()) if q.inside_fraction.size else 0.0,
+            "self_intersections_max": int(q.self_intersections.max(initial=0)),
+            "wrinkle_rms": float(np.sqrt(np.mean(np.square(wrinkle, dtype=np.float64)))),
+            "wrinkle_max": float(np.abs(wrinkle).max(initial=0.0)),
+            "strain_norm_mean": float(strain_norm.mean()),
+            "strain_norm_max": float(strain_norm.max(initial=0.0))}
+
+
+class _Shard:
+    """The part file of one shard: accepted and rejected sequences, rewritten atomically."""
+
+    def __init__(self, root: Path, cfg_dict: dict, shard: int, shards: int, resume: bool):
+        self.path = S.part_path(root, shard, shards)
+        self.data = {"config": cfg_dict, "shard": shard, "shards": shards, "sequences": {}, "rejected": {}}
+        if self.path.exists():
+            if not resume:
+                raise WrinklesInputError(f"shard {shard}/{shards} was already started here; pass --resume to "
+                                         "continue it, or choose another --out", path=root)
+            old = json.loads(self.path.read_text())
+            if old.get("config") != cfg_dict:
+                raise WrinklesInputError("--resume with a different config than the one this dataset was "
+                                         "started with (see config.json)", path=root)
+            self.data = old
+
+    def save(self) -> None:
+        S.atomic_write_json(self.path, self.data)
+
+
+def _check_root(root: Path, cfg_dict: dict, resume: bool) -> None:
+    cfg_path = root / "config.json"
+    if cfg_path.exists():
+        old = json.loads(cfg_path.read_text())
+        if old != cfg_dict:
+            raise WrinklesInputError("this directory holds a dataset made with a different config "
+                                     "(config.json); choose another --out", path=root)
+    elif root.exists() and any(p.name not in (S.PARTS_DIR, S.SEQUENCE_DIR) for p in root.iterdir()):
+        raise WrinklesInputError("exists and is not an empty directory or a dataset of this config",
+                                 path=root)
+
+
+def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shards: int = 1,
+             resume: bool = False, batch: int = 1, device: str | None = None,
+             progress: Callable[[int, int], None] | None = None,
+             log: Log | None = None) -> GenerateSummary:
+    """Make (or continue) shard ``shard`` of ``shards`` of the dataset in ``out``.
+
+    Args:
+        cfg: the validated generator config.
+        out: dataset directory (created; may hold other shards of the same config).
+        shard, shards: which share of the sequences this call makes.
+        resume: continue a started shard (otherwise a started shard is an error).
+        batch: sequences simulated together in one batched model.
+        device: Warp device (None: the config's simulation device).
+        progress: ``progress(done, total)`` over this shard's sequences.
+        log: one line per accepted / rejected sequence.
+
+    Returns:
+        counts and timings; ``out/manifest.json`` is rebuilt from every part at the end.
+    """
+    from sim.device import resolve_device
+
+    if not (0 <= shard < shards):
+        raise WrinklesInputError(f"--shard {shard}/{shards}: need 0 <= i < n")
+    if batch < 1:
+        raise WrinklesInputError(f"--batch must be >= 1, got {batch}")
+    log = log or (lambda s: None)
+    root = Path(out)
+    cfg_dict = cfg.to_dict()
+    _check_root(root, cfg_dict, resume)
+    sim_cfg = cfg.simulation_config()
+    dev = resolve_device(device if device is not None else sim_cfg.device)
+    (root / S.SEQUENCE_DIR).mkdir(parents=True, exist_ok=True)
+    (root / S.PARTS_DIR).mkdir(parents=True, exist_ok=True)
+    if not (root / "config.json").exists():
+        S.atomic_write_json(root / "config.json", cfg_dict)
+    part = _Shard(root, cfg_dict, shard, shards, resume)
+    specs = sample_sequences(cfg)
+    mine = shard_indices(len(specs), shard, shards)
+    # temp files a killed run of this shard left (other shards' are theirs: they may be running)
+    stale = [part.path.with_name(f".{part.path.name}.tmp")]
+    stale += [(p := S.sequence_path(root, specs[k].id)).with_name(f".{p.name}.tmp") for k in mine]
+    for t in stale:
+        for f in t.parent.glob(t.name + "*"):
+            f.unlink(missing_ok=True)
+    summary = GenerateSummary()
+    t0 = time.perf_counter()
+    groups = [mine[k:k + batch] for k in range(0, len(mine), batch)]
+    done = 0
+    for group in groups:
+        todo = []
+        for k in group:
+            sp = specs[k]
+            if sp.id in part.data["sequences"] or sp.id in part.data["rejected"]:
+                summary.skipped += 1
+                continue
+            path = S.sequence_path(root, sp.id)
+            if path.exists():  # written just before an interruption: its entry is inside
+                entry = json.loads(S.SequenceFile(path).metadata["entry"])
+                entry.update(sha256=S.file_sha256(path), bytes=path.stat().st_size)
+                part.data["sequences"][sp.id] = entry
+                part.save()
+                summary.recovered += 1
+                continue
+            todo.append(sp)
+        if todo:
+            # the whole group is simulated as in an uninterrupted run (same batch composition)
+            _make_group(cfg, [specs[k] for k in group], {s.id for s in todo}, root, part, sim_cfg, dev,
+                        summary, log)
+        done += len(group)
+        if progress is not None:
+            progress(done, len(mine))
+    summary.seconds = time.perf_counter() - t0
+    S.combine_parts(root, config=cfg_dict)
+    _write_rejections(root)
+    return summary
+
+
+def _write_rejections(root: Path) -> None:
+    lines = []
+    for p in sorted((root / S.PARTS_DIR).glob("shard-*-of-*.json")):
+        for sid, r in sorted(json.loads(p.read_text()).get("rejected", {}).items()):
+            lines.append(json.dumps({"id": sid, **r}, sort_keys=True))
+    S.atomic_write_bytes(root / S.REJECTIONS, ("\n".join(lines) + ("\n" if lines else "")).encode())
+
+
+def build_job(cfg: DatasetConfig, sp: SequenceSpec, body, resolution):
+    """The garment (fitted to the sampled body) and motion of one sequence."""
+    from sim.garments import make_garment
+    from sim.motions import MotionSkeleton, load_motion
+
+    betas = np.zeros(body.num_betas, np.float32) if hasattr(body, "num_betas") else None
+    if betas is not None:
+        betas[:len(sp.betas)] = sp.betas
+    else:
+        betas = np.asarray(sp.betas, np.float32)
+    garment = make_garment(sp.category, body, betas, resolution=resolution, material=sp.material,
+                           name=sp.category, **sp.garment_params)
+    skeleton = MotionSkeleton.from_body(body, betas)
+    motion = load_motion(sp.motion, fps=cfg.fps, duration=cfg.seconds, skeleton=skeleton, **sp.motion_params)
+    return garment, motion, betas
+
+
+def _make_group(cfg: DatasetConfig, group: list[SequenceSpec], wanted: set[str], root: Path, part: _Shard,
+                sim_cfg, device: str, summary: GenerateSummary, log: Log) -> None:
+    from dataclasses import replace
+
+    from sim.bodies import load_body
+    from sim.datasets.derive import Deriver, coarse_arrays
+    from sim.quality import SimulationError, edge_strain
+    from sim.simulate import SimulationJob, simulate_batch
+
+    body = load_body(cfg.bodies.model)
+    sim_cfg = replace(sim_cfg, device=device)
+    jobs, meta = [], []
+    for sp in group:
+        fine, motion, betas = build_job(cfg, sp, body, cfg.garments.fine_resolution)
+        jobs.append(SimulationJob(fine, body, motion, betas=betas, name=f"{sp.id} fine"))
+        meta.append((sp, fine, motion, betas, "fine"))
+        if cfg.derive.coarse:
+            coarse, _, _ = build_job(cfg, sp, body, cfg.garments.coarse_resolution)
+            jobs.append(SimulationJob(coarse, body, motion, betas=betas, name=f"{sp.id} coarse"))
+            meta.append((sp, coarse, motion, betas, "coarse"))
+    try:
+        results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed)
+    except SimulationError as e:
+        if len(group) > 1:  # find the culprit: one sequence at a time
+            for sp in group:
+                _make_group(cfg, [sp], wanted & {sp.id}, root, part, sim_cfg, device, summary, log)
+            return
+        results = None
+        failure = [str(e)]
+    by_seq: dict[str, dict] = {}
+    for k, (sp, garment, motion, betas, kind) in enumerate(meta):
+        by_seq.setdefault(sp.id, {"spec": sp, "motion": motion, "betas": betas})[kind] = (
+            garment, None if results is None else results[k])
+    for sp in group:
+        if sp.id not in wanted:
+            continue
+        item = by_seq[sp.id]
+        fine_g, fine_r = item["fine"]
+        reasons = failure if fine_r is None else [f"fine: {r}" for r in fine_r.failed_gates]
+        if "coarse" in item and item["coarse"][1] is not None:
+            reasons += [f"coarse: {r}" for r in item["coarse"][1].failed_gates]
+        if reasons:
+            part.data["rejected"][sp.id] = {"index": sp.index, "garment": sp.category,
+                                            "motion": sp.motion_label, "material": sp.material,
+                                            "reasons": reasons}
+            part.save()
+            summary.rejected += 1
+            log(f"{sp.id} rejected ({sp.category}, {sp.motion_label}): {'; '.join(reasons)}")
+            continue
+        seq = fine_r.sequence
+        arrays = Deriver(fine_g, cfg.derive, device=device)(seq.vertices)
+        if "coarse" in item:
+            coarse_g, coarse_r = item["coarse"]
+            arrays.update(coarse_arrays(coarse_g, coarse_r.sequence.vertices, device=device))
+        T = seq.vertices.shape[0]
+        poses = np.asarray(seq.motion.poses, np.float32)
+        trans = np.asarray(seq.motion.trans, np.float32)
+        # the simulated body may stand on the floor by a constant offset: fold it into trans so
+        # body.pose(betas, poses, trans) gives the simulated body back
+        posed = body.pose(item["betas"], poses[:1], trans[:1])
+        trans = trans + (seq.body.joints[0, 0] - posed.joints[0, 0]).astype(np.float32)
+        fine_strain = edge_strain(seq.vertices, fine_g.rest_vertices, fine_g.faces, device=device)
+        arrays.update({"body/poses": poses, "body/trans": trans,
+                       "body/joints": np.asarray(seq.body.joints, np.float32),
+                       "body/betas": np.asarray(item["betas"], np.float32),
+                       "quality/edge_strain_max": np.abs(fine_strain).max(axis=1).astype(np.float32),
+                       "quality/inside_fraction": np.asarray(fine_r.quality.inside_fraction, np.float32),
+                       "quality/self_intersections": np.asarray(fine_r.quality.self_intersections, np.int32)})
+        entry = {"file": f"{S.SEQUENCE_DIR}/{sp.id}{S.SUFFIX}", "frames": int(T), "split": sp.split,
+                 "index": sp.index, "seed": sp.seed, "garment": sp.category,
+                 "garment_params": sp.garment_params, "material": sp.material, "motion": sp.motion_label,
+                 "motion_params": sp.motion_params,
+                 "betas": list(sp.betas), "vertices": int(fine_g.num_vertices),
+                 "faces": int(fine_g.num_faces), "uvs": int(len(fine_g.uvs)),
+                 "coarse_vertices": int(item["coarse"][0].num_vertices) if "coarse" in item else None,
+                 "image_resolution": [res, res] if (res := cfg.derive.image_resolution) else None,
+                 "quality": _entry_quality(fine_r.quality, arrays["fine/wrinkle"],
+                                           arrays["fine/strain_norm"])}
+        prov = {**seq.provenance, "seed": sp.seed}
+        meta_json = {"entry": json.dumps(entry, sort_keys=True),
+                     "sequence": json.dumps(sp.to_json(), sort_keys=True),
+                     "provenance": json.dumps(_stable(prov), sort_keys=True, default=str),
+                     "body": json.dumps({"model": cfg.bodies.model, "name": getattr(body, "name", "body")})}
+        path = S.sequence_path(root, sp.id)
+        sha = S.write_sequence(path, arrays, meta_json)
+        entry.update(sha256=sha, bytes=path.stat().st_size)
+        part.data["sequences"][sp.id] = entry
+        part.save()
+        summary.accepted += 1
+        summary.garment_frames += T
+        summary.bytes += entry["bytes"]
+        log(f"{sp.id} accepted ({sp.category}, {sp.material}, {sp.motion_label}, {sp.split}): {T} frames, "
+            f"{entry['bytes'] / 2**20:.1f} MiB")
+
+
+def _stable(prov: dict) -> dict:
+    """Provenance without what changes between identical runs (timings)."""
+    return {k: v for k, v in prov.items() if k not in ("timings", "wall_seconds", "date")}

@@ -1,0 +1,314 @@
+"""Dataset generation (issue 4): config checks, sampling, storage, generate / resume / shards."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim.datasets import storage as S
+from sim.errors import WrinklesInputError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TINY = """\
+seed = 3
+sequences = 4
+fps = 30.0
+seconds = 0.2
+
+[garments]
+categories = ["straight_skirt", "t_shirt"]
+fine_resolution = 0.06
+coarse_resolution = 0.1
+[garments.params.straight_skirt]
+length = [0.45, 0.55]
+
+[materials]
+names = ["cotton", "silk"]
+
+[bodies]
+betas = 2
+
+[motions]
+procedural = ["walk", "arm_raise"]
+
+[split]
+test_fraction = 0.5
+ood_motions = ["arm_raise"]
+
+[simulation]
+substeps = 2
+iterations = 2
+settle_seconds = 0.1
+blend_seconds = 0.1
+self_contact = false
+gates = {max_self_intersections = 1000, max_edge_strain = 5.0, max_inside_fraction = 1.0}
+
+[derive]
+smoothing_length = 0.1
+image_resolution = 32
+coarse = true
+"""
+
+
+def tiny_config(tmp_path: Path, text: str = TINY, name: str = "tiny.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def _load(tmp_path, text):
+    from sim.datasets.config import load_config
+
+    return load_config(tiny_config(tmp_path, text))
+
+
+# ---------------------------------------------------------------- config
+
+
+@pytest.mark.parametrize("edit, message", [
+    (("seed = 3", "seed = 3\ncolour = 1"), "unknown key(s) colour"),
+    (("[bodies]", "[bodies]\nheight = 2"), "unknown key(s) height in [bodies]"),
+    (("names = [\"cotton\", \"silk\"]", "names = [\"cotton\", \"wool\"]"), "unknown material 'wool'"),
+    (("length = [0.45, 0.55]", "length = [0.55, 0.45]"), "lo > hi"),
+    (("length = [0.45, 0.55]", "length = [-0.5, 0.55]"), "too short"),
+    (("length = [0.45, 0.55]", "sleeves = 2"), "unknown parameter"),
+    (("ood_motions = [\"arm_raise\"]", "ood_motions = [\"jump\"]"), "not a configured motion"),
+    (("ood_motions = [\"arm_raise\"]", "ood_motions = [\"arm_raise\", \"walk\"]"),
+     "nothing is left to train"),
+    (("test_fraction = 0.5", "test_fraction = 1.5"), "test_fraction"),
+    (("substeps = 2", "substeps = 0"), "[simulation]"),
+    (("substeps = 2", "substep = 2"), "unknown key"),
+    (("image_resolution = 32", "image_resolution = 7"), "image_resolution"),
+    (("sequences = 4", "sequences = 0"), "sequences must be"),
+    (("categories = [\"straight_skirt\", \"t_shirt\"]", "categories = [\"cape\"]"),
+     "unknown category 'cape'"),
+    (("procedural = [\"walk\", \"arm_raise\"]", "procedural = [\"walk\", \"moonwalk\"]"), "moonwalk"),
+])
+def test_bad_config_is_refused_naming_file_and_key(tmp_path, edit, message):
+    text = TINY.replace(*edit)
+    assert text != TINY
+    with pytest.raises(WrinklesInputError) as e:
+        _load(tmp_path, text)
+    msg = str(e.value)
+    assert message in msg and "tiny.toml" in msg and "\n" not in msg
+
+
+def test_unreadable_user_motion_is_refused_before_anything_runs(tmp_path):
+    bad = tmp_path / "motions"
+    bad.mkdir()
+    (bad / "broken.npz").write_bytes(b"not a zip file")
+    text = TINY.replace('procedural = ["walk", "arm_raise"]',
+                        'procedural = ["walk", "arm_raise"]\nfiles = ["motions"]')
+    with pytest.raises(WrinklesInputError, match="broken.npz"):
+        _load(tmp_path, text)
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "pipelines.cli", "dataset", "generate", "--config",
+                        str(tmp_path / "tiny.toml"), "--out", str(out), "--device", "cpu", "-q"],
+                       capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and "broken.npz" in r.stderr
+    assert not out.exists()
+
+
+def test_not_toml_is_refused(tmp_path):
+    with pytest.raises(WrinklesInputError, match="not a readable TOML"):
+        _load(tmp_path, "seed = = 3")
+
+
+def test_shipped_sample_config_is_valid():
+    from sim.datasets.config import load_config
+
+    cfg = load_config("sample")
+    assert cfg.sequences >= 4 and cfg.derive.coarse and cfg.derive.image_resolution > 0
+
+
+# ---------------------------------------------------------------- sampling
+
+
+def test_sampling_is_deterministic_and_index_local(tmp_path):
+    from dataclasses import replace
+
+    from sim.datasets.sampling import sample_sequences, shard_indices
+
+    cfg = _load(tmp_path, TINY)
+    a, b = sample_sequences(cfg), sample_sequences(cfg)
+    assert [s.to_json() for s in a] == [s.to_json() for s in b]
+    more = sample_sequences(replace(cfg, sequences=9))
+    assert [s.to_json() for s in more[:4]] == [s.to_json() for s in a]  # growing keeps the first ones
+    other = sample_sequences(replace(cfg, seed=4))
+    assert [s.to_json() for s in other] != [s.to_json() for s in a]
+    for s in more:
+        lo, hi = 0.45, 0.55
+        if s.category == "straight_skirt":
+            assert lo <= s.garment_params["length"] <= hi
+        assert s.split == "test_ood" if s.motion == "arm_raise" else s.split in ("train", "test_id")
+        assert len(s.betas) == 2 and all(abs(x) <= 2.5 for x in s.betas)
+    parts = [shard_indices(9, i, 4) for i in range(4)]
+    assert sorted(sum(parts, [])) == list(range(9))
+
+
+# ---------------------------------------------------------------- storage
+
+
+def test_sequence_file_round_trip_and_damage(tmp_path):
+    rng = np.random.default_rng(0)
+    arrays = {"a/x": rng.normal(size=(5, 7, 3)).astype(np.float32), "b": np.arange(6, dtype=np.int32),
+              "img": rng.normal(size=(2, 4, 4, 3)).astype(np.float16), "mask": np.ones((4, 4), np.uint8),
+              "empty": np.zeros((0, 3), np.float32)}
+    p = tmp_path / "s.safetensors"
+    sha = S.write_sequence(p, arrays, {"k": "v"})
+    assert sha == S.file_sha256(p)
+    assert not list(tmp_path.glob(".*tmp*"))
+    f = S.SequenceFile(p)
+    assert f.keys() == sorted(arrays) and f.metadata == {"k": "v"}
+    for k, a in arrays.items():
+        assert f[k].dtype == a.dtype and np.array_equal(np.asarray(f[k]), a)
+    # same arrays, same bytes
+    S.write_sequence(tmp_path / "t.safetensors", dict(reversed(list(arrays.items()))), {"k": "v"})
+    assert (tmp_path / "t.safetensors").read_bytes() == p.read_bytes()
+    # the layout is safetensors: 8-byte header length, JSON header, 64-byte aligned data
+    raw = p.read_bytes()
+    n = int.from_bytes(raw[:8], "little")
+    header = json.loads(raw[8:8 + n])
+    assert (8 + n) % 64 == 0 and header["a/x"]["dtype"] == "F32" and header["a/x"]["shape"] == [5, 7, 3]
+    p.write_bytes(raw[:-100])  # truncated
+    with pytest.raises(WrinklesInputError, match="truncated"):
+        S.SequenceFile(p)
+
+
+# ---------------------------------------------------------------- generate
+
+
+def _generate(cfg_path: Path, out: Path, *extra: str, check: bool = True) -> subprocess.CompletedProcess:
+    r = subprocess.run([sys.executable, "-m", "pipelines.cli", "dataset", "generate", "--config",
+                        str(cfg_path), "--out", str(out), "--device", "cpu", "-q", *extra],
+                       capture_output=True, text=True, cwd=ROOT)
+    if check:
+        assert r.returncode == 0, r.stderr
+    return r
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted((root / S.SEQUENCE_DIR).glob("*.safetensors"))}
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """One uninterrupted generation of the tiny config."""
+    tmp = tmp_path_factory.mktemp("ref")
+    cfg = tiny_config(tmp)
+    out = tmp / "data"
+    t0 = time.perf_counter()
+    _generate(cfg, out)
+    return cfg, out, time.perf_counter() - t0
+
+
+def test_generated_dataset_holds_the_schema(reference):
+    from sim.datasets.schema import BODY_KEYS, COARSE_KEYS, FINE_KEYS, IMAGE_KEYS, QUALITY_KEYS
+
+    _, out, _ = reference
+    m = S.read_manifest(out)
+    assert len(m["sequences"]) + len(m["rejected"]) == 4
+    assert m["sequences"], "every tiny sequence was rejected"
+    for sid, e in m["sequences"].items():
+        f = S.SequenceFile(out / e["file"])
+        assert S.file_sha256(out / e["file"]) == e["sha256"]
+        for k in (*FINE_KEYS, *IMAGE_KEYS, *COARSE_KEYS, *BODY_KEYS, *QUALITY_KEYS):
+            assert k in f, (sid, k)
+        T, V = e["frames"], e["vertices"]
+        assert f.shape("fine/vertices") == (T, V, 3) and f.shape("images/wrinkle") == (T, 32, 32, 3)
+        assert f.shape("coarse/vertices")[0] == T and f.shape("body/poses") == (T, 24, 3)
+        fine, base = np.asarray(f["fine/vertices"]), np.asarray(f["fine/base"])
+        # the wrinkle field decodes back to the fine mesh (Guo et al. Eq. 2)
+        from sim.garments import get_material
+        from sim.garments.types import Garment
+        from sim.geometry.frames import SurfaceFrames
+
+        g = Garment(np.asarray(f["fine/rest_vertices"]), np.asarray(f["fine/faces"]),
+                    np.asarray(f["fine/uvs"]), np.asarray(f["fine/uv_faces"]), get_material(e["material"]))
+        back = SurfaceFrames.from_garment(g, device="cpu").decode(np.asarray(f["fine/wrinkle"]), base)
+        assert np.abs(back - fine).max() < 1e-5
+        # base is smoother than fine, and close to it
+        assert 0 < np.abs(fine - base).max() < 0.05
+        # the body re-posed from the stored poses/trans is where the simulation had it
+        from sim.bodies.default import load_default_body
+
+        body = load_default_body()
+        posed = body.pose(np.asarray(f["body/betas"]), np.asarray(f["body/poses"]),
+                          np.asarray(f["body/trans"]))
+        assert np.abs(posed.joints - np.asarray(f["body/joints"])).max() < 1e-4
+        assert f.json("sequence")["split"] == e["split"]
+    info = subprocess.run([sys.executable, "-m", "pipelines.cli", "dataset", "info", str(out), "--json"],
+                          capture_output=True, text=True, cwd=ROOT)
+    assert info.returncode == 0, info.stderr
+    stats = json.loads(info.stdout)
+    assert stats["sequences"] == len(m["sequences"])
+    assert stats["frames"] == sum(e["frames"] for e in m["sequences"].values())
+
+
+def test_same_config_same_bytes(reference, tmp_path):
+    cfg, out, _ = reference
+    again = tmp_path / "again"
+    _generate(cfg, again, "--batch", "3")  # batching does not change a sequence on one device
+    assert _files(again) == _files(out)
+
+
+def test_sigkill_and_resume_give_the_same_dataset(tmp_path):
+    cfg = tiny_config(tmp_path, TINY.replace("sequences = 4", "sequences = 12"))
+    ref = tmp_path / "ref"
+    t0 = time.perf_counter()
+    _generate(cfg, ref)
+    seconds = time.perf_counter() - t0
+    out = tmp_path / "killed"
+    rng = np.random.default_rng(7)
+    killed = 0
+    for _ in range(4):
+        args = [sys.executable, "-m", "pipelines.cli", "dataset", "generate", "--config", str(cfg), "--out",
+                str(out), "--device", "cpu", "-q"] + (["--resume"] if out.exists() else [])
+        before = len(_files(out)) if out.exists() else 0
+        target = before + int(rng.integers(1, 3))
+        proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        # kill at a random point after 1-2 more sequences are complete: mid-simulation, mid-write
+        # or between a file and its part-file record
+        while proc.poll() is None and (not out.exists() or len(_files(out)) < target):
+            time.sleep(0.01)
+        time.sleep(float(rng.uniform(0.0, 0.4)))
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGKILL)
+            killed += 1
+        proc.wait()
+    assert killed >= 2, f"the runs ended before they could be killed ({seconds:.1f} s uninterrupted)"
+    r = _generate(cfg, out, *(["--resume"] if out.exists() else []))
+    assert "accepted" in r.stdout
+    assert _files(out) == _files(ref) and len(_files(ref)) > 0
+    m_ref, m = S.read_manifest(ref), S.read_manifest(out)
+    assert m["sequences"] == m_ref["sequences"] and m["rejected"] == m_ref["rejected"]
+    assert not [p for p in out.rglob(".*tmp*")]
+    # a finished dataset resumed again does nothing
+    r = _generate(cfg, out, "--resume")
+    assert " 0 accepted" in r.stdout
+
+
+def test_shards_combine_into_the_same_dataset(reference, tmp_path):
+    cfg, ref, _ = reference
+    out = tmp_path / "sharded"
+    for i in range(2):
+        _generate(cfg, out, "--shard", f"{i}/2")
+    assert _files(out) == _files(ref)
+    m_ref, m = S.read_manifest(ref), S.read_manifest(out)
+    assert m["sequences"] == m_ref["sequences"]
+    # starting a started shard again without --resume is refused; a different config too
+    r = _generate(cfg, out, "--shard", "0/2", check=False)
+    assert r.returncode == 2 and "--resume" in r.stderr
+    other = tiny_config(tmp_path, TINY.replace("seed = 3", "seed = 4"), "other.toml")
+    r = _generate(other, out, "--resume", check=False)
+    assert r.returncode == 2 and "different config" in r.stderr
