@@ -312,3 +312,27 @@ def test_shards_combine_into_the_same_dataset(reference, tmp_path):
     other = tiny_config(tmp_path, TINY.replace("seed = 3", "seed = 4"), "other.toml")
     r = _generate(other, out, "--resume", check=False)
     assert r.returncode == 2 and "different config" in r.stderr
+
+
+def test_user_motion_folders_are_sampled(tmp_path):
+    """A folder of AMASS files: every file is opened up front; sequences sample them by stem."""
+    from sim.datasets.sampling import sample_sequences
+
+    data = tmp_path / "amass" / "subject"
+    data.mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for name in ("jog_01", "wave_02"):
+        T = 20
+        np.savez(data / f"{name}.npz", poses=rng.normal(0, 0.1, (T, 156)), trans=np.zeros((T, 3)),
+                 mocap_framerate=60.0, betas=np.zeros(16))
+    text = TINY.replace('procedural = ["walk", "arm_raise"]', 'procedural = ["arm_raise"]\nfiles = ["amass"]')
+    text = text.replace("sequences = 4", "sequences = 12")
+    cfg = _load(tmp_path, text)
+    specs = sample_sequences(cfg)
+    assert {"jog_01", "wave_02", "arm_raise"} <= {s.motion_label for s in specs}
+    for s in specs:
+        if s.motion_label != "arm_raise":
+            assert Path(s.motion).parent == data and s.motion_params == {}
+    # a file too short for the config's seconds is refused up front
+    with pytest.raises(WrinklesInputError, match="lasts only"):
+        _load(tmp_path, text.replace("seconds = 0.2", "seconds = 1.0"))

@@ -1,0 +1,112 @@
+"""Dataset generation throughput (issue 4): sequences per hour, garment-frames per second and
+bytes per frame on disk, for fine garments, coarse garments, and the default fine + coarse.
+
+Each case generates a fresh dataset from one config (t-shirts and straight skirts on sampled
+bodies, walk / arm_raise / squat, cotton and jersey, self-contact on, 10 x 10, 256^2 UV images)
+with ``sim.datasets.generate`` and reports the wall time of the whole job: simulation
+(settle, blend and motion), derivation (smoothing, frames, strain, images), and writing.
+
+``python -m benchmarks.bench_dataset --device cuda --sequences 8 --batch 8``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import tempfile
+import time
+
+from benchmarks.common import machine, write_result
+
+CONFIG = """\
+seed = 0
+sequences = {sequences}
+fps = 30.0
+seconds = {seconds}
+
+[garments]
+categories = ["t_shirt", "straight_skirt"]
+fine_resolution = "{fine}"
+coarse_resolution = "coarse"
+
+[materials]
+names = ["cotton", "jersey_knit"]
+
+[bodies]
+betas = 4
+
+[motions]
+procedural = ["walk", "arm_raise", "squat"]
+
+[split]
+test_fraction = 0.1
+ood_motions = ["squat"]
+
+[simulation]
+self_contact = true
+
+[derive]
+image_resolution = 256
+coarse = {coarse}
+"""
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--sequences", type=int, default=8)
+    ap.add_argument("--seconds", type=float, default=1.0, help="motion length [s] (plus 2 s of prelude)")
+    ap.add_argument("--batch", type=int, default=8)
+    ap.add_argument("--cases", default="coarse,fine,fine+coarse")
+    args = ap.parse_args()
+
+    from sim.datasets.config import parse_config
+    from sim.datasets.generate import generate
+    from sim.device import resolve_device
+    from sim.garments.templates import TEMPLATES
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover
+        import tomli as tomllib
+    device = resolve_device(args.device)
+    cases = {"coarse": ("coarse", "false"), "fine": ("fine", "false"), "fine+coarse": ("fine", "true")}
+    fig = {}
+    for name in args.cases.split(","):
+        fine, coarse = cases[name]
+        text = CONFIG.format(sequences=args.sequences, seconds=args.seconds, fine=fine, coarse=coarse)
+        cfg = parse_config(tomllib.loads(text), source=f"bench_dataset:{name}")
+        root = tempfile.mkdtemp(prefix="wrinkles-bench-")
+        try:
+            t0 = time.perf_counter()
+            s = generate(cfg, root, batch=args.batch, device=device, log=lambda m: print(m, flush=True))
+            wall = time.perf_counter() - t0
+            manifest = json.load(open(f"{root}/manifest.json"))
+        finally:
+            shutil.rmtree(root, ignore_errors=True)
+        seqs = list(manifest["sequences"].values())
+        frames = sum(e["frames"] for e in seqs)
+        made = s.accepted + s.rejected
+        fig[name] = {
+            "sequences": made, "accepted": s.accepted, "rejected": s.rejected,
+            "rejections": {k: v["reasons"] for k, v in manifest["rejected"].items()},
+            "wall_s": wall, "sequences_per_hour": 3600.0 * made / wall,
+            "garment_frames_per_s": frames / wall if frames else 0.0,
+            "bytes_per_frame": s.bytes / max(frames, 1),
+            "vertices": sorted({e["vertices"] for e in seqs}),
+            "coarse_vertices": sorted({e["coarse_vertices"] for e in seqs if e.get("coarse_vertices")}),
+        }
+        print(name, json.dumps(fig[name]), flush=True)
+    write_result(f"dataset_{device.split(':')[0]}", {
+        "machine": machine(device),
+        "sizes": {"sequences": args.sequences, "seconds": args.seconds, "batch": args.batch, "fps": 30.0,
+                  "image_resolution": 256,
+                  "edge_m": {c: {"coarse": TEMPLATES[c].coarse, "fine": TEMPLATES[c].fine}
+                             for c in ("t_shirt", "straight_skirt")}},
+        "figures": fig,
+    })
+
+
+if __name__ == "__main__":
+    main()
