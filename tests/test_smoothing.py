@@ -11,28 +11,7 @@ import pytest
 
 from sim.errors import WrinklesInputError
 from sim.geometry.smoothing import BaseSmoother, hessian_energy, smooth_base, smoothing_stiffness
-
-
-def sheet(n: int, size: float, *, jitter: float = 0.0, seed: int = 0):
-    """An n x n vertex sheet in the XY plane (V, 3) with faces (F, 3); interior vertices
-    jittered by up to ``jitter`` of the spacing."""
-    u = np.linspace(0.0, size, n)
-    X, Y = np.meshgrid(u, u, indexing="ij")
-    xy = np.stack([X.ravel(), Y.ravel()], 1)
-    if jitter:
-        rng = np.random.default_rng(seed)
-        inner = (xy > 0).all(1) & (xy < size).all(1)
-        xy[inner] += rng.uniform(-jitter, jitter, (inner.sum(), 2)) * size / (n - 1)
-    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
-    a = (i * n + j).ravel()
-    faces = np.concatenate([np.stack([a, a + n, a + n + 1], 1), np.stack([a, a + n + 1, a + 1], 1)])
-    return np.concatenate([xy, np.zeros((len(xy), 1))], 1), faces.astype(np.int32)
-
-
-def rotation(rng) -> np.ndarray:
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q *= np.sign(np.diag(r))
-    return q if np.linalg.det(q) > 0 else -q
+from tests.test_geometry import rotation, sheet
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +28,7 @@ def test_spectrum_keeps_long_waves_and_removes_wrinkles():
     amplitude (1 / (1 + (1/5)⁴) = 99.8 % in theory) and the wrinkles lose ≥ 90 % (theory 97.5 %;
     4 vertices per wavelength damp a little less). A wave at λ = length keeps about half."""
     length = 0.1
-    v, f = sheet(101, 1.0, jitter=0.25)
+    v, f, _ = sheet(101, 1.0, jitter=0.25)
     m = hessian_energy(v, f)[0]
     X, Y = v[:, 0], v[:, 1]
     low = 0.02 * np.sin(2 * np.pi * X / 0.5 + 0.3)
@@ -79,7 +58,7 @@ def test_affine_fields_are_reproduced():
     """On a flat sheet (jittered, open boundary, anywhere in 3D) every affine map of the rest
     positions, rigid or not, comes back unchanged, boundary vertices included."""
     rng = np.random.default_rng(1)
-    v, f = sheet(30, 0.6, jitter=0.3)
+    v, f, _ = sheet(30, 0.6, jitter=0.3)
     rest = v @ rotation(rng).T + [0.1, 1.0, -0.3]
     maps = [(rotation(rng), rng.normal(size=3)),
             (np.eye(3) + 0.4 * rng.normal(size=(3, 3)), rng.normal(size=3))]
@@ -118,7 +97,7 @@ def test_garment_boundaries_stay_in_place(tshirt):
 def test_smoothing_time_100_frames_15k_vertices():
     """Measured, not asserted (DESIGN.md, Performance practice)."""
     rng = np.random.default_rng(3)
-    v, f = sheet(122, 1.2, jitter=0.3)
+    v, f, _ = sheet(122, 1.2, jitter=0.3)
     v[:, 2] = 0.2 * np.sin(2 * v[:, 0]) * np.cos(3 * v[:, 1])
     seq = (v + 0.002 * rng.normal(size=(100,) + v.shape)).astype(np.float32)
     t0 = time.perf_counter()
@@ -132,7 +111,7 @@ def test_smoothing_time_100_frames_15k_vertices():
 
 
 def test_smoothing_input_errors():
-    v, f = sheet(5, 1.0)
+    v, f, _ = sheet(5, 1.0)
     with pytest.raises(WrinklesInputError, match="positive"):
         BaseSmoother(v, f, length=0.0)
     with pytest.raises(WrinklesInputError, match="shape"):
