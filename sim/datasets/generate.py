@@ -105,6 +105,7 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
     Returns:
         counts and timings; ``out/manifest.json`` is rebuilt from every part at the end.
     """
+    from sim.bodies import load_body
     from sim.device import resolve_device
 
     if not (0 <= shard < shards):
@@ -123,6 +124,7 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
         S.atomic_write_json(root / "config.json", cfg_dict)
     part = _Shard(root, cfg_dict, shard, shards, resume)
     specs = sample_sequences(cfg)
+    body = load_body(cfg.bodies.model)  # once: an SMPL file is not re-read for every group
     mine = shard_indices(len(specs), shard, shards)
     # temp files a killed run of this shard left (other shards' are theirs: they may be running)
     stale = [part.path.with_name(f".{part.path.name}.tmp")]
@@ -152,8 +154,8 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
             todo.append(sp)
         if todo:
             # the whole group is simulated as in an uninterrupted run (same batch composition)
-            _make_group(cfg, [specs[k] for k in group], {s.id for s in todo}, root, part, sim_cfg, dev,
-                        summary, log)
+            _make_group(cfg, body, [specs[k] for k in group], {s.id for s in todo}, root, part, sim_cfg,
+                        dev, summary, log)
         done += len(group)
         if progress is not None:
             progress(done, len(mine))
@@ -171,49 +173,43 @@ def _write_rejections(root: Path) -> None:
     S.atomic_write_bytes(root / S.REJECTIONS, ("\n".join(lines) + ("\n" if lines else "")).encode())
 
 
-def build_job(cfg: DatasetConfig, sp: SequenceSpec, body, resolution):
-    """The garment (fitted to the sampled body) and motion of one sequence."""
-    from sim.garments import make_garment
+def sequence_inputs(cfg: DatasetConfig, sp: SequenceSpec, body):
+    """The body shape (padded betas) and the motion of one sequence, built for that body."""
     from sim.motions import MotionSkeleton, load_motion
 
-    betas = np.zeros(body.num_betas, np.float32) if hasattr(body, "num_betas") else None
-    if betas is not None:
-        betas[:len(sp.betas)] = sp.betas
-    else:
-        betas = np.asarray(sp.betas, np.float32)
-    garment = make_garment(sp.category, body, betas, resolution=resolution, material=sp.material,
-                           name=sp.category, **sp.garment_params)
-    skeleton = MotionSkeleton.from_body(body, betas)
-    motion = load_motion(sp.motion, fps=cfg.fps, duration=cfg.seconds, skeleton=skeleton, **sp.motion_params)
-    return garment, motion, betas
+    betas = body.full_betas(sp.betas)
+    motion = load_motion(sp.motion, fps=cfg.fps, duration=cfg.seconds,
+                         skeleton=MotionSkeleton.from_body(body, betas), **sp.motion_params)
+    return betas, motion
 
 
-def _make_group(cfg: DatasetConfig, group: list[SequenceSpec], wanted: set[str], root: Path, part: _Shard,
-                sim_cfg, device: str, summary: GenerateSummary, log: Log) -> None:
+def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set[str], root: Path,
+                part: _Shard, sim_cfg, device: str, summary: GenerateSummary, log: Log) -> None:
     from dataclasses import replace
 
-    from sim.bodies import load_body
     from sim.datasets.derive import Deriver, coarse_arrays
+    from sim.garments import make_garment
     from sim.quality import SimulationError, edge_strain
     from sim.simulate import SimulationJob, simulate_batch
 
-    body = load_body(cfg.bodies.model)
     sim_cfg = replace(sim_cfg, device=device)
+    kinds = {"fine": cfg.garments.fine_resolution}
+    if cfg.derive.coarse:
+        kinds["coarse"] = cfg.garments.coarse_resolution
     jobs, meta = [], []
     for sp in group:
-        fine, motion, betas = build_job(cfg, sp, body, cfg.garments.fine_resolution)
-        jobs.append(SimulationJob(fine, body, motion, betas=betas, name=f"{sp.id} fine"))
-        meta.append((sp, fine, motion, betas, "fine"))
-        if cfg.derive.coarse:
-            coarse, _, _ = build_job(cfg, sp, body, cfg.garments.coarse_resolution)
-            jobs.append(SimulationJob(coarse, body, motion, betas=betas, name=f"{sp.id} coarse"))
-            meta.append((sp, coarse, motion, betas, "coarse"))
+        betas, motion = sequence_inputs(cfg, sp, body)
+        for kind, resolution in kinds.items():
+            garment = make_garment(sp.category, body, betas, resolution=resolution, material=sp.material,
+                                   name=sp.category, **sp.garment_params)
+            jobs.append(SimulationJob(garment, body, motion, betas=betas, name=f"{sp.id} {kind}"))
+            meta.append((sp, garment, motion, betas, kind))
     try:
         results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed)
     except SimulationError as e:
         if len(group) > 1:  # find the culprit: one sequence at a time
             for sp in group:
-                _make_group(cfg, [sp], wanted & {sp.id}, root, part, sim_cfg, device, summary, log)
+                _make_group(cfg, body, [sp], wanted & {sp.id}, root, part, sim_cfg, device, summary, log)
             return
         results = None
         failure = [str(e)]
