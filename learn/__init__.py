@@ -1,1 +1,2 @@
-"""placeholder"""
+"""PyTorch side of wrinkles: datasets, methods, losses, metrics, the trainer and the evaluation
+harness. Imports ``sim`` (never ``pipelines``)."""

@@ -1,0 +1,98 @@
+"""What every trainable garment method provides to the shared trainer and evaluation harness.
+
+A method (DeepWrinkles, GSNet, the strain diffusion, a baseline...) is a class with a frozen
+``Config`` dataclass and these operations, kept apart as STYLE.md 4 asks (network, data, loss,
+inference loop):
+
+- ``build_model()`` -> the ``torch.nn.Module`` (built deterministically from the config; the
+  trainer seeds torch first);
+- ``train_dataset(root)`` -> a map-style dataset whose ``__getitem__`` takes ``(index, seed)``:
+  every random draw of an item (vertex subsets, augmentation) comes from ``seed``, which the
+  trainer derives from the run seed, the epoch and the index; this is what makes a resumed run
+  bit-identical to an uninterrupted one;
+- ``collate(items)`` -> a batch (nested dicts of tensors);
+- ``training_loss(model, batch, generator)`` -> :class:`LossOutput`; random draws of the loss
+  (noise, timesteps) use ``generator``, a ``torch.Generator`` seeded per step and process;
+- ``predict_sequence(model, sequence, device)`` -> :class:`Prediction` for one whole sequence
+  of a dataset (its arrays as numpy, ``sim.datasets.schema`` names); the evaluation harness
+  turns predictions into metrics, so every method is measured by the same code.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+
+@dataclass
+class LossOutput:
+    """A training loss and the scalars to log with it.
+
+    Attributes:
+        loss: the scalar to minimise (a 0-d tensor with grad).
+        scalars: named floats or 0-d tensors to log (detached by the trainer).
+    """
+
+    loss: torch.Tensor
+    scalars: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Prediction:
+    """A method's output for one sequence.
+
+    Attributes:
+        vertices: garment positions [m], shape (T, V, 3), float32, on the sequence's fine garment
+            topology (``fine/faces``).
+        extras: optional method-specific arrays (e.g. ``"normal_maps"`` (T, H, W, 3)).
+    """
+
+    vertices: np.ndarray
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class Method:
+    """Base class of trainable methods (see the module docstring)."""
+
+    name: ClassVar[str] = ""
+    Config: ClassVar[type]
+
+    def __init__(self, config: Any):
+        self.config = config
+
+    @classmethod
+    def validate_config(cls, config: Any, err) -> None:
+        """Range checks of ``config``; raise ``err(message)``. Default: none."""
+
+    def build_model(self) -> torch.nn.Module:
+        raise NotImplementedError
+
+    def train_dataset(self, root) -> torch.utils.data.Dataset:
+        raise NotImplementedError
+
+    def collate(self, items: list) -> Any:
+        from torch.utils.data import default_collate
+
+        return default_collate(items)
+
+    def training_loss(self, model: torch.nn.Module, batch: Any, generator: torch.Generator) -> LossOutput:
+        raise NotImplementedError
+
+    def predict_sequence(self, model: torch.nn.Module, sequence: Mapping[str, np.ndarray], *,
+                         device: torch.device) -> Prediction:
+        raise NotImplementedError
+
+
+def batch_to(batch: Any, device: torch.device) -> Any:
+    """Move every tensor of a nested batch to ``device``."""
+    if isinstance(batch, torch.Tensor):
+        return batch.to(device, non_blocking=True)
+    if isinstance(batch, dict):
+        return {k: batch_to(v, device) for k, v in batch.items()}
+    if isinstance(batch, (list, tuple)):
+        return type(batch)(batch_to(v, device) for v in batch)
+    return batch

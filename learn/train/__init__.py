@@ -1,0 +1,1 @@
+"""The shared training loop (``trainer``), its configs, checkpoints, EMA, logs and DDP helpers."""

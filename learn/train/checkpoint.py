@@ -1,0 +1,113 @@
+"""Checkpoints: state dicts plus the resolved run config, written atomically, read safely.
+
+A checkpoint file (``torch.save`` zip) holds plain containers and tensors only:
+
+- ``format``: ``"wrinkles-checkpoint"``, ``version``: 1;
+- ``config``: the resolved run config as a dict (``learn.train.config.config_to_dict``);
+- ``step``: optimizer steps done;
+- ``model``: the model's state dict; ``ema``: the EMA state (or absent);
+- ``optimizer``, ``scaler``: optimizer and gradient-scaler states (absent in exported weights);
+- ``rng``: torch CPU/CUDA generator states (as uint8 tensors);
+- ``versions``: package versions, for the model card.
+
+It is loaded with ``torch.load(..., weights_only=True)``, which refuses anything that would run
+code. Writing goes to a temporary name in the same directory, then ``os.replace`` (atomic), so a
+kill never leaves a truncated checkpoint behind.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from sim.errors import WrinklesInputError
+
+FORMAT = "wrinkles-checkpoint"
+VERSION = 1
+
+
+def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> None:
+    """Write ``payload`` (plus format markers) to ``path`` atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save({"format": FORMAT, "version": VERSION, **payload}, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def load_checkpoint(path: str | os.PathLike, *, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Read a checkpoint without executing code (``weights_only=True``).
+
+    Raises:
+        WrinklesInputError: missing, unreadable, or not a wrinkles checkpoint.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise WrinklesInputError("checkpoint not found", path=path)
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as e:  # zip errors, unpickling refusals, truncated files
+        lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()] or [type(e).__name__]
+        first = next((ln for ln in lines if ln.startswith("WeightsUnpickler error")), lines[0])
+        raise WrinklesInputError(f"not a readable checkpoint ({first[:200]})", path=path) from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise WrinklesInputError("not a wrinkles checkpoint (no 'format' marker)", path=path)
+    if ckpt.get("version") != VERSION:
+        raise WrinklesInputError(f"checkpoint format version {ckpt.get('version')} is not supported "
+                                 f"(this wrinkles reads version {VERSION})", path=path)
+    for key in ("config", "model", "step"):
+        if key not in ckpt:
+            raise WrinklesInputError(f"checkpoint lacks '{key}'", path=path)
+    return ckpt
+
+
+def check_state_dict(model: torch.nn.Module, state: dict[str, torch.Tensor], *, path: str | os.PathLike,
+                     what: str = "model") -> None:
+    """Refuse a state dict that does not fit ``model``, naming what differs.
+
+    Raises:
+        WrinklesInputError: missing or unexpected keys, or a shape/dtype mismatch.
+    """
+    own = model.state_dict()
+    missing = [k for k in own if k not in state]
+    extra = [k for k in state if k not in own]
+    shapes = [f"{k} is {tuple(state[k].shape)} in the checkpoint, {tuple(v.shape)} here"
+              for k, v in own.items() if k in state and tuple(state[k].shape) != tuple(v.shape)]
+    problems = []
+    if missing:
+        problems.append(f"missing {len(missing)} tensor(s) (e.g. {missing[0]})")
+    if extra:
+        problems.append(f"{len(extra)} unexpected tensor(s) (e.g. {extra[0]})")
+    if shapes:
+        problems.append(f"{len(shapes)} shape mismatch(es): {shapes[0]}")
+    if problems:
+        raise WrinklesInputError(f"the checkpoint's {what} does not match this model: " + "; ".join(problems)
+                                 + " (was it trained with a different method or model config?)", path=path)
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of the packages a checkpoint depends on."""
+    import numpy as np
+
+    import sim
+
+    out = {"wrinkles": str(sim.__version__), "torch": str(torch.__version__), "numpy": str(np.__version__)}
+    try:
+        import warp
+
+        out["warp"] = str(warp.__version__)
+    except ImportError:  # pragma: no cover
+        pass
+    return out
