@@ -18,7 +18,15 @@ EXIT_USAGE = 2
 
 
 def _commands() -> dict:
-    from pipelines import body_cmd, dataset_cmd, garments_cmd, motions_cmd, simulate_cmd
+    from pipelines import (
+        body_cmd,
+        dataset_cmd,
+        evaluate_cmd,
+        garments_cmd,
+        motions_cmd,
+        simulate_cmd,
+        train_cmd,
+    )
 
     return {
         "body": body_cmd,
@@ -26,6 +34,8 @@ def _commands() -> dict:
         "garments": garments_cmd,
         "simulate": simulate_cmd,
         "dataset": dataset_cmd,
+        "train": train_cmd,
+        "evaluate": evaluate_cmd,
     }
 
 

@@ -55,3 +55,16 @@ def random_body(num_vertices: int = 400, *, seed: int = 0, posedirs: bool = True
         joint_names=SMPL_JOINT_NAMES,
         name="random-test-body",
     )
+
+
+@pytest.fixture(scope="session")
+def sample_dataset(tmp_path_factory):
+    """The shipped sample dataset (``wrinkles dataset generate --config sample``), made once per
+    test session on CPU (~15 s): 6 sequences of t-shirts and skirts, 18 frames each, 64² images."""
+    from sim.datasets.config import load_config
+    from sim.datasets.generate import generate
+
+    root = tmp_path_factory.mktemp("sample-dataset") / "data"
+    summary = generate(load_config("sample"), root, device="cpu")
+    assert summary.accepted >= 4, "the sample config should simulate cleanly on CPU"
+    return root

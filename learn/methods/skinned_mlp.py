@@ -135,7 +135,7 @@ class _Prepared:
         body = method.body()
         betas = np.asarray(seq["body/betas"], np.float32).reshape(-1)
         rest_body = body.rest_mesh(betas)
-        self.rest = np.asarray(seq["fine/rest_vertices"], np.float32)
+        self.rest = np.array(seq["fine/rest_vertices"], np.float32)  # a writable copy
         self.weights = transfer_skinning_weights(self.rest, rest_body, body.weights,
                                                  k=method.config.skin_neighbours).astype(np.float32)
         self.A, local = pose_transforms(np.asarray(seq["body/poses"], np.float32),

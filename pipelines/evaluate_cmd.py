@@ -1,0 +1,183 @@
+"""``wrinkles evaluate``: the shared evaluation harness (learn.evaluate) from the command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from sim.errors import WrinklesInputError
+
+HELP = "evaluate a trained model on a dataset split: table, JSON, example images"
+DESCRIPTION = """\
+Evaluate a checkpoint (wrinkles train) on a dataset split with the shared metrics
+(learn.evaluate): Ev and Ecd against the simulated garment, bending-angle error, edge stretch,
+collision rate with the body, flicker, the UV wrinkle-map power spectrum, and the Frechet distance
+of UV normal-map features from the project's fixed extractor (NOT Inception FID; the papers' FID
+numbers are not comparable).
+
+Writes into --out (default: <checkpoint dir>/../eval-<split>):
+  metrics.json       summary, units, notes and per-sequence metrics
+  uv_examples.png    predicted vs simulated UV normal and wrinkle maps of a few frames
+  renders.png        predicted vs simulated garment, coloured by the per-vertex error
+
+examples:
+  wrinkles evaluate --model runs/mlp/checkpoints/last.pt --data data/sample --split test_id
+  wrinkles evaluate --model runs/mlp/checkpoints/last.pt --data data/big --split test_ood --max-sequences 50
+"""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from pipelines.cli import add_common_arguments
+
+    p.add_argument("--model", required=True, help="checkpoint file (RUN/checkpoints/last.pt)")
+    p.add_argument("--data", required=True, help="dataset directory")
+    p.add_argument("--split", default="test_id", choices=("train", "test_id", "test_ood", "all"),
+                   help="dataset split (default: %(default)s)")
+    p.add_argument("--out", help="output directory (default: next to the run, eval-<split>)")
+    p.add_argument("--max-sequences", type=int, help="evaluate only the first N sequences")
+    p.add_argument("--image-resolution", type=int,
+                   help="UV map side for the map metrics (default: the dataset's, else 128; 0: none)")
+    p.add_argument("--no-ema", action="store_true", help="use the raw weights, not the EMA weights")
+    p.add_argument("--no-images", action="store_true", help="skip the example pictures")
+    add_common_arguments(p, seed=False)
+
+
+def _default_out(model: Path, split: str) -> Path:
+    run = model.parent.parent if model.parent.name == "checkpoints" else model.parent
+    return run / f"eval-{split}"
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from learn.evaluate import evaluate, format_table
+    from learn.train.distributed import resolve_torch_device
+    from learn.train.trainer import load_trained
+    from pipelines.progress import progress_bar
+    from sim.datasets.storage import read_manifest
+    from sim.device import resolve_device
+
+    model_path = Path(args.model)
+    read_manifest(args.data)
+    if args.max_sequences is not None and args.max_sequences < 1:
+        raise WrinklesInputError(f"--max-sequences must be >= 1, got {args.max_sequences}")
+    dev = resolve_torch_device(args.device)
+    wdev = resolve_device(args.device)
+    method, model, ckpt = load_trained(model_path, device=dev, use_ema=not args.no_ema)
+    out = Path(args.out) if args.out else _default_out(model_path, args.split)
+    with progress_bar(0, f"evaluate {args.split}", quiet=args.quiet, unit="seq") as bar:
+        ev = evaluate(method, model, args.data, args.split, device=dev, warp_device=wdev,
+                      max_sequences=args.max_sequences, image_resolution=args.image_resolution, progress=bar)
+    title = (f"{ckpt['config']['method']} @ step {ckpt['step']} ({model_path}) on {args.data} [{args.split}]"
+             f"{'' if args.no_ema or 'ema' not in ckpt else ', EMA weights'}")
+    # write everything into a temporary directory, then move it into place: no partial output
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        record = {"model": os.fspath(model_path), "method": ckpt["config"]["method"], "step": ckpt["step"],
+                  "ema": not args.no_ema and "ema" in ckpt, "data": os.fspath(args.data),
+                  "device": str(dev), "torch": str(torch.__version__), **ev.to_json()}
+        (tmp / "metrics.json").write_text(json.dumps(record, indent=1))
+        if not args.no_images and ev.examples:
+            write_example_images(ev.examples, tmp)
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    print(format_table(ev, title=title))
+    print(f"wrote {out}", file=sys.stderr)
+    return 0
+
+
+def _normal_gain(n: np.ndarray, mask: np.ndarray) -> float:
+    """Contrast gain for the tangent components of a tangent-space normal map (they are small)."""
+    xy = np.linalg.norm(np.asarray(n, np.float32)[..., :2][mask], axis=-1)
+    return float(0.9 / max(np.percentile(xy, 99) if xy.size else 1.0, 0.05))
+
+
+def _normal_rgb(n: np.ndarray, mask: np.ndarray, gain: float = 1.0) -> np.ndarray:
+    n = np.asarray(n, np.float32).copy()
+    n[..., :2] *= gain
+    rgb = np.clip(0.5 * (n + 1.0), 0.0, 1.0)
+    rgb[~mask] = 1.0
+    return rgb
+
+
+def write_example_images(examples: list[dict], out_dir: Path) -> list[Path]:
+    """``uv_examples.png`` (normal and wrinkle maps, prediction vs simulation) and
+    ``renders.png`` (garments coloured by the per-vertex error) for a few example frames."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    uv = [e for e in examples if "normal_pred" in e]
+    if uv:
+        fig, axes = plt.subplots(len(uv), 4, figsize=(11, 2.9 * len(uv)), squeeze=False)
+        for row, e in zip(axes, uv, strict=True):
+            mask = e["mask"]
+            wmax = float(np.abs(e["wrinkle_gt"][..., 2][mask]).max() or 1e-3) if mask.any() else 1e-3
+            k = _normal_gain(e["normal_gt"], mask)
+            panels = [(_normal_rgb(e["normal_pred"], mask, k), f"predicted normals (xy x{k:.1f})", None),
+                      (_normal_rgb(e["normal_gt"], mask, k), f"simulated normals (xy x{k:.1f})", None),
+                      (np.where(mask, e["wrinkle_pred"][..., 2], np.nan), "predicted wrinkle w3 [m]", wmax),
+                      (np.where(mask, e["wrinkle_gt"][..., 2], np.nan), "simulated wrinkle w3 [m]", wmax)]
+            for ax, (img, name, lim) in zip(row, panels, strict=True):
+                if lim is None:
+                    ax.imshow(img)
+                else:
+                    im = ax.imshow(img, cmap="RdBu_r", vmin=-lim, vmax=lim)
+                    fig.colorbar(im, ax=ax, fraction=0.046)
+                ax.set_title(f"{e['sequence']} t={e['frame']}\n{name}", fontsize=8)
+                ax.axis("off")
+        fig.tight_layout()
+        written.append(out_dir / "uv_examples.png")
+        fig.savefig(written[-1], dpi=100)
+        plt.close(fig)
+    try:
+        written.append(_renders(examples, out_dir / "renders.png"))
+    except ImportError as e:  # pyvista missing: the UV pictures and numbers still stand
+        print(f"note: no renders.png ({e})", file=sys.stderr)
+    return written
+
+
+def _renders(examples: list[dict], path: Path) -> Path:
+    """Predicted (left) and simulated (right) garments side by side, error-coloured."""
+    from PIL import Image, ImageDraw
+
+    from pipelines.preview import PreviewMesh, render_frames
+
+    tiles = []
+    for e in examples:
+        vmax = float(np.percentile(e["error"], 99)) or 1e-3
+        width = float(np.ptp(np.asarray(e["gt"])[:, 0]))
+        offset = np.float32([1.2 * width + 0.05, 0.0, 0.0])  # side by side, a gap between
+        meshes = [PreviewMesh(name="predicted", vertices=np.asarray(e["pred"], np.float32) - offset / 2,
+                              faces=e["faces"], scalars=e["error"], cmap="magma", clim=(0.0, vmax)),
+                  PreviewMesh(name="simulated", vertices=np.asarray(e["gt"], np.float32) + offset / 2,
+                              faces=e["faces"])]
+        frames = render_frames(meshes, [0], size=(640, 400))
+        try:
+            img = Image.fromarray(next(frames))
+        finally:
+            frames.close()
+        ImageDraw.Draw(img).text((8, 8), f"{e['sequence']} t={e['frame']}: predicted (error, max "
+                                         f"{vmax * 1000:.0f} mm) | simulated", fill=(0, 0, 0))
+        tiles.append(img)
+    sheet = Image.new("RGB", (tiles[0].width, sum(t.height for t in tiles)), "white")
+    y = 0
+    for t in tiles:
+        sheet.paste(t, (0, y))
+        y += t.height
+    sheet.save(path)
+    return path
