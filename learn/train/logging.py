@@ -106,7 +106,12 @@ def plot_curves(records: list[dict], out: str | os.PathLike) -> Path | None:
     keys = sorted({k for r in records for k in r if k != "step"})
     if not records or not keys:
         return None
-    import matplotlib
+    try:
+        import matplotlib
+    except ImportError:
+        print("note: matplotlib is not installed; no curves.png (metrics.jsonl has the numbers)",
+              file=sys.stderr)
+        return None
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
