@@ -10,18 +10,18 @@ twins of every term live in ``learn.losses.reference``.
 Terms of physics-based garment training (PBNS, Bertiche et al. 2021; SNUG, Santesteban et al.
 2022; HOOD, Grigorev et al. 2023) and GSNet's losses (GSNet Sec. 3.5, Eq. 6-8):
 
-==================== ====================================================== =========
-term                 energy                                                 unit
-==================== ====================================================== =========
-MembraneLoss         sum_t A_t (mu |G_t|^2 + lam/2 tr(G_t)^2), StVK          J
-BendingLoss          sum_h k_b 3|e_h|^2/(A_1+A_2) (theta_h - theta0_h)^2/2    J
-CollisionLoss        sum_v k max(eps - (x_v - p_v) . n_v, 0)^3                J
-InertiaLoss          sum_v m_v / (2 dt^2) |x_v - 2 x'_v + x''_v|^2            J
-GravityLoss          -sum_v m_v g . x_v                                     J
-GSNetEdgeLoss        sum_e (|x_a - x_b| - l_e)^2                            m^2
-GSNetBendingLoss     lambda_B sum_v |(Delta n)_v|^2                         -
-GSNetCollisionLoss   sum_v max(eps - (x_v - p_v) . n_v, 0)^2                m^2
-==================== ====================================================== =========
+================== ======================================================= ====
+term               energy                                                  unit
+================== ======================================================= ====
+MembraneLoss       sum_t A_t (mu |G_t|^2 + lam/2 tr(G_t)^2), StVK          J
+BendingLoss        sum_h k_b 3|e_h|^2/(A_1+A_2) (theta_h - theta0_h)^2 / 2 J
+CollisionLoss      sum_v k max(eps - (x_v - p_v) . n_v, 0)^power, power 3  J
+InertiaLoss        sum_v m_v / (2 dt^2) |x_v - 2 x'_v + x''_v|^2           J
+GravityLoss        -sum_v m_v g . x_v                                      J
+GSNetEdgeLoss      sum_e (|x_a - x_b| - l_e)^2                             m^2
+GSNetBendingLoss   lambda_B sum_v |(Delta n)_v|^2                          -
+GSNetCollisionLoss sum_v max(eps - (x_v - p_v) . n_v, 0)^2                 m^2
+================== ======================================================= ====
 
 A trainer sums weighted terms; :class:`PhysicsBatch` holds every input a term may need and
 :meth:`PhysicsLoss.on_batch` picks the ones its term declares in ``inputs``.
@@ -207,7 +207,7 @@ class MembraneLoss(PhysicsLoss):
         def launch(arrs, energy_out, run: Launcher):
             run(K.membrane_energy_kernel, dim,
                 [arrs[0], a["faces"], a["dm_inv"], a["areas"], self.mu, self.lam], [energy_out])
-        return warp_energy(launch, [x])
+        return warp_energy(launch, [x], dim[1])
 
 
 class BendingLoss(PhysicsLoss):
@@ -244,7 +244,7 @@ class BendingLoss(PhysicsLoss):
             if dim[1]:
                 run(K.bending_energy_kernel, dim, [arrs[0], a["hinges"], a["rest"], a["stiffness"]],
                     [energy_out])
-        return warp_energy(launch, [x])
+        return warp_energy(launch, [x], dim[1])
 
 
 class InertiaLoss(PhysicsLoss):
@@ -285,7 +285,7 @@ class InertiaLoss(PhysicsLoss):
 
         def launch(arrs, energy_out, run: Launcher):
             run(K.inertia_energy_kernel, dim, [*arrs, a["masses"], c], [energy_out])
-        return warp_energy(launch, xs)
+        return warp_energy(launch, xs, dim[1])
 
 
 class GravityLoss(PhysicsLoss):
@@ -317,7 +317,7 @@ class GravityLoss(PhysicsLoss):
 
         def launch(arrs, energy_out, run: Launcher):
             run(K.gravity_energy_kernel, dim, [arrs[0], a["masses"], g], [energy_out])
-        return warp_energy(launch, [x])
+        return warp_energy(launch, [x], dim[1])
 
 
 class CollisionLoss(PhysicsLoss):
@@ -334,6 +334,9 @@ class CollisionLoss(PhysicsLoss):
     zero-size boxes), rebuilt on cuda (LBVH) and refitted on cpu every call; each garment vertex
     runs sphere queries in its sample's subtree with a radius doubling from ``radius0`` until an
     anchor is inside (exact nearest neighbour). ``search="brute"`` scans all anchors of the sample.
+    Measured at batch 64 x 5k garment vertices x 13k body vertices: BVH 2.1 ms vs scan 5.6 ms
+    on an H100, 19 ms vs 990 ms (batch 4) on one CPU thread. The anchor buffers and the BVH
+    are cached in the module: one call at a time per instance.
 
     Args:
         topology: the garment.
@@ -423,6 +426,7 @@ class CollisionLoss(PhysicsLoss):
                           outputs=[nsum], device=wdev)
                 wp.launch(K.vertex_anchor_kernel, dim=(bsz, nb), inputs=[xb, nsum], outputs=[apts, anrm],
                           device=wdev)
+                del nsum  # freed on this stream, after its kernels
             else:
                 wp.launch(K.face_anchor_kernel, dim=(bsz, nf), inputs=[xb, a["body_faces"]],
                           outputs=[apts, anrm], device=wdev)
@@ -451,7 +455,7 @@ class CollisionLoss(PhysicsLoss):
         def launch(arrs, energy_out, run: Launcher):
             run(K.collision_energy_kernel, dim, [arrs[0], vec3_view(pts), vec3_view(nrm), k, eps, power],
                 [energy_out])
-        return warp_energy(launch, [x])
+        return warp_energy(launch, [x], dim[1])
 
 
 class GSNetEdgeLoss(PhysicsLoss):
@@ -473,7 +477,7 @@ class GSNetEdgeLoss(PhysicsLoss):
 
         def launch(arrs, energy_out, run: Launcher):
             run(K.edge_length_energy_kernel, dim, [arrs[0], a["edges"], a["lengths"]], [energy_out])
-        return warp_energy(launch, [x])
+        return warp_energy(launch, [x], dim[1])
 
 
 class GSNetBendingLoss(PhysicsLoss):
@@ -516,7 +520,7 @@ class GSNetBendingLoss(PhysicsLoss):
             lap = run.zeros((bsz, nv), wp.vec3)
             run(K.uniform_laplacian_accumulate_kernel, (bsz, ne), [n, a["edges"], a["inv_degree"]], [lap])
             run(K.squared_norm_energy_kernel, (bsz, nv), [lap, w], [energy_out])
-        return warp_energy(launch, [x])
+        return warp_energy(launch, [x], nv)
 
 
 class GSNetCollisionLoss(CollisionLoss):

@@ -5,7 +5,7 @@ with dense batched torch ops so that it runs in any dtype (float64 for finite di
 ``gradcheck``) and differentiates with torch's autograd. Positions ``x`` [m] are (B, V, 3); every
 function returns the per-sample energy (B,). Slower and hungrier than the Warp terms (it
 materialises (B, F, 3, 2) deformation gradients, and the collision search is a dense
-``torch.cdist``), but obviously correct.
+``torch.cdist`` per sample), but obviously correct.
 """
 
 from __future__ import annotations
@@ -128,7 +128,8 @@ def collision_energy(x: torch.Tensor, body_vertices: torch.Tensor, body_faces: n
     """Collision penalty [J]: ``sum_v k max(eps - (x_v - p_v) . n_v, 0)^power`` with ``p_v, n_v``
     the nearest anchor (dense ``cdist`` search, not differentiated) and its normal."""
     pts, nrm = body_anchors(body_vertices.detach(), body_faces, anchor)
-    idx = torch.cdist(x.detach(), pts).argmin(dim=-1)  # (B, V)
+    # one sample at a time: the distance matrix is (V, anchors), not (B, V, anchors)
+    idx = torch.stack([torch.cdist(xb, pb).argmin(dim=-1) for xb, pb in zip(x.detach(), pts, strict=True)])
     g = idx[..., None].expand(-1, -1, 3)
     p = torch.gather(pts, 1, g)
     n = torch.gather(nrm, 1, g)
