@@ -133,8 +133,8 @@ def sequence_metrics(pred: np.ndarray, sf, entry: dict, manifest: dict, *, deriv
     gt = np.array(sf["fine/vertices"], np.float32)  # a writable copy (the file is memory-mapped)
     if pred.shape != gt.shape:
         raise ValueError(f"{entry.get('file')}: prediction has shape {pred.shape}, ground truth {gt.shape}")
-    faces = np.asarray(sf["fine/faces"])
-    rest = np.asarray(sf["fine/rest_vertices"], np.float32)
+    faces = np.array(sf["fine/faces"])  # writable copies: torch refuses read-only memory maps
+    rest = np.array(sf["fine/rest_vertices"], np.float32)
     p, g = torch.from_numpy(pred).double(), torch.from_numpy(gt).double()
     out = {"ev": float(M.vertex_error(p, g).mean()),
            "ecd": float(M.chamfer_distance(p, g).mean())}

@@ -18,6 +18,8 @@ def progress_bar(total: int, desc: str, *, quiet: bool = False, unit: str = "fra
     with tqdm(total=total, desc=desc, unit=unit, dynamic_ncols=True, leave=False, disable=None) as bar:
 
         def progress(done: int, total: int | None = None) -> None:
+            if total and bar.total != total:  # callers that learn the total late (evaluate)
+                bar.total = total
             bar.update(done - bar.n)
 
         yield progress
