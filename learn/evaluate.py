@@ -84,6 +84,12 @@ class Evaluation:
                 "sequences": [vars(s) for s in self.sequences]}
 
 
+def dataset_body_model(manifest: dict) -> str:
+    """The body model a dataset was generated with (manifest ``config.bodies.model``)."""
+    cfg = manifest.get("config") or {}
+    return str((cfg.get("bodies") or {}).get("model") or "default")
+
+
 def _garment_for(sf, entry: dict):
     from sim.garments.materials import get_material
     from sim.garments.types import Garment
@@ -98,11 +104,9 @@ def _garment_for(sf, entry: dict):
                    category=entry.get("garment", "imported"))
 
 
-def _body_vertices(sf, manifest: dict, device: str | None) -> tuple[np.ndarray, np.ndarray] | None:
+def _body_vertices(sf, name: str, device: str | None) -> tuple[np.ndarray, np.ndarray] | None:
     from sim.bodies import load_body
 
-    cfg = manifest.get("config") or {}
-    name = (cfg.get("bodies") or {}).get("model") or "default"
     try:
         body = load_body(name)
     except WrinklesInputError:
@@ -142,7 +146,7 @@ def sequence_metrics(pred: np.ndarray, sf, entry: dict, manifest: dict, *, deriv
     edges = M.mesh_edges(faces)
     out["edge_abs"] = float(M.edge_elongation(p, torch.from_numpy(rest).double(), edges).abs_mean.mean())
     out["edge_abs_gt"] = float(M.edge_elongation(g, torch.from_numpy(rest).double(), edges).abs_mean.mean())
-    body = _body_vertices(sf, manifest, device)
+    body = _body_vertices(sf, dataset_body_model(manifest), device)
     if body is not None:
         out["collision"] = float(np.mean(M.collision_rate(pred, body[0], body[1], device=device)))
         out["collision_gt"] = float(np.mean(M.collision_rate(gt, body[0], body[1], device=device)))
@@ -209,6 +213,7 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
     derive_config = DeriveConfig(smoothing_length=float(dcfg.get("smoothing_length", 0.04)),
                                  image_resolution=int(res), coarse=False)
     extractor = NormalMapFeatures(device=device) if res else None
+    body_model = dataset_body_model(manifest)
     dev = torch.device(device)
 
     results, fp, fg, example_list = [], [], [], []
@@ -216,6 +221,7 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         t0 = time.perf_counter()
         sf = SequenceFile(sequence_path(root, sid) if "file" not in entry else root / entry["file"])
         seq = {name: np.asarray(sf[name]) for name in sf.keys()}
+        seq["body/model"] = np.asarray(body_model)  # which body to re-pose (Method.predict_sequence)
         pred: Prediction = method.predict_sequence(model, seq, device=dev)
         m, maps = sequence_metrics(np.asarray(pred.vertices, np.float32), sf, entry, manifest,
                                    derive_config=derive_config, device=warp_device, extractor=extractor)

@@ -14,7 +14,8 @@ inference loop):
 - ``training_loss(model, batch, generator)`` -> :class:`LossOutput`; random draws of the loss
   (noise, timesteps) use ``generator``, a ``torch.Generator`` seeded per step and process;
 - ``predict_sequence(model, sequence, device)`` -> :class:`Prediction` for one whole sequence
-  of a dataset (its arrays as numpy, ``sim.datasets.schema`` names); the evaluation harness
+  of a dataset (its arrays as numpy, ``sim.datasets.schema`` names, plus ``"body/model"``: the
+  body model's name or file as a 0-d string array); the evaluation harness
   turns predictions into metrics, so every method is measured by the same code.
 """
 

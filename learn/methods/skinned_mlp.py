@@ -132,7 +132,7 @@ class _Prepared:
     def __init__(self, method: SkinnedMLPMethod, seq: Mapping[str, np.ndarray]):
         from sim.skinning.transfer import transfer_skinning_weights
 
-        body = method.body()
+        body = method.body(str(seq.get("body/model", "default")))
         betas = np.asarray(seq["body/betas"], np.float32).reshape(-1)
         rest_body = body.rest_mesh(betas)
         self.rest = np.array(seq["fine/rest_vertices"], np.float32)  # a writable copy
@@ -160,6 +160,10 @@ class _TrainItems(torch.utils.data.Dataset):
         self.frames = GarmentSequenceDataset(root, "train", window=1, keys=("fine/vertices",),
                                              garments=method.config.garments or None)
         self.root = Path(root)
+        from learn.evaluate import dataset_body_model
+        from sim.datasets.storage import read_manifest
+
+        self.body_model = dataset_body_model(read_manifest(self.frames.root))
         self._prepared: dict[str, _Prepared] = {}
 
     def __len__(self) -> int:
@@ -169,7 +173,8 @@ class _TrainItems(torch.utils.data.Dataset):
         if sid not in self._prepared:
             seq = self.frames._open(sid)
             keys = [k for k in self.KEYS if k != "fine/vertices"]
-            self._prepared[sid] = _Prepared(self.method, {k: seq[k] for k in keys})
+            self._prepared[sid] = _Prepared(self.method, {**{k: seq[k] for k in keys},
+                                                          "body/model": np.asarray(self.body_model)})
         return self._prepared[sid]
 
     def __getitem__(self, key: tuple[int, int]) -> dict:
@@ -203,10 +208,11 @@ class SkinnedMLPMethod(Method):
             raise err("model.frequencies and num_betas must be >= 0, encoding_scale > 0")
 
     @functools.cache  # noqa: B019 - one body model per method object is the point
-    def body(self):
+    def body(self, name: str = "default"):
+        """The body model the dataset was simulated on (``"default"`` or a model file)."""
         from sim.bodies import load_body
 
-        return load_body("default")
+        return load_body(name)
 
     def build_model(self) -> nn.Module:
         return SkinnedMLP(self.config)
