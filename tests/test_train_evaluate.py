@@ -126,3 +126,12 @@ def test_fp16_on_cpu_is_refused(sample_dataset, tmp_path, bad, capsys):
     assert run_cli("train", "skinned_mlp", "--data", sample_dataset, "--out", tmp_path / "r", "--steps", 1,
                    "--set", f"train.amp={bad}", "--device", "cpu", "-q") == 2
     assert "needs a CUDA device" in capsys.readouterr().err
+
+
+def test_train_help_lists_every_registered_method():
+    from learn.methods import METHODS
+    from pipelines import train_cmd
+
+    block = train_cmd.DESCRIPTION.split("Methods:")[1].split("\n\n")[0]
+    listed = {line.split()[0] for line in block.splitlines() if line.strip()}
+    assert listed == set(METHODS)
