@@ -38,7 +38,8 @@ class ScheduleConfig:
 
     def __post_init__(self) -> None:
         if self.num_train_timesteps < 2:
-            raise ValueError(f"ScheduleConfig.num_train_timesteps must be >= 2, got {self.num_train_timesteps}")
+            raise ValueError(f"ScheduleConfig.num_train_timesteps must be >= 2, got "
+                             f"{self.num_train_timesteps}")
         if not (0.0 < self.beta_start <= self.beta_end < 1.0):
             raise ValueError(
                 f"ScheduleConfig needs 0 < beta_start <= beta_end < 1, got {self.beta_start}, {self.beta_end}"
@@ -60,7 +61,8 @@ class DDIMConfig:
     def __post_init__(self) -> None:
         if self.timestep_spacing not in TIMESTEP_SPACINGS:
             raise ValueError(
-                f"DDIMConfig.timestep_spacing must be one of {TIMESTEP_SPACINGS}, got {self.timestep_spacing!r}"
+                f"DDIMConfig.timestep_spacing must be one of {TIMESTEP_SPACINGS}, "
+                f"got {self.timestep_spacing!r}"
             )
 
 

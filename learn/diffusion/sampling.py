@@ -1,0 +1,128 @@
+"""DDIM sampling loop for the wrinkle diffusion model (Guo et al. 2024 Sec. 4.1: S = 50, eta = 0).
+
+A few lines that call the network and the scheduler (STYLE.md 4, diffusers'
+``pipeline_ddim.py``), with classifier-free guidance on a material label (Guo et al. Sec. 4.4;
+Ho & Salimans 2022): ``eps = eps_uncond + s (eps_cond - eps_uncond)``.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import torch
+
+from learn.diffusion.scheduler import DDIMScheduler
+
+
+class EpsilonModel(Protocol):
+    """What the loop needs from a network (``WrinkleUNet`` satisfies it)."""
+
+    out_channels: int
+    null_label: int
+
+    def __call__(
+        self, x_t: torch.Tensor, t: torch.Tensor, cond: torch.Tensor | None, label: torch.Tensor | None = None
+    ) -> torch.Tensor: ...
+
+
+def guided_epsilon(
+    model: EpsilonModel,
+    x_t: torch.Tensor,
+    t: torch.Tensor,
+    cond: torch.Tensor | None,
+    *,
+    label: torch.Tensor | None = None,
+    guidance_scale: float = 1.0,
+) -> torch.Tensor:
+    """Noise prediction with classifier-free guidance (Ho & Salimans 2022, Eq. 6).
+
+    With a label and ``guidance_scale != 1`` the conditional and unconditional passes run as one
+    forward of batch 2B (label, then the null label ``model.null_label``); otherwise one plain
+    forward of batch B (``s = 1`` is exactly the conditional prediction).
+
+    Args:
+        model: an :class:`EpsilonModel`.
+        x_t: noisy samples, shape (B, C, H, W).
+        t: timesteps, int64, shape (B,).
+        cond: conditioning maps, shape (B, C_cond, H, W), or None.
+        label: labels, int64, shape (B,), or None (no guidance).
+        guidance_scale: ``s``; 1 = conditional only, 0 = unconditional only.
+
+    Returns:
+        eps, shape (B, out_channels, H, W).
+    """
+    if label is None or guidance_scale == 1.0:
+        return model(x_t, t, cond, label)
+    B = x_t.shape[0]
+    null = torch.full_like(label, model.null_label)
+    eps = model(
+        torch.cat([x_t, x_t]),
+        torch.cat([t, t]),
+        None if cond is None else torch.cat([cond, cond]),
+        torch.cat([label, null]),
+    )
+    eps_cond, eps_uncond = eps[:B], eps[B:]
+    return eps_uncond + guidance_scale * (eps_cond - eps_uncond)
+
+
+@torch.no_grad()
+def ddim_sample(
+    model: EpsilonModel,
+    scheduler: DDIMScheduler,
+    cond: torch.Tensor,
+    *,
+    label: torch.Tensor | None = None,
+    guidance_scale: float = 1.0,
+    num_steps: int = 50,
+    eta: float = 0.0,
+    generator: torch.Generator | None = None,
+    initial_noise: torch.Tensor | None = None,
+    mask: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Generate wrinkle UV images by DDIM (Song et al. 2021, Eq. 12) from ``x_T ~ N(0, I)``.
+
+    Runs under ``torch.no_grad``; put the model in ``eval()`` mode first. Calls
+    ``scheduler.set_timesteps(num_steps)``.
+
+    Args:
+        model: the noise predictor (e.g. :class:`learn.diffusion.unet.WrinkleUNet`).
+        scheduler: a :class:`DDIMScheduler` with the training betas.
+        cond: conditioning maps, shape (B, C_cond, H, W); its batch, size, device and dtype set the
+            output's.
+        label: material labels, int64, shape (B,), or None.
+        guidance_scale: classifier-free guidance scale ``s`` (needs ``label``).
+        num_steps: ``S``, DDIM steps.
+        eta: 0 = deterministic DDIM; 1 = DDPM-like variance.
+        generator: draws ``x_T`` (when ``initial_noise`` is None) and, for ``eta > 0``, the step
+            noise; must live on ``cond``'s device.
+        initial_noise: ``x_T``, shape (B, C_out, H, W), or (C_out, H, W) / (1, C_out, H, W) shared by
+            the whole batch (e.g. the frames of one sequence, for temporal coherence).
+        mask: UV chart mask (1 inside, 0 outside), shape (B, 1, H, W) or (B, H, W); pixels outside are
+            set to 0 in the output.
+
+    Returns:
+        x_0, the generated wrinkle field, shape (B, C_out, H, W), dtype of ``cond``.
+    """
+    B, _, H, W = cond.shape
+    shape = (B, model.out_channels, H, W)
+    if label is None and guidance_scale != 1.0:
+        raise ValueError("guidance_scale != 1 needs a label (classifier-free guidance)")
+    if initial_noise is None:
+        x = torch.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
+    else:
+        x = initial_noise.to(device=cond.device, dtype=cond.dtype)
+        if x.ndim == 3:
+            x = x[None]
+        if x.shape[1:] != shape[1:] or x.shape[0] not in (1, B):
+            raise ValueError(f"initial_noise shape {tuple(initial_noise.shape)} does not fit {shape}")
+        x = x.expand(shape).clone()
+    if label is not None:
+        label = label.to(cond.device).long()
+    for t in scheduler.set_timesteps(num_steps).tolist():
+        t_batch = torch.full((B,), t, dtype=torch.long, device=cond.device)
+        eps = guided_epsilon(model, x, t_batch, cond, label=label, guidance_scale=guidance_scale)
+        x = scheduler.step(eps, t, x, eta=eta, generator=generator).prev_sample
+    if mask is not None:
+        m = mask.to(device=x.device, dtype=x.dtype)
+        x = x * (m[:, None] if m.ndim == 3 else m)
+    return x
