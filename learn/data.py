@@ -101,6 +101,8 @@ class GarmentSequenceDataset(Dataset):
                  dtype: torch.dtype = torch.float32, verify: bool = False):
         self.root = Path(root)
         manifest = read_manifest(self.root)
+        self.generator_config: dict = manifest.get("config") or {}
+        """The manifest's generator config (body model, derive settings, ...)."""
         if split != ALL_SPLITS and split not in SPLITS:
             raise ValueError(f"split {split!r}: choose one of {', '.join((*SPLITS, ALL_SPLITS))}")
         if int(window) != window or window < 1:
@@ -178,7 +180,7 @@ class GarmentSequenceDataset(Dataset):
 
     def __getitem__(self, index: int) -> dict:
         sid, start = self.locate(index)
-        f = self._open(sid)
+        f = self.open_sequence(sid)
         item: dict = {}
         for key in self.keys:
             a = f[key]
@@ -219,7 +221,9 @@ class GarmentSequenceDataset(Dataset):
     def _path(self, sid: str) -> Path:
         return self.root / self.entries[sid]["file"]
 
-    def _open(self, sid: str) -> SequenceFile:
+    def open_sequence(self, sid: str) -> SequenceFile:
+        """The (checked, per-process cached) sequence file of ``sid``: its keys are present and
+        its per-frame arrays have the manifest's frame count."""
         if self._pid != os.getpid():  # a forked worker: reopen everything in this process
             self._files, self._pid = {}, os.getpid()
         f = self._files.get(sid)

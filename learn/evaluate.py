@@ -84,12 +84,6 @@ class Evaluation:
                 "sequences": [vars(s) for s in self.sequences]}
 
 
-def dataset_body_model(manifest: dict) -> str:
-    """The body model a dataset was generated with (manifest ``config.bodies.model``)."""
-    cfg = manifest.get("config") or {}
-    return str((cfg.get("bodies") or {}).get("model") or "default")
-
-
 def _garment_for(sf, entry: dict):
     from sim.garments.materials import get_material
     from sim.garments.types import Garment
@@ -104,26 +98,23 @@ def _garment_for(sf, entry: dict):
                    category=entry.get("garment", "imported"))
 
 
-def _body_vertices(sf, name: str, device: str | None) -> tuple[np.ndarray, np.ndarray] | None:
-    from sim.bodies import load_body
-
-    try:
-        body = load_body(name)
-    except WrinklesInputError:
+def _body_vertices(sf, body, device: str | None) -> tuple[np.ndarray, np.ndarray] | None:
+    if body is None:
         return None
     betas = np.asarray(sf["body/betas"], np.float32).reshape(-1)[: body.num_betas]
     frames = body.pose(betas, np.asarray(sf["body/poses"]), np.asarray(sf["body/trans"]), device=device)
     return frames.vertices, frames.faces
 
 
-def sequence_metrics(pred: np.ndarray, sf, entry: dict, manifest: dict, *, derive_config, device: str | None,
+def sequence_metrics(pred: np.ndarray, sf, entry: dict, body, *, derive_config, device: str | None,
                      extractor=None) -> tuple[dict[str, float], dict]:
     """Metrics of one predicted sequence against its ground truth (module table).
 
     Args:
         pred: predicted positions [m], (T, V, 3).
         sf: the sequence file (``sim.datasets.storage.SequenceFile``).
-        entry: its manifest entry; manifest: the dataset manifest.
+        entry: its manifest entry; body: the ``BodyModel`` it was simulated on (None: no
+            collision metrics).
         derive_config: ``DeriveConfig`` for the base surface and UV maps of both.
         device: Warp device; extractor: ``NormalMapFeatures`` (features of the normal maps).
 
@@ -144,12 +135,13 @@ def sequence_metrics(pred: np.ndarray, sf, entry: dict, manifest: dict, *, deriv
            "ecd": float(M.chamfer_distance(p, g).mean())}
     out["bending_error"] = float(M.bending_error(p, g, faces).mean())
     edges = M.mesh_edges(faces)
-    out["edge_abs"] = float(M.edge_elongation(p, torch.from_numpy(rest).double(), edges).abs_mean.mean())
-    out["edge_abs_gt"] = float(M.edge_elongation(g, torch.from_numpy(rest).double(), edges).abs_mean.mean())
-    body = _body_vertices(sf, dataset_body_model(manifest), device)
-    if body is not None:
-        out["collision"] = float(np.mean(M.collision_rate(pred, body[0], body[1], device=device)))
-        out["collision_gt"] = float(np.mean(M.collision_rate(gt, body[0], body[1], device=device)))
+    r = torch.from_numpy(rest).double()
+    out["edge_abs"] = float(M.edge_elongation(p, r, edges).abs_mean.mean())
+    out["edge_abs_gt"] = float(M.edge_elongation(g, r, edges).abs_mean.mean())
+    posed = _body_vertices(sf, body, device)
+    if posed is not None:
+        out["collision"] = float(np.mean(M.collision_rate(pred, posed[0], posed[1], device=device)))
+        out["collision_gt"] = float(np.mean(M.collision_rate(gt, posed[0], posed[1], device=device)))
     if gt.shape[0] >= 3:
         out["flicker_ratio"] = float(M.flicker_ratio(p, g))
     maps: dict = {}
@@ -192,9 +184,10 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         WrinklesInputError: unreadable dataset, an empty split.
     """
     from learn.metrics import NormalMapFeatures, frechet_distance
+    from sim.bodies import load_body
     from sim.datasets.config import DeriveConfig
     from sim.datasets.schema import SPLITS
-    from sim.datasets.storage import SequenceFile, read_manifest, sequence_path
+    from sim.datasets.storage import SequenceFile, body_model_name, read_manifest, sequence_path
 
     root = Path(data_root)
     manifest = read_manifest(root)
@@ -213,7 +206,15 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
     derive_config = DeriveConfig(smoothing_length=float(dcfg.get("smoothing_length", 0.04)),
                                  image_resolution=int(res), coarse=False)
     extractor = NormalMapFeatures(device=device) if res else None
-    body_model = dataset_body_model(manifest)
+    bodies: dict[str, object] = {}  # body models by name, each loaded once
+
+    def body_for(name: str):
+        if name not in bodies:
+            try:
+                bodies[name] = load_body(name)
+            except WrinklesInputError:  # a model file not on this machine: no collision metrics
+                bodies[name] = None
+        return bodies[name]
     dev = torch.device(device)
 
     results, fp, fg, example_list = [], [], [], []
@@ -221,9 +222,10 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         t0 = time.perf_counter()
         sf = SequenceFile(sequence_path(root, sid) if "file" not in entry else root / entry["file"])
         seq = {name: np.asarray(sf[name]) for name in sf.keys()}
-        seq["body/model"] = np.asarray(body_model)  # which body to re-pose (Method.predict_sequence)
+        body_name = body_model_name(sf, manifest) or "default"
+        seq["body/model"] = np.asarray(body_name)  # which body to re-pose (Method.predict_sequence)
         pred: Prediction = method.predict_sequence(model, seq, device=dev)
-        m, maps = sequence_metrics(np.asarray(pred.vertices, np.float32), sf, entry, manifest,
+        m, maps = sequence_metrics(np.asarray(pred.vertices, np.float32), sf, entry, body_for(body_name),
                                    derive_config=derive_config, device=warp_device, extractor=extractor)
         if maps:
             fp.append(maps["features_pred"])

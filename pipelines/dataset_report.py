@@ -31,7 +31,7 @@ import numpy as np
 
 from pipelines.outputs import OutputSet
 from sim.datasets.schema import IMAGE_KEYS, SPLITS
-from sim.datasets.storage import SequenceFile, read_manifest, sequence_path
+from sim.datasets.storage import SequenceFile, body_model_name, read_manifest, sequence_path
 from sim.errors import WrinklesInputError
 
 REPORT_HELP = "pictures and histograms of a synthetic garment dataset"
@@ -201,31 +201,6 @@ def _frame_count(sf: SequenceFile) -> int:
     if len(shape) != 3 or shape[0] < 1:
         raise WrinklesInputError(f"fine/vertices must have shape (T >= 1, V, 3), got {shape}", path=sf.path)
     return int(shape[0])
-
-
-def body_model_name(sf: SequenceFile, manifest: dict) -> str | None:
-    """The body model a sequence was simulated on (``"default"`` or a model file), or None.
-
-    Looked up in the sequence's ``body`` metadata (``{"model": ..., "name": ...}`` as
-    ``sim.datasets.generate`` writes it; ``model`` wins, a plain string is taken as is), then in
-    the manifest's generator config (``config.bodies.model``, or ``config.body``).
-    """
-    candidates = []
-    if "body" in sf.metadata:
-        try:
-            candidates.append(sf.json("body"))
-        except ValueError:
-            candidates.append(sf.metadata["body"])
-    config = manifest.get("config")
-    if isinstance(config, dict):
-        bodies = config.get("bodies")
-        candidates += [bodies.get("model") if isinstance(bodies, dict) else None, config.get("body")]
-    for c in candidates:
-        if isinstance(c, dict):
-            c = c.get("model") or c.get("name")
-        if isinstance(c, str) and c:
-            return c
-    return None
 
 
 # --------------------------------------------------------------------------- histograms

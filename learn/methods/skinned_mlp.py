@@ -21,7 +21,6 @@ import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -159,11 +158,6 @@ class _TrainItems(torch.utils.data.Dataset):
         self.method = method
         self.frames = GarmentSequenceDataset(root, "train", window=1, keys=("fine/vertices",),
                                              garments=method.config.garments or None)
-        self.root = Path(root)
-        from learn.evaluate import dataset_body_model
-        from sim.datasets.storage import read_manifest
-
-        self.body_model = dataset_body_model(read_manifest(self.frames.root))
         self._prepared: dict[str, _Prepared] = {}
 
     def __len__(self) -> int:
@@ -171,10 +165,13 @@ class _TrainItems(torch.utils.data.Dataset):
 
     def _prep(self, sid: str) -> _Prepared:
         if sid not in self._prepared:
-            seq = self.frames._open(sid)
+            from sim.datasets.storage import body_model_name
+
+            seq = self.frames.open_sequence(sid)
             keys = [k for k in self.KEYS if k != "fine/vertices"]
+            body = body_model_name(seq, {"config": self.frames.generator_config}) or "default"
             self._prepared[sid] = _Prepared(self.method, {**{k: seq[k] for k in keys},
-                                                          "body/model": np.asarray(self.body_model)})
+                                                          "body/model": np.asarray(body)})
         return self._prepared[sid]
 
     def __getitem__(self, key: tuple[int, int]) -> dict:

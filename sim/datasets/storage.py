@@ -245,3 +245,28 @@ def combine_parts(root: str | os.PathLike, *, config: dict, verify: bool = False
                 "sequences": dict(sorted(entries.items())), "rejected": dict(sorted(rejected.items()))}
     atomic_write_json(root / MANIFEST, manifest)
     return manifest
+
+
+def body_model_name(sf: SequenceFile, manifest: dict) -> str | None:
+    """The body model a sequence was simulated on (``"default"`` or a model file), or None.
+
+    Looked up in the sequence's ``body`` metadata (``{"model": ..., "name": ...}`` as
+    ``sim.datasets.generate`` writes it; ``model`` wins, a plain string is taken as is), then in
+    the manifest's generator config (``config.bodies.model``, or ``config.body``).
+    """
+    candidates = []
+    if "body" in sf.metadata:
+        try:
+            candidates.append(sf.json("body"))
+        except ValueError:
+            candidates.append(sf.metadata["body"])
+    config = manifest.get("config")
+    if isinstance(config, dict):
+        bodies = config.get("bodies")
+        candidates += [bodies.get("model") if isinstance(bodies, dict) else None, config.get("body")]
+    for c in candidates:
+        if isinstance(c, dict):
+            c = c.get("model") or c.get("name")
+        if isinstance(c, str) and c:
+            return c
+    return None

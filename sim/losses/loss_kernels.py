@@ -200,6 +200,16 @@ def anchor_groups_kernel(num_anchors: int, groups_out: wp.array(dtype=int)):
     groups_out[k] = k // num_anchors
 
 
+@wp.func
+def chosen_anchor(best: int, p: wp.vec3, anchors: wp.array(dtype=wp.vec3),
+                  anchor_normals: wp.array(dtype=wp.vec3)):
+    """Point and unit normal of anchor ``best``; the query point and a zero normal when none
+    was found (``best < 0``, only non-finite positions cause it)."""
+    if best >= 0:
+        return anchors[best], anchor_normals[best]
+    return p, wp.vec3(0.0)
+
+
 @wp.kernel
 def nearest_anchor_bvh_kernel(
     bvh: wp.uint64,
@@ -236,12 +246,9 @@ def nearest_anchor_bvh_kernel(
         if best >= 0:
             break
         r = 2.0 * r
-    if best >= 0:
-        points_out[b, v] = anchors[best]
-        normals_out[b, v] = anchor_normals[best]
-    else:
-        points_out[b, v] = p
-        normals_out[b, v] = wp.vec3(0.0)
+    q, n = chosen_anchor(best, p, anchors, anchor_normals)
+    points_out[b, v] = q
+    normals_out[b, v] = n
 
 
 @wp.kernel
@@ -265,12 +272,9 @@ def nearest_anchor_brute_kernel(
         if best < 0 or d2 < best_d2:
             best = start + j
             best_d2 = d2
-    if best >= 0:
-        points_out[b, v] = anchors[best]
-        normals_out[b, v] = anchor_normals[best]
-    else:
-        points_out[b, v] = p
-        normals_out[b, v] = wp.vec3(0.0)
+    q, n = chosen_anchor(best, p, anchors, anchor_normals)
+    points_out[b, v] = q
+    normals_out[b, v] = n
 
 
 @wp.kernel
