@@ -598,3 +598,63 @@ def ssdr_reconstruct(
         tr.astype(np.float64),
     )
     return y.reshape(v, t, 3).transpose(1, 0, 2).astype(np.float32)
+
+
+def fit_bone_transforms(
+    rest: np.ndarray,
+    weight_idx: np.ndarray,
+    weight_val: np.ndarray,
+    frames: np.ndarray,
+    *,
+    iterations: int = 3,
+    chunk: int = 256,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame bone transforms of a fixed skeleton's weights (the SSDR bone step alone).
+
+    Used to label every frame of a dataset with the virtual skeleton's transforms after the
+    weights were fitted on a subset (Guo et al. 2024, Sec. 3.3: the CVAE's targets).
+    Initialisation: each bone's rigid (Kabsch) fit to the vertices it dominates; then
+    ``iterations`` rounds of per-bone weighted Procrustes on the residual (Le & Deng 2012).
+
+    Args:
+        rest: rest positions [m], (V, 3).
+        weight_idx, weight_val: sparse weights (V, K) (``SSDRResult``).
+        frames: positions [m], (T, V, 3).
+        iterations: bone-update rounds.
+        chunk: frames solved together (memory: V x 3 chunk float64).
+
+    Returns:
+        (rotations (T, J, 3, 3), translations (T, J, 3)), float32, J = weight_idx.max() + 1.
+    """
+    rest = np.asarray(rest, np.float64)
+    frames = np.asarray(frames)
+    idx = np.asarray(weight_idx, np.int64)
+    val = np.asarray(weight_val, np.float64)
+    if frames.ndim != 3 or frames.shape[1:] != rest.shape or idx.shape != val.shape or len(idx) != len(rest):
+        raise WrinklesInputError(f"fit_bone_transforms: rest {rest.shape}, weights {idx.shape}/{val.shape} and "
+                                 f"frames {frames.shape} do not fit together")
+    j = int(idx.max()) + 1
+    dominant = idx[np.arange(len(idx)), np.argmax(val, axis=1)]
+    rots, trs = [], []
+    for s in range(0, len(frames), chunk):
+        prob = _Problem(rest, frames[s:s + chunk])
+        t = prob.t
+        rot = np.tile(np.eye(3), (t, j, 1, 1))
+        tr = np.zeros((t, j, 3))
+        xs = prob.x.reshape(prob.v, t, 3)
+        for b in range(j):
+            verts = np.flatnonzero(dominant == b)
+            if verts.size == 0:
+                verts = np.flatnonzero((idx == b).any(axis=1) & (val > 0).any(axis=1))
+            if verts.size == 0:
+                continue
+            fit = _weighted_procrustes(prob.rest[verts], np.ones(len(verts)), xs[verts])
+            if fit is not None:
+                rot[:, b], tr[:, b] = fit
+        y = _lbs_columns(prob.rest, idx, val, rot, tr)
+        for _ in range(iterations):
+            _update_bones(prob, rot, tr, idx, val, y)
+            y = _lbs_columns(prob.rest, idx, val, rot, tr)
+        rots.append(rot)
+        trs.append(tr + prob.frame_center[:, None, :] - np.einsum("tjab,b->tja", rot, prob.rest_center))
+    return np.concatenate(rots).astype(np.float32), np.concatenate(trs).astype(np.float32)
