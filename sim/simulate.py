@@ -5,7 +5,8 @@ the motion, and return a ``GarmentSequence`` with its quality report (issue 3, "
 Timeline of one run at ``fps`` (one solver step of ``1/fps`` per frame, ``substeps`` inside)::
 
     frame 0            the garment placed on the body in rest pose (``sim.dressing``)
-    settle_seconds     body static at rest; garment falls onto it and comes to rest
+    settle_seconds     body static at rest; garment falls onto it and comes to rest (a garment
+                       built on another shape: the body morphs to the job's shape first)
     blend_seconds      body slerped from rest into the motion's first pose (``blend_from_rest``)
     motion             the motion, frame by frame
 
@@ -15,6 +16,14 @@ starts at the motion's first frame with the garment at rest and collision-free
 ``SimulationConfig.pinned`` follow the skin (``sim.dressing.AttachmentPins``); the rest is
 free. Every frame is checked for NaN and explosion (``SimulationError`` naming the frame and
 the cause); every sequence gets a ``QualityReport`` judged against ``SimulationConfig.gates``.
+
+Reference-shape dressing: a garment built on one shape (``SimulationJob.garment_betas``, e.g.
+the mean shape) worn by a body of another (``betas``) keeps its topology; the body morphs from
+the garment's rest mesh to the target rest mesh over the first ``MORPH_FRACTION`` of the settle
+(smoothstep) and holds the target shape for the rest of it (``morph_settle``). Blend shapes are
+linear in the betas and the settle is in rest pose, so the interpolated frames are exactly the
+rest meshes of the interpolated shapes. This gives the per-garment models of Guo et al. 2024
+(Sec. 3.3) one garment mesh over many body shapes.
 
 Several garments / sequences run batched in one ``ClothModel`` (``simulate_batch``): one
 launch advances all of them; instances never interact. The body of each sequence is uploaded
@@ -52,6 +61,10 @@ it with the deltoid, whose skin stretches and folds as the arm moves (edge strai
 the walk's T-pose-to-arms-down ramp against 0.6 free). Hems and cuffs stay free."""
 
 ProgressFn = Callable[[int, int], None]
+
+MORPH_FRACTION = 0.6
+"""Share of the settle frames over which the body morphs from the garment's shape to the job's;
+the cloth comes to rest on the target shape during the remainder."""
 
 
 @dataclass(frozen=True)
@@ -203,6 +216,10 @@ class SimulationJob:
         motion: the motion (resampled to the config's fps when it differs).
         betas: body shape (B,); None: the motion's own betas, else the mean shape.
         name: label used in error messages (default: garment name and motion name).
+        garment_betas: the body shape (B,) the garment was built on; None: ``betas`` (the
+            resolved shape). When it differs, the body morphs from this shape's rest mesh to
+            the target shape's during the settle (``morph_settle``) and the attachments are
+            bound on this shape's surface.
     """
 
     garment: Garment
@@ -210,6 +227,7 @@ class SimulationJob:
     motion: Motion
     betas: np.ndarray | None = None
     name: str = ""
+    garment_betas: np.ndarray | None = None
 
     @property
     def label(self) -> str:
@@ -281,6 +299,8 @@ class _Track:
     placement: np.ndarray  # (3,) garment translation from its rest mesh
     ground_dy: float
     pinned: np.ndarray  # garment-local pinned vertex ids
+    body_key: tuple = ()  # shared skinning / collider key
+    garment_betas: np.ndarray | None = None  # (B,) the garment's shape when it differs from betas
     span: slice = field(default_factory=lambda: slice(0, 0))  # particle range in the model
     out: np.ndarray | None = None  # (T_out, V, 3)
     collider: Any = None
@@ -289,6 +309,61 @@ class _Track:
     @property
     def length(self) -> int:
         return self.frames.num_frames
+
+
+def smoothstep(t: np.ndarray) -> np.ndarray:
+    """C1 ease 3t^2 - 2t^3 of t clipped to [0, 1]."""
+    t = np.clip(np.asarray(t, np.float64), 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def morph_frames(n_settle: int, *, fraction: float = MORPH_FRACTION) -> int:
+    """Frames over which the body morphs in a settle of ``n_settle`` frames (>= 1)."""
+    return max(1, int(round(fraction * n_settle)))
+
+
+def morph_settle(frames_ref: BodyFrames, frames_target: BodyFrames, n_settle: int, *,
+                 fraction: float = MORPH_FRACTION) -> BodyFrames:
+    """Morph a body from a reference shape to the target shape over the settle.
+
+    Timeline frame t <= ``n_settle`` is ``(1 - w) ref[t] + w target[t]`` with
+    ``w = smoothstep(t / m)``, ``m = morph_frames(n_settle)``: frame 0 is the reference body,
+    frames m.. the target; frames after the settle are the target's unchanged. Exact for rest
+    pose (blend shapes and the joint regressor are linear in the betas).
+
+    Args:
+        frames_ref: the body with the garment's shape, at least ``n_settle + 1`` frames, in
+            rest pose over them; vertices (T_ref, V, 3) [m].
+        frames_target: the body with the job's shape over the whole timeline (T, V, 3) [m].
+        n_settle: settle frames (timeline frames 0..n_settle are at rest), >= 1.
+        fraction: share of the settle spent morphing.
+
+    Returns:
+        BodyFrames like ``frames_target`` (float32) with the settle frames morphed; joint
+        transforms keep the target's rotations (identity at rest) and interpolate translations.
+    """
+    n = int(n_settle)
+    if n < 1:
+        raise ValueError(f"morph_settle: n_settle must be >= 1, got {n_settle}")
+    if frames_ref.num_frames < n + 1 or frames_target.num_frames < n + 1:
+        raise ValueError(f"morph_settle: need {n + 1} frames, got {frames_ref.num_frames} (reference) and "
+                         f"{frames_target.num_frames} (target)")
+    if frames_ref.vertices.shape[1:] != frames_target.vertices.shape[1:]:
+        raise ValueError("morph_settle: reference and target bodies differ in vertex count")
+    w = smoothstep(np.arange(n + 1) / morph_frames(n, fraction=fraction))
+
+    def lerp(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        ww = w.reshape(-1, *([1] * (a.ndim - 1)))
+        return ((1.0 - ww) * a.astype(np.float64) + ww * b.astype(np.float64)).astype(np.float32)
+
+    s = slice(0, n + 1)
+    vertices = np.array(frames_target.vertices, np.float32, copy=True)
+    joints = np.array(frames_target.joints, np.float32, copy=True)
+    transforms = np.array(frames_target.transforms, np.float32, copy=True)
+    vertices[s] = lerp(frames_ref.vertices[s], frames_target.vertices[s])
+    joints[s] = lerp(frames_ref.joints[s], frames_target.joints[s])
+    transforms[s, :, :3, 3] = lerp(frames_ref.transforms[s, :, :3, 3], frames_target.transforms[s, :, :3, 3])
+    return BodyFrames(vertices=vertices, joints=joints, transforms=transforms, faces=frames_target.faces)
 
 
 def _prepare(job: SimulationJob, cfg: SimulationConfig, device: str, cache: dict) -> _Track:
@@ -303,30 +378,45 @@ def _prepare(job: SimulationJob, cfg: SimulationConfig, device: str, cache: dict
     betas = resolve_betas(job.body, motion, job.betas)
     timeline, n_prelude = blend_from_rest(motion, cfg.blend_seconds, hold=cfg.settle_seconds)
     n_settle = cfg.settle_frames
-    key = _body_key(job, betas)
+    gbetas = None
+    if job.garment_betas is not None:
+        gbetas = job.body.full_betas(job.garment_betas)
+        if np.array_equal(gbetas, betas):
+            gbetas = None
+        elif n_settle < 2:
+            raise WrinklesInputError(f"{job.label}: the garment was built on another body shape; the body "
+                                     f"morphs to this one during the settle, which needs >= 2 frames "
+                                     f"(settle_seconds {cfg.settle_seconds:g} s at {cfg.fps:g} fps)")
+    key = _body_key(job, betas, gbetas)
     if key not in cache:  # garments sharing a body, shape and motion share its skinning
         frames = job.body.pose(betas, timeline.poses, timeline.trans, device=device)
-        dy = floor_offset(frames, frame=n_prelude) if cfg.ground else 0.0
+        dy = floor_offset(frames, frame=n_prelude) if cfg.ground else 0.0  # on the target shape
+        if gbetas is not None:  # the garment's shape at frame 0, morphing to the target's
+            ref = job.body.pose(gbetas, timeline.poses[:n_settle + 1], timeline.trans[:n_settle + 1],
+                                device=device)
+            frames = morph_settle(ref, frames, n_settle)
         if dy:
             frames = translate_frames(frames, np.array([0.0, dy, 0.0]))
         cache[key] = (frames, dy)
     frames, dy = cache[key]
     # timeline frame 0 is the rest pose at the motion's first root translation (pose() of zero
-    # rotations is rest_mesh + trans), so the garment built on the rest mesh moves by the same
+    # rotations is rest_mesh + trans), so the garment built on the rest mesh moves by the same;
+    # with a garment shape, frame 0 is that shape's rest mesh (morph_settle)
     placement = timeline.trans[0].astype(np.float64) + np.array([0.0, dy, 0.0])
     x0 = place_garment(job.garment.rest_vertices, placement)
     pinned = attachment_vertices(job.garment.attachments, cfg.pinned)
     tr = _Track(job=job, motion=motion, timeline=timeline, frames=frames, betas=betas, n_settle=n_settle,
                 n_blend=n_prelude - n_settle, first_out=0 if cfg.keep_prelude else n_prelude,
-                placement=placement, ground_dy=float(dy), pinned=pinned)
+                placement=placement, ground_dy=float(dy), pinned=pinned, body_key=key, garment_betas=gbetas)
     tr.out = np.empty((tr.length - tr.first_out, job.garment.num_vertices, 3), np.float32)
     if tr.first_out == 0:
         tr.out[0] = x0
     return tr
 
 
-def _body_key(job: SimulationJob, betas: np.ndarray) -> tuple:
-    return (id(job.body), id(job.motion), betas.tobytes())
+def _body_key(job: SimulationJob, betas: np.ndarray, garment_betas: np.ndarray | None = None) -> tuple:
+    key = (id(job.body), id(job.motion), betas.tobytes())
+    return key if garment_betas is None else (*key, garment_betas.tobytes())
 
 
 class _FrameChecker:
@@ -393,11 +483,11 @@ class _BatchScreen:
 
 def simulate(garment: Garment, body, motion: Motion, *, betas: np.ndarray | None = None,
              config: SimulationConfig | None = None, solver=None, seed: int = 0,
-             progress: ProgressFn | None = None) -> SimulationResult:
+             progress: ProgressFn | None = None, garment_betas: np.ndarray | None = None) -> SimulationResult:
     """Dress ``garment`` on ``body``, play ``motion``, and judge the result.
 
     Args:
-        garment: the garment at rest around the body's rest mesh (shape ``betas``).
+        garment: the garment at rest around the body's rest mesh (shape ``garment_betas``).
         body: a ``sim.bodies.BodyModel``.
         motion: the motion.
         betas: body shape (B,); None: the motion's own, else the mean shape.
@@ -405,6 +495,9 @@ def simulate(garment: Garment, body, motion: Motion, *, betas: np.ndarray | None
         solver: a ``VBDConfig`` used instead of ``config.vbd_config()``.
         seed: recorded in the provenance (the simulation itself is deterministic).
         progress: ``progress(frames_done, frames_total)`` over solver frames.
+        garment_betas: the shape (B,) the garment was built on; None: ``betas``. When it
+            differs, the body morphs from it to ``betas`` during the settle
+            (``SimulationJob.garment_betas``).
 
     Returns:
         The sequence (vertices (T, V, 3) [m], T = the motion's frames, or prelude + motion
@@ -415,7 +508,7 @@ def simulate(garment: Garment, body, motion: Motion, *, betas: np.ndarray | None
             prelude) and the cause.
         WrinklesInputError: bad config.
     """
-    job = SimulationJob(garment, body, motion, betas)
+    job = SimulationJob(garment, body, motion, betas, garment_betas=garment_betas)
     return simulate_batch([job], config=config, solver=solver, seed=seed, progress=progress)[0]
 
 
@@ -425,7 +518,7 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
 
     Sequences may differ in garment, body, shape and motion length; a shorter one holds its
     body's last frame until the longest ends (its output stops at its own end). Jobs with the
-    same body model, motion object and betas share one body collider.
+    same body model, motion object and betas (and garment betas) share one body collider.
 
     Raises:
         SimulationError: the first sequence that blows up, named in the cause.
@@ -461,7 +554,7 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
     pins = []
     for k, (tr, binding) in enumerate(zip(tracks, bindings, strict=True)):
         tr.span = model.instance_slice(k)
-        key = _body_key(tr.job, tr.betas)
+        key = tr.body_key
         if key not in colliders:
             c = BodyCollider(tr.frames.vertices[0], tr.job.body.faces, device=device)
             seq = wp.array(np.ascontiguousarray(tr.frames.vertices), dtype=wp.vec3, device=device)
@@ -562,6 +655,9 @@ def _finish(tr: _Track, cfg: SimulationConfig, vbd, device: str, seed: int, grap
         "ground_offset_m": tr.ground_dy,
         "placement_m": [float(v) for v in tr.placement],
     }
+    if tr.job.garment_betas is not None:  # the shape the garment was built on (morphed from)
+        gb = tr.betas if tr.garment_betas is None else tr.garment_betas
+        provenance["garment"]["betas"] = [float(b) for b in gb]
     seq = GarmentSequence(vertices=tr.out, body=frames, garment=g, motion=motion, fps=float(cfg.fps),
                           provenance=provenance)
     return SimulationResult(seq, quality, tuple(quality.failures(cfg.gates)))

@@ -14,6 +14,9 @@ shipped one)::
     categories = ["t_shirt", "straight_skirt"]   # sampled uniformly
     fine_resolution = "fine"                     # edge length [m] or "coarse" / "fine"
     coarse_resolution = "coarse"
+    fit = "body"             # "body": each garment built on its sequence's shape; "reference":
+                             # on the mean shape (one topology per category and parameter set;
+                             # the body morphs to the sequence's shape while the garment settles)
     [garments.params.t_shirt]                    # template parameters: fixed or [lo, hi]
     length = [0.38, 0.48]
 
@@ -81,12 +84,21 @@ class GarmentsConfig:
         categories: template categories sampled uniformly.
         fine_resolution, coarse_resolution: "coarse", "fine" or an edge length [m].
         params: category -> template parameter -> fixed value or [lo, hi].
+        fit: "body": each garment is built on its sequence's sampled shape; "reference": on
+            the mean shape (betas 0), so all sequences of one category and parameter set share
+            one mesh, and the body morphs from the mean shape to the sampled one during the
+            settle (``sim.simulate.SimulationJob.garment_betas``).
     """
 
     categories: tuple[str, ...] = ("t_shirt",)
     fine_resolution: str | float = "fine"
     coarse_resolution: str | float = "coarse"
     params: dict = field(default_factory=dict)
+    fit: str = "body"
+
+
+GARMENT_FITS = ("body", "reference")
+"""Allowed values of ``[garments] fit``."""
 
 
 @dataclass(frozen=True)
@@ -184,6 +196,8 @@ class DatasetConfig:
         d.pop("source")
         if not np.isfinite(d["split"]["ood_shape_norm"]):
             d["split"]["ood_shape_norm"] = None
+        if d["garments"]["fit"] == "body":  # the default, left out: datasets made before it resume
+            d["garments"].pop("fit")
         return _jsonable(d)
 
     def simulation_config(self):
@@ -320,6 +334,8 @@ def validate(cfg: DatasetConfig, err=None) -> None:
     for c in g.categories:
         if c not in TEMPLATES:
             raise err(f"[garments] unknown category {c!r}; available: {', '.join(TEMPLATES)}")
+    if not (isinstance(g.fit, str) and g.fit in GARMENT_FITS):
+        raise err(f"[garments] fit must be one of {', '.join(repr(f) for f in GARMENT_FITS)}, got {g.fit!r}")
     for name in ("fine_resolution", "coarse_resolution"):
         for c in g.categories:
             try:

@@ -183,6 +183,14 @@ def sequence_inputs(cfg: DatasetConfig, sp: SequenceSpec, body):
     return betas, motion
 
 
+def garment_betas(cfg: DatasetConfig, body, betas: np.ndarray) -> np.ndarray:
+    """The shape (padded betas, float32 (B,)) a sequence's garments are built on: its own
+    ``betas`` with ``[garments] fit = "body"``, the mean shape (zeros) with "reference"."""
+    if cfg.garments.fit == "reference":
+        return body.full_betas(None)
+    return np.asarray(betas, np.float32)
+
+
 def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set[str], root: Path,
                 part: _Shard, sim_cfg, device: str, summary: GenerateSummary, log: Log) -> None:
     from dataclasses import replace
@@ -197,12 +205,19 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
     if cfg.derive.coarse:
         kinds["coarse"] = cfg.garments.coarse_resolution
     jobs, meta = [], []
+    garments: dict[tuple, object] = {}  # "reference" fit: one garment per category / params / material
     for sp in group:
         betas, motion = sequence_inputs(cfg, sp, body)
+        gbetas = garment_betas(cfg, body, betas)
         for kind, resolution in kinds.items():
-            garment = make_garment(sp.category, body, betas, resolution=resolution, material=sp.material,
-                                   name=sp.category, **sp.garment_params)
-            jobs.append(SimulationJob(garment, body, motion, betas=betas, name=f"{sp.id} {kind}"))
+            gkey = (sp.category, kind, sp.material, json.dumps(sp.garment_params, sort_keys=True),
+                    gbetas.tobytes())
+            if gkey not in garments:
+                garments[gkey] = make_garment(sp.category, body, gbetas, resolution=resolution,
+                                              material=sp.material, name=sp.category, **sp.garment_params)
+            garment = garments[gkey]
+            jobs.append(SimulationJob(garment, body, motion, betas=betas, name=f"{sp.id} {kind}",
+                                      garment_betas=None if cfg.garments.fit == "body" else gbetas))
             meta.append((sp, garment, motion, betas, kind))
     try:
         results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed)
@@ -256,7 +271,9 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
                  "index": sp.index, "seed": sp.seed, "garment": sp.category,
                  "garment_params": sp.garment_params, "material": sp.material, "motion": sp.motion_label,
                  "motion_params": sp.motion_params,
-                 "betas": list(sp.betas), "vertices": int(fine_g.num_vertices),
+                 "betas": list(sp.betas), "fit": cfg.garments.fit,
+                 "garment_betas": list(sp.betas) if cfg.garments.fit == "body" else [0.0] * len(sp.betas),
+                 "vertices": int(fine_g.num_vertices),
                  "faces": int(fine_g.num_faces), "uvs": int(len(fine_g.uvs)),
                  "coarse_vertices": int(item["coarse"][0].num_vertices) if "coarse" in item else None,
                  "image_resolution": [res, res] if (res := cfg.derive.image_resolution) else None,
