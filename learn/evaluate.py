@@ -162,10 +162,24 @@ def sequence_metrics(pred: np.ndarray, sf, entry: dict, body, *, derive_config, 
     return out, maps
 
 
+class BaseOnly(Method):
+    """The "base mesh alone" row of Guo et al.'s tables: predicts the base surface itself (the
+    data's smoothed ``fine/base``, or a coarse model's base), no wrinkles. Needs no model."""
+
+    name = "base_only"
+
+    def __init__(self):
+        super().__init__(None)
+
+    def predict_sequence(self, model, sequence, *, device, base=None) -> Prediction:
+        return Prediction(np.asarray(sequence["fine/base"] if base is None else base, np.float32))
+
+
 def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLike, split: str = "test_id", *,
              device: torch.device | str = "cpu", warp_device: str | None = None,
              max_sequences: int | None = None,
              image_resolution: int | None = None, examples: int = 3, garments: tuple[str, ...] | None = None,
+             coarse: tuple[Method, torch.nn.Module] | None = None, predict_options: dict | None = None,
              progress=None) -> Evaluation:
     """Predict every sequence of ``split`` and measure it (module docstring).
 
@@ -177,7 +191,13 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         image_resolution: UV map side for the map metrics (default: the dataset's, else 128;
             0: no map metrics).
         examples: how many (sequence, frame) examples to keep for pictures.
-        garments: only these garment categories.
+        garments: only these garment categories (default: the method's ``config.garments``, if any).
+        coarse: a coarse model ``(method, model)`` (e.g. ``skeleton_cvae``) whose prediction is the
+            base surface handed to ``method.predict_sequence(..., base=...)`` (methods that refine a
+            base: ``wrinkle_diffusion``, ``displacement_regressor``, :class:`BaseOnly`); None: those
+            methods use the data's base (``fine/base``).
+        predict_options: more keyword arguments of ``method.predict_sequence`` (e.g. ``seed``,
+            ``steps`` of the diffusion).
         progress: ``progress(done, total)`` callback.
 
     Raises:
@@ -191,6 +211,10 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
 
     root = Path(data_root)
     manifest = read_manifest(root)
+    if garments is None:
+        garments = tuple(getattr(method.config, "garments", ()) or ()) or None
+    if coarse is not None and garments is None:
+        garments = tuple(getattr(coarse[0].config, "garments", ()) or ()) or None
     if split not in (*SPLITS, "all"):
         raise WrinklesInputError(f"split {split!r}: choose one of {', '.join((*SPLITS, 'all'))}")
     entries = {sid: e for sid, e in sorted(manifest.get("sequences", {}).items())
@@ -224,7 +248,10 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         seq = {name: np.asarray(sf[name]) for name in sf.keys()}
         body_name = body_model_name(sf, manifest) or "default"
         seq["body/model"] = np.asarray(body_name)  # which body to re-pose (Method.predict_sequence)
-        pred: Prediction = method.predict_sequence(model, seq, device=dev)
+        opts = dict(predict_options or {})
+        if coarse is not None:
+            opts["base"] = coarse[0].predict_sequence(coarse[1], seq, device=dev).vertices
+        pred: Prediction = method.predict_sequence(model, seq, device=dev, **opts)
         m, maps = sequence_metrics(np.asarray(pred.vertices, np.float32), sf, entry, body_for(body_name),
                                    derive_config=derive_config, device=warp_device, extractor=extractor)
         if maps:

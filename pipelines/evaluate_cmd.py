@@ -27,8 +27,17 @@ Writes into --out (default: <checkpoint dir>/../eval-<split>):
   uv_examples.png    predicted vs simulated UV normal and wrinkle maps of a few frames
   renders.png        predicted vs simulated garment, coloured by the per-vertex error
 
+Guo et al.'s two stages: --model is the wrinkle model (wrinkle_diffusion or the
+displacement_regressor baseline) and --coarse the skeleton_cvae that makes the base from the body
+(without --coarse, the data's smoothed base is used: the in-distribution setting of their
+Table 1). --model base evaluates the base surface alone (no wrinkles).
+
 examples:
   wrinkles evaluate --model runs/mlp/checkpoints/last.pt --data data/sample --split test_id
+  wrinkles evaluate --model runs/wrinkles/checkpoints/last.pt --data data/tshirt --split test_id --steps 20
+  wrinkles evaluate --model runs/wrinkles/checkpoints/last.pt --coarse runs/coarse/checkpoints/last.pt \
+      --data data/tshirt --split test_ood
+  wrinkles evaluate --model base --coarse runs/coarse/checkpoints/last.pt --data data/tshirt --split test_ood
   wrinkles evaluate --model runs/mlp/checkpoints/last.pt --data data/big --split test_ood --max-sequences 50
 """
 
@@ -36,7 +45,11 @@ examples:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from pipelines.cli import add_common_arguments
 
-    p.add_argument("--model", required=True, help="checkpoint file (RUN/checkpoints/last.pt)")
+    p.add_argument("--model", required=True,
+                   help="checkpoint file (RUN/checkpoints/last.pt), or 'base' for the base surface alone")
+    p.add_argument("--coarse", help="skeleton_cvae checkpoint that makes the base surface from the body")
+    p.add_argument("--steps", type=int, help="DDIM steps of a wrinkle_diffusion model (default: its config's)")
+    p.add_argument("--sample-seed", type=int, default=0, help="seed of the diffusion's noise (default: 0)")
     p.add_argument("--data", required=True, help="dataset directory")
     p.add_argument("--split", default="test_id", choices=("train", "test_id", "test_ood", "all"),
                    help="dataset split (default: %(default)s)")
@@ -70,18 +83,37 @@ def run(args: argparse.Namespace) -> int:
         raise WrinklesInputError(f"--max-sequences must be >= 1, got {args.max_sequences}")
     dev = resolve_torch_device(args.device)
     wdev = resolve_device(args.device)
-    method, model, ckpt = load_trained(model_path, device=dev, use_ema=not args.no_ema)
+    if args.model == "base":
+        from learn.evaluate import BaseOnly
+
+        method, model, ckpt = BaseOnly(), None, {"config": {"method": "base_only"}, "step": 0}
+        if not args.out:
+            raise WrinklesInputError("--model base needs --out")
+    else:
+        method, model, ckpt = load_trained(model_path, device=dev, use_ema=not args.no_ema)
+    coarse = None
+    if args.coarse:
+        cm, cmodel, _ = load_trained(args.coarse, device=dev, use_ema=not args.no_ema)
+        if cm.name != "skeleton_cvae":
+            raise WrinklesInputError(f"--coarse must be a skeleton_cvae checkpoint, got {cm.name}", path=args.coarse)
+        coarse = (cm, cmodel)
+    opts = {}
+    if method.name == "wrinkle_diffusion":
+        opts = {"seed": args.sample_seed, **({"steps": args.steps} if args.steps else {})}
     out = Path(args.out) if args.out else _default_out(model_path, args.split)
     with progress_bar(0, f"evaluate {args.split}", quiet=args.quiet, unit="seq") as bar:
         ev = evaluate(method, model, args.data, args.split, device=dev, warp_device=wdev,
-                      max_sequences=args.max_sequences, image_resolution=args.image_resolution, progress=bar)
+                      max_sequences=args.max_sequences, image_resolution=args.image_resolution, progress=bar,
+                      coarse=coarse, predict_options=opts)
     title = (f"{ckpt['config']['method']} @ step {ckpt['step']} ({model_path}) on {args.data} [{args.split}]"
-             f"{'' if args.no_ema or 'ema' not in ckpt else ', EMA weights'}")
+             f"{'' if args.no_ema or 'ema' not in ckpt else ', EMA weights'}"
+             f"{f' on the base of {args.coarse}' if args.coarse else ''}")
     # write everything into a temporary directory, then move it into place: no partial output
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
         record = {"model": os.fspath(model_path), "method": ckpt["config"]["method"], "step": ckpt["step"],
+                  "coarse": args.coarse, "predict_options": opts,
                   "ema": not args.no_ema and "ema" in ckpt, "data": os.fspath(args.data),
                   "device": str(dev), "torch": str(torch.__version__), **ev.to_json()}
         (tmp / "metrics.json").write_text(json.dumps(record, indent=1))

@@ -20,12 +20,17 @@ continues bit-exactly (on CPU) from the last checkpoint. Configs are TOML files 
 [train], [optim] and [model] (unknown keys are refused); --set overrides single keys.
 
 Methods:
-  skinned_mlp   baseline: garment skinned by body weights + a per-vertex pose/shape MLP offset
+  skinned_mlp        baseline: garment skinned by body weights + a per-vertex pose/shape MLP offset
+  skeleton_cvae      Guo et al. coarse model (alias: coarse): SSDR virtual skeleton + pose/shape CVAE
+  wrinkle_diffusion  Guo et al. wrinkles (alias: wrinkles): strain-conditioned UV diffusion, DDIM
+  displacement_regressor  LFGD-style baseline: world-frame displacement maps regressed from the base
 
 Multi-GPU (or multi-process CPU, gloo): launch through torchrun, the global batch is split:
   torchrun --nproc_per_node 4 -m pipelines.cli train skinned_mlp --data DIR --out RUN
 
 examples:
+  wrinkles train coarse --data data/tshirt --out runs/tshirt-coarse --steps 20000
+  wrinkles train wrinkles --data data/tshirt --out runs/tshirt-wrinkles --set model.conditioning=strain_tensor
   wrinkles train skinned_mlp --data data/sample --out runs/mlp --steps 2000
   wrinkles train skinned_mlp --data data/sample --out runs/mlp --config my.toml --set optim.lr=3e-4
   wrinkles train skinned_mlp --data data/sample --out runs/mlp --resume --steps 4000
@@ -70,9 +75,14 @@ def resolve_config(args: argparse.Namespace):
     from sim.datasets.config import _load_toml
 
     data: dict = _load_toml(Path(args.config)) if args.config else {}
-    if "method" in data and data["method"] != args.method:
+    from learn.methods import METHOD_ALIASES
+
+    if "method" in data and data["method"] != METHOD_ALIASES.get(args.method, args.method):
         raise WrinklesInputError(f"the config is for method {data['method']!r}, not {args.method!r}",
                                  path=args.config)
+    from learn.methods import METHOD_ALIASES
+
+    args.method = METHOD_ALIASES.get(args.method, args.method)
     data = {**data, "method": args.method}
     overrides = dict(args.overrides)
     for flag, key in (("steps", "train.steps"), ("batch_size", "train.batch_size"),

@@ -78,6 +78,8 @@ def ddim_sample(
     generator: torch.Generator | None = None,
     initial_noise: torch.Tensor | None = None,
     mask: torch.Tensor | None = None,
+    temporal_weight: float = 0.0,
+    anchor: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Generate wrinkle UV images by DDIM (Song et al. 2021, Eq. 12) from ``x_T ~ N(0, I)``.
 
@@ -99,6 +101,14 @@ def ddim_sample(
             the whole batch (e.g. the frames of one sequence, for temporal coherence).
         mask: UV chart mask (1 inside, 0 outside), shape (B, 1, H, W) or (B, H, W); pixels outside are
             set to 0 in the output.
+        temporal_weight: ``w`` of the temporal guidance for a batch of consecutive frames: at each
+            step the estimate ``x0_hat_k`` is replaced by
+            ``x0_hat_k + w (t / T) (mean(x0_hat_{k-1}, x0_hat_{k+1}) - x0_hat_k)`` (the ends use
+            their one neighbour, frame 0's previous being ``anchor`` when given) and the noise
+            is re-derived from it, so frames agree while the sample is coarse and keep their
+            own detail at the end (0: off; not in Guo et al., who sample frames independently).
+        anchor: the previous batch's last result ``x_0``, shape (C_out, H, W) (a sequence sampled
+            in chunks).
 
     Returns:
         x_0, the generated wrinkle field, shape (B, C_out, H, W), dtype of ``cond``.
@@ -121,8 +131,30 @@ def ddim_sample(
     for t in scheduler.set_timesteps(num_steps).tolist():
         t_batch = torch.full((B,), t, dtype=torch.long, device=cond.device)
         eps = guided_epsilon(model, x, t_batch, cond, label=label, guidance_scale=guidance_scale)
+        if temporal_weight > 0.0 and (B > 1 or anchor is not None):
+            eps = _temporal_guidance(scheduler, x, eps, t, temporal_weight, anchor)
         x = scheduler.step(eps, t, x, eta=eta, generator=generator).prev_sample
     if mask is not None:
         m = mask.to(device=x.device, dtype=x.dtype)
         x = x * (m[:, None] if m.ndim == 3 else m)
     return x
+
+
+def _temporal_guidance(scheduler: DDIMScheduler, x: torch.Tensor, eps: torch.Tensor, t: int, weight: float,
+                       anchor: torch.Tensor | None) -> torch.Tensor:
+    """``eps`` re-derived from the neighbour-pulled ``x0_hat`` (see ``ddim_sample``)."""
+    a = float(scheduler.alphas_cumprod[t])
+    sa, sb = a ** 0.5, (1.0 - a) ** 0.5
+    x0 = (x - sb * eps) / sa
+    prev = torch.cat([x0[:1] if anchor is None else anchor[None].to(x0), x0[:-1]])
+    nxt = torch.cat([x0[1:], x0[-1:]])
+    has_prev = torch.ones(x0.shape[0], device=x0.device, dtype=x0.dtype)
+    has_next = torch.ones_like(has_prev)
+    if anchor is None:
+        has_prev[0] = 0
+    has_next[-1] = 0
+    n = (has_prev + has_next).clamp_min(1.0)[:, None, None, None]
+    target = (prev * has_prev[:, None, None, None] + nxt * has_next[:, None, None, None]) / n
+    lam = weight * t / scheduler.num_train_timesteps
+    x0 = x0 + lam * (target - x0)
+    return (x - sa * x0) / sb

@@ -4,8 +4,13 @@ A method (DeepWrinkles, GSNet, the strain diffusion, a baseline...) is a class w
 ``Config`` dataclass and these operations, kept apart as STYLE.md 4 asks (network, data, loss,
 inference loop):
 
-- ``build_model()`` -> the ``torch.nn.Module`` (built deterministically from the config; the
-  trainer seeds torch first);
+- ``prepare(root)`` -> the method's *fitted state*: constants derived from the training data
+  before training (normalisation statistics, a fitted virtual skeleton...), a flat dict of
+  tensors. The trainer calls it once per run (not on resume), stores it in every checkpoint
+  (``"method_state"``) and hands it back through ``load_state`` when a run resumes or a
+  checkpoint is loaded, so ``build_model`` can size and fill buffers from it. Default: none;
+- ``build_model()`` -> the ``torch.nn.Module`` (built deterministically from the config and the
+  fitted state; the trainer seeds torch first);
 - ``train_dataset(root)`` -> a map-style dataset whose ``__getitem__`` takes ``(index, seed)``:
   every random draw of an item (vertex subsets, augmentation) comes from ``seed``, which the
   trainer derives from the run seed, the epoch and the index; this is what makes a resumed run
@@ -64,6 +69,16 @@ class Method:
 
     def __init__(self, config: Any):
         self.config = config
+        self.state: dict[str, torch.Tensor] = {}
+
+    def prepare(self, root) -> dict[str, torch.Tensor]:
+        """Fit data-derived constants on the training split of the dataset at ``root`` (see the
+        module docstring); the result becomes ``self.state``. Default: none."""
+        return {}
+
+    def load_state(self, state: Mapping[str, torch.Tensor]) -> None:
+        """Adopt a fitted state (from ``prepare`` or a checkpoint)."""
+        self.state = dict(state)
 
     @classmethod
     def validate_config(cls, config: Any, err) -> None:

@@ -196,6 +196,7 @@ class Trainer:
         dev = ctx.device
         amp = _amp_dtype(tc.amp, dev)
 
+        self.method.load_state(self._method_state())
         torch.manual_seed(tc.seed)
         model = self.method.build_model().to(dev)
         optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.optim.lr, betas=cfg.optim.betas,
@@ -292,6 +293,7 @@ class Trainer:
                 "config": self.config_dict(),
                 "step": step,
                 "model": model.state_dict(),
+                "method_state": self.method.state,
                 "optimizer": optimizer.state_dict(),
                 "scaler": scaler.state_dict(),
                 "rng": {"torch": torch.get_rng_state()},
@@ -309,6 +311,13 @@ class Trainer:
                 p.unlink()
         D.barrier(ctx)
         return last
+
+    def _method_state(self) -> dict:
+        """The method's fitted state: the checkpoint's when resuming, else ``prepare`` on the data."""
+        path = self.ckpt_dir / LAST
+        if self.resume and path.exists():
+            return load_checkpoint(path).get("method_state", {})
+        return self.method.prepare(self.data_root)
 
     def _restore(self, model, optimizer, scaler, ema, dev) -> int:
         path = self.ckpt_dir / LAST
@@ -356,6 +365,7 @@ def load_trained(path: str | os.PathLike, *, device: str | torch.device = "cpu",
     ckpt = load_checkpoint(path, map_location="cpu")
     cfg = run_config_from_dict(ckpt["config"], source=path, methods=methods)
     method = methods[cfg.method](cfg.model)
+    method.load_state(ckpt.get("method_state", {}))
     model = method.build_model()
     check_state_dict(model, ckpt["model"], path=path)
     model.load_state_dict(ckpt["model"])

@@ -87,7 +87,8 @@ class GarmentsConfig:
         fit: "body": each garment is built on its sequence's sampled shape; "reference": on
             the mean shape (betas 0), so all sequences of one category and parameter set share
             one mesh, and the body morphs from the mean shape to the sampled one during the
-            settle (``sim.simulate.SimulationJob.garment_betas``).
+            settle (``sim.simulate.SimulationJob.garment_betas``). The cut keeps the clearance
+            of the thickest of the config's materials, so every material shares it too.
     """
 
     categories: tuple[str, ...] = ("t_shirt",)

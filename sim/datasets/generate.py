@@ -205,17 +205,25 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
     if cfg.derive.coarse:
         kinds["coarse"] = cfg.garments.coarse_resolution
     jobs, meta = [], []
-    garments: dict[tuple, object] = {}  # "reference" fit: one garment per category / params / material
+    garments: dict[tuple, object] = {}  # "reference" fit: one cut per category / params
+    reference = cfg.garments.fit == "reference"
+    if reference:  # one cut for every material: the clearance of the thickest fabric
+        from sim.garments.materials import get_material
+
+        cut_material = max(cfg.materials.names, key=lambda m: get_material(m).thickness)
     for sp in group:
         betas, motion = sequence_inputs(cfg, sp, body)
         gbetas = garment_betas(cfg, body, betas)
         for kind, resolution in kinds.items():
-            gkey = (sp.category, kind, sp.material, json.dumps(sp.garment_params, sort_keys=True),
-                    gbetas.tobytes())
+            gkey = (sp.category, kind, None if reference else sp.material,
+                    json.dumps(sp.garment_params, sort_keys=True), gbetas.tobytes())
             if gkey not in garments:
                 garments[gkey] = make_garment(sp.category, body, gbetas, resolution=resolution,
-                                              material=sp.material, name=sp.category, **sp.garment_params)
+                                              material=cut_material if reference else sp.material,
+                                              name=sp.category, **sp.garment_params)
             garment = garments[gkey]
+            if reference:
+                garment = replace(garment, material=get_material(sp.material))
             jobs.append(SimulationJob(garment, body, motion, betas=betas, name=f"{sp.id} {kind}",
                                       garment_betas=None if cfg.garments.fit == "body" else gbetas))
             meta.append((sp, garment, motion, betas, kind))
