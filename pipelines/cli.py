@@ -19,6 +19,7 @@ EXIT_USAGE = 2
 
 def _commands() -> dict:
     from pipelines import (
+        animate_cmd,
         body_cmd,
         dataset_cmd,
         evaluate_cmd,
@@ -36,6 +37,7 @@ def _commands() -> dict:
         "dataset": dataset_cmd,
         "train": train_cmd,
         "evaluate": evaluate_cmd,
+        "animate": animate_cmd,
     }
 
 

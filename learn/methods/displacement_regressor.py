@@ -43,7 +43,7 @@ class DisplacementRegressorConfig:
 def _maps(f, ts, res: int):
     from sim.geometry.wrinkle_maps import WrinkleMaps
 
-    wm = WrinkleMaps.from_sequence(f, res, device="cpu")
+    wm = WrinkleMaps.from_sequence(f, res)
     base = np.asarray(f["fine/base"][ts], np.float32)
     inputs = np.concatenate([wm.positions(base, np.asarray(f["body/trans"][ts], np.float32)),
                              wm.conditioning(base, "normal")], axis=-1)

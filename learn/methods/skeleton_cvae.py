@@ -175,7 +175,8 @@ class SkeletonCVAEMethod(Method):
     def _dataset(self, root):
         from learn.data import GarmentSequenceDataset
 
-        keys = ["fine/base", "fine/rest_vertices", "fine/faces", "body/poses", "body/trans", "body/betas"]
+        keys = ["fine/base", "fine/rest_vertices", "fine/faces", "fine/uvs", "fine/uv_faces", "body/poses",
+                "body/trans", "body/betas"]
         ds = GarmentSequenceDataset(root, "train", keys=keys, garments=self.config.garments or None)
         if len(ds) == 0:
             raise WrinklesInputError("no training frames", path=ds.root)
@@ -211,9 +212,16 @@ class SkeletonCVAEMethod(Method):
         frames = np.concatenate([self._root_frames(ds.open_sequence(s), ts) for s, ts in by_seq.items()])
         sk = fit_ssdr(rest, frames, num_bones=cfg.num_bones, max_influences=cfg.max_influences,
                       iterations=cfg.ssdr_iterations, seed=0)
-        state = {"rest": torch.from_numpy(rest), "weight_idx": torch.from_numpy(sk.weight_idx.astype(np.int64)),
-                 "weight_val": torch.from_numpy(sk.weight_val), "faces": torch.from_numpy(np.asarray(f0["fine/faces"])),
-                 "ssdr_rmse": float(sk.rmse), "garment": str(ds.entries[ds.sequence_ids[0]].get("garment"))}
+        e0 = ds.entries[ds.sequence_ids[0]]
+        state = {"rest": torch.from_numpy(rest.copy()),
+                 "weight_idx": torch.from_numpy(sk.weight_idx.astype(np.int64)),
+                 "weight_val": torch.from_numpy(sk.weight_val.copy()),
+                 "faces": torch.from_numpy(np.array(f0["fine/faces"], np.int32)),
+                 "uvs": torch.from_numpy(np.array(f0["fine/uvs"], np.float32)),
+                 "uv_faces": torch.from_numpy(np.array(f0["fine/uv_faces"], np.int32)),
+                 "ssdr_rmse": float(sk.rmse), "garment": str(e0.get("garment")),
+                 "garment_params": dict(e0.get("garment_params") or {}),
+                 "body_model": str((ds.generator_config.get("bodies") or {}).get("model", "default"))}
         self.state = state
         _, labels = self.labelled_frames(root, ds=ds)
         allg = np.concatenate(list(labels.values()))

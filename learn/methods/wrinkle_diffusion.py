@@ -175,7 +175,7 @@ class WrinkleDiffusionMethod(Method):
         from sim.geometry.wrinkle_maps import WrinkleMaps
 
         H = np.asarray(f["images/mask"]).shape[0]
-        return WrinkleMaps.from_sequence(f, H, device="cpu").conditioning(
+        return WrinkleMaps.from_sequence(f, H).conditioning(
             np.asarray(f["fine/base"][ts], np.float32), self.config.conditioning)
 
     def sequence_conditioning(self, f) -> np.ndarray:
@@ -289,7 +289,7 @@ class WrinkleDiffusionMethod(Method):
         from sim.geometry.wrinkle_maps import WrinkleMaps
 
         res = int(self.state["resolution"])
-        maps = WrinkleMaps.from_sequence(sequence, res, device="cpu")
+        maps = WrinkleMaps.from_sequence(sequence, res)
         b = np.asarray(sequence["fine/base"] if base is None else base, np.float32)
         cond = maps.conditioning(b, self.config.conditioning)
         meta = sequence.get("material")

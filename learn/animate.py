@@ -1,0 +1,140 @@
+"""Motion in, wrinkled garment out: Guo et al. 2024's inference pipeline (Fig. 2a).
+
+body (pose, shape) -> CVAE -> virtual-bone transforms -> LBS base mesh (``skeleton_cvae``) ->
+Green-Lagrange strain of the base (UV map) -> DDIM wrinkle field (``wrinkle_diffusion``) ->
+decoded onto the base -> wrinkled garment. The garment is the coarse model's rig (the mean-shape
+cut of its training data); the body is re-posed with the same body model for the output.
+
+Shipped defaults (``pretrained/``, see ``pretrained/MODEL_CARD.md``) are used when no model files
+are given: ``pretrained/<category>-coarse.pt`` and ``pretrained/<category>-wrinkles.pt``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from sim.errors import WrinklesInputError
+
+PRETRAINED = Path(__file__).resolve().parent.parent / "pretrained"
+"""Folder of the shipped default weights."""
+
+
+def pretrained_paths(category: str) -> tuple[Path, Path]:
+    """(coarse, wrinkles) release files of a garment category in :data:`PRETRAINED`."""
+    return PRETRAINED / f"{category}-coarse.pt", PRETRAINED / f"{category}-wrinkles.pt"
+
+
+def available_pretrained() -> list[str]:
+    """Garment categories with both shipped models."""
+    return sorted(p.name[: -len("-coarse.pt")] for p in PRETRAINED.glob("*-coarse.pt")
+                  if (PRETRAINED / p.name.replace("-coarse.pt", "-wrinkles.pt")).exists())
+
+
+@dataclass
+class AnimationResult:
+    """A wrinkled garment sequence.
+
+    Attributes:
+        vertices: wrinkled garment [m], (T, V, 3).
+        base: the coarse model's base mesh [m], (T, V, 3).
+        faces, uvs, uv_faces: the garment mesh and its UV layout.
+        wrinkle_maps: generated wrinkle fields [m], (T, H, W, 3) (None without wrinkles).
+        seconds: wall time per stage (``coarse``, ``strain``, ``diffusion``, ``decode``).
+    """
+
+    vertices: np.ndarray
+    base: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray
+    uv_faces: np.ndarray
+    wrinkle_maps: np.ndarray | None
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+class WrinklePipeline:
+    """The two trained stages of one garment, loaded once.
+
+    Args:
+        coarse: ``skeleton_cvae`` checkpoint or release file.
+        wrinkles: ``wrinkle_diffusion`` checkpoint or release file (None: the base alone).
+        device: torch device.
+    """
+
+    def __init__(self, coarse: str | Path, wrinkles: str | Path | None, *, device: str | torch.device = "cpu"):
+        from learn.train.trainer import load_trained
+
+        self.device = torch.device(device)
+        self.coarse, self.coarse_model, ck = load_trained(coarse, device=self.device)
+        if self.coarse.name != "skeleton_cvae":
+            raise WrinklesInputError(f"expected a skeleton_cvae model, got {self.coarse.name}", path=coarse)
+        self.wrinkles = self.wrinkles_model = None
+        if wrinkles is not None:
+            self.wrinkles, self.wrinkles_model, _ = load_trained(wrinkles, device=self.device)
+            if self.wrinkles.name != "wrinkle_diffusion":
+                raise WrinklesInputError(f"expected a wrinkle_diffusion model, got {self.wrinkles.name}",
+                                         path=wrinkles)
+        st = self.coarse.state
+        self.category = str(st.get("garment"))
+        self.faces = st["faces"].numpy().astype(np.int32)
+        self.rest = st["rest"].numpy()
+        uvs, uv_faces = st.get("uvs"), st.get("uv_faces")
+        if uvs is None:
+            raise WrinklesInputError("this coarse model has no UV layout (trained before UVs were stored)",
+                                     path=coarse)
+        self.uvs, self.uv_faces = uvs.numpy(), uv_faces.numpy().astype(np.int32)
+        self._maps = None
+
+    def maps(self):
+        from sim.geometry.wrinkle_maps import WrinkleMaps
+
+        if self._maps is None:
+            res = int(self.wrinkles.state["resolution"]) if self.wrinkles is not None else 128
+            self._maps = WrinkleMaps(self.rest, self.faces, self.uvs, self.uv_faces, res)
+        return self._maps
+
+    def __call__(self, poses: np.ndarray, trans: np.ndarray, betas: np.ndarray, *, steps: int | None = None,
+                 material: str | None = None, seed: int = 0, sample_latent: bool = False,
+                 progress=None) -> AnimationResult:
+        """Animate the garment for a body motion.
+
+        Args:
+            poses: SMPL axis-angle poses [rad], (T, 24, 3).
+            trans: root translation [m] of the placed (grounded) body, (T, 3).
+            betas: body shape (B,).
+            steps: DDIM steps (default: the wrinkle model's config).
+            material: material label (default: the first the model knows).
+            seed: noise seed.
+            sample_latent: draw the CVAE latent instead of using its mean.
+            progress: ``progress(frames_done, frames_total)`` of the diffusion.
+        """
+        sec = {}
+        t0 = time.perf_counter()
+        base = self.coarse.base_from_body(self.coarse_model, poses, trans, betas, device=self.device,
+                                          sample_latent=sample_latent, seed=seed)
+        sec["coarse"] = time.perf_counter() - t0
+        if self.wrinkles is None:
+            return AnimationResult(base, base, self.faces, self.uvs, self.uv_faces, None, sec)
+        m = self.maps()
+        t0 = time.perf_counter()
+        cond = m.conditioning(base, self.wrinkles.config.conditioning)
+        sec["strain"] = time.perf_counter() - t0
+        if material is None:
+            material = self.wrinkles.materials[0] if self.wrinkles.materials else None
+        elif material not in self.wrinkles.materials:
+            raise WrinklesInputError(f"material {material!r}: this wrinkle model knows "
+                                     f"{', '.join(self.wrinkles.materials)}")
+        t0 = time.perf_counter()
+        w = self.wrinkles.sample_wrinkles(self.wrinkles_model, cond, m.mask, material=material,
+                                          device=self.device, steps=steps, seed=seed, progress=progress)
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+        sec["diffusion"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        fine = m.decode(w, base)
+        sec["decode"] = time.perf_counter() - t0
+        return AnimationResult(fine, base, self.faces, self.uvs, self.uv_faces, w, sec)

@@ -1,0 +1,169 @@
+"""``wrinkles animate``: a body motion in, a wrinkled garment out (learn.animate), written as USD
+(body + garment with UVs) and previews."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipelines.outputs import OutputSet, check_output_path
+from pipelines.progress import progress_bar
+from sim.errors import WrinklesInputError
+
+HELP = "animate a garment with learned wrinkles (virtual-skeleton CVAE + strain diffusion); USD + video"
+DESCRIPTION = """\
+Animate a garment on a moving body with Guo et al. 2024's learned pipeline, no simulation:
+body pose and shape -> CVAE -> 64 virtual bones -> LBS base mesh -> Green-Lagrange strain map ->
+DDIM wrinkle diffusion -> wrinkles decoded onto the base -> USD stage + preview.
+
+Without --coarse/--wrinkles the shipped default models of --garment are used (pretrained/, see
+pretrained/MODEL_CARD.md: t_shirt and straight_skirt). The garment is the models' own cut (the
+mean-shape template they were trained on), worn by the body --shape gives. --steps trades speed
+for detail (50 = the paper's setting; 10-20 is a good preview on a CPU). Frames share one initial
+noise and are guided toward their neighbours while denoising, so the wrinkles do not flicker.
+
+--body/--shape/--motion/--param/--duration/--fps are those of 'wrinkles body'.
+
+examples:
+  wrinkles animate --garment tshirt --motion walk --duration 2 --out out/tshirt_walk.usda \\
+      --preview out/tshirt_walk.mp4
+  wrinkles animate --garment skirt --motion squat --shape 1.0,-0.5 --steps 20 --out skirt.usdc
+  wrinkles animate --garment tshirt --motion CMU_01_01.npz --fps 30 --steps 50 --device cuda \\
+      --out walk.usda --sheet walk.png
+  wrinkles animate --coarse runs/coarse/checkpoints/last.pt --wrinkles runs/wr/checkpoints/last.pt \\
+      --motion run --out mine.usda
+"""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from pipelines.cli import add_common_arguments
+    from pipelines.options import add_body_arguments, add_motion_arguments
+
+    g = p.add_argument_group("garment and models")
+    g.add_argument("--garment", default="t_shirt",
+                   help="garment category of the shipped models: t_shirt (tshirt), straight_skirt (skirt) "
+                        "(default: %(default)s; ignored with --coarse)")
+    g.add_argument("--coarse", help="skeleton_cvae checkpoint (default: the shipped one of --garment)")
+    g.add_argument("--wrinkles", help="wrinkle_diffusion checkpoint (default: the shipped one of --garment)")
+    g.add_argument("--no-wrinkles", action="store_true", help="write the coarse base mesh only")
+    g.add_argument("--steps", type=int, help="DDIM steps (default: the model's, 50)")
+    g.add_argument("--material", help="material label of the wrinkle model (default: its first)")
+    g.add_argument("--sample-latent", action="store_true",
+                   help="draw the CVAE latent z ~ N(0, I) instead of its mean (another plausible fit)")
+    m = p.add_argument_group("body and motion")
+    add_motion_arguments(m)
+    add_body_arguments(m)
+    o = p.add_argument_group("outputs")
+    o.add_argument("--out", help="USD stage to write (.usda/.usdc/.usd; default: out/<garment>_<motion>.usda)")
+    o.add_argument("--preview", help="preview video to write (.mp4 or .gif)")
+    o.add_argument("--sheet", help="contact sheet PNG to write (8 frames)")
+    o.add_argument("--camera", default="three_quarter", choices=("front", "side", "three_quarter"),
+                   help="preview camera (default: %(default)s)")
+    add_common_arguments(p)
+
+
+def _model_paths(args: argparse.Namespace) -> tuple[Path, Path | None]:
+    from learn.animate import available_pretrained, pretrained_paths
+    from pipelines.simulate_cmd import resolve_template
+
+    if args.coarse:
+        c = Path(args.coarse)
+        w = Path(args.wrinkles) if args.wrinkles else None
+        if w is None and not args.no_wrinkles:
+            raise WrinklesInputError("--coarse needs --wrinkles (or --no-wrinkles)")
+    else:
+        category = resolve_template(args.garment)
+        c, w = pretrained_paths(category)
+        if not c.exists():
+            have = available_pretrained()
+            raise WrinklesInputError(f"no shipped models for {category} (shipped: {', '.join(have) or 'none'}); "
+                                     "train your own (wrinkles train coarse / wrinkles) and pass --coarse "
+                                     "and --wrinkles")
+        if args.wrinkles:
+            w = Path(args.wrinkles)
+    for path in (c, w):
+        if path is not None and not path.is_file():
+            raise WrinklesInputError("no such model file", path=path)
+    return c, None if args.no_wrinkles else w
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from learn.animate import WrinklePipeline
+    from learn.train.distributed import resolve_torch_device
+    from pipelines.options import load_body_and_motion, package_versions
+    from pipelines.simulate_cmd import PREVIEW_SUFFIXES, USD_SUFFIXES, preview_meshes, write_sequence_usd
+    from sim.bodies.placement import floor_offset, translate_frames
+    from sim.device import resolve_device
+    from sim.garments.materials import get_material
+    from sim.garments.types import Garment
+    from sim.types import GarmentSequence
+
+    t0 = time.perf_counter()
+    if args.steps is not None and args.steps < 1:
+        raise WrinklesInputError(f"--steps must be >= 1, got {args.steps}")
+    coarse, wrinkles = _model_paths(args)
+    label = Path(args.garment).stem if not args.coarse else coarse.stem
+    out_usd = check_output_path(args.out or f"out/{label}_{Path(args.motion).stem}.usda", USD_SUFFIXES, "--out")
+    out_json = out_usd.with_name(out_usd.stem + ".animate.json")
+    out_preview = check_output_path(args.preview, PREVIEW_SUFFIXES, "--preview") if args.preview else None
+    out_sheet = check_output_path(args.sheet, (".png",), "--sheet") if args.sheet else None
+    dev = resolve_torch_device(args.device)
+    wdev = resolve_device(args.device)
+    torch.manual_seed(args.seed)
+
+    pipe = WrinklePipeline(coarse, wrinkles, device=dev)
+    bm = load_body_and_motion(args)
+    body_name = pipe.coarse.state.get("body_model", "default")
+    if body_name not in ("default", str(args.body)) and not args.coarse:
+        print(f"note: the models were trained on body model {body_name!r}", file=sys.stderr)
+    frames = bm.body.pose(bm.betas, bm.motion.poses, bm.motion.trans, device=wdev)
+    dy = floor_offset(frames, frame=0)
+    frames = translate_frames(frames, np.array([0.0, dy, 0.0]))
+    trans = bm.motion.trans + np.array([0.0, dy, 0.0], np.float32)
+    T = len(trans)
+    with progress_bar(T, "wrinkles", quiet=args.quiet) as advance:
+        res = pipe(bm.motion.poses, trans, bm.betas, steps=args.steps, material=args.material, seed=args.seed,
+                   sample_latent=args.sample_latent, progress=lambda done, total: advance(done))
+    material = args.material or (pipe.wrinkles.materials[0] if pipe.wrinkles and pipe.wrinkles.materials
+                                 else "cotton")
+    garment = Garment(rest_vertices=pipe.rest, faces=pipe.faces, uvs=pipe.uvs, uv_faces=pipe.uv_faces,
+                      material=get_material(material), attachments={}, category=pipe.category,
+                      name=pipe.category)
+    steps = args.steps or (pipe.wrinkles.config.sample_steps if pipe.wrinkles else 0)
+    provenance = {"command": "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+                  "coarse_model": str(coarse), "wrinkle_model": None if wrinkles is None else str(wrinkles),
+                  "ddim_steps": steps, "seed": args.seed, "device": str(dev),
+                  "stage_seconds": {k: round(v, 3) for k, v in res.seconds.items()},
+                  "versions": package_versions("usd-core")}
+    seq = GarmentSequence(vertices=res.vertices, body=frames, garment=garment, motion=bm.motion,
+                          fps=float(bm.motion.fps), provenance=provenance)
+    metadata = json.loads(json.dumps({**provenance, "motion_params": bm.params,
+                                      "betas": [float(b) for b in np.asarray(bm.betas).ravel()]}))
+    with OutputSet() as outputs:
+        write_sequence_usd(outputs.temp(out_usd), seq, metadata, quiet=args.quiet)
+        outputs.temp(out_json).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
+        if out_preview or out_sheet:
+            from pipelines.preview import write_contact_sheet, write_video
+
+            meshes = preview_meshes(seq)
+            if out_preview:
+                with progress_bar(T, "preview", quiet=args.quiet) as adv:
+                    write_video(meshes, outputs.temp(out_preview), fps=seq.fps, camera=args.camera, progress=adv)
+            if out_sheet:
+                write_contact_sheet(meshes, outputs.temp(out_sheet), fps=seq.fps, camera=args.camera)
+    if not args.quiet:
+        what = f"{steps} DDIM steps" if wrinkles is not None else "base only"
+        print(f"{pipe.category} ({len(pipe.rest)} vertices) on {bm.motion.name}: {T} frames, {what}, {dev}, "
+              f"{time.perf_counter() - t0:.1f} s")
+        for p in (out_usd, out_json, out_preview, out_sheet):
+            if p:
+                print(f"  wrote {p}")
+    return 0

@@ -1,0 +1,77 @@
+#!/usr/bin/env bash
+# How the shipped default models (pretrained/) are made: generate the t-shirt and skirt datasets,
+# train the coarse (skeleton_cvae) and wrinkle (wrinkle_diffusion) models of each, plus the
+# ablation variants and the LFGD-style baseline on the t-shirt, evaluate everything (Tables 1/2 of
+# docs/WRINKLES.md) and export the release weights. Needs a CUDA GPU. Time-boxed: every stage
+# stops at its budget (training is interrupted with SIGINT, which checkpoints) and everything is
+# resumable (run it again to continue).
+#   bash scripts/train_pretrained.sh WORKDIR [GEN_SECONDS] [TRAIN_SECONDS]
+set -u
+W=${1:?work directory}; GEN=${2:-420}; TRAIN=${3:-600}
+PY=${PYTHON:-python3}
+CLI="$PY -m pipelines.cli"
+mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release"
+log() { echo "[$(date +%T)] $*" | tee -a "$W/logs/pipeline.log"; }
+
+log "generate (budget ${GEN}s)"
+for g in tshirt skirt; do
+  resume=""; [ -f "$W/data/$g/manifest.json" ] && resume="--resume"
+  timeout -s INT "$GEN" $CLI dataset generate --config pipelines/configs/$g.toml --out "$W/data/$g" \
+    --batch 24 --device cuda -q $resume >"$W/logs/gen-$g.log" 2>&1 &
+done
+wait
+for g in tshirt skirt; do $CLI dataset info "$W/data/$g" 2>&1 | head -20 | tee -a "$W/logs/pipeline.log"; done
+
+log "train (budget ${TRAIN}s)"
+WCFG=pipelines/configs/train/wrinkles.toml; CCFG=pipelines/configs/train/coarse.toml
+train() {  # name method data config [overrides...]
+  local name=$1 method=$2 data=$3 cfg=$4; shift 4
+  local resume=""; [ -f "$W/runs/$name/checkpoints/last.pt" ] && resume="--resume"
+  timeout -s INT "$TRAIN" $CLI train "$method" --data "$W/data/$data" --out "$W/runs/$name" --config "$cfg" \
+    --device cuda -q --set train.num_workers=3 "$@" $resume >"$W/logs/train-$name.log" 2>&1
+}
+train tshirt-coarse coarse tshirt $CCFG &
+train skirt-coarse coarse skirt $CCFG &
+train tshirt-wrinkles wrinkles tshirt $WCFG &
+train skirt-wrinkles wrinkles skirt $WCFG &
+train tshirt-tensor wrinkles tshirt $WCFG --set model.conditioning=strain_tensor &
+train tshirt-normal wrinkles tshirt $WCFG --set model.conditioning=normal &
+train tshirt-lfgd displacement_regressor tshirt pipelines/configs/train/lfgd.toml &
+wait
+for f in "$W"/logs/train-*.log; do log "$(basename $f): $(tail -1 $f)"; done
+
+log "evaluate"
+MAXSEQ=${MAXSEQ:-8}
+ev() {  # out-name split args...   (the data is the part of the name before the first '-')
+  local name=$1 split=$2; shift 2
+  $CLI evaluate --data "$W/data/${name%%-*}" --split "$split" --out "$W/eval/$name-$split" --no-images -q \
+    --max-sequences "$MAXSEQ" "$@" >"$W/logs/eval-$name-$split.log" 2>&1 || log "evaluate $name $split failed"
+}
+for g in tshirt skirt; do
+  C="$W/runs/$g-coarse/checkpoints/last.pt"; M="$W/runs/$g-wrinkles/checkpoints/last.pt"
+  ev $g-base test_id --model base &
+  ev $g-base test_ood --model base --coarse "$C" &
+  ev $g-coarse test_ood --model "$C" &
+  for s in 0 1 2 3 4; do
+    ev $g-ours-s$s test_id --model "$M" --sample-seed $s &
+    ev $g-ours-s$s test_ood --model "$M" --sample-seed $s --coarse "$C" &
+  done
+  wait
+done
+C="$W/runs/tshirt-coarse/checkpoints/last.pt"
+for v in tensor normal lfgd; do
+  ev tshirt-$v test_id --model "$W/runs/tshirt-$v/checkpoints/last.pt" &
+  ev tshirt-$v test_ood --model "$W/runs/tshirt-$v/checkpoints/last.pt" --coarse "$C" &
+done
+for n in 20 10; do
+  ev tshirt-ours-steps$n test_id --model "$W/runs/tshirt-wrinkles/checkpoints/last.pt" --steps $n &
+done
+wait
+
+log "export"
+for g in tshirt skirt; do
+  cat=$([ $g = tshirt ] && echo t_shirt || echo straight_skirt)
+  $PY -m learn.train.export "$W/runs/$g-coarse/checkpoints/last.pt" "$W/release/$cat-coarse.pt"
+  $PY -m learn.train.export "$W/runs/$g-wrinkles/checkpoints/last.pt" "$W/release/$cat-wrinkles.pt"
+done
+log "done"
