@@ -44,17 +44,39 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         r = pipe(poses, trans, betas, steps=s)
         wall = time.perf_counter() - t0
-        rows.append({"steps": s, "frames": len(poses), "seconds": wall, "fps": len(poses) / wall,
-                     "ms_per_frame": 1000 * wall / len(poses),
-                     "stage_seconds": {k: round(v, 4) for k, v in r.seconds.items()}})
-        print(f"{s:3d} steps: {rows[-1]['fps']:.2f} frames/s ({rows[-1]['ms_per_frame']:.1f} ms/frame) "
-              f"stages {rows[-1]['stage_seconds']}")
+        rows.append(
+            {
+                "steps": s,
+                "frames": len(poses),
+                "seconds": wall,
+                "fps": len(poses) / wall,
+                "ms_per_frame": 1000 * wall / len(poses),
+                "stage_seconds": {k: round(v, 4) for k, v in r.seconds.items()},
+            }
+        )
+        print(
+            f"{s:3d} steps: {rows[-1]['fps']:.2f} frames/s ({rows[-1]['ms_per_frame']:.1f} ms/frame) "
+            f"stages {rows[-1]['stage_seconds']}"
+        )
     dev = torch.cuda.get_device_name() if a.device.startswith("cuda") else platform.processor() or "cpu"
-    out = Path(a.out or f"benchmarks/results/wrinkles_{'cuda' if a.device.startswith('cuda') else 'cpu'}.json")
+    out = Path(
+        a.out or f"benchmarks/results/wrinkles_{'cuda' if a.device.startswith('cuda') else 'cpu'}.json"
+    )
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"device": dev, "torch_threads": torch.get_num_threads(), "garment": pipe.category,
-                               "vertices": int(len(pipe.rest)), "resolution": int(pipe.maps().resolution),
-                               "infer_batch": pipe.wrinkles.config.infer_batch, "rows": rows}, indent=1))
+    out.write_text(
+        json.dumps(
+            {
+                "device": dev,
+                "torch_threads": torch.get_num_threads(),
+                "garment": pipe.category,
+                "vertices": int(len(pipe.rest)),
+                "resolution": int(pipe.maps().resolution),
+                "infer_batch": pipe.wrinkles.config.infer_batch,
+                "rows": rows,
+            },
+            indent=1,
+        )
+    )
     print(f"wrote {out}")
     return 0
 

@@ -31,8 +31,11 @@ def pretrained_paths(category: str) -> tuple[Path, Path]:
 
 def available_pretrained() -> list[str]:
     """Garment categories with both shipped models."""
-    return sorted(p.name[: -len("-coarse.pt")] for p in PRETRAINED.glob("*-coarse.pt")
-                  if (PRETRAINED / p.name.replace("-coarse.pt", "-wrinkles.pt")).exists())
+    return sorted(
+        p.name[: -len("-coarse.pt")]
+        for p in PRETRAINED.glob("*-coarse.pt")
+        if (PRETRAINED / p.name.replace("-coarse.pt", "-wrinkles.pt")).exists()
+    )
 
 
 @dataclass
@@ -65,7 +68,9 @@ class WrinklePipeline:
         device: torch device.
     """
 
-    def __init__(self, coarse: str | Path, wrinkles: str | Path | None, *, device: str | torch.device = "cpu"):
+    def __init__(
+        self, coarse: str | Path, wrinkles: str | Path | None, *, device: str | torch.device = "cpu"
+    ):
         from learn.train.trainer import load_trained
 
         self.device = torch.device(device)
@@ -76,16 +81,18 @@ class WrinklePipeline:
         if wrinkles is not None:
             self.wrinkles, self.wrinkles_model, _ = load_trained(wrinkles, device=self.device)
             if self.wrinkles.name != "wrinkle_diffusion":
-                raise WrinklesInputError(f"expected a wrinkle_diffusion model, got {self.wrinkles.name}",
-                                         path=wrinkles)
+                raise WrinklesInputError(
+                    f"expected a wrinkle_diffusion model, got {self.wrinkles.name}", path=wrinkles
+                )
         st = self.coarse.state
         self.category = str(st.get("garment"))
         self.faces = st["faces"].numpy().astype(np.int32)
         self.rest = st["rest"].numpy()
         uvs, uv_faces = st.get("uvs"), st.get("uv_faces")
         if uvs is None:
-            raise WrinklesInputError("this coarse model has no UV layout (trained before UVs were stored)",
-                                     path=coarse)
+            raise WrinklesInputError(
+                "this coarse model has no UV layout (trained before UVs were stored)", path=coarse
+            )
         self.uvs, self.uv_faces = uvs.numpy(), uv_faces.numpy().astype(np.int32)
         self._maps = None
 
@@ -97,9 +104,18 @@ class WrinklePipeline:
             self._maps = WrinkleMaps(self.rest, self.faces, self.uvs, self.uv_faces, res)
         return self._maps
 
-    def __call__(self, poses: np.ndarray, trans: np.ndarray, betas: np.ndarray, *, steps: int | None = None,
-                 material: str | None = None, seed: int = 0, sample_latent: bool = False,
-                 progress=None) -> AnimationResult:
+    def __call__(
+        self,
+        poses: np.ndarray,
+        trans: np.ndarray,
+        betas: np.ndarray,
+        *,
+        steps: int | None = None,
+        material: str | None = None,
+        seed: int = 0,
+        sample_latent: bool = False,
+        progress=None,
+    ) -> AnimationResult:
         """Animate the garment for a body motion.
 
         Args:
@@ -114,8 +130,9 @@ class WrinklePipeline:
         """
         sec = {}
         t0 = time.perf_counter()
-        base = self.coarse.base_from_body(self.coarse_model, poses, trans, betas, device=self.device,
-                                          sample_latent=sample_latent, seed=seed)
+        base = self.coarse.base_from_body(
+            self.coarse_model, poses, trans, betas, device=self.device, sample_latent=sample_latent, seed=seed
+        )
         sec["coarse"] = time.perf_counter() - t0
         if self.wrinkles is None:
             return AnimationResult(base, base, self.faces, self.uvs, self.uv_faces, None, sec)
@@ -126,11 +143,20 @@ class WrinklePipeline:
         if material is None:
             material = self.wrinkles.materials[0] if self.wrinkles.materials else None
         elif material not in self.wrinkles.materials:
-            raise WrinklesInputError(f"material {material!r}: this wrinkle model knows "
-                                     f"{', '.join(self.wrinkles.materials)}")
+            raise WrinklesInputError(
+                f"material {material!r}: this wrinkle model knows {', '.join(self.wrinkles.materials)}"
+            )
         t0 = time.perf_counter()
-        w = self.wrinkles.sample_wrinkles(self.wrinkles_model, cond, m.mask, material=material,
-                                          device=self.device, steps=steps, seed=seed, progress=progress)
+        w = self.wrinkles.sample_wrinkles(
+            self.wrinkles_model,
+            cond,
+            m.mask,
+            material=material,
+            device=self.device,
+            steps=steps,
+            seed=seed,
+            progress=progress,
+        )
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
         sec["diffusion"] = time.perf_counter() - t0

@@ -46,25 +46,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from pipelines.options import add_body_arguments, add_motion_arguments
 
     g = p.add_argument_group("garment and models")
-    g.add_argument("--garment", default="t_shirt",
-                   help="garment category of the shipped models: t_shirt (tshirt), straight_skirt (skirt) "
-                        "(default: %(default)s; ignored with --coarse)")
+    g.add_argument(
+        "--garment",
+        default="t_shirt",
+        help="garment category of the shipped models: t_shirt (tshirt), straight_skirt (skirt) "
+        "(default: %(default)s; ignored with --coarse)",
+    )
     g.add_argument("--coarse", help="skeleton_cvae checkpoint (default: the shipped one of --garment)")
     g.add_argument("--wrinkles", help="wrinkle_diffusion checkpoint (default: the shipped one of --garment)")
     g.add_argument("--no-wrinkles", action="store_true", help="write the coarse base mesh only")
     g.add_argument("--steps", type=int, help="DDIM steps (default: the model's, 50)")
     g.add_argument("--material", help="material label of the wrinkle model (default: its first)")
-    g.add_argument("--sample-latent", action="store_true",
-                   help="draw the CVAE latent z ~ N(0, I) instead of its mean (another plausible fit)")
+    g.add_argument(
+        "--sample-latent",
+        action="store_true",
+        help="draw the CVAE latent z ~ N(0, I) instead of its mean (another plausible fit)",
+    )
     m = p.add_argument_group("body and motion")
     add_motion_arguments(m)
     add_body_arguments(m)
     o = p.add_argument_group("outputs")
-    o.add_argument("--out", help="USD stage to write (.usda/.usdc/.usd; default: out/<garment>_<motion>.usda)")
+    o.add_argument(
+        "--out", help="USD stage to write (.usda/.usdc/.usd; default: out/<garment>_<motion>.usda)"
+    )
     o.add_argument("--preview", help="preview video to write (.mp4 or .gif)")
     o.add_argument("--sheet", help="contact sheet PNG to write (8 frames)")
-    o.add_argument("--camera", default="three_quarter", choices=("front", "side", "three_quarter"),
-                   help="preview camera (default: %(default)s)")
+    o.add_argument(
+        "--camera",
+        default="three_quarter",
+        choices=("front", "side", "three_quarter"),
+        help="preview camera (default: %(default)s)",
+    )
     add_common_arguments(p)
 
 
@@ -82,9 +94,11 @@ def _model_paths(args: argparse.Namespace) -> tuple[Path, Path | None]:
         c, w = pretrained_paths(category)
         if not c.exists():
             have = available_pretrained()
-            raise WrinklesInputError(f"no shipped models for {category} (shipped: {', '.join(have) or 'none'}); "
-                                     "train your own (wrinkles train coarse / wrinkles) and pass --coarse "
-                                     "and --wrinkles")
+            raise WrinklesInputError(
+                f"no shipped models for {category} (shipped: {', '.join(have) or 'none'}); "
+                "train your own (wrinkles train coarse / wrinkles) and pass --coarse "
+                "and --wrinkles"
+            )
         if args.wrinkles:
             w = Path(args.wrinkles)
     for path in (c, w):
@@ -111,7 +125,9 @@ def run(args: argparse.Namespace) -> int:
         raise WrinklesInputError(f"--steps must be >= 1, got {args.steps}")
     coarse, wrinkles = _model_paths(args)
     label = Path(args.garment).stem if not args.coarse else coarse.stem
-    out_usd = check_output_path(args.out or f"out/{label}_{Path(args.motion).stem}.usda", USD_SUFFIXES, "--out")
+    out_usd = check_output_path(
+        args.out or f"out/{label}_{Path(args.motion).stem}.usda", USD_SUFFIXES, "--out"
+    )
     out_json = out_usd.with_name(out_usd.stem + ".animate.json")
     out_preview = check_output_path(args.preview, PREVIEW_SUFFIXES, "--preview") if args.preview else None
     out_sheet = check_output_path(args.sheet, (".png",), "--sheet") if args.sheet else None
@@ -130,23 +146,57 @@ def run(args: argparse.Namespace) -> int:
     trans = bm.motion.trans + np.array([0.0, dy, 0.0], np.float32)
     T = len(trans)
     with progress_bar(T, "wrinkles", quiet=args.quiet) as advance:
-        res = pipe(bm.motion.poses, trans, bm.betas, steps=args.steps, material=args.material, seed=args.seed,
-                   sample_latent=args.sample_latent, progress=lambda done, total: advance(done))
-    material = args.material or (pipe.wrinkles.materials[0] if pipe.wrinkles and pipe.wrinkles.materials
-                                 else "cotton")
-    garment = Garment(rest_vertices=pipe.rest, faces=pipe.faces, uvs=pipe.uvs, uv_faces=pipe.uv_faces,
-                      material=get_material(material), attachments={}, category=pipe.category,
-                      name=pipe.category)
+        res = pipe(
+            bm.motion.poses,
+            trans,
+            bm.betas,
+            steps=args.steps,
+            material=args.material,
+            seed=args.seed,
+            sample_latent=args.sample_latent,
+            progress=lambda done, total: advance(done),
+        )
+    material = args.material or (
+        pipe.wrinkles.materials[0] if pipe.wrinkles and pipe.wrinkles.materials else "cotton"
+    )
+    garment = Garment(
+        rest_vertices=pipe.rest,
+        faces=pipe.faces,
+        uvs=pipe.uvs,
+        uv_faces=pipe.uv_faces,
+        material=get_material(material),
+        attachments={},
+        category=pipe.category,
+        name=pipe.category,
+    )
     steps = args.steps or (pipe.wrinkles.config.sample_steps if pipe.wrinkles else 0)
-    provenance = {"command": "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-                  "coarse_model": str(coarse), "wrinkle_model": None if wrinkles is None else str(wrinkles),
-                  "ddim_steps": steps, "seed": args.seed, "device": str(dev),
-                  "stage_seconds": {k: round(v, 3) for k, v in res.seconds.items()},
-                  "versions": package_versions("usd-core")}
-    seq = GarmentSequence(vertices=res.vertices, body=frames, garment=garment, motion=bm.motion,
-                          fps=float(bm.motion.fps), provenance=provenance)
-    metadata = json.loads(json.dumps({**provenance, "motion_params": bm.params,
-                                      "betas": [float(b) for b in np.asarray(bm.betas).ravel()]}))
+    provenance = {
+        "command": "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+        "coarse_model": str(coarse),
+        "wrinkle_model": None if wrinkles is None else str(wrinkles),
+        "ddim_steps": steps,
+        "seed": args.seed,
+        "device": str(dev),
+        "stage_seconds": {k: round(v, 3) for k, v in res.seconds.items()},
+        "versions": package_versions("usd-core"),
+    }
+    seq = GarmentSequence(
+        vertices=res.vertices,
+        body=frames,
+        garment=garment,
+        motion=bm.motion,
+        fps=float(bm.motion.fps),
+        provenance=provenance,
+    )
+    metadata = json.loads(
+        json.dumps(
+            {
+                **provenance,
+                "motion_params": bm.params,
+                "betas": [float(b) for b in np.asarray(bm.betas).ravel()],
+            }
+        )
+    )
     with OutputSet() as outputs:
         write_sequence_usd(outputs.temp(out_usd), seq, metadata, quiet=args.quiet)
         outputs.temp(out_json).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
@@ -156,13 +206,17 @@ def run(args: argparse.Namespace) -> int:
             meshes = preview_meshes(seq)
             if out_preview:
                 with progress_bar(T, "preview", quiet=args.quiet) as adv:
-                    write_video(meshes, outputs.temp(out_preview), fps=seq.fps, camera=args.camera, progress=adv)
+                    write_video(
+                        meshes, outputs.temp(out_preview), fps=seq.fps, camera=args.camera, progress=adv
+                    )
             if out_sheet:
                 write_contact_sheet(meshes, outputs.temp(out_sheet), fps=seq.fps, camera=args.camera)
     if not args.quiet:
         what = f"{steps} DDIM steps" if wrinkles is not None else "base only"
-        print(f"{pipe.category} ({len(pipe.rest)} vertices) on {bm.motion.name}: {T} frames, {what}, {dev}, "
-              f"{time.perf_counter() - t0:.1f} s")
+        print(
+            f"{pipe.category} ({len(pipe.rest)} vertices) on {bm.motion.name}: {T} frames, {what}, {dev}, "
+            f"{time.perf_counter() - t0:.1f} s"
+        )
         for p in (out_usd, out_json, out_preview, out_sheet):
             if p:
                 print(f"  wrote {p}")

@@ -48,7 +48,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", required=True,
                    help="checkpoint file (RUN/checkpoints/last.pt), or 'base' for the base surface alone")
     p.add_argument("--coarse", help="skeleton_cvae checkpoint that makes the base surface from the body")
-    p.add_argument("--steps", type=int, help="DDIM steps of a wrinkle_diffusion model (default: its config's)")
+    p.add_argument("--steps", type=int,
+                   help="DDIM steps of a wrinkle_diffusion model (default: its config's)")
     p.add_argument("--sample-seed", type=int, default=0, help="seed of the diffusion's noise (default: 0)")
     p.add_argument("--data", required=True, help="dataset directory")
     p.add_argument("--split", default="test_id", choices=("train", "test_id", "test_ood", "all"),
@@ -95,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
     if args.coarse:
         cm, cmodel, _ = load_trained(args.coarse, device=dev, use_ema=not args.no_ema)
         if cm.name != "skeleton_cvae":
-            raise WrinklesInputError(f"--coarse must be a skeleton_cvae checkpoint, got {cm.name}", path=args.coarse)
+            raise WrinklesInputError(f"--coarse must be a skeleton_cvae checkpoint, got {cm.name}",
+                                     path=args.coarse)
         coarse = (cm, cmodel)
     opts = {}
     if method.name == "wrinkle_diffusion":

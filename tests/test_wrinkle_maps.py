@@ -52,10 +52,15 @@ def test_maps_match_the_dataset_derivation(tshirt):
     np.testing.assert_array_equal(maps.mask, out["images/mask"].astype(bool))
     # the dataset's base is its own smoothing of fine: compare on that base
     b = out["fine/base"]
-    np.testing.assert_allclose(maps.conditioning(b, "strain_norm"), out["images/strain_norm"].astype(np.float32),
-                               atol=2e-3, rtol=2e-3)  # f16 storage
-    np.testing.assert_allclose(maps.wrinkle(fine, b), out["images/wrinkle"].astype(np.float32), atol=1e-5,
-                               rtol=2e-3)
+    np.testing.assert_allclose(
+        maps.conditioning(b, "strain_norm"),
+        out["images/strain_norm"].astype(np.float32),
+        atol=2e-3,
+        rtol=2e-3,
+    )  # f16 storage
+    np.testing.assert_allclose(
+        maps.wrinkle(fine, b), out["images/wrinkle"].astype(np.float32), atol=1e-5, rtol=2e-3
+    )
 
 
 def test_uniform_stretch_gives_the_analytic_strain_tensor(tshirt):

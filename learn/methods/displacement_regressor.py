@@ -45,8 +45,10 @@ def _maps(f, ts, res: int):
 
     wm = WrinkleMaps.from_sequence(f, res)
     base = np.asarray(f["fine/base"][ts], np.float32)
-    inputs = np.concatenate([wm.positions(base, np.asarray(f["body/trans"][ts], np.float32)),
-                             wm.conditioning(base, "normal")], axis=-1)
+    inputs = np.concatenate(
+        [wm.positions(base, np.asarray(f["body/trans"][ts], np.float32)), wm.conditioning(base, "normal")],
+        axis=-1,
+    )
     return wm, inputs
 
 
@@ -55,15 +57,18 @@ class _Frames(torch.utils.data.Dataset):
         from learn.data import GarmentSequenceDataset
 
         self.method = method
-        self.ds = GarmentSequenceDataset(root, "train", keys=["images/mask"],
-                                         garments=method.config.garments or None)
+        self.ds = GarmentSequenceDataset(
+            root, "train", keys=["images/mask"], garments=method.config.garments or None
+        )
         res = int(method.state["resolution"])
         self.data = {}
         for sid in self.ds.sequence_ids:  # made once, up front (before workers fork)
             f = self.ds.open_sequence(sid)
             ts = np.arange(f.shape("fine/base")[0])
             wm, inputs = _maps(f, ts, res)
-            disp = wm.displacement(np.asarray(f["fine/vertices"], np.float32), np.asarray(f["fine/base"], np.float32))
+            disp = wm.displacement(
+                np.asarray(f["fine/vertices"], np.float32), np.asarray(f["fine/base"], np.float32)
+            )
             self.data[sid] = (inputs.astype(np.float16), disp.astype(np.float16), wm.mask)
 
     def __len__(self) -> int:
@@ -75,7 +80,10 @@ class _Frames(torch.utils.data.Dataset):
         inputs, disp, mask = self.data[sid]
         x, c = self.method.normalise(inputs[t], mask)
         y = disp[t].astype(np.float32) / self.method.state["disp_std"].numpy() * mask[..., None]
-        return {"cond": torch.from_numpy(c), "target": torch.from_numpy(np.ascontiguousarray(y.transpose(2, 0, 1)))}
+        return {
+            "cond": torch.from_numpy(c),
+            "target": torch.from_numpy(np.ascontiguousarray(y.transpose(2, 0, 1))),
+        }
 
 
 class DisplacementRegressorMethod(Method):
@@ -87,7 +95,9 @@ class DisplacementRegressorMethod(Method):
     def prepare(self, root) -> dict:
         from learn.data import GarmentSequenceDataset
 
-        ds = GarmentSequenceDataset(root, "train", keys=["images/mask"], garments=self.config.garments or None)
+        ds = GarmentSequenceDataset(
+            root, "train", keys=["images/mask"], garments=self.config.garments or None
+        )
         if len(ds) == 0:
             raise WrinklesInputError("no training frames with UV images", path=ds.root)
         res = int(np.asarray(ds.open_sequence(ds.sequence_ids[0])["images/mask"]).shape[0])
@@ -98,16 +108,21 @@ class DisplacementRegressorMethod(Method):
             T = f.shape("fine/base")[0]
             ts = np.unique(np.linspace(0, T - 1, min(T, 16)).round().astype(int))
             wm, inputs = _maps(f, ts, res)
-            d = wm.displacement(np.asarray(f["fine/vertices"][ts], np.float32), np.asarray(f["fine/base"][ts], np.float32))
+            d = wm.displacement(
+                np.asarray(f["fine/vertices"][ts], np.float32), np.asarray(f["fine/base"][ts], np.float32)
+            )
             m = wm.mask
             x = inputs[:, m].astype(np.float64)
             i_sum, i_sq = i_sum + x.sum((0, 1)), i_sq + (x * x).sum((0, 1))
             d_sq = d_sq + (d[:, m].astype(np.float64) ** 2).sum((0, 1))
             n += x.shape[0] * x.shape[1]
         mean = i_sum / n
-        return {"resolution": res, "in_mean": torch.tensor(mean, dtype=torch.float32),
-                "in_std": torch.tensor(np.sqrt(np.maximum(i_sq / n - mean ** 2, 1e-12)), dtype=torch.float32),
-                "disp_std": torch.tensor(np.sqrt(np.maximum(d_sq / n, 1e-14)), dtype=torch.float32)}
+        return {
+            "resolution": res,
+            "in_mean": torch.tensor(mean, dtype=torch.float32),
+            "in_std": torch.tensor(np.sqrt(np.maximum(i_sq / n - mean**2, 1e-12)), dtype=torch.float32),
+            "disp_std": torch.tensor(np.sqrt(np.maximum(d_sq / n, 1e-14)), dtype=torch.float32),
+        }
 
     def normalise(self, inputs: np.ndarray, mask: np.ndarray):
         m = np.asarray(mask, np.float32)[..., None]
@@ -119,9 +134,17 @@ class DisplacementRegressorMethod(Method):
         from learn.diffusion.unet import UNetConfig, WrinkleUNet
 
         c = self.config
-        return WrinkleUNet(UNetConfig(in_channels=1, cond_channels=7, out_channels=3, base_channels=c.base_channels,
-                                      channel_mult=tuple(c.channel_mult), num_res_blocks=c.num_res_blocks,
-                                      attention_levels=tuple(c.attention_levels)))
+        return WrinkleUNet(
+            UNetConfig(
+                in_channels=1,
+                cond_channels=7,
+                out_channels=3,
+                base_channels=c.base_channels,
+                channel_mult=tuple(c.channel_mult),
+                num_res_blocks=c.num_res_blocks,
+                attention_levels=tuple(c.attention_levels),
+            )
+        )
 
     def train_dataset(self, root) -> torch.utils.data.Dataset:
         return _Frames(self, root)
@@ -135,11 +158,19 @@ class DisplacementRegressorMethod(Method):
     def training_loss(self, model, batch, generator: torch.Generator) -> LossOutput:
         cond, target = batch["cond"], batch["target"]
         mask = cond[:, -1:]
-        err = ((self._forward(model, cond).float() - target) ** 2 * mask).sum() / (3.0 * mask.sum()).clamp_min(1.0)
+        err = ((self._forward(model, cond).float() - target) ** 2 * mask).sum() / (
+            3.0 * mask.sum()
+        ).clamp_min(1.0)
         return LossOutput(err, {"mse": err.detach()})
 
-    def predict_sequence(self, model, sequence: Mapping[str, np.ndarray], *, device: torch.device,
-                         base: np.ndarray | None = None) -> Prediction:
+    def predict_sequence(
+        self,
+        model,
+        sequence: Mapping[str, np.ndarray],
+        *,
+        device: torch.device,
+        base: np.ndarray | None = None,
+    ) -> Prediction:
         seq = dict(sequence)
         if base is not None:
             seq["fine/base"] = base
@@ -150,9 +181,10 @@ class DisplacementRegressorMethod(Method):
         dtype = next(model.parameters()).dtype
         with torch.no_grad():
             for s in range(0, len(ts), self.config.infer_batch):
-                c = np.stack([self.normalise(x, wm.mask)[1] for x in inputs[s:s + self.config.infer_batch]])
+                c = np.stack([self.normalise(x, wm.mask)[1] for x in inputs[s : s + self.config.infer_batch]])
                 y = self._forward(model, torch.from_numpy(c).to(device, dtype)).float().cpu().numpy()
                 out.append(y.transpose(0, 2, 3, 1) * std * wm.mask[..., None])
         maps = np.concatenate(out)
-        return Prediction(wm.decode_global(maps, np.asarray(seq["fine/base"], np.float32)),
-                          {"displacement_maps": maps})
+        return Prediction(
+            wm.decode_global(maps, np.asarray(seq["fine/base"], np.float32)), {"displacement_maps": maps}
+        )

@@ -72,9 +72,10 @@ def pose_condition(poses: np.ndarray, betas: np.ndarray, num_betas: int) -> np.n
     local = axis_angle_to_matrix(p.reshape(-1, 3)).reshape(len(p), NUM_JOINTS, 3, 3)
     b = np.zeros(num_betas, np.float32)
     src = np.asarray(betas, np.float32).reshape(-1)[:num_betas]
-    b[:len(src)] = src
+    b[: len(src)] = src
     return np.concatenate([rotation_features(local), np.broadcast_to(b, (len(p), num_betas))], axis=1).astype(
-        np.float32)
+        np.float32
+    )
 
 
 def gamma_of(rot: np.ndarray, tr: np.ndarray) -> np.ndarray:
@@ -147,14 +148,18 @@ class _Frames(torch.utils.data.Dataset):
         sid, t = self.ds.locate(index)
         f = self.ds.open_sequence(sid)
         m = self.method
-        cond = pose_condition(f["body/poses"][t:t + 1], f["body/betas"], m.config.num_betas)[0]
+        cond = pose_condition(f["body/poses"][t : t + 1], f["body/betas"], m.config.num_betas)[0]
         V = f.shape("fine/base")[1]
         n = min(m.config.vertices_per_item, V)
         sub = np.sort(np.random.default_rng(seed).choice(V, n, replace=False))
         target = np.asarray(f["fine/base"][t], np.float32)[sub] - np.asarray(f["body/trans"][t], np.float32)
         g = (self.labels[sid][t] - m.state["gamma_mean"].numpy()) / m.state["gamma_std"].numpy()
-        return {"gamma": torch.from_numpy(g.astype(np.float32)), "cond": torch.from_numpy(cond),
-                "vertices": torch.from_numpy(sub.astype(np.int64)), "target": torch.from_numpy(target)}
+        return {
+            "gamma": torch.from_numpy(g.astype(np.float32)),
+            "cond": torch.from_numpy(cond),
+            "vertices": torch.from_numpy(sub.astype(np.int64)),
+            "target": torch.from_numpy(target),
+        }
 
 
 class SkeletonCVAEMethod(Method):
@@ -167,16 +172,36 @@ class SkeletonCVAEMethod(Method):
     def validate_config(cls, config: SkeletonCVAEConfig, err) -> None:
         if not 1 <= config.max_influences <= min(8, config.num_bones):
             raise err(f"max_influences must be in [1, min(8, num_bones)], got {config.max_influences}")
-        if min(config.num_bones, config.ssdr_frames, config.ssdr_iterations, config.latent, config.hidden,
-               config.layers, config.vertices_per_item) < 1:
-            raise err("num_bones, ssdr_frames, ssdr_iterations, latent, hidden, layers and vertices_per_item "
-                      "must be >= 1")
+        if (
+            min(
+                config.num_bones,
+                config.ssdr_frames,
+                config.ssdr_iterations,
+                config.latent,
+                config.hidden,
+                config.layers,
+                config.vertices_per_item,
+            )
+            < 1
+        ):
+            raise err(
+                "num_bones, ssdr_frames, ssdr_iterations, latent, hidden, layers and vertices_per_item "
+                "must be >= 1"
+            )
 
     def _dataset(self, root):
         from learn.data import GarmentSequenceDataset
 
-        keys = ["fine/base", "fine/rest_vertices", "fine/faces", "fine/uvs", "fine/uv_faces", "body/poses",
-                "body/trans", "body/betas"]
+        keys = [
+            "fine/base",
+            "fine/rest_vertices",
+            "fine/faces",
+            "fine/uvs",
+            "fine/uv_faces",
+            "body/poses",
+            "body/trans",
+            "body/betas",
+        ]
         ds = GarmentSequenceDataset(root, "train", keys=keys, garments=self.config.garments or None)
         if len(ds) == 0:
             raise WrinklesInputError("no training frames", path=ds.root)
@@ -187,14 +212,19 @@ class SkeletonCVAEMethod(Method):
                 faces, first = f, sid
             elif f.shape != faces.shape or not np.array_equal(f, faces):
                 raise WrinklesInputError(
-                    f"sequences {first} and {sid} have different garment meshes; the virtual skeleton needs one "
-                    "topology: generate with [garments] fit = \"reference\", fixed template parameters and "
-                    "one category (or set model.garments)", path=ds.root)
+                    f"sequences {first} and {sid} have different garment meshes; the virtual skeleton "
+                    "needs one "
+                    'topology: generate with [garments] fit = "reference", fixed template parameters and '
+                    "one category (or set model.garments)",
+                    path=ds.root,
+                )
         return ds
 
     @staticmethod
     def _root_frames(f, ts) -> np.ndarray:
-        return np.asarray(f["fine/base"][ts], np.float32) - np.asarray(f["body/trans"][ts], np.float32)[:, None]
+        return (
+            np.asarray(f["fine/base"][ts], np.float32) - np.asarray(f["body/trans"][ts], np.float32)[:, None]
+        )
 
     def prepare(self, root) -> dict:
         """Fit the virtual skeleton (SSDR) and the transform statistics on the training split."""
@@ -210,18 +240,27 @@ class SkeletonCVAEMethod(Method):
             sid, t = ds.locate(int(i))
             by_seq.setdefault(sid, []).append(t)
         frames = np.concatenate([self._root_frames(ds.open_sequence(s), ts) for s, ts in by_seq.items()])
-        sk = fit_ssdr(rest, frames, num_bones=cfg.num_bones, max_influences=cfg.max_influences,
-                      iterations=cfg.ssdr_iterations, seed=0)
+        sk = fit_ssdr(
+            rest,
+            frames,
+            num_bones=cfg.num_bones,
+            max_influences=cfg.max_influences,
+            iterations=cfg.ssdr_iterations,
+            seed=0,
+        )
         e0 = ds.entries[ds.sequence_ids[0]]
-        state = {"rest": torch.from_numpy(rest.copy()),
-                 "weight_idx": torch.from_numpy(sk.weight_idx.astype(np.int64)),
-                 "weight_val": torch.from_numpy(sk.weight_val.copy()),
-                 "faces": torch.from_numpy(np.array(f0["fine/faces"], np.int32)),
-                 "uvs": torch.from_numpy(np.array(f0["fine/uvs"], np.float32)),
-                 "uv_faces": torch.from_numpy(np.array(f0["fine/uv_faces"], np.int32)),
-                 "ssdr_rmse": float(sk.rmse), "garment": str(e0.get("garment")),
-                 "garment_params": dict(e0.get("garment_params") or {}),
-                 "body_model": str((ds.generator_config.get("bodies") or {}).get("model", "default"))}
+        state = {
+            "rest": torch.from_numpy(rest.copy()),
+            "weight_idx": torch.from_numpy(sk.weight_idx.astype(np.int64)),
+            "weight_val": torch.from_numpy(sk.weight_val.copy()),
+            "faces": torch.from_numpy(np.array(f0["fine/faces"], np.int32)),
+            "uvs": torch.from_numpy(np.array(f0["fine/uvs"], np.float32)),
+            "uv_faces": torch.from_numpy(np.array(f0["fine/uv_faces"], np.int32)),
+            "ssdr_rmse": float(sk.rmse),
+            "garment": str(e0.get("garment")),
+            "garment_params": dict(e0.get("garment_params") or {}),
+            "body_model": str((ds.generator_config.get("bodies") or {}).get("model", "default")),
+        }
         self.state = state
         _, labels = self.labelled_frames(root, ds=ds)
         allg = np.concatenate(list(labels.values()))
@@ -259,22 +298,39 @@ class SkeletonCVAEMethod(Method):
     def training_loss(self, model, batch, generator: torch.Generator) -> LossOutput:
         net = model.module if hasattr(model, "module") else model
         gamma, cond = batch["gamma"], batch["cond"]
-        noise = torch.randn((len(gamma), self.config.latent), generator=generator,
-                            device=generator.device).to(gamma.device)
+        noise = torch.randn(
+            (len(gamma), self.config.latent), generator=generator, device=generator.device
+        ).to(gamma.device)
         recon, mu, logvar = model(gamma, cond, noise)
         l_gamma = ((recon.float() - gamma) ** 2).mean()
         verts = batch["vertices"]  # (B, N): per-item subsets
-        pred = torch.stack([net.skin(recon[b:b + 1], verts[b])[0] for b in range(len(recon))])
+        pred = torch.stack([net.skin(recon[b : b + 1], verts[b])[0] for b in range(len(recon))])
         l_vert = ((pred - batch["target"]) ** 2).sum(-1).mean() * 1e4  # cm^2
-        kl = (-0.5 * (1 + logvar - mu ** 2 - logvar.exp()).sum(-1)).mean()
+        kl = (-0.5 * (1 + logvar - mu**2 - logvar.exp()).sum(-1)).mean()
         loss = l_gamma + self.config.vertex_weight * l_vert + self.config.kl_weight * kl
-        return LossOutput(loss, {"gamma_mse": l_gamma.detach(), "vertex_cm2": l_vert.detach(), "kl": kl.detach(),
-                                 "vertex_rmse_mm": l_vert.detach().sqrt() * 10.0})
+        return LossOutput(
+            loss,
+            {
+                "gamma_mse": l_gamma.detach(),
+                "vertex_cm2": l_vert.detach(),
+                "kl": kl.detach(),
+                "vertex_rmse_mm": l_vert.detach().sqrt() * 10.0,
+            },
+        )
 
     # ------------------------------------------------------------------ inference
-    def base_from_body(self, model, poses: np.ndarray, trans: np.ndarray, betas: np.ndarray, *,
-                       device: torch.device | str = "cpu", sample_latent: bool = False, seed: int = 0,
-                       batch: int = 256) -> np.ndarray:
+    def base_from_body(
+        self,
+        model,
+        poses: np.ndarray,
+        trans: np.ndarray,
+        betas: np.ndarray,
+        *,
+        device: torch.device | str = "cpu",
+        sample_latent: bool = False,
+        seed: int = 0,
+        batch: int = 256,
+    ) -> np.ndarray:
         """Base garment [m] (T, V, 3) for a body motion: poses (T, 24, 3) axis-angle, root
         translation (T, 3) as the body is placed (grounded), betas (B,)."""
         device = torch.device(device)
@@ -283,17 +339,31 @@ class SkeletonCVAEMethod(Method):
         out = []
         with torch.no_grad():
             for s in range(0, len(cond), batch):
-                c = cond[s:s + batch]
-                z = (torch.randn((len(c), self.config.latent), generator=gen, device=device) if sample_latent
-                     else torch.zeros((len(c), self.config.latent), device=device))
+                c = cond[s : s + batch]
+                z = (
+                    torch.randn((len(c), self.config.latent), generator=gen, device=device)
+                    if sample_latent
+                    else torch.zeros((len(c), self.config.latent), device=device)
+                )
                 out.append(model.skin(model.decode(z, c)).cpu().numpy())
         return (np.concatenate(out) + np.asarray(trans, np.float32)[:, None]).astype(np.float32)
 
-    def predict_sequence(self, model, sequence: Mapping[str, np.ndarray], *, device: torch.device) -> Prediction:
+    def predict_sequence(
+        self, model, sequence: Mapping[str, np.ndarray], *, device: torch.device
+    ) -> Prediction:
         faces = np.asarray(sequence["fine/faces"])
-        if faces.shape != tuple(self.state["faces"].shape) or not np.array_equal(faces, self.state["faces"].numpy()):
-            raise WrinklesInputError(f"this coarse model rigs a {self.state.get('garment')} of "
-                                     f"{len(self.state['rest'])} vertices; the sequence's garment differs")
-        base = self.base_from_body(model, np.asarray(sequence["body/poses"]), np.asarray(sequence["body/trans"]),
-                                   np.asarray(sequence["body/betas"]), device=device)
+        if faces.shape != tuple(self.state["faces"].shape) or not np.array_equal(
+            faces, self.state["faces"].numpy()
+        ):
+            raise WrinklesInputError(
+                f"this coarse model rigs a {self.state.get('garment')} of "
+                f"{len(self.state['rest'])} vertices; the sequence's garment differs"
+            )
+        base = self.base_from_body(
+            model,
+            np.asarray(sequence["body/poses"]),
+            np.asarray(sequence["body/trans"]),
+            np.asarray(sequence["body/betas"]),
+            device=device,
+        )
         return Prediction(base)

@@ -75,10 +75,17 @@ class WrinkleDiffusionConfig:
 def _unet_config(cfg: WrinkleDiffusionConfig, num_labels: int):
     from learn.diffusion.unet import UNetConfig
 
-    return UNetConfig(in_channels=3, cond_channels=CONDITIONINGS[cfg.conditioning] + 1, out_channels=3,
-                      base_channels=cfg.base_channels, channel_mult=tuple(cfg.channel_mult),
-                      num_res_blocks=cfg.num_res_blocks, attention_levels=tuple(cfg.attention_levels),
-                      dropout=cfg.dropout, num_labels=num_labels)
+    return UNetConfig(
+        in_channels=3,
+        cond_channels=CONDITIONINGS[cfg.conditioning] + 1,
+        out_channels=3,
+        base_channels=cfg.base_channels,
+        channel_mult=tuple(cfg.channel_mult),
+        num_res_blocks=cfg.num_res_blocks,
+        attention_levels=tuple(cfg.attention_levels),
+        dropout=cfg.dropout,
+        num_labels=num_labels,
+    )
 
 
 class _Frames(torch.utils.data.Dataset):
@@ -93,7 +100,9 @@ class _Frames(torch.utils.data.Dataset):
             keys.append("images/strain_norm")
         self.ds = GarmentSequenceDataset(root, "train", keys=keys, garments=cfg.garments or None)
         self.method = method
-        self.label = {sid: method.label_of(self.ds.entries[sid].get("material")) for sid in self.ds.sequence_ids}
+        self.label = {
+            sid: method.label_of(self.ds.entries[sid].get("material")) for sid in self.ds.sequence_ids
+        }
         self.cond: dict[str, np.ndarray] = {}
         if cfg.conditioning != "strain_norm":  # made once, up front (before workers fork)
             for sid in self.ds.sequence_ids:
@@ -107,10 +116,14 @@ class _Frames(torch.utils.data.Dataset):
         sid, t = self.ds.locate(index)
         f = self.ds.open_sequence(sid)
         cond = self.cond[sid][t] if sid in self.cond else np.asarray(f["images/strain_norm"][t], np.float32)
-        x0, c = self.method.normalise(np.asarray(f["images/wrinkle"][t], np.float32), cond,
-                                      np.asarray(f["images/mask"]))
-        return {"x0": torch.from_numpy(x0), "cond": torch.from_numpy(c),
-                "label": torch.tensor(self.label[sid], dtype=torch.long)}
+        x0, c = self.method.normalise(
+            np.asarray(f["images/wrinkle"][t], np.float32), cond, np.asarray(f["images/mask"])
+        )
+        return {
+            "x0": torch.from_numpy(x0),
+            "cond": torch.from_numpy(c),
+            "label": torch.tensor(self.label[sid], dtype=torch.long),
+        }
 
 
 class WrinkleDiffusionMethod(Method):
@@ -136,11 +149,14 @@ class WrinkleDiffusionMethod(Method):
         from learn.data import GarmentSequenceDataset
 
         cfg = self.config
-        ds = GarmentSequenceDataset(root, "train", keys=["images/wrinkle", "images/mask"],
-                                    garments=cfg.garments or None)
+        ds = GarmentSequenceDataset(
+            root, "train", keys=["images/wrinkle", "images/mask"], garments=cfg.garments or None
+        )
         if len(ds) == 0:
             raise WrinklesInputError("no training frames with UV images", path=ds.root)
-        materials = list(cfg.materials) or sorted({str(ds.entries[s].get("material")) for s in ds.sequence_ids})
+        materials = list(cfg.materials) or sorted(
+            {str(ds.entries[s].get("material")) for s in ds.sequence_ids}
+        )
         pick = np.unique(np.linspace(0, len(ds) - 1, min(cfg.stats_frames, len(ds))).round().astype(int))
         by_seq: dict[str, list[int]] = {}
         for i in pick:
@@ -157,17 +173,23 @@ class WrinkleDiffusionMethod(Method):
             n += w.shape[0] * w.shape[1]
         w_std = np.sqrt(np.maximum(w_sq / n - (w_sum / n) ** 2, 1e-14))
         c_mean = c_sum / n
-        c_std = np.sqrt(np.maximum(c_sq / n - c_mean ** 2, 1e-12))
+        c_std = np.sqrt(np.maximum(c_sq / n - c_mean**2, 1e-12))
         H, W = np.asarray(ds.open_sequence(ds.sequence_ids[0])["images/mask"]).shape
         fac = _unet_config(cfg, 0).downsample_factor
         if H % fac or W % fac:
-            raise WrinklesInputError(f"UV images of {H}x{W} px: the U-Net needs sides divisible by {fac} "
-                                     "(generate the dataset with another derive.image_resolution or use "
-                                     "fewer channel_mult levels)", path=ds.root)
-        return {"materials": materials, "resolution": int(H),
-                "wrinkle_std": torch.tensor(w_std, dtype=torch.float32),
-                "cond_mean": torch.tensor(c_mean, dtype=torch.float32),
-                "cond_std": torch.tensor(c_std, dtype=torch.float32)}
+            raise WrinklesInputError(
+                f"UV images of {H}x{W} px: the U-Net needs sides divisible by {fac} "
+                "(generate the dataset with another derive.image_resolution or use "
+                "fewer channel_mult levels)",
+                path=ds.root,
+            )
+        return {
+            "materials": materials,
+            "resolution": int(H),
+            "wrinkle_std": torch.tensor(w_std, dtype=torch.float32),
+            "cond_mean": torch.tensor(c_mean, dtype=torch.float32),
+            "cond_std": torch.tensor(c_std, dtype=torch.float32),
+        }
 
     def _conditioning_frames(self, f, ts: list[int]) -> np.ndarray:
         if self.config.conditioning == "strain_norm":
@@ -176,13 +198,16 @@ class WrinkleDiffusionMethod(Method):
 
         H = np.asarray(f["images/mask"]).shape[0]
         return WrinkleMaps.from_sequence(f, H).conditioning(
-            np.asarray(f["fine/base"][ts], np.float32), self.config.conditioning)
+            np.asarray(f["fine/base"][ts], np.float32), self.config.conditioning
+        )
 
     def sequence_conditioning(self, f) -> np.ndarray:
         """Conditioning maps of every frame of a sequence file, (T, H, W, C) float16."""
         T = f.shape("fine/base")[0]
-        out = [self._conditioning_frames(f, list(range(s, min(s + 64, T)))).astype(np.float16)
-               for s in range(0, T, 64)]
+        out = [
+            self._conditioning_frames(f, list(range(s, min(s + 64, T)))).astype(np.float16)
+            for s in range(0, T, 64)
+        ]
         return np.concatenate(out)
 
     @property
@@ -225,7 +250,10 @@ class WrinkleDiffusionMethod(Method):
         sched = DDPMScheduler()
         t = sched.sample_timesteps(B, generator=generator, device=x0.device)
         noise = torch.randn(x0.shape, generator=generator, device=generator.device).to(x0.device)
-        drop = torch.rand(B, generator=generator, device=generator.device).to(x0.device) < self.config.label_dropout
+        drop = (
+            torch.rand(B, generator=generator, device=generator.device).to(x0.device)
+            < self.config.label_dropout
+        )
         null = len(self.materials)
         label = torch.where(drop, torch.full_like(label, null), label)
         eps = model(sched.add_noise(x0, noise, t), t, cond, label)
@@ -234,9 +262,19 @@ class WrinkleDiffusionMethod(Method):
         return LossOutput(err, {"eps_mse": err.detach()})
 
     # ------------------------------------------------------------------ inference
-    def sample_wrinkles(self, model, cond_maps: np.ndarray, mask: np.ndarray, *, material: str | None = None,
-                        device: torch.device | str = "cpu", steps: int | None = None,
-                        guidance_scale: float | None = None, seed: int = 0, progress=None) -> np.ndarray:
+    def sample_wrinkles(
+        self,
+        model,
+        cond_maps: np.ndarray,
+        mask: np.ndarray,
+        *,
+        material: str | None = None,
+        device: torch.device | str = "cpu",
+        steps: int | None = None,
+        guidance_scale: float | None = None,
+        seed: int = 0,
+        progress=None,
+    ) -> np.ndarray:
         """Wrinkle maps [m] (T, H, W, 3) for conditioning maps (T, H, W, C) of a sequence's base.
 
         Args:
@@ -269,21 +307,39 @@ class WrinkleDiffusionMethod(Method):
         anchor = None
         dtype = next(model.parameters()).dtype
         for s in range(0, T, cfg.infer_batch):
-            chunk = [self.normalise(None, c, mask)[1] for c in cond_maps[s:s + cfg.infer_batch]]
+            chunk = [self.normalise(None, c, mask)[1] for c in cond_maps[s : s + cfg.infer_batch]]
             cond = torch.from_numpy(np.stack(chunk)).to(device, dtype)
             B = cond.shape[0]
-            x0 = ddim_sample(model, sched, cond, label=torch.full((B,), label, dtype=torch.long, device=device),
-                             guidance_scale=scale if label < len(self.materials) else 1.0, num_steps=steps,
-                             eta=cfg.eta, generator=gen, initial_noise=None if shared is None else shared.to(dtype),
-                             mask=mask_t.expand(B, H, W), temporal_weight=cfg.temporal_weight, anchor=anchor)
+            x0 = ddim_sample(
+                model,
+                sched,
+                cond,
+                label=torch.full((B,), label, dtype=torch.long, device=device),
+                guidance_scale=scale if label < len(self.materials) else 1.0,
+                num_steps=steps,
+                eta=cfg.eta,
+                generator=gen,
+                initial_noise=None if shared is None else shared.to(dtype),
+                mask=mask_t.expand(B, H, W),
+                temporal_weight=cfg.temporal_weight,
+                anchor=anchor,
+            )
             anchor = x0[-1]
-            out[s:s + B] = (x0.float() * std[:, None, None]).permute(0, 2, 3, 1).cpu().numpy()
+            out[s : s + B] = (x0.float() * std[:, None, None]).permute(0, 2, 3, 1).cpu().numpy()
             if progress is not None:
                 progress(s + B, T)
         return out
 
-    def predict_sequence(self, model, sequence: Mapping[str, np.ndarray], *, device: torch.device,
-                         steps: int | None = None, seed: int = 0, base: np.ndarray | None = None) -> Prediction:
+    def predict_sequence(
+        self,
+        model,
+        sequence: Mapping[str, np.ndarray],
+        *,
+        device: torch.device,
+        steps: int | None = None,
+        seed: int = 0,
+        base: np.ndarray | None = None,
+    ) -> Prediction:
         """Wrinkles generated on the sequence's ground-truth base surface (``fine/base``), or on
         ``base`` (T, V, 3) [m] when given (e.g. a coarse model's); decoded onto it."""
         from sim.geometry.wrinkle_maps import WrinkleMaps
@@ -294,5 +350,7 @@ class WrinkleDiffusionMethod(Method):
         cond = maps.conditioning(b, self.config.conditioning)
         meta = sequence.get("material")
         material = None if meta is None else str(np.asarray(meta))
-        w = self.sample_wrinkles(model, cond, maps.mask, material=material, device=device, steps=steps, seed=seed)
+        w = self.sample_wrinkles(
+            model, cond, maps.mask, material=material, device=device, steps=steps, seed=seed
+        )
         return Prediction(maps.decode(w, b), {"wrinkle_maps": w})

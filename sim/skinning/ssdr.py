@@ -631,7 +631,8 @@ def fit_bone_transforms(
     idx = np.asarray(weight_idx, np.int64)
     val = np.asarray(weight_val, np.float64)
     if frames.ndim != 3 or frames.shape[1:] != rest.shape or idx.shape != val.shape or len(idx) != len(rest):
-        raise WrinklesInputError(f"fit_bone_transforms: rest {rest.shape}, weights {idx.shape}/{val.shape} and "
+        raise WrinklesInputError(f"fit_bone_transforms: rest {rest.shape}, weights {idx.shape}/{val.shape} "
+                                 "and "
                                  f"frames {frames.shape} do not fit together")
     j = int(idx.max()) + 1
     dominant = idx[np.arange(len(idx)), np.argmax(val, axis=1)]
