@@ -13,8 +13,9 @@ A conditional VAE learns ``p(gamma | theta, beta)``: the encoder maps ``(gamma, 
 ``c = (6D joint rotations of the SMPL pose, betas)`` back to ``gamma``; the base mesh is LBS of the
 rest garment with the fitted weights (Eq. 8), plus the root translation. Loss: transform
 reconstruction (standardised) + vertex positions of the skinned base against the data's base on a
-random vertex subset + ``kl_weight`` KL(q || N(0, I)). Inference decodes ``z = 0`` (the mode of
-the prior; ``sample_latent`` draws ``z ~ N(0, I)`` instead, for variety).
+random vertex subset + ``kl_weight`` KL(q || N(0, I)), plus (our addition, ``prior_weight``) the
+same reconstruction terms decoded from ``z = 0``. Inference decodes ``z = 0`` (the mode of the prior;
+``sample_latent`` draws ``z ~ N(0, I)`` instead, for variety).
 """
 
 from __future__ import annotations
@@ -61,6 +62,9 @@ class SkeletonCVAEConfig:
     """Weight of the vertex term (per cm², so 1 mm error = 0.01)."""
     vertices_per_item: int = 2048
     """Garment vertices compared per training item."""
+    prior_weight: float = 1.0
+    """Weight of the same reconstruction terms decoded from the prior mean z = 0 (what inference
+    uses); without it a decoder that leans on z fits the posterior and misses at z = 0."""
 
 
 def pose_condition(poses: np.ndarray, betas: np.ndarray, num_betas: int) -> np.ndarray:
@@ -297,26 +301,33 @@ class SkeletonCVAEMethod(Method):
 
     def training_loss(self, model, batch, generator: torch.Generator) -> LossOutput:
         net = model.module if hasattr(model, "module") else model
+        cfg = self.config
         gamma, cond = batch["gamma"], batch["cond"]
-        noise = torch.randn(
-            (len(gamma), self.config.latent), generator=generator, device=generator.device
-        ).to(gamma.device)
-        recon, mu, logvar = model(gamma, cond, noise)
-        l_gamma = ((recon.float() - gamma) ** 2).mean()
-        verts = batch["vertices"]  # (B, N): per-item subsets
-        pred = torch.stack([net.skin(recon[b : b + 1], verts[b])[0] for b in range(len(recon))])
-        l_vert = ((pred - batch["target"]) ** 2).sum(-1).mean() * 1e4  # cm^2
-        kl = (-0.5 * (1 + logvar - mu**2 - logvar.exp()).sum(-1)).mean()
-        loss = l_gamma + self.config.vertex_weight * l_vert + self.config.kl_weight * kl
-        return LossOutput(
-            loss,
-            {
-                "gamma_mse": l_gamma.detach(),
-                "vertex_cm2": l_vert.detach(),
-                "kl": kl.detach(),
-                "vertex_rmse_mm": l_vert.detach().sqrt() * 10.0,
-            },
+        noise = torch.randn((len(gamma), cfg.latent), generator=generator, device=generator.device).to(
+            gamma.device
         )
+        recon, mu, logvar = model(gamma, cond, noise)
+        verts = batch["vertices"]  # (B, N): per-item subsets
+
+        def terms(g_hat):
+            l_gamma = ((g_hat.float() - gamma) ** 2).mean()
+            pred = torch.stack([net.skin(g_hat[b : b + 1], verts[b])[0] for b in range(len(g_hat))])
+            return l_gamma, ((pred - batch["target"]) ** 2).sum(-1).mean() * 1e4  # cm^2
+
+        l_gamma, l_vert = terms(recon)
+        kl = (-0.5 * (1 + logvar - mu**2 - logvar.exp()).sum(-1)).mean()
+        loss = l_gamma + cfg.vertex_weight * l_vert + cfg.kl_weight * kl
+        scalars = {
+            "gamma_mse": l_gamma.detach(),
+            "vertex_cm2": l_vert.detach(),
+            "kl": kl.detach(),
+            "vertex_rmse_mm": l_vert.detach().sqrt() * 10.0,
+        }
+        if cfg.prior_weight > 0:  # the prior's mean z = 0 must decode to the data too (inference)
+            p_gamma, p_vert = terms(net.decode(torch.zeros_like(mu), cond))
+            loss = loss + cfg.prior_weight * (p_gamma + cfg.vertex_weight * p_vert)
+            scalars["prior_vertex_rmse_mm"] = p_vert.detach().sqrt() * 10.0
+        return LossOutput(loss, scalars)
 
     # ------------------------------------------------------------------ inference
     def base_from_body(

@@ -1,0 +1,410 @@
+"""Guo et al. 2024 pipeline on the sample dataset (CPU, small networks): the virtual-skeleton CVAE,
+the wrinkle diffusion method and its baselines, the evaluation rows, release export and
+``wrinkles animate``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from pipelines.cli import main
+
+SMALL_UNET = [
+    "--set",
+    "model.base_channels=32",
+    "--set",
+    "model.channel_mult=[1, 2, 2]",
+    "--set",
+    "model.attention_levels=[2]",
+]
+COARSE = [
+    "--set",
+    'model.garments=["t_shirt"]',
+    "--set",
+    "model.num_bones=12",
+    "--set",
+    "model.ssdr_iterations=4",
+    "--set",
+    "model.hidden=64",
+    "--set",
+    "model.ssdr_frames=40",
+]
+
+
+def cli(*args) -> int:
+    return main([str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def runs(sample_dataset, tmp_path_factory):
+    """A coarse (t-shirt) and a wrinkle model trained briefly on the sample."""
+    root = tmp_path_factory.mktemp("wrinkle-runs")
+    assert (
+        cli(
+            "train",
+            "coarse",
+            "--data",
+            sample_dataset,
+            "--out",
+            root / "coarse",
+            "--steps",
+            150,
+            "--batch-size",
+            8,
+            "-q",
+            "--device",
+            "cpu",
+            "--set",
+            "optim.lr=3e-3",
+            "--set",
+            "train.ema_decay=0",
+            *COARSE,
+        )
+        == 0
+    )
+    assert (
+        cli(
+            "train",
+            "wrinkles",
+            "--data",
+            sample_dataset,
+            "--out",
+            root / "wrinkles",
+            "--steps",
+            6,
+            "--batch-size",
+            4,
+            "-q",
+            "--device",
+            "cpu",
+            "--set",
+            'model.garments=["t_shirt"]',
+            *SMALL_UNET,
+        )
+        == 0
+    )
+    return {
+        "coarse": root / "coarse" / "checkpoints" / "last.pt",
+        "wrinkles": root / "wrinkles" / "checkpoints" / "last.pt",
+        "root": root,
+    }
+
+
+# ----------------------------------------------------------------------------------- CVAE
+def test_pose_condition_and_gamma():
+    from learn.methods.skeleton_cvae import gamma_of, pose_condition
+
+    c = pose_condition(np.zeros((3, 24, 3)), np.array([0.5, -1.0]), 10)
+    assert c.shape == (3, 144 + 10)
+    np.testing.assert_allclose(c[:, :6], [[1, 0, 0, 0, 1, 0]] * 3, atol=1e-7)  # identity, 6D columns
+    np.testing.assert_allclose(c[0, 144:], [0.5, -1.0] + [0] * 8)
+    rot = np.tile(np.eye(3, dtype=np.float32), (2, 5, 1, 1))
+    g = gamma_of(rot, np.ones((2, 5, 3), np.float32))
+    assert g.shape == (2, 45)
+    np.testing.assert_allclose(g[0, :9], [1, 0, 0, 0, 1, 0, 1, 1, 1])
+
+
+def test_cvae_skinning_is_exact_lbs():
+    """skin(gamma) is Eq. 8: sum_k w_k (R_k r + t_k), checked against numpy for random rigid bones."""
+    from scipy.spatial.transform import Rotation
+
+    from learn.methods.skeleton_cvae import SkeletonCVAE, SkeletonCVAEConfig, gamma_of
+
+    rng = np.random.default_rng(0)
+    V, J, K = 50, 6, 3
+    idx = np.stack([rng.choice(J, K, replace=False) for _ in range(V)])
+    w = rng.random((V, K))
+    w /= w.sum(1, keepdims=True)
+    rest = rng.normal(size=(V, 3)).astype(np.float32)
+    state = {
+        "rest": torch.from_numpy(rest),
+        "weight_idx": torch.from_numpy(idx),
+        "weight_val": torch.from_numpy(w.astype(np.float32)),
+        "gamma_mean": torch.zeros(J * 9),
+        "gamma_std": torch.ones(J * 9),
+    }
+    cfg = SkeletonCVAEConfig(latent=4, hidden=16, layers=1, num_betas=2)
+    net = SkeletonCVAE(cfg, state)
+    R = Rotation.random(2 * J, random_state=1).as_matrix().reshape(2, J, 3, 3).astype(np.float32)
+    t = rng.normal(size=(2, J, 3)).astype(np.float32)
+    out = net.skin(torch.from_numpy(gamma_of(R, t))).detach().numpy()
+    ref = np.einsum("vk,bvkc->bvc", w, np.einsum("bvkij,vj->bvki", R[:, idx], rest) + t[:, idx])
+    np.testing.assert_allclose(out, ref, atol=1e-5)
+    sub = torch.tensor([3, 7, 11])
+    np.testing.assert_allclose(
+        net.skin(torch.from_numpy(gamma_of(R, t)), sub).detach().numpy(), ref[:, [3, 7, 11]], atol=1e-5
+    )
+    # shapes of the CVAE parts
+    cond = torch.zeros(5, 6 * 24 + 2)
+    mu, logvar = net.encode(torch.zeros(5, J * 9), cond)
+    assert mu.shape == logvar.shape == (5, 4)
+    assert net.decode(torch.zeros(5, 4), cond).shape == (5, J * 9)
+
+
+def test_coarse_model_learns_the_base(runs, sample_dataset):
+    from learn.train.checkpoint import load_checkpoint
+    from learn.train.trainer import load_trained
+
+    recs = [json.loads(line) for line in open(runs["coarse"].parent.parent / "metrics.jsonl")]
+    assert recs[-1]["vertex_cm2"] < 0.5 * recs[0]["vertex_cm2"], (recs[0], recs[-1])
+    ck = load_checkpoint(runs["coarse"])
+    st = ck["method_state"]
+    assert st["garment"] == "t_shirt" and st["weight_idx"].shape[1] == 4
+    assert 0 < st["ssdr_rmse"] < 0.02  # the 12-bone skeleton fits the sample's bases to < 2 cm
+    method, model, _ = load_trained(runs["coarse"])
+    from learn.data import GarmentSequenceDataset
+
+    ds = GarmentSequenceDataset(sample_dataset, "train", garments="t_shirt")
+    f = ds.open_sequence(ds.sequence_ids[0])
+    seq = {k: np.asarray(f[k]) for k in f.keys()}
+    pred = method.predict_sequence(model, seq, device=torch.device("cpu"))
+    assert pred.vertices.shape == seq["fine/base"].shape
+    err = np.linalg.norm(pred.vertices - seq["fine/base"], axis=-1).mean()
+    assert err < 0.03, err  # training frames, z = 0, after 150 steps (raw weights): under 3 cm
+    skirt = GarmentSequenceDataset(sample_dataset, "train", garments="straight_skirt")
+    g = skirt.open_sequence(skirt.sequence_ids[0])
+    from sim.errors import WrinklesInputError
+
+    with pytest.raises(WrinklesInputError, match="rigs a t_shirt"):
+        method.predict_sequence(model, {k: np.asarray(g[k]) for k in g.keys()}, device=torch.device("cpu"))
+
+
+def test_coarse_refuses_mixed_topologies(sample_dataset, tmp_path, capsys):
+    code = cli(
+        "train",
+        "coarse",
+        "--data",
+        sample_dataset,
+        "--out",
+        tmp_path / "r",
+        "--steps",
+        1,
+        "-q",
+        "--set",
+        "model.num_bones=4",
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "different garment meshes" in err[0]
+    assert not (tmp_path / "r" / "checkpoints").exists()
+
+
+# ------------------------------------------------------------------------------ diffusion
+def test_temporal_guidance_pulls_x0_toward_neighbours():
+    from learn.diffusion.sampling import _temporal_guidance
+    from learn.diffusion.scheduler import DDIMScheduler, DDPMScheduler
+
+    s = DDIMScheduler.from_ddpm(DDPMScheduler())
+    t = 600
+    a = float(s.alphas_cumprod[t])
+    x0 = torch.stack([torch.full((3, 4, 4), v) for v in (0.0, 1.0, 5.0)])
+    eps = torch.randn(3, 3, 4, 4, generator=torch.Generator().manual_seed(0))
+    x = a**0.5 * x0 + (1 - a) ** 0.5 * eps
+    same = _temporal_guidance(s, x, eps, t, 0.0, None)
+    torch.testing.assert_close(same, eps)
+    g = _temporal_guidance(s, x, eps, t, 0.5, None)
+    x0_new = (x - (1 - a) ** 0.5 * g) / a**0.5
+    lam = 0.5 * t / 1000
+    want = torch.tensor([0 + lam * (1 - 0), 1 + lam * (2.5 - 1), 5 + lam * (1 - 5)])
+    torch.testing.assert_close(x0_new.mean((1, 2, 3)), want, atol=1e-4, rtol=1e-4)
+    anchored = _temporal_guidance(s, x, eps, t, 0.5, torch.full((3, 4, 4), -2.0))
+    x0_a = (x - (1 - a) ** 0.5 * anchored) / a**0.5
+    assert abs(float(x0_a[0].mean()) - lam * ((-2.0 + 1.0) / 2)) < 1e-4
+
+
+def test_diffusion_state_items_and_prediction(runs, sample_dataset):
+    from learn.train.checkpoint import load_checkpoint
+    from learn.train.trainer import load_trained
+
+    st = load_checkpoint(runs["wrinkles"])["method_state"]
+    assert st["materials"] == ["cotton", "jersey_knit"] and st["resolution"] == 64
+    assert st["wrinkle_std"].shape == (3,) and bool((st["wrinkle_std"] > 1e-5).all())
+    assert bool((st["wrinkle_std"] < 0.05).all())  # metres: wrinkles are millimetres
+    method, model, _ = load_trained(runs["wrinkles"])
+    ds = method.train_dataset(sample_dataset)
+    item = ds[(0, 0)]
+    assert item["x0"].shape == (3, 64, 64) and item["cond"].shape == (2, 64, 64)
+    mask = item["cond"][-1]
+    assert set(mask.unique().tolist()) <= {0.0, 1.0}
+    assert float(item["x0"][:, mask == 0].abs().max()) == 0.0  # nothing outside the charts
+    f = ds.ds.open_sequence(ds.ds.sequence_ids[0])
+    seq = {k: np.asarray(f[k]) for k in f.keys()}
+    seq = {k: v[:5] if v.ndim and v.shape[0] == 18 else v for k, v in seq.items()}
+    pred = method.predict_sequence(model, seq, device=torch.device("cpu"), steps=3)
+    assert pred.vertices.shape == seq["fine/base"].shape and np.isfinite(pred.vertices).all()
+    assert pred.extras["wrinkle_maps"].shape == (5, 64, 64, 3)
+    again = method.predict_sequence(model, seq, device=torch.device("cpu"), steps=3)
+    np.testing.assert_array_equal(pred.vertices, again.vertices)  # seeded
+
+
+@pytest.mark.parametrize("conditioning,channels", [("strain_tensor", 4), ("normal", 4)])
+def test_conditioning_variants_train(sample_dataset, tmp_path, conditioning, channels):
+    from learn.train.trainer import load_trained
+
+    out = tmp_path / conditioning
+    assert (
+        cli(
+            "train",
+            "wrinkles",
+            "--data",
+            sample_dataset,
+            "--out",
+            out,
+            "--steps",
+            2,
+            "--batch-size",
+            2,
+            "-q",
+            "--device",
+            "cpu",
+            "--set",
+            f"model.conditioning={conditioning}",
+            "--set",
+            'model.garments=["straight_skirt"]',
+            *SMALL_UNET,
+        )
+        == 0
+    )
+    method, model, _ = load_trained(out / "checkpoints" / "last.pt")
+    assert model.config.cond_channels == channels
+    assert method.train_dataset(sample_dataset)[(0, 0)]["cond"].shape[0] == channels
+
+
+def test_lfgd_baseline_trains_and_predicts(sample_dataset, tmp_path):
+    from learn.train.trainer import load_trained
+
+    out = tmp_path / "lfgd"
+    assert (
+        cli(
+            "train",
+            "displacement_regressor",
+            "--data",
+            sample_dataset,
+            "--out",
+            out,
+            "--steps",
+            2,
+            "--batch-size",
+            2,
+            "-q",
+            "--device",
+            "cpu",
+            *SMALL_UNET,
+        )
+        == 0
+    )
+    method, model, _ = load_trained(out / "checkpoints" / "last.pt")
+    item = method.train_dataset(sample_dataset)[(0, 0)]
+    assert item["cond"].shape == (7, 64, 64) and item["target"].shape == (3, 64, 64)
+
+
+# ------------------------------------------------------------------- evaluation, export, animate
+def test_evaluate_rows_with_the_coarse_base(runs, sample_dataset, tmp_path):
+    for name, model in (("base", "base"), ("ours", runs["wrinkles"])):
+        assert (
+            cli(
+                "evaluate",
+                "--model",
+                model,
+                "--coarse",
+                runs["coarse"],
+                "--data",
+                sample_dataset,
+                "--split",
+                "all",
+                "--out",
+                tmp_path / name,
+                "--no-images",
+                "-q",
+                "--steps",
+                2,
+            )
+            == 0
+        )
+    base = json.loads((tmp_path / "base" / "metrics.json").read_text())
+    ours = json.loads((tmp_path / "ours" / "metrics.json").read_text())
+    assert base["coarse"] and {s["garment"] for s in base["sequences"]} == {"t_shirt"}
+    assert base["summary"]["ev"] > 0 and ours["summary"]["ev"] > 0
+    assert ours["predict_options"]["steps"] == 2
+
+
+def test_export_round_trip(runs, tmp_path):
+    from learn.train.export import export_model
+    from learn.train.trainer import load_trained
+
+    dst = export_model(runs["wrinkles"], tmp_path / "w.pt")
+    assert dst.stat().st_size < 0.6 * runs["wrinkles"].stat().st_size  # fp16, no optimizer state
+    _, a, _ = load_trained(runs["wrinkles"])
+    _, b, _ = load_trained(dst)
+    for (k, va), vb in zip(a.state_dict().items(), b.state_dict().values(), strict=True):
+        torch.testing.assert_close(vb, va, atol=2e-3, rtol=2e-3, msg=k)
+    dst = export_model(runs["coarse"], tmp_path / "c.pt")
+    _, c, _ = load_trained(dst)
+    torch.testing.assert_close(c.rest, load_trained(runs["coarse"])[1].rest)  # buffers stay float32
+
+
+def test_animate_writes_usd_and_preview(runs, tmp_path, capsys):
+    pytest.importorskip("pxr")
+    out = tmp_path / "anim" / "t.usda"
+    assert (
+        cli(
+            "animate",
+            "--coarse",
+            runs["coarse"],
+            "--wrinkles",
+            runs["wrinkles"],
+            "--motion",
+            "walk",
+            "--duration",
+            0.4,
+            "--steps",
+            2,
+            "--out",
+            out,
+            "--sheet",
+            tmp_path / "anim" / "t.png",
+            "-q",
+            "--shape",
+            "1.0,-0.5",
+        )
+        == 0
+    )
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(out))
+    meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    names = {p.GetName() for p in meshes}
+    assert "t_shirt" in names and "Body" in names
+    meta = json.loads((tmp_path / "anim" / "t.animate.json").read_text())
+    assert meta["ddim_steps"] == 2 and meta["betas"][:2] == [1.0, -0.5]
+    assert (tmp_path / "anim" / "t.png").stat().st_size > 1000
+
+
+def test_animate_bad_inputs(runs, tmp_path, capsys):
+    cases = [
+        (["--coarse", tmp_path / "missing.pt", "--wrinkles", runs["wrinkles"]], "no such model file"),
+        (["--coarse", runs["coarse"], "--wrinkles", runs["wrinkles"], "--steps", 0], "--steps"),
+        (["--coarse", runs["wrinkles"], "--wrinkles", runs["wrinkles"]], "skeleton_cvae"),
+        (["--garment", "trousers"], "no shipped models for trousers"),
+    ]
+    for extra, words in cases:
+        out = tmp_path / "x" / "a.usda"
+        code = cli("animate", *extra, "--motion", "walk", "--duration", 0.2, "--out", out, "-q")
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and words in err[0], (extra, err)
+        assert not out.parent.exists() or not any(out.parent.iterdir())
+
+
+def test_pipeline_without_wrinkles_is_the_base(runs):
+    from learn.animate import WrinklePipeline
+    from sim.motions import procedural_motion
+
+    m = procedural_motion("walk", duration=0.3, fps=30.0)
+    base = WrinklePipeline(runs["coarse"], None)(m.poses, m.trans, np.zeros(2))
+    full = WrinklePipeline(runs["coarse"], runs["wrinkles"])(m.poses, m.trans, np.zeros(2), steps=2)
+    np.testing.assert_allclose(full.base, base.vertices, atol=1e-6)
+    assert full.wrinkle_maps.shape[0] == len(m.poses) and base.wrinkle_maps is None
+    assert Path(str(runs["coarse"])).exists()
