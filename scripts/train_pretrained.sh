@@ -41,7 +41,7 @@ wait
 for f in "$W"/logs/train-*.log; do log "$(basename $f): $(tail -1 $f)"; done
 
 log "evaluate"
-MAXSEQ=${MAXSEQ:-8}
+MAXSEQ=${MAXSEQ:-6}
 ev() {  # out-name split args...   (the data is the part of the name before the first '-')
   local name=$1 split=$2; shift 2
   $CLI evaluate --data "$W/data/${name%%-*}" --split "$split" --out "$W/eval/$name-$split" --no-images -q \
