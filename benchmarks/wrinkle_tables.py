@@ -4,7 +4,8 @@ Reads the evaluation folders that ``scripts/train_pretrained.sh`` writes (``EVAL
 metrics.json``), averages the five sampling seeds of our model (mean and standard deviation), and
 writes the tables (markdown) plus a figure:
 
-    python -m benchmarks.wrinkle_tables EVAL --out docs/WRINKLES_TABLES.md --figure docs/images/wrinkle_tables.png \
+    python -m benchmarks.wrinkle_tables EVAL --out docs/WRINKLES_TABLES.md \
+        --figure docs/images/wrinkle_tables.png \
         --json benchmarks/results/wrinkle_tables.json
 
 Table 1 (in distribution, ``test_id``, on the data's smoothed base): Ev, Ecd, normal-map FD.
@@ -21,11 +22,21 @@ from pathlib import Path
 
 import numpy as np
 
-ROWS = [("base", "base mesh alone"), ("coarse", "CVAE base alone (body -> base)"),
-        ("lfgd", "LFGD-style global displacement regressor"), ("normal", "ours, normal conditioning"),
-        ("tensor", "ours, strain-tensor conditioning"), ("ours", "ours, strain-norm conditioning (shipped)")]
-METRICS = [("ev", "Ev [mm]", 1e3), ("ecd", "Ecd [mm²]", 1e6), ("normal_fd", "normal-map FD", 1.0),
-           ("flicker_ratio", "flicker ratio", 1.0), ("spectrum_distance", "spectrum dist.", 1.0)]
+ROWS = [
+    ("base", "base mesh alone"),
+    ("coarse", "CVAE base alone (body -> base)"),
+    ("lfgd", "LFGD-style global displacement regressor"),
+    ("normal", "ours, normal conditioning"),
+    ("tensor", "ours, strain-tensor conditioning"),
+    ("ours", "ours, strain-norm conditioning (shipped)"),
+]
+METRICS = [
+    ("ev", "Ev [mm]", 1e3),
+    ("ecd", "Ecd [mm²]", 1e6),
+    ("normal_fd", "normal-map FD", 1.0),
+    ("flicker_ratio", "flicker ratio", 1.0),
+    ("spectrum_distance", "spectrum dist.", 1.0),
+]
 
 
 def _load(d: Path) -> dict | None:
@@ -43,7 +54,7 @@ def collect(root: Path) -> dict:
         name, split = d.name.rsplit("-", 1)[0], rec["split"]
         garment, row = name.split("-", 1)
         if row.startswith("ours-steps"):
-            out.setdefault("steps", {})[int(row[len("ours-steps"):])] = rec["summary"]
+            out.setdefault("steps", {})[int(row[len("ours-steps") :])] = rec["summary"]
             continue
         if row.startswith("ours-s"):
             row = "ours"
@@ -51,11 +62,17 @@ def collect(root: Path) -> dict:
     for garment, splits in out.items():
         if garment == "steps":
             continue
-        for split, rows in splits.items():
+        for rows in splits.values():
             for row, runs in rows.items():
-                rows[row] = {k: (float(np.mean([r[k] for r in runs if k in r])),
-                                 float(np.std([r[k] for r in runs if k in r])), len(runs))
-                             for k, _, _ in METRICS if any(k in r for r in runs)}
+                rows[row] = {
+                    k: (
+                        float(np.mean([r[k] for r in runs if k in r])),
+                        float(np.std([r[k] for r in runs if k in r])),
+                        len(runs),
+                    )
+                    for k, _, _ in METRICS
+                    if any(k in r for r in runs)
+                }
     return out
 
 
@@ -67,25 +84,39 @@ def _cell(v, scale: float) -> str:
 def markdown(tables: dict) -> str:
     lines = []
     for garment in sorted(k for k in tables if k != "steps"):
-        for split, title in (("test_id", "Table 1 — in distribution (data's base)"),
-                             ("test_ood", "Table 2 — out of distribution (CVAE base from the body)")):
+        for split, title in (
+            ("test_id", "Table 1 — in distribution (data's base)"),
+            ("test_ood", "Table 2 — out of distribution (CVAE base from the body)"),
+        ):
             rows = tables[garment].get(split)
             if not rows:
                 continue
-            lines += [f"### {garment}: {title}", "",
-                      "| method | " + " | ".join(m[1] for m in METRICS) + " |",
-                      "|---|" + "---|" * len(METRICS)]
+            lines += [
+                f"### {garment}: {title}",
+                "",
+                "| method | " + " | ".join(m[1] for m in METRICS) + " |",
+                "|---|" + "---|" * len(METRICS),
+            ]
             for key, label in ROWS:
                 if key in rows:
-                    lines.append(f"| {label}{' (5 seeds)' if rows[key].get('ev', (0, 0, 1))[2] > 1 else ''} | "
-                                 + " | ".join(_cell(rows[key][m], s) if m in rows[key] else "–"
-                                              for m, _, s in METRICS) + " |")
+                    lines.append(
+                        f"| {label}{' (5 seeds)' if rows[key].get('ev', (0, 0, 1))[2] > 1 else ''} | "
+                        + " | ".join(_cell(rows[key][m], s) if m in rows[key] else "–" for m, _, s in METRICS)
+                        + " |"
+                    )
             lines.append("")
     if "steps" in tables:
-        lines += ["### DDIM steps (t-shirt, test_id)", "", "| steps | Ev [mm] | Ecd [mm²] | normal-map FD |",
-                  "|---|---|---|---|"]
+        lines += [
+            "### DDIM steps (t-shirt, test_id)",
+            "",
+            "| steps | Ev [mm] | Ecd [mm²] | normal-map FD |",
+            "|---|---|---|---|",
+        ]
         for n, s in sorted(tables["steps"].items(), reverse=True):
-            lines.append(f"| {n} | {s['ev'] * 1e3:.3g} | {s['ecd'] * 1e6:.3g} | {s.get('normal_fd', float('nan')):.3g} |")
+            lines.append(
+                f"| {n} | {s['ev'] * 1e3:.3g} | {s['ecd'] * 1e6:.3g} | "
+                f"{s.get('normal_fd', float('nan')):.3g} |"
+            )
         lines.append("")
     return "\n".join(lines)
 
@@ -105,8 +136,14 @@ def figure(tables: dict, path: Path) -> None:
                 rows = tables[g].get(split, {})
                 keys = [k for k, _ in ROWS if k in rows and m in rows[k]]
                 x = np.array([[k for k, _ in ROWS].index(k) for k in keys]) + (si - 0.5) * 0.38
-                ax.bar(x, [rows[k][m][0] * scale for k in keys], 0.38, yerr=[rows[k][m][1] * scale for k in keys],
-                       color=color, label=split)
+                ax.bar(
+                    x,
+                    [rows[k][m][0] * scale for k in keys],
+                    0.38,
+                    yerr=[rows[k][m][1] * scale for k in keys],
+                    color=color,
+                    label=split,
+                )
             ax.set_xticks(range(len(ROWS)), [k for k, _ in ROWS], rotation=30)
             ax.set_title(f"{g}: {label}")
             if mi == 0:
