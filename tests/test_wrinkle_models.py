@@ -39,6 +39,11 @@ def cli(*args) -> int:
     return main([str(a) for a in args])
 
 
+def train_two_steps(method: str, data, out, *extra) -> int:
+    common = ["--steps", 2, "--batch-size", 2, "-q", "--device", "cpu"]
+    return cli("train", method, "--data", data, "--out", out, *common, *extra)
+
+
 @pytest.fixture(scope="module")
 def runs(sample_dataset, tmp_path_factory):
     """A coarse (t-shirt) and a wrinkle model trained briefly on the sample."""
@@ -245,29 +250,8 @@ def test_conditioning_variants_train(sample_dataset, tmp_path, conditioning, cha
     from learn.train.trainer import load_trained
 
     out = tmp_path / conditioning
-    assert (
-        cli(
-            "train",
-            "wrinkles",
-            "--data",
-            sample_dataset,
-            "--out",
-            out,
-            "--steps",
-            2,
-            "--batch-size",
-            2,
-            "-q",
-            "--device",
-            "cpu",
-            "--set",
-            f"model.conditioning={conditioning}",
-            "--set",
-            'model.garments=["straight_skirt"]',
-            *SMALL_UNET,
-        )
-        == 0
-    )
+    extra = ["--set", f"model.conditioning={conditioning}", "--set", 'model.garments=["straight_skirt"]']
+    assert train_two_steps("wrinkles", sample_dataset, out, *extra, *SMALL_UNET) == 0
     method, model, _ = load_trained(out / "checkpoints" / "last.pt")
     assert model.config.cond_channels == channels
     assert method.train_dataset(sample_dataset)[(0, 0)]["cond"].shape[0] == channels
@@ -277,25 +261,7 @@ def test_lfgd_baseline_trains_and_predicts(sample_dataset, tmp_path):
     from learn.train.trainer import load_trained
 
     out = tmp_path / "lfgd"
-    assert (
-        cli(
-            "train",
-            "displacement_regressor",
-            "--data",
-            sample_dataset,
-            "--out",
-            out,
-            "--steps",
-            2,
-            "--batch-size",
-            2,
-            "-q",
-            "--device",
-            "cpu",
-            *SMALL_UNET,
-        )
-        == 0
-    )
+    assert train_two_steps("displacement_regressor", sample_dataset, out, *SMALL_UNET) == 0
     method, model, _ = load_trained(out / "checkpoints" / "last.pt")
     item = method.train_dataset(sample_dataset)[(0, 0)]
     assert item["cond"].shape == (7, 64, 64) and item["target"].shape == (3, 64, 64)
