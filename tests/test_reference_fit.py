@@ -187,7 +187,7 @@ def test_reference_fit_dataset_shares_the_topology(tmp_path: Path):
     m = S.read_manifest(out)
     files = [S.SequenceFile(out / e["file"]) for e in m["sequences"].values()]
     betas = [np.asarray(f["body/betas"]) for f in files]
-    assert not np.allclose(betas[0], betas[1])
+    assert np.abs(np.subtract(betas[0], betas[1])).max() > 1e-3, betas
     np.testing.assert_array_equal(files[0]["fine/faces"], files[1]["fine/faces"])
     np.testing.assert_array_equal(files[0]["fine/rest_vertices"], files[1]["fine/rest_vertices"])
     for e, f in zip(m["sequences"].values(), files, strict=True):
