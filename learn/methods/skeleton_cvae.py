@@ -120,18 +120,19 @@ class SkeletonCVAE(nn.Module):
 
     def skin(self, gamma_n: torch.Tensor, vertices: torch.Tensor | None = None) -> torch.Tensor:
         """Root-frame base positions [m] (B, N, 3) of standardised transforms (B, J * 9), at all
-        vertices or the indices ``vertices`` (N,) (Guo et al. Eq. 8)."""
+        vertices, the indices ``vertices`` (N,), or one index set per sample (B, N) (Guo et al.
+        Eq. 8)."""
         from learn.skinning import rotation_6d_to_matrix
 
         g = (gamma_n.float() * self.gamma_std + self.gamma_mean).reshape(len(gamma_n), self.num_bones, GAMMA)
         R = rotation_6d_to_matrix(g[..., :6])  # (B, J, 3, 3)
         t = g[..., 6:]
-        idx, w, rest = self.weight_idx, self.weight_val, self.rest
-        if vertices is not None:
-            idx, w, rest = idx[vertices], w[vertices], rest[vertices]
-        Rk = R[:, idx]  # (B, N, K, 3, 3)
-        moved = torch.einsum("bnkij,nj->bnki", Rk, rest) + t[:, idx]
-        return (moved * w[None, :, :, None]).sum(dim=2)
+        v = torch.arange(len(self.rest), device=R.device) if vertices is None else vertices
+        v = v.expand(len(g), -1) if v.ndim == 1 else v  # (B, N)
+        idx, w, rest = self.weight_idx[v], self.weight_val[v], self.rest[v]  # (B, N, K), (B, N, K), (B, N, 3)
+        b = torch.arange(len(g), device=R.device)[:, None, None]
+        moved = torch.einsum("bnkij,bnj->bnki", R[b, idx], rest) + t[b, idx]
+        return (moved * w[..., None]).sum(dim=2)
 
     def forward(self, gamma_n: torch.Tensor, cond: torch.Tensor, noise: torch.Tensor):
         mu, logvar = self.encode(gamma_n, cond)
@@ -311,7 +312,7 @@ class SkeletonCVAEMethod(Method):
 
         def terms(g_hat):
             l_gamma = ((g_hat.float() - gamma) ** 2).mean()
-            pred = torch.stack([net.skin(g_hat[b : b + 1], verts[b])[0] for b in range(len(g_hat))])
+            pred = net.skin(g_hat, verts)
             return l_gamma, ((pred - batch["target"]) ** 2).sum(-1).mean() * 1e4  # cm^2
 
         l_gamma, l_vert = terms(recon)

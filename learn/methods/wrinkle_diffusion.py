@@ -191,24 +191,27 @@ class WrinkleDiffusionMethod(Method):
             "cond_std": torch.tensor(c_std, dtype=torch.float32),
         }
 
-    def _conditioning_frames(self, f, ts: list[int]) -> np.ndarray:
+    def _conditioning_frames(self, f, ts, maps=None) -> np.ndarray:
+        """Conditioning maps of frames ``ts`` of a sequence file, (len(ts), H, W, C); ``maps``: the
+        sequence's ``WrinkleMaps`` when the caller already has them."""
         if self.config.conditioning == "strain_norm":
             return np.asarray(f["images/strain_norm"][ts], np.float32)
-        from sim.geometry.wrinkle_maps import WrinkleMaps
+        if maps is None:
+            from sim.geometry.wrinkle_maps import WrinkleMaps
 
-        H = np.asarray(f["images/mask"]).shape[0]
-        return WrinkleMaps.from_sequence(f, H).conditioning(
-            np.asarray(f["fine/base"][ts], np.float32), self.config.conditioning
-        )
+            maps = WrinkleMaps.from_sequence(f, np.asarray(f["images/mask"]).shape[0])
+        return maps.conditioning(np.asarray(f["fine/base"][ts], np.float32), self.config.conditioning)
 
     def sequence_conditioning(self, f) -> np.ndarray:
-        """Conditioning maps of every frame of a sequence file, (T, H, W, C) float16."""
+        """Conditioning maps of every frame of a sequence file, (T, H, W, C) float16 (operators
+        built once, frames in chunks of 64)."""
+        from sim.geometry.wrinkle_maps import WrinkleMaps
+
+        maps = WrinkleMaps.from_sequence(f, np.asarray(f["images/mask"]).shape[0])
         T = f.shape("fine/base")[0]
-        out = [
-            self._conditioning_frames(f, list(range(s, min(s + 64, T)))).astype(np.float16)
-            for s in range(0, T, 64)
-        ]
-        return np.concatenate(out)
+        chunks = [range(s, min(s + 64, T)) for s in range(0, T, 64)]
+        parts = [self._conditioning_frames(f, list(c), maps).astype(np.float16) for c in chunks]
+        return np.concatenate(parts)
 
     @property
     def materials(self) -> list[str]:

@@ -196,14 +196,18 @@ class Trainer:
         dev = ctx.device
         amp = _amp_dtype(tc.amp, dev)
 
-        self.method.load_state(self._method_state())
+        last = self.ckpt_dir / LAST
+        resumed = load_checkpoint(last, map_location=dev) if self.resume and last.exists() else None
+        # the fitted state: the checkpoint's when resuming, else fitted on the data now
+        state = resumed.get("method_state", {}) if resumed else self.method.prepare(self.data_root)
+        self.method.load_state(state)
         torch.manual_seed(tc.seed)
         model = self.method.build_model().to(dev)
         optimizer = torch.optim.AdamW(model.parameters(), lr=cfg.optim.lr, betas=cfg.optim.betas,
                                       weight_decay=cfg.optim.weight_decay)
         scaler = torch.amp.GradScaler("cuda", enabled=amp == torch.float16)
         ema = ExponentialMovingAverage(model, tc.ema_decay) if tc.ema_decay > 0 else None
-        step = self._restore(model, optimizer, scaler, ema, dev) if self.resume else 0
+        step = self._restore(resumed, model, optimizer, scaler, ema, dev) if resumed else 0
         start_step = step
 
         dataset = self.method.train_dataset(self.data_root)
@@ -312,18 +316,9 @@ class Trainer:
         D.barrier(ctx)
         return last
 
-    def _method_state(self) -> dict:
-        """The method's fitted state: the checkpoint's when resuming, else ``prepare`` on the data."""
+    def _restore(self, ckpt: dict, model, optimizer, scaler, ema, dev) -> int:
+        """Continue from ``ckpt`` (the run's last checkpoint, already read); returns its step."""
         path = self.ckpt_dir / LAST
-        if self.resume and path.exists():
-            return load_checkpoint(path).get("method_state", {})
-        return self.method.prepare(self.data_root)
-
-    def _restore(self, model, optimizer, scaler, ema, dev) -> int:
-        path = self.ckpt_dir / LAST
-        if not path.exists():
-            return 0
-        ckpt = load_checkpoint(path, map_location=dev)
         diffs = config_differences(ckpt["config"], self.config_dict())
         diffs = [k for k in diffs if k not in RESUMABLE_CHANGES]
         if diffs:

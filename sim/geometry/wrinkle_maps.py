@@ -29,32 +29,6 @@ CONDITIONINGS = {"strain_norm": 1, "strain_tensor": 3, "normal": 3}
 """Conditioning variants (Guo et al. 2024, Sec. 4.3 ablation) and their channel counts."""
 
 
-def uv_vertex_mean(values: np.ndarray, uv_faces: np.ndarray, num_uvs: int, weights: np.ndarray) -> np.ndarray:
-    """Weighted mean of per-face values over the faces of each UV vertex.
-
-    Args:
-        values: (T, F, C) per face.
-        uv_faces: (F, 3) int into the UV vertices.
-        num_uvs: U.
-        weights: (F,) face weights (rest areas).
-
-    Returns:
-        (T, U, C) float32; 0 for a UV vertex no face uses.
-    """
-    F = len(uv_faces)
-    rows = np.repeat(np.arange(F), 3)
-    cols = np.asarray(uv_faces, np.int64).ravel()
-    from scipy.sparse import csr_matrix
-
-    w = np.repeat(np.asarray(weights, np.float64), 3)
-    m = csr_matrix((w, (cols, rows)), shape=(num_uvs, F))
-    total = np.asarray(m.sum(axis=1)).ravel()
-    m = csr_matrix(m.multiply(1.0 / np.maximum(total, 1e-30)[:, None]))
-    T, _, C = values.shape
-    flat = np.asarray(values, np.float64).transpose(1, 0, 2).reshape(F, T * C)
-    return np.asarray(m @ flat).reshape(num_uvs, T, C).transpose(1, 0, 2).astype(np.float32)
-
-
 class WrinkleMaps:
     """UV-map operators of one garment layout (see the module docstring).
 
@@ -120,14 +94,14 @@ class WrinkleMaps:
             st = self.strain.compute(b)
             return self.raster.rasterize(st.vertex_norm[:, self.uv_vertex, None], per="uv")
         if kind == "strain_tensor":
+            # GreenStrain over the UV mesh (UV vertices at their 3D rest positions): UV-aligned face
+            # frames, and its rest-area-weighted vertex mean is the mean per UV vertex (within a panel)
             if self._uv_strain is None:
                 from sim.geometry.strain import GreenStrain
 
-                self._uv_strain = GreenStrain(self._rest, self.faces, uvs=self.uvs, uv_faces=self.uv_faces,
-                                              device=self._device)
-            face = self._uv_strain.face_strain(b)
-            per_uv = uv_vertex_mean(face, self.uv_faces, len(self.uvs), self._uv_strain.rest_area)
-            return self.raster.rasterize(per_uv, per="uv")
+                self._uv_strain = GreenStrain(self._rest[self.uv_vertex], self.uv_faces, uvs=self.uvs,
+                                              uv_faces=self.uv_faces, device=self._device)
+            return self.raster.rasterize(self._uv_strain.compute(b[:, self.uv_vertex]).vertex, per="uv")
         n = self.raster.rasterize(self.frames.normals(b)[:, self.uv_vertex], per="uv")
         length = np.linalg.norm(n, axis=-1, keepdims=True)
         return np.where(length > 1e-6, n / np.maximum(length, 1e-6), 0.0).astype(np.float32)
