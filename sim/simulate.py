@@ -86,7 +86,9 @@ class SimulationConfig:
         pinned: attachment sets pinned to the body (names a garment does not define are
             skipped; an imported garment has none).
         ground: stand the body on the floor (y = 0) at the motion's first frame.
-        self_contact: cloth self-contact on/off in the solver; None keeps the solver's default.
+        self_contact: cloth self-contact on/off in the solver (default on: without it every
+            fine garment folds through itself and fails the self-intersection gate); None
+            keeps the solver's own default (off, for solver-level use).
         solver: further ``VBDConfig`` fields by name (``contact_stiffness`` [N/m] ...).
         gates: quality thresholds a sequence must meet.
         max_speed: explosion test: a garment vertex faster than this over one frame [m/s].
@@ -105,7 +107,7 @@ class SimulationConfig:
     keep_prelude: bool = False
     pinned: tuple[str, ...] = DEFAULT_PINNED
     ground: bool = True
-    self_contact: bool | None = None
+    self_contact: bool | None = True
     solver: dict = field(default_factory=dict)
     gates: QualityGates = field(default_factory=QualityGates)
     max_speed: float = 50.0

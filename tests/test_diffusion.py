@@ -149,6 +149,26 @@ def test_oracle_ddim_recovers_x0(num_steps, spacing, eta):
     np.testing.assert_allclose(out.numpy(), x0.numpy(), atol=1e-4, rtol=0)
 
 
+def test_clip_x0_bounds_the_sample_and_is_inert_inside_the_range():
+    s = DDIMScheduler()
+    g = torch.Generator().manual_seed(5)
+    x0 = torch.randn(2, 3, 16, 16, generator=g)
+    x0[:, 1] *= 4.0  # channel 1 spans a wider range
+    cond = torch.randn(2, 1, 16, 16, generator=g)
+    oracle = _Oracle(x0, s.alphas_cumprod)
+    bound = torch.tensor([0.5, 2.0, 1e9])
+    out = ddim_sample(oracle, s, cond, num_steps=20, generator=torch.Generator().manual_seed(1), clip_x0=bound)
+    # the oracle always points at x0; clamped every step, the result is the clamped x0
+    ref = torch.maximum(torch.minimum(x0, bound[None, :, None, None]), -bound[None, :, None, None])
+    np.testing.assert_allclose(out.numpy(), ref.numpy(), atol=1e-4)
+    assert out[:, 0].abs().max() <= 0.5 + 1e-4 and out[:, 1].abs().max() <= 2.0 + 1e-4
+    # a bound above the data's range changes nothing
+    free = ddim_sample(oracle, s, cond, num_steps=20, generator=torch.Generator().manual_seed(1))
+    wide = ddim_sample(oracle, s, cond, num_steps=20, generator=torch.Generator().manual_seed(1),
+                       clip_x0=float(x0.abs().max()) + 1.0)
+    np.testing.assert_allclose(wide.numpy(), free.numpy(), atol=1e-5)
+
+
 def test_ddim_eta0_deterministic_and_noise_sharing_and_mask():
     torch.manual_seed(0)
     model = WrinkleUNet(_tiny_config()).eval()

@@ -80,6 +80,7 @@ def ddim_sample(
     mask: torch.Tensor | None = None,
     temporal_weight: float = 0.0,
     anchor: torch.Tensor | None = None,
+    clip_x0: torch.Tensor | float | None = None,
 ) -> torch.Tensor:
     """Generate wrinkle UV images by DDIM (Song et al. 2021, Eq. 12) from ``x_T ~ N(0, I)``.
 
@@ -109,6 +110,10 @@ def ddim_sample(
             own detail at the end (0: off; not in Guo et al., who sample frames independently).
         anchor: the previous batch's last result ``x_0``, shape (C_out, H, W) (a sequence sampled
             in chunks).
+        clip_x0: bound of the ``x0`` estimate at every step, a number or per channel (C_out,):
+            ``x0_hat`` is clamped to ``[-clip, clip]`` and the noise re-derived from it (the
+            ``clip_sample`` of DDPM/DDIM implementations, here with the training data's range),
+            so a sample cannot leave the range the data spans; None: no clamp.
 
     Returns:
         x_0, the generated wrinkle field, shape (B, C_out, H, W), dtype of ``cond``.
@@ -133,11 +138,26 @@ def ddim_sample(
         eps = guided_epsilon(model, x, t_batch, cond, label=label, guidance_scale=guidance_scale)
         if temporal_weight > 0.0 and (B > 1 or anchor is not None):
             eps = _temporal_guidance(scheduler, x, eps, t, temporal_weight, anchor)
+        if clip_x0 is not None:
+            eps = _clip_x0(scheduler, x, eps, t, clip_x0)
         x = scheduler.step(eps, t, x, eta=eta, generator=generator).prev_sample
     if mask is not None:
         m = mask.to(device=x.device, dtype=x.dtype)
         x = x * (m[:, None] if m.ndim == 3 else m)
     return x
+
+
+def _clip_x0(scheduler: DDIMScheduler, x: torch.Tensor, eps: torch.Tensor, t: int,
+             clip: torch.Tensor | float) -> torch.Tensor:
+    """``eps`` re-derived from the clamped ``x0_hat`` (see ``ddim_sample``)."""
+    a = float(scheduler.alphas_cumprod[t])
+    sa, sb = a ** 0.5, (1.0 - a) ** 0.5
+    x0 = (x - sb * eps) / sa
+    c = torch.as_tensor(clip, device=x.device, dtype=x.dtype)
+    if c.ndim == 1:
+        c = c[None, :, None, None]
+    x0 = torch.maximum(torch.minimum(x0, c), -c)
+    return (x - sa * x0) / sb
 
 
 def _temporal_guidance(scheduler: DDIMScheduler, x: torch.Tensor, eps: torch.Tensor, t: int, weight: float,

@@ -56,6 +56,9 @@ class WrinkleDiffusionConfig:
     """All frames of a sequence start from one x_T (temporal coherence)."""
     temporal_weight: float = 0.5
     """Pull of each frame's x_0 estimate toward its neighbours', scaled by t / T (0: off)."""
+    clip_x0: float = 1.0
+    """Clamp the x_0 estimate at every DDIM step to this times the training split's largest
+    |wrinkle| per channel (0: off)."""
     infer_batch: int = 8
     """Frames sampled together at inference."""
     base_channels: int = 64
@@ -140,8 +143,8 @@ class WrinkleDiffusionMethod(Method):
             raise err(f"label_dropout must be in [0, 1), got {config.label_dropout}")
         if config.sample_steps < 1 or config.infer_batch < 1 or config.stats_frames < 1:
             raise err("sample_steps, infer_batch and stats_frames must be >= 1")
-        if config.eta < 0 or config.temporal_weight < 0 or config.guidance_scale < 0:
-            raise err("eta, temporal_weight and guidance_scale must be >= 0")
+        if min(config.eta, config.temporal_weight, config.guidance_scale, config.clip_x0) < 0:
+            raise err("eta, temporal_weight, guidance_scale and clip_x0 must be >= 0")
 
     # ------------------------------------------------------------------ fitted state
     def prepare(self, root) -> dict:
@@ -163,12 +166,14 @@ class WrinkleDiffusionMethod(Method):
             sid, t = ds.locate(int(i))
             by_seq.setdefault(sid, []).append(t)
         w_sum, w_sq, c_sum, c_sq, n = 0.0, 0.0, 0.0, 0.0, 0
+        w_max = np.zeros(3)
         for sid, ts in by_seq.items():
             f = ds.open_sequence(sid)
             m = np.asarray(f["images/mask"]).astype(bool)
             w = np.asarray(f["images/wrinkle"][ts], np.float64)[:, m]  # (k, P, 3)
             c = self._conditioning_frames(f, ts)[:, m].astype(np.float64)
             w_sum, w_sq = w_sum + w.sum((0, 1)), w_sq + (w * w).sum((0, 1))
+            w_max = np.maximum(w_max, np.abs(w).max((0, 1)) if w.size else 0.0)
             c_sum, c_sq = c_sum + c.sum((0, 1)), c_sq + (c * c).sum((0, 1))
             n += w.shape[0] * w.shape[1]
         w_std = np.sqrt(np.maximum(w_sq / n - (w_sum / n) ** 2, 1e-14))
@@ -187,6 +192,8 @@ class WrinkleDiffusionMethod(Method):
             "materials": materials,
             "resolution": int(H),
             "wrinkle_std": torch.tensor(w_std, dtype=torch.float32),
+            # per-channel bound of the sampled x0 (in std units): the largest |wrinkle| seen
+            "wrinkle_clip": torch.tensor(w_max / w_std, dtype=torch.float32),
             "cond_mean": torch.tensor(c_mean, dtype=torch.float32),
             "cond_std": torch.tensor(c_std, dtype=torch.float32),
         }
@@ -305,6 +312,9 @@ class WrinkleDiffusionMethod(Method):
         shared = torch.randn((3, H, W), generator=gen, device=device) if cfg.shared_noise else None
         label = self.label_of(material)
         std = self.state["wrinkle_std"].to(device)
+        clip = None  # checkpoints made before the bound was fitted sample unclamped
+        if cfg.clip_x0 > 0 and "wrinkle_clip" in self.state:
+            clip = (self.state["wrinkle_clip"] * cfg.clip_x0).to(device)
         mask_t = torch.from_numpy(np.asarray(mask, np.float32)).to(device)
         out = np.empty((T, H, W, 3), np.float32)
         anchor = None
@@ -326,6 +336,7 @@ class WrinkleDiffusionMethod(Method):
                 mask=mask_t.expand(B, H, W),
                 temporal_weight=cfg.temporal_weight,
                 anchor=anchor,
+                clip_x0=clip,
             )
             anchor = x0[-1]
             out[s : s + B] = (x0.float() * std[:, None, None]).permute(0, 2, 3, 1).cpu().numpy()
