@@ -100,8 +100,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="comma-separated attachment sets pinned to the skin (waistband, shoulders, hem, "
                         "cuffs) or 'none' (default: %(default)s)")
     s.add_argument("--self-collision", dest="self_collision", action=argparse.BooleanOptionalAction,
-                   default=True, help="cloth self-collision (vertex-triangle and edge-edge) on/off (default: on; "
-                   "--no-self-collision is ~3x faster and lets folds pass through each other)")
+                   default=True, help="cloth self-collision (vertex-triangle and edge-edge) on/off "
+                   "(default: on; --no-self-collision is ~3x faster and lets folds pass through each other)")
     s.add_argument("--solver-param", action="append", default=[], metavar="KEY=VALUE",
                    help="a further VBD solver setting, e.g. contact_stiffness=2e5 (repeatable)")
     s.add_argument("--gate", action="append", default=[], metavar="KEY=VALUE",

@@ -79,7 +79,7 @@ def _load(tmp_path, text):
     (("[bodies]", "[bodies]\nheight = 2"), "unknown key(s) height in [bodies]"),
     (("names = [\"cotton\", \"silk\"]", "names = [\"cotton\", \"wool\"]"), "unknown material 'wool'"),
     (("length = [0.45, 0.55]", "length = [0.55, 0.45]"), "lo > hi"),
-    (("length = [0.45, 0.55]", "length = [-0.5, 0.55]"), "too short"),
+    (("length = [0.45, 0.55]", "length = [-0.5, 0.55]"), "outside its range"),
     (("length = [0.45, 0.55]", "sleeves = 2"), "unknown parameter"),
     (("ood_motions = [\"arm_raise\"]", "ood_motions = [\"jump\"]"), "not a configured motion"),
     (("ood_motions = [\"arm_raise\"]", "ood_motions = [\"arm_raise\", \"walk\"]"),

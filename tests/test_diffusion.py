@@ -157,7 +157,8 @@ def test_clip_x0_bounds_the_sample_and_is_inert_inside_the_range():
     cond = torch.randn(2, 1, 16, 16, generator=g)
     oracle = _Oracle(x0, s.alphas_cumprod)
     bound = torch.tensor([0.5, 2.0, 1e9])
-    out = ddim_sample(oracle, s, cond, num_steps=20, generator=torch.Generator().manual_seed(1), clip_x0=bound)
+    out = ddim_sample(oracle, s, cond, num_steps=20, generator=torch.Generator().manual_seed(1),
+                      clip_x0=bound)
     # the oracle always points at x0; clamped every step, the result is the clamped x0
     ref = torch.maximum(torch.minimum(x0, bound[None, :, None, None]), -bound[None, :, None, None])
     np.testing.assert_allclose(out.numpy(), ref.numpy(), atol=1e-4)

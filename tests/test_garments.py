@@ -5,6 +5,8 @@ Import is tested in test_garment_import.py, the UV functions in test_garment_uvs
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import numpy as np
 import pytest
 import trimesh
@@ -14,7 +16,7 @@ from sim.bodies.default import parse_shape
 from sim.errors import WrinklesInputError
 from sim.garments import TEMPLATES, make_garment
 from sim.garments.panels import stitch
-from sim.garments.templates import resolve_resolution
+from sim.garments.templates import PARAM_RANGES, resolve_resolution
 from sim.garments.uv import UV_MARGIN, uv_stats
 
 SHAPES = {"mean": "", "tall_heavy": "height=0.7,weight=0.9", "short_slim": "height=0.1,weight=0.1"}
@@ -262,6 +264,17 @@ def test_params_and_errors(body):
         make_garment("trousers", body, length=0.3)
     with pytest.raises(WrinklesInputError, match="sleeve_length"):
         make_garment("t_shirt", body, sleeve_length=0.01)
+    with pytest.raises(WrinklesInputError, match=r"ease = -0.01 is outside its range \[0, 0.15\]"):
+        make_garment("t_shirt", body, ease=-0.01)
+    with pytest.raises(WrinklesInputError, match="length = 3 is outside"):
+        make_garment("dress", body, length=3.0)
+    with pytest.raises(WrinklesInputError, match="must be a number"):
+        make_garment("shorts", body, ease=float("nan"))
+    # every parameter of every template has a range, and the template defaults lie inside it
+    for cat, t in TEMPLATES.items():
+        for f in fields(t.params):
+            lo, hi = PARAM_RANGES[f.name]
+            assert lo <= t.defaults.get(f.name, f.default) <= hi, (cat, f.name)
     short = make_garment("dress", body, length=0.6)
     assert short.num_vertices < make_garment("dress", body).num_vertices
 

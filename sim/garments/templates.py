@@ -695,6 +695,24 @@ def template_parameters(category: str) -> list[tuple[str, float, str, str]]:
     return out
 
 
+# Accepted range of every template parameter ([m], flare [-]); a template can still refuse a value
+# inside it that does not fit the body (e.g. a skirt too short for the edge length).
+PARAM_RANGES: dict[str, tuple[float, float]] = {
+    "length": (0.05, 1.6),
+    "ease": (0.0, 0.15),
+    "waist_ease": (0.0, 0.05),
+    "flare": (0.0, 2.0),
+    "waist_offset": (-0.15, 0.15),
+    "crotch_ease": (0.0, 0.1),
+    "armhole_depth": (0.0, 0.15),
+    "strap_width": (0.02, 0.2),
+    "neck_ease": (0.0, 0.1),
+    "front_rise": (0.0, 0.3),
+    "back_rise": (0.0, 0.3),
+    "sleeve_length": (0.0, 1.0),
+}
+
+
 def make_params(category: str, **params: float):
     """Frozen params of ``category`` with the template's defaults, overridden by ``params``."""
     if category not in TEMPLATES:
@@ -706,6 +724,14 @@ def make_params(category: str, **params: float):
     if unknown:
         raise WrinklesInputError(f"{category}: unknown parameter(s) {sorted(unknown)}; expected "
                                  f"{', '.join(sorted(allowed))}")
+    for k, v in params.items():
+        lo, hi = PARAM_RANGES[k]
+        number = isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
+        if not number or not np.isfinite(v):
+            raise WrinklesInputError(f"{category}: parameter {k} must be a number [m or -], got {v!r}")
+        if not lo <= v <= hi:
+            raise WrinklesInputError(f"{category}: parameter {k} = {v:g} is outside its range "
+                                     f"[{lo:g}, {hi:g}]")
     return t.params(**{**t.defaults, **params})
 
 
