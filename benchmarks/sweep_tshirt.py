@@ -1,0 +1,92 @@
+"""Issue 3: which solver settings pass the quality gates, and at what cost per frame.
+
+The ~5k-vertex t-shirt of ``bench_tshirt`` on the default body, body and self contact on,
+the full pipeline (settle, blend, motion; CUDA graph per frame), for several
+substeps x iterations x self-contact detection intervals, on walk and run. Per setting:
+ms per 30 fps frame of the motion and the gates' verdict; then the cheapest setting that passes
+every gate on every motion is run batched (garment-frames per second).
+
+    python -m benchmarks.sweep_tshirt --device cuda --batch 1,16,64,256
+    python -m benchmarks.sweep_tshirt --device cpu --vertices 1000 --seconds 0.5 --settings 4x4,2x4
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+from benchmarks.bench_tshirt import build_garment, run_ours
+from benchmarks.common import machine, write_result
+
+DEFAULT_SETTINGS = "10x10,10x5,5x10,5x5,10x10i2,5x5i2,4x4,3x5"
+
+
+def parse_setting(s: str) -> dict:
+    """``"10x5i2"`` -> substeps 10, iterations 5, self-contact detection every 2 substeps."""
+    base, _, interval = s.partition("i")
+    sub, _, it = base.partition("x")
+    return {"substeps": int(sub), "iterations": int(it), "interval": int(interval or 1)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--vertices", type=int, default=5000)
+    ap.add_argument("--motions", default="walk,run")
+    ap.add_argument("--seconds", type=float, default=2.0)
+    ap.add_argument("--settings", default=DEFAULT_SETTINGS,
+                    help="comma list of SUBSTEPSxITERATIONS[iINTERVAL] (default: %(default)s)")
+    ap.add_argument("--batch", default="", help="batch sizes for the cheapest passing setting")
+    ap.add_argument("--tag", default="")
+    args = ap.parse_args()
+
+    from sim.bodies.default import load_default_body
+    from sim.device import resolve_device
+    from sim.motions import load_motion
+    from sim.simulate import SimulationConfig
+
+    device = resolve_device(args.device)
+    body = load_default_body()
+    garment, edge = build_garment(body, args.vertices)
+    motions = {n: load_motion(n, fps=30.0, duration=args.seconds) for n in args.motions.split(",")}
+    rows = []
+    for s in args.settings.split(","):
+        p = parse_setting(s)
+        cfg = SimulationConfig(fps=30.0, substeps=p["substeps"], iterations=p["iterations"],
+                               self_contact=True, solver={"self_contact_interval": p["interval"]},
+                               device=device)
+        row = {"setting": s, **p, "motions": {}}
+        for name, motion in motions.items():
+            out, _ = run_ours(garment, body, motion, cfg)
+            row["motions"][name] = out
+        row["passes"] = all("error" not in o and not o["failed_gates"] for o in row["motions"].values())
+        row["ms_per_frame_worst"] = max(o.get("ms_per_frame", float("inf")) for o in row["motions"].values())
+        rows.append(row)
+        print(s, "passes" if row["passes"] else "FAILS",
+              {n: (round(o["ms_per_frame"], 2) if "ms_per_frame" in o else o["error"],
+                   o.get("failed_gates")) for n, o in row["motions"].items()}, flush=True)
+    passing = [r for r in rows if r["passes"]]
+    best = min(passing, key=lambda r: r["ms_per_frame_worst"]) if passing else None
+    batch = {}
+    if best is not None and args.batch:
+        cfg = SimulationConfig(fps=30.0, substeps=best["substeps"], iterations=best["iterations"],
+                               self_contact=True, solver={"self_contact_interval": best["interval"]},
+                               device=device)
+        first = next(iter(motions.values()))
+        for nb in [int(b) for b in args.batch.split(",")]:
+            t0 = time.perf_counter()
+            batch[str(nb)], _ = run_ours(garment, body, first, cfg, batch=nb)
+            print("batch", nb, json.dumps(batch[str(nb)]), f"({time.perf_counter() - t0:.0f} s)", flush=True)
+    write_result(f"tshirt_sweep_{device.split(':')[0]}{args.tag}", {
+        "machine": machine(device),
+        "sizes": {"garment_vertices": garment.num_vertices, "garment_faces": garment.num_faces,
+                  "edge_m": edge, "fps": 30.0, "seconds": args.seconds, "motions": list(motions)},
+        "settings": rows,
+        "cheapest_passing": None if best is None else best["setting"],
+        "batched": batch,
+    })
+
+
+if __name__ == "__main__":
+    main()
