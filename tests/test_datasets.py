@@ -336,3 +336,41 @@ def test_user_motion_folders_are_sampled(tmp_path):
     # a file too short for the config's seconds is refused up front
     with pytest.raises(WrinklesInputError, match="lasts only"):
         _load(tmp_path, text.replace("seconds = 0.2", "seconds = 1.0"))
+
+
+def test_a_failed_simulation_is_retried_at_twice_the_substeps(tmp_path, monkeypatch):
+    """A sequence whose simulation stops (explosion) is simulated again at 2x the substeps; if that
+    fails too it is rejected with the reason; a batch finds its culprit first."""
+    import sim.simulate as simulate_mod
+    from sim.datasets.config import load_config
+    from sim.datasets.generate import generate
+    from sim.quality import SimulationError
+
+    real = simulate_mod.simulate_batch
+    calls = []
+
+    def flaky(jobs, *, config=None, **kw):  # "explodes" at the config's 2 substeps, not at 4
+        calls.append((len(jobs), config.substeps))
+        if config.substeps < limit[0]:
+            raise SimulationError(7, "explosion: test")
+        return real(jobs, config=config, **kw)
+
+    monkeypatch.setattr(simulate_mod, "simulate_batch", flaky)
+    cfg = load_config(tiny_config(tmp_path, TINY.replace("sequences = 4", "sequences = 2")))
+    limit = [4]
+    s = generate(cfg, tmp_path / "a", batch=2, device="cpu")
+    m = S.read_manifest(tmp_path / "a")
+    assert s.accepted + s.rejected == 2 and not any("explosion" in str(r) for r in m["rejected"].values())
+    # the batch of 2 (coarse + fine jobs: 4), then each sequence alone, then alone at 4 substeps
+    assert calls == [(4, 2), (2, 2), (2, 4), (2, 2), (2, 4)]
+    for e in m["sequences"].values():
+        prov = S.SequenceFile(tmp_path / "a" / e["file"]).json("provenance")
+        assert prov["config"]["substeps"] == 4
+    calls.clear()
+    limit[0] = 100  # fails at every substep count
+    s = generate(cfg, tmp_path / "b", batch=1, device="cpu")
+    m = S.read_manifest(tmp_path / "b")
+    assert s.accepted == 0 and s.rejected == 2 and calls == [(2, 2), (2, 4)] * 2
+    for r in m["rejected"].values():
+        assert r["reasons"] == ["simulation failed at frame 7: explosion: test (at 4 substeps, after a "
+                                "retry)"]

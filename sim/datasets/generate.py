@@ -192,7 +192,12 @@ def garment_betas(cfg: DatasetConfig, body, betas: np.ndarray) -> np.ndarray:
 
 
 def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set[str], root: Path,
-                part: _Shard, sim_cfg, device: str, summary: GenerateSummary, log: Log) -> None:
+                part: _Shard, sim_cfg, device: str, summary: GenerateSummary, log: Log,
+                retry: bool = True) -> None:
+    """Simulate, judge, derive and write one batch of sequences. A batch whose simulation fails
+    (NaN / explosion) is re-run one sequence at a time to find the culprit; a single sequence
+    that fails is tried once more at twice the substeps (an explosion is usually a step too
+    large for a fast motion or a soft fabric); its provenance records the substeps it used."""
     from dataclasses import replace
 
     from sim.datasets.derive import Deriver, coarse_arrays
@@ -232,10 +237,16 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
     except SimulationError as e:
         if len(group) > 1:  # find the culprit: one sequence at a time
             for sp in group:
-                _make_group(cfg, body, [sp], wanted & {sp.id}, root, part, sim_cfg, device, summary, log)
+                _make_group(cfg, body, [sp], wanted & {sp.id}, root, part, sim_cfg, device, summary, log,
+                            retry)
+            return
+        if retry:
+            log(f"{group[0].id}: {e}; retrying at {2 * sim_cfg.substeps} substeps")
+            _make_group(cfg, body, group, wanted, root, part, replace(sim_cfg, substeps=2 * sim_cfg.substeps),
+                        device, summary, log, retry=False)
             return
         results = None
-        failure = [str(e)]
+        failure = [f"{e} (at {sim_cfg.substeps} substeps, after a retry)"]
     by_seq: dict[str, dict] = {}
     for k, (sp, garment, motion, betas, kind) in enumerate(meta):
         by_seq.setdefault(sp.id, {"spec": sp, "motion": motion, "betas": betas})[kind] = (
