@@ -115,6 +115,9 @@ class WrinklePipeline:
         seed: int = 0,
         sample_latent: bool = False,
         progress=None,
+        body_vertices: np.ndarray | None = None,
+        body_faces: np.ndarray | None = None,
+        clearance: float = 0.002,
     ) -> AnimationResult:
         """Animate the garment for a body motion.
 
@@ -127,13 +130,31 @@ class WrinklePipeline:
             seed: noise seed.
             sample_latent: draw the CVAE latent instead of using its mean.
             progress: ``progress(frames_done, frames_total)`` of the diffusion.
+            body_vertices, body_faces: the posed body (T, Vb, 3) [m] and its faces; with them,
+                garment vertices inside the body (or within ``clearance`` [m] of it) are moved
+                out, on the base before its strain is taken and on the wrinkled result
+                (``sim.quality.push_outside``; 0 or no body: off).
         """
+        from sim.quality import push_outside
+
+        fix = body_vertices is not None and body_faces is not None and clearance > 0
+        wdev = "cuda" if self.device.type == "cuda" else "cpu"
+
+        def outside(x: np.ndarray) -> np.ndarray:
+            if not fix:
+                return x
+            t1 = time.perf_counter()
+            y = push_outside(x, body_vertices, body_faces, clearance=clearance, device=wdev)
+            sec["collision"] = sec.get("collision", 0.0) + time.perf_counter() - t1
+            return y
+
         sec = {}
         t0 = time.perf_counter()
         base = self.coarse.base_from_body(
             self.coarse_model, poses, trans, betas, device=self.device, sample_latent=sample_latent, seed=seed
         )
         sec["coarse"] = time.perf_counter() - t0
+        base = outside(base)
         if self.wrinkles is None:
             return AnimationResult(base, base, self.faces, self.uvs, self.uv_faces, None, sec)
         m = self.maps()
@@ -163,4 +184,5 @@ class WrinklePipeline:
         t0 = time.perf_counter()
         fine = m.decode(w, base)
         sec["decode"] = time.perf_counter() - t0
+        fine = outside(fine)
         return AnimationResult(fine, base, self.faces, self.uvs, self.uv_faces, w, sec)

@@ -62,6 +62,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="draw the CVAE latent z ~ N(0, I) instead of its mean (another plausible fit)",
     )
+    g.add_argument(
+        "--clearance",
+        type=float,
+        default=0.002,
+        help="move garment vertices that end inside the body (or closer than this [m]) out to this "
+        "distance from the skin, on the base and on the result (0: off; default: %(default)s)",
+    )
     m = p.add_argument_group("body and motion")
     add_motion_arguments(m)
     add_body_arguments(m)
@@ -123,6 +130,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     if args.steps is not None and args.steps < 1:
         raise WrinklesInputError(f"--steps must be >= 1, got {args.steps}")
+    if not (args.clearance >= 0 and args.clearance < 0.1):
+        raise WrinklesInputError(f"--clearance must be in [0, 0.1) m, got {args.clearance}")
     coarse, wrinkles = _model_paths(args)
     label = Path(args.garment).stem if not args.coarse else coarse.stem
     out_usd = check_output_path(
@@ -155,6 +164,9 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             sample_latent=args.sample_latent,
             progress=lambda done, total: advance(done),
+            body_vertices=frames.vertices,
+            body_faces=frames.faces,
+            clearance=args.clearance,
         )
     material = args.material or (
         pipe.wrinkles.materials[0] if pipe.wrinkles and pipe.wrinkles.materials else "cotton"

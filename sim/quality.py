@@ -161,6 +161,49 @@ def inside_fraction(points: np.ndarray, body_vertices: np.ndarray, body_faces: n
     return out
 
 
+def push_outside(points: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, *,
+                 clearance: float = 0.002, device: str | None = None, max_dist: float = 1.0) -> np.ndarray:
+    """Move garment points out of the body: a point inside the closed body mesh, or within
+    ``clearance`` of it, goes to its closest body point plus ``clearance`` along the face normal
+    (the collision post-process of learned garment models, e.g. TailorNet, SNUG).
+
+    Args:
+        points: garment positions [m], shape (T, V, 3).
+        body_vertices: body positions [m], shape (T, Vb, 3) (or (Vb, 3) for a static body).
+        body_faces: (Fb, 3) int, outward wound.
+        clearance: distance [m] kept from the skin.
+        max_dist: points farther than this [m] from the body are left alone.
+
+    Returns:
+        The corrected positions, float32 (T, V, 3) (a new array).
+    """
+    wp = warp()
+    from sim import quality_kernels as K
+
+    d = resolve_device(device)
+    points = np.asarray(points, np.float32)
+    T = points.shape[0]
+    bv = np.asarray(body_vertices, np.float32)
+    if bv.ndim == 2:
+        bv = np.broadcast_to(bv, (T, *bv.shape))
+    if bv.shape[0] != T:
+        raise ValueError(f"push_outside: {T} garment frames but {bv.shape[0]} body frames")
+    mesh_pts = wp.array(np.ascontiguousarray(bv[0]), dtype=wp.vec3, device=d)
+    mesh = wp.Mesh(points=mesh_pts, indices=wp.array(np.asarray(body_faces, np.int32).ravel(),
+                                                     dtype=wp.int32, device=d))
+    y = wp.empty(points.shape[1], dtype=wp.vec3, device=d)
+    out = np.empty_like(points)
+    for t in range(T):
+        if t > 0:
+            mesh_pts.assign(np.ascontiguousarray(bv[t]))
+            mesh.refit()
+        x = wp.array(np.ascontiguousarray(points[t]), dtype=wp.vec3, device=d)
+        wp.launch(K.push_outside_kernel, dim=points.shape[1],
+                  inputs=[mesh.id, x, float(max_dist), float(clearance)], outputs=[y], device=d)
+        out[t] = y.numpy()
+    return out
+
+
 def self_intersections(vertices: np.ndarray, faces: np.ndarray, *, device: str | None = None,
                        edge_mask: np.ndarray | None = None) -> np.ndarray:
     """Per frame, the number of edge-face crossings between non-adjacent elements.

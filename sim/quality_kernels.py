@@ -39,6 +39,27 @@ def inside_mesh_kernel(
     inside_out[i] = inside
 
 
+@wp.kernel
+def push_outside_kernel(
+    mesh: wp.uint64,
+    x: wp.array(dtype=wp.vec3),
+    max_dist: float,
+    clearance: float,
+    out: wp.array(dtype=wp.vec3),
+):
+    """Points inside the closed mesh, or outside but closer than ``clearance``, go to their
+    closest surface point plus ``clearance`` along that face's outward normal; the rest stay."""
+    i = wp.tid()
+    p = x[i]
+    y = p
+    q = wp.mesh_query_point_sign_normal(mesh, p, max_dist)
+    if q.result:
+        c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
+        if q.sign < 0.0 or wp.length(p - c) < clearance:
+            y = c + clearance * wp.mesh_eval_face_normal(mesh, q.face)
+    out[i] = y
+
+
 @wp.func
 def segment_hits_triangle(p: wp.vec3, q: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> int:
     """Moller-Trumbore for the segment p-q against triangle abc (1 on a proper crossing)."""

@@ -14,6 +14,7 @@ from sim.quality import (
     edge_strain,
     evaluate_sequence,
     inside_fraction,
+    push_outside,
     self_intersections,
     unique_edges,
 )
@@ -61,6 +62,30 @@ def test_inside_fraction_sphere(device):
     moved = np.stack([sphere.vertices, sphere.vertices + [10.0, 0, 0]])
     got2 = inside_fraction(np.stack([pts, pts]), moved, sphere.faces, device=device)
     assert got2[0] == pytest.approx(expect) and got2[1] == 0.0
+
+
+def test_push_outside_moves_exactly_the_inside_points_to_the_surface(device):
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(500, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    r = rng.uniform(0.3, 1.5, size=(500, 1))
+    pts = (d * r).astype(np.float32)
+    body = np.stack([sphere.vertices, sphere.vertices + [0.0, 0.2, 0.0]])  # moves up in frame 1
+    seq = np.stack([pts, pts + [0.0, 0.2, 0.0]]).astype(np.float32)
+    out = push_outside(seq, body, sphere.faces, clearance=0.01, device=device)
+    for t in range(2):
+        c = np.asarray(body[t][0] - sphere.vertices[0])  # the sphere's centre
+        rad_in, rad_out = np.linalg.norm(seq[t] - c, axis=1), np.linalg.norm(out[t] - c, axis=1)
+        far = rad_in > 1.02  # outside the clearance: untouched
+        np.testing.assert_array_equal(out[t][far], seq[t][far])
+        # inside points end on the tessellated sphere + 1 cm (facets sit up to 1.2 mm inside r = 1)
+        near = rad_in < 0.99
+        assert np.all((rad_out[near] > 0.997) & (rad_out[near] < 1.011))
+        # ... outward along their own direction (the closest point of a convex body)
+        cos = np.einsum("ij,ij->i", (out[t] - c)[near], (seq[t] - c)[near]) / (rad_out[near] * rad_in[near])
+        assert cos.min() > 0.99
+    assert inside_fraction(out, body, sphere.faces, device=device).max() == 0.0
 
 
 def test_self_intersections_detects_crossing_sheets(device):

@@ -374,3 +374,22 @@ def test_pipeline_without_wrinkles_is_the_base(runs):
     np.testing.assert_allclose(full.base, base.vertices, atol=1e-6)
     assert full.wrinkle_maps.shape[0] == len(m.poses) and base.wrinkle_maps is None
     assert Path(str(runs["coarse"])).exists()
+
+
+def test_pipeline_moves_the_garment_out_of_the_body(runs):
+    from learn.animate import WrinklePipeline
+    from sim.bodies.default import load_default_body
+    from sim.motions import procedural_motion
+    from sim.quality import inside_fraction
+
+    m = procedural_motion("walk", duration=0.2, fps=30.0)
+    body = load_default_body()
+    frames = body.pose(np.zeros(2), m.poses, m.trans)
+    pipe = WrinklePipeline(runs["coarse"], runs["wrinkles"])
+    res = pipe(m.poses, m.trans, np.zeros(2), steps=2, body_vertices=frames.vertices, body_faces=frames.faces,
+               clearance=0.004)
+    for x in (res.base, res.vertices):
+        assert inside_fraction(x, frames.vertices, frames.faces, device="cpu").max() == 0.0
+    assert res.seconds["collision"] > 0
+    raw = pipe(m.poses, m.trans, np.zeros(2), steps=2)
+    assert "collision" not in raw.seconds
