@@ -241,6 +241,31 @@ def self_intersections(vertices: np.ndarray, faces: np.ndarray, *, device: str |
     return out
 
 
+def crossing_edges(vertices: np.ndarray, faces: np.ndarray, *, device: str | None = None) -> np.ndarray:
+    """Which edges of one mesh cross a non-adjacent face of it.
+
+    Args:
+        vertices: (V, 3) [m]; faces: (F, 3) int.
+
+    Returns:
+        bool (E,) over :func:`unique_edges` ``(faces)``.
+    """
+    wp = warp()
+    from sim import quality_kernels as K
+
+    d = resolve_device(device)
+    faces = np.asarray(faces, np.int32)
+    edges = unique_edges(faces)
+    pts = wp.array(np.ascontiguousarray(vertices, np.float32), dtype=wp.vec3, device=d)
+    mesh = wp.Mesh(points=pts, indices=wp.array(faces.ravel(), dtype=wp.int32, device=d))
+    count = wp.zeros(1, dtype=int, device=d)
+    per_edge = wp.zeros(edges.shape[0], dtype=int, device=d)
+    wp.launch(K.self_intersection_kernel, dim=edges.shape[0],
+              inputs=[mesh.id, pts, wp.array(edges, dtype=int, device=d),
+                      wp.array(faces, dtype=int, device=d)], outputs=[count, per_edge], device=d)
+    return per_edge.numpy() > 0
+
+
 def evaluate_sequence(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,
                       body_vertices: np.ndarray | None = None, body_faces: np.ndarray | None = None,
                       *, device: str | None = None) -> QualityReport:

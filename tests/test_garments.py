@@ -176,6 +176,39 @@ def test_uv_charts_inside_unit_square_and_apart(garments, category):
 
 
 @pytest.mark.parametrize("shape", list(SHAPES))
+def test_no_self_intersection_at_rest(garments, shape):
+    from sim.quality import crossing_edges
+
+    for category in TEMPLATES:
+        g = garments[(category, shape)]
+        assert not crossing_edges(g.rest_vertices, g.faces, device="cpu").any(), category
+
+
+@pytest.mark.parametrize("category", ["t_shirt", "long_sleeve"])
+def test_sleeve_that_dipped_through_the_back_panel_is_untangled(body, category):
+    """A shape and resolution where the sleeve's first rows crossed the back panel under the arm
+    (17 edge-face crossings before the rest shape was untangled)."""
+    from sim.garments.panels import sew
+    from sim.garments.templates import BodyMeasure, _untangle, make_params
+    from sim.quality import crossing_edges
+
+    betas = body.full_betas(np.array([0.12573022, -0.13210486, 0.64042264, 0.10490011], np.float32))
+    g = make_garment(category, body, betas, resolution=0.0125)
+    assert not crossing_edges(g.rest_vertices, g.faces, device="cpu").any()
+    # against the raw build: only sleeve vertices moved, by less than a few edge lengths
+    raw = sew(TEMPLATES[category].build(BodyMeasure.of(body, betas), make_params(category), 0.0125,
+                                g.material.thickness))
+    assert crossing_edges(raw.vertices, raw.faces, device="cpu").sum() > 0  # the case still needs it
+    moved = np.linalg.norm(raw.vertices - g.rest_vertices, axis=1) > 1e-7
+    names = np.array(g.panel_names)[g.panel_ids]
+    moved_faces = moved[g.faces].any(axis=1)
+    assert moved.any() and all("sleeve" in n for n in names[moved_faces & moved[g.faces].all(axis=1)])
+    assert np.linalg.norm(raw.vertices - g.rest_vertices, axis=1).max() < 3 * 0.0125
+    # a clean mesh passes through unchanged
+    assert _untangle(g.rest_vertices, g.faces, g.panel_ids, list(g.panel_names)) is g.rest_vertices
+
+
+@pytest.mark.parametrize("shape", list(SHAPES))
 def test_outside_body_at_rest(body, garments, shape):
     betas = parse_shape(SHAPES[shape])
     bv = body.rest_mesh(betas)

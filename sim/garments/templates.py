@@ -735,6 +735,64 @@ def make_params(category: str, **params: float):
     return t.params(**{**t.defaults, **params})
 
 
+def _untangle(v: np.ndarray, faces: np.ndarray, panel_ids: np.ndarray, names: list[str],
+              max_iterations: int = 200) -> np.ndarray:
+    """Remove rest-shape self-intersections (a sleeve's first rows can dip through the body
+    panel under the arm for some body shapes): Laplacian smoothing of the interior vertices
+    within two rings of the crossing edges, sleeve panels first (their rows are the ones that
+    fold), until no edge crosses a face. Seams and panel borders stay put. Returns ``v`` itself
+    when nothing crosses; when smoothing cannot clear them, the least-crossed shape found."""
+    from sim.quality import crossing_edges, unique_edges
+
+    bad = crossing_edges(v, faces, device="cpu")
+    if not bad.any():
+        return v
+    edges = unique_edges(faces)
+    V = len(v)
+    nbr = [[] for _ in range(V)]
+    for a, b in edges:
+        nbr[a].append(b)
+        nbr[b].append(a)
+    # interior vertices: every incident face in one panel, and not on an open border
+    panel_of = np.full(V, -1)
+    mixed = np.zeros(V, bool)
+    for f, pid in zip(faces, panel_ids, strict=True):
+        for x in f:
+            mixed[x] |= panel_of[x] not in (-1, pid)
+            panel_of[x] = pid
+    ecount: dict[tuple[int, int], int] = {}
+    for f in faces:
+        for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
+            k = (min(a, b), max(a, b))
+            ecount[k] = ecount.get(k, 0) + 1
+    border = np.zeros(V, bool)
+    for (a, b), c in ecount.items():
+        if c == 1:
+            border[[a, b]] = True
+    interior = ~mixed & ~border
+    sleeve = np.array(["sleeve" in names[p] if p >= 0 else False for p in panel_of])
+    x = v.astype(np.float64).copy()
+    best, best_n = v, int(bad.sum())
+    for only_sleeves in (True, False):
+        region = set(np.unique(edges[bad]).tolist())
+        for _ in range(2):
+            region |= {n for r in region for n in nbr[r]}
+        move = np.array(sorted(i for i in region if interior[i] and (sleeve[i] or not only_sleeves)))
+        if len(move) == 0:
+            continue
+        for it in range(1, max_iterations + 1):
+            avg = np.array([x[nbr[i]].mean(axis=0) for i in move])
+            x[move] += 0.5 * (avg - x[move])
+            if it % 5 == 0:
+                bad = crossing_edges(x, faces, device="cpu")
+                if int(bad.sum()) < best_n:
+                    best, best_n = x.astype(v.dtype), int(bad.sum())
+                if best_n == 0:
+                    return best
+                region |= {int(i) for i in np.unique(edges[bad])}
+    return best
+
+
 def make_garment(category: str, body, betas: np.ndarray | None = None, *,
                  resolution: str | float = "coarse", material: str | Material = "cotton",
                  name: str | None = None, **params: float) -> Garment:
@@ -760,8 +818,8 @@ def make_garment(category: str, body, betas: np.ndarray | None = None, *,
     panels = TEMPLATES[category].build(meas, p, h, mat.thickness)
     sewn = sew(panels)
     faces = sewn.faces
+    v = _untangle(sewn.vertices, faces, sewn.panel_ids, [pn.name for pn in panels])
     # outward orientation: normals should point away from the vertical body axis
-    v = sewn.vertices
     tri = v[faces]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     radial = tri.mean(axis=1) - np.array([0.0, 0.0, meas.joints[0, 2]])
