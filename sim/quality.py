@@ -125,6 +125,25 @@ def edge_strain(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarr
     return out.numpy()
 
 
+def _body_meshes(body_vertices: np.ndarray, body_faces: np.ndarray, T: int, device: str):
+    """``(t, wp.Mesh)`` for each of ``T`` frames of a body (T, Vb, 3) or static body (Vb, 3): one
+    mesh, refit per frame."""
+    wp = warp()
+    bv = np.asarray(body_vertices, np.float32)
+    if bv.ndim == 2:
+        bv = np.broadcast_to(bv, (T, *bv.shape))
+    if bv.shape[0] != T:
+        raise ValueError(f"{T} garment frames but {bv.shape[0]} body frames")
+    pts = wp.array(np.ascontiguousarray(bv[0]), dtype=wp.vec3, device=device)
+    mesh = wp.Mesh(points=pts, indices=wp.array(np.asarray(body_faces, np.int32).ravel(), dtype=wp.int32,
+                                                device=device))
+    for t in range(T):
+        if t > 0:
+            pts.assign(np.ascontiguousarray(bv[t]))
+            mesh.refit()
+        yield t, mesh
+
+
 def inside_fraction(points: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, *,
                     device: str | None = None, max_dist: float = 10.0) -> np.ndarray:
     """Per frame, the fraction of ``points`` inside the closed body mesh.
@@ -142,18 +161,9 @@ def inside_fraction(points: np.ndarray, body_vertices: np.ndarray, body_faces: n
 
     d = resolve_device(device)
     T = points.shape[0]
-    bv = np.asarray(body_vertices, np.float32)
-    if bv.ndim == 2:
-        bv = np.broadcast_to(bv, (T, *bv.shape))
-    mesh_pts = wp.array(np.ascontiguousarray(bv[0]), dtype=wp.vec3, device=d)
-    mesh = wp.Mesh(points=mesh_pts, indices=wp.array(np.asarray(body_faces, np.int32).ravel(),
-                                                     dtype=wp.int32, device=d))
     inside = wp.empty(points.shape[1], dtype=int, device=d)
     out = np.empty(T)
-    for t in range(T):
-        if t > 0:
-            mesh_pts.assign(np.ascontiguousarray(bv[t]))
-            mesh.refit()
+    for t, mesh in _body_meshes(body_vertices, body_faces, T, d):
         x = wp.array(np.ascontiguousarray(points[t], np.float32), dtype=wp.vec3, device=d)
         wp.launch(K.inside_mesh_kernel, dim=points.shape[1], inputs=[mesh.id, x, float(max_dist)],
                   outputs=[inside], device=d)
@@ -182,21 +192,9 @@ def push_outside(points: np.ndarray, body_vertices: np.ndarray, body_faces: np.n
 
     d = resolve_device(device)
     points = np.asarray(points, np.float32)
-    T = points.shape[0]
-    bv = np.asarray(body_vertices, np.float32)
-    if bv.ndim == 2:
-        bv = np.broadcast_to(bv, (T, *bv.shape))
-    if bv.shape[0] != T:
-        raise ValueError(f"push_outside: {T} garment frames but {bv.shape[0]} body frames")
-    mesh_pts = wp.array(np.ascontiguousarray(bv[0]), dtype=wp.vec3, device=d)
-    mesh = wp.Mesh(points=mesh_pts, indices=wp.array(np.asarray(body_faces, np.int32).ravel(),
-                                                     dtype=wp.int32, device=d))
     y = wp.empty(points.shape[1], dtype=wp.vec3, device=d)
     out = np.empty_like(points)
-    for t in range(T):
-        if t > 0:
-            mesh_pts.assign(np.ascontiguousarray(bv[t]))
-            mesh.refit()
+    for t, mesh in _body_meshes(body_vertices, body_faces, points.shape[0], d):
         x = wp.array(np.ascontiguousarray(points[t]), dtype=wp.vec3, device=d)
         wp.launch(K.push_outside_kernel, dim=points.shape[1],
                   inputs=[mesh.id, x, float(max_dist), float(clearance)], outputs=[y], device=d)
