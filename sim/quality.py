@@ -90,11 +90,15 @@ class QualityReport:
         return d
 
 
-def unique_edges(faces: np.ndarray) -> np.ndarray:
-    """Undirected edges of a triangle mesh, shape (E, 2), int32, each once (i < j)."""
+def unique_edges(faces: np.ndarray, *, counts: bool = False):
+    """Undirected edges of a triangle mesh, shape (E, 2), int32, each once (i < j); with
+    ``counts``, also how many faces use each edge, int (E,) (1 on an open border)."""
     f = np.asarray(faces, dtype=np.int64)
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e.sort(axis=1)
+    if counts:
+        uniq, uses = np.unique(e, axis=0, return_counts=True)
+        return uniq.astype(np.int32), uses
     return np.unique(e, axis=0).astype(np.int32)
 
 
@@ -202,6 +206,29 @@ def push_outside(points: np.ndarray, body_vertices: np.ndarray, body_faces: np.n
     return out
 
 
+def _edge_crossings(vertices: np.ndarray, faces: np.ndarray, device: str | None):
+    """Per frame of ``vertices`` (T, V, 3), the crossings of each edge of :func:`unique_edges`
+    ``(faces)`` through non-adjacent faces, int (E,): one BVH, refit per frame."""
+    wp = warp()
+    from sim import quality_kernels as K
+
+    d = resolve_device(device)
+    faces = np.asarray(faces, np.int32)
+    edges = unique_edges(faces)
+    edges_d = wp.array(edges, dtype=int, device=d)
+    faces_d = wp.array(faces, dtype=int, device=d)
+    pts = wp.array(np.ascontiguousarray(vertices[0], np.float32), dtype=wp.vec3, device=d)
+    mesh = wp.Mesh(points=pts, indices=wp.array(faces.ravel(), dtype=wp.int32, device=d))
+    per_edge = wp.empty(edges.shape[0], dtype=int, device=d)
+    for t in range(vertices.shape[0]):
+        if t > 0:
+            pts.assign(np.ascontiguousarray(vertices[t], np.float32))
+            mesh.refit()
+        wp.launch(K.self_intersection_kernel, dim=edges.shape[0],
+                  inputs=[mesh.id, pts, edges_d, faces_d], outputs=[per_edge], device=d)
+        yield per_edge.numpy()
+
+
 def self_intersections(vertices: np.ndarray, faces: np.ndarray, *, device: str | None = None,
                        edge_mask: np.ndarray | None = None) -> np.ndarray:
     """Per frame, the number of edge-face crossings between non-adjacent elements.
@@ -215,28 +242,8 @@ def self_intersections(vertices: np.ndarray, faces: np.ndarray, *, device: str |
     Returns:
         (T,) int.
     """
-    wp = warp()
-    from sim import quality_kernels as K
-
-    d = resolve_device(device)
-    faces = np.asarray(faces, np.int32)
-    edges = unique_edges(faces)
-    edges_d = wp.array(edges, dtype=int, device=d)
-    faces_d = wp.array(faces, dtype=int, device=d)
-    pts = wp.array(np.ascontiguousarray(vertices[0], np.float32), dtype=wp.vec3, device=d)
-    mesh = wp.Mesh(points=pts, indices=wp.array(faces.ravel(), dtype=wp.int32, device=d))
-    count = wp.zeros(1, dtype=int, device=d)
-    per_edge = wp.empty(edges.shape[0], dtype=int, device=d)
-    out = np.empty(vertices.shape[0], dtype=np.int64)
-    for t in range(vertices.shape[0]):
-        if t > 0:
-            pts.assign(np.ascontiguousarray(vertices[t], np.float32))
-            mesh.refit()
-        count.zero_()
-        wp.launch(K.self_intersection_kernel, dim=edges.shape[0],
-                  inputs=[mesh.id, pts, edges_d, faces_d], outputs=[count, per_edge], device=d)
-        out[t] = int(count.numpy()[0]) if edge_mask is None else int(per_edge.numpy()[edge_mask].sum())
-    return out
+    keep = slice(None) if edge_mask is None else edge_mask
+    return np.array([int(hits[keep].sum()) for hits in _edge_crossings(vertices, faces, device)], np.int64)
 
 
 def crossing_edges(vertices: np.ndarray, faces: np.ndarray, *, device: str | None = None) -> np.ndarray:
@@ -248,20 +255,7 @@ def crossing_edges(vertices: np.ndarray, faces: np.ndarray, *, device: str | Non
     Returns:
         bool (E,) over :func:`unique_edges` ``(faces)``.
     """
-    wp = warp()
-    from sim import quality_kernels as K
-
-    d = resolve_device(device)
-    faces = np.asarray(faces, np.int32)
-    edges = unique_edges(faces)
-    pts = wp.array(np.ascontiguousarray(vertices, np.float32), dtype=wp.vec3, device=d)
-    mesh = wp.Mesh(points=pts, indices=wp.array(faces.ravel(), dtype=wp.int32, device=d))
-    count = wp.zeros(1, dtype=int, device=d)
-    per_edge = wp.zeros(edges.shape[0], dtype=int, device=d)
-    wp.launch(K.self_intersection_kernel, dim=edges.shape[0],
-              inputs=[mesh.id, pts, wp.array(edges, dtype=int, device=d),
-                      wp.array(faces, dtype=int, device=d)], outputs=[count, per_edge], device=d)
-    return per_edge.numpy() > 0
+    return next(_edge_crossings(np.asarray(vertices)[None], faces, device)) > 0
 
 
 def evaluate_sequence(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,

@@ -92,10 +92,9 @@ def self_intersection_kernel(
     x: wp.array(dtype=wp.vec3),
     edges: wp.array2d(dtype=int),
     faces: wp.array2d(dtype=int),
-    count_out: wp.array(dtype=int),
     edge_hit_out: wp.array(dtype=int),
 ):
-    """Count crossings of mesh edges through non-adjacent faces of the same mesh.
+    """Per edge, its crossings through non-adjacent faces of the same mesh.
 
     One thread per edge; candidate faces from the mesh BVH over the edge's bounding box. A pair
     of intersecting triangles produces at least two edge-face crossings.
@@ -117,5 +116,3 @@ def self_intersection_kernel(
         if a != i0 and a != i1 and b != i0 and b != i1 and c != i0 and c != i1:
             hits += segment_hits_triangle(p, q, x[a], x[b], x[c])
     edge_hit_out[e] = hits
-    if hits > 0:
-        wp.atomic_add(count_out, 0, hits)

@@ -7,6 +7,7 @@ Ho & Salimans 2022): ``eps = eps_uncond + s (eps_cond - eps_uncond)``.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Protocol
 
 import torch
@@ -139,7 +140,7 @@ def ddim_sample(
         if temporal_weight > 0.0 and (B > 1 or anchor is not None):
             eps = _temporal_guidance(scheduler, x, eps, t, temporal_weight, anchor)
         if clip_x0 is not None:
-            eps = _clip_x0(scheduler, x, eps, t, clip_x0)
+            eps = _edit_x0(scheduler, x, eps, t, partial(_clamp, clip=clip_x0))
         x = scheduler.step(eps, t, x, eta=eta, generator=generator).prev_sample
     if mask is not None:
         m = mask.to(device=x.device, dtype=x.dtype)
@@ -147,25 +148,32 @@ def ddim_sample(
     return x
 
 
-def _clip_x0(scheduler: DDIMScheduler, x: torch.Tensor, eps: torch.Tensor, t: int,
-             clip: torch.Tensor | float) -> torch.Tensor:
-    """``eps`` re-derived from the clamped ``x0_hat`` (see ``ddim_sample``)."""
+def _edit_x0(scheduler: DDIMScheduler, x: torch.Tensor, eps: torch.Tensor, t: int, edit) -> torch.Tensor:
+    """``eps`` re-derived after ``edit`` changes the estimate
+    ``x0_hat = (x_t - sqrt(1 - a_t) eps) / sqrt(a_t)`` (the guidance and the clamp of ``ddim_sample``)."""
     a = float(scheduler.alphas_cumprod[t])
     sa, sb = a ** 0.5, (1.0 - a) ** 0.5
-    x0 = (x - sb * eps) / sa
-    c = torch.as_tensor(clip, device=x.device, dtype=x.dtype)
+    return (x - sa * edit((x - sb * eps) / sa)) / sb
+
+
+def _clamp(x0: torch.Tensor, clip: torch.Tensor | float) -> torch.Tensor:
+    """``x0`` clamped to ``[-clip, clip]`` (a number or per channel (C,))."""
+    c = torch.as_tensor(clip, device=x0.device, dtype=x0.dtype)
     if c.ndim == 1:
         c = c[None, :, None, None]
-    x0 = torch.maximum(torch.minimum(x0, c), -c)
-    return (x - sa * x0) / sb
+    return torch.clamp(x0, -c, c)
 
 
 def _temporal_guidance(scheduler: DDIMScheduler, x: torch.Tensor, eps: torch.Tensor, t: int, weight: float,
                        anchor: torch.Tensor | None) -> torch.Tensor:
-    """``eps`` re-derived from the neighbour-pulled ``x0_hat`` (see ``ddim_sample``)."""
-    a = float(scheduler.alphas_cumprod[t])
-    sa, sb = a ** 0.5, (1.0 - a) ** 0.5
-    x0 = (x - sb * eps) / sa
+    """``eps`` re-derived from the neighbour-pulled ``x0_hat`` (by ``weight t / T``, see ``ddim_sample``)."""
+    pull = weight * t / scheduler.num_train_timesteps
+    return _edit_x0(scheduler, x, eps, t, partial(_neighbour_pull, weight=pull, anchor=anchor))
+
+
+def _neighbour_pull(x0: torch.Tensor, weight: float, anchor: torch.Tensor | None) -> torch.Tensor:
+    """Each frame's ``x0`` moved by ``weight`` toward the mean of its neighbours' (frame 0's previous
+    is ``anchor`` when given)."""
     prev = torch.cat([x0[:1] if anchor is None else anchor[None].to(x0), x0[:-1]])
     nxt = torch.cat([x0[1:], x0[-1:]])
     has_prev = torch.ones(x0.shape[0], device=x0.device, dtype=x0.dtype)
@@ -175,6 +183,4 @@ def _temporal_guidance(scheduler: DDIMScheduler, x: torch.Tensor, eps: torch.Ten
     has_next[-1] = 0
     n = (has_prev + has_next).clamp_min(1.0)[:, None, None, None]
     target = (prev * has_prev[:, None, None, None] + nxt * has_next[:, None, None, None]) / n
-    lam = weight * t / scheduler.num_train_timesteps
-    x0 = x0 + lam * (target - x0)
-    return (x - sa * x0) / sb
+    return x0 + weight * (target - x0)

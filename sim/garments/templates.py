@@ -747,49 +747,42 @@ def _untangle(v: np.ndarray, faces: np.ndarray, panel_ids: np.ndarray, names: li
     bad = crossing_edges(v, faces, device="cpu")
     if not bad.any():
         return v
-    edges = unique_edges(faces)
+    edges, uses = unique_edges(faces, counts=True)
     V = len(v)
-    nbr = [[] for _ in range(V)]
-    for a, b in edges:
-        nbr[a].append(b)
-        nbr[b].append(a)
-    # interior vertices: every incident face in one panel, and not on an open border
-    panel_of = np.full(V, -1)
-    mixed = np.zeros(V, bool)
-    for f, pid in zip(faces, panel_ids, strict=True):
-        for x in f:
-            mixed[x] |= panel_of[x] not in (-1, pid)
-            panel_of[x] = pid
-    ecount: dict[tuple[int, int], int] = {}
-    for f in faces:
-        for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
-            k = (min(a, b), max(a, b))
-            ecount[k] = ecount.get(k, 0) + 1
+    deg = np.bincount(edges.ravel(), minlength=V)
+    # interior: every incident face in one panel, and no incident edge with a single face
+    fp = np.repeat(np.asarray(panel_ids), 3)
+    pmin, pmax = np.full(V, np.iinfo(np.int64).max), np.full(V, -1)
+    np.minimum.at(pmin, faces.ravel(), fp)
+    np.maximum.at(pmax, faces.ravel(), fp)
     border = np.zeros(V, bool)
-    for (a, b), c in ecount.items():
-        if c == 1:
-            border[[a, b]] = True
-    interior = ~mixed & ~border
-    sleeve = np.array(["sleeve" in names[p] if p >= 0 else False for p in panel_of])
-    x = v.astype(np.float64).copy()
+    border[edges[uses == 1].ravel()] = True
+    interior = (pmin == pmax) & ~border
+    sleeve = np.array(["sleeve" in n for n in names])[np.maximum(pmax, 0)] & (pmax >= 0)
+    near = np.zeros(V, bool)
+    near[edges[bad].ravel()] = True
+    for _ in range(2):  # two rings around the crossing edges
+        ring = near.copy()
+        ring[edges[near[edges[:, 0]], 1]] = True
+        ring[edges[near[edges[:, 1]], 0]] = True
+        near = ring
+    x = v.astype(np.float64)
     best, best_n = v, int(bad.sum())
     for only_sleeves in (True, False):
-        region = set(np.unique(edges[bad]).tolist())
-        for _ in range(2):
-            region |= {n for r in region for n in nbr[r]}
-        move = np.array(sorted(i for i in region if interior[i] and (sleeve[i] or not only_sleeves)))
-        if len(move) == 0:
+        move = near & interior & (sleeve | (not only_sleeves))
+        if not move.any():
             continue
         for it in range(1, max_iterations + 1):
-            avg = np.array([x[nbr[i]].mean(axis=0) for i in move])
-            x[move] += 0.5 * (avg - x[move])
+            avg = np.zeros_like(x)
+            np.add.at(avg, edges[:, 0], x[edges[:, 1]])
+            np.add.at(avg, edges[:, 1], x[edges[:, 0]])
+            x[move] += 0.5 * (avg[move] / deg[move, None] - x[move])
             if it % 5 == 0:
-                bad = crossing_edges(x, faces, device="cpu")
-                if int(bad.sum()) < best_n:
-                    best, best_n = x.astype(v.dtype), int(bad.sum())
+                n = int(crossing_edges(x, faces, device="cpu").sum())
+                if n < best_n:
+                    best, best_n = x.astype(v.dtype), n
                 if best_n == 0:
                     return best
-                region |= {int(i) for i in np.unique(edges[bad])}
     return best
 
 
