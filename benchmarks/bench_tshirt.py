@@ -24,6 +24,14 @@ import numpy as np
 from benchmarks.common import machine, write_result
 
 
+def add_scene_arguments(ap: argparse.ArgumentParser) -> None:
+    """The scene options the t-shirt benchmarks share: device, t-shirt size, motions, length."""
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: %(default)s)")
+    ap.add_argument("--motions", default="walk,run")
+    ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s]")
+
+
 def build_garment(body, vertices: int):
     """The t-shirt template at the edge length that gives about ``vertices`` vertices."""
     from sim.garments import make_garment
@@ -93,10 +101,7 @@ def run_newton(r, garment, body, cfg, device: str) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--device", default="auto")
-    ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: %(default)s)")
-    ap.add_argument("--motions", default="walk,run")
-    ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s]")
+    add_scene_arguments(ap)
     ap.add_argument("--substeps", type=int, default=10)
     ap.add_argument("--iterations", type=int, default=10)
     ap.add_argument("--no-self-contact", action="store_true")

@@ -16,7 +16,7 @@ import argparse
 import json
 import time
 
-from benchmarks.bench_tshirt import build_garment, run_ours
+from benchmarks.bench_tshirt import add_scene_arguments, build_garment, run_ours
 from benchmarks.common import machine, write_result
 
 DEFAULT_SETTINGS = "10x10,10x5,5x10,5x5,10x10i2,5x5i2,4x4,3x5"
@@ -31,10 +31,7 @@ def parse_setting(s: str) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--device", default="auto")
-    ap.add_argument("--vertices", type=int, default=5000)
-    ap.add_argument("--motions", default="walk,run")
-    ap.add_argument("--seconds", type=float, default=2.0)
+    add_scene_arguments(ap)
     ap.add_argument("--settings", default=DEFAULT_SETTINGS,
                     help="comma list of SUBSTEPSxITERATIONS[iINTERVAL] (default: %(default)s)")
     ap.add_argument("--batch", default="", help="batch sizes for the cheapest passing setting")
