@@ -515,16 +515,26 @@ def simulate(garment: Garment, body, motion: Motion, *, betas: np.ndarray | None
 
 
 def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | None = None, solver=None,
-                   seed: int = 0, progress: ProgressFn | None = None) -> list[SimulationResult]:
+                   seed: int = 0, progress: ProgressFn | None = None,
+                   failures: str = "raise") -> list[SimulationResult | SimulationError]:
     """Simulate several sequences in one batched cloth model (see ``simulate``).
 
     Sequences may differ in garment, body, shape and motion length; a shorter one holds its
     body's last frame until the longest ends (its output stops at its own end). Jobs with the
     same body model, motion object and betas (and garment betas) share one body collider.
 
+    Args:
+        failures: "raise": the first sequence that blows up raises. "return": a sequence that
+            blows up is frozen at its last good frame (its particles pinned in place; instances
+            of a batch never interact) and its slot of the result holds the ``SimulationError``;
+            the others run on unchanged, so one bad sequence costs a batch nothing.
+
     Raises:
-        SimulationError: the first sequence that blows up, named in the cause.
+        SimulationError: with ``failures="raise"``, the first sequence that blows up, named in
+            the cause.
     """
+    if failures not in ("raise", "return"):
+        raise ValueError(f"simulate_batch: failures must be 'raise' or 'return', got {failures!r}")
     from sim.cloth import BodyCollider, ClothModelBuilder, SolverVBD
     from sim.device import resolve_device, warp
     from sim.dressing import AttachmentPins, bind_to_surface, place_garment
@@ -580,6 +590,7 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
     total = max(tr.length for tr in tracks) - 1
     x_prev = state.positions.numpy().copy()  # on CPU .numpy() is a view of the live buffer
     step_ms = np.zeros(total)
+    errors: dict[int, SimulationError] = {}  # failures="return": frozen instances
     for t in range(total):
         for c, seq, length in colliders.values():
             c.set_frame(seq[min(t, length - 1)], seq[min(t + 1, length - 1)])
@@ -601,31 +612,61 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
             state.velocities.zero_()
         x = state.positions.numpy().copy()
         frame = t + 1
-        active = [tr for tr in tracks if frame < tr.length]
         roots = np.stack([tr.frames.joints[min(frame, tr.length - 1), 0] for tr in tracks])
         flagged = screen(x, x_prev, roots)
         for k, (tr, check) in enumerate(zip(tracks, checkers, strict=True)):
-            if frame >= tr.length or not flagged[k]:
+            if frame >= tr.length or not flagged[k] or k in errors:
                 continue
             phase = ""
             if frame <= n_prelude:
                 phase = "while settling: " if frame <= tr.n_settle else "while blending from rest: "
             if len(tracks) > 1:
                 phase = f"{tr.job.label}: {phase}"
-            check(x[tr.span], x_prev[tr.span], roots[k], frame - tr.first_out, phase)
-        for tr in active:
-            if frame >= tr.first_out:
+            try:
+                check(x[tr.span], x_prev[tr.span], roots[k], frame - tr.first_out, phase)
+            except SimulationError as e:
+                if failures == "raise":
+                    raise
+                errors[k] = e
+                x[tr.span] = x_prev[tr.span]
+                _freeze(model, state, control, tr.span, x)
+        for k, tr in enumerate(tracks):
+            if frame < tr.length and frame >= tr.first_out and k not in errors:
                 tr.out[frame - tr.first_out] = x[tr.span]
         x_prev = x
         if progress is not None:
             progress(t + 1, total)
+        if len(errors) == len(tracks):
+            break
 
-    results = []
-    for tr in tracks:
+    results: list[SimulationResult | SimulationError] = []
+    for k, tr in enumerate(tracks):
+        if k in errors:
+            results.append(errors[k])
+            continue
         res = _finish(tr, cfg, vbd, device, seed, graph is not None)
         # frame k of the output is solver step k - 1 + first_out (the first is the captured one)
         results.append(replace(res, step_ms=step_ms[max(tr.first_out, 1):tr.length - 1]))
     return results
+
+
+def _freeze(model, state, control, span: slice, x: np.ndarray) -> None:
+    """Stop one instance of a batched model where it is: its positions become ``x[span]`` (the
+    rest of ``x`` is the live state), its particles pinned to them with zero velocity. Only
+    array contents change, so a captured CUDA graph stays valid."""
+    from sim.cloth.vbd_kernels import PINNED
+
+    state.positions.assign(x)
+    for a in (state.velocities, state.accelerations):
+        z = a.numpy().copy()
+        z[span] = 0.0
+        a.assign(z)
+    flags = model.particle_flags.numpy().copy()
+    flags[span] = PINNED
+    model.particle_flags.assign(flags)
+    targets = control.pin_targets.numpy().copy()
+    targets[span] = x[span]
+    control.pin_targets.assign(targets)
 
 
 def _finish(tr: _Track, cfg: SimulationConfig, vbd, device: str, seed: int, graph: bool) -> SimulationResult:

@@ -340,32 +340,41 @@ def test_user_motion_folders_are_sampled(tmp_path):
 
 def test_a_failed_simulation_is_retried_at_twice_the_substeps(tmp_path, monkeypatch):
     """A sequence whose simulation stops (explosion) is simulated again at 2x the substeps; if that
-    fails too it is rejected with the reason; a batch finds its culprit first."""
+    fails too it is rejected with the reason. In a batch only the failed sequences are redone
+    (batched together), not the whole batch."""
     import sim.simulate as simulate_mod
     from sim.datasets.config import load_config
     from sim.datasets.generate import generate
+    from sim.datasets.sampling import sample_sequences
     from sim.quality import SimulationError
 
     real = simulate_mod.simulate_batch
     calls = []
 
-    def flaky(jobs, *, config=None, **kw):  # "explodes" at the config's 2 substeps, not at 4
+    def flaky(jobs, *, config=None, failures="raise", **kw):
+        # the jobs of sequence "bad" "explode" at the config's 2 substeps, not at 4
         calls.append((len(jobs), config.substeps))
+        out = real(jobs, config=config, failures=failures, **kw)
         if config.substeps < limit[0]:
-            raise SimulationError(7, "explosion: test")
-        return real(jobs, config=config, **kw)
+            for k, j in enumerate(jobs):
+                if j.name.split()[0] in bad:
+                    assert failures == "return"
+                    out[k] = SimulationError(7, "explosion: test")
+        return out
 
     monkeypatch.setattr(simulate_mod, "simulate_batch", flaky)
     cfg = load_config(tiny_config(tmp_path, TINY.replace("sequences = 4", "sequences = 2")))
-    limit = [4]
+    ids = [sp.id for sp in sample_sequences(cfg)]
+    bad, limit = {ids[1]}, [4]
     s = generate(cfg, tmp_path / "a", batch=2, device="cpu")
     m = S.read_manifest(tmp_path / "a")
     assert s.accepted + s.rejected == 2 and not any("explosion" in str(r) for r in m["rejected"].values())
-    # the batch of 2 (coarse + fine jobs: 4), then each sequence alone, then alone at 4 substeps
-    assert calls == [(4, 2), (2, 2), (2, 4), (2, 2), (2, 4)]
-    for e in m["sequences"].values():
-        prov = S.SequenceFile(tmp_path / "a" / e["file"]).json("provenance")
-        assert prov["config"]["substeps"] == 4
+    # the batch of 2 (coarse + fine jobs: 4), then only the failed sequence at 4 substeps
+    assert calls == [(4, 2), (2, 4)]
+    subs = {sid: S.SequenceFile(tmp_path / "a" / e["file"]).json("provenance")["config"]["substeps"]
+            for sid, e in m["sequences"].items()}
+    assert all(subs[sid] == (4 if sid in bad else 2) for sid in subs)
+    bad = set(ids)
     calls.clear()
     limit[0] = 100  # fails at every substep count
     s = generate(cfg, tmp_path / "b", batch=1, device="cpu")

@@ -173,9 +173,9 @@ def test_driver_on_each_device(body, skirt, device):
 
 
 class _NaNAtStep:
-    """A SolverVBD whose ``n``-th step leaves a NaN in particle 3."""
+    """A SolverVBD whose ``n``-th step leaves a NaN in particle ``particle``."""
 
-    def __init__(self, n: int):
+    def __init__(self, n: int, particle: int = 3):
         from sim.cloth import SolverVBD
 
         outer = self
@@ -188,10 +188,11 @@ class _NaNAtStep:
                 Solver.calls += 1
                 if Solver.calls == outer.n:
                     x = state_out.positions.numpy()
-                    x[3] = np.nan
+                    x[outer.particle] = np.nan
                     state_out.positions.assign(x)
 
         self.n = n
+        self.particle = particle
         self.cls = Solver
 
 
@@ -204,6 +205,31 @@ def test_nan_stops_the_run_naming_the_frame(body, skirt, monkeypatch):
         simulate(skirt, body, walk(body, 0.3), config=cfg)
     assert e.value.frame == 2  # timeline frame 8 = output frame 8 - 6
     assert "NaN" in e.value.cause and "frame 2" in str(e.value)
+
+
+def test_a_failed_sequence_is_frozen_and_the_batch_runs_on(body, skirt, plain_run, monkeypatch):
+    """failures="return": the sequence that blows up gets its SimulationError in its slot; the
+    other sequence of the batch is bit-identical to its run alone."""
+    import sim.cloth
+    from sim.garments import make_garment
+
+    top = make_garment("tank_top", body, resolution=RES)
+    cfg = SimulationConfig(**FAST)
+    prelude = cfg.settle_frames + cfg.blend_frames
+    # step 15 of the timeline breaks particle 3 of the tank top (the batch's second instance)
+    monkeypatch.setattr(sim.cloth, "SolverVBD", _NaNAtStep(15, particle=skirt.num_vertices + 3).cls)
+    jobs = [SimulationJob(skirt, body, walk(body, 0.3)),
+            SimulationJob(top, body, walk(body, 0.3), name="tee")]
+    res = simulate_batch(jobs, config=cfg, failures="return")
+    assert isinstance(res[1], SimulationError) and res[1].frame == 15 - prelude
+    assert "tee" in res[1].cause and "NaN" in res[1].cause
+    np.testing.assert_array_equal(res[0].sequence.vertices, plain_run.sequence.vertices)
+    assert res[0].quality.finite
+    with pytest.raises(SimulationError):  # the default still stops at the first failure
+        monkeypatch.setattr(sim.cloth, "SolverVBD", _NaNAtStep(15, particle=skirt.num_vertices + 3).cls)
+        simulate_batch(jobs, config=cfg)
+    with pytest.raises(ValueError, match="failures"):
+        simulate_batch(jobs, config=cfg, failures="ignore")
 
 
 def test_explosion_in_the_prelude_is_named(body, skirt):

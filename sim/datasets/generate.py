@@ -194,10 +194,11 @@ def garment_betas(cfg: DatasetConfig, body, betas: np.ndarray) -> np.ndarray:
 def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set[str], root: Path,
                 part: _Shard, sim_cfg, device: str, summary: GenerateSummary, log: Log,
                 retry: bool = True) -> None:
-    """Simulate, judge, derive and write one batch of sequences. A batch whose simulation fails
-    (NaN / explosion) is re-run one sequence at a time to find the culprit; a single sequence
-    that fails is tried once more at twice the substeps (an explosion is usually a step too
-    large for a fast motion or a soft fabric); its provenance records the substeps it used."""
+    """Simulate, judge, derive and write one batch of sequences. A sequence whose simulation
+    fails (NaN / explosion) is frozen inside the batch while the others run on; the failed
+    ones are then tried once more, batched together, at twice the substeps (an explosion is
+    usually a step too large for a fast motion or a soft fabric); the provenance records the
+    substeps a sequence used."""
     from dataclasses import replace
 
     from sim.datasets.derive import Deriver, coarse_arrays
@@ -232,33 +233,30 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
             jobs.append(SimulationJob(garment, body, motion, betas=betas, name=f"{sp.id} {kind}",
                                       garment_betas=None if cfg.garments.fit == "body" else gbetas))
             meta.append((sp, garment, motion, betas, kind))
-    try:
-        results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed)
-    except SimulationError as e:
-        if len(group) > 1:  # find the culprit: one sequence at a time
-            for sp in group:
-                _make_group(cfg, body, [sp], wanted & {sp.id}, root, part, sim_cfg, device, summary, log,
-                            retry)
-            return
-        if retry:
-            log(f"{group[0].id}: {e}; retrying at {2 * sim_cfg.substeps} substeps")
-            _make_group(cfg, body, group, wanted, root, part, replace(sim_cfg, substeps=2 * sim_cfg.substeps),
-                        device, summary, log, retry=False)
-            return
-        results = None
-        failure = [f"{e} (at {sim_cfg.substeps} substeps, after a retry)"]
+    results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
+    failed = {sp.id: r for (sp, *_), r in zip(meta, results, strict=True) if isinstance(r, SimulationError)}
+    if failed and retry:
+        again = [sp for sp in group if sp.id in failed]
+        for sp in again:
+            if sp.id in wanted:
+                log(f"{sp.id}: {failed[sp.id]}; retrying at {2 * sim_cfg.substeps} substeps")
+        _make_group(cfg, body, again, wanted & set(failed), root, part,
+                    replace(sim_cfg, substeps=2 * sim_cfg.substeps), device, summary, log, retry=False)
+    failure = {sid: [f"{e} (at {sim_cfg.substeps} substeps, after a retry)"] for sid, e in failed.items()}
     by_seq: dict[str, dict] = {}
     for k, (sp, garment, motion, betas, kind) in enumerate(meta):
-        by_seq.setdefault(sp.id, {"spec": sp, "motion": motion, "betas": betas})[kind] = (
-            garment, None if results is None else results[k])
+        by_seq.setdefault(sp.id, {"spec": sp, "motion": motion, "betas": betas})[kind] = (garment, results[k])
     for sp in group:
-        if sp.id not in wanted:
+        if sp.id not in wanted or (sp.id in failed and retry):
             continue
         item = by_seq[sp.id]
         fine_g, fine_r = item["fine"]
-        reasons = failure if fine_r is None else [f"fine: {r}" for r in fine_r.failed_gates]
-        if "coarse" in item and item["coarse"][1] is not None:
-            reasons += [f"coarse: {r}" for r in item["coarse"][1].failed_gates]
+        if sp.id in failed:
+            reasons = failure[sp.id]
+        else:
+            reasons = [f"fine: {r}" for r in fine_r.failed_gates]
+            if "coarse" in item:
+                reasons += [f"coarse: {r}" for r in item["coarse"][1].failed_gates]
         if reasons:
             part.data["rejected"][sp.id] = {"index": sp.index, "garment": sp.category,
                                             "motion": sp.motion_label, "material": sp.material,
