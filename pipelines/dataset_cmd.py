@@ -29,6 +29,7 @@ examples:
   wrinkles dataset generate --config sample --out data/sample
   wrinkles dataset generate --config my.toml --out data/big --shard 0/4 --device cuda:0
   wrinkles dataset generate --config my.toml --out data/big --shard 0/4 --resume
+  wrinkles dataset generate --config my.toml --out data/big-test --splits test_id,test_ood --device cuda
   wrinkles dataset info data/sample
   wrinkles dataset report data/sample
 """
@@ -42,6 +43,16 @@ def _shard(text: str) -> tuple[int, int]:
     if not (n >= 1 and 0 <= i < n):
         raise argparse.ArgumentTypeError(f"--shard {text!r}: need n >= 1 and 0 <= i < n")
     return i, n
+
+
+def _splits(text: str) -> tuple[str, ...]:
+    from sim.datasets.schema import SPLITS
+
+    names = tuple(x.strip() for x in text.split(",") if x.strip())
+    bad = [x for x in names if x not in SPLITS]
+    if not names or bad:
+        raise argparse.ArgumentTypeError(f"--splits {text!r}: choose from {', '.join(SPLITS)}")
+    return names
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -60,6 +71,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--batch", type=int, default=1,
                    help="sequences simulated together in one batched model (GPU throughput; "
                         "default: %(default)s)")
+    g.add_argument("--splits", type=_splits, default=None, metavar="S[,S]",
+                   help="make only the sequences of these splits (train, test_id, test_ood), e.g. the "
+                        "test sets again on another machine (default: all)")
     add_common_arguments(g, seed=False)
     g.set_defaults(_action=run_generate)
 
@@ -106,12 +120,14 @@ def run_generate(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)  # every check, user motion files included, before simulating
     device = resolve_device(args.device)
     shard, shards = args.shard
-    n = len(shard_indices(len(sample_sequences(cfg)), shard, shards))
+    specs = sample_sequences(cfg)
+    n = sum(1 for k in shard_indices(len(specs), shard, shards)
+            if args.splits is None or specs[k].split in args.splits)
     t0 = time.perf_counter()
     try:
         with progress_bar(n, f"dataset shard {shard}/{shards}", quiet=args.quiet, unit="seq") as advance:
             summary = generate(cfg, args.out, shard=shard, shards=shards, resume=args.resume,
-                               batch=args.batch, device=device, progress=advance,
+                               batch=args.batch, device=device, progress=advance, splits=args.splits,
                                log=None if args.quiet else (lambda s: print(s, file=sys.stderr)))
     except KeyboardInterrupt:
         print("wrinkles dataset generate: interrupted; finished sequences are kept, run again with --resume "

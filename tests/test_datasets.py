@@ -314,6 +314,19 @@ def test_shards_combine_into_the_same_dataset(reference, tmp_path):
     assert r.returncode == 2 and "different config" in r.stderr
 
 
+def test_only_the_test_splits_are_made_again(reference, tmp_path):
+    """--splits test_id,test_ood makes exactly the reference's test sequences, byte for byte."""
+    cfg, ref, _ = reference
+    out = tmp_path / "tests_only"
+    _generate(cfg, out, "--splits", "test_id,test_ood")
+    m_ref, m = S.read_manifest(ref), S.read_manifest(out)
+    want = {k: e for k, e in m_ref["sequences"].items() if e["split"] != "train"}
+    assert want and m["sequences"] == want
+    assert {p: h for p, h in _files(ref).items() if Path(p).stem in want} == _files(out)
+    r = _generate(cfg, tmp_path / "bad", "--splits", "test,train", check=False)
+    assert r.returncode == 2 and "--splits" in r.stderr and not (tmp_path / "bad").exists()
+
+
 def test_user_motion_folders_are_sampled(tmp_path):
     """A folder of AMASS files: every file is opened up front; sequences sample them by stem."""
     from sim.datasets.sampling import sample_sequences

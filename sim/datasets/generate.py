@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +24,7 @@ import numpy as np
 from sim.datasets import storage as S
 from sim.datasets.config import DatasetConfig
 from sim.datasets.sampling import SequenceSpec, sample_sequences, shard_indices
+from sim.datasets.schema import SPLITS
 from sim.errors import WrinklesInputError
 
 Log = Callable[[str], None]
@@ -89,7 +90,7 @@ def _check_root(root: Path, cfg_dict: dict, resume: bool) -> None:
 def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shards: int = 1,
              resume: bool = False, batch: int = 1, device: str | None = None,
              progress: Callable[[int, int], None] | None = None,
-             log: Log | None = None) -> GenerateSummary:
+             log: Log | None = None, splits: Sequence[str] | None = None) -> GenerateSummary:
     """Make (or continue) shard ``shard`` of ``shards`` of the dataset in ``out``.
 
     Args:
@@ -101,6 +102,8 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
         device: Warp device (None: the config's simulation device).
         progress: ``progress(done, total)`` over this shard's sequences.
         log: one line per accepted / rejected sequence.
+        splits: make only the sequences of these splits (e.g. the test splits again on another
+            machine); None: all. A sequence's split comes from the config, not from this run.
 
     Returns:
         counts and timings; ``out/manifest.json`` is rebuilt from every part at the end.
@@ -126,6 +129,12 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
     specs = sample_sequences(cfg)
     body = load_body(cfg.bodies.model)  # once: an SMPL file is not re-read for every group
     mine = shard_indices(len(specs), shard, shards)
+    if splits is not None:
+        unknown = sorted(set(splits) - set(SPLITS))
+        if unknown:
+            raise WrinklesInputError(f"--splits: unknown split(s) {', '.join(unknown)}; choose from "
+                                     f"{', '.join(SPLITS)}")
+        mine = [k for k in mine if specs[k].split in splits]
     # temp files a killed run of this shard left (other shards' are theirs: they may be running)
     stale = [part.path.with_name(f".{part.path.name}.tmp")]
     stale += [(p := S.sequence_path(root, specs[k].id)).with_name(f".{p.name}.tmp") for k in mine]
