@@ -190,7 +190,57 @@ def test_ddim_eta0_deterministic_and_noise_sharing_and_mask():
     mask = (torch.rand(3, 16, 16) > 0.5).float()
     m = ddim_sample(model, s, cond, num_steps=5, initial_noise=noise, mask=mask)
     assert torch.all(m[mask[:, None].expand_as(m) == 0] == 0)
-    torch.testing.assert_close(m, a * mask[:, None])
+    assert torch.equal(m, ddim_sample(model, s, cond, num_steps=5, initial_noise=noise, mask=mask))
+
+
+class _UntrainedOutside(_Oracle):
+    """Exact inside the chart mask, untrained outside it (the training loss is masked): outside,
+    the prediction is off by ``bias``; inside, it reads the mean of x_t outside the chart, as a
+    convolution at the chart's border does, which is 0 in expectation over the training noise."""
+
+    def __init__(self, x0, alphas_cumprod, mask, bias=3.0, coupling=0.5):
+        super().__init__(x0 * mask, alphas_cumprod)
+        self.mask, self.bias, self.coupling = mask.double(), bias, coupling
+
+    def __call__(self, x_t, t, cond, label=None):
+        eps = super().__call__(x_t, t, cond, label).double()
+        out = 1.0 - self.mask
+        leak = (x_t.double() * out).sum((1, 2, 3), keepdim=True) / out.sum((1, 2, 3), keepdim=True)
+        return (eps + self.bias * out + self.coupling * leak * self.mask).to(x_t.dtype)
+
+
+def test_the_mask_holds_x0_at_zero_outside_the_chart():
+    """Outside the chart the network never learned the noise; the sampler keeps x0 = 0 there, so
+    x_t outside stays pure scaled noise sqrt(1 - a_t) x_T / sqrt(1 - a_T) at every step, nothing
+    outside drifts into the chart, and the oracle's x0 comes back inside. Without the mask the
+    outside drifts (by the bias) and, through the border, spoils the inside."""
+    s = DDIMScheduler()
+    g = torch.Generator().manual_seed(4)
+    x0 = torch.randn(2, 3, 16, 16, generator=g)
+    mask = torch.zeros(2, 1, 16, 16)
+    mask[:, :, 3:13, 2:14] = 1.0
+    noise = torch.randn(2, 3, 16, 16, generator=g)
+    model = _UntrainedOutside(x0, s.alphas_cumprod, mask)
+    seen = []
+    step = s.step
+
+    def spy(eps, t, x_t, **kw):
+        seen.append((int(t), x_t.clone()))
+        return step(eps, t, x_t, **kw)
+
+    s.step = spy
+    out = ddim_sample(model, s, torch.zeros(2, 1, 16, 16), num_steps=20, initial_noise=noise, mask=mask[:, 0])
+    a_T = float(s.alphas_cumprod[seen[0][0]])
+    for t, x_t in seen:
+        a = float(s.alphas_cumprod[t])
+        want = noise * ((1 - a) / (1 - a_T)) ** 0.5
+        torch.testing.assert_close(x_t * (1 - mask), want * (1 - mask), atol=1e-5, rtol=1e-4)
+    # inside: the oracle's x0 (the leak of the pure noise outside is tiny)
+    err = ((out - x0) * mask).abs().max()
+    s.step = step
+    free = ddim_sample(model, s, torch.zeros(2, 1, 16, 16), num_steps=20, initial_noise=noise)
+    err_free = ((free - x0) * mask).abs().max()
+    assert err < 1e-4 and err_free > 100 * err, (float(err), float(err_free))
 
 
 # ---------------------------------------------------------------- U-Net
