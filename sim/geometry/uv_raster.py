@@ -38,14 +38,16 @@ INSIDE_EPS = 1e-6
 """Barycentric tolerance of the inside test: a pixel centre on an edge shared by two
 triangles (or a hair outside both through float32 rounding) is covered by one of them (the
 lower index), never by neither."""
-EXTRAPOLATE_MIN_WEIGHT = -1.0
+EXTRAPOLATE_MIN_WEIGHT = -1.5
 """Rim pixels extrapolate the nearest triangle's linear function only while every barycentric
-weight stays >= -1, i.e. where the triangle is at least as tall (px) as the pixel is far from
-it; slivers would amplify their corner values, and fall back to the closest point's (clamped)
-barycentrics. Linear extension makes a linear field exact in the rim, so sampling back at chart
-boundary vertices is as accurate as inside. Measured (coarse t-shirt, 256², sin(3u)cos(2v) +
-u/2 − v sampled back at the 617 boundary UV vertices): max error 3.5e-3 clamped, 1.2e-4
-extrapolated (1.6e-4 at interior vertices)."""
+weight stays >= -1.5, i.e. where the pixel is at most 1.5 triangle heights from it; slivers
+would amplify their corner values, and fall back to the closest point's (clamped)
+barycentrics. The bound covers the 2 px rim of the half-width (30-60-90) triangles that
+staggered rows put along the seams (1.5 px tall for the coarse t-shirt at 256²). Linear
+extension makes a linear field exact in the rim, so sampling back at chart boundary vertices is
+as accurate as inside. Measured (coarse t-shirt, 256², sin(3u)cos(2v) + u/2 − v sampled back at
+the 617 boundary UV vertices): max error 3.6e-3 clamped, 1.2e-4 extrapolated (1.4e-4 at
+interior vertices)."""
 TILE_PX = 8
 """Side [px] of the square tiles that bin triangles for the per-pixel coverage kernel."""
 MAX_RESOLUTION = 16384
