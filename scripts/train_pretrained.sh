@@ -9,10 +9,15 @@
 #   bash scripts/train_pretrained.sh WORKDIR [GEN_SECONDS] [TRAIN_SECONDS]
 # STAGES picks stages (default "generate train export evaluate"). On a machine that has only the
 # release files (WORKDIR/release, e.g. a second GPU lease), "testdata evaluate" makes the two test
-# splits again (dataset generate --splits: a sequence's split comes from the config) and evaluates.
+# splits again (dataset generate --splits: a sequence's split comes from the config) and evaluates;
+# run it at the commit that made the weights' data (the garment templates changed in session 8:
+# the run-8 weights need a checkout from before commit 2cede2f, whose t-shirt has other vertices).
 set -u
 W=${1:?work directory}; GEN=${2:-420}; TRAIN=${3:-600}
 STAGES=" ${STAGES:-generate train export evaluate} "
+for s in $STAGES; do
+  case $s in generate|testdata|train|export|evaluate) ;; *) echo "STAGES: unknown stage '$s' (generate testdata train export evaluate, space-separated)" >&2; exit 2;; esac
+done
 PY=${PYTHON:-python3}
 CLI="$PY -m pipelines.cli"
 mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release/ablation"
@@ -27,8 +32,8 @@ generate() {  # budget [extra dataset-generate args...]
       --batch ${BATCH:-16} --device cuda -q $resume "$@" >>"$W/logs/gen-$g.log" 2>&1 &
   done
   wait
-  for g in tshirt skirt; do  # a generation stopped at its budget leaves parts, not a manifest
-    [ -f "$W/data/$g/manifest.json" ] || $CLI dataset combine "$W/data/$g" 2>&1 | tail -2 | tee -a "$W/logs/pipeline.log"
+  for g in tshirt skirt; do  # a generation stopped at its budget leaves its parts, not the manifest
+    $CLI dataset combine "$W/data/$g" 2>&1 | tail -2 | tee -a "$W/logs/pipeline.log"
   done
   for g in tshirt skirt; do $CLI dataset info "$W/data/$g" 2>&1 | head -20 | tee -a "$W/logs/pipeline.log"; done
 }
@@ -78,11 +83,12 @@ fi
 
 if stage evaluate; then
   log "evaluate"
+  rm -f "$W/.eval_failed"
   MAXSEQ=${MAXSEQ:-6}
   ev() {  # out-name split args...   (the data is the part of the name before the first '-')
     local name=$1 split=$2; shift 2
     $CLI evaluate --data "$W/data/${name%%-*}" --split "$split" --out "$W/eval/$name-$split" --no-images -q \
-      --max-sequences "$MAXSEQ" "$@" >"$W/logs/eval-$name-$split.log" 2>&1 || log "evaluate $name $split failed"
+      --max-sequences "$MAXSEQ" "$@" >"$W/logs/eval-$name-$split.log" 2>&1 || { log "evaluate $name $split failed"; touch "$W/.eval_failed"; }
   }
   R="$W/release"
   for g in tshirt skirt; do
@@ -109,3 +115,5 @@ if stage evaluate; then
 fi
 
 log "done"
+[ -f "$W/.eval_failed" ] && { log "some evaluations failed (see $W/logs/eval-*.log)"; exit 1; }
+exit 0

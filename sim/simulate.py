@@ -525,9 +525,10 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
 
     Args:
         failures: "raise": the first sequence that blows up raises. "return": a sequence that
-            blows up is frozen at its last good frame (its particles pinned in place; instances
-            of a batch never interact) and its slot of the result holds the ``SimulationError``;
-            the others run on unchanged, so one bad sequence costs a batch nothing.
+            blows up is frozen at its last good frame (its particles pinned in place, but for
+            attachments, which keep following the body; instances of a batch never interact)
+            and its slot of the result holds the ``SimulationError``; the others run on
+            unchanged, so one bad sequence costs a batch nothing.
 
     Raises:
         SimulationError: with ``failures="raise"``, the first sequence that blows up, named in
@@ -652,8 +653,9 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
 
 def _freeze(model, state, control, span: slice, x: np.ndarray) -> None:
     """Stop one instance of a batched model where it is: its positions become ``x[span]`` (the
-    rest of ``x`` is the live state), its particles pinned to them with zero velocity. Only
-    array contents change, so a captured CUDA graph stays valid."""
+    rest of ``x`` is the live state), its particles pinned to them with zero velocity; its
+    attachment particles keep following the body (their pins are rewritten every step), which
+    nothing reads. Only array contents change, so a captured CUDA graph stays valid."""
     from sim.cloth.vbd_kernels import PINNED
 
     state.positions.assign(x)

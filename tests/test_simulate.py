@@ -190,6 +190,7 @@ class _NaNAtStep:
             def step(self, state_in, state_out, control, dt):
                 super().step(state_in, state_out, control, dt)
                 Solver.calls += 1
+                outer.record.append((state_out.positions.numpy().copy(), state_out.velocities.numpy().copy()))
                 if Solver.calls == outer.n:
                     x = state_out.positions.numpy()
                     x[outer.particle] = np.nan
@@ -197,6 +198,7 @@ class _NaNAtStep:
 
         self.n = n
         self.particle = particle
+        self.record = []  # (positions, velocities) after every step
         self.cls = Solver
 
 
@@ -221,7 +223,8 @@ def test_a_failed_sequence_is_frozen_and_the_batch_runs_on(body, skirt, plain_ru
     cfg = SimulationConfig(**FAST)
     prelude = cfg.settle_frames + cfg.blend_frames
     # step 15 of the timeline breaks particle 3 of the tank top (the batch's second instance)
-    monkeypatch.setattr(sim.cloth, "SolverVBD", _NaNAtStep(15, particle=skirt.num_vertices + 3).cls)
+    broken = _NaNAtStep(15, particle=skirt.num_vertices + 3)
+    monkeypatch.setattr(sim.cloth, "SolverVBD", broken.cls)
     jobs = [SimulationJob(skirt, body, walk(body, 0.3)),
             SimulationJob(top, body, walk(body, 0.3), name="tee")]
     res = simulate_batch(jobs, config=cfg, failures="return")
@@ -229,6 +232,13 @@ def test_a_failed_sequence_is_frozen_and_the_batch_runs_on(body, skirt, plain_ru
     assert "tee" in res[1].cause and "NaN" in res[1].cause
     np.testing.assert_array_equal(res[0].sequence.vertices, plain_run.sequence.vertices)
     assert res[0].quality.finite
+    # the tank top (no pinned set) stays at its last good frame, step 14, with zero velocity
+    tee = slice(skirt.num_vertices, skirt.num_vertices + top.num_vertices)
+    assert len(broken.record) > 16
+    last_good = broken.record[13][0][tee]
+    for x, v in broken.record[15:]:
+        np.testing.assert_array_equal(x[tee], last_good)
+        assert not v[tee].any()
     with pytest.raises(SimulationError):  # the default still stops at the first failure
         monkeypatch.setattr(sim.cloth, "SolverVBD", _NaNAtStep(15, particle=skirt.num_vertices + 3).cls)
         simulate_batch(jobs, config=cfg)

@@ -115,6 +115,11 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
         raise WrinklesInputError(f"--shard {shard}/{shards}: need 0 <= i < n")
     if batch < 1:
         raise WrinklesInputError(f"--batch must be >= 1, got {batch}")
+    if isinstance(splits, str):
+        splits = (splits,)
+    if splits is not None and (unknown := sorted(set(splits) - set(SPLITS))):
+        raise WrinklesInputError(f"--splits: unknown split(s) {', '.join(unknown)}; choose from "
+                                 f"{', '.join(SPLITS)}")
     log = log or (lambda s: None)
     root = Path(out)
     cfg_dict = cfg.to_dict()
@@ -130,10 +135,6 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
     body = load_body(cfg.bodies.model)  # once: an SMPL file is not re-read for every group
     mine = shard_indices(len(specs), shard, shards)
     if splits is not None:
-        unknown = sorted(set(splits) - set(SPLITS))
-        if unknown:
-            raise WrinklesInputError(f"--splits: unknown split(s) {', '.join(unknown)}; choose from "
-                                     f"{', '.join(SPLITS)}")
         mine = [k for k in mine if specs[k].split in splits]
     # temp files a killed run of this shard left (other shards' are theirs: they may be running)
     stale = [part.path.with_name(f".{part.path.name}.tmp")]
@@ -244,20 +245,14 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
             meta.append((sp, garment, motion, betas, kind))
     results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
     failed = {sp.id: r for (sp, *_), r in zip(meta, results, strict=True) if isinstance(r, SimulationError)}
-    if failed and retry:
-        again = [sp for sp in group if sp.id in failed]
-        for sp in again:
-            if sp.id in wanted:
-                log(f"{sp.id}: {failed[sp.id]}; retrying at {2 * sim_cfg.substeps} substeps")
-        _make_group(cfg, body, again, wanted & set(failed), root, part,
-                    replace(sim_cfg, substeps=2 * sim_cfg.substeps), device, summary, log, retry=False)
+    retried = [sp for sp in group if sp.id in failed and sp.id in wanted] if retry else []
     failure = {sid: [f"{e} (at {sim_cfg.substeps} substeps, after a retry)"] for sid, e in failed.items()}
     by_seq: dict[str, dict] = {}
     for k, (sp, garment, motion, betas, kind) in enumerate(meta):
         by_seq.setdefault(sp.id, {"spec": sp, "motion": motion, "betas": betas})[kind] = (garment, results[k])
     for sp in group:
         if sp.id not in wanted or (sp.id in failed and retry):
-            continue
+            continue  # a failed one is written by its retry, below
         item = by_seq[sp.id]
         fine_g, fine_r = item["fine"]
         if sp.id in failed:
@@ -320,6 +315,11 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
         summary.bytes += entry["bytes"]
         log(f"{sp.id} accepted ({sp.category}, {sp.material}, {sp.motion_label}, {sp.split}): {T} frames, "
             f"{entry['bytes'] / 2**20:.1f} MiB")
+    if retried:  # after the batch's good results are stored: an interrupted retry loses only itself
+        for sp in retried:
+            log(f"{sp.id}: {failed[sp.id]}; retrying at {2 * sim_cfg.substeps} substeps")
+        _make_group(cfg, body, retried, {sp.id for sp in retried}, root, part,
+                    replace(sim_cfg, substeps=2 * sim_cfg.substeps), device, summary, log, retry=False)
 
 
 def _stable(prov: dict) -> dict:
