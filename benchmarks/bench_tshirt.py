@@ -32,6 +32,19 @@ def add_scene_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s]")
 
 
+def load_scene(args: argparse.Namespace):
+    """The scene of ``add_scene_arguments``: (device, default body, t-shirt, its edge length [m],
+    {motion name: motion})."""
+    from sim.bodies.default import load_default_body
+    from sim.device import resolve_device
+    from sim.motions import load_motion
+
+    body = load_default_body()
+    garment, edge = build_garment(body, args.vertices)
+    motions = {n: load_motion(n, fps=30.0, duration=args.seconds) for n in args.motions.split(",")}
+    return resolve_device(args.device), body, garment, edge, motions
+
+
 def build_garment(body, vertices: int):
     """The t-shirt template at the edge length that gives about ``vertices`` vertices."""
     from sim.garments import make_garment
@@ -111,20 +124,14 @@ def main() -> None:
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
 
-    from sim.bodies.default import load_default_body
-    from sim.device import resolve_device
-    from sim.motions import load_motion
     from sim.simulate import SimulationConfig
 
-    device = resolve_device(args.device)
-    body = load_default_body()
-    garment, edge = build_garment(body, args.vertices)
+    device, body, garment, edge, motions = load_scene(args)
     cfg = SimulationConfig(fps=30.0, substeps=args.substeps, iterations=args.iterations,
                            self_contact=not args.no_self_contact, solver=json.loads(args.solver),
                            device=device)
     fig: dict = {}
-    for name in args.motions.split(","):
-        motion = load_motion(name, fps=30.0, duration=args.seconds)
+    for name, motion in motions.items():
         ours, r = run_ours(garment, body, motion, cfg)
         entry = {"ours": ours}
         print(name, "ours", json.dumps(ours, indent=1), flush=True)
@@ -136,7 +143,7 @@ def main() -> None:
             print(name, "newton", json.dumps(entry["newton"], indent=1, default=str), flush=True)
         fig[name] = entry
     if args.batch:
-        motion = load_motion(args.motions.split(",")[0], fps=30.0, duration=args.seconds)
+        motion = next(iter(motions.values()))
         batch = {}
         for nb in [int(s) for s in args.batch.split(",")]:
             batch[str(nb)], _ = run_ours(garment, body, motion, cfg, batch=nb)

@@ -16,7 +16,7 @@ import argparse
 import json
 import time
 
-from benchmarks.bench_tshirt import add_scene_arguments, build_garment, run_ours
+from benchmarks.bench_tshirt import add_scene_arguments, load_scene, run_ours
 from benchmarks.common import machine, write_result
 
 DEFAULT_SETTINGS = "10x10,10x5,5x10,5x5,10x10i2,5x5i2,4x4,3x5"
@@ -38,15 +38,9 @@ def main() -> None:
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
 
-    from sim.bodies.default import load_default_body
-    from sim.device import resolve_device
-    from sim.motions import load_motion
     from sim.simulate import SimulationConfig
 
-    device = resolve_device(args.device)
-    body = load_default_body()
-    garment, edge = build_garment(body, args.vertices)
-    motions = {n: load_motion(n, fps=30.0, duration=args.seconds) for n in args.motions.split(",")}
+    device, body, garment, edge, motions = load_scene(args)
     rows = []
     for s in args.settings.split(","):
         p = parse_setting(s)

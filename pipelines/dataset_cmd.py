@@ -46,13 +46,7 @@ def _shard(text: str) -> tuple[int, int]:
 
 
 def _splits(text: str) -> tuple[str, ...]:
-    from sim.datasets.schema import SPLITS
-
-    names = tuple(x.strip() for x in text.split(",") if x.strip())
-    bad = [x for x in names if x not in SPLITS]
-    if not names or bad:
-        raise argparse.ArgumentTypeError(f"--splits {text!r}: choose from {', '.join(SPLITS)}")
-    return names
+    return tuple(x.strip() for x in text.split(",") if x.strip())  # checked by select_indices
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -114,15 +108,13 @@ def run_generate(args: argparse.Namespace) -> int:
     from pipelines.progress import progress_bar
     from sim.datasets.config import load_config
     from sim.datasets.generate import generate
-    from sim.datasets.sampling import sample_sequences, shard_indices
+    from sim.datasets.sampling import sample_sequences, select_indices
     from sim.device import resolve_device
 
     cfg = load_config(args.config)  # every check, user motion files included, before simulating
     device = resolve_device(args.device)
     shard, shards = args.shard
-    specs = sample_sequences(cfg)
-    n = sum(1 for k in shard_indices(len(specs), shard, shards)
-            if args.splits is None or specs[k].split in args.splits)
+    n = len(select_indices(sample_sequences(cfg), shard, shards, args.splits))
     t0 = time.perf_counter()
     try:
         with progress_bar(n, f"dataset shard {shard}/{shards}", quiet=args.quiet, unit="seq") as advance:

@@ -15,7 +15,7 @@ from sim.bodies import load_body
 from sim.bodies.default import parse_shape
 from sim.errors import WrinklesInputError
 from sim.garments import TEMPLATES, make_garment
-from sim.garments.panels import stitch
+from sim.garments.panels import corner_angles, stitch
 from sim.garments.templates import PARAM_RANGES, resolve_resolution
 from sim.garments.uv import UV_MARGIN, uv_stats
 
@@ -104,21 +104,10 @@ def test_template_is_clean_manifold(garments, category, shape):
     e = m.edges_unique_length
     assert np.percentile(e, 95) / np.percentile(e, 5) < 1.8  # near-uniform edges
     assert abs(e.mean() / TEMPLATES[category].coarse - 1.0) < 0.15
-    assert np.degrees(_angles(g.rest_vertices, g.faces)).min() > 10.0  # no slivers
+    assert corner_angles(g.rest_vertices, g.faces).min() > 10.0  # no slivers
     assert 1900 < g.num_vertices < 4000  # "coarse": ~3k on the mean body, 2-4k on others
     if shape == "mean":  # the count `wrinkles garments` lists
         assert g.num_vertices == pytest.approx(TEMPLATES[category].vertices[0], rel=0.01)
-
-
-def _angles(v, f):
-    """Corner angles [rad] of every triangle, shape (F, 3)."""
-    t = np.asarray(v, np.float64)[f]
-    out = []
-    for k in range(3):
-        a, b = t[:, (k + 1) % 3] - t[:, k], t[:, (k + 2) % 3] - t[:, k]
-        c = (a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
-        out.append(np.arccos(np.clip(c, -1.0, 1.0)))
-    return np.stack(out, 1)
 
 
 def raster_cover(tris: np.ndarray, res: int) -> np.ndarray:
@@ -350,4 +339,4 @@ def test_stitch_orientation():
     p = np.concatenate([a, b])
     n = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
     assert np.all(n[:, 2] > 0)  # one orientation
-    assert np.degrees(_angles(p, f)).min() > 30  # shortest diagonals: no slivers
+    assert corner_angles(p, f).min() > 30  # shortest diagonals: no slivers

@@ -118,6 +118,7 @@ def measure(body) -> None:
     """Print markdown tables: counts and times at coarse / fine on three bodies; mesh and UV quality."""
     from sim.bodies.default import parse_shape
     from sim.garments import TEMPLATES, make_garment
+    from sim.garments.panels import corner_angles
     from sim.garments.uv import uv_stats
 
     betas = {s: parse_shape(spec) for s, spec in SHAPES.items()}
@@ -148,12 +149,7 @@ def measure(body) -> None:
         v, f = g.rest_vertices.astype(np.float64), g.faces
         e = np.unique(np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
         el = np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1)
-        t = v[f]
-        ang = []
-        for k in range(3):
-            a, b = t[:, (k + 1) % 3] - t[:, k], t[:, (k + 2) % 3] - t[:, k]
-            c = (a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
-            ang.append(np.degrees(np.arccos(np.clip(c, -1, 1))))
+        ang = corner_angles(v, f)
         s = uv_stats(g.rest_vertices, g.faces, g.uvs, g.uv_faces)
         print(f"| {name} | {res} | {np.percentile(el, 95) / np.percentile(el, 5):.2f} | "
               f"{np.min(ang):.0f}° | {s.angle_mean:.3f} / {s.angle_p95:.3f} / {s.angle_max:.2f} | "

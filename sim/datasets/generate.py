@@ -23,8 +23,7 @@ import numpy as np
 
 from sim.datasets import storage as S
 from sim.datasets.config import DatasetConfig
-from sim.datasets.sampling import SequenceSpec, sample_sequences, shard_indices
-from sim.datasets.schema import SPLITS
+from sim.datasets.sampling import SequenceSpec, sample_sequences, select_indices
 from sim.errors import WrinklesInputError
 
 Log = Callable[[str], None]
@@ -115,11 +114,8 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
         raise WrinklesInputError(f"--shard {shard}/{shards}: need 0 <= i < n")
     if batch < 1:
         raise WrinklesInputError(f"--batch must be >= 1, got {batch}")
-    if isinstance(splits, str):
-        splits = (splits,)
-    if splits is not None and (unknown := sorted(set(splits) - set(SPLITS))):
-        raise WrinklesInputError(f"--splits: unknown split(s) {', '.join(unknown)}; choose from "
-                                 f"{', '.join(SPLITS)}")
+    specs = sample_sequences(cfg)
+    mine = select_indices(specs, shard, shards, splits)
     log = log or (lambda s: None)
     root = Path(out)
     cfg_dict = cfg.to_dict()
@@ -131,11 +127,7 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
     if not (root / "config.json").exists():
         S.atomic_write_json(root / "config.json", cfg_dict)
     part = _Shard(root, cfg_dict, shard, shards, resume)
-    specs = sample_sequences(cfg)
     body = load_body(cfg.bodies.model)  # once: an SMPL file is not re-read for every group
-    mine = shard_indices(len(specs), shard, shards)
-    if splits is not None:
-        mine = [k for k in mine if specs[k].split in splits]
     # temp files a killed run of this shard left (other shards' are theirs: they may be running)
     stale = [part.path.with_name(f".{part.path.name}.tmp")]
     stale += [(p := S.sequence_path(root, specs[k].id)).with_name(f".{p.name}.tmp") for k in mine]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -105,3 +106,21 @@ def shard_indices(n: int, shard: int, shards: int) -> list[int]:
     """Indices of the sequences shard ``shard`` of ``shards`` makes (round robin: every shard
     gets a mix of garments and motions)."""
     return list(range(shard, n, shards))
+
+
+def select_indices(specs: list[SequenceSpec], shard: int, shards: int,
+                   splits: Sequence[str] | str | None = None) -> list[int]:
+    """Indices of ``specs`` that shard ``shard`` of ``shards`` makes, only those of ``splits``
+    (None: every split; a sequence's split comes from the config)."""
+    from sim.datasets.schema import SPLITS
+    from sim.errors import WrinklesInputError
+
+    mine = shard_indices(len(specs), shard, shards)
+    if splits is None:
+        return mine
+    splits = (splits,) if isinstance(splits, str) else tuple(splits)
+    unknown = sorted(set(splits) - set(SPLITS))
+    if unknown or not splits:
+        raise WrinklesInputError(f"--splits: unknown split(s) {', '.join(unknown) or '(none)'}; choose from "
+                                 f"{', '.join(SPLITS)}")
+    return [k for k in mine if specs[k].split in splits]

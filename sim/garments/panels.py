@@ -101,15 +101,20 @@ and below this (where a seam's end points shift sideways from row to row, a half
 row's end would make a sliver)."""
 
 
-def _strip_min_angle(a: np.ndarray, b: np.ndarray) -> float:
-    """Smallest corner angle [deg] of ``stitch(a, b)``."""
-    t = np.concatenate([a, b])[stitch(a, b)]
-    out = np.inf
+def corner_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Corner angles [deg] of every triangle, shape (F, 3) (corner k at ``faces[:, k]``)."""
+    t = np.asarray(vertices, np.float64)[faces]
+    out = []
     for k in range(3):
         u, w = t[:, (k + 1) % 3] - t[:, k], t[:, (k + 2) % 3] - t[:, k]
         c = (u * w).sum(1) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1), 1e-30)
-        out = min(out, float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))).min()))
-    return out
+        out.append(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    return np.stack(out, axis=1)
+
+
+def _strip_min_angle(a: np.ndarray, b: np.ndarray) -> float:
+    """Smallest corner angle [deg] of ``stitch(a, b)``."""
+    return float(corner_angles(np.concatenate([a, b]), stitch(a, b)).min())
 
 
 def _staggered(rows: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
