@@ -29,6 +29,9 @@ def main() -> None:
     ap.add_argument("--motion", default="walk")
     ap.add_argument("--seconds", type=float, default=1.0)
     ap.add_argument("--repeats", type=int, default=10)
+    ap.add_argument("--batch", type=int, default=1, help="t-shirts in the one model (default: %(default)s)")
+    ap.add_argument("--solver", default="{}", help="JSON dict of VBDConfig fields of the base solver")
+    ap.add_argument("--tag", default="")
     ap.add_argument("--variants", default='[{"lanes": 8}, {"lanes": 32}, {"self_contact_capacity": 8}, '
                     '{"iterations": 5}, {"self_contact": false}]',
                     help="JSON list of VBDConfig overrides timed as whole graphed steps")
@@ -48,7 +51,7 @@ def main() -> None:
     body = load_default_body()
     garment, _ = build_garment(body, args.vertices)
     motion = load_motion(args.motion, fps=30.0, duration=args.seconds)
-    cfg = SimulationConfig(fps=30.0, self_contact=True, device=device)
+    cfg = SimulationConfig(fps=30.0, self_contact=True, solver=json.loads(args.solver), device=device)
 
     seen: dict = {}
     base_cls = cloth.SolverVBD
@@ -61,7 +64,7 @@ def main() -> None:
     cloth.SolverVBD = Recording
     try:
         t0 = time.perf_counter()
-        simulate_batch([SimulationJob(garment, body, motion)], config=cfg)
+        simulate_batch([SimulationJob(garment, body, motion) for _ in range(args.batch)], config=cfg)
         sim_s = time.perf_counter() - t0
     finally:
         cloth.SolverVBD = base_cls
@@ -164,9 +167,10 @@ def main() -> None:
         variants[json.dumps(over)] = timed(lambda: s2.step(state, state, control, dt), graph=True)
         print(json.dumps(over), f"{variants[json.dumps(over)]:.2f} ms/step", flush=True)
     res["variants_step_graph_ms"] = variants
-    write_result(f"profile_tshirt_{device.split(':')[0]}", {
+    write_result(f"profile_tshirt_{device.split(':')[0]}{args.tag}", {
         "machine": machine(device),
-        "sizes": {"garment_vertices": garment.num_vertices, "motion": args.motion, "seconds": args.seconds,
+        "sizes": {"garment_vertices": garment.num_vertices, "batch": args.batch, "motion": args.motion,
+                  "seconds": args.seconds, "solver": json.loads(args.solver),
                   "substeps": vcfg.substeps, "iterations": vcfg.iterations},
         "figures": res})
 

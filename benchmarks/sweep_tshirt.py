@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import time
 
 from benchmarks.bench_tshirt import add_scene_arguments, load_scene, run_ours
@@ -22,11 +23,24 @@ from benchmarks.common import machine, write_result
 DEFAULT_SETTINGS = "10x10,10x5,5x10,5x5,10x10i2,5x5i2,4x4,3x5"
 
 
+SETTING = re.compile(r"^(\d+)x(\d+)(?:i(\d+))?(?:m([\d.]+))?(?:c(\d+))?$")
+
+
 def parse_setting(s: str) -> dict:
-    """``"10x5i2"`` -> substeps 10, iterations 5, self-contact detection every 2 substeps."""
-    base, _, interval = s.partition("i")
-    sub, _, it = base.partition("x")
-    return {"substeps": int(sub), "iterations": int(it), "interval": int(interval or 1)}
+    """``"10x5i2m6c8"`` -> substeps 10, iterations 5, self-contact detection every 2 substeps,
+    smallest self-contact query radius 6 mm, 8 pairs stored per vertex / triangle / edge
+    (``i``, ``m`` and ``c`` optional: the solver's defaults)."""
+    m = SETTING.match(s)
+    if m is None:
+        raise SystemExit(f"--settings: cannot read {s!r} "
+                         "(SUBSTEPSxITERATIONS[iINTERVAL][mMILLIMETRES][cCAPACITY])")
+    out = {"substeps": int(m[1]), "iterations": int(m[2]), "interval": int(m[3] or 1)}
+    out["solver"] = {"self_contact_interval": out["interval"]}
+    if m[4]:
+        out["solver"]["self_contact_margin"] = float(m[4]) / 1000.0
+    if m[5]:
+        out["solver"]["self_contact_capacity"] = int(m[5])
+    return out
 
 
 def main() -> None:
@@ -45,8 +59,7 @@ def main() -> None:
     for s in args.settings.split(","):
         p = parse_setting(s)
         cfg = SimulationConfig(fps=30.0, substeps=p["substeps"], iterations=p["iterations"],
-                               self_contact=True, solver={"self_contact_interval": p["interval"]},
-                               device=device)
+                               self_contact=True, solver=p["solver"], device=device)
         row = {"setting": s, **p, "motions": {}}
         for name, motion in motions.items():
             out, _ = run_ours(garment, body, motion, cfg)
@@ -62,8 +75,7 @@ def main() -> None:
     batch = {}
     if best is not None and args.batch:
         cfg = SimulationConfig(fps=30.0, substeps=best["substeps"], iterations=best["iterations"],
-                               self_contact=True, solver={"self_contact_interval": best["interval"]},
-                               device=device)
+                               self_contact=True, solver=best["solver"], device=device)
         first = next(iter(motions.values()))
         for nb in [int(b) for b in args.batch.split(",")]:
             t0 = time.perf_counter()

@@ -183,57 +183,71 @@ def self_contact_force_hessian(
         fc, hc = pair_force_hessian(xi - p, x0[i] - p0, di - (p - p0), 1.0, r, k, mu, eps_u)
         f = f + fc
         H = H + hc
-    # i as a corner of triangles that vertices are close to. The lanes split the flattened
-    # (incident triangle, pair slot) range, not the triangles: a vertex has ~6 triangles, so a
-    # per-triangle split left most lanes idle and the rest with up to ``capacity`` pairs each
+    # i as a corner of triangles that vertices are close to. The lanes split the flattened list
+    # of stored pairs of i's triangles (a vertex has ~6 triangles with 0-``capacity`` pairs each):
+    # the work is the pairs that exist, not triangles x capacity slots, and no lane idles while
+    # another runs one triangle's full list
     cap = sc.tv_capacity
     tri_start = vertex_tri_offsets[i]
-    for j in range(lane, (vertex_tri_offsets[i + 1] - tri_start) * cap, stride):
-        kk = tri_start + j // cap
-        s = j % cap
+    tri_end = vertex_tri_offsets[i + 1]
+    total = int(0)
+    for kk in range(tri_start, tri_end):
+        total += sc.tv_count[vertex_tri_ids[kk]]
+    for j in range(lane, total, stride):
+        kk = tri_start
         t = vertex_tri_ids[kk]
-        if s < sc.tv_count[t]:
-            corner = vertex_tri_local[kk]
-            tri = tri_indices[t]
-            a = x[tri[0]]
-            b = x[tri[1]]
-            c = x[tri[2]]
-            u = sc.tv_vertex[t * cap + s]
-            xu = x[u]
-            w = triangle_closest_bary(xu, a, b, c)
-            p = w[0] * a + w[1] * b + w[2] * c
-            p0 = w[0] * x0[tri[0]] + w[1] * x0[tri[1]] + w[2] * x0[tri[2]]
-            fc, hc = pair_force_hessian(xu - p, x0[u] - p0, (xu - x0[u]) - (p - p0), -w[corner], r, k, mu,
-                                        eps_u)
-            f = f + fc
-            H = H + hc
-    # i as an end of edges close to other edges (lanes split (incident edge, pair slot) alike)
+        s = j
+        while s >= sc.tv_count[t]:
+            s -= sc.tv_count[t]
+            kk += 1
+            t = vertex_tri_ids[kk]
+        corner = vertex_tri_local[kk]
+        tri = tri_indices[t]
+        a = x[tri[0]]
+        b = x[tri[1]]
+        c = x[tri[2]]
+        u = sc.tv_vertex[t * cap + s]
+        xu = x[u]
+        w = triangle_closest_bary(xu, a, b, c)
+        p = w[0] * a + w[1] * b + w[2] * c
+        p0 = w[0] * x0[tri[0]] + w[1] * x0[tri[1]] + w[2] * x0[tri[2]]
+        fc, hc = pair_force_hessian(xu - p, x0[u] - p0, (xu - x0[u]) - (p - p0), -w[corner], r, k, mu, eps_u)
+        f = f + fc
+        H = H + hc
+    # i as an end of edges close to other edges (lanes split the flattened stored pairs alike)
     ecap = sc.ee_capacity
     edge_start = sc.vertex_edge_offsets[i]
-    for j in range(lane, (sc.vertex_edge_offsets[i + 1] - edge_start) * ecap, stride):
-        kk = edge_start + j // ecap
-        s = j % ecap
+    edge_end = sc.vertex_edge_offsets[i + 1]
+    total = int(0)
+    for kk in range(edge_start, edge_end):
+        total += sc.ee_count[sc.vertex_edge_ids[kk]]
+    for j in range(lane, total, stride):
+        kk = edge_start
         e = sc.vertex_edge_ids[kk]
-        if s < sc.ee_count[e]:
-            end = sc.vertex_edge_local[kk]
-            ea = sc.mesh_edges[e]
-            p1 = x[ea[0]]
-            q1 = x[ea[1]]
-            e2 = sc.ee_edge[e * ecap + s]
-            eb = sc.mesh_edges[e2]
-            p2 = x[eb[0]]
-            q2 = x[eb[1]]
-            st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
-            pa = p1 + st[0] * (q1 - p1)
-            pb = p2 + st[1] * (q2 - p2)
-            pa0 = (1.0 - st[0]) * x0[ea[0]] + st[0] * x0[ea[1]]
-            pb0 = (1.0 - st[1]) * x0[eb[0]] + st[1] * x0[eb[1]]
-            we = 1.0 - st[0]
-            if end == 1:
-                we = st[0]
-            fc, hc = pair_force_hessian(pa - pb, pa0 - pb0, (pa - pa0) - (pb - pb0), we, r, k, mu, eps_u)
-            f = f + fc
-            H = H + hc
+        s = j
+        while s >= sc.ee_count[e]:
+            s -= sc.ee_count[e]
+            kk += 1
+            e = sc.vertex_edge_ids[kk]
+        end = sc.vertex_edge_local[kk]
+        ea = sc.mesh_edges[e]
+        p1 = x[ea[0]]
+        q1 = x[ea[1]]
+        e2 = sc.ee_edge[e * ecap + s]
+        eb = sc.mesh_edges[e2]
+        p2 = x[eb[0]]
+        q2 = x[eb[1]]
+        st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
+        pa = p1 + st[0] * (q1 - p1)
+        pb = p2 + st[1] * (q2 - p2)
+        pa0 = (1.0 - st[0]) * x0[ea[0]] + st[0] * x0[ea[1]]
+        pb0 = (1.0 - st[1]) * x0[eb[0]] + st[1] * x0[eb[1]]
+        we = 1.0 - st[0]
+        if end == 1:
+            we = st[0]
+        fc, hc = pair_force_hessian(pa - pb, pa0 - pb0, (pa - pa0) - (pb - pb0), we, r, k, mu, eps_u)
+        f = f + fc
+        H = H + hc
     return f, H
 
 
