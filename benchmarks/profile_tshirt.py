@@ -40,7 +40,6 @@ def main() -> None:
     import sim.cloth as cloth
     from sim.bodies.default import load_default_body
     from sim.cloth import self_contact as SC
-    from sim.cloth import vbd_kernels as K
     from sim.cloth.self_contact import disabled_data
     from sim.device import resolve_device, warp
     from sim.motions import load_motion
@@ -94,8 +93,9 @@ def main() -> None:
             for c in range(m.color_count):
                 start, end = m.color_offsets[c], m.color_offsets[c + 1]
                 wp.launch_tiled(
-                    K.solve_color_kernel, dim=[end - start], block_dim=solver._block,
-                    inputs=[solver._block, solver._membrane, m.color_vertices, start, solver._x_prev,
+                    solver._solve, dim=[-(-(end - start) // solver._particles)],
+                    block_dim=solver._particles * solver._lanes,
+                    inputs=[end - start, solver._membrane, m.color_vertices, start, solver._x_prev,
                             solver._y, m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
                             m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
                             solver._tri_strain_prev, m.edge_indices, m.edge_rest_angle, m.edge_stiffness,

@@ -53,6 +53,8 @@ class VBDConfig:
             Venant-Kirchhoff: its stress vanishes as a triangle collapses, so squeezed cloth
             shrinks to under half its rest length).
         lanes: GPU threads that share one particle's solve (tiled launch; 1 on CPU).
+        particles_per_block: particles solved by one GPU thread block (``particles x lanes``
+            threads; 1 on CPU).
         air_damping: mass-proportional Rayleigh damping alpha [1/s] (force ``-alpha m v``): the
             linear drag of still air that lets garments come to rest; the material's damping
             [s] acts on strain and bending rates only and leaves rigid motion undamped.
@@ -90,6 +92,7 @@ class VBDConfig:
     friction_epsilon: float = 1.0e-2
     air_damping: float = 0.5
     lanes: int = 16
+    particles_per_block: int = 8
     membrane: str = "corotated"
     self_contact: bool = False
     self_contact_radius: float = 0.003
@@ -114,6 +117,9 @@ class VBDConfig:
             raise ValueError(f"VBDConfig.membrane must be 'stvk' or 'corotated', got {self.membrane!r}")
         if self.lanes < 1 or self.lanes > 256:
             raise ValueError(f"VBDConfig.lanes must be in 1..256, got {self.lanes}")
+        if self.particles_per_block < 1 or self.lanes * self.particles_per_block > 1024:
+            raise ValueError("VBDConfig.particles_per_block must be >= 1 with lanes x particles_per_block "
+                             f"<= 1024, got {self.particles_per_block} x {self.lanes}")
         for name in ("contact_stiffness", "contact_margin", "friction_epsilon", "self_contact_radius",
                      "self_contact_margin", "self_contact_stiffness", "self_contact_speed_factor",
                      "self_contact_capacity"):
@@ -153,8 +159,12 @@ class SolverVBD:
         self._contact_body_velocity = wp.zeros(n, dtype=wp.vec3, device=d)
         self._contact_active = wp.zeros(n, dtype=wp.int32, device=d)
         self._gravity = wp.vec3(*model.gravity)
-        # lanes per particle in the solve (Warp runs tiles with one lane on the CPU)
-        self._block = self.config.lanes if wp.get_device(d).is_cuda else 1
+        # lanes per particle and particles per block of the solve (Warp runs tiles with one
+        # thread per block on the CPU)
+        cuda = wp.get_device(d).is_cuda
+        self._lanes = self.config.lanes if cuda else 1
+        self._particles = self.config.particles_per_block if cuda else 1
+        self._solve = K.solve_color_kernel(self._particles, self._lanes)
         self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
         self._tri_strain_prev = wp.zeros(model.tri_count, dtype=wp.vec3, device=d)
         self._edge_angle_prev = wp.zeros(max(model.edge_count, 1), dtype=float, device=d)
@@ -218,8 +228,9 @@ class SolverVBD:
                 for c in range(m.color_count):
                     start, end = m.color_offsets[c], m.color_offsets[c + 1]
                     wp.launch_tiled(
-                        K.solve_color_kernel, dim=[end - start], block_dim=self._block,
-                        inputs=[self._block, self._membrane, m.color_vertices, start, self._x_prev, self._y,
+                        self._solve, dim=[-(-(end - start) // self._particles)],
+                        block_dim=self._particles * self._lanes,
+                        inputs=[end - start, self._membrane, m.color_vertices, start, self._x_prev, self._y,
                                 m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
                                 m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
                                 self._tri_strain_prev, m.edge_indices, m.edge_rest_angle, m.edge_stiffness,

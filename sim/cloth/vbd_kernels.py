@@ -166,17 +166,13 @@ def contact_force_hessian(
     return f, H
 
 
-@wp.kernel
-def solve_color_kernel(
+@wp.func
+def vertex_share_force_hessian(
+    i: int,
+    lane: int,
     stride: int,
     membrane: int,
-    color_vertices: wp.array(dtype=wp.int32),
-    color_start: int,
     x_prev: wp.array(dtype=wp.vec3),
-    y: wp.array(dtype=wp.vec3),
-    mass: wp.array(dtype=float),
-    flags: wp.array(dtype=wp.int32),
-    particle_instance: wp.array(dtype=wp.int32),
     tri_indices: wp.array(dtype=wp.vec3i),
     tri_dm_inv: wp.array(dtype=wp.mat22),
     tri_area: wp.array(dtype=float),
@@ -195,6 +191,56 @@ def solve_color_kernel(
     vertex_edge_offsets: wp.array(dtype=wp.int32),
     vertex_edge_ids: wp.array(dtype=wp.int32),
     vertex_edge_local: wp.array(dtype=wp.int32),
+    eps_u: float,
+    inv_h: float,
+    sc: SelfContactData,
+    x: wp.array(dtype=wp.vec3),
+):
+    """This lane's share (items ``lane, lane + stride, ...``) of the membrane, bending and
+    self-contact force on particle ``i`` and their Hessian blocks, with strain-rate damping
+    against the substep-start deformation."""
+    f = wp.vec3(0.0)
+    H = wp.mat33(0.0)
+    for k in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
+        t = vertex_tri_ids[k]
+        tri = tri_indices[t]
+        if membrane == MEMBRANE_COROTATED:
+            fe, he = corotated_damped_vertex_force_hessian(
+                x[tri[0]], x[tri[1]], x[tri[2]], tri_dm_inv[t], tri_area[t], tri_mu[t],
+                tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h, vertex_tri_local[k])
+        else:
+            fe, he = stvk_damped_vertex_force_hessian(
+                x[tri[0]], x[tri[1]], x[tri[2]], tri_dm_inv[t], tri_area[t], tri_mu[t],
+                tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h, vertex_tri_local[k])
+        f = f + fe
+        H = H + he
+
+    for k in range(vertex_edge_offsets[i] + lane, vertex_edge_offsets[i + 1], stride):
+        e = vertex_edge_ids[k]
+        q = edge_indices[e]
+        fb, hb = bending_damped_vertex_force_hessian(
+            x[q[0]], x[q[1]], x[q[2]], x[q[3]], edge_rest_angle[e], edge_stiffness[e],
+            edge_angle_prev[e], edge_damping[e] * inv_h, vertex_edge_local[k])
+        f = f + fb
+        H = H + hb
+
+    if sc.enabled != 0:
+        fs, hs = self_contact_force_hessian(i, lane, stride, x, x_prev, tri_indices, vertex_tri_offsets,
+                                            vertex_tri_ids, vertex_tri_local, sc, eps_u)
+        f = f + fs
+        H = H + hs
+    return f, H
+
+
+@wp.func
+def vertex_newton_step(
+    i: int,
+    f: wp.vec3,
+    H: wp.mat33,
+    x_prev: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    particle_instance: wp.array(dtype=wp.int32),
     contact_point: wp.array(dtype=wp.vec3),
     contact_normal: wp.array(dtype=wp.vec3),
     contact_body_velocity: wp.array(dtype=wp.vec3),
@@ -208,56 +254,11 @@ def solve_color_kernel(
     sc: SelfContactData,
     x_inout: wp.array(dtype=wp.vec3),
 ):
-    """One VBD Newton step for every particle of one colour (Chen et al. 2024, Alg. 1).
-
-    Launched tiled: ``stride`` lanes per particle (``launch_tiled`` block size; 1 on CPU) each
-    sum a share of the particle's elements and contacts; a block reduction gives the 3x3
-    system, which lane 0 solves. On a GPU this turns the long serial gather per particle
-    (a latency chain of dependent loads) into ``stride`` short ones.
-    """
-    tid, lane = wp.tid()
-    i = color_vertices[color_start + tid]
+    """Add inertia, air damping and body contact to the gathered ``f``, ``H`` of particle ``i``
+    and take its Newton step ``x += H^-1 f`` (Chen et al. 2024, Eq. 9-10)."""
     xi = x_inout[i]
     xp = x_prev[i]
     inv_h = 1.0 / h
-    f = wp.vec3(0.0)
-    H = wp.mat33(0.0)
-
-    # membrane and bending with strain-rate damping against the substep-start deformation
-    for k in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
-        t = vertex_tri_ids[k]
-        tri = tri_indices[t]
-        if membrane == MEMBRANE_COROTATED:
-            fe, he = corotated_damped_vertex_force_hessian(
-                x_inout[tri[0]], x_inout[tri[1]], x_inout[tri[2]], tri_dm_inv[t], tri_area[t], tri_mu[t],
-                tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h, vertex_tri_local[k])
-        else:
-            fe, he = stvk_damped_vertex_force_hessian(
-                x_inout[tri[0]], x_inout[tri[1]], x_inout[tri[2]], tri_dm_inv[t], tri_area[t], tri_mu[t],
-                tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h, vertex_tri_local[k])
-        f = f + fe
-        H = H + he
-
-    for k in range(vertex_edge_offsets[i] + lane, vertex_edge_offsets[i + 1], stride):
-        e = vertex_edge_ids[k]
-        q = edge_indices[e]
-        fb, hb = bending_damped_vertex_force_hessian(
-            x_inout[q[0]], x_inout[q[1]], x_inout[q[2]], x_inout[q[3]], edge_rest_angle[e], edge_stiffness[e],
-            edge_angle_prev[e], edge_damping[e] * inv_h, vertex_edge_local[k])
-        f = f + fb
-        H = H + hb
-
-    if sc.enabled != 0:
-        fs, hs = self_contact_force_hessian(i, lane, stride, x_inout, x_prev, tri_indices, vertex_tri_offsets,
-                                            vertex_tri_ids, vertex_tri_local, sc, eps_u)
-        f = f + fs
-        H = H + hs
-
-    f = wp.tile_sum(wp.tile(f, preserve_type=True))[0]
-    H = wp.tile_sum(wp.tile(H, preserve_type=True))[0]
-    if lane != 0 or flags[i] == PINNED:
-        return
-
     # inertia m/h^2 (y - x), Hessian m/h^2 I; mass-proportional (air) damping alpha m (x - x_prev)/h
     mh = mass[i] * inv_h * inv_h
     ca = air_damping * mass[i] * inv_h
@@ -290,6 +291,102 @@ def solve_color_kernel(
         # self-contact displacement bound (sim.cloth.self_contact): stays intersection-free
         x_new = apply_bound(x_new, x_ref, sc.bound[i])
     x_inout[i] = x_new
+
+
+_SOLVE_KERNELS: dict = {}
+
+
+def solve_color_kernel(particles: int, lanes: int):
+    """The per-colour VBD kernel (Chen et al. 2024, Alg. 1) for blocks of ``particles`` x
+    ``lanes`` threads: launch it with ``wp.launch_tiled(kernel, dim=[ceil(count / particles)],
+    block_dim=particles * lanes)`` (on the CPU, where a block is one thread: 1 x 1).
+
+    The ``lanes`` threads of a particle each sum a share of its elements and contacts; one
+    block reduction (``tile_sum`` over the lanes axis of a particles x lanes tile) gives every
+    particle its 3x3 system, which its lane 0 solves. Lanes turn the long serial gather of a
+    particle (a latency chain of dependent loads) into short ones; several particles per block
+    fill the 32-thread warps and the SM's block slots (a 16-thread block leaves half of every
+    warp idle and caps occupancy at a quarter). One kernel per (particles, lanes), compiled in
+    its own module and cached."""
+    key = (int(particles), int(lanes))
+    if key in _SOLVE_KERNELS:
+        return _SOLVE_KERNELS[key]
+    P, L = key
+
+    def solve(
+        count: int,
+        membrane: int,
+        color_vertices: wp.array(dtype=wp.int32),
+        color_start: int,
+        x_prev: wp.array(dtype=wp.vec3),
+        y: wp.array(dtype=wp.vec3),
+        mass: wp.array(dtype=float),
+        flags: wp.array(dtype=wp.int32),
+        particle_instance: wp.array(dtype=wp.int32),
+        tri_indices: wp.array(dtype=wp.vec3i),
+        tri_dm_inv: wp.array(dtype=wp.mat22),
+        tri_area: wp.array(dtype=float),
+        tri_mu: wp.array(dtype=float),
+        tri_lam: wp.array(dtype=float),
+        tri_damping: wp.array(dtype=float),
+        tri_strain_prev: wp.array(dtype=wp.vec3),
+        edge_indices: wp.array(dtype=wp.vec4i),
+        edge_rest_angle: wp.array(dtype=float),
+        edge_stiffness: wp.array(dtype=float),
+        edge_damping: wp.array(dtype=float),
+        edge_angle_prev: wp.array(dtype=float),
+        vertex_tri_offsets: wp.array(dtype=wp.int32),
+        vertex_tri_ids: wp.array(dtype=wp.int32),
+        vertex_tri_local: wp.array(dtype=wp.int32),
+        vertex_edge_offsets: wp.array(dtype=wp.int32),
+        vertex_edge_ids: wp.array(dtype=wp.int32),
+        vertex_edge_local: wp.array(dtype=wp.int32),
+        contact_point: wp.array(dtype=wp.vec3),
+        contact_normal: wp.array(dtype=wp.vec3),
+        contact_body_velocity: wp.array(dtype=wp.vec3),
+        contact_active: wp.array(dtype=wp.int32),
+        instance_thickness: wp.array(dtype=float),
+        instance_friction: wp.array(dtype=float),
+        k_contact: float,
+        eps_u: float,
+        h: float,
+        air_damping: float,
+        sc: SelfContactData,
+        x_inout: wp.array(dtype=wp.vec3),
+    ):
+        block, thread = wp.tid()
+        local = thread // wp.static(L)
+        lane = thread - local * wp.static(L)
+        slot = block * wp.static(P) + local
+        i = int(-1)
+        if slot < count:
+            i = color_vertices[color_start + slot]
+        f = wp.vec3(0.0)
+        H = wp.mat33(0.0)
+        if i >= 0:
+            f, H = vertex_share_force_hessian(
+                i, lane, wp.static(L), membrane, x_prev, tri_indices, tri_dm_inv, tri_area, tri_mu, tri_lam,
+                tri_damping, tri_strain_prev, edge_indices, edge_rest_angle, edge_stiffness, edge_damping,
+                edge_angle_prev, vertex_tri_offsets, vertex_tri_ids, vertex_tri_local, vertex_edge_offsets,
+                vertex_edge_ids, vertex_edge_local, eps_u, 1.0 / h, sc, x_inout)
+        # every thread of the block reaches the reductions
+        shape = (wp.static(P), wp.static(L))
+        f_sum = wp.tile_sum(wp.tile_reshape(wp.tile(f, preserve_type=True), shape=shape), axis=1)
+        H_sum = wp.tile_sum(wp.tile_reshape(wp.tile(H, preserve_type=True), shape=shape), axis=1)
+        f = wp.tile_extract(f_sum, local)
+        H = wp.tile_extract(H_sum, local)
+        if lane != 0 or i < 0:
+            return
+        if flags[i] == PINNED:
+            return
+        vertex_newton_step(i, f, H, x_prev, y, mass, particle_instance, contact_point, contact_normal,
+                           contact_body_velocity, contact_active, instance_thickness, instance_friction,
+                           k_contact, eps_u, h, air_damping, sc, x_inout)
+
+    solve.__name__ = solve.__qualname__ = f"solve_color_p{P}_l{L}"
+    kernel = wp.kernel(solve, enable_backward=False, module="unique")
+    _SOLVE_KERNELS[key] = kernel
+    return kernel
 
 
 @wp.kernel
