@@ -55,6 +55,31 @@ def build_garment(body, vertices: int):
     return make_garment("t_shirt", body, None, resolution=edge), edge
 
 
+def add_batch_arguments(ap: argparse.ArgumentParser) -> None:
+    """Options of the batched garment-frames/s runs the t-shirt benchmarks share."""
+    ap.add_argument("--batch", default="", help="batch sizes for garment-frames/s, e.g. 1,16,64,256,1024")
+    ap.add_argument("--batch-prelude", type=float, default=None,
+                    help="settle and blend seconds (each) of the batched runs (default: the config's 1 s; "
+                    "shorter keeps 1024-sequence runs within minutes, the timed motion frames are unchanged)")
+    ap.add_argument("--batch-solver", default="{}", help="JSON dict of VBDConfig fields for the batched runs "
+                    "only (e.g. lanes and particles_per_block, whose best values depend on the batch size)")
+
+
+def run_batches(garment, body, motion, cfg, args: argparse.Namespace) -> dict:
+    """garment-frames/s of ``args.batch`` sequences in one model, each a JSON-ready dict."""
+    import dataclasses
+
+    bcfg = dataclasses.replace(cfg, solver={**cfg.solver, **json.loads(args.batch_solver)})
+    if args.batch_prelude is not None:
+        bcfg = dataclasses.replace(bcfg, settle_seconds=args.batch_prelude, blend_seconds=args.batch_prelude)
+    out = {}
+    for nb in [int(s) for s in args.batch.split(",")]:
+        out[str(nb)], _ = run_ours(garment, body, motion, bcfg, batch=nb)
+        out[str(nb)].update(prelude_s=bcfg.settle_seconds, solver=bcfg.solver)
+        print("batch", nb, json.dumps(out[str(nb)]), flush=True)
+    return out
+
+
 def quality_dict(q) -> dict:
     return {"max_edge_strain": q.max_edge_strain, "mean_edge_strain": q.mean_edge_strain,
             "max_stretch": q.max_stretch, "max_compression": q.max_compression,
@@ -120,10 +145,7 @@ def main() -> None:
     ap.add_argument("--no-self-contact", action="store_true")
     ap.add_argument("--solver", default="{}", help="JSON dict of extra VBDConfig fields")
     ap.add_argument("--newton", action="store_true", help="also run Newton's SolverVBD (needs newton)")
-    ap.add_argument("--batch", default="", help="batch sizes for garment-frames/s, e.g. 1,16,64,256")
-    ap.add_argument("--batch-prelude", type=float, default=None,
-                    help="settle and blend seconds (each) of the batched runs (default: the config's 1 s; "
-                    "shorter keeps 1024-sequence runs within minutes, the timed motion frames are unchanged)")
+    add_batch_arguments(ap)
     ap.add_argument("--batch-motion", default=None, help="motion of the batched runs (default: the first)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
@@ -147,20 +169,11 @@ def main() -> None:
             print(name, "newton", json.dumps(entry["newton"], indent=1, default=str), flush=True)
         fig[name] = entry
     if args.batch:
-        import dataclasses
-
         from sim.motions import load_motion
 
         motion = (next(iter(motions.values())) if args.batch_motion is None
                   else load_motion(args.batch_motion, fps=30.0, duration=args.seconds))
-        bcfg = cfg if args.batch_prelude is None else dataclasses.replace(
-            cfg, settle_seconds=args.batch_prelude, blend_seconds=args.batch_prelude)
-        batch = {}
-        for nb in [int(s) for s in args.batch.split(",")]:
-            batch[str(nb)], _ = run_ours(garment, body, motion, bcfg, batch=nb)
-            batch[str(nb)]["prelude_s"] = bcfg.settle_seconds
-            print("batch", nb, json.dumps(batch[str(nb)]), flush=True)
-        fig["batched"] = batch
+        fig["batched"] = run_batches(garment, body, motion, cfg, args)
     write_result(f"tshirt_{device.split(':')[0]}{args.tag}", {
         "machine": machine(device),
         "sizes": {"garment_vertices": garment.num_vertices, "garment_faces": garment.num_faces,

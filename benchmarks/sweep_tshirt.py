@@ -15,31 +15,39 @@ from __future__ import annotations
 import argparse
 import json
 import re
-import time
 
-from benchmarks.bench_tshirt import add_scene_arguments, load_scene, run_ours
+from benchmarks.bench_tshirt import (
+    add_batch_arguments,
+    add_scene_arguments,
+    load_scene,
+    run_batches,
+    run_ours,
+)
 from benchmarks.common import machine, write_result
 
 DEFAULT_SETTINGS = "10x10,10x5,5x10,5x5,10x10i2,5x5i2,4x4,3x5"
 
 
-SETTING = re.compile(r"^(\d+)x(\d+)(?:i(\d+))?(?:m([\d.]+))?(?:c(\d+))?$")
+SETTING = re.compile(r"^(\d+)x(\d+)(?:i(\d+))?(?:m([\d.]+))?(?:c(\d+))?(?:r([\d.]+))?$")
 
 
 def parse_setting(s: str) -> dict:
-    """``"10x5i2m6c8"`` -> substeps 10, iterations 5, self-contact detection every 2 substeps,
-    smallest self-contact query radius 6 mm, 8 pairs stored per vertex / triangle / edge
-    (``i``, ``m`` and ``c`` optional: the solver's defaults)."""
+    """``"10x5i2m6c8r0.9"`` -> substeps 10, iterations 5, self-contact detection every 2
+    substeps, smallest self-contact query radius 6 mm, 8 pairs stored per vertex / triangle /
+    edge, Chebyshev acceleration with rho 0.9 (``i``, ``m``, ``c``, ``r`` optional, in this
+    order: the solver's defaults)."""
     m = SETTING.match(s)
     if m is None:
         raise SystemExit(f"--settings: cannot read {s!r} "
-                         "(SUBSTEPSxITERATIONS[iINTERVAL][mMILLIMETRES][cCAPACITY])")
+                         "(SUBSTEPSxITERATIONS[iINTERVAL][mMILLIMETRES][cCAPACITY][rRHO])")
     out = {"substeps": int(m[1]), "iterations": int(m[2]), "interval": int(m[3] or 1)}
     out["solver"] = {"self_contact_interval": out["interval"]}
     if m[4]:
         out["solver"]["self_contact_margin"] = float(m[4]) / 1000.0
     if m[5]:
         out["solver"]["self_contact_capacity"] = int(m[5])
+    if m[6]:
+        out["solver"]["chebyshev_rho"] = float(m[6])
     return out
 
 
@@ -48,7 +56,8 @@ def main() -> None:
     add_scene_arguments(ap)
     ap.add_argument("--settings", default=DEFAULT_SETTINGS,
                     help="comma list of SUBSTEPSxITERATIONS[iINTERVAL] (default: %(default)s)")
-    ap.add_argument("--batch", default="", help="batch sizes for the cheapest passing setting")
+    ap.add_argument("--solver", default="{}", help="JSON dict of VBDConfig fields shared by every setting")
+    add_batch_arguments(ap)
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
 
@@ -56,8 +65,10 @@ def main() -> None:
 
     device, body, garment, edge, motions = load_scene(args)
     rows = []
+    shared = json.loads(args.solver)
     for s in args.settings.split(","):
         p = parse_setting(s)
+        p["solver"] = {**shared, **p["solver"]}
         cfg = SimulationConfig(fps=30.0, substeps=p["substeps"], iterations=p["iterations"],
                                self_contact=True, solver=p["solver"], device=device)
         row = {"setting": s, **p, "motions": {}}
@@ -73,14 +84,10 @@ def main() -> None:
     passing = [r for r in rows if r["passes"]]
     best = min(passing, key=lambda r: r["ms_per_frame_worst"]) if passing else None
     batch = {}
-    if best is not None and args.batch:
+    if best is not None and args.batch:  # the cheapest passing setting, batched
         cfg = SimulationConfig(fps=30.0, substeps=best["substeps"], iterations=best["iterations"],
                                self_contact=True, solver=best["solver"], device=device)
-        first = next(iter(motions.values()))
-        for nb in [int(b) for b in args.batch.split(",")]:
-            t0 = time.perf_counter()
-            batch[str(nb)], _ = run_ours(garment, body, first, cfg, batch=nb)
-            print("batch", nb, json.dumps(batch[str(nb)]), f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        batch = run_batches(garment, body, next(iter(motions.values())), cfg, args)
     write_result(f"tshirt_sweep_{device.split(':')[0]}{args.tag}", {
         "machine": machine(device),
         "sizes": {"garment_vertices": garment.num_vertices, "garment_faces": garment.num_faces,

@@ -390,6 +390,30 @@ def solve_color_kernel(particles: int, lanes: int):
 
 
 @wp.kernel
+def chebyshev_kernel(
+    omega: float,
+    flags: wp.array(dtype=wp.int32),
+    x_inout: wp.array(dtype=wp.vec3),
+    prev1_inout: wp.array(dtype=wp.vec3),
+    prev2_inout: wp.array(dtype=wp.vec3),
+):
+    """Chebyshev semi-iterative acceleration of the sweeps (Wang 2015; Chen et al. 2024,
+    Sec. 3.8): ``x_k = x_{k-2} + omega_k (xbar_k - x_{k-2})`` with ``xbar_k`` the sweep's
+    result; ``prev1``/``prev2`` hold ``x_{k-1}``/``x_{k-2}`` and are shifted. Pinned particles
+    keep the sweep's (prescribed) position."""
+    i = wp.tid()
+    xb = x_inout[i]
+    p1 = prev1_inout[i]
+    p2 = prev2_inout[i]
+    xa = xb
+    if flags[i] != PINNED:
+        xa = p2 + omega * (xb - p2)
+    prev2_inout[i] = p1
+    prev1_inout[i] = xa
+    x_inout[i] = xa
+
+
+@wp.kernel
 def velocity_kernel(
     x: wp.array(dtype=wp.vec3),
     x_prev: wp.array(dtype=wp.vec3),
