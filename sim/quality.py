@@ -29,7 +29,12 @@ class QualityGates:
     """Thresholds a sequence must meet.
 
     Attributes:
-        max_edge_strain: largest |l/l0 - 1| allowed on any edge in any frame [-].
+        max_edge_strain: largest |l/l0 - 1| allowed on any edge in any frame [-]. Compression
+            counts like stretch: cloth is nearly inextensible in both directions, and it
+            buckles out of plane instead of shortening. An edge at less than 65 % of its rest
+            length means a fold narrower than the mesh can hold, so the triangles crumpled
+            (StVK-style collapse) instead of wrinkling. The report keeps ``max_stretch`` and
+            ``max_compression`` apart, so it shows which one failed.
         max_inside_fraction: largest fraction of garment vertices inside the body in any frame.
         max_self_intersections: largest number of edge-face crossings in any frame.
     """
