@@ -432,6 +432,10 @@ def test_chebyshev_acceleration_converges_further_per_sweep(device):
     assert om[0] == 1.0 and om[1] == pytest.approx(2.0 / (2.0 - rho**2))
     assert om[-1] == pytest.approx(2.0 / (1.0 + np.sqrt(1.0 - rho**2)), rel=1e-3)
     assert chebyshev_omegas(0.0, 10) == []
+    for bad in ({"chebyshev_rho": 1.0}, {"chebyshev_rho": -0.1}, {"particles_per_block": 0},
+                {"particles_per_block": 128, "lanes": 16}):
+        with pytest.raises(ValueError):
+            VBDConfig(**bad)
     nx, ny = 3, 41
     mat = ClothMaterialParams(density=0.2, mu=200.0, lam=100.0, bending=1e-7, damping=0.0, friction=0.0)
     v, f = grid(nx, ny, 0.1, 1.0)

@@ -13,7 +13,8 @@ over the vertex colouring. Per substep:
    substep-end placement;
 4. with ``self_contact``: refit the cloth BVHs, find vertex-triangle and edge-edge pairs and
    per-vertex displacement bounds (``sim.cloth.self_contact``);
-5. ``iterations`` x colours launches of ``solve_color_kernel``;
+5. ``iterations`` x colours launches of the solve kernel (``solve_color_kernel(particles,
+   lanes)``), each iteration followed by ``chebyshev_kernel`` when ``chebyshev_rho`` > 0;
 6. ``velocity_kernel``.
 
 Substep safety: contact is found against the body where it will be at the end of each
