@@ -89,24 +89,7 @@ def main() -> None:
         return 1000.0 * (time.perf_counter() - t) / args.repeats
 
     def sweep(sc_data):
-        def fn():
-            for c in range(m.color_count):
-                start, end = m.color_offsets[c], m.color_offsets[c + 1]
-                wp.launch_tiled(
-                    solver._solve, dim=[-(-(end - start) // solver._particles)],
-                    block_dim=solver._particles * solver._lanes,
-                    inputs=[end - start, solver._membrane, m.color_vertices, start, solver._x_prev,
-                            solver._y, m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
-                            m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
-                            solver._tri_strain_prev, m.edge_indices, m.edge_rest_angle, m.edge_stiffness,
-                            m.edge_damping, solver._edge_angle_prev, m.vertex_tri_offsets, m.vertex_tri_ids,
-                            m.vertex_tri_local, m.vertex_edge_offsets, m.vertex_edge_ids,
-                            m.vertex_edge_local, solver._contact_point, solver._contact_normal,
-                            solver._contact_body_velocity, solver._contact_active, m.instance_thickness,
-                            m.instance_friction, vcfg.contact_stiffness, vcfg.friction_epsilon * h, h,
-                            vcfg.air_damping, sc_data],
-                    outputs=[state.positions], device=device)
-        return fn
+        return lambda: solver.sweep(state.positions, sc_data, vcfg.friction_epsilon * h, h)
 
     sc = solver.self_contact
     common = [sc.margin, sc.speed_factor, h, sc.data]

@@ -206,6 +206,28 @@ class SolverVBD:
             self.self_contact = None
             self._sc_data = disabled_data(d)
 
+    def sweep(self, x, sc_data, eps_u: float, h: float) -> None:
+        """One Gauss-Seidel sweep: the solve kernel over every colour, updating ``x`` in place
+        against the substep's current buffers (``sc_data``: the self-contact data to use)."""
+        wp = warp()
+        m = self.model
+        cfg = self.config
+        for c in range(m.color_count):
+            start, end = m.color_offsets[c], m.color_offsets[c + 1]
+            wp.launch_tiled(
+                self._solve, dim=[-(-(end - start) // self._particles)],
+                block_dim=self._particles * self._lanes,
+                inputs=[end - start, self._membrane, m.color_vertices, start, self._x_prev, self._y,
+                        m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
+                        m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
+                        self._tri_strain_prev, m.edge_indices, m.edge_rest_angle, m.edge_stiffness,
+                        m.edge_damping, self._edge_angle_prev, m.vertex_tri_offsets, m.vertex_tri_ids,
+                        m.vertex_tri_local, m.vertex_edge_offsets, m.vertex_edge_ids,
+                        m.vertex_edge_local, self._contact_point, self._contact_normal,
+                        self._contact_body_velocity, self._contact_active, m.instance_thickness,
+                        m.instance_friction, cfg.contact_stiffness, eps_u, h, cfg.air_damping, sc_data],
+                outputs=[x], device=m.device)
+
     def step(self, state_in: ClothState, state_out: ClothState, control: ClothControl, dt: float) -> None:
         """Advance by ``dt`` [s]; ``state_out`` may be ``state_in``.
 
@@ -252,22 +274,7 @@ class SolverVBD:
             if self._omegas:
                 wp.copy(self._cheb_prev1, x)
             for it in range(cfg.iterations):
-                for c in range(m.color_count):
-                    start, end = m.color_offsets[c], m.color_offsets[c + 1]
-                    wp.launch_tiled(
-                        self._solve, dim=[-(-(end - start) // self._particles)],
-                        block_dim=self._particles * self._lanes,
-                        inputs=[end - start, self._membrane, m.color_vertices, start, self._x_prev, self._y,
-                                m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
-                                m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
-                                self._tri_strain_prev, m.edge_indices, m.edge_rest_angle, m.edge_stiffness,
-                                m.edge_damping, self._edge_angle_prev, m.vertex_tri_offsets, m.vertex_tri_ids,
-                                m.vertex_tri_local, m.vertex_edge_offsets, m.vertex_edge_ids,
-                                m.vertex_edge_local, self._contact_point, self._contact_normal,
-                                self._contact_body_velocity, self._contact_active, m.instance_thickness,
-                                m.instance_friction, cfg.contact_stiffness, eps_u, h, cfg.air_damping,
-                                self._sc_data],
-                        outputs=[x], device=d)
+                self.sweep(x, self._sc_data, eps_u, h)
                 if self._omegas:
                     wp.launch(K.chebyshev_kernel, dim=n, inputs=[self._omegas[it], m.particle_flags],
                               outputs=[x, self._cheb_prev1, self._cheb_prev2], device=d)
