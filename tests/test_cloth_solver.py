@@ -13,7 +13,14 @@ from sim.cloth import (
     SolverVBD,
     VBDConfig,
 )
-from sim.cloth.coloring import validate_coloring, vertex_adjacency
+from sim.cloth.coloring import (
+    _tabu_recolor,
+    compact_coloring,
+    dsatur_coloring,
+    greedy_coloring,
+    validate_coloring,
+    vertex_adjacency,
+)
 from sim.cloth.model import build_hinges, dihedral_angles, triangle_rest_data
 from sim.device import warp
 
@@ -231,6 +238,40 @@ def test_hinges_and_coloring():
     b.add_cloth(v, f, ClothMaterialParams())
     m = b.finalize("cpu")
     assert validate_coloring(vertex_adjacency(len(v), f, hinges), m.colors)
+
+
+def test_compact_coloring_needs_fewer_colours_than_greedy_on_a_tshirt():
+    """Every colour is one launch per sweep: the t-shirt template's dependency graph (triangle
+    edges plus hinge diagonals) gets 6 colours where degree-ordered greedy needs 8."""
+    from sim.bodies.default import load_default_body
+    from sim.garments import make_garment
+
+    g = make_garment("t_shirt", load_default_body(), None, resolution=0.04)
+    nb = vertex_adjacency(len(g.rest_vertices), g.faces, build_hinges(g.faces))
+    greedy, dsatur, compact = greedy_coloring(nb), dsatur_coloring(nb), compact_coloring(nb)
+    for c in (greedy, dsatur, compact):
+        assert validate_coloring(nb, c)
+    assert compact.max() + 1 == 6 < greedy.max() + 1
+    assert compact.max() <= dsatur.max()
+    sizes = np.bincount(compact)
+    assert np.all(sizes > 0) and np.all(np.diff(sizes) <= 0)  # no empty launch, largest first
+    np.testing.assert_array_equal(compact, compact_coloring(nb))  # deterministic
+    # a clashing colouring is caught
+    bad = compact.copy()
+    v = int(np.flatnonzero(compact == 0)[0])
+    bad[nb[v][0]] = bad[v]
+    assert not validate_coloring(nb, bad)
+
+
+def test_tabu_recolor_repairs_a_colouring_down_to_the_chromatic_number():
+    """The hinged grid contains K4 (a triangle plus the opposite vertex of a hinge), so it needs
+    4 colours; TabuCol finds a 4-colouring from a random 7-colouring, and reports failure for 3."""
+    v, f = grid(12, 9, 1.0, 1.0)
+    nb = vertex_adjacency(len(v), f, build_hinges(f))
+    start = np.random.default_rng(3).integers(0, 7, len(v)).astype(np.int32)
+    four = _tabu_recolor(nb, start, 4, max_moves=20000, seed=0)
+    assert four is not None and validate_coloring(nb, four) and four.max() == 3
+    assert _tabu_recolor(nb, start, 3, max_moves=2000, seed=0) is None
 
 
 # --- physics -------------------------------------------------------------------------------

@@ -7,6 +7,8 @@ colours, so all vertices of one colour can be updated in parallel without races
 
 from __future__ import annotations
 
+import heapq
+
 import numpy as np
 
 
@@ -54,6 +56,107 @@ def greedy_coloring(neighbours: list[np.ndarray]) -> np.ndarray:
             c = int(np.argmin(taken))
         colors[v] = c
     return colors
+
+
+def dsatur_coloring(neighbours: list[np.ndarray]) -> np.ndarray:
+    """DSATUR colouring (Brelaz 1979): repeatedly colour the uncoloured vertex with the most
+    distinct colours among its neighbours (ties: higher degree, then lower index) with the
+    smallest free colour. Deterministic; on cloth meshes with bending hinges it needs about 7
+    colours where degree-ordered greedy needs 9.
+
+    Args:
+        neighbours: per-vertex neighbour index arrays.
+
+    Returns:
+        int32 (V,) colour per vertex, colours 0..C-1.
+    """
+    n = len(neighbours)
+    colors = np.full(n, -1, dtype=np.int32)
+    saturation = [set() for _ in range(n)]
+    heap = [(0, -len(nb), v) for v, nb in enumerate(neighbours)]
+    heapq.heapify(heap)
+    while heap:
+        sat, _, v = heapq.heappop(heap)
+        if colors[v] >= 0 or -sat != len(saturation[v]):
+            continue  # coloured already, or a stale entry
+        c = 0
+        while c in saturation[v]:
+            c += 1
+        colors[v] = c
+        for u in neighbours[v].tolist():
+            if colors[u] < 0 and c not in saturation[u]:
+                saturation[u].add(c)
+                heapq.heappush(heap, (-len(saturation[u]), -len(neighbours[u]), u))
+    return colors
+
+
+def _tabu_recolor(neighbours: list[np.ndarray], colors: np.ndarray, k: int, max_moves: int,
+                  seed: int) -> np.ndarray | None:
+    """TabuCol (Hertz & de Werra 1987): a ``k``-colouring from ``colors`` (vertices of colours
+    >= k start at random colours), by single-vertex moves that reduce the number of
+    same-coloured neighbour pairs, recently undone moves forbidden. None when ``max_moves``
+    moves leave conflicts."""
+    rng = np.random.default_rng(seed)
+    n = len(neighbours)
+    col = colors.astype(np.int64)
+    over = col >= k
+    col[over] = rng.integers(0, k, int(over.sum()))
+    src = np.repeat(np.arange(n), [len(nb) for nb in neighbours])
+    dst = np.concatenate(neighbours).astype(np.int64) if n else np.zeros(0, np.int64)
+    gamma = np.zeros((n, k), dtype=np.int64)  # gamma[v, c]: neighbours of v coloured c
+    np.add.at(gamma, (src, col[dst]), 1)
+    conflicts = int(gamma[np.arange(n), col].sum()) // 2
+    best = conflicts
+    tabu = np.zeros((n, k), dtype=np.int64)
+    for move in range(max_moves):
+        if conflicts == 0:
+            return col.astype(np.int32)
+        cand = np.flatnonzero(gamma[np.arange(n), col] > 0)
+        g = gamma[cand]
+        delta = g - g[np.arange(len(cand)), col[cand]][:, None]
+        delta[np.arange(len(cand)), col[cand]] = np.iinfo(np.int64).max // 4
+        allowed = (tabu[cand] <= move) | (conflicts + delta < best)  # aspiration
+        delta = np.where(allowed, delta, np.iinfo(np.int64).max // 4)
+        ties = np.argwhere(delta == delta.min())
+        i, c = ties[rng.integers(len(ties))]
+        v, old = cand[i], col[cand[i]]
+        col[v] = c
+        conflicts += int(delta[i, c])
+        nb = neighbours[v]
+        np.subtract.at(gamma[:, old], nb, 1)
+        np.add.at(gamma[:, c], nb, 1)
+        tabu[v, old] = move + int(0.6 * len(cand)) + int(rng.integers(10))
+        best = min(best, conflicts)
+    return col.astype(np.int32) if conflicts == 0 else None
+
+
+def compact_coloring(neighbours: list[np.ndarray], max_moves: int = 5000, seed: int = 0) -> np.ndarray:
+    """A colouring with few colours: DSATUR, then TabuCol removes one colour at a time while
+    it finds a conflict-free colouring within ``max_moves`` moves. Every colour is one solve
+    launch per Gauss-Seidel sweep, so one fewer colour is one fewer launch in each of the
+    substeps x iterations sweeps (the 5k t-shirt: greedy 9, DSATUR 7, compact 6). Colours are
+    renumbered largest first. Deterministic for a given ``seed``.
+
+    Args:
+        neighbours: per-vertex neighbour index arrays.
+        max_moves: TabuCol's move budget per attempt.
+        seed: random seed of the moves.
+
+    Returns:
+        int32 (V,) colour per vertex, colours 0..C-1.
+    """
+    colors = dsatur_coloring(neighbours)
+    while len(colors) and colors.max() > 0:
+        fewer = _tabu_recolor(neighbours, colors, int(colors.max()), max_moves, seed)
+        if fewer is None:
+            break
+        colors = fewer
+    if not len(colors):
+        return colors
+    order = np.argsort(-np.bincount(colors), kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return rank[colors].astype(np.int32)
 
 
 def validate_coloring(neighbours: list[np.ndarray], colors: np.ndarray) -> bool:

@@ -18,7 +18,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from sim.cloth.coloring import greedy_coloring, vertex_adjacency
+from sim.cloth.coloring import compact_coloring, vertex_adjacency
 from sim.device import resolve_device, warp
 
 
@@ -194,7 +194,7 @@ class ClothModelBuilder:
             else:
                 mask[p.astype(np.int64)] = True
         hinges = build_hinges(f)
-        colors = greedy_coloring(vertex_adjacency(len(v), f, hinges))
+        colors = compact_coloring(vertex_adjacency(len(v), f, hinges))
         self._instances.append(_Instance(v, rest, f, hinges, mask, material, colors))
         return len(self._instances) - 1
 

@@ -372,12 +372,13 @@ def detect_vertex_kernel(
             continue
         if particle_instance[tri[0]] != inst:
             continue
-        if rest_near_triangle(sc, i, tri):
-            continue
+        # distance first: most candidates of the box query lie beyond r, where they change
+        # neither dmin (which starts at r) nor the list, and skip the rest-shape test
         d = point_triangle_distance(xi, x[tri[0]], x[tri[1]], x[tri[2]])
+        if d >= r or rest_near_triangle(sc, i, tri):
+            continue
         dmin = wp.min(dmin, d)
-        if d < r:
-            count = keep_closest(sc.vt_tri, sc.vt_dist, i * sc.vt_capacity, count, sc.vt_capacity, t, d)
+        count = keep_closest(sc.vt_tri, sc.vt_dist, i * sc.vt_capacity, count, sc.vt_capacity, t, d)
     sc.vt_count[i] = count
     dmin_out[i] = dmin
 
@@ -419,10 +420,10 @@ def detect_triangle_kernel(
             continue
         for j in range(3):
             u = other[j]
-            if vertex_owner_tri[u] == t2 and not rest_near_triangle(sc, u, tri):
+            if vertex_owner_tri[u] == t2:
                 d = point_triangle_distance(x[u], a, b, c)
-                dmin = wp.min(dmin, d)
-                if d < r:
+                if d < r and not rest_near_triangle(sc, u, tri):
+                    dmin = wp.min(dmin, d)
                     count = keep_closest(sc.tv_vertex, sc.tv_dist, t * sc.tv_capacity, count,
                                          sc.tv_capacity, u, d)
     sc.tv_count[t] = count
@@ -460,14 +461,12 @@ def detect_edge_kernel(
             continue
         if particle_instance[eb[0]] != inst:
             continue
-        if rest_near_edges(sc, ea, eb):
-            continue
         st = wp.closest_point_edge_edge(p1, q1, x[eb[0]], x[eb[1]], 1.0e-12)
         d = st[2]
+        if d >= r or rest_near_edges(sc, ea, eb):
+            continue
         dmin = wp.min(dmin, d)
-        if d < r:
-            count = keep_closest(sc.ee_edge, sc.ee_dist, e * sc.ee_capacity, count,
-                                 sc.ee_capacity, e2, d)
+        count = keep_closest(sc.ee_edge, sc.ee_dist, e * sc.ee_capacity, count, sc.ee_capacity, e2, d)
     sc.ee_count[e] = count
     dmin_out[e] = dmin
 
