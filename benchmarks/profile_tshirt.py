@@ -22,6 +22,24 @@ from benchmarks.bench_tshirt import build_garment
 from benchmarks.common import machine, write_result
 
 
+def kernel_breakdown(wp, device: str, fn) -> dict:
+    """GPU time [ms] of every kernel ``fn`` launches (CUDA activity timing of one plain run),
+    summed by kernel name, largest first, with launch counts: where a step's time goes."""
+    if not wp.get_device(device).is_cuda:
+        return {}
+    fn()
+    with wp.ScopedTimer("step", print=False, synchronize=True,
+                        cuda_filter=wp.TIMING_KERNEL | wp.TIMING_KERNEL_BUILTIN) as timer:
+        fn()
+    total: dict = {}
+    for r in timer.timing_results:
+        name = r.name.split("_cuda_kernel")[0]
+        ms, count = total.get(name, (0.0, 0))
+        total[name] = (ms + r.elapsed, count + 1)
+    ranked = sorted(total.items(), key=lambda kv: -kv[1][0])
+    return {k: {"ms": round(ms, 4), "launches": c} for k, (ms, c) in ranked}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default="auto")
@@ -132,6 +150,8 @@ def main() -> None:
         "sweep_sc_graph_ms": timed(sweep(sc.data), graph=True),
         "sweep_nosc_graph_ms": timed(sweep(disabled_data(device)), graph=True),
     }
+    res["step_kernels_ms"] = kernel_breakdown(wp, device,
+                                              lambda: (restore(), solver.step(state, state, control, dt)))
     for name in ("vt", "tv", "ee"):
         cnt = getattr(sc.data, f"{name}_count").numpy()
         cap = getattr(sc.data, f"{name}_capacity")

@@ -401,8 +401,11 @@ def _point_triangle_distance_np(p, a, b, c):
     inside = all(np.cross(v1 - v0, q - v0) @ n >= 0.0 for v0, v1 in ((a, b), (b, c), (c, a)))
     if inside:
         return float(abs((p - a) @ n))
-    return min(float(np.linalg.norm(p - (s0 + np.clip((p - s0) @ (s1 - s0) / ((s1 - s0) @ (s1 - s0)), 0.0, 1.0)
-                                           * (s1 - s0)))) for s0, s1 in ((a, b), (b, c), (c, a)))
+    def to_segment(s0, s1):
+        t = np.clip((p - s0) @ (s1 - s0) / ((s1 - s0) @ (s1 - s0)), 0.0, 1.0)
+        return float(np.linalg.norm(p - (s0 + t * (s1 - s0))))
+
+    return min(to_segment(a, b), to_segment(b, c), to_segment(c, a))
 
 
 def test_detection_finds_exactly_the_pairs_within_the_query_radius(device):
@@ -463,3 +466,57 @@ def test_detection_finds_exactly_the_pairs_within_the_query_radius(device):
                 (ee_want if d < r else ee_near).add((a, c))
     assert len(ee_want) > 50
     assert ee_want <= ee_found and not (ee_found & ee_near)
+
+
+def test_a_pair_pushed_through_is_pushed_back_to_the_side_it_was_found_on(device):
+    """Side memory: a vertex found 2 mm over a sheet, then pushed 1.5 mm under it (as a
+    stronger body contact would), is pushed back up at the next detection; a vertex first found
+    under the sheet is pushed further down (its side is where it was found). Without the
+    memory, the crossed state at a substep start became the new side and the crossing stayed."""
+    nx, e = 4, 0.01
+    v, f = grid(nx, nx, (nx - 1) * e, (nx - 1) * e, plane="xz")
+    probe = np.array([[0.015, 0.002, 0.013], [0.03, 0.02, 0.013], [0.015, 0.02, 0.03]], np.float32)
+    b = ClothModelBuilder()
+    b.add_cloth(np.concatenate([v, probe]), np.concatenate([f, np.array([[len(v), len(v) + 2, len(v) + 1]])]),
+                ClothMaterialParams())
+    m = b.finalize(device)
+    i = len(v)  # the probe's tip
+    above = m.particle_q.numpy()
+    below = above.copy()
+    below[i, 1] = -0.0015
+    zeros = wp.zeros(len(above), dtype=wp.vec3, device=device)
+
+    def force_on_tip(sc, x):
+        xw = wp.array(x, dtype=wp.vec3, device=device)
+        fo = wp.zeros(len(x), dtype=wp.vec3, device=device)
+        ho = wp.zeros(len(x), dtype=wp.mat33, device=device)
+        wp.launch(_lane_force_kernel, dim=len(x), inputs=[xw, m.tri_indices, m.vertex_tri_offsets,
+                                                          m.vertex_tri_ids, m.vertex_tri_local, sc.data, 1],
+                  outputs=[fo, ho], device=device)
+        return fo.numpy()[i]
+
+    def contact(side_memory=True):
+        return SelfContact(m, radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45,
+                           speed_factor=2.5, capacity=16, side_memory=side_memory)
+
+    tracked = contact()
+    tracked.detect(wp.array(above, dtype=wp.vec3, device=device), zeros, 1.0 / 300.0)
+    assert tracked.data.vt_count.numpy()[i] > 0
+    assert force_on_tip(tracked, above)[1] > 0.0  # 2 mm < 3 mm contact radius: pushed up, away
+    tracked.detect(wp.array(below, dtype=wp.vec3, device=device), zeros, 1.0 / 300.0)
+    f_back = force_on_tip(tracked, below)
+    assert f_back[1] > 0.0, "a vertex pushed through must be pushed back to its side"
+    # the penalty acts on the signed distance -1.5 mm: at least k (r_c + 1.5 mm) from the
+    # triangle it crossed (more from its neighbours within r_c)
+    assert f_back[1] >= 0.999 * 1e4 * (0.003 + 0.0015)
+    fresh = contact()
+    fresh.detect(wp.array(below, dtype=wp.vec3, device=device), zeros, 1.0 / 300.0)
+    assert force_on_tip(fresh, below)[1] < 0.0  # found under the sheet: its side is below
+    # without the memory the crossed state is the new side
+    forgetful = contact(side_memory=False)
+    for x in (above, below):
+        forgetful.detect(wp.array(x, dtype=wp.vec3, device=device), zeros, 1.0 / 300.0)
+    assert force_on_tip(forgetful, below)[1] < 0.0
+    # once back on its side the reference follows the pair again
+    tracked.detect(wp.array(above, dtype=wp.vec3, device=device), zeros, 1.0 / 300.0)
+    assert force_on_tip(tracked, above)[1] > 0.0

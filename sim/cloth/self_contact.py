@@ -17,6 +17,18 @@ of Chen et al. 2025, "Offset Geometric Contact"):
 * Energy of a pair at distance ``d`` (closest points recomputed from the current positions
   each iteration): ``k/2 (r_c - d)^2`` for ``d < r_c``, with lazy IPC friction on the relative
   tangential displacement over the substep.
+* Side memory (``side_memory``, off by default): every stored pair carries the separation
+  vector it had when first found, updated at each detection while the pair stays on the same
+  side (``diff . ref >= 0``) and kept when it flipped. A pair that a stronger force (body
+  contact, a fast fold) pushed through is therefore pushed back at later substeps instead of
+  being held in the crossed state, which is what a side taken from each substep's start would
+  do: without it a crossing, once made, persists to the end of the sequence. Off, each pair's
+  side is its separation at the detection (the substep start). Measured on the t-shirt
+  (session 10): it clears the run's persistent sleeve crossing (3/3 runs pass, 0/3 without)
+  but the walk then fails more often (crossings in 5 of 6 runs): a pair whose closest-point
+  direction turns by more than 90 degrees between detections without crossing (around a
+  boundary edge, or an edge sliding past an edge's end) is taken for a crossing and pushed
+  back.
 * Bound: vertex ``i`` may move at most ``b_i = gamma min(d_min(i), d_min(incident triangles),
   d_min(incident edges))`` from ``x0`` during the substep, ``gamma < 1/2``. Two primitives at
   distance ``d`` then move together by at most ``2 gamma d < d``: no vertex crosses a
@@ -41,6 +53,7 @@ class SelfContactData:
 
     enabled: int
     use_bounds: int
+    side_memory: int
     radius: float
     stiffness: float
     friction: float
@@ -56,6 +69,18 @@ class SelfContactData:
     vt_dist: wp.array(dtype=float)
     tv_dist: wp.array(dtype=float)
     ee_dist: wp.array(dtype=float)
+    vt_ref: wp.array(dtype=wp.vec3)
+    tv_ref: wp.array(dtype=wp.vec3)
+    ee_ref: wp.array(dtype=wp.vec3)
+    vt_count_prev: wp.array(dtype=wp.int32)
+    vt_tri_prev: wp.array(dtype=wp.int32)
+    vt_ref_prev: wp.array(dtype=wp.vec3)
+    tv_count_prev: wp.array(dtype=wp.int32)
+    tv_vertex_prev: wp.array(dtype=wp.int32)
+    tv_ref_prev: wp.array(dtype=wp.vec3)
+    ee_count_prev: wp.array(dtype=wp.int32)
+    ee_edge_prev: wp.array(dtype=wp.int32)
+    ee_ref_prev: wp.array(dtype=wp.vec3)
     mesh_edges: wp.array(dtype=wp.vec2i)
     vertex_edge_offsets: wp.array(dtype=wp.int32)
     vertex_edge_ids: wp.array(dtype=wp.int32)
@@ -109,10 +134,12 @@ def triangle_closest_bary(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> wp.
 def pair_force_hessian(diff: wp.vec3, diff0: wp.vec3, rel_disp: wp.vec3, w: float, radius: float, k: float,
                        mu: float, eps_u: float):
     """Force on and Hessian block of a vertex taking part with signed weight ``w`` in a contact
-    pair whose closest points differ by ``diff = p_a - p_b`` now and by ``diff0`` at the substep
-    start (``w > 0`` on side a, ``< 0`` on side b). Energy ``k/2 (radius - d)^2`` for ``d <
-    radius``, with ``d`` the distance signed by the side the pair started on: a pair that
-    crossed within the substep (``diff . diff0 < 0``) is pushed back, not further through.
+    pair whose closest points differ by ``diff = p_a - p_b`` now; ``diff0`` is the pair's
+    tracked side (``track_side``: the separation when it was found, followed while it stays
+    on that side) (``w > 0`` on side a, ``< 0`` on side b). Energy ``k/2 (radius - d)^2`` for
+    ``d < radius``, with ``d`` the distance signed by that side: a pair that crossed (``diff .
+    diff0 < 0``), in this substep or an earlier one while it stayed in the lists, is pushed
+    back, not further through.
     Friction opposes the tangential part of the pair's relative displacement ``rel_disp`` over
     the substep (lazy IPC friction, smoothed below ``eps_u``)."""
     f = wp.vec3(0.0)
@@ -180,7 +207,8 @@ def self_contact_force_hessian(
         w = triangle_closest_bary(xi, a, b, c)
         p = w[0] * a + w[1] * b + w[2] * c
         p0 = w[0] * x0[tri[0]] + w[1] * x0[tri[1]] + w[2] * x0[tri[2]]
-        fc, hc = pair_force_hessian(xi - p, x0[i] - p0, di - (p - p0), 1.0, r, k, mu, eps_u)
+        fc, hc = pair_force_hessian(xi - p, sc.vt_ref[i * sc.vt_capacity + s], di - (p - p0), 1.0, r, k, mu,
+                                    eps_u)
         f = f + fc
         H = H + hc
     # i as a corner of triangles that vertices are close to. The lanes split the flattened list
@@ -211,7 +239,8 @@ def self_contact_force_hessian(
         w = triangle_closest_bary(xu, a, b, c)
         p = w[0] * a + w[1] * b + w[2] * c
         p0 = w[0] * x0[tri[0]] + w[1] * x0[tri[1]] + w[2] * x0[tri[2]]
-        fc, hc = pair_force_hessian(xu - p, x0[u] - p0, (xu - x0[u]) - (p - p0), -w[corner], r, k, mu, eps_u)
+        fc, hc = pair_force_hessian(xu - p, sc.tv_ref[t * cap + s], (xu - x0[u]) - (p - p0), -w[corner], r, k,
+                                    mu, eps_u)
         f = f + fc
         H = H + hc
     # i as an end of edges close to other edges (lanes split the flattened stored pairs alike)
@@ -245,7 +274,8 @@ def self_contact_force_hessian(
         we = 1.0 - st[0]
         if end == 1:
             we = st[0]
-        fc, hc = pair_force_hessian(pa - pb, pa0 - pb0, (pa - pa0) - (pb - pb0), we, r, k, mu, eps_u)
+        fc, hc = pair_force_hessian(pa - pb, sc.ee_ref[e * ecap + s], (pa - pa0) - (pb - pb0), we, r, k, mu,
+                                    eps_u)
         f = f + fc
         H = H + hc
     return f, H
@@ -294,15 +324,15 @@ def query_radius(margin: float, speed: float, h: float, speed_factor: float) -> 
 
 @wp.func
 def keep_closest(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), base: int, count: int,
-                 capacity: int, item: int, d: float) -> int:
+                 capacity: int, item: int, d: float):
     """Add pair ``item`` at distance ``d`` to the list ``ids[base : base + capacity]``; when the
-    list is full, it replaces the farthest stored pair if closer. Returns the new count. (Keeping
-    the first pairs found would let a crumpled region's nearby neighbours crowd out the layer
-    that is actually closest.)"""
+    list is full, it replaces the farthest stored pair if closer. Returns the new count and the
+    slot written (-1: not stored). (Keeping the first pairs found would let a crumpled region's
+    nearby neighbours crowd out the layer that is actually closest.)"""
     if count < capacity:
         ids[base + count] = item
         dist[base + count] = d
-        return count + 1
+        return count + 1, count
     far = int(0)
     far_d = dist[base]
     for k in range(1, capacity):
@@ -312,7 +342,24 @@ def keep_closest(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), bas
     if d < far_d:
         ids[base + far] = item
         dist[base + far] = d
-    return count
+        return count, far
+    return count, -1
+
+
+@wp.func
+def track_side(prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.vec3), base: int,
+               prev_count: int, item: int, diff: wp.vec3) -> wp.vec3:
+    """The side reference of pair ``item`` with separation ``diff`` now: ``diff`` for a pair
+    that is new or still on the side it had at the previous detection, the previous reference
+    for one that crossed since (so the penalty pushes it back). ``prev_count`` 0 (side memory
+    off): ``diff``."""
+    for k in range(prev_count):
+        if prev_ids[base + k] == item:
+            ref = prev_ref[base + k]
+            if wp.dot(diff, ref) < 0.0:
+                return ref
+            return diff
+    return diff
 
 
 @wp.kernel
@@ -374,11 +421,20 @@ def detect_vertex_kernel(
             continue
         # distance first: most candidates of the box query lie beyond r, where they change
         # neither dmin (which starts at r) nor the list, and skip the rest-shape test
-        d = point_triangle_distance(xi, x[tri[0]], x[tri[1]], x[tri[2]])
+        a = x[tri[0]]
+        b = x[tri[1]]
+        c = x[tri[2]]
+        w = triangle_closest_bary(xi, a, b, c)
+        diff = xi - (w[0] * a + w[1] * b + w[2] * c)
+        d = wp.length(diff)
         if d >= r or rest_near_triangle(sc, i, tri):
             continue
         dmin = wp.min(dmin, d)
-        count = keep_closest(sc.vt_tri, sc.vt_dist, i * sc.vt_capacity, count, sc.vt_capacity, t, d)
+        base = i * sc.vt_capacity
+        count, slot = keep_closest(sc.vt_tri, sc.vt_dist, base, count, sc.vt_capacity, t, d)
+        if slot >= 0:
+            sc.vt_ref[base + slot] = track_side(sc.vt_tri_prev, sc.vt_ref_prev, base, sc.vt_count_prev[i], t,
+                                                diff)
     sc.vt_count[i] = count
     dmin_out[i] = dmin
 
@@ -421,11 +477,16 @@ def detect_triangle_kernel(
         for j in range(3):
             u = other[j]
             if vertex_owner_tri[u] == t2:
-                d = point_triangle_distance(x[u], a, b, c)
+                w = triangle_closest_bary(x[u], a, b, c)
+                diff = x[u] - (w[0] * a + w[1] * b + w[2] * c)
+                d = wp.length(diff)
                 if d < r and not rest_near_triangle(sc, u, tri):
                     dmin = wp.min(dmin, d)
-                    count = keep_closest(sc.tv_vertex, sc.tv_dist, t * sc.tv_capacity, count,
-                                         sc.tv_capacity, u, d)
+                    base = t * sc.tv_capacity
+                    count, slot = keep_closest(sc.tv_vertex, sc.tv_dist, base, count, sc.tv_capacity, u, d)
+                    if slot >= 0:
+                        sc.tv_ref[base + slot] = track_side(sc.tv_vertex_prev, sc.tv_ref_prev, base,
+                                                            sc.tv_count_prev[t], u, diff)
     sc.tv_count[t] = count
     dmin_out[t] = dmin
 
@@ -461,12 +522,19 @@ def detect_edge_kernel(
             continue
         if particle_instance[eb[0]] != inst:
             continue
-        st = wp.closest_point_edge_edge(p1, q1, x[eb[0]], x[eb[1]], 1.0e-12)
+        p2 = x[eb[0]]
+        q2 = x[eb[1]]
+        st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
         d = st[2]
         if d >= r or rest_near_edges(sc, ea, eb):
             continue
         dmin = wp.min(dmin, d)
-        count = keep_closest(sc.ee_edge, sc.ee_dist, e * sc.ee_capacity, count, sc.ee_capacity, e2, d)
+        base = e * sc.ee_capacity
+        count, slot = keep_closest(sc.ee_edge, sc.ee_dist, base, count, sc.ee_capacity, e2, d)
+        if slot >= 0:
+            diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
+            sc.ee_ref[base + slot] = track_side(sc.ee_edge_prev, sc.ee_ref_prev, base,
+                                                sc.ee_count_prev[e], e2, diff)
     sc.ee_count[e] = count
     dmin_out[e] = dmin
 
@@ -509,11 +577,13 @@ class SelfContact:
         speed_factor: the query radius is at least ``speed_factor |v| h``.
         bounds: apply the displacement bounds (intersection-free guarantee); off: penalty only.
         capacity: pairs kept per vertex / triangle / edge.
+        side_memory: keep the side a pair was found on across detections (see the module
+            docstring); off: each detection takes the side from the positions it sees.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
-                 bounds: bool = True):
+                 bounds: bool = True, side_memory: bool = False):
         w = warp()
         d = model.device
         self.model = model
@@ -524,6 +594,8 @@ class SelfContact:
         sc = SelfContactData()
         sc.enabled = 1
         sc.use_bounds = 1 if bounds else 0
+        sc.side_memory = 1 if side_memory else 0
+        self.side_memory = bool(side_memory)
         sc.radius = float(radius)
         sc.stiffness = float(stiffness)
         sc.friction = float(friction)
@@ -537,6 +609,14 @@ class SelfContact:
         sc.vt_dist = w.zeros(n * capacity, dtype=float, device=d)
         sc.tv_dist = w.zeros(nt * capacity, dtype=float, device=d)
         sc.ee_dist = w.zeros(ne * capacity, dtype=float, device=d)
+        # side memory: each list's pair references, and the previous detection's lists
+        for name, size in (("vt", n), ("tv", nt), ("ee", ne)):
+            setattr(sc, f"{name}_ref", w.zeros(size * capacity, dtype=w.vec3, device=d))
+            setattr(sc, f"{name}_ref_prev", w.zeros(size * capacity, dtype=w.vec3, device=d))
+            setattr(sc, f"{name}_count_prev", w.zeros(size, dtype=w.int32, device=d))
+        sc.vt_tri_prev = w.zeros(n * capacity, dtype=w.int32, device=d)
+        sc.tv_vertex_prev = w.zeros(nt * capacity, dtype=w.int32, device=d)
+        sc.ee_edge_prev = w.zeros(ne * capacity, dtype=w.int32, device=d)
         sc.mesh_edges = model.mesh_edge_indices
         sc.vertex_edge_offsets = model.vertex_mesh_edge_offsets
         sc.vertex_edge_ids = model.vertex_mesh_edge_ids
@@ -574,16 +654,24 @@ class SelfContact:
                       inputs=[x, m.tri_indices, m.mesh_edge_indices, m.tri_count],
                       outputs=[self._lo_t, self._hi_t, self._lo_e, self._hi_e], device=m.device)
 
-    def detect(self, x0, v, h: float) -> None:
-        """Refit the BVHs at ``x0`` (substep start) and find pairs and bounds; ``v`` [m/s] are
-        the velocities the substep starts with."""
+    def detect(self, x0, v, h: float, rebuild: bool = False) -> None:
+        """Refit (``rebuild``: rebuild) the BVHs at ``x0`` (substep start) and find pairs and
+        bounds; ``v`` [m/s] are the velocities the substep starts with."""
         w = warp()
         m = self.model
         d = m.device
         sc = self.data
+        for name, ids in (("vt", "tri"), ("tv", "vertex"), ("ee", "edge")) if self.side_memory else ():
+            w.copy(getattr(sc, f"{name}_count_prev"), getattr(sc, f"{name}_count"))
+            w.copy(getattr(sc, f"{name}_{ids}_prev"), getattr(sc, f"{name}_{ids}"))
+            w.copy(getattr(sc, f"{name}_ref_prev"), getattr(sc, f"{name}_ref"))
         self._update_bounds(x0)
-        self.tri_bvh.refit()
-        self.edge_bvh.refit()
+        if rebuild:
+            self.tri_bvh.rebuild()
+            self.edge_bvh.rebuild()
+        else:
+            self.tri_bvh.refit()
+            self.edge_bvh.refit()
         common = [self.margin, self.speed_factor, h, sc]
         w.launch(detect_vertex_kernel, dim=m.particle_count,
                  inputs=[x0, v, m.particle_instance, m.tri_indices, self.tri_bvh.id, *common],
@@ -606,6 +694,7 @@ def disabled_data(device) -> SelfContactData:
     sc = SelfContactData()
     sc.enabled = 0
     sc.use_bounds = 0
+    sc.side_memory = 0
     sc.radius = 0.0
     sc.stiffness = 0.0
     sc.friction = 0.0
@@ -616,6 +705,10 @@ def disabled_data(device) -> SelfContactData:
     sc.mesh_edges = w.zeros(1, dtype=w.vec2i, device=device)
     sc.bound = w.zeros(1, dtype=float, device=device)
     sc.vt_dist = sc.tv_dist = sc.ee_dist = sc.bound
+    sc.vt_count_prev = sc.vt_tri_prev = sc.tv_count_prev = sc.tv_vertex_prev = empty_i
+    sc.ee_count_prev = sc.ee_edge_prev = empty_i
+    sc.vt_ref = sc.tv_ref = sc.ee_ref = w.zeros(1, dtype=w.vec3, device=device)
+    sc.vt_ref_prev = sc.tv_ref_prev = sc.ee_ref_prev = sc.vt_ref
     sc.rest = w.zeros(1, dtype=w.vec3, device=device)
     sc.component = w.zeros(1, dtype=w.int32, device=device)
     sc.exclusion = 0.0
