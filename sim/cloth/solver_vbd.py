@@ -73,8 +73,8 @@ class VBDConfig:
             the substep's motion never act, and storing them cost 1.5x the step at batch 64.
         self_contact_stiffness: penalty stiffness [N/m] of a cloth-cloth pair. 3e4 (was 1e4
             until session 10): at 1e4 body contact (1e5) squeezes sleeve layers through each
-            other; repeated t-shirt runs at 20x10 passed the gates 7 of 8 times at 3e4 and 2 of
-            10 at 1e4 (GPU runs are not bit-reproducible, so a single pass proves little).
+            other. Repeated t-shirt runs at 20x10: walk 5/8 and run 8/8 pass the gates at 3e4,
+            2/5 and 0/5 at 1e4 (GPU runs are not bit-reproducible: a single pass proves little).
         self_contact_friction: cloth-cloth Coulomb friction coefficient.
         self_contact_relaxation: gamma of the bounds (< 0.5 keeps the guarantee).
         self_contact_speed_factor: query radius at least this times |v| h, so fast cloth with
