@@ -377,22 +377,6 @@ def test_lanes_of_the_tiled_solve_share_every_pair_once(device):
         np.testing.assert_allclose(out[stride][1], h1, rtol=1e-4, atol=1e-5 * np.abs(h1).max())
 
 
-def _segment_distance_np(p1, q1, p2, q2):
-    """Exact distance between segments p1q1 and p2q2 (Ericson, Real-Time Collision Detection
-    5.1.9), float64, one pair."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e, f = d1 @ d1, d2 @ d2, d2 @ r
-    c, b = d1 @ r, d1 @ d2
-    denom = a * e - b * b
-    s = np.clip((b * f - c * e) / denom, 0.0, 1.0) if denom > 1e-18 else 0.0
-    t = (b * s + f) / e
-    if t < 0.0:
-        t, s = 0.0, np.clip(-c / a, 0.0, 1.0)
-    elif t > 1.0:
-        t, s = 1.0, np.clip((b - c) / a, 0.0, 1.0)
-    return float(np.linalg.norm(p1 + d1 * s - (p2 + d2 * t)))
-
-
 def _point_triangle_distance_np(p, a, b, c):
     """Exact distance: the plane projection when it falls inside, else the nearest edge."""
     n = np.cross(b - a, c - a)
