@@ -347,15 +347,18 @@ def keep_closest(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), bas
 
 
 @wp.func
-def track_side(prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.vec3), base: int,
-               prev_count: int, item: int, diff: wp.vec3) -> wp.vec3:
+def track_side(prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.vec3),
+               prev_counts: wp.array(dtype=wp.int32), k: int, side_memory: int, base: int, item: int,
+               diff: wp.vec3) -> wp.vec3:
     """The side reference of pair ``item`` with separation ``diff`` now: ``diff`` for a pair
     that is new or still on the side it had at the previous detection, the previous reference
-    for one that crossed since (so the penalty pushes it back). ``prev_count`` 0 (side memory
-    off): ``diff``."""
-    for k in range(prev_count):
-        if prev_ids[base + k] == item:
-            ref = prev_ref[base + k]
+    for one that crossed since (so the penalty pushes it back); without side memory
+    ``diff``. The previous list of ``item``'s owner ``k`` starts at ``base``."""
+    if side_memory == 0:
+        return diff
+    for j in range(prev_counts[k]):
+        if prev_ids[base + j] == item:
+            ref = prev_ref[base + j]
             if wp.dot(diff, ref) < 0.0:
                 return ref
             return diff
@@ -433,8 +436,8 @@ def detect_vertex_kernel(
         base = i * sc.vt_capacity
         count, slot = keep_closest(sc.vt_tri, sc.vt_dist, base, count, sc.vt_capacity, t, d)
         if slot >= 0:
-            sc.vt_ref[base + slot] = track_side(sc.vt_tri_prev, sc.vt_ref_prev, base, sc.vt_count_prev[i], t,
-                                                diff)
+            sc.vt_ref[base + slot] = track_side(sc.vt_tri_prev, sc.vt_ref_prev, sc.vt_count_prev, i,
+                                                sc.side_memory, base, t, diff)
     sc.vt_count[i] = count
     dmin_out[i] = dmin
 
@@ -485,8 +488,9 @@ def detect_triangle_kernel(
                     base = t * sc.tv_capacity
                     count, slot = keep_closest(sc.tv_vertex, sc.tv_dist, base, count, sc.tv_capacity, u, d)
                     if slot >= 0:
-                        sc.tv_ref[base + slot] = track_side(sc.tv_vertex_prev, sc.tv_ref_prev, base,
-                                                            sc.tv_count_prev[t], u, diff)
+                        sc.tv_ref[base + slot] = track_side(sc.tv_vertex_prev, sc.tv_ref_prev,
+                                                            sc.tv_count_prev, t, sc.side_memory, base, u,
+                                                            diff)
     sc.tv_count[t] = count
     dmin_out[t] = dmin
 
@@ -533,8 +537,8 @@ def detect_edge_kernel(
         count, slot = keep_closest(sc.ee_edge, sc.ee_dist, base, count, sc.ee_capacity, e2, d)
         if slot >= 0:
             diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
-            sc.ee_ref[base + slot] = track_side(sc.ee_edge_prev, sc.ee_ref_prev, base,
-                                                sc.ee_count_prev[e], e2, diff)
+            sc.ee_ref[base + slot] = track_side(sc.ee_edge_prev, sc.ee_ref_prev, sc.ee_count_prev, e,
+                                                sc.side_memory, base, e2, diff)
     sc.ee_count[e] = count
     dmin_out[e] = dmin
 
@@ -609,14 +613,14 @@ class SelfContact:
         sc.vt_dist = w.zeros(n * capacity, dtype=float, device=d)
         sc.tv_dist = w.zeros(nt * capacity, dtype=float, device=d)
         sc.ee_dist = w.zeros(ne * capacity, dtype=float, device=d)
-        # side memory: each list's pair references, and the previous detection's lists
-        for name, size in (("vt", n), ("tv", nt), ("ee", ne)):
+        # each pair's side reference; with side memory also the previous detection's lists
+        # (without, one-element placeholders: the previous counts stay 0)
+        for name, ids, size in (("vt", "tri", n), ("tv", "vertex", nt), ("ee", "edge", ne)):
+            keep = size if side_memory else 1
             setattr(sc, f"{name}_ref", w.zeros(size * capacity, dtype=w.vec3, device=d))
-            setattr(sc, f"{name}_ref_prev", w.zeros(size * capacity, dtype=w.vec3, device=d))
-            setattr(sc, f"{name}_count_prev", w.zeros(size, dtype=w.int32, device=d))
-        sc.vt_tri_prev = w.zeros(n * capacity, dtype=w.int32, device=d)
-        sc.tv_vertex_prev = w.zeros(nt * capacity, dtype=w.int32, device=d)
-        sc.ee_edge_prev = w.zeros(ne * capacity, dtype=w.int32, device=d)
+            setattr(sc, f"{name}_ref_prev", w.zeros(keep * capacity, dtype=w.vec3, device=d))
+            setattr(sc, f"{name}_count_prev", w.zeros(keep, dtype=w.int32, device=d))
+            setattr(sc, f"{name}_{ids}_prev", w.zeros(keep * capacity, dtype=w.int32, device=d))
         sc.mesh_edges = model.mesh_edge_indices
         sc.vertex_edge_offsets = model.vertex_mesh_edge_offsets
         sc.vertex_edge_ids = model.vertex_mesh_edge_ids
