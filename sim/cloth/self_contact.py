@@ -282,9 +282,15 @@ def self_contact_force_hessian(
 
 
 @wp.func
-def point_triangle_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> float:
+def point_triangle_separation(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> wp.vec3:
+    """``p`` minus its closest point on triangle ``abc``."""
     w = triangle_closest_bary(p, a, b, c)
-    return wp.length(p - (w[0] * a + w[1] * b + w[2] * c))
+    return p - (w[0] * a + w[1] * b + w[2] * c)
+
+
+@wp.func
+def point_triangle_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> float:
+    return wp.length(point_triangle_separation(p, a, b, c))
 
 
 @wp.func
@@ -424,11 +430,7 @@ def detect_vertex_kernel(
             continue
         # distance first: most candidates of the box query lie beyond r, where they change
         # neither dmin (which starts at r) nor the list, and skip the rest-shape test
-        a = x[tri[0]]
-        b = x[tri[1]]
-        c = x[tri[2]]
-        w = triangle_closest_bary(xi, a, b, c)
-        diff = xi - (w[0] * a + w[1] * b + w[2] * c)
+        diff = point_triangle_separation(xi, x[tri[0]], x[tri[1]], x[tri[2]])
         d = wp.length(diff)
         if d >= r or rest_near_triangle(sc, i, tri):
             continue
@@ -480,8 +482,7 @@ def detect_triangle_kernel(
         for j in range(3):
             u = other[j]
             if vertex_owner_tri[u] == t2:
-                w = triangle_closest_bary(x[u], a, b, c)
-                diff = x[u] - (w[0] * a + w[1] * b + w[2] * c)
+                diff = point_triangle_separation(x[u], a, b, c)
                 d = wp.length(diff)
                 if d < r and not rest_near_triangle(sc, u, tri):
                     dmin = wp.min(dmin, d)
@@ -599,7 +600,6 @@ class SelfContact:
         sc.enabled = 1
         sc.use_bounds = 1 if bounds else 0
         sc.side_memory = 1 if side_memory else 0
-        self.side_memory = bool(side_memory)
         sc.radius = float(radius)
         sc.stiffness = float(stiffness)
         sc.friction = float(friction)
@@ -614,7 +614,7 @@ class SelfContact:
         sc.tv_dist = w.zeros(nt * capacity, dtype=float, device=d)
         sc.ee_dist = w.zeros(ne * capacity, dtype=float, device=d)
         # each pair's side reference; with side memory also the previous detection's lists
-        # (without, one-element placeholders: the previous counts stay 0)
+        # (without, one-element placeholders that track_side never reads)
         for name, ids, size in (("vt", "tri", n), ("tv", "vertex", nt), ("ee", "edge", ne)):
             keep = size if side_memory else 1
             setattr(sc, f"{name}_ref", w.zeros(size * capacity, dtype=w.vec3, device=d))
@@ -665,7 +665,7 @@ class SelfContact:
         m = self.model
         d = m.device
         sc = self.data
-        for name, ids in (("vt", "tri"), ("tv", "vertex"), ("ee", "edge")) if self.side_memory else ():
+        for name, ids in (("vt", "tri"), ("tv", "vertex"), ("ee", "edge")) if sc.side_memory else ():
             w.copy(getattr(sc, f"{name}_count_prev"), getattr(sc, f"{name}_count"))
             w.copy(getattr(sc, f"{name}_{ids}_prev"), getattr(sc, f"{name}_{ids}"))
             w.copy(getattr(sc, f"{name}_ref_prev"), getattr(sc, f"{name}_ref"))
