@@ -392,64 +392,86 @@ def _point_triangle_distance_np(p, a, b, c):
     return min(to_segment(a, b), to_segment(b, c), to_segment(c, a))
 
 
-def test_detection_finds_exactly_the_pairs_within_the_query_radius(device):
+@pytest.mark.parametrize("motion", ["still", "together", "sliding"])
+def test_detection_finds_exactly_the_pairs_within_the_query_radius(device, motion):
     """Pair detection against brute force: a flat sheet and a jittered sheet 2-8 mm above it
-    (one instance, two pieces). Every vertex-triangle and edge-edge pair closer than the query
-    radius is stored, nothing farther, never an incident pair; each triangle's vertex list is
-    the transpose of the vertices' triangle lists; the per-vertex nearest distance is the
-    minimum over the pairs (capped at the radius)."""
-    nx, ny, e, r = 7, 6, 0.012, 0.006
+    (one instance, two pieces), still, moving together at 3 m/s, or the upper one sliding over
+    the lower at 3 m/s. A primitive's query radius is ``max(margin, 2.5 |v| h)`` of its own
+    speed; of the pairs within it, exactly those closer than the radius of their relative speed
+    ``max(margin, 2.5 |v_a - v_b| h)`` are stored (layers moving together keep only the 6 mm
+    pairs, a sliding layer the 25 mm ones), never an incident pair; the nearest distance is the
+    minimum over every pair within the query radius, stored or not (capped at it)."""
+    nx, ny, e, r, h, sf = 7, 6, 0.012, 0.006, 1.0 / 300.0, 2.5
     v1, f1 = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
     rng = np.random.default_rng(5)
     v2 = v1 + np.array([0.4 * e, 0.0, 0.3 * e], np.float32)
     v2[:, 1] = rng.uniform(0.002, 0.008, len(v2))
     v = np.concatenate([v1, v2]).astype(np.float32)
     f = np.concatenate([f1, f1 + len(v1)]).astype(np.int32)
+    vel = np.zeros_like(v)
+    if motion != "still":
+        vel[len(v1):] = (3.0, 0.0, 0.0)
+    if motion == "together":
+        vel[:len(v1)] = (3.0, 0.0, 0.0)
     b = ClothModelBuilder()
     b.add_cloth(v, f, ClothMaterialParams())
     m = b.finalize(device)
-    cap = 64
+    cap = 128
     sc = SelfContact(m, radius=0.003, margin=r, stiffness=1e4, friction=0.0, relaxation=0.45,
-                     speed_factor=2.5, capacity=cap)
-    sc.detect(m.particle_q, wp.zeros(len(v), dtype=wp.vec3, device=device), 1.0 / 300.0)
+                     speed_factor=sf, capacity=cap)
+    sc.detect(m.particle_q, wp.array(vel, dtype=wp.vec3, device=device), h)
     x = v.astype(np.float64)
-    sep = 2e-5  # pairs this close to r are left out of the comparison (float32 detection)
+    sep = 2e-5  # pairs this close to a radius are left out of the comparison (float32 detection)
+    speed = np.linalg.norm(vel, axis=1)
 
-    vt_count, vt = sc.data.vt_count.numpy(), sc.data.vt_tri.numpy().reshape(len(v), cap)
-    assert vt_count.max() < cap
-    found = {(i, int(t)) for i in range(len(v)) for t in vt[i, :vt_count[i]]}
-    want, near, dmin = set(), set(), np.full(len(v), r)
+    def radius(s):
+        return max(r, sf * s * h)
+
+    def classify(d, r_query, r_list, want, away, key):
+        """Put ``key`` in ``want`` (stored) or ``away`` (not stored), unless at a threshold."""
+        if abs(d - r_query) > sep and abs(d - r_list) > sep:
+            (want if d < min(r_query, r_list) else away).add(key)
+
+    def lists(count, ids, rows):
+        c, ids = count.numpy(), ids.numpy().reshape(rows, cap)
+        assert c.max() < cap
+        return {(a, int(o)) for a in range(rows) for o in ids[a, :c[a]]}
+
+    found = lists(sc.data.vt_count, sc.data.vt_tri, len(v))
+    tv_found = lists(sc.data.tv_count, sc.data.tv_vertex, len(f))
+    want, away, tv_want, tv_away = set(), set(), set(), set()
+    dmin = np.array([radius(s) for s in speed])
     for i in range(len(v)):
         for t, tri in enumerate(f):
             if i in tri:
                 continue
             d = _point_triangle_distance_np(x[i], *x[tri])
-            if d < r:
-                dmin[i] = min(dmin[i], d)
-            if abs(d - r) > sep:
-                (want if d < r else near).add((i, t))
-    assert len(want) > 50
-    assert want <= found and not (found & near)
+            r_list = radius(np.linalg.norm(vel[i] - vel[tri[0]]))  # one velocity per sheet
+            if d < dmin[i]:
+                dmin[i] = d
+            classify(d, radius(speed[i]), r_list, want, away, (i, t))
+            classify(d, radius(speed[tri].max()), r_list, tv_want, tv_away, (t, i))
+    assert len(want) > 50 and len(tv_want) > 50
+    assert want <= found and not (found & away)
+    assert tv_want <= tv_found and not (tv_found & tv_away)
     np.testing.assert_allclose(sc._dmin_v.numpy(), dmin, atol=2e-5)
 
-    tv_count, tv = sc.data.tv_count.numpy(), sc.data.tv_vertex.numpy().reshape(len(f), cap)
-    tv_found = {(int(u), t) for t in range(len(f)) for u in tv[t, :tv_count[t]]}
-    assert tv_found == found
-
     edges = m.mesh_edge_indices.numpy()
-    ee_count, ee = sc.data.ee_count.numpy(), sc.data.ee_edge.numpy().reshape(len(edges), cap)
-    assert ee_count.max() < cap
-    ee_found = {(a, int(c)) for a in range(len(edges)) for c in ee[a, :ee_count[a]]}
-    ee_want, ee_near = set(), set()
+    ee_found = lists(sc.data.ee_count, sc.data.ee_edge, len(edges))
+    ee_want, ee_away = set(), set()
     for a, (p, q) in enumerate(edges):
-        for c, (s, t) in enumerate(edges):
-            if len({p, q, s, t}) < 4:
+        for c, (s_, t_) in enumerate(edges):
+            if len({p, q, s_, t_}) < 4:
                 continue
-            d = _segment_distance_np(x[p], x[q], x[s], x[t])
-            if abs(d - r) > sep:
-                (ee_want if d < r else ee_near).add((a, c))
+            d = _segment_distance_np(x[p], x[q], x[s_], x[t_])
+            r_list = radius(np.linalg.norm(vel[p] - vel[s_]))
+            classify(d, radius(speed[[p, q]].max()), r_list, ee_want, ee_away, (a, c))
     assert len(ee_want) > 50
-    assert ee_want <= ee_found and not (ee_found & ee_near)
+    assert ee_want <= ee_found and not (ee_found & ee_away)
+    if motion == "together":
+        # pairs beyond the margin inside the 25 mm query: in d_min, not in the lists
+        assert sc._dmin_v.numpy().max() > r + 1e-3
+        assert all(_point_triangle_distance_np(x[i], *x[f[t]]) < r + sep for i, t in found)
 
 
 def test_a_pair_pushed_through_is_pushed_back_to_the_side_it_was_found_on(device):

@@ -8,8 +8,13 @@ of Chen et al. 2025, "Offset Geometric Contact"):
   two grouped BVHs (one group per cloth instance, so batched instances never collide) over
   triangle and edge bounding boxes. For every vertex, every triangle and every edge a query
   with radius ``r = max(margin, speed_factor |v| h)`` finds the nearest non-incident
-  primitive distance ``d_min`` and records the pairs closer than ``margin`` (their energy acts
-  once they come within the contact radius ``r_c`` during the substep's iterations):
+  primitive distance ``d_min`` and records the pairs whose own relative motion can bring them
+  within the contact radius ``r_c`` during the substep's iterations: closer than ``max(margin,
+  speed_factor |v_a - v_b| h)`` with ``v_a - v_b`` the relative velocity of the closest points
+  (``relative_lists``; off: every pair within ``r``). The query radius must cover a vertex's
+  absolute speed (the bounds), but cloth riding on a running limb moves with its surface
+  neighbours: storing every neighbour 1-2 edge lengths away filled 88 % of the edges' lists on
+  the t-shirt run with pairs that never act, and the solve evaluated them every iteration:
   per vertex its triangles (VT), per triangle its vertices (TV, the same pairs seen from the
   triangle; a vertex is reached through its "owner" triangle so it is visited once), per edge
   its edges (EE). Gathering from both sides makes the solve a per-vertex gather without
@@ -54,6 +59,7 @@ class SelfContactData:
     enabled: int
     use_bounds: int
     side_memory: int
+    relative_lists: int
     radius: float
     stiffness: float
     friction: float
@@ -329,6 +335,19 @@ def query_radius(margin: float, speed: float, h: float, speed_factor: float) -> 
 
 
 @wp.func
+def list_pair(sc: SelfContactData, d: float, v_rel: wp.vec3, margin: float, speed_factor: float,
+              h: float) -> bool:
+    """Whether a pair found at distance ``d`` < the query radius is stored for the solve: with
+    ``relative_lists``, only if ``d`` is under the radius of its own relative speed ``|v_rel|``
+    (the motion that can close it within the substep), not the absolute speed the query covers.
+    Cloth riding on a running limb moves at metres per second, but its neighbours on the
+    surface move with it: they stay 1-2 edge lengths apart and never act."""
+    if sc.relative_lists == 0:
+        return True
+    return d < query_radius(margin, wp.length(v_rel), h, speed_factor)
+
+
+@wp.func
 def keep_closest(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), base: int, count: int,
                  capacity: int, item: int, d: float):
     """Add pair ``item`` at distance ``d`` to the list ``ids[base : base + capacity]``; when the
@@ -429,17 +448,24 @@ def detect_vertex_kernel(
         if particle_instance[tri[0]] != inst:
             continue
         # distance first: most candidates of the box query lie beyond r, where they change
-        # neither dmin (which starts at r) nor the list, and skip the rest-shape test
-        diff = point_triangle_separation(xi, x[tri[0]], x[tri[1]], x[tri[2]])
+        # neither dmin (which starts at r) nor the list; the rest-shape test only for pairs that
+        # change either
+        w = triangle_closest_bary(xi, x[tri[0]], x[tri[1]], x[tri[2]])
+        diff = xi - (w[0] * x[tri[0]] + w[1] * x[tri[1]] + w[2] * x[tri[2]])
         d = wp.length(diff)
-        if d >= r or rest_near_triangle(sc, i, tri):
+        if d >= r:
+            continue
+        stored = list_pair(sc, d, v[i] - (w[0] * v[tri[0]] + w[1] * v[tri[1]] + w[2] * v[tri[2]]), margin,
+                           speed_factor, h)
+        if (not stored and d >= dmin) or rest_near_triangle(sc, i, tri):
             continue
         dmin = wp.min(dmin, d)
-        base = i * sc.vt_capacity
-        count, slot = keep_closest(sc.vt_tri, sc.vt_dist, base, count, sc.vt_capacity, t, d)
-        if slot >= 0:
-            sc.vt_ref[base + slot] = track_side(sc.vt_tri_prev, sc.vt_ref_prev, sc.vt_count_prev, i,
-                                                sc.side_memory, base, t, diff)
+        if stored:
+            base = i * sc.vt_capacity
+            count, slot = keep_closest(sc.vt_tri, sc.vt_dist, base, count, sc.vt_capacity, t, d)
+            if slot >= 0:
+                sc.vt_ref[base + slot] = track_side(sc.vt_tri_prev, sc.vt_ref_prev, sc.vt_count_prev, i,
+                                                    sc.side_memory, base, t, diff)
     sc.vt_count[i] = count
     dmin_out[i] = dmin
 
@@ -481,17 +507,24 @@ def detect_triangle_kernel(
             continue
         for j in range(3):
             u = other[j]
-            if vertex_owner_tri[u] == t2:
-                diff = point_triangle_separation(x[u], a, b, c)
-                d = wp.length(diff)
-                if d < r and not rest_near_triangle(sc, u, tri):
-                    dmin = wp.min(dmin, d)
-                    base = t * sc.tv_capacity
-                    count, slot = keep_closest(sc.tv_vertex, sc.tv_dist, base, count, sc.tv_capacity, u, d)
-                    if slot >= 0:
-                        sc.tv_ref[base + slot] = track_side(sc.tv_vertex_prev, sc.tv_ref_prev,
-                                                            sc.tv_count_prev, t, sc.side_memory, base, u,
-                                                            diff)
+            if vertex_owner_tri[u] != t2:
+                continue
+            w = triangle_closest_bary(x[u], a, b, c)
+            diff = x[u] - (w[0] * a + w[1] * b + w[2] * c)
+            d = wp.length(diff)
+            if d >= r:
+                continue
+            stored = list_pair(sc, d, v[u] - (w[0] * v[tri[0]] + w[1] * v[tri[1]] + w[2] * v[tri[2]]), margin,
+                               speed_factor, h)
+            if (not stored and d >= dmin) or rest_near_triangle(sc, u, tri):
+                continue
+            dmin = wp.min(dmin, d)
+            if stored:
+                base = t * sc.tv_capacity
+                count, slot = keep_closest(sc.tv_vertex, sc.tv_dist, base, count, sc.tv_capacity, u, d)
+                if slot >= 0:
+                    sc.tv_ref[base + slot] = track_side(sc.tv_vertex_prev, sc.tv_ref_prev, sc.tv_count_prev,
+                                                        t, sc.side_memory, base, u, diff)
     sc.tv_count[t] = count
     dmin_out[t] = dmin
 
@@ -531,15 +564,20 @@ def detect_edge_kernel(
         q2 = x[eb[1]]
         st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
         d = st[2]
-        if d >= r or rest_near_edges(sc, ea, eb):
+        if d >= r:
+            continue
+        v_rel = wp.lerp(v[ea[0]], v[ea[1]], st[0]) - wp.lerp(v[eb[0]], v[eb[1]], st[1])
+        stored = list_pair(sc, d, v_rel, margin, speed_factor, h)
+        if (not stored and d >= dmin) or rest_near_edges(sc, ea, eb):
             continue
         dmin = wp.min(dmin, d)
-        base = e * sc.ee_capacity
-        count, slot = keep_closest(sc.ee_edge, sc.ee_dist, base, count, sc.ee_capacity, e2, d)
-        if slot >= 0:
-            diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
-            sc.ee_ref[base + slot] = track_side(sc.ee_edge_prev, sc.ee_ref_prev, sc.ee_count_prev, e,
-                                                sc.side_memory, base, e2, diff)
+        if stored:
+            base = e * sc.ee_capacity
+            count, slot = keep_closest(sc.ee_edge, sc.ee_dist, base, count, sc.ee_capacity, e2, d)
+            if slot >= 0:
+                diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
+                sc.ee_ref[base + slot] = track_side(sc.ee_edge_prev, sc.ee_ref_prev, sc.ee_count_prev, e,
+                                                    sc.side_memory, base, e2, diff)
     sc.ee_count[e] = count
     dmin_out[e] = dmin
 
@@ -584,11 +622,13 @@ class SelfContact:
         capacity: pairs kept per vertex / triangle / edge.
         side_memory: keep the side a pair was found on across detections (see the module
             docstring); off: each detection takes the side from the positions it sees.
+        relative_lists: store a pair only within the query radius of its relative speed (see
+            the module docstring); off: every pair within the query radius.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
-                 bounds: bool = True, side_memory: bool = False):
+                 bounds: bool = True, side_memory: bool = False, relative_lists: bool = True):
         w = warp()
         d = model.device
         self.model = model
@@ -600,6 +640,7 @@ class SelfContact:
         sc.enabled = 1
         sc.use_bounds = 1 if bounds else 0
         sc.side_memory = 1 if side_memory else 0
+        sc.relative_lists = 1 if relative_lists else 0
         sc.radius = float(radius)
         sc.stiffness = float(stiffness)
         sc.friction = float(friction)
@@ -699,6 +740,7 @@ def disabled_data(device) -> SelfContactData:
     sc.enabled = 0
     sc.use_bounds = 0
     sc.side_memory = 0
+    sc.relative_lists = 0
     sc.radius = 0.0
     sc.stiffness = 0.0
     sc.friction = 0.0

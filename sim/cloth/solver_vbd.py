@@ -94,6 +94,12 @@ class VBDConfig:
             detections and push pairs that crossed back (``sim.cloth.self_contact``). Off by
             default: it clears the t-shirt run's persistent sleeve crossing but makes the walk
             fail more often (session 10, docs/BENCHMARKS.md).
+        self_contact_relative_lists: store a self-contact pair for the solve only within the query
+            radius of its own relative speed, ``max(margin, speed_factor |v_a - v_b| h)``; the
+            query itself (and the bounds' ``d_min``) still covers each primitive's absolute
+            speed. Off: every pair within the query radius is stored, and on the t-shirt run
+            88 % of the edges' lists filled with surface neighbours riding on the limb with them
+            (session 11).
         self_contact_rebuild: rebuild the cloth BVHs at the first detection of every step and
             refit them at the others. Refitting a tree built for the rest shape keeps its
             topology while the garment deforms, and queries on the loosened boxes cost 1.5-2x.
@@ -126,6 +132,7 @@ class VBDConfig:
     self_contact_interval: int = 1
     self_contact_rebuild: bool = True
     self_contact_side_memory: bool = False
+    self_contact_relative_lists: bool = True
 
     def __post_init__(self):
         for name in ("substeps", "iterations", "self_contact_interval"):
@@ -213,7 +220,8 @@ class SolverVBD:
                 stiffness=cfg.self_contact_stiffness, friction=cfg.self_contact_friction,
                 relaxation=cfg.self_contact_relaxation, speed_factor=cfg.self_contact_speed_factor,
                 capacity=cfg.self_contact_capacity, rest_exclusion=cfg.self_contact_rest_exclusion,
-                bounds=cfg.self_contact_bounds, side_memory=cfg.self_contact_side_memory)
+                bounds=cfg.self_contact_bounds, side_memory=cfg.self_contact_side_memory,
+                relative_lists=cfg.self_contact_relative_lists)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
