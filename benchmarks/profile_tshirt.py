@@ -12,6 +12,7 @@ whole steps of solver variants (lanes, capacity, iterations). Pair statistics ar
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import json
 import time
@@ -22,12 +23,36 @@ from benchmarks.bench_tshirt import build_garment
 from benchmarks.common import machine, write_result
 
 
+class _NoCapture:
+    """Stands in for ``wp.ScopedCapture`` in ``simulate_batch`` with ``--live-frames``: the
+    capture fails, so the simulation falls back to plain launches (which CUDA activity timing
+    sees one by one)."""
+
+    def __init__(self, *args, **kwargs):
+        pass
+
+    def __enter__(self):
+        raise RuntimeError("no CUDA graph while profiling live frames")
+
+    def __exit__(self, *exc):
+        return False
+
+
 def kernel_breakdown(wp, device: str, fn) -> dict:
-    """GPU time [ms] of every kernel ``fn`` launches (CUDA activity timing of one plain run),
-    summed by kernel name, largest first, with launch counts: where a step's time goes."""
+    """GPU time [ms] of every kernel ``fn`` launches (CUDA activity timing of one plain run, after
+    a warm-up run), summed by kernel name, largest first, with launch counts: where a step's
+    time goes."""
     if not wp.get_device(device).is_cuda:
         return {}
     fn()
+    return kernel_timings(wp, device, fn)
+
+
+def kernel_timings(wp, device: str, fn) -> dict:
+    """``kernel_breakdown`` of one run of ``fn``, without the warm-up."""
+    if not wp.get_device(device).is_cuda:
+        fn()
+        return {}
     with wp.ScopedTimer("step", print=False, synchronize=True,
                         cuda_filter=wp.TIMING_KERNEL | wp.TIMING_KERNEL_BUILTIN) as timer:
         fn()
@@ -50,6 +75,9 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=1, help="t-shirts in the one model (default: %(default)s)")
     ap.add_argument("--solver", default="{}", help="JSON dict of VBDConfig fields of the base solver")
     ap.add_argument("--tag", default="")
+    ap.add_argument("--live-frames", type=int, default=0,
+                    help="also time every kernel of the last N frames as simulated (plain launches, "
+                    "no CUDA graph): the breakdown of real frames, not of a replayed step")
     ap.add_argument("--variants", default='[{"lanes": 8}, {"lanes": 32}, {"self_contact_capacity": 8}, '
                     '{"iterations": 5}, {"self_contact": false}]',
                     help="JSON list of VBDConfig overrides timed as whole graphed steps")
@@ -72,19 +100,38 @@ def main() -> None:
 
     seen: dict = {}
     base_cls = cloth.SolverVBD
+    frames = collections.deque(maxlen=max(args.live_frames, 1))  # kernel timings of the last steps
 
     class Recording(base_cls):
         def step(self, state_in, state_out, control, dt):
             seen.update(solver=self, state=state_out, control=control, dt=dt)
+            if args.live_frames:
+                frames.append(kernel_timings(wp, device, lambda: super(Recording, self).step(
+                    state_in, state_out, control, dt)))
+                return
             super().step(state_in, state_out, control, dt)
 
     cloth.SolverVBD = Recording
+    capture = wp.ScopedCapture
+    if args.live_frames:
+        wp.ScopedCapture = _NoCapture  # plain launches, so every live frame's kernels are timed
     try:
         t0 = time.perf_counter()
         simulate_batch([SimulationJob(garment, body, motion) for _ in range(args.batch)], config=cfg)
         sim_s = time.perf_counter() - t0
     finally:
         cloth.SolverVBD = base_cls
+        wp.ScopedCapture = capture
+    live: dict = {}  # kernel name -> [ms per frame, launches] over the last frames
+    for f in frames if args.live_frames else ():
+        for k, r in f.items():
+            acc = live.setdefault(k, [0.0, 0])
+            acc[0] += r["ms"] / len(frames)
+            acc[1] += r["launches"]
+    if live:
+        ranked = sorted(live.items(), key=lambda kv: -kv[1][0])
+        live_ms = {k: {"ms_per_frame": round(ms, 4), "launches": c} for k, (ms, c) in ranked}
+        print(json.dumps({"live_frames": args.live_frames, "kernels": live_ms}, indent=1), flush=True)
     solver, state, control, dt = seen["solver"], seen["state"], seen["control"], seen["dt"]
     m = solver.model
     vcfg = solver.config
@@ -162,6 +209,11 @@ def main() -> None:
     res["rebuild_tri_ms"] = timed(lambda: sc.tri_bvh.rebuild(), graph=True)
     res["rebuild_edge_ms"] = timed(lambda: sc.edge_bvh.rebuild(), graph=True)
     res.update(kernels("_rebuilt"))
+    sc.tri_bvh.refit()  # the same boxes: a refit tree should query as fast as the rebuilt one
+    sc.edge_bvh.refit()
+    res.update(kernels("_rebuilt_refit"))
+    if live:
+        res["live_kernels"] = {"frames": args.live_frames, "kernels": live_ms}
     print(json.dumps(res, indent=1), flush=True)
     variants = {}
     for over in json.loads(args.variants):
