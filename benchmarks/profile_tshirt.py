@@ -101,11 +101,12 @@ def main() -> None:
     seen: dict = {}
     base_cls = cloth.SolverVBD
     frames = collections.deque(maxlen=max(args.live_frames, 1))  # kernel timings of the last steps
+    recording = {"on": True}
 
     class Recording(base_cls):
         def step(self, state_in, state_out, control, dt):
             seen.update(solver=self, state=state_out, control=control, dt=dt)
-            if args.live_frames:
+            if args.live_frames and recording["on"]:
                 frames.append(kernel_timings(wp, device, lambda: super(Recording, self).step(
                     state_in, state_out, control, dt)))
                 return
@@ -122,6 +123,7 @@ def main() -> None:
     finally:
         cloth.SolverVBD = base_cls
         wp.ScopedCapture = capture
+        recording["on"] = False
     live: dict = {}  # kernel name -> [ms per frame, launches] over the last frames
     for f in frames if args.live_frames else ():
         for k, r in f.items():

@@ -87,6 +87,8 @@ class SelfContactData:
     ee_count_prev: wp.array(dtype=wp.int32)
     ee_edge_prev: wp.array(dtype=wp.int32)
     ee_ref_prev: wp.array(dtype=wp.vec3)
+    tv_total: wp.array(dtype=wp.int32)
+    ee_total: wp.array(dtype=wp.int32)
     mesh_edges: wp.array(dtype=wp.vec2i)
     vertex_edge_offsets: wp.array(dtype=wp.int32)
     vertex_edge_ids: wp.array(dtype=wp.int32)
@@ -223,11 +225,7 @@ def self_contact_force_hessian(
     # another runs one triangle's full list
     cap = sc.tv_capacity
     tri_start = vertex_tri_offsets[i]
-    tri_end = vertex_tri_offsets[i + 1]
-    total = int(0)
-    for kk in range(tri_start, tri_end):
-        total += sc.tv_count[vertex_tri_ids[kk]]
-    for j in range(lane, total, stride):
+    for j in range(lane, sc.tv_total[i], stride):
         kk = tri_start
         t = vertex_tri_ids[kk]
         s = j
@@ -252,11 +250,7 @@ def self_contact_force_hessian(
     # i as an end of edges close to other edges (lanes split the flattened stored pairs alike)
     ecap = sc.ee_capacity
     edge_start = sc.vertex_edge_offsets[i]
-    edge_end = sc.vertex_edge_offsets[i + 1]
-    total = int(0)
-    for kk in range(edge_start, edge_end):
-        total += sc.ee_count[sc.vertex_edge_ids[kk]]
-    for j in range(lane, total, stride):
+    for j in range(lane, sc.ee_total[i], stride):
         kk = edge_start
         e = sc.vertex_edge_ids[kk]
         s = j
@@ -583,7 +577,7 @@ def detect_edge_kernel(
 
 
 @wp.kernel
-def bound_kernel(
+def vertex_summary_kernel(
     dmin_vertex: wp.array(dtype=float),
     dmin_tri: wp.array(dtype=float),
     dmin_edge: wp.array(dtype=float),
@@ -592,14 +586,25 @@ def bound_kernel(
     relaxation: float,
     sc: SelfContactData,
 ):
-    """``b_i = gamma min(d_min(i), d_min(incident triangles), d_min(incident edges))``."""
+    """Per vertex, once per detection: the bound ``b_i = gamma min(d_min(i), d_min(incident
+    triangles), d_min(incident edges))`` and the number of stored pairs of its triangles (TV)
+    and of its edges (EE), which the solve would otherwise re-add from ~15 lists in every
+    iteration (a chain of dependent loads that tripled the solve launch with no pair at all)."""
     i = wp.tid()
     b = dmin_vertex[i]
+    tv = int(0)
     for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
-        b = wp.min(b, dmin_tri[vertex_tri_ids[k]])
+        t = vertex_tri_ids[k]
+        b = wp.min(b, dmin_tri[t])
+        tv += sc.tv_count[t]
+    ee = int(0)
     for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
-        b = wp.min(b, dmin_edge[sc.vertex_edge_ids[k]])
+        e = sc.vertex_edge_ids[k]
+        b = wp.min(b, dmin_edge[e])
+        ee += sc.ee_count[e]
     sc.bound[i] = relaxation * b
+    sc.tv_total[i] = tv
+    sc.ee_total[i] = ee
 
 
 class SelfContact:
@@ -667,6 +672,8 @@ class SelfContact:
         sc.vertex_edge_ids = model.vertex_mesh_edge_ids
         sc.vertex_edge_local = model.vertex_mesh_edge_local
         sc.bound = w.zeros(n, dtype=float, device=d)
+        sc.tv_total = w.zeros(n, dtype=w.int32, device=d)
+        sc.ee_total = w.zeros(n, dtype=w.int32, device=d)
         sc.rest = model.particle_rest
         sc.component = w.array(self._components(model), dtype=w.int32, device=d)
         sc.exclusion = max(float(rest_exclusion), float(radius))
@@ -728,7 +735,7 @@ class SelfContact:
         w.launch(detect_edge_kernel, dim=self._lo_e.shape[0],
                  inputs=[x0, v, m.particle_instance, self.edge_bvh.id, *common],
                  outputs=[self._dmin_e], device=d)
-        w.launch(bound_kernel, dim=m.particle_count,
+        w.launch(vertex_summary_kernel, dim=m.particle_count,
                  inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.vertex_tri_offsets, m.vertex_tri_ids,
                          self.relaxation, sc], device=d)
 
@@ -747,7 +754,7 @@ def disabled_data(device) -> SelfContactData:
     sc.vt_capacity = sc.tv_capacity = sc.ee_capacity = 0
     empty_i = w.zeros(1, dtype=w.int32, device=device)
     sc.vt_count = sc.vt_tri = sc.tv_count = sc.tv_vertex = sc.ee_count = sc.ee_edge = empty_i
-    sc.vertex_edge_offsets = sc.vertex_edge_ids = sc.vertex_edge_local = empty_i
+    sc.vertex_edge_offsets = sc.vertex_edge_ids = sc.vertex_edge_local = sc.tv_total = sc.ee_total = empty_i
     sc.mesh_edges = w.zeros(1, dtype=w.vec2i, device=device)
     sc.bound = w.zeros(1, dtype=float, device=device)
     sc.vt_dist = sc.tv_dist = sc.ee_dist = sc.bound
