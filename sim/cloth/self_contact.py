@@ -89,6 +89,8 @@ class SelfContactData:
     ee_ref_prev: wp.array(dtype=wp.vec3)
     tv_total: wp.array(dtype=wp.int32)
     ee_total: wp.array(dtype=wp.int32)
+    tv_first: wp.array(dtype=wp.int32)
+    ee_first: wp.array(dtype=wp.int32)
     mesh_edges: wp.array(dtype=wp.vec2i)
     vertex_edge_offsets: wp.array(dtype=wp.int32)
     vertex_edge_ids: wp.array(dtype=wp.int32)
@@ -224,15 +226,15 @@ def self_contact_force_hessian(
     # the work is the pairs that exist, not triangles x capacity slots, and no lane idles while
     # another runs one triangle's full list
     cap = sc.tv_capacity
-    tri_start = vertex_tri_offsets[i]
+    tri_end = vertex_tri_offsets[i + 1]
     for j in range(lane, sc.tv_total[i], stride):
-        kk = tri_start
-        t = vertex_tri_ids[kk]
-        s = j
-        while s >= sc.tv_count[t]:
-            s -= sc.tv_count[t]
+        # the triangle holding pair j: the per-slot pair offsets of i's triangles lie in one cache
+        # line, so the search is not a chain of dependent loads through every triangle's list
+        kk = vertex_tri_offsets[i]
+        while kk + 1 < tri_end and sc.tv_first[kk + 1] <= j:
             kk += 1
-            t = vertex_tri_ids[kk]
+        t = vertex_tri_ids[kk]
+        s = j - sc.tv_first[kk]
         corner = vertex_tri_local[kk]
         tri = tri_indices[t]
         a = x[tri[0]]
@@ -249,15 +251,13 @@ def self_contact_force_hessian(
         H = H + hc
     # i as an end of edges close to other edges (lanes split the flattened stored pairs alike)
     ecap = sc.ee_capacity
-    edge_start = sc.vertex_edge_offsets[i]
+    edge_end = sc.vertex_edge_offsets[i + 1]
     for j in range(lane, sc.ee_total[i], stride):
-        kk = edge_start
-        e = sc.vertex_edge_ids[kk]
-        s = j
-        while s >= sc.ee_count[e]:
-            s -= sc.ee_count[e]
+        kk = sc.vertex_edge_offsets[i]
+        while kk + 1 < edge_end and sc.ee_first[kk + 1] <= j:
             kk += 1
-            e = sc.vertex_edge_ids[kk]
+        e = sc.vertex_edge_ids[kk]
+        s = j - sc.ee_first[kk]
         end = sc.vertex_edge_local[kk]
         ea = sc.mesh_edges[e]
         p1 = x[ea[0]]
@@ -587,20 +587,25 @@ def vertex_summary_kernel(
     sc: SelfContactData,
 ):
     """Per vertex, once per detection: the bound ``b_i = gamma min(d_min(i), d_min(incident
-    triangles), d_min(incident edges))`` and the number of stored pairs of its triangles (TV)
-    and of its edges (EE), which the solve would otherwise re-add from ~15 lists in every
-    iteration (a chain of dependent loads that tripled the solve launch with no pair at all)."""
+    triangles), d_min(incident edges))``; the number of stored pairs of its triangles (TV) and
+    of its edges (EE), and for each incident triangle / edge the number of pairs before it (the
+    offsets of the vertex's flattened pair lists). The solve's lanes split those flattened lists;
+    finding pair ``j``'s triangle by walking the lists' counts was a chain of dependent loads
+    per pair, in every iteration, and the few vertices with dozens of pairs set every solve
+    launch's length."""
     i = wp.tid()
     b = dmin_vertex[i]
     tv = int(0)
     for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
         t = vertex_tri_ids[k]
         b = wp.min(b, dmin_tri[t])
+        sc.tv_first[k] = tv
         tv += sc.tv_count[t]
     ee = int(0)
     for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
         e = sc.vertex_edge_ids[k]
         b = wp.min(b, dmin_edge[e])
+        sc.ee_first[k] = ee
         ee += sc.ee_count[e]
     sc.bound[i] = relaxation * b
     sc.tv_total[i] = tv
@@ -674,6 +679,8 @@ class SelfContact:
         sc.bound = w.zeros(n, dtype=float, device=d)
         sc.tv_total = w.zeros(n, dtype=w.int32, device=d)
         sc.ee_total = w.zeros(n, dtype=w.int32, device=d)
+        sc.tv_first = w.zeros(model.vertex_tri_ids.shape[0], dtype=w.int32, device=d)
+        sc.ee_first = w.zeros(model.vertex_mesh_edge_ids.shape[0], dtype=w.int32, device=d)
         sc.rest = model.particle_rest
         sc.component = w.array(self._components(model), dtype=w.int32, device=d)
         sc.exclusion = max(float(rest_exclusion), float(radius))
@@ -754,7 +761,8 @@ def disabled_data(device) -> SelfContactData:
     sc.vt_capacity = sc.tv_capacity = sc.ee_capacity = 0
     empty_i = w.zeros(1, dtype=w.int32, device=device)
     sc.vt_count = sc.vt_tri = sc.tv_count = sc.tv_vertex = sc.ee_count = sc.ee_edge = empty_i
-    sc.vertex_edge_offsets = sc.vertex_edge_ids = sc.vertex_edge_local = sc.tv_total = sc.ee_total = empty_i
+    sc.vertex_edge_offsets = sc.vertex_edge_ids = sc.vertex_edge_local = empty_i
+    sc.tv_total = sc.ee_total = sc.tv_first = sc.ee_first = empty_i
     sc.mesh_edges = w.zeros(1, dtype=w.vec2i, device=device)
     sc.bound = w.zeros(1, dtype=float, device=device)
     sc.vt_dist = sc.tv_dist = sc.ee_dist = sc.bound

@@ -48,7 +48,9 @@ class VBDConfig:
         iterations: Gauss-Seidel sweeps (over all colours) per substep.
         contact_stiffness: body contact penalty stiffness [N/m].
         contact_margin: distance [m] within which body contacts are detected; must exceed the
-            cloth thickness plus the relative cloth/body motion of one substep.
+            cloth thickness plus the relative cloth/body motion of one substep. 15 mm (was 50 mm
+            until session 11; 15 mm covers 4.5 m/s of relative motion at 10 substeps of a 30 fps
+            frame): the closest-point query's cost grows with it, 5 % of the t-shirt frame.
         friction_epsilon: tangential speed [m/s] below which friction is smoothed (static).
         membrane: "corotated" (default; co-rotated linear FEM: resists compression, so cloth
             buckles into wrinkles instead of shrinking in plane) or "stvk" (Saint
@@ -69,8 +71,10 @@ class VBDConfig:
         self_contact_margin: smallest query radius [m] of the pair detection and of the
             intersection-free displacement bounds; a vertex moves at most ``relaxation x`` its
             distance to the nearest non-incident primitive (capped at the query radius) per
-            substep. 5 mm (was 10 mm until session 9): pairs beyond the 3 mm contact radius plus
-            the substep's motion never act, and storing them cost 1.5x the step at batch 64.
+            substep. 4 mm (10 mm until session 9, 5 mm until session 11): pairs beyond the 3 mm
+            contact radius plus the substep's motion never act, and storing them costs solve
+            time (1.5x the step at batch 64 for 10 mm); faster pairs are covered by the
+            relative-speed term (``self_contact_relative_lists``).
         self_contact_stiffness: penalty stiffness [N/m] of a cloth-cloth pair. 3e4 (was 1e4
             until session 10): at 1e4 body contact (1e5) squeezes sleeve layers through each
             other. Repeated t-shirt runs at 20x10: walk 5/8 and run 8/8 pass the gates at 3e4,
@@ -112,7 +116,7 @@ class VBDConfig:
     substeps: int = 10
     iterations: int = 10
     contact_stiffness: float = 1.0e5
-    contact_margin: float = 0.05
+    contact_margin: float = 0.015
     friction_epsilon: float = 1.0e-2
     air_damping: float = 0.5
     lanes: int = 16
@@ -121,7 +125,7 @@ class VBDConfig:
     membrane: str = "corotated"
     self_contact: bool = False
     self_contact_radius: float = 0.003
-    self_contact_margin: float = 0.005
+    self_contact_margin: float = 0.004
     self_contact_stiffness: float = 3.0e4
     self_contact_friction: float = 0.2
     self_contact_relaxation: float = 0.45
