@@ -384,6 +384,52 @@ def track_side(prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.v
     return diff
 
 
+@wp.func
+def store_pair(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), ref: wp.array(dtype=wp.vec3),
+               prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.vec3),
+               prev_counts: wp.array(dtype=wp.int32), side_memory: int, owner: int, capacity: int, count: int,
+               item: int, d: float, diff: wp.vec3) -> int:
+    """Put pair ``item`` (distance ``d``, separation ``diff``) in the list of ``owner``
+    (``keep_closest``) with its side reference (``track_side``); returns the list's new count."""
+    base = owner * capacity
+    count, slot = keep_closest(ids, dist, base, count, capacity, item, d)
+    if slot >= 0:
+        ref[base + slot] = track_side(prev_ids, prev_ref, prev_counts, owner, side_memory, base, item, diff)
+    return count
+
+
+@wp.func
+def vertex_triangle_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3),
+                              u: int, tri: wp.vec3i, r: float, margin: float, speed_factor: float, h: float,
+                              dmin: float, count: int, ids: wp.array(dtype=wp.int32),
+                              dist: wp.array(dtype=float), ref: wp.array(dtype=wp.vec3),
+                              prev_ids: wp.array(dtype=wp.int32),
+                              prev_ref: wp.array(dtype=wp.vec3), prev_counts: wp.array(dtype=wp.int32),
+                              owner: int, capacity: int, item: int):
+    """A vertex ``u`` / triangle ``tri`` candidate of a box query (pair ``item`` of list ``owner``:
+    the vertex's triangle or the triangle's vertex): the nearest distance so far and the list's
+    count after it. It lowers ``dmin`` unless it is a rest-shape neighbour, and is stored
+    (``store_pair``) if ``list_pair`` says so. Distance first: most candidates lie beyond ``r``,
+    where they change neither ``dmin`` (which starts at ``r``) nor the list, and skip the
+    rest-shape test."""
+    a = x[tri[0]]
+    b = x[tri[1]]
+    c = x[tri[2]]
+    w = triangle_closest_bary(x[u], a, b, c)
+    diff = x[u] - (w[0] * a + w[1] * b + w[2] * c)
+    d = wp.length(diff)
+    if d >= r:
+        return dmin, count
+    v_rel = v[u] - (w[0] * v[tri[0]] + w[1] * v[tri[1]] + w[2] * v[tri[2]])
+    stored = list_pair(sc, d, v_rel, margin, speed_factor, h)
+    if (not stored and d >= dmin) or rest_near_triangle(sc, u, tri):
+        return dmin, count
+    if stored:
+        count = store_pair(ids, dist, ref, prev_ids, prev_ref, prev_counts, sc.side_memory, owner, capacity,
+                           count, item, d, diff)
+    return wp.min(dmin, d), count
+
+
 @wp.kernel
 def primitive_bounds_kernel(
     x: wp.array(dtype=wp.vec3),
@@ -441,25 +487,9 @@ def detect_vertex_kernel(
             continue
         if particle_instance[tri[0]] != inst:
             continue
-        # distance first: most candidates of the box query lie beyond r, where they change
-        # neither dmin (which starts at r) nor the list; the rest-shape test only for pairs that
-        # change either
-        w = triangle_closest_bary(xi, x[tri[0]], x[tri[1]], x[tri[2]])
-        diff = xi - (w[0] * x[tri[0]] + w[1] * x[tri[1]] + w[2] * x[tri[2]])
-        d = wp.length(diff)
-        if d >= r:
-            continue
-        stored = list_pair(sc, d, v[i] - (w[0] * v[tri[0]] + w[1] * v[tri[1]] + w[2] * v[tri[2]]), margin,
-                           speed_factor, h)
-        if (not stored and d >= dmin) or rest_near_triangle(sc, i, tri):
-            continue
-        dmin = wp.min(dmin, d)
-        if stored:
-            base = i * sc.vt_capacity
-            count, slot = keep_closest(sc.vt_tri, sc.vt_dist, base, count, sc.vt_capacity, t, d)
-            if slot >= 0:
-                sc.vt_ref[base + slot] = track_side(sc.vt_tri_prev, sc.vt_ref_prev, sc.vt_count_prev, i,
-                                                    sc.side_memory, base, t, diff)
+        dmin, count = vertex_triangle_candidate(sc, x, v, i, tri, r, margin, speed_factor, h, dmin, count,
+                                                sc.vt_tri, sc.vt_dist, sc.vt_ref, sc.vt_tri_prev,
+                                                sc.vt_ref_prev, sc.vt_count_prev, i, sc.vt_capacity, t)
     sc.vt_count[i] = count
     dmin_out[i] = dmin
 
@@ -503,22 +533,9 @@ def detect_triangle_kernel(
             u = other[j]
             if vertex_owner_tri[u] != t2:
                 continue
-            w = triangle_closest_bary(x[u], a, b, c)
-            diff = x[u] - (w[0] * a + w[1] * b + w[2] * c)
-            d = wp.length(diff)
-            if d >= r:
-                continue
-            stored = list_pair(sc, d, v[u] - (w[0] * v[tri[0]] + w[1] * v[tri[1]] + w[2] * v[tri[2]]), margin,
-                               speed_factor, h)
-            if (not stored and d >= dmin) or rest_near_triangle(sc, u, tri):
-                continue
-            dmin = wp.min(dmin, d)
-            if stored:
-                base = t * sc.tv_capacity
-                count, slot = keep_closest(sc.tv_vertex, sc.tv_dist, base, count, sc.tv_capacity, u, d)
-                if slot >= 0:
-                    sc.tv_ref[base + slot] = track_side(sc.tv_vertex_prev, sc.tv_ref_prev, sc.tv_count_prev,
-                                                        t, sc.side_memory, base, u, diff)
+            dmin, count = vertex_triangle_candidate(sc, x, v, u, tri, r, margin, speed_factor, h, dmin, count,
+                                                    sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_vertex_prev,
+                                                    sc.tv_ref_prev, sc.tv_count_prev, t, sc.tv_capacity, u)
     sc.tv_count[t] = count
     dmin_out[t] = dmin
 
@@ -566,12 +583,9 @@ def detect_edge_kernel(
             continue
         dmin = wp.min(dmin, d)
         if stored:
-            base = e * sc.ee_capacity
-            count, slot = keep_closest(sc.ee_edge, sc.ee_dist, base, count, sc.ee_capacity, e2, d)
-            if slot >= 0:
-                diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
-                sc.ee_ref[base + slot] = track_side(sc.ee_edge_prev, sc.ee_ref_prev, sc.ee_count_prev, e,
-                                                    sc.side_memory, base, e2, diff)
+            diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
+            count = store_pair(sc.ee_edge, sc.ee_dist, sc.ee_ref, sc.ee_edge_prev, sc.ee_ref_prev,
+                               sc.ee_count_prev, sc.side_memory, e, sc.ee_capacity, count, e2, d, diff)
     sc.ee_count[e] = count
     dmin_out[e] = dmin
 
