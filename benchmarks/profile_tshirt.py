@@ -158,6 +158,17 @@ def main() -> None:
     def sweep(sc_data):
         return lambda: solver.sweep(state.positions, sc_data, vcfg.friction_epsilon * h, h)
 
+    def keep_lists(data, keep: tuple[str, ...]):
+        """``data`` with the pair totals of the lists not in ``keep`` ("vt", "tv", "ee") zeroed:
+        a sweep that evaluates only those pair kinds (where the self-contact time goes)."""
+        out = SC.SelfContactData()
+        for name in SC.SelfContactData.vars:
+            setattr(out, name, getattr(data, name))
+        for kind, field in (("vt", "vt_count"), ("tv", "tv_total"), ("ee", "ee_total")):
+            if kind not in keep:
+                setattr(out, field, wp.zeros_like(getattr(data, field)))
+        return out
+
     sc = solver.self_contact
     common = [sc.margin, sc.speed_factor, h, sc.data]
     x, v = state.positions, state.velocities
@@ -198,7 +209,15 @@ def main() -> None:
         **kernels(""),
         "sweep_sc_graph_ms": timed(sweep(sc.data), graph=True),
         "sweep_nosc_graph_ms": timed(sweep(disabled_data(device)), graph=True),
+        **{f"sweep_sc_{'_'.join(keep) or 'nopairs'}_graph_ms": timed(sweep(keep_lists(sc.data, keep)), graph=True)
+           for keep in ((), ("vt",), ("tv",), ("ee",))},
     }
+    totals = (sc.data.vt_count.numpy() + sc.data.tv_total.numpy() + sc.data.ee_total.numpy())
+    res["vertex_pair_totals"] = {"mean": float(totals.mean()), "max": int(totals.max()),
+                                 "nonzero": int((totals > 0).sum()),
+                                 "quantiles_99_999": [float(q) for q in np.quantile(totals, [0.99, 0.999])],
+                                 "pool_records": int(sc.data.pair_cursor.numpy()[0]),
+                                 "pool_size": int(sc.data.pool_size)}
     res["step_kernels_ms"] = kernel_breakdown(wp, device,
                                               lambda: (restore(), solver.step(state, state, control, dt)))
     for name in ("vt", "tv", "ee"):

@@ -348,33 +348,39 @@ def _lane_force_kernel(x: wp.array(dtype=wp.vec3), tri_indices: wp.array(dtype=w
 def test_lanes_of_the_tiled_solve_share_every_pair_once(device):
     """The solve splits a vertex's stored pairs over ``stride`` lanes: the lanes' sum must be the
     one-lane total for any stride (a pair skipped or counted twice changes it), on a fold where
-    triangles and edges hold different numbers of pairs."""
+    triangles and edges hold different numbers of pairs. The vertices' gather records (pool 128),
+    the pair lists (pool 0: every vertex falls back) and a pool that holds only some vertices'
+    records must all give the same forces."""
     x, faces = two_layers(n=6, gap=0.0015)
     b = ClothModelBuilder()
     b.add_cloth(x, faces, ClothMaterialParams())
     m = b.finalize(device)
-    sc = SelfContact(m, radius=0.004, margin=0.006, stiffness=1.0e3, friction=0.3, relaxation=0.45,
-                     speed_factor=2.5, capacity=8)
-    xd = wp.array(x, dtype=wp.vec3, device=device)
-    sc.detect(xd, wp.zeros_like(xd), 1.0 / 300.0)
-    counts = np.concatenate([sc.data.tv_count.numpy(), sc.data.ee_count.numpy()])
-    assert len(np.unique(counts)) >= 5 and (counts == 0).any()   # uneven lists: the split is exercised
     # move the points a little so friction and the crossing sign see a displacement
     rng = np.random.default_rng(3)
     xm = wp.array(x + rng.normal(0.0, 4e-4, x.shape).astype(np.float32), dtype=wp.vec3, device=device)
     out = {}
-    for stride in (1, 3, 16):
-        f = wp.zeros(len(x), dtype=wp.vec3, device=device)
-        hs = wp.zeros(len(x), dtype=wp.mat33, device=device)
-        wp.launch(_lane_force_kernel, dim=len(x), inputs=[xm, m.tri_indices, m.vertex_tri_offsets,
-                                                          m.vertex_tri_ids, m.vertex_tri_local, sc.data,
-                                                          stride], outputs=[f, hs], device=device)
-        out[stride] = (f.numpy(), hs.numpy())
-    f1, h1 = out[1]
+    for pool in (0, 128, 1):
+        sc = SelfContact(m, radius=0.004, margin=0.006, stiffness=1.0e3, friction=0.3, relaxation=0.45,
+                         speed_factor=2.5, capacity=8, pool=pool)
+        xd = wp.array(x, dtype=wp.vec3, device=device)
+        sc.detect(xd, wp.zeros_like(xd), 1.0 / 300.0)
+        counts = np.concatenate([sc.data.tv_count.numpy(), sc.data.ee_count.numpy()])
+        assert len(np.unique(counts)) >= 5 and (counts == 0).any()   # uneven lists: the split is exercised
+        total = sc.data.pair_count.numpy()
+        fell_back = (sc.data.pair_first.numpy() < 0)[total > 0]
+        assert fell_back.all() if pool == 0 else (not fell_back.any() if pool == 128 else 0 < fell_back.mean() < 1)
+        for stride in (1, 3, 16):
+            f = wp.zeros(len(x), dtype=wp.vec3, device=device)
+            hs = wp.zeros(len(x), dtype=wp.mat33, device=device)
+            wp.launch(_lane_force_kernel, dim=len(x), inputs=[xm, m.tri_indices, m.vertex_tri_offsets,
+                                                              m.vertex_tri_ids, m.vertex_tri_local, sc.data,
+                                                              stride], outputs=[f, hs], device=device)
+            out[pool, stride] = (f.numpy(), hs.numpy())
+    f1, h1 = out[0, 1]
     assert np.abs(f1).max() > 0.0
-    for stride in (3, 16):
-        np.testing.assert_allclose(out[stride][0], f1, rtol=1e-4, atol=1e-5 * np.abs(f1).max())
-        np.testing.assert_allclose(out[stride][1], h1, rtol=1e-4, atol=1e-5 * np.abs(h1).max())
+    for key, (f, hs) in out.items():
+        np.testing.assert_allclose(f, f1, rtol=1e-4, atol=1e-5 * np.abs(f1).max(), err_msg=str(key))
+        np.testing.assert_allclose(hs, h1, rtol=1e-4, atol=1e-5 * np.abs(h1).max(), err_msg=str(key))
 
 
 def _point_triangle_distance_np(p, a, b, c):

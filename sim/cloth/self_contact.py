@@ -91,6 +91,13 @@ class SelfContactData:
     ee_total: wp.array(dtype=wp.int32)
     tv_first: wp.array(dtype=wp.int32)
     ee_first: wp.array(dtype=wp.int32)
+    pair_first: wp.array(dtype=wp.int32)
+    pair_count: wp.array(dtype=wp.int32)
+    pair_verts: wp.array(dtype=wp.vec4i)
+    pair_role: wp.array(dtype=wp.int32)
+    pair_ref: wp.array(dtype=wp.vec3)
+    pair_cursor: wp.array(dtype=wp.int32)
+    pool_size: int
     mesh_edges: wp.array(dtype=wp.vec2i)
     vertex_edge_offsets: wp.array(dtype=wp.int32)
     vertex_edge_ids: wp.array(dtype=wp.int32)
@@ -184,6 +191,106 @@ def pair_force_hessian(diff: wp.vec3, diff0: wp.vec3, rel_disp: wp.vec3, w: floa
 
 
 @wp.func
+def point_triangle_pair(x: wp.array(dtype=wp.vec3), x0: wp.array(dtype=wp.vec3), u: int, q: wp.vec4i,
+                        ref: wp.vec3, role: int, sc: SelfContactData, eps_u: float):
+    """Force and Hessian block of the vertex with ``role`` in the pair of point ``u`` and
+    triangle ``q[1..3]`` (``q[0]`` unused): role 0 the point, role 1-3 the triangle's corner
+    ``role - 1``; ``ref`` the pair's side reference."""
+    xu = x[u]
+    a = x[q[1]]
+    b = x[q[2]]
+    c = x[q[3]]
+    w = triangle_closest_bary(xu, a, b, c)
+    p = w[0] * a + w[1] * b + w[2] * c
+    p0 = w[0] * x0[q[1]] + w[1] * x0[q[2]] + w[2] * x0[q[3]]
+    wi = 1.0
+    if role > 0:
+        wi = -w[role - 1]
+    return pair_force_hessian(xu - p, ref, (xu - x0[u]) - (p - p0), wi, sc.radius, sc.stiffness, sc.friction,
+                              eps_u)
+
+
+@wp.func
+def edge_edge_pair(x: wp.array(dtype=wp.vec3), x0: wp.array(dtype=wp.vec3), q: wp.vec4i, ref: wp.vec3,
+                   end: int, sc: SelfContactData, eps_u: float):
+    """Force and Hessian block of end ``end`` (0, 1) of edge ``q[0] q[1]`` in its pair with edge
+    ``q[2] q[3]``; ``ref`` the pair's side reference."""
+    p1 = x[q[0]]
+    q1 = x[q[1]]
+    p2 = x[q[2]]
+    q2 = x[q[3]]
+    st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
+    pa = p1 + st[0] * (q1 - p1)
+    pb = p2 + st[1] * (q2 - p2)
+    pa0 = (1.0 - st[0]) * x0[q[0]] + st[0] * x0[q[1]]
+    pb0 = (1.0 - st[1]) * x0[q[2]] + st[1] * x0[q[3]]
+    we = 1.0 - st[0]
+    if end == 1:
+        we = st[0]
+    return pair_force_hessian(pa - pb, ref, (pa - pa0) - (pb - pb0), we, sc.radius, sc.stiffness, sc.friction,
+                              eps_u)
+
+
+@wp.func
+def self_contact_list_force_hessian(
+    i: int,
+    lane: int,
+    stride: int,
+    x: wp.array(dtype=wp.vec3),
+    x0: wp.array(dtype=wp.vec3),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    vertex_tri_offsets: wp.array(dtype=wp.int32),
+    vertex_tri_ids: wp.array(dtype=wp.int32),
+    vertex_tri_local: wp.array(dtype=wp.int32),
+    sc: SelfContactData,
+    eps_u: float,
+):
+    """``self_contact_force_hessian`` gathered from the pair lists themselves (the fallback of a
+    vertex whose gather records did not fit in the pool): this lane's share of each list."""
+    f = wp.vec3(0.0)
+    H = wp.mat33(0.0)
+    # i as the point of vertex-triangle pairs
+    for s in range(lane, sc.vt_count[i], stride):
+        tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
+        fc, hc = point_triangle_pair(x, x0, i, wp.vec4i(i, tri[0], tri[1], tri[2]),
+                                     sc.vt_ref[i * sc.vt_capacity + s], 0, sc, eps_u)
+        f = f + fc
+        H = H + hc
+    # i as a corner of triangles that vertices are close to: the lanes split the flattened list
+    # of stored pairs of i's triangles (``tv_first``: each triangle's first pair in it)
+    cap = sc.tv_capacity
+    tri_end = vertex_tri_offsets[i + 1]
+    for j in range(lane, sc.tv_total[i], stride):
+        kk = vertex_tri_offsets[i]
+        while kk + 1 < tri_end and sc.tv_first[kk + 1] <= j:
+            kk += 1
+        t = vertex_tri_ids[kk]
+        s = j - sc.tv_first[kk]
+        tri = tri_indices[t]
+        u = sc.tv_vertex[t * cap + s]
+        fc, hc = point_triangle_pair(x, x0, u, wp.vec4i(u, tri[0], tri[1], tri[2]), sc.tv_ref[t * cap + s],
+                                     1 + vertex_tri_local[kk], sc, eps_u)
+        f = f + fc
+        H = H + hc
+    # i as an end of edges close to other edges (lanes split the flattened stored pairs alike)
+    ecap = sc.ee_capacity
+    edge_end = sc.vertex_edge_offsets[i + 1]
+    for j in range(lane, sc.ee_total[i], stride):
+        kk = sc.vertex_edge_offsets[i]
+        while kk + 1 < edge_end and sc.ee_first[kk + 1] <= j:
+            kk += 1
+        e = sc.vertex_edge_ids[kk]
+        s = j - sc.ee_first[kk]
+        ea = sc.mesh_edges[e]
+        eb = sc.mesh_edges[sc.ee_edge[e * ecap + s]]
+        fc, hc = edge_edge_pair(x, x0, wp.vec4i(ea[0], ea[1], eb[0], eb[1]), sc.ee_ref[e * ecap + s],
+                                sc.vertex_edge_local[kk], sc, eps_u)
+        f = f + fc
+        H = H + hc
+    return f, H
+
+
+@wp.func
 def self_contact_force_hessian(
     i: int,
     lane: int,
@@ -199,85 +306,32 @@ def self_contact_force_hessian(
 ):
     """Sum of the self-contact forces on vertex ``i`` and their Hessian blocks: as the point
     of its VT pairs, as a corner of its triangles' TV pairs, as an end of its edges' EE pairs.
-    This lane's share only: items ``lane, lane + stride, ...`` of each list."""
+    This lane's share only: items ``lane, lane + stride, ...`` of the vertex's pairs.
+
+    The pairs come from the vertex's gather records (``vertex_summary_kernel``: the pair's
+    vertices, the vertex's role and the side reference in one place), so a pair costs one
+    record load, then its positions. Gathered from the lists, a pair was a chain of dependent
+    loads (list count, the owning triangle or edge, its indices, the partner's indices) in
+    three loops one after the other, and the few vertices with pairs set the length of every
+    solve launch (session 12: 24 us per launch against 10 us without self-contact). A vertex
+    whose records did not fit in the pool (``pair_first < 0``) is gathered from the lists."""
+    first = sc.pair_first[i]
+    if first < 0:
+        return self_contact_list_force_hessian(i, lane, stride, x, x0, tri_indices, vertex_tri_offsets,
+                                               vertex_tri_ids, vertex_tri_local, sc, eps_u)
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
-    r = sc.radius
-    k = sc.stiffness
-    mu = sc.friction
-    xi = x[i]
-    di = xi - x0[i]
-    # i as the point of vertex-triangle pairs
-    for s in range(lane, sc.vt_count[i], stride):
-        t = sc.vt_tri[i * sc.vt_capacity + s]
-        tri = tri_indices[t]
-        a = x[tri[0]]
-        b = x[tri[1]]
-        c = x[tri[2]]
-        w = triangle_closest_bary(xi, a, b, c)
-        p = w[0] * a + w[1] * b + w[2] * c
-        p0 = w[0] * x0[tri[0]] + w[1] * x0[tri[1]] + w[2] * x0[tri[2]]
-        fc, hc = pair_force_hessian(xi - p, sc.vt_ref[i * sc.vt_capacity + s], di - (p - p0), 1.0, r, k, mu,
-                                    eps_u)
-        f = f + fc
-        H = H + hc
-    # i as a corner of triangles that vertices are close to. The lanes split the flattened list
-    # of stored pairs of i's triangles (a vertex has ~6 triangles with 0-``capacity`` pairs each):
-    # the work is the pairs that exist, not triangles x capacity slots, and no lane idles while
-    # another runs one triangle's full list
-    cap = sc.tv_capacity
-    tri_end = vertex_tri_offsets[i + 1]
-    for j in range(lane, sc.tv_total[i], stride):
-        # the triangle holding pair j: the per-slot pair offsets of i's triangles lie in one cache
-        # line, so the search is not a chain of dependent loads through every triangle's list
-        kk = vertex_tri_offsets[i]
-        while kk + 1 < tri_end and sc.tv_first[kk + 1] <= j:
-            kk += 1
-        t = vertex_tri_ids[kk]
-        s = j - sc.tv_first[kk]
-        corner = vertex_tri_local[kk]
-        tri = tri_indices[t]
-        a = x[tri[0]]
-        b = x[tri[1]]
-        c = x[tri[2]]
-        u = sc.tv_vertex[t * cap + s]
-        xu = x[u]
-        w = triangle_closest_bary(xu, a, b, c)
-        p = w[0] * a + w[1] * b + w[2] * c
-        p0 = w[0] * x0[tri[0]] + w[1] * x0[tri[1]] + w[2] * x0[tri[2]]
-        fc, hc = pair_force_hessian(xu - p, sc.tv_ref[t * cap + s], (xu - x0[u]) - (p - p0), -w[corner], r, k,
-                                    mu, eps_u)
-        f = f + fc
-        H = H + hc
-    # i as an end of edges close to other edges (lanes split the flattened stored pairs alike)
-    ecap = sc.ee_capacity
-    edge_end = sc.vertex_edge_offsets[i + 1]
-    for j in range(lane, sc.ee_total[i], stride):
-        kk = sc.vertex_edge_offsets[i]
-        while kk + 1 < edge_end and sc.ee_first[kk + 1] <= j:
-            kk += 1
-        e = sc.vertex_edge_ids[kk]
-        s = j - sc.ee_first[kk]
-        end = sc.vertex_edge_local[kk]
-        ea = sc.mesh_edges[e]
-        p1 = x[ea[0]]
-        q1 = x[ea[1]]
-        e2 = sc.ee_edge[e * ecap + s]
-        eb = sc.mesh_edges[e2]
-        p2 = x[eb[0]]
-        q2 = x[eb[1]]
-        st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
-        pa = p1 + st[0] * (q1 - p1)
-        pb = p2 + st[1] * (q2 - p2)
-        pa0 = (1.0 - st[0]) * x0[ea[0]] + st[0] * x0[ea[1]]
-        pb0 = (1.0 - st[1]) * x0[eb[0]] + st[1] * x0[eb[1]]
-        we = 1.0 - st[0]
-        if end == 1:
-            we = st[0]
-        fc, hc = pair_force_hessian(pa - pb, sc.ee_ref[e * ecap + s], (pa - pa0) - (pb - pb0), we, r, k, mu,
-                                    eps_u)
-        f = f + fc
-        H = H + hc
+    for j in range(first + lane, first + sc.pair_count[i], stride):
+        q = sc.pair_verts[j]
+        role = sc.pair_role[j]
+        if role < 4:
+            fc, hc = point_triangle_pair(x, x0, q[0], q, sc.pair_ref[j], role, sc, eps_u)
+            f = f + fc
+            H = H + hc
+        else:
+            fe, he = edge_edge_pair(x, x0, q, sc.pair_ref[j], role - 4, sc, eps_u)
+            f = f + fe
+            H = H + he
     return f, H
 
 
@@ -595,18 +649,22 @@ def vertex_summary_kernel(
     dmin_vertex: wp.array(dtype=float),
     dmin_tri: wp.array(dtype=float),
     dmin_edge: wp.array(dtype=float),
+    tri_indices: wp.array(dtype=wp.vec3i),
     vertex_tri_offsets: wp.array(dtype=wp.int32),
     vertex_tri_ids: wp.array(dtype=wp.int32),
+    vertex_tri_local: wp.array(dtype=wp.int32),
     relaxation: float,
     sc: SelfContactData,
 ):
     """Per vertex, once per detection: the bound ``b_i = gamma min(d_min(i), d_min(incident
     triangles), d_min(incident edges))``; the number of stored pairs of its triangles (TV) and
     of its edges (EE), and for each incident triangle / edge the number of pairs before it (the
-    offsets of the vertex's flattened pair lists). The solve's lanes split those flattened lists;
-    finding pair ``j``'s triangle by walking the lists' counts was a chain of dependent loads
-    per pair, in every iteration, and the few vertices with dozens of pairs set every solve
-    launch's length."""
+    offsets of the vertex's flattened pair lists, for the list fallback of the solve); and the
+    vertex's gather records: every pair it takes part in (its VT pairs, its triangles' TV
+    pairs, its edges' EE pairs, in that order) as the pair's four vertices, the vertex's role
+    in it and the pair's side reference, in one block of the shared pool (``pair_first``: -1
+    where the pool is full; the solve then reads the lists). The block's place in the pool
+    depends on the threads' order, its contents do not: the solve's sums are deterministic."""
     i = wp.tid()
     b = dmin_vertex[i]
     tv = int(0)
@@ -624,6 +682,40 @@ def vertex_summary_kernel(
     sc.bound[i] = relaxation * b
     sc.tv_total[i] = tv
     sc.ee_total[i] = ee
+    vt = sc.vt_count[i]
+    total = vt + tv + ee
+    sc.pair_count[i] = total
+    first = int(0)
+    if total > 0:
+        first = wp.atomic_add(sc.pair_cursor, 0, total)
+        if first + total > sc.pool_size:
+            sc.pair_first[i] = -1
+            return
+    sc.pair_first[i] = first
+    r = first
+    for s in range(vt):
+        tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
+        sc.pair_verts[r] = wp.vec4i(i, tri[0], tri[1], tri[2])
+        sc.pair_role[r] = 0
+        sc.pair_ref[r] = sc.vt_ref[i * sc.vt_capacity + s]
+        r += 1
+    for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
+        t = vertex_tri_ids[k]
+        tri = tri_indices[t]
+        for s in range(sc.tv_count[t]):
+            sc.pair_verts[r] = wp.vec4i(sc.tv_vertex[t * sc.tv_capacity + s], tri[0], tri[1], tri[2])
+            sc.pair_role[r] = 1 + vertex_tri_local[k]
+            sc.pair_ref[r] = sc.tv_ref[t * sc.tv_capacity + s]
+            r += 1
+    for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
+        e = sc.vertex_edge_ids[k]
+        ea = sc.mesh_edges[e]
+        for s in range(sc.ee_count[e]):
+            eb = sc.mesh_edges[sc.ee_edge[e * sc.ee_capacity + s]]
+            sc.pair_verts[r] = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
+            sc.pair_role[r] = 4 + sc.vertex_edge_local[k]
+            sc.pair_ref[r] = sc.ee_ref[e * sc.ee_capacity + s]
+            r += 1
 
 
 class SelfContact:
@@ -648,11 +740,14 @@ class SelfContact:
             docstring); off: each detection takes the side from the positions it sees.
         relative_lists: store a pair only within the query radius of its relative speed (see
             the module docstring); off: every pair within the query radius.
+        pool: gather records per vertex on average (``vertex_summary_kernel``); a vertex whose
+            records do not fit is gathered from the lists, slower but the same forces.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
-                 bounds: bool = True, side_memory: bool = False, relative_lists: bool = True):
+                 bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
+                 pool: int = 16):
         w = warp()
         d = model.device
         self.model = model
@@ -695,6 +790,13 @@ class SelfContact:
         sc.ee_total = w.zeros(n, dtype=w.int32, device=d)
         sc.tv_first = w.zeros(model.vertex_tri_ids.shape[0], dtype=w.int32, device=d)
         sc.ee_first = w.zeros(model.vertex_mesh_edge_ids.shape[0], dtype=w.int32, device=d)
+        sc.pool_size = int(pool) * n
+        sc.pair_first = w.zeros(n, dtype=w.int32, device=d)
+        sc.pair_count = w.zeros(n, dtype=w.int32, device=d)
+        sc.pair_verts = w.zeros(max(sc.pool_size, 1), dtype=w.vec4i, device=d)
+        sc.pair_role = w.zeros(max(sc.pool_size, 1), dtype=w.int32, device=d)
+        sc.pair_ref = w.zeros(max(sc.pool_size, 1), dtype=w.vec3, device=d)
+        sc.pair_cursor = w.zeros(1, dtype=w.int32, device=d)
         sc.rest = model.particle_rest
         sc.component = w.array(self._components(model), dtype=w.int32, device=d)
         sc.exclusion = max(float(rest_exclusion), float(radius))
@@ -756,9 +858,10 @@ class SelfContact:
         w.launch(detect_edge_kernel, dim=self._lo_e.shape[0],
                  inputs=[x0, v, m.particle_instance, self.edge_bvh.id, *common],
                  outputs=[self._dmin_e], device=d)
+        sc.pair_cursor.zero_()
         w.launch(vertex_summary_kernel, dim=m.particle_count,
-                 inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.vertex_tri_offsets, m.vertex_tri_ids,
-                         self.relaxation, sc], device=d)
+                 inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.tri_indices, m.vertex_tri_offsets,
+                         m.vertex_tri_ids, m.vertex_tri_local, self.relaxation, sc], device=d)
 
 
 def disabled_data(device) -> SelfContactData:
@@ -777,6 +880,9 @@ def disabled_data(device) -> SelfContactData:
     sc.vt_count = sc.vt_tri = sc.tv_count = sc.tv_vertex = sc.ee_count = sc.ee_edge = empty_i
     sc.vertex_edge_offsets = sc.vertex_edge_ids = sc.vertex_edge_local = empty_i
     sc.tv_total = sc.ee_total = sc.tv_first = sc.ee_first = empty_i
+    sc.pair_first = sc.pair_count = sc.pair_role = sc.pair_cursor = empty_i
+    sc.pair_verts = w.zeros(1, dtype=w.vec4i, device=device)
+    sc.pool_size = 0
     sc.mesh_edges = w.zeros(1, dtype=w.vec2i, device=device)
     sc.bound = w.zeros(1, dtype=float, device=device)
     sc.vt_dist = sc.tv_dist = sc.ee_dist = sc.bound
@@ -785,6 +891,7 @@ def disabled_data(device) -> SelfContactData:
     sc.vt_ref = sc.tv_ref = sc.ee_ref = w.zeros(1, dtype=w.vec3, device=device)
     sc.vt_ref_prev = sc.tv_ref_prev = sc.ee_ref_prev = sc.vt_ref
     sc.rest = w.zeros(1, dtype=w.vec3, device=device)
+    sc.pair_ref = sc.rest
     sc.component = w.zeros(1, dtype=w.int32, device=device)
     sc.exclusion = 0.0
     return sc

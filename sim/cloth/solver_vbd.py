@@ -104,6 +104,11 @@ class VBDConfig:
             speed. Off: every pair within the query radius is stored, and on the t-shirt run
             88 % of the edges' lists filled with surface neighbours riding on the limb with them
             (session 11).
+        self_contact_pool: gather records per vertex, on average over the model, of the solve's
+            self-contact pairs (each pair's vertices, role and side in one record, written once
+            per detection): a vertex whose records do not fit is gathered from the pair lists,
+            with the same forces but a chain of dependent loads per pair (session 12: the lists
+            made a solve launch 24 us against 10 us without self-contact). 0: always the lists.
         self_contact_rebuild: rebuild the cloth BVHs at the first detection of every step and
             refit them at the others. Refitting a tree built for the rest shape keeps its
             topology while the garment deforms, and queries on the loosened boxes cost 1.5-2x.
@@ -137,8 +142,11 @@ class VBDConfig:
     self_contact_rebuild: bool = True
     self_contact_side_memory: bool = False
     self_contact_relative_lists: bool = True
+    self_contact_pool: int = 16
 
     def __post_init__(self):
+        if self.self_contact_pool < 0:
+            raise ValueError(f"VBDConfig.self_contact_pool must be >= 0, got {self.self_contact_pool}")
         for name in ("substeps", "iterations", "self_contact_interval"):
             if getattr(self, name) < 1:
                 raise ValueError(f"VBDConfig.{name} must be >= 1, got {getattr(self, name)}")
@@ -225,7 +233,7 @@ class SolverVBD:
                 relaxation=cfg.self_contact_relaxation, speed_factor=cfg.self_contact_speed_factor,
                 capacity=cfg.self_contact_capacity, rest_exclusion=cfg.self_contact_rest_exclusion,
                 bounds=cfg.self_contact_bounds, side_memory=cfg.self_contact_side_memory,
-                relative_lists=cfg.self_contact_relative_lists)
+                relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
