@@ -209,8 +209,8 @@ def main() -> None:
         **kernels(""),
         "sweep_sc_graph_ms": timed(sweep(sc.data), graph=True),
         "sweep_nosc_graph_ms": timed(sweep(disabled_data(device)), graph=True),
-        **{f"sweep_sc_{'_'.join(keep) or 'nopairs'}_graph_ms": timed(sweep(keep_lists(sc.data, keep)), graph=True)
-           for keep in ((), ("vt",), ("tv",), ("ee",))},
+        **{f"sweep_sc_{'_'.join(keep) or 'nopairs'}_graph_ms":
+           timed(sweep(keep_lists(sc.data, keep)), graph=True) for keep in ((), ("vt",), ("tv",), ("ee",))},
     }
     totals = (sc.data.vt_count.numpy() + sc.data.tv_total.numpy() + sc.data.ee_total.numpy())
     res["vertex_pair_totals"] = {"mean": float(totals.mean()), "max": int(totals.max()),
