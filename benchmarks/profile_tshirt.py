@@ -159,11 +159,13 @@ def main() -> None:
         return lambda: solver.sweep(state.positions, sc_data, vcfg.friction_epsilon * h, h)
 
     def keep_lists(data, keep: tuple[str, ...]):
-        """``data`` with the pair totals of the lists not in ``keep`` ("vt", "tv", "ee") zeroed:
-        a sweep that evaluates only those pair kinds (where the self-contact time goes)."""
+        """``data`` with every vertex gathered from the pair lists (its gather records switched
+        off) and the pair totals of the lists not in ``keep`` ("vt", "tv", "ee") zeroed: a sweep
+        that evaluates only those pair kinds (where the self-contact time goes)."""
         out = SC.SelfContactData()
         for name in SC.SelfContactData.vars:
             setattr(out, name, getattr(data, name))
+        out.pair_first = wp.full_like(data.pair_first, -1)
         for kind, field in (("vt", "vt_count"), ("tv", "tv_total"), ("ee", "ee_total")):
             if kind not in keep:
                 setattr(out, field, wp.zeros_like(getattr(data, field)))
@@ -211,6 +213,7 @@ def main() -> None:
         "sweep_nosc_graph_ms": timed(sweep(disabled_data(device)), graph=True),
         **{f"sweep_sc_{'_'.join(keep) or 'nopairs'}_graph_ms":
            timed(sweep(keep_lists(sc.data, keep)), graph=True) for keep in ((), ("vt",), ("tv",), ("ee",))},
+        "sweep_sc_lists_graph_ms": timed(sweep(keep_lists(sc.data, ("vt", "tv", "ee"))), graph=True),
     }
     totals = (sc.data.vt_count.numpy() + sc.data.tv_total.numpy() + sc.data.ee_total.numpy())
     res["vertex_pair_totals"] = {"mean": float(totals.mean()), "max": int(totals.max()),
