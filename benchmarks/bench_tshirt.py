@@ -80,6 +80,17 @@ def run_batches(garment, body, motion, cfg, args: argparse.Namespace) -> dict:
     return out
 
 
+def device_memory_peak_gib(device: str) -> float | None:
+    """Peak of Warp's CUDA memory pool so far [GiB] (None on the CPU or without a pool)."""
+    from sim.device import resolve_device, warp
+
+    wp = warp()
+    d = resolve_device(device)
+    if not wp.get_device(d).is_cuda or not wp.is_mempool_enabled(d):
+        return None
+    return round(wp.get_mempool_used_mem_high(d) / 2**30, 3)
+
+
 def quality_dict(q) -> dict:
     return {"max_edge_strain": q.max_edge_strain, "mean_edge_strain": q.mean_edge_strain,
             "max_stretch": q.max_stretch, "max_compression": q.max_compression,
@@ -105,7 +116,12 @@ def run_ours(garment, body, motion, cfg, batch: int = 1):
     ms = r.step_ms
     out = {"ms_per_frame": float(ms.mean()), "ms_per_frame_median": float(np.median(ms)),
            "frames": int(len(ms)), "garment_frames_per_s": 1000.0 * batch / float(ms.mean()),
-           "wall_s": time.perf_counter() - t0, "failed_gates": list(r.failed_gates)}
+           "wall_s": time.perf_counter() - t0,
+           "failed_gates": sorted({g for res in results for g in res.failed_gates}),
+           "sequences_failing_gates": sum(1 for res in results if not res.passed)}
+    peak = device_memory_peak_gib(cfg.device)
+    if peak is not None:
+        out["device_memory_peak_gib"] = peak
     if batch == 1:
         out["quality"] = quality_dict(r.quality)
     return out, r
