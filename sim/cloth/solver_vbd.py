@@ -56,9 +56,15 @@ class VBDConfig:
             buckles into wrinkles instead of shrinking in plane) or "stvk" (Saint
             Venant-Kirchhoff: its stress vanishes as a triangle collapses, so squeezed cloth
             shrinks to under half its rest length).
-        lanes: GPU threads that share one particle's solve (tiled launch; 1 on CPU).
+        lanes: GPU threads that share one particle's solve (tiled launch; 1 on CPU). 0 (default):
+            chosen by the model's size (``auto_lanes``): 16 lanes x 8 particles per block while
+            the largest colour has fewer than ``AUTO_LANES_PARTICLES`` particles (one garment: the
+            launches are latency-bound, and more lanes shorten each particle's serial gather),
+            4 x 32 from there on (batches: the GPU is full, and 16 lanes of which ~4 idle on a
+            vertex's ~12 elements cost throughput; 64 t-shirts: 344 against 248 garment-frames/s,
+            session 12).
         particles_per_block: particles solved by one GPU thread block (``particles x lanes``
-            threads; 1 on CPU).
+            threads; 1 on CPU); with ``lanes`` 0 it is chosen with them.
         chebyshev_rho: estimated spectral radius rho of the sweeps for Chebyshev acceleration
             (Chen et al. 2024, Sec. 3.8: ``omega_1 = 1, omega_2 = 2 / (2 - rho^2), omega_k = 4 /
             (4 - rho^2 omega_{k-1})``); 0 turns it off. It converges further per sweep, but
@@ -124,7 +130,7 @@ class VBDConfig:
     contact_margin: float = 0.015
     friction_epsilon: float = 1.0e-2
     air_damping: float = 0.5
-    lanes: int = 16
+    lanes: int = 0
     particles_per_block: int = 8
     chebyshev_rho: float = 0.0
     membrane: str = "corotated"
@@ -155,8 +161,8 @@ class VBDConfig:
                              f"hold for one substep), got {self.self_contact_interval}")
         if self.membrane not in ("stvk", "corotated"):
             raise ValueError(f"VBDConfig.membrane must be 'stvk' or 'corotated', got {self.membrane!r}")
-        if self.lanes < 1 or self.lanes > 256:
-            raise ValueError(f"VBDConfig.lanes must be in 1..256, got {self.lanes}")
+        if self.lanes < 0 or self.lanes > 256:
+            raise ValueError(f"VBDConfig.lanes must be in 0..256 (0: auto), got {self.lanes}")
         if self.particles_per_block < 1 or self.lanes * self.particles_per_block > 1024:
             raise ValueError("VBDConfig.particles_per_block must be >= 1 with lanes x particles_per_block "
                              f"<= 1024, got {self.particles_per_block} x {self.lanes}")
@@ -177,6 +183,19 @@ class VBDConfig:
                              f"{self.self_contact_friction}")
         if self.self_contact_margin < self.self_contact_radius:
             raise ValueError("VBDConfig.self_contact_margin must be >= self_contact_radius")
+
+
+AUTO_LANES_PARTICLES = 16384
+
+
+def auto_lanes(largest_color: int) -> tuple[int, int]:
+    """(lanes, particles per block) of the solve for ``VBDConfig.lanes`` 0, by the particle count
+    of the model's largest colour: 16 x 8 below ``AUTO_LANES_PARTICLES`` (latency-bound
+    launches: a 5k t-shirt's colours hold ~1000 particles), 4 x 32 from there on (the GPU is
+    full: 16k particles x 16 lanes is about two waves of an H100's resident threads).
+    Measured on the t-shirt (session 12, H100, 20x10, walk): batch 1 runs fastest at 16
+    lanes; batch 64 gives 248 garment-frames/s at 16 lanes, 314 at 8, 344 at 4 and 2, 320 at 1."""
+    return (4, 32) if largest_color >= AUTO_LANES_PARTICLES else (16, 8)
 
 
 def chebyshev_omegas(rho: float, iterations: int) -> list[float]:
@@ -215,8 +234,13 @@ class SolverVBD:
         # lanes per particle and particles per block of the solve (Warp runs tiles with one
         # thread per block on the CPU)
         cuda = wp.get_device(d).is_cuda
-        self._lanes = self.config.lanes if cuda else 1
-        self._particles = self.config.particles_per_block if cuda else 1
+        lanes, particles = self.config.lanes, self.config.particles_per_block
+        if lanes == 0:
+            offsets = model.color_offsets
+            lanes, particles = auto_lanes(max((b - a for a, b in zip(offsets[:-1], offsets[1:], strict=True)),
+                                              default=0))
+        self._lanes = lanes if cuda else 1
+        self._particles = particles if cuda else 1
         self._solve = K.solve_color_kernel(self._particles, self._lanes)
         self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
         self._tri_strain_prev = wp.zeros(model.tri_count, dtype=wp.vec3, device=d)
