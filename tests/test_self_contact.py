@@ -533,3 +533,41 @@ def test_a_pair_pushed_through_is_pushed_back_to_the_side_it_was_found_on(device
     # once back on its side the reference follows the pair again
     tracked.detect(wp.array(above, dtype=wp.vec3, device=device), zeros, 1.0 / 300.0)
     assert force_on_tip(tracked, above)[1] > 0.0
+
+
+def test_a_vertex_sliding_around_a_rim_is_not_taken_for_a_crossing(device):
+    """Side memory only reverses a pair's side where its closest point is inside the triangle.
+    A vertex 2 mm over a sheet near its rim that then slides around the rim to 1.5 mm beyond and
+    1.5 mm below it has crossed nothing, although its separation turned by more than 90 degrees:
+    it must be pushed away from the rim (out and down, by the penalty of its 2.1 mm distance),
+    not back up through the sheet as a crossed vertex would be."""
+    nx, e = 4, 0.01
+    v, f = grid(nx, nx, (nx - 1) * e, (nx - 1) * e, plane="xz")
+    probe = np.array([[0.029, 0.002, 0.015], [0.06, 0.02, 0.013], [0.06, 0.02, 0.03]], np.float32)
+    b = ClothModelBuilder()
+    b.add_cloth(np.concatenate([v, probe]), np.concatenate([f, np.array([[len(v), len(v) + 2, len(v) + 1]])]),
+                ClothMaterialParams())
+    m = b.finalize(device)
+    i = len(v)
+    above = m.particle_q.numpy()
+    around = above.copy()
+    around[i] = [0.0315, -0.0015, 0.015]
+    zeros = wp.zeros(len(above), dtype=wp.vec3, device=device)
+    k = 1e4
+    sc = SelfContact(m, radius=0.003, margin=0.006, stiffness=k, friction=0.0, relaxation=0.45,
+                     speed_factor=2.5, capacity=16, side_memory=True)
+    for x in (above, around):
+        sc.detect(wp.array(x, dtype=wp.vec3, device=device), zeros, 1.0 / 300.0)
+        assert sc.data.vt_count.numpy()[i] > 0
+    xw = wp.array(around, dtype=wp.vec3, device=device)
+    fo = wp.zeros(len(around), dtype=wp.vec3, device=device)
+    ho = wp.zeros(len(around), dtype=wp.mat33, device=device)
+    wp.launch(_lane_force_kernel, dim=len(around), inputs=[xw, m.tri_indices, m.vertex_tri_offsets,
+                                                           m.vertex_tri_ids, m.vertex_tri_local, sc.data, 1],
+              outputs=[fo, ho], device=device)
+    f_tip = fo.numpy()[i]
+    assert f_tip[0] > 0.0 and f_tip[1] < 0.0, f_tip  # away from the rim, not up through the sheet
+    d = np.hypot(0.0015, 0.0015)
+    # each stored triangle at the rim pushes with k (r_c - d) along the separation: a crossed pair
+    # would push with k (r_c + d) > 5e-2 N per triangle
+    assert np.linalg.norm(f_tip) <= sc.data.vt_count.numpy()[i] * k * (0.003 - d) * 1.001

@@ -49,6 +49,10 @@ import warp as wp
 
 from sim.device import warp
 
+# closest points with every barycentric weight (VT) or edge parameter (EE) above this are
+# interior: only there is a reversed separation a crossing (``track_side``)
+INTERIOR = wp.constant(1.0e-3)
+
 
 @wp.struct
 class SelfContactData:
@@ -422,17 +426,24 @@ def keep_closest(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), bas
 @wp.func
 def track_side(prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.vec3),
                prev_counts: wp.array(dtype=wp.int32), k: int, side_memory: int, base: int, item: int,
-               diff: wp.vec3) -> wp.vec3:
+               diff: wp.vec3, interior: bool) -> wp.vec3:
     """The side reference of pair ``item`` with separation ``diff`` now: ``diff`` for a pair
     that is new or still on the side it had at the previous detection, the previous reference
     for one that crossed since (so the penalty pushes it back); without side memory
-    ``diff``. The previous list of ``item``'s owner ``k`` starts at ``base``."""
+    ``diff``. The previous list of ``item``'s owner ``k`` starts at ``base``.
+
+    A turn of the separation by more than 90 degrees is taken for a crossing only where the
+    closest points are ``interior`` (inside the triangle, inside both edges): there the
+    separation can only reverse by passing through. At a triangle's rim or an edge's end it
+    also turns when a point slides past the rim or an edge past the other's end, without any
+    crossing, and holding the old side there pushed such pairs the wrong way (session 10: the
+    walk failed more often with side memory); there the new side is taken."""
     if side_memory == 0:
         return diff
     for j in range(prev_counts[k]):
         if prev_ids[base + j] == item:
             ref = prev_ref[base + j]
-            if wp.dot(diff, ref) < 0.0:
+            if interior and wp.dot(diff, ref) < 0.0:
                 return ref
             return diff
     return diff
@@ -442,13 +453,15 @@ def track_side(prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.v
 def store_pair(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), ref: wp.array(dtype=wp.vec3),
                prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.vec3),
                prev_counts: wp.array(dtype=wp.int32), side_memory: int, owner: int, capacity: int, count: int,
-               item: int, d: float, diff: wp.vec3) -> int:
-    """Put pair ``item`` (distance ``d``, separation ``diff``) in the list of ``owner``
-    (``keep_closest``) with its side reference (``track_side``); returns the list's new count."""
+               item: int, d: float, diff: wp.vec3, interior: bool) -> int:
+    """Put pair ``item`` (distance ``d``, separation ``diff``, closest points ``interior`` or
+    not) in the list of ``owner`` (``keep_closest``) with its side reference (``track_side``);
+    returns the list's new count."""
     base = owner * capacity
     count, slot = keep_closest(ids, dist, base, count, capacity, item, d)
     if slot >= 0:
-        ref[base + slot] = track_side(prev_ids, prev_ref, prev_counts, owner, side_memory, base, item, diff)
+        ref[base + slot] = track_side(prev_ids, prev_ref, prev_counts, owner, side_memory, base, item, diff,
+                                      interior)
     return count
 
 
@@ -479,8 +492,9 @@ def vertex_triangle_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v
     if (not stored and d >= dmin) or rest_near_triangle(sc, u, tri):
         return dmin, count
     if stored:
+        interior = wp.min(wp.min(w[0], w[1]), w[2]) > INTERIOR
         count = store_pair(ids, dist, ref, prev_ids, prev_ref, prev_counts, sc.side_memory, owner, capacity,
-                           count, item, d, diff)
+                           count, item, d, diff, interior)
     return wp.min(dmin, d), count
 
 
@@ -638,8 +652,10 @@ def detect_edge_kernel(
         dmin = wp.min(dmin, d)
         if stored:
             diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
+            interior = wp.min(wp.min(st[0], 1.0 - st[0]), wp.min(st[1], 1.0 - st[1])) > INTERIOR
             count = store_pair(sc.ee_edge, sc.ee_dist, sc.ee_ref, sc.ee_edge_prev, sc.ee_ref_prev,
-                               sc.ee_count_prev, sc.side_memory, e, sc.ee_capacity, count, e2, d, diff)
+                               sc.ee_count_prev, sc.side_memory, e, sc.ee_capacity, count, e2, d, diff,
+                               interior)
     sc.ee_count[e] = count
     dmin_out[e] = dmin
 
