@@ -345,6 +345,16 @@ def _lane_force_kernel(x: wp.array(dtype=wp.vec3), tri_indices: wp.array(dtype=w
     h_out[i] = h
 
 
+def self_contact_forces(m, sc, x: np.ndarray, device: str) -> np.ndarray:
+    """Self-contact force on every vertex of model ``m`` at positions ``x`` (one lane)."""
+    xw = wp.array(x, dtype=wp.vec3, device=device)
+    fo = wp.zeros(len(x), dtype=wp.vec3, device=device)
+    ho = wp.zeros(len(x), dtype=wp.mat33, device=device)
+    inputs = [xw, m.tri_indices, m.vertex_tri_offsets, m.vertex_tri_ids, m.vertex_tri_local, sc.data, 1]
+    wp.launch(_lane_force_kernel, dim=len(x), inputs=inputs, outputs=[fo, ho], device=device)
+    return fo.numpy()
+
+
 def test_lanes_of_the_tiled_solve_share_every_pair_once(device):
     """The solve splits a vertex's stored pairs over ``stride`` lanes: the lanes' sum must be the
     one-lane total for any stride (a pair skipped or counted twice changes it), on a fold where
@@ -481,32 +491,30 @@ def test_detection_finds_exactly_the_pairs_within_the_query_radius(device, motio
         assert all(_point_triangle_distance_np(x[i], *x[f[t]]) < r + sep for i, t in found)
 
 
+def sheet_and_probe(probe, device: str):
+    """A 3 x 3-cell, 3 cm sheet in the xz plane and a probe triangle (its first corner the tip)
+    in one model: (model, the tip's index)."""
+    nx, e = 4, 0.01
+    v, f = grid(nx, nx, (nx - 1) * e, (nx - 1) * e, plane="xz")
+    b = ClothModelBuilder()
+    b.add_cloth(np.concatenate([v, np.asarray(probe, np.float32)]),
+                np.concatenate([f, np.array([[len(v), len(v) + 2, len(v) + 1]])]), ClothMaterialParams())
+    return b.finalize(device), len(v)
+
+
 def test_a_pair_pushed_through_is_pushed_back_to_the_side_it_was_found_on(device):
     """Side memory: a vertex found 2 mm over a sheet, then pushed 1.5 mm under it (as a
     stronger body contact would), is pushed back up at the next detection; a vertex first found
     under the sheet is pushed further down (its side is where it was found). Without the
     memory, the crossed state at a substep start became the new side and the crossing stayed."""
-    nx, e = 4, 0.01
-    v, f = grid(nx, nx, (nx - 1) * e, (nx - 1) * e, plane="xz")
-    probe = np.array([[0.015, 0.002, 0.013], [0.03, 0.02, 0.013], [0.015, 0.02, 0.03]], np.float32)
-    b = ClothModelBuilder()
-    b.add_cloth(np.concatenate([v, probe]), np.concatenate([f, np.array([[len(v), len(v) + 2, len(v) + 1]])]),
-                ClothMaterialParams())
-    m = b.finalize(device)
-    i = len(v)  # the probe's tip
+    m, i = sheet_and_probe([[0.015, 0.002, 0.013], [0.03, 0.02, 0.013], [0.015, 0.02, 0.03]], device)
     above = m.particle_q.numpy()
     below = above.copy()
     below[i, 1] = -0.0015
     zeros = wp.zeros(len(above), dtype=wp.vec3, device=device)
 
     def force_on_tip(sc, x):
-        xw = wp.array(x, dtype=wp.vec3, device=device)
-        fo = wp.zeros(len(x), dtype=wp.vec3, device=device)
-        ho = wp.zeros(len(x), dtype=wp.mat33, device=device)
-        wp.launch(_lane_force_kernel, dim=len(x), inputs=[xw, m.tri_indices, m.vertex_tri_offsets,
-                                                          m.vertex_tri_ids, m.vertex_tri_local, sc.data, 1],
-                  outputs=[fo, ho], device=device)
-        return fo.numpy()[i]
+        return self_contact_forces(m, sc, x, device)[i]
 
     def contact(side_memory=True):
         return SelfContact(m, radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45,
@@ -541,14 +549,7 @@ def test_a_vertex_sliding_around_a_rim_is_not_taken_for_a_crossing(device):
     1.5 mm below it has crossed nothing, although its separation turned by more than 90 degrees:
     it must be pushed away from the rim (out and down, by the penalty of its 2.1 mm distance),
     not back up through the sheet as a crossed vertex would be."""
-    nx, e = 4, 0.01
-    v, f = grid(nx, nx, (nx - 1) * e, (nx - 1) * e, plane="xz")
-    probe = np.array([[0.029, 0.002, 0.015], [0.06, 0.02, 0.013], [0.06, 0.02, 0.03]], np.float32)
-    b = ClothModelBuilder()
-    b.add_cloth(np.concatenate([v, probe]), np.concatenate([f, np.array([[len(v), len(v) + 2, len(v) + 1]])]),
-                ClothMaterialParams())
-    m = b.finalize(device)
-    i = len(v)
+    m, i = sheet_and_probe([[0.029, 0.002, 0.015], [0.06, 0.02, 0.013], [0.06, 0.02, 0.03]], device)
     above = m.particle_q.numpy()
     around = above.copy()
     around[i] = [0.0315, -0.0015, 0.015]
@@ -559,13 +560,7 @@ def test_a_vertex_sliding_around_a_rim_is_not_taken_for_a_crossing(device):
     for x in (above, around):
         sc.detect(wp.array(x, dtype=wp.vec3, device=device), zeros, 1.0 / 300.0)
         assert sc.data.vt_count.numpy()[i] > 0
-    xw = wp.array(around, dtype=wp.vec3, device=device)
-    fo = wp.zeros(len(around), dtype=wp.vec3, device=device)
-    ho = wp.zeros(len(around), dtype=wp.mat33, device=device)
-    wp.launch(_lane_force_kernel, dim=len(around), inputs=[xw, m.tri_indices, m.vertex_tri_offsets,
-                                                           m.vertex_tri_ids, m.vertex_tri_local, sc.data, 1],
-              outputs=[fo, ho], device=device)
-    f_tip = fo.numpy()[i]
+    f_tip = self_contact_forces(m, sc, around, device)[i]
     assert f_tip[0] > 0.0 and f_tip[1] < 0.0, f_tip  # away from the rim, not up through the sheet
     d = np.hypot(0.0015, 0.0015)
     # each stored triangle at the rim pushes with k (r_c - d) along the separation: a crossed pair

@@ -236,7 +236,7 @@ def edge_edge_pair(x: wp.array(dtype=wp.vec3), x0: wp.array(dtype=wp.vec3), q: w
 
 
 @wp.func
-def self_contact_list_force_hessian(
+def self_contact_force_hessian(
     i: int,
     lane: int,
     stride: int,
@@ -249,11 +249,35 @@ def self_contact_list_force_hessian(
     sc: SelfContactData,
     eps_u: float,
 ):
-    """``self_contact_force_hessian`` gathered from the pair lists themselves (the fallback of a
-    vertex whose gather records did not fit in the pool): this lane's share of each list."""
+    """Sum of the self-contact forces on vertex ``i`` and their Hessian blocks: as the point
+    of its VT pairs, as a corner of its triangles' TV pairs, as an end of its edges' EE pairs.
+    This lane's share only: items ``lane, lane + stride, ...`` of the vertex's pairs.
+
+    The pairs come from the vertex's gather records (``vertex_summary_kernel``: the pair's
+    vertices, the vertex's role and the side reference in one place), so a pair costs one
+    record load, then its positions. Gathered from the lists, a pair was a chain of dependent
+    loads (list count, the owning triangle or edge, its indices, the partner's indices) in
+    three loops one after the other, and the few vertices with pairs set the length of every
+    solve launch (session 12: 24 us per launch against 10 us without self-contact). A vertex
+    whose records did not fit in the pool (``pair_first < 0``) is gathered from the lists
+    themselves, the same pairs in the same order per kind (lanes split each list)."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
-    # i as the point of vertex-triangle pairs
+    first = sc.pair_first[i]
+    if first >= 0:
+        for j in range(first + lane, first + sc.pair_count[i], stride):
+            q = sc.pair_verts[j]
+            role = sc.pair_role[j]
+            if role < 4:
+                fc, hc = point_triangle_pair(x, x0, q[0], q, sc.pair_ref[j], role, sc, eps_u)
+                f = f + fc
+                H = H + hc
+            else:
+                fe, he = edge_edge_pair(x, x0, q, sc.pair_ref[j], role - 4, sc, eps_u)
+                f = f + fe
+                H = H + he
+        return f, H
+    # the list fallback. i as the point of vertex-triangle pairs
     for s in range(lane, sc.vt_count[i], stride):
         tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
         fc, hc = point_triangle_pair(x, x0, i, wp.vec4i(i, tri[0], tri[1], tri[2]),
@@ -291,51 +315,6 @@ def self_contact_list_force_hessian(
                                 sc.vertex_edge_local[kk], sc, eps_u)
         f = f + fc
         H = H + hc
-    return f, H
-
-
-@wp.func
-def self_contact_force_hessian(
-    i: int,
-    lane: int,
-    stride: int,
-    x: wp.array(dtype=wp.vec3),
-    x0: wp.array(dtype=wp.vec3),
-    tri_indices: wp.array(dtype=wp.vec3i),
-    vertex_tri_offsets: wp.array(dtype=wp.int32),
-    vertex_tri_ids: wp.array(dtype=wp.int32),
-    vertex_tri_local: wp.array(dtype=wp.int32),
-    sc: SelfContactData,
-    eps_u: float,
-):
-    """Sum of the self-contact forces on vertex ``i`` and their Hessian blocks: as the point
-    of its VT pairs, as a corner of its triangles' TV pairs, as an end of its edges' EE pairs.
-    This lane's share only: items ``lane, lane + stride, ...`` of the vertex's pairs.
-
-    The pairs come from the vertex's gather records (``vertex_summary_kernel``: the pair's
-    vertices, the vertex's role and the side reference in one place), so a pair costs one
-    record load, then its positions. Gathered from the lists, a pair was a chain of dependent
-    loads (list count, the owning triangle or edge, its indices, the partner's indices) in
-    three loops one after the other, and the few vertices with pairs set the length of every
-    solve launch (session 12: 24 us per launch against 10 us without self-contact). A vertex
-    whose records did not fit in the pool (``pair_first < 0``) is gathered from the lists."""
-    first = sc.pair_first[i]
-    if first < 0:
-        return self_contact_list_force_hessian(i, lane, stride, x, x0, tri_indices, vertex_tri_offsets,
-                                               vertex_tri_ids, vertex_tri_local, sc, eps_u)
-    f = wp.vec3(0.0)
-    H = wp.mat33(0.0)
-    for j in range(first + lane, first + sc.pair_count[i], stride):
-        q = sc.pair_verts[j]
-        role = sc.pair_role[j]
-        if role < 4:
-            fc, hc = point_triangle_pair(x, x0, q[0], q, sc.pair_ref[j], role, sc, eps_u)
-            f = f + fc
-            H = H + hc
-        else:
-            fe, he = edge_edge_pair(x, x0, q, sc.pair_ref[j], role - 4, sc, eps_u)
-            f = f + fe
-            H = H + he
     return f, H
 
 
