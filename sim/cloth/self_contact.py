@@ -195,11 +195,12 @@ def pair_force_hessian(diff: wp.vec3, diff0: wp.vec3, rel_disp: wp.vec3, w: floa
 
 
 @wp.func
-def point_triangle_pair(x: wp.array(dtype=wp.vec3), x0: wp.array(dtype=wp.vec3), u: int, q: wp.vec4i,
-                        ref: wp.vec3, role: int, sc: SelfContactData, eps_u: float):
-    """Force and Hessian block of the vertex with ``role`` in the pair of point ``u`` and
-    triangle ``q[1..3]`` (``q[0]`` unused): role 0 the point, role 1-3 the triangle's corner
-    ``role - 1``; ``ref`` the pair's side reference."""
+def point_triangle_pair(x: wp.array(dtype=wp.vec3), x0: wp.array(dtype=wp.vec3), q: wp.vec4i, ref: wp.vec3,
+                        role: int, sc: SelfContactData, eps_u: float):
+    """Force and Hessian block of the vertex with ``role`` in the pair of point ``q[0]`` and
+    triangle ``q[1..3]``: role 0 the point, role 1-3 the triangle's corner ``role - 1``; ``ref``
+    the pair's side reference."""
+    u = q[0]
     xu = x[u]
     a = x[q[1]]
     b = x[q[2]]
@@ -269,7 +270,7 @@ def self_contact_force_hessian(
             q = sc.pair_verts[j]
             role = sc.pair_role[j]
             if role < 4:
-                fc, hc = point_triangle_pair(x, x0, q[0], q, sc.pair_ref[j], role, sc, eps_u)
+                fc, hc = point_triangle_pair(x, x0, q, sc.pair_ref[j], role, sc, eps_u)
                 f = f + fc
                 H = H + hc
             else:
@@ -280,8 +281,8 @@ def self_contact_force_hessian(
     # the list fallback. i as the point of vertex-triangle pairs
     for s in range(lane, sc.vt_count[i], stride):
         tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
-        fc, hc = point_triangle_pair(x, x0, i, wp.vec4i(i, tri[0], tri[1], tri[2]),
-                                     sc.vt_ref[i * sc.vt_capacity + s], 0, sc, eps_u)
+        ref = sc.vt_ref[i * sc.vt_capacity + s]
+        fc, hc = point_triangle_pair(x, x0, wp.vec4i(i, tri[0], tri[1], tri[2]), ref, 0, sc, eps_u)
         f = f + fc
         H = H + hc
     # i as a corner of triangles that vertices are close to: the lanes split the flattened list
@@ -296,7 +297,7 @@ def self_contact_force_hessian(
         s = j - sc.tv_first[kk]
         tri = tri_indices[t]
         u = sc.tv_vertex[t * cap + s]
-        fc, hc = point_triangle_pair(x, x0, u, wp.vec4i(u, tri[0], tri[1], tri[2]), sc.tv_ref[t * cap + s],
+        fc, hc = point_triangle_pair(x, x0, wp.vec4i(u, tri[0], tri[1], tri[2]), sc.tv_ref[t * cap + s],
                                      1 + vertex_tri_local[kk], sc, eps_u)
         f = f + fc
         H = H + hc
