@@ -589,12 +589,22 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
     graph = None
     use_graph = wp.get_device(device).is_cuda
     total = max(tr.length for tr in tracks) - 1
+    # each instance's reference velocity per step (self-contact searches in its frame): the mean
+    # velocity of its body
+    means: dict[tuple, np.ndarray] = {}
+    reference = np.zeros((max(total, 1), len(tracks), 3), np.float32)
+    for k, tr in enumerate(tracks):
+        if tr.body_key not in means:
+            means[tr.body_key] = body_mean_velocities(tr.frames.vertices, max(total, 1), cfg.fps)
+        reference[:, k] = means[tr.body_key]
+    reference_d = wp.array(reference, dtype=wp.vec3, device=device)
     x_prev = state.positions.numpy().copy()  # on CPU .numpy() is a view of the live buffer
     step_ms = np.zeros(total)
     errors: dict[int, SimulationError] = {}  # failures="return": frozen instances
     for t in range(total):
         for c, seq, length in colliders.values():
             c.set_frame(seq[min(t, length - 1)], seq[min(t + 1, length - 1)])
+        wp.copy(control.instance_velocity, reference_d[t])
         if use_graph and graph is None:
             try:
                 with wp.ScopedCapture(device=device) as cap:
@@ -649,6 +659,17 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
         # frame k of the output is solver step k - 1 + first_out (the first is the captured one)
         results.append(replace(res, step_ms=step_ms[max(tr.first_out, 1):tr.length - 1]))
     return results
+
+
+def body_mean_velocities(vertices: np.ndarray, steps: int, fps: float) -> np.ndarray:
+    """The mean velocity [m/s] of a body's vertices over each solver step, shape (steps, 3):
+    step ``t`` moves the body from frame ``min(t, L - 1)`` to ``min(t + 1, L - 1)`` of its ``L``
+    frames ``vertices`` (L, B, 3) [m] (a shorter sequence holds its last frame). The body
+    moves linearly within a step, so this is the velocity of its centroid over the step."""
+    c = np.asarray(vertices).mean(axis=1, dtype=np.float64)
+    t = np.arange(steps)
+    last = len(c) - 1
+    return ((c[np.minimum(t + 1, last)] - c[np.minimum(t, last)]) * fps).astype(np.float32)
 
 
 def _freeze(model, state, control, span: slice, x: np.ndarray) -> None:

@@ -350,3 +350,20 @@ def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
     for n in needles:
         assert n in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_reference_velocity_of_a_step_is_its_body_centroid_velocity():
+    """``body_mean_velocities``: a body translating at 2 m/s while its arm swings (zero mean)
+    has reference velocity 2 m/s at every step of its motion; a sequence shorter than the batch
+    holds its last frame, so its later steps stand still."""
+    from sim.simulate import body_mean_velocities
+
+    fps, frames = 30.0, 5
+    t = np.arange(frames)[:, None, None] / fps
+    rest = np.array([[0.0, 1.0, 0.0], [0.2, 1.2, 0.0], [-0.2, 1.2, 0.0], [0.0, 0.0, 0.1]])
+    swing = np.sin(7.0 * t) * np.array([[0, 0, 0], [0, 0, 0.1], [0, 0, -0.1], [0, 0, 0]])  # mean 0
+    verts = (rest + swing + t * np.array([0.0, 0.0, 2.0])).astype(np.float32)
+    ref = body_mean_velocities(verts, frames + 2, fps)
+    assert ref.shape == (frames + 2, 3)
+    np.testing.assert_allclose(ref[:frames - 1], np.tile([0.0, 0.0, 2.0], (frames - 1, 1)), atol=1e-4)
+    np.testing.assert_array_equal(ref[frames - 1:], 0.0)

@@ -13,7 +13,8 @@ over the vertex colouring. Per substep:
    substep-end placement;
 4. with ``self_contact``: refit the cloth BVHs (rebuild them in the step's first substep),
    find vertex-triangle and edge-edge pairs and per-vertex displacement bounds
-   (``sim.cloth.self_contact``);
+   (``sim.cloth.self_contact``), with speeds measured relative to each instance's
+   ``control.instance_velocity``;
 5. ``iterations`` x colours launches of the solve kernel (``solve_color_kernel(particles,
    lanes)``), each iteration followed by ``chebyshev_kernel`` when ``chebyshev_rho`` > 0;
 6. ``velocity_kernel``.
@@ -328,7 +329,8 @@ class SolverVBD:
             if self.self_contact is not None and s % cfg.self_contact_interval == 0:
                 # pairs found now serve the next ``interval`` substeps: the query covers that motion
                 self.self_contact.detect(self._x_prev, v, h * cfg.self_contact_interval,
-                                         rebuild=cfg.self_contact_rebuild and s == 0)
+                                         rebuild=cfg.self_contact_rebuild and s == 0,
+                                         reference=control.instance_velocity)
             if self._omegas:
                 wp.copy(self._cheb_prev1, x)
             for it in range(cfg.iterations):

@@ -140,6 +140,13 @@ class ClothControl:
             entries of free particles are ignored.
         bodies: colliders in use; ``instance_body`` (uint64 (I,)) holds the mesh id each
             instance collides with (0: none). Several instances may share one body.
+        instance_velocity: reference velocity [m/s] of each instance over the step, vec3 (I,):
+            self-contact detection measures speeds relative to it, so a garment carried along
+            by its body (a run covers 3.5 m/s) is searched as if it stood still, as Galilean
+            invariance allows (cloth-cloth contact depends on relative motion only). Its only
+            effect is on the cost of the search and, with ``self_contact_bounds``, on the frame
+            the displacement bounds hold in. Zeros (the default): absolute speeds.
+            ``sim.simulate`` sets it per step to the mean velocity of the instance's body.
     """
 
     def __init__(self, pin_targets: Any, instance_count: int, device: str):
@@ -149,6 +156,7 @@ class ClothControl:
         self.bodies: list[BodyCollider] = []
         self._instance_body = np.zeros(instance_count, dtype=np.uint64)
         self.instance_body = w.array(self._instance_body, dtype=w.uint64, device=device)
+        self.instance_velocity = w.zeros(instance_count, dtype=w.vec3, device=device)
 
     @classmethod
     def from_model(cls, model: ClothModel) -> ClothControl:

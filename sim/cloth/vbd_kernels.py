@@ -267,10 +267,13 @@ def vertex_newton_step(
 
     bounded = sc.enabled != 0 and sc.use_bounds != 0
     # the bound limits motion relative to the body surface nearby (the skin's displacement over
-    # the substep), so layers riding on a moving limb together are not held back
+    # the substep), so layers riding on a moving limb together are not held back; elsewhere
+    # relative to the instance's reference velocity (the frame the detection searched in)
     x_ref = xp
     if contact_active[i] != 0:
         x_ref = xp + h * contact_body_velocity[i]
+    elif bounded:
+        x_ref = xp + h * sc.reference[particle_instance[i]]
     if contact_active[i] != 0:
         inst = particle_instance[i]
         thickness = instance_thickness[inst]
