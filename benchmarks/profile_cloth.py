@@ -18,7 +18,6 @@ def main() -> None:
     ap.add_argument("--batch", default="1,64")
     ap.add_argument("--repeats", type=int, default=20)
     args = ap.parse_args()
-    from sim.cloth import self_contact as SC
     from sim.device import warp
 
     wp = warp()
@@ -41,26 +40,14 @@ def main() -> None:
             wp.synchronize_device(args.device)
             return 1000 * (time.perf_counter() - t0) / args.repeats
 
-        m = model
-        d = args.device
-        common = [sc.margin, sc.speed_factor, h, sc.data]
         res = {
             "detect_total_ms": timed(lambda: sc.detect(x, v, h)),
             "bounds_ms": timed(lambda: sc._update_bounds(x)),
             "refit_tri_ms": timed(lambda: sc.tri_bvh.refit()),
             "refit_edge_ms": timed(lambda: sc.edge_bvh.refit()),
-            "detect_vertex_ms": timed(lambda: wp.launch(
-                SC.detect_vertex_kernel, dim=m.particle_count,
-                inputs=[x, v, m.particle_instance, m.tri_indices, sc.tri_bvh.id, *common],
-                outputs=[sc._dmin_v], device=d)),
-            "detect_triangle_ms": timed(lambda: wp.launch(
-                SC.detect_triangle_kernel, dim=m.tri_count,
-                inputs=[x, v, m.particle_instance, m.tri_indices, m.vertex_owner_tri, sc.tri_bvh.id, *common],
-                outputs=[sc._dmin_t], device=d)),
-            "detect_edge_ms": timed(lambda: wp.launch(
-                SC.detect_edge_kernel, dim=sc._lo_e.shape[0],
-                inputs=[x, v, m.particle_instance, sc.edge_bvh.id, *common],
-                outputs=[sc._dmin_e], device=d)),
+            "detect_vertex_ms": timed(lambda: sc.query_vertices(x, v, h)),
+            "detect_triangle_ms": timed(lambda: sc.query_triangles(x, v, h)),
+            "detect_edge_ms": timed(lambda: sc.query_edges(x, v, h)),
             "vt_pairs_mean": float(sc.data.vt_count.numpy().mean()),
             "tv_pairs_mean": float(sc.data.tv_count.numpy().mean()),
             "ee_pairs_mean": float(sc.data.ee_count.numpy().mean()),

@@ -172,7 +172,6 @@ def main() -> None:
         return out
 
     sc = solver.self_contact
-    common = [sc.margin, sc.speed_factor, h, sc.data]
     x, v = state.positions, state.velocities
     sizes = np.diff(np.asarray(m.color_offsets))
     saved = (wp.clone(x), wp.clone(v))
@@ -183,18 +182,9 @@ def main() -> None:
 
     def kernels(tag: str) -> dict:
         return {
-            f"detect_vertex{tag}_ms": timed(lambda: wp.launch(
-                SC.detect_vertex_kernel, dim=m.particle_count,
-                inputs=[x, v, m.particle_instance, m.tri_indices, sc.tri_bvh.id, *common],
-                outputs=[sc._dmin_v], device=device), graph=True),
-            f"detect_triangle{tag}_ms": timed(lambda: wp.launch(
-                SC.detect_triangle_kernel, dim=m.tri_count,
-                inputs=[x, v, m.particle_instance, m.tri_indices, m.vertex_owner_tri, sc.tri_bvh.id, *common],
-                outputs=[sc._dmin_t], device=device), graph=True),
-            f"detect_edge{tag}_ms": timed(lambda: wp.launch(
-                SC.detect_edge_kernel, dim=sc._lo_e.shape[0],
-                inputs=[x, v, m.particle_instance, sc.edge_bvh.id, *common],
-                outputs=[sc._dmin_e], device=device), graph=True),
+            f"detect_vertex{tag}_ms": timed(lambda: sc.query_vertices(x, v, h), graph=True),
+            f"detect_triangle{tag}_ms": timed(lambda: sc.query_triangles(x, v, h), graph=True),
+            f"detect_edge{tag}_ms": timed(lambda: sc.query_edges(x, v, h), graph=True),
         }
 
     res = {

@@ -5,8 +5,9 @@ Method (after Chen et al. 2024, "Vertex Block Descent", Sec. 4, and the conserva
 of Chen et al. 2025, "Offset Geometric Contact"):
 
 * Detection, once per substep at the substep-start positions ``x0`` (intersection-free):
-  two grouped BVHs (one group per cloth instance, so batched instances never collide) over
-  triangle and edge bounding boxes. For every vertex, every triangle and every edge a query
+  three grouped BVHs (one group per cloth instance, so batched instances never collide) over
+  triangle and edge bounding boxes and over the vertices (points): vertices query triangles,
+  triangles query vertices, edges query edges. For every vertex, every triangle and every edge a query
   with radius ``r = max(margin, speed_factor |v - v_ref| h)`` finds the nearest non-incident
   primitive distance ``d_min`` and records the pairs whose own relative motion can bring them
   within the contact radius ``r_c`` during the substep's iterations: closer than ``max(margin,
@@ -20,8 +21,7 @@ of Chen et al. 2025, "Offset Geometric Contact"):
   neighbours: storing every neighbour 1-2 edge lengths away filled 88 % of the edges' lists on
   the t-shirt run with pairs that never act, and the solve evaluated them every iteration:
   per vertex its triangles (VT), per triangle its vertices (TV, the same pairs seen from the
-  triangle; a vertex is reached through its "owner" triangle so it is visited once), per edge
-  its edges (EE). Gathering from both sides makes the solve a per-vertex gather without
+  triangle), per edge its edges (EE). Gathering from both sides makes the solve a per-vertex gather without
   atomics (deterministic on every device).
 * Energy of a pair at distance ``d`` (closest points recomputed from the current positions
   each iteration): ``k/2 (r_c - d)^2`` for ``d < r_c``, with lazy IPC friction on the relative
@@ -489,14 +489,19 @@ def primitive_bounds_kernel(
     tri_indices: wp.array(dtype=wp.vec3i),
     mesh_edges: wp.array(dtype=wp.vec2i),
     tri_count: int,
+    edge_count: int,
     lowers_tri_out: wp.array(dtype=wp.vec3),
     uppers_tri_out: wp.array(dtype=wp.vec3),
     lowers_edge_out: wp.array(dtype=wp.vec3),
     uppers_edge_out: wp.array(dtype=wp.vec3),
+    points_out: wp.array(dtype=wp.vec3),
 ):
-    """Axis-aligned boxes of every triangle (threads < tri_count) and edge (the rest)."""
+    """Axis-aligned boxes of every triangle (threads < tri_count) and edge (the next
+    edge_count), and the vertices (the rest; the vertex BVH's boxes are points)."""
     k = wp.tid()
-    if k < tri_count:
+    if k >= tri_count + edge_count:
+        points_out[k - tri_count - edge_count] = x[k - tri_count - edge_count]
+    elif k < tri_count:
         t = tri_indices[k]
         a = x[t[0]]
         b = x[t[1]]
@@ -553,8 +558,7 @@ def detect_triangle_kernel(
     v: wp.array(dtype=wp.vec3),
     particle_instance: wp.array(dtype=wp.int32),
     tri_indices: wp.array(dtype=wp.vec3i),
-    vertex_owner_tri: wp.array(dtype=wp.int32),
-    tri_bvh: wp.uint64,
+    vertex_bvh: wp.uint64,
     margin: float,
     speed_factor: float,
     h: float,
@@ -562,7 +566,9 @@ def detect_triangle_kernel(
     dmin_out: wp.array(dtype=float),
 ):
     """Per triangle: nearest non-incident vertex distance and the TV pairs within the radius.
-    Candidate vertices come from nearby triangles; each vertex only through its owner."""
+    Candidate vertices come straight from the vertex BVH (session 13; through the triangle BVH
+    each vertex was one of ~3 candidate triangles' corners, found again at its other
+    triangles and skipped there: 6.5 of the run's 13.7 ms of detection per frame)."""
     t = wp.tid()
     tri = tri_indices[t]
     a = x[tri[0]]
@@ -574,22 +580,17 @@ def detect_triangle_kernel(
     r = query_radius(margin, speed, h, speed_factor)
     lo = wp.min(wp.min(a, b), c) - wp.vec3(r)
     hi = wp.max(wp.max(a, b), c) + wp.vec3(r)
-    root = wp.bvh_get_group_root(tri_bvh, inst)
-    query = wp.bvh_query_aabb(tri_bvh, lo, hi, root)
-    t2 = int(0)
+    root = wp.bvh_get_group_root(vertex_bvh, inst)
+    query = wp.bvh_query_aabb(vertex_bvh, lo, hi, root)
+    u = int(0)
     dmin = r
     count = int(0)
-    while wp.bvh_query_next(query, t2):
-        other = tri_indices[t2]
-        if particle_instance[other[0]] != inst:
+    while wp.bvh_query_next(query, u):
+        if u == tri[0] or u == tri[1] or u == tri[2] or particle_instance[u] != inst:
             continue
-        for j in range(3):
-            u = other[j]
-            if vertex_owner_tri[u] != t2:
-                continue
-            dmin, count = vertex_triangle_candidate(sc, x, v, u, tri, r, margin, speed_factor, h, dmin, count,
-                                                    sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_vertex_prev,
-                                                    sc.tv_ref_prev, sc.tv_count_prev, t, sc.tv_capacity, u)
+        dmin, count = vertex_triangle_candidate(sc, x, v, u, tri, r, margin, speed_factor, h, dmin, count,
+                                                sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_vertex_prev,
+                                                sc.tv_ref_prev, sc.tv_count_prev, t, sc.tv_capacity, u)
     sc.tv_count[t] = count
     dmin_out[t] = dmin
 
@@ -812,9 +813,11 @@ class SelfContact:
         self._hi_t = w.zeros(nt, dtype=w.vec3, device=d)
         self._lo_e = w.zeros(ne, dtype=w.vec3, device=d)
         self._hi_e = w.zeros(ne, dtype=w.vec3, device=d)
+        self._points = w.zeros(n, dtype=w.vec3, device=d)
         self._update_bounds(model.particle_q)
         self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
         self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
+        self.vertex_bvh = w.Bvh(self._points, self._points, groups=model.particle_instance)
 
     @staticmethod
     def _components(model) -> np.ndarray:
@@ -829,9 +832,35 @@ class SelfContact:
 
     def _update_bounds(self, x) -> None:
         m = self.model
-        warp().launch(primitive_bounds_kernel, dim=m.tri_count + self._lo_e.shape[0],
-                      inputs=[x, m.tri_indices, m.mesh_edge_indices, m.tri_count],
-                      outputs=[self._lo_t, self._hi_t, self._lo_e, self._hi_e], device=m.device)
+        ne = self._lo_e.shape[0]
+        warp().launch(primitive_bounds_kernel, dim=m.tri_count + ne + m.particle_count,
+                      inputs=[x, m.tri_indices, m.mesh_edge_indices, m.tri_count, ne],
+                      outputs=[self._lo_t, self._hi_t, self._lo_e, self._hi_e, self._points], device=m.device)
+
+    def query_vertices(self, x0, v, h: float) -> None:
+        """``detect_vertex_kernel``: each vertex's VT pairs and nearest triangle distance (the
+        BVHs must be fitted to ``x0``)."""
+        m = self.model
+        warp().launch(detect_vertex_kernel, dim=m.particle_count,
+                      inputs=[x0, v, m.particle_instance, m.tri_indices, self.tri_bvh.id, self.margin,
+                              self.speed_factor, h, self.data],
+                      outputs=[self._dmin_v], device=m.device)
+
+    def query_triangles(self, x0, v, h: float) -> None:
+        """``detect_triangle_kernel``: each triangle's TV pairs and nearest vertex distance."""
+        m = self.model
+        warp().launch(detect_triangle_kernel, dim=m.tri_count,
+                      inputs=[x0, v, m.particle_instance, m.tri_indices, self.vertex_bvh.id, self.margin,
+                              self.speed_factor, h, self.data],
+                      outputs=[self._dmin_t], device=m.device)
+
+    def query_edges(self, x0, v, h: float) -> None:
+        """``detect_edge_kernel``: each edge's EE pairs and nearest edge distance."""
+        m = self.model
+        warp().launch(detect_edge_kernel, dim=self._lo_e.shape[0],
+                      inputs=[x0, v, m.particle_instance, self.edge_bvh.id, self.margin, self.speed_factor, h,
+                              self.data],
+                      outputs=[self._dmin_e], device=m.device)
 
     def detect(self, x0, v, h: float, rebuild: bool = False, reference=None) -> None:
         """Refit (``rebuild``: rebuild) the BVHs at ``x0`` (substep start) and find pairs and
@@ -849,23 +878,14 @@ class SelfContact:
             w.copy(getattr(sc, f"{name}_{ids}_prev"), getattr(sc, f"{name}_{ids}"))
             w.copy(getattr(sc, f"{name}_ref_prev"), getattr(sc, f"{name}_ref"))
         self._update_bounds(x0)
-        if rebuild:
-            self.tri_bvh.rebuild()
-            self.edge_bvh.rebuild()
-        else:
-            self.tri_bvh.refit()
-            self.edge_bvh.refit()
-        common = [self.margin, self.speed_factor, h, sc]
-        w.launch(detect_vertex_kernel, dim=m.particle_count,
-                 inputs=[x0, v, m.particle_instance, m.tri_indices, self.tri_bvh.id, *common],
-                 outputs=[self._dmin_v], device=d)
-        w.launch(detect_triangle_kernel, dim=m.tri_count,
-                 inputs=[x0, v, m.particle_instance, m.tri_indices, m.vertex_owner_tri, self.tri_bvh.id,
-                         *common],
-                 outputs=[self._dmin_t], device=d)
-        w.launch(detect_edge_kernel, dim=self._lo_e.shape[0],
-                 inputs=[x0, v, m.particle_instance, self.edge_bvh.id, *common],
-                 outputs=[self._dmin_e], device=d)
+        for bvh in (self.tri_bvh, self.edge_bvh, self.vertex_bvh):
+            if rebuild:
+                bvh.rebuild()
+            else:
+                bvh.refit()
+        self.query_vertices(x0, v, h)
+        self.query_triangles(x0, v, h)
+        self.query_edges(x0, v, h)
         sc.pair_cursor.zero_()
         w.launch(vertex_summary_kernel, dim=m.particle_count,
                  inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.tri_indices, m.vertex_tri_offsets,
