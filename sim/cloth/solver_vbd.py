@@ -92,9 +92,12 @@ class VBDConfig:
             space around it is not slowed by the bounds.
         self_contact_capacity: pairs stored per vertex, triangle and edge.
         self_contact_bounds: per-vertex displacement bounds that make the cloth provably
-            intersection-free (tested: stacked layers at 3 m/s). Off by default: the bounds are
-            absolute per substep, and on a walking body they hold back sleeves whose layers
-            touch until edges tear (t-shirt walk explodes); off, contact is penalty only.
+            intersection-free (tested: stacked layers at 3 m/s), measured from the body surface
+            a particle touches, elsewhere in the instance's frame
+            (``ClothControl.instance_velocity``). Off by default: in the world frame (until
+            session 12) they held back a walking body's sleeves until edges tore; in the body's
+            frame the t-shirt passed 5 of 6 runs (session 13; one run stretched an edge to
+            0.367 > 0.35), no better than without them; off, contact is penalty only.
         self_contact_rest_exclusion: vertex-triangle and edge-edge pairs closer than this [m]
             in the rest shape (at least ``self_contact_radius``: incident pairs, and panels that
             meet at a seam) are surface neighbours left to the elastic forces. Everything else,
