@@ -272,8 +272,9 @@ def test_a_moving_frame_searched_in_its_own_frame_gives_the_same_cloth(device):
     the still drop moved along: the same to float rounding in the first frame; once the
     layers press on each other float32 rounding of the shifted coordinates grows into
     millimetres at single vertices (contact onset is not smooth; the CPU and CUDA differ in
-    when), but the cloth does not lag (mean offset along the motion < 0.5 mm). Searched in the world frame instead, the displacement bounds
-    (absolute per substep) hold the carried cloth back by centimetres per frame."""
+    when), but the cloth does not lag (mean offset along the motion < 0.5 mm). Searched in
+    the world frame instead, the displacement bounds (absolute per substep) hold the carried
+    cloth back by centimetres per frame."""
     still = _layers_in_a_moving_frame(device, 0.0, False)
     carried = _layers_in_a_moving_frame(device, 3.0, True)
     held = _layers_in_a_moving_frame(device, 3.0, False)

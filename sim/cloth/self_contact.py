@@ -837,30 +837,29 @@ class SelfContact:
                       inputs=[x, m.tri_indices, m.mesh_edge_indices, m.tri_count, ne],
                       outputs=[self._lo_t, self._hi_t, self._lo_e, self._hi_e, self._points], device=m.device)
 
-    def query_vertices(self, x0, v, h: float) -> None:
-        """``detect_vertex_kernel``: each vertex's VT pairs and nearest triangle distance (the
-        BVHs must be fitted to ``x0``)."""
+    def _query(self, kernel, dim: int, x0, v, h: float, inputs: list, out) -> None:
+        """One detection kernel over ``dim`` primitives: ``(x0, v, particle_instance, *inputs,
+        margin, speed_factor, h, data) -> out`` (the BVHs must be fitted to ``x0``)."""
         m = self.model
-        warp().launch(detect_vertex_kernel, dim=m.particle_count,
-                      inputs=[x0, v, m.particle_instance, m.tri_indices, self.tri_bvh.id, self.margin,
-                              self.speed_factor, h, self.data],
-                      outputs=[self._dmin_v], device=m.device)
+        warp().launch(kernel, dim=dim, inputs=[x0, v, m.particle_instance, *inputs, self.margin,
+                                               self.speed_factor, h, self.data],
+                      outputs=[out], device=m.device)
+
+    def query_vertices(self, x0, v, h: float) -> None:
+        """``detect_vertex_kernel``: each vertex's VT pairs and nearest triangle distance."""
+        m = self.model
+        self._query(detect_vertex_kernel, m.particle_count, x0, v, h, [m.tri_indices, self.tri_bvh.id],
+                    self._dmin_v)
 
     def query_triangles(self, x0, v, h: float) -> None:
         """``detect_triangle_kernel``: each triangle's TV pairs and nearest vertex distance."""
         m = self.model
-        warp().launch(detect_triangle_kernel, dim=m.tri_count,
-                      inputs=[x0, v, m.particle_instance, m.tri_indices, self.vertex_bvh.id, self.margin,
-                              self.speed_factor, h, self.data],
-                      outputs=[self._dmin_t], device=m.device)
+        self._query(detect_triangle_kernel, m.tri_count, x0, v, h, [m.tri_indices, self.vertex_bvh.id],
+                    self._dmin_t)
 
     def query_edges(self, x0, v, h: float) -> None:
         """``detect_edge_kernel``: each edge's EE pairs and nearest edge distance."""
-        m = self.model
-        warp().launch(detect_edge_kernel, dim=self._lo_e.shape[0],
-                      inputs=[x0, v, m.particle_instance, self.edge_bvh.id, self.margin, self.speed_factor, h,
-                              self.data],
-                      outputs=[self._dmin_e], device=m.device)
+        self._query(detect_edge_kernel, self._lo_e.shape[0], x0, v, h, [self.edge_bvh.id], self._dmin_e)
 
     def detect(self, x0, v, h: float, rebuild: bool = False, reference=None) -> None:
         """Refit (``rebuild``: rebuild) the BVHs at ``x0`` (substep start) and find pairs and
