@@ -269,12 +269,6 @@ class ClothModelBuilder:
         me_ids = np.repeat(np.arange(len(me_all)), 2)
         vme = _csr(n, me_all.reshape(-1).astype(np.int64), [me_ids, np.tile(np.arange(2), len(me_all))])
         inst_all = np.concatenate(inst_of)
-        # each vertex is "owned" by its first incident triangle (dedups vertex candidates
-        # gathered through triangles; see sim.cloth.self_contact)
-        owner = np.full(n, -1, dtype=np.int64)
-        flat = f_all.reshape(-1)
-        first = np.unique(flat, return_index=True)
-        owner[first[0]] = first[1] // 3
         # merge per-instance colourings by colour index (see module docstring)
         colors = np.concatenate([ins.colors for ins in self._instances])
         color_order = np.argsort(colors, kind="stable").astype(np.int32)
@@ -326,7 +320,6 @@ class ClothModelBuilder:
             vertex_mesh_edge_offsets=arr(vme[0], wp.int32),
             vertex_mesh_edge_ids=arr(vme[1], wp.int32),
             vertex_mesh_edge_local=arr(vme[2], wp.int32),
-            vertex_owner_tri=arr(owner.astype(np.int32), wp.int32),
             tri_instance=arr(inst_all[f_all[:, 0]].astype(np.int32), wp.int32),
             mesh_edge_instance=arr(inst_all[me_all[:, 0]].astype(np.int32), wp.int32),
             instance_thickness=arr(np.asarray(thickness, np.float32), float),
@@ -370,8 +363,8 @@ class ClothModel:
     (I+1,)) slices the particle range of each instance. ``color_vertices`` lists particles by
     colour; colour ``c`` is ``color_vertices[color_offsets[c]:color_offsets[c+1]]``.
     Self-contact data: ``mesh_edge_indices`` (every undirected edge, vec2i (E,)) with vertex ->
-    edge CSR ``vertex_mesh_edge_*``, ``vertex_owner_tri`` (first incident triangle),
-    ``tri_instance`` / ``mesh_edge_instance`` (BVH groups: instances never collide).
+    edge CSR ``vertex_mesh_edge_*``, ``tri_instance`` / ``mesh_edge_instance`` /
+    ``particle_instance`` (BVH groups: instances never collide).
     """
 
     device: str
@@ -413,7 +406,6 @@ class ClothModel:
     vertex_mesh_edge_offsets: Any
     vertex_mesh_edge_ids: Any
     vertex_mesh_edge_local: Any
-    vertex_owner_tri: Any
     tri_instance: Any
     mesh_edge_instance: Any
 
