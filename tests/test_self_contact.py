@@ -419,7 +419,9 @@ def test_lanes_of_the_tiled_solve_share_every_pair_once(device):
     rng = np.random.default_rng(3)
     xm = wp.array(x + rng.normal(0.0, 4e-4, x.shape).astype(np.float32), dtype=wp.vec3, device=device)
     out = {}
-    for pool in (0, 128, 1):
+    # pool 2 (144 records) holds any one vertex's records (at most 104 here), so the first
+    # reservation fits in any atomic order (CUDA), but not all 5,083: some vertices fall back
+    for pool in (0, 128, 2):
         sc = SelfContact(m, radius=0.004, margin=0.006, stiffness=1.0e3, friction=0.3, relaxation=0.45,
                          speed_factor=2.5, capacity=8, pool=pool)
         xd = wp.array(x, dtype=wp.vec3, device=device)
@@ -428,7 +430,7 @@ def test_lanes_of_the_tiled_solve_share_every_pair_once(device):
         assert len(np.unique(counts)) >= 5 and (counts == 0).any()   # uneven lists: the split is exercised
         total = sc.data.pair_count.numpy()
         fell_back = (sc.data.pair_first.numpy() < 0)[total > 0]
-        expected = {0: fell_back.all(), 128: not fell_back.any(), 1: 0 < fell_back.mean() < 1}
+        expected = {0: fell_back.all(), 128: not fell_back.any(), 2: 0 < fell_back.mean() < 1}
         assert expected[pool], (pool, fell_back.mean())
         for stride in (1, 3, 16):
             f = wp.zeros(len(x), dtype=wp.vec3, device=device)
