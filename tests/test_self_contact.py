@@ -183,8 +183,12 @@ def test_self_contact_forces_match_finite_differences(device):
 
 
 def stacked_layers(device, self_contact: bool, n: int = 13, frames: int = 12, bounds: bool = True,
-                   speed: float = 3.0):
-    """A sheet pinned at its corners and a second sheet dropped onto it at 3 m/s (one mesh)."""
+                   speed: float = 3.0, carry: float = 0.0, reference: bool = False,
+                   air_damping: float = VBDConfig.air_damping):
+    """A sheet pinned at its corners and a second sheet dropped onto it at ``speed`` (one mesh),
+    the whole scene, pins included, carried along x at ``carry`` [m/s] (``reference``: that is
+    the instance's reference velocity, else zero). Returns the positions per frame with the
+    carrying motion taken out, the faces, the vertices per sheet and the grid size."""
     v, f = grid(n, n, 0.5, 0.5, plane="xz")
     top = v + np.array([0.011, 0.03, 0.013], np.float32)
     x = np.concatenate([v, top])
@@ -194,15 +198,21 @@ def stacked_layers(device, self_contact: bool, n: int = 13, frames: int = 12, bo
                 pinned=[0, n - 1, n * (n - 1), n * n - 1])
     m = b.finalize(device)
     solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5, self_contact=self_contact,
-                                    self_contact_bounds=bounds))
+                                    self_contact_bounds=bounds, air_damping=air_damping))
     state = m.state()
-    vel = np.zeros_like(x)
+    u = np.array([carry, 0.0, 0.0], np.float32)
+    vel = np.zeros_like(x) + u
     vel[len(v):, 1] = -speed
     state.velocities.assign(vel)
+    control = m.control()
+    if reference:
+        control.instance_velocity.assign(u[None])
+    dt = 1.0 / 30.0
     out = []
-    for _ in range(frames):
-        solver.step(state, state, m.control(), 1.0 / 30.0)
-        out.append(state.positions.numpy().copy())
+    for k in range(frames):
+        control.pin_targets.assign(x + u * (k + 1) * dt)
+        solver.step(state, state, control, dt)
+        out.append(state.positions.numpy() - u * (k + 1) * dt)
     return np.stack(out), faces, len(v), n
 
 
@@ -235,35 +245,10 @@ def test_penalty_self_contact_holds_a_gently_dropped_layer(device):
     assert _center_gap(x_off, nv, n).min() < -0.02
 
 
-def _layers_in_a_moving_frame(device, velocity, reference: bool, frames: int = 10):
-    """``stacked_layers`` (bounds on, no air drag) with the whole scene, pins included, moving at
-    ``velocity`` [m/s] along x; ``reference``: the instance's reference velocity is that
-    velocity, else zero. Returns the positions per frame with the scene's motion taken out."""
-    n = 9
-    v, f = grid(n, n, 0.5, 0.5, plane="xz")
-    x = np.concatenate([v, v + np.array([0.011, 0.03, 0.013], np.float32)])
-    faces = np.concatenate([f, f + len(v)])
-    b = ClothModelBuilder()
-    b.add_cloth(x, faces, ClothMaterialParams(mu=300.0, lam=100.0, thickness=0.003),
-                pinned=[0, n - 1, n * (n - 1), n * n - 1])
-    m = b.finalize(device)
-    solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5, self_contact=True, self_contact_bounds=True,
-                                    air_damping=0.0))
-    state = m.state()
-    u = np.array([velocity, 0.0, 0.0], np.float32)
-    vel = np.zeros_like(x) + u
-    vel[len(v):, 1] = -3.0
-    state.velocities.assign(vel)
-    control = m.control()
-    if reference:
-        control.instance_velocity.assign(u[None])
-    dt = 1.0 / 30.0
-    out = []
-    for k in range(frames):
-        control.pin_targets.assign(x + u * (k + 1) * dt)
-        solver.step(state, state, control, dt)
-        out.append(state.positions.numpy() - u * (k + 1) * dt)
-    return np.stack(out)
+def _layers_in_a_moving_frame(device, velocity, reference: bool):
+    """``stacked_layers`` (9 x 9, bounds on, no air drag) carried at ``velocity`` [m/s]."""
+    return stacked_layers(device, True, n=9, frames=10, carry=velocity, reference=reference,
+                          air_damping=0.0)[0]
 
 
 def test_a_moving_frame_searched_in_its_own_frame_gives_the_same_cloth(device):

@@ -270,12 +270,9 @@ def vertex_newton_step(
     # the substep), so layers riding on a moving limb together are not held back; elsewhere
     # relative to the instance's reference velocity (the frame the detection searched in)
     x_ref = xp
+    inst = particle_instance[i]
     if contact_active[i] != 0:
         x_ref = xp + h * contact_body_velocity[i]
-    elif bounded:
-        x_ref = xp + h * sc.reference[particle_instance[i]]
-    if contact_active[i] != 0:
-        inst = particle_instance[i]
         thickness = instance_thickness[inst]
         fc, hc = contact_force_hessian(xi, xp, contact_point[i], contact_normal[i], contact_body_velocity[i],
                                        thickness, k_contact, instance_friction[inst], eps_u, h)
@@ -285,6 +282,8 @@ def vertex_newton_step(
         # squeezes cloth layers together (armpits, between the legs) the body wins
         if wp.dot(contact_normal[i], xi - contact_point[i]) < thickness + sc.radius:
             bounded = False
+    elif bounded:
+        x_ref = xp + h * sc.reference[inst]
 
     # the block is symmetric positive definite (inertia + PSD terms); guard tiny determinants
     x_new = xi
