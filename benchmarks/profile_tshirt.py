@@ -211,6 +211,14 @@ def main() -> None:
                                  "quantiles_99_999": [float(q) for q in np.quantile(totals, [0.99, 0.999])],
                                  "pool_records": int(sc.data.pair_cursor.numpy()[0]),
                                  "pool_size": int(sc.data.pool_size)}
+    # vertices with more records than the solve's lanes, per colour (the heavy-vertex blocks)
+    records = sc.data.pair_count.numpy()
+    order = m.color_vertices.numpy()
+    offsets = np.asarray(m.color_offsets)
+    colours = [records[order[a:b]] for a, b in zip(offsets[:-1], offsets[1:], strict=True)]
+    res["heavy_vertices"] = {"threshold": int(sc.data.heavy_threshold), "cap": int(sc.data.heavy_cap),
+                             "per_color": [int((r > solver._lanes).sum()) for r in colours],
+                             "max_records_per_color": [int(r.max()) for r in colours]}
     res["step_kernels_ms"] = kernel_breakdown(wp, device,
                                               lambda: (restore(), solver.step(state, state, control, dt)))
     for name in ("vt", "tv", "ee"):

@@ -496,6 +496,36 @@ def test_chebyshev_acceleration_converges_further_per_sweep(device):
     np.testing.assert_array_equal(step(20, rho)[:nx], v[:nx])  # pins untouched
 
 
+def draped_layers_in_contact(device):
+    """Two 12 x 12 sheets 6 mm apart, pinned at two corners, after 6 frames of draping into
+    self-contact: (model, positions, velocities)."""
+    n = 12
+    v, f = grid(n, n, 0.3, 0.3, plane="xz")
+    x = np.concatenate([v, v + np.array([0.004, 0.006, 0.003], np.float32)])
+    faces = np.concatenate([f, f + len(v)])
+    b = ClothModelBuilder()
+    b.add_cloth(x, faces, ClothMaterialParams(), pinned=[0, n - 1])
+    m = b.finalize(device)
+    first = SolverVBD(m, VBDConfig(substeps=4, iterations=4, self_contact=True))
+    state = m.state()
+    for _ in range(6):
+        first.step(state, state, m.control(), 1.0 / 30.0)
+    assert first.self_contact.data.pair_count.numpy().mean() > 1.0  # the layers are in contact
+    return m, state.positions.numpy().copy(), state.velocities.numpy().copy()
+
+
+def one_step_from(m, start, **config):
+    """Positions after one 1/120 s step (1 substep, 4 sweeps) from ``start`` (positions,
+    velocities) with self-contact and the solver settings ``config``; and the solver."""
+    solver = SolverVBD(m, VBDConfig(substeps=1, iterations=4, self_contact=True, **config))
+    s = m.state()
+    s.positions.assign(start[0])
+    s.velocities.assign(start[1])
+    solver.step(s, s, m.control(), 1.0 / 120.0)
+    warp().synchronize()
+    return s.positions.numpy().copy(), solver
+
+
 def test_the_solve_does_not_depend_on_its_lanes(device):
     """Every (lanes, particles per block) layout of the tiled solve computes the same Gauss-Seidel
     step: from one state of two draped sheets in self-contact, a step with the automatic layout
@@ -507,31 +537,38 @@ def test_the_solve_does_not_depend_on_its_lanes(device):
     from sim.cloth.solver_vbd import AUTO_LANES_PARTICLES, auto_lanes
 
     assert auto_lanes(AUTO_LANES_PARTICLES - 1) == (16, 8) and auto_lanes(AUTO_LANES_PARTICLES) == (4, 32)
-    wp = warp()
-    n = 12
-    v, f = grid(n, n, 0.3, 0.3, plane="xz")
-    x = np.concatenate([v, v + np.array([0.004, 0.006, 0.003], np.float32)])
-    faces = np.concatenate([f, f + len(v)])
-    b = ClothModelBuilder()
-    b.add_cloth(x, faces, ClothMaterialParams(), pinned=[0, n - 1])
-    m = b.finalize(device)
-    cfg = VBDConfig(substeps=4, iterations=4, self_contact=True)
-    first = SolverVBD(m, cfg)
-    state = m.state()
-    for _ in range(6):
-        first.step(state, state, m.control(), 1.0 / 30.0)
-    assert first.self_contact.data.pair_count.numpy().mean() > 1.0  # the layers are in contact
-    start = (state.positions.numpy().copy(), state.velocities.numpy().copy())
-    out = []
-    for layout in ({}, {"lanes": 4, "particles_per_block": 32}, {"lanes": 1, "particles_per_block": 64}):
-        solver = SolverVBD(m, VBDConfig(substeps=1, iterations=4, self_contact=True, **layout))
-        s = m.state()
-        s.positions.assign(start[0])
-        s.velocities.assign(start[1])
-        solver.step(s, s, m.control(), 1.0 / 120.0)
-        wp.synchronize()
-        out.append(s.positions.numpy().copy())
+    m, *start = draped_layers_in_contact(device)
+    layouts = ({}, {"lanes": 4, "particles_per_block": 32}, {"lanes": 1, "particles_per_block": 64})
+    out = [one_step_from(m, start, **layout)[0] for layout in layouts]
     moved = np.abs(out[0] - start[0]).max()
     assert moved > 1e-4  # the step did work
     for o in out[1:]:
         np.testing.assert_allclose(o, out[0], atol=1e-4 * moved if device == "cuda" else 0.0)
+
+
+def test_heavy_vertices_solved_by_whole_blocks_take_the_same_step(device):
+    """Vertices with more gather records than lanes may each get a whole thread block
+    (``self_contact_heavy_cap``): the step must be the lanes layout's, whether every colour's
+    heavy vertices fit under the cap, only some colours' do (the others solve theirs in the
+    lanes layout), or none is heavy (cap 0). A vertex solved twice or skipped changes it. On the
+    CPU (one lane, one thread per block) the orders agree and the steps match exactly; on CUDA
+    to float32 round-off."""
+    m, *start = draped_layers_in_contact(device)
+    layout = {"lanes": 4, "particles_per_block": 32} if device == "cuda" else {}
+    ref, _ = one_step_from(m, start, self_contact_heavy_cap=0, **layout)
+    moved = np.abs(ref - start[0]).max()
+    assert moved > 1e-4
+    caps = [100000]
+    for cap in caps:
+        x, solver = one_step_from(m, start, self_contact_heavy_cap=cap, **layout)
+        sc = solver.self_contact.data
+        heavy = sc.heavy_count.numpy()
+        flagged = sc.heavy.numpy()
+        assert flagged.sum() == heavy.sum() > 0  # the heavy path is taken
+        records = sc.pair_count.numpy()
+        assert (records[flagged == 1] > sc.heavy_threshold).all()
+        assert (records[flagged == 0] <= sc.heavy_threshold).all()
+        if len(caps) == 1:  # next a cap that the colour with the fewest heavy vertices fits under
+            assert heavy.min() < heavy.max(), heavy
+            caps.append(int(heavy.min()))
+        np.testing.assert_allclose(x, ref, atol=1e-4 * moved if device == "cuda" else 0.0, err_msg=str(cap))

@@ -62,7 +62,11 @@ INTERIOR = wp.constant(1.0e-3)
 class SelfContactData:
     """Self-contact buffers and settings passed to the solve kernel as one argument.
 
-    ``enabled`` 0 turns everything off (the arrays may then be empty)."""
+    ``enabled`` 0 turns everything off (the arrays may then be empty). ``heavy`` (per particle),
+    ``heavy_list`` (per colour slot) and ``heavy_count`` (per colour): the vertices with more
+    than ``heavy_threshold`` gather records, which the solve gives a whole thread block each
+    when their colour has at most ``heavy_cap`` of them (``heavy_partition_kernel``; cap 0:
+    off)."""
 
     enabled: int
     use_bounds: int
@@ -106,6 +110,11 @@ class SelfContactData:
     pair_ref: wp.array(dtype=wp.vec3)
     pair_cursor: wp.array(dtype=wp.int32)
     pool_size: int
+    heavy: wp.array(dtype=wp.int32)
+    heavy_list: wp.array(dtype=wp.int32)
+    heavy_count: wp.array(dtype=wp.int32)
+    heavy_threshold: int
+    heavy_cap: int
     mesh_edges: wp.array(dtype=wp.vec2i)
     vertex_edge_offsets: wp.array(dtype=wp.int32)
     vertex_edge_ids: wp.array(dtype=wp.int32)
@@ -722,6 +731,33 @@ def vertex_summary_kernel(
             r += 1
 
 
+@wp.kernel
+def heavy_partition_kernel(
+    color_vertices: wp.array(dtype=wp.int32),
+    slot_color: wp.array(dtype=wp.int32),
+    color_start: wp.array(dtype=wp.int32),
+    sc: SelfContactData,
+):
+    """Per colour slot, once per detection (after ``vertex_summary_kernel``, ``heavy_count``
+    zeroed): mark the vertices with more than ``heavy_threshold`` gather records and list them
+    in their colour's range of ``heavy_list``. The solve gives each a whole thread block
+    (``vbd_kernels.solve_color_kernel``) when the colour has at most ``heavy_cap`` of them, so
+    the few vertices of a dense fold (session 13: up to 160 records against a mean of 2-6) no
+    longer set the length of every launch at a round of records per 16 lanes. The list's
+    order follows the threads' order; which vertices are in it does not, and each is solved
+    the same wherever it sits, so the solve stays deterministic."""
+    p = wp.tid()
+    i = color_vertices[p]
+    sc.heavy[i] = 0
+    if sc.pair_first[i] < 0 or sc.pair_count[i] <= sc.heavy_threshold:
+        return
+    c = slot_color[p]
+    k = wp.atomic_add(sc.heavy_count, c, 1)
+    sc.heavy[i] = 1
+    if k < sc.heavy_cap:
+        sc.heavy_list[color_start[c] + k] = i
+
+
 class SelfContact:
     """Self-contact buffers, BVHs and detection for one ``ClothModel``.
 
@@ -746,12 +782,16 @@ class SelfContact:
             the module docstring); off: every pair within the query radius.
         pool: gather records per vertex on average (``vertex_summary_kernel``); a vertex whose
             records do not fit is gathered from the lists, slower but the same forces.
+        heavy_cap: vertices per colour with more than ``heavy_threshold`` records that the solve
+            gives a thread block each (``heavy_partition_kernel``); 0: none.
+        heavy_threshold: records above which a vertex is heavy (the solve's lanes per particle:
+            more takes a vertex more than one round of its lanes).
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
-                 pool: int = 16):
+                 pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16):
         w = warp()
         d = model.device
         self.model = model
@@ -801,6 +841,18 @@ class SelfContact:
         sc.pair_role = w.zeros(max(sc.pool_size, 1), dtype=w.int32, device=d)
         sc.pair_ref = w.zeros(max(sc.pool_size, 1), dtype=w.vec3, device=d)
         sc.pair_cursor = w.zeros(1, dtype=w.int32, device=d)
+        if heavy_cap < 0 or heavy_threshold < 0:
+            raise ValueError(f"SelfContact: heavy_cap and heavy_threshold must be >= 0, got {heavy_cap}, "
+                             f"{heavy_threshold}")
+        offsets = np.asarray(model.color_offsets, dtype=np.int32)
+        sc.heavy_cap = int(heavy_cap) if pool > 0 else 0
+        sc.heavy_threshold = int(heavy_threshold)
+        sc.heavy = w.zeros(n, dtype=w.int32, device=d)
+        sc.heavy_list = w.zeros(n, dtype=w.int32, device=d)
+        sc.heavy_count = w.zeros(max(len(offsets) - 1, 1), dtype=w.int32, device=d)
+        self._color_start = w.array(offsets[:-1], dtype=w.int32, device=d)
+        self._slot_color = w.array(np.repeat(np.arange(len(offsets) - 1, dtype=np.int32), np.diff(offsets)),
+                                   dtype=w.int32, device=d)
         sc.rest = model.particle_rest
         sc.component = w.array(self._components(model), dtype=w.int32, device=d)
         sc.exclusion = max(float(rest_exclusion), float(radius))
@@ -889,6 +941,10 @@ class SelfContact:
         w.launch(vertex_summary_kernel, dim=m.particle_count,
                  inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.tri_indices, m.vertex_tri_offsets,
                          m.vertex_tri_ids, m.vertex_tri_local, self.relaxation, sc], device=d)
+        if sc.heavy_cap > 0:
+            sc.heavy_count.zero_()
+            w.launch(heavy_partition_kernel, dim=m.particle_count,
+                     inputs=[m.color_vertices, self._slot_color, self._color_start, sc], device=d)
 
 
 def disabled_data(device) -> SelfContactData:
@@ -910,6 +966,9 @@ def disabled_data(device) -> SelfContactData:
     sc.pair_first = sc.pair_count = sc.pair_role = sc.pair_cursor = empty_i
     sc.pair_verts = w.zeros(1, dtype=w.vec4i, device=device)
     sc.pool_size = 0
+    sc.heavy = sc.heavy_list = sc.heavy_count = empty_i
+    sc.heavy_threshold = 0
+    sc.heavy_cap = 0
     sc.mesh_edges = w.zeros(1, dtype=w.vec2i, device=device)
     sc.bound = w.zeros(1, dtype=float, device=device)
     sc.vt_dist = sc.tv_dist = sc.ee_dist = sc.bound

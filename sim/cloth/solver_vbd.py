@@ -119,6 +119,14 @@ class VBDConfig:
             per detection): a vertex whose records do not fit is gathered from the pair lists,
             with the same forces but a chain of dependent loads per pair (session 12: the lists
             made a solve launch 24 us against 10 us without self-contact). 0: always the lists.
+        self_contact_heavy_cap: vertices per colour launch that get a whole thread block each when
+            they have more gather records than the solve has lanes per particle (so would take
+            more than one round of them): a dense fold gives a few vertices 50-160 records
+            (session 13, the t-shirt run: mean 2-6), and the slowest vertex sets every launch's
+            length. A colour with more such vertices than this solves them in the lanes layout
+            (the cap fixes the launch size, as a CUDA graph needs). 0: off; -1 (default):
+            ``AUTO_HEAVY_CAP`` per instance in the 16-lane layout on CUDA, otherwise off (the
+            batched 4-lane layout fills the GPU: a long vertex no longer idles it).
         self_contact_rebuild: rebuild the cloth BVHs at the first detection of every step and
             refit them at the others. Refitting a tree built for the rest shape keeps its
             topology while the garment deforms, and queries on the loosened boxes cost 1.5-2x.
@@ -153,8 +161,12 @@ class VBDConfig:
     self_contact_side_memory: bool = False
     self_contact_relative_lists: bool = True
     self_contact_pool: int = 16
+    self_contact_heavy_cap: int = -1
 
     def __post_init__(self):
+        if self.self_contact_heavy_cap < -1:
+            raise ValueError(f"VBDConfig.self_contact_heavy_cap must be >= -1 (-1: auto), got "
+                             f"{self.self_contact_heavy_cap}")
         if self.self_contact_pool < 0:
             raise ValueError(f"VBDConfig.self_contact_pool must be >= 0, got {self.self_contact_pool}")
         for name in ("substeps", "iterations", "self_contact_interval"):
@@ -190,6 +202,7 @@ class VBDConfig:
 
 
 AUTO_LANES_PARTICLES = 16384
+AUTO_HEAVY_CAP = 256
 
 
 def auto_lanes(largest_color: int) -> tuple[int, int]:
@@ -261,11 +274,20 @@ class SolverVBD:
                 relaxation=cfg.self_contact_relaxation, speed_factor=cfg.self_contact_speed_factor,
                 capacity=cfg.self_contact_capacity, rest_exclusion=cfg.self_contact_rest_exclusion,
                 bounds=cfg.self_contact_bounds, side_memory=cfg.self_contact_side_memory,
-                relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool)
+                relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool,
+                heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
             self._sc_data = disabled_data(d)
+
+    def heavy_cap(self, cuda: bool) -> int:
+        """Heavy-vertex blocks per colour launch (``VBDConfig.self_contact_heavy_cap``; -1: auto,
+        ``AUTO_HEAVY_CAP`` per instance in the 16-lane layout on CUDA, else 0)."""
+        cap = self.config.self_contact_heavy_cap
+        if cap >= 0:
+            return cap
+        return AUTO_HEAVY_CAP * self.model.instance_count if cuda and self._lanes >= 8 else 0
 
     def sweep(self, x, sc_data, eps_u: float, h: float) -> None:
         """One Gauss-Seidel sweep: the solve kernel over every colour, updating ``x`` in place
@@ -273,12 +295,14 @@ class SolverVBD:
         wp = warp()
         m = self.model
         cfg = self.config
+        heavy = sc_data.heavy_cap if sc_data.enabled else 0
         for c in range(m.color_count):
             start, end = m.color_offsets[c], m.color_offsets[c + 1]
+            light = -(-(end - start) // self._particles)
             wp.launch_tiled(
-                self._solve, dim=[-(-(end - start) // self._particles)],
+                self._solve, dim=[light + min(heavy, end - start)],
                 block_dim=self._particles * self._lanes,
-                inputs=[end - start, self._membrane, m.color_vertices, start, self._x_prev, self._y,
+                inputs=[end - start, c, light, self._membrane, m.color_vertices, start, self._x_prev, self._y,
                         m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
                         m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
                         self._tri_strain_prev, m.edge_indices, m.edge_rest_angle, m.edge_stiffness,

@@ -317,6 +317,8 @@ def solve_color_kernel(particles: int, lanes: int):
 
     def solve(
         count: int,
+        color: int,
+        light_blocks: int,
         membrane: int,
         color_vertices: wp.array(dtype=wp.int32),
         color_start: int,
@@ -359,15 +361,33 @@ def solve_color_kernel(particles: int, lanes: int):
         block, thread = wp.tid()
         local = thread // wp.static(L)
         lane = thread - local * wp.static(L)
-        slot = block * wp.static(P) + local
+        share = lane
+        stride = wp.static(L)
         i = int(-1)
-        if slot < count:
-            i = color_vertices[color_start + slot]
+        heavy_block = block >= light_blocks
+        if heavy_block:
+            # one heavy vertex per block, its items shared by all the block's threads; a block
+            # without one leaves as a whole (no thread waits at the reductions)
+            hb = block - light_blocks
+            nh = sc.heavy_count[color]
+            if nh > sc.heavy_cap or hb >= nh:
+                return
+            i = sc.heavy_list[color_start + hb]
+            share = thread
+            stride = wp.static(P * L)
+        else:
+            slot = block * wp.static(P) + local
+            if slot < count:
+                i = color_vertices[color_start + slot]
+                # solved by a heavy block (when its colour's heavy vertices all have one)
+                if sc.heavy_cap > 0:
+                    if sc.heavy[i] != 0 and sc.heavy_count[color] <= sc.heavy_cap:
+                        i = -1
         f = wp.vec3(0.0)
         H = wp.mat33(0.0)
         if i >= 0:
             f, H = vertex_share_force_hessian(
-                i, lane, wp.static(L), membrane, x_prev, tri_indices, tri_dm_inv, tri_area, tri_mu, tri_lam,
+                i, share, stride, membrane, x_prev, tri_indices, tri_dm_inv, tri_area, tri_mu, tri_lam,
                 tri_damping, tri_strain_prev, edge_indices, edge_rest_angle, edge_stiffness, edge_damping,
                 edge_angle_prev, vertex_tri_offsets, vertex_tri_ids, vertex_tri_local, vertex_edge_offsets,
                 vertex_edge_ids, vertex_edge_local, eps_u, 1.0 / h, sc, x_inout)
@@ -377,7 +397,13 @@ def solve_color_kernel(particles: int, lanes: int):
         H_sum = wp.tile_sum(wp.tile_reshape(wp.tile(H, preserve_type=True), shape=shape), axis=1)
         f = wp.tile_extract(f_sum, local)
         H = wp.tile_extract(H_sum, local)
+        if heavy_block:  # the same for the whole block: the P partial sums are all vertex i's
+            for k in range(1, wp.static(P)):
+                f = f + wp.tile_extract(f_sum, (local + k) % wp.static(P))
+                H = H + wp.tile_extract(H_sum, (local + k) % wp.static(P))
         if lane != 0 or i < 0:
+            return
+        if heavy_block and local != 0:
             return
         if flags[i] == PINNED:
             return
