@@ -276,8 +276,12 @@ def test_tabu_recolor_repairs_a_colouring_down_to_the_chromatic_number():
 
 # --- physics -------------------------------------------------------------------------------
 
-def test_free_fall_matches_implicit_euler_and_half_g_t2(device):
+@pytest.mark.parametrize("mesh", ["grid", "lone triangle"])
+def test_free_fall_matches_implicit_euler_and_half_g_t2(device, mesh):
+    """A rigid fall; a lone triangle has no hinges (the solve reads placeholders for them)."""
     v, f = grid(6, 6, 0.5, 0.5)
+    if mesh == "lone triangle":
+        v, f = v[[0, 1, 6]], np.array([[0, 1, 2]], np.int32)
     b = ClothModelBuilder()
     # the material's damping acts on strain and bending rates only: a rigid fall is undamped
     b.add_cloth(v, f, ClothMaterialParams(damping=5e-3, bending=1e-4))
@@ -510,7 +514,7 @@ def draped_layers_in_contact(device):
     state = m.state()
     for _ in range(6):
         first.step(state, state, m.control(), 1.0 / 30.0)
-    assert first.self_contact.data.pair_count.numpy().mean() > 1.0  # the layers are in contact
+    assert first.self_contact.data.pair_count.numpy().mean() > 0.5  # the layers are in contact
     return m, state.positions.numpy().copy(), state.velocities.numpy().copy()
 
 

@@ -90,6 +90,9 @@ def dsatur_coloring(neighbours: list[np.ndarray]) -> np.ndarray:
     return colors
 
 
+_NO_MOVE = np.iinfo(np.int64).max // 4  # the delta of a move that may not be taken
+
+
 def _tabu_recolor(neighbours: list[np.ndarray], colors: np.ndarray, k: int, max_moves: int,
                   seed: int) -> np.ndarray | None:
     """TabuCol (Hertz & de Werra 1987): a ``k``-colouring from ``colors`` (vertices of colours
@@ -114,9 +117,11 @@ def _tabu_recolor(neighbours: list[np.ndarray], colors: np.ndarray, k: int, max_
         cand = np.flatnonzero(gamma[np.arange(n), col] > 0)
         g = gamma[cand]
         delta = g - g[np.arange(len(cand)), col[cand]][:, None]
-        delta[np.arange(len(cand)), col[cand]] = np.iinfo(np.int64).max // 4
+        delta[np.arange(len(cand)), col[cand]] = _NO_MOVE
         allowed = (tabu[cand] <= move) | (conflicts + delta < best)  # aspiration
-        delta = np.where(allowed, delta, np.iinfo(np.int64).max // 4)
+        delta = np.where(allowed, delta, _NO_MOVE)
+        if delta.min() >= _NO_MOVE:  # every move is tabu (a tiny graph): wait for one to expire
+            continue
         ties = np.argwhere(delta == delta.min())
         i, c = ties[rng.integers(len(ties))]
         v, old = cand[i], col[cand[i]]

@@ -209,45 +209,121 @@ def pair_force_hessian(diff: wp.vec3, diff0: wp.vec3, rel_disp: wp.vec3, w: floa
 
 
 @wp.func
-def point_triangle_pair(x: wp.array(dtype=wp.vec3), x0: wp.array(dtype=wp.vec3), q: wp.vec4i, ref: wp.vec3,
-                        role: int, sc: SelfContactData, eps_u: float):
-    """Force and Hessian block of the vertex with ``role`` in the pair of point ``q[0]`` and
-    triangle ``q[1..3]``: role 0 the point, role 1-3 the triangle's corner ``role - 1``; ``ref``
-    the pair's side reference."""
-    u = q[0]
-    xu = x[u]
-    a = x[q[1]]
-    b = x[q[2]]
-    c = x[q[3]]
+def point_triangle_pair_values(xu: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3, xu0: wp.vec3, a0: wp.vec3,
+                               b0: wp.vec3, c0: wp.vec3, ref: wp.vec3, role: int, sc: SelfContactData,
+                               eps_u: float):
+    """Force and Hessian block of the vertex with ``role`` in the pair of point ``xu`` and
+    triangle ``abc`` (``..0``: their substep-start positions): role 0 the point, role 1-3 the
+    triangle's corner ``role - 1``; ``ref`` the pair's side reference."""
     w = triangle_closest_bary(xu, a, b, c)
     p = w[0] * a + w[1] * b + w[2] * c
-    p0 = w[0] * x0[q[1]] + w[1] * x0[q[2]] + w[2] * x0[q[3]]
+    p0 = w[0] * a0 + w[1] * b0 + w[2] * c0
     wi = 1.0
     if role > 0:
         wi = -w[role - 1]
-    return pair_force_hessian(xu - p, ref, (xu - x0[u]) - (p - p0), wi, sc.radius, sc.stiffness, sc.friction,
+    return pair_force_hessian(xu - p, ref, (xu - xu0) - (p - p0), wi, sc.radius, sc.stiffness, sc.friction,
                               eps_u)
 
 
 @wp.func
-def edge_edge_pair(x: wp.array(dtype=wp.vec3), x0: wp.array(dtype=wp.vec3), q: wp.vec4i, ref: wp.vec3,
-                   end: int, sc: SelfContactData, eps_u: float):
-    """Force and Hessian block of end ``end`` (0, 1) of edge ``q[0] q[1]`` in its pair with edge
-    ``q[2] q[3]``; ``ref`` the pair's side reference."""
-    p1 = x[q[0]]
-    q1 = x[q[1]]
-    p2 = x[q[2]]
-    q2 = x[q[3]]
+def edge_edge_pair_values(p1: wp.vec3, q1: wp.vec3, p2: wp.vec3, q2: wp.vec3, p10: wp.vec3, q10: wp.vec3,
+                          p20: wp.vec3, q20: wp.vec3, ref: wp.vec3, end: int, sc: SelfContactData,
+                          eps_u: float):
+    """Force and Hessian block of end ``end`` (0, 1) of edge ``p1 q1`` in its pair with edge
+    ``p2 q2`` (``..0``: their substep-start positions); ``ref`` the pair's side reference."""
     st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
     pa = p1 + st[0] * (q1 - p1)
     pb = p2 + st[1] * (q2 - p2)
-    pa0 = (1.0 - st[0]) * x0[q[0]] + st[0] * x0[q[1]]
-    pb0 = (1.0 - st[1]) * x0[q[2]] + st[1] * x0[q[3]]
+    pa0 = (1.0 - st[0]) * p10 + st[0] * q10
+    pb0 = (1.0 - st[1]) * p20 + st[1] * q20
     we = 1.0 - st[0]
     if end == 1:
         we = st[0]
     return pair_force_hessian(pa - pb, ref, (pa - pa0) - (pb - pb0), we, sc.radius, sc.stiffness, sc.friction,
                               eps_u)
+
+
+@wp.func
+def record_force_hessian(y0: wp.vec3, y1: wp.vec3, y2: wp.vec3, y3: wp.vec3, z0: wp.vec3, z1: wp.vec3,
+                         z2: wp.vec3, z3: wp.vec3, ref: wp.vec3, role: int, sc: SelfContactData,
+                         eps_u: float):
+    """Force and Hessian block of a gather record's vertex: the record's four vertices at ``y``
+    (now) and ``z`` (substep start); role 0-3 a point-triangle pair (point, corners), 4-5 an
+    end of the first edge of an edge-edge pair."""
+    if role < 4:
+        return point_triangle_pair_values(y0, y1, y2, y3, z0, z1, z2, z3, ref, role, sc, eps_u)
+    return edge_edge_pair_values(y0, y1, y2, y3, z0, z1, z2, z3, ref, role - 4, sc, eps_u)
+
+
+@wp.func
+def record_force_hessian_at(x: wp.array(dtype=wp.vec3), x0: wp.array(dtype=wp.vec3), q: wp.vec4i,
+                            ref: wp.vec3, role: int, sc: SelfContactData, eps_u: float):
+    """``record_force_hessian`` of the pair of vertices ``q`` (a record, or a pair from the lists
+    laid out as one)."""
+    return record_force_hessian(x[q[0]], x[q[1]], x[q[2]], x[q[3]], x0[q[0]], x0[q[1]], x0[q[2]], x0[q[3]],
+                                ref, role, sc, eps_u)
+
+
+@wp.func
+def self_contact_list_force_hessian(
+    i: int,
+    lane: int,
+    stride: int,
+    x: wp.array(dtype=wp.vec3),
+    x0: wp.array(dtype=wp.vec3),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    vertex_tri_offsets: wp.array(dtype=wp.int32),
+    vertex_tri_ids: wp.array(dtype=wp.int32),
+    vertex_tri_local: wp.array(dtype=wp.int32),
+    sc: SelfContactData,
+    eps_u: float,
+):
+    """``self_contact_force_hessian`` of a vertex without gather records, from the pair lists
+    themselves: the same pairs in the same order per kind (lanes split each list), but each
+    pair a chain of dependent loads (list count, the owning triangle or edge, its indices, the
+    partner's indices) in three loops one after the other (session 12: 24 us per solve launch
+    against 10 us without self-contact)."""
+    f = wp.vec3(0.0)
+    H = wp.mat33(0.0)
+    # i as the point of vertex-triangle pairs
+    for s in range(lane, sc.vt_count[i], stride):
+        tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
+        ref = sc.vt_ref[i * sc.vt_capacity + s]
+        fc, hc = record_force_hessian_at(x, x0, wp.vec4i(i, tri[0], tri[1], tri[2]), ref, 0, sc, eps_u)
+        f = f + fc
+        H = H + hc
+    # i as a corner of triangles that vertices are close to: the lanes split the flattened list
+    # of stored pairs of i's triangles (``tv_first``: each triangle's first pair in it)
+    cap = sc.tv_capacity
+    tri_end = vertex_tri_offsets[i + 1]
+    for j in range(lane, sc.tv_total[i], stride):
+        kk = vertex_tri_offsets[i]
+        while kk + 1 < tri_end and sc.tv_first[kk + 1] <= j:
+            kk += 1
+        t = vertex_tri_ids[kk]
+        s = j - sc.tv_first[kk]
+        tri = tri_indices[t]
+        u = sc.tv_vertex[t * cap + s]
+        fc, hc = record_force_hessian_at(x, x0, wp.vec4i(u, tri[0], tri[1], tri[2]), sc.tv_ref[t * cap + s],
+                                         1 + vertex_tri_local[kk], sc, eps_u)
+        f = f + fc
+        H = H + hc
+    # i as an end of edges close to other edges (lanes split the flattened stored pairs alike)
+    ecap = sc.ee_capacity
+    edge_end = sc.vertex_edge_offsets[i + 1]
+    for j in range(lane, sc.ee_total[i], stride):
+        kk = sc.vertex_edge_offsets[i]
+        while kk + 1 < edge_end and sc.ee_first[kk + 1] <= j:
+            kk += 1
+        e = sc.vertex_edge_ids[kk]
+        s = j - sc.ee_first[kk]
+        ea = sc.mesh_edges[e]
+        eb = sc.mesh_edges[sc.ee_edge[e * ecap + s]]
+        fc, hc = record_force_hessian_at(x, x0, wp.vec4i(ea[0], ea[1], eb[0], eb[1]), sc.ee_ref[e * ecap + s],
+                                         4 + sc.vertex_edge_local[kk], sc, eps_u)
+        f = f + fc
+        H = H + hc
+    return f, H
 
 
 @wp.func
@@ -270,64 +346,18 @@ def self_contact_force_hessian(
 
     The pairs come from the vertex's gather records (``vertex_summary_kernel``: the pair's
     vertices, the vertex's role and the side reference in one place), so a pair costs one
-    record load, then its positions. Gathered from the lists, a pair was a chain of dependent
-    loads (list count, the owning triangle or edge, its indices, the partner's indices) in
-    three loops one after the other, and the few vertices with pairs set the length of every
-    solve launch (session 12: 24 us per launch against 10 us without self-contact). A vertex
+    record load, then its positions. (The solve kernel reads the records in its own fused loop,
+    ``vbd_kernels.vertex_share_force_hessian``; this is the reference of the tests.) A vertex
     whose records did not fit in the pool (``pair_first < 0``) is gathered from the lists
-    themselves, the same pairs in the same order per kind (lanes split each list)."""
+    (``self_contact_list_force_hessian``)."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
     first = sc.pair_first[i]
-    if first >= 0:
-        for j in range(first + lane, first + sc.pair_count[i], stride):
-            q = sc.pair_verts[j]
-            role = sc.pair_role[j]
-            if role < 4:
-                fc, hc = point_triangle_pair(x, x0, q, sc.pair_ref[j], role, sc, eps_u)
-                f = f + fc
-                H = H + hc
-            else:
-                fe, he = edge_edge_pair(x, x0, q, sc.pair_ref[j], role - 4, sc, eps_u)
-                f = f + fe
-                H = H + he
-        return f, H
-    # the list fallback. i as the point of vertex-triangle pairs
-    for s in range(lane, sc.vt_count[i], stride):
-        tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
-        ref = sc.vt_ref[i * sc.vt_capacity + s]
-        fc, hc = point_triangle_pair(x, x0, wp.vec4i(i, tri[0], tri[1], tri[2]), ref, 0, sc, eps_u)
-        f = f + fc
-        H = H + hc
-    # i as a corner of triangles that vertices are close to: the lanes split the flattened list
-    # of stored pairs of i's triangles (``tv_first``: each triangle's first pair in it)
-    cap = sc.tv_capacity
-    tri_end = vertex_tri_offsets[i + 1]
-    for j in range(lane, sc.tv_total[i], stride):
-        kk = vertex_tri_offsets[i]
-        while kk + 1 < tri_end and sc.tv_first[kk + 1] <= j:
-            kk += 1
-        t = vertex_tri_ids[kk]
-        s = j - sc.tv_first[kk]
-        tri = tri_indices[t]
-        u = sc.tv_vertex[t * cap + s]
-        fc, hc = point_triangle_pair(x, x0, wp.vec4i(u, tri[0], tri[1], tri[2]), sc.tv_ref[t * cap + s],
-                                     1 + vertex_tri_local[kk], sc, eps_u)
-        f = f + fc
-        H = H + hc
-    # i as an end of edges close to other edges (lanes split the flattened stored pairs alike)
-    ecap = sc.ee_capacity
-    edge_end = sc.vertex_edge_offsets[i + 1]
-    for j in range(lane, sc.ee_total[i], stride):
-        kk = sc.vertex_edge_offsets[i]
-        while kk + 1 < edge_end and sc.ee_first[kk + 1] <= j:
-            kk += 1
-        e = sc.vertex_edge_ids[kk]
-        s = j - sc.ee_first[kk]
-        ea = sc.mesh_edges[e]
-        eb = sc.mesh_edges[sc.ee_edge[e * ecap + s]]
-        fc, hc = edge_edge_pair(x, x0, wp.vec4i(ea[0], ea[1], eb[0], eb[1]), sc.ee_ref[e * ecap + s],
-                                sc.vertex_edge_local[kk], sc, eps_u)
+    if first < 0:
+        return self_contact_list_force_hessian(i, lane, stride, x, x0, tri_indices, vertex_tri_offsets,
+                                               vertex_tri_ids, vertex_tri_local, sc, eps_u)
+    for j in range(first + lane, first + sc.pair_count[i], stride):
+        fc, hc = record_force_hessian_at(x, x0, sc.pair_verts[j], sc.pair_ref[j], sc.pair_role[j], sc, eps_u)
         f = f + fc
         H = H + hc
     return f, H

@@ -260,6 +260,13 @@ class SolverVBD:
         self._particles = particles if cuda else 1
         self._solve = K.solve_color_kernel(self._particles, self._lanes)
         self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
+        # the solve's fused gather reads entry 0 of the per-hinge arrays for vertices without
+        # hinges: a model without any gets one-entry placeholders
+        self._hinges = [model.edge_indices, model.edge_rest_angle, model.edge_stiffness, model.edge_damping]
+        self._vertex_hinges = [model.vertex_edge_offsets, model.vertex_edge_ids, model.vertex_edge_local]
+        if model.edge_count == 0:
+            self._hinges = [wp.zeros(1, dtype=a.dtype, device=d) for a in self._hinges]
+            self._vertex_hinges[1:] = [wp.zeros(1, dtype=wp.int32, device=d)] * 2
         self._tri_strain_prev = wp.zeros(model.tri_count, dtype=wp.vec3, device=d)
         self._edge_angle_prev = wp.zeros(max(model.edge_count, 1), dtype=float, device=d)
         cfg = self.config
@@ -305,12 +312,11 @@ class SolverVBD:
                 inputs=[end - start, c, light, self._membrane, m.color_vertices, start, self._x_prev, self._y,
                         m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
                         m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
-                        self._tri_strain_prev, m.edge_indices, m.edge_rest_angle, m.edge_stiffness,
-                        m.edge_damping, self._edge_angle_prev, m.vertex_tri_offsets, m.vertex_tri_ids,
-                        m.vertex_tri_local, m.vertex_edge_offsets, m.vertex_edge_ids,
-                        m.vertex_edge_local, self._contact_point, self._contact_normal,
-                        self._contact_body_velocity, self._contact_active, m.instance_thickness,
-                        m.instance_friction, cfg.contact_stiffness, eps_u, h, cfg.air_damping, sc_data],
+                        self._tri_strain_prev, *self._hinges, self._edge_angle_prev, m.vertex_tri_offsets,
+                        m.vertex_tri_ids, m.vertex_tri_local, *self._vertex_hinges, self._contact_point,
+                        self._contact_normal, self._contact_body_velocity, self._contact_active,
+                        m.instance_thickness, m.instance_friction, cfg.contact_stiffness, eps_u, h,
+                        cfg.air_damping, sc_data],
                 outputs=[x], device=m.device)
 
     def step(self, state_in: ClothState, state_out: ClothState, control: ClothControl, dt: float) -> None:

@@ -20,7 +20,12 @@ from sim.cloth.energies import (
     green_strain,
     stvk_damped_vertex_force_hessian,
 )
-from sim.cloth.self_contact import SelfContactData, apply_bound, self_contact_force_hessian
+from sim.cloth.self_contact import (
+    SelfContactData,
+    apply_bound,
+    record_force_hessian,
+    self_contact_list_force_hessian,
+)
 
 PINNED = wp.constant(1)
 MEMBRANE_STVK = wp.constant(0)
@@ -198,48 +203,121 @@ def vertex_share_force_hessian(
 ):
     """This lane's share (items ``lane, lane + stride, ...``) of the membrane, bending and
     self-contact force on particle ``i`` and their Hessian blocks, with strain-rate damping
-    against the substep-start deformation."""
+    against the substep-start deformation.
+
+    One loop takes item ``r`` of each kind together: triangle ``r``, hinge ``r`` and gather
+    record ``r`` of the vertex. Every load of the three is issued before any of them is used
+    (an item a kind does not have reads a valid placeholder: entry 0), so the lane waits for
+    one chain of dependent loads (item id, its vertices, their positions) instead of one per
+    kind, one kind after the other (session 14: the chains, not the arithmetic, set a launch's
+    length at a 5k t-shirt's ~1000 particles per colour). The arrays must not be empty."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
-    for k in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
-        t = vertex_tri_ids[k]
-        tri = tri_indices[t]
-        if membrane == MEMBRANE_COROTATED:
-            fe, he = corotated_damped_vertex_force_hessian(
-                x[tri[0]], x[tri[1]], x[tri[2]], tri_dm_inv[t], tri_area[t], tri_mu[t],
-                tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h, vertex_tri_local[k])
-        else:
-            fe, he = stvk_damped_vertex_force_hessian(
-                x[tri[0]], x[tri[1]], x[tri[2]], tri_dm_inv[t], tri_area[t], tri_mu[t],
-                tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h, vertex_tri_local[k])
-        f = f + fe
-        H = H + he
-
-    for k in range(vertex_edge_offsets[i] + lane, vertex_edge_offsets[i + 1], stride):
-        e = vertex_edge_ids[k]
-        q = edge_indices[e]
-        fb, hb = bending_damped_vertex_force_hessian(
-            x[q[0]], x[q[1]], x[q[2]], x[q[3]], edge_rest_angle[e], edge_stiffness[e],
-            edge_angle_prev[e], edge_damping[e] * inv_h, vertex_edge_local[k])
-        f = f + fb
-        H = H + hb
-
+    tri_begin = vertex_tri_offsets[i]
+    tri_n = vertex_tri_offsets[i + 1] - tri_begin
+    edge_begin = vertex_edge_offsets[i]
+    edge_n = vertex_edge_offsets[i + 1] - edge_begin
+    rec_begin = int(0)
+    rec_n = int(0)
+    lists = False
     if sc.enabled != 0:
-        fs, hs = self_contact_force_hessian(i, lane, stride, x, x_prev, tri_indices, vertex_tri_offsets,
-                                            vertex_tri_ids, vertex_tri_local, sc, eps_u)
+        rec_begin = sc.pair_first[i]
+        rec_n = sc.pair_count[i]
+        if rec_begin < 0:  # no gather records: the pair lists, after the loop
+            lists = True
+            rec_begin = 0
+            rec_n = 0
+    for r in range(lane, wp.max(wp.max(tri_n, edge_n), rec_n), stride):
+        kt = wp.where(r < tri_n, tri_begin + r, 0)
+        ke = wp.where(r < edge_n, edge_begin + r, 0)
+        kr = wp.where(r < rec_n, rec_begin + r, 0)
+        t = vertex_tri_ids[kt]
+        t_local = vertex_tri_local[kt]
+        e = vertex_edge_ids[ke]
+        e_local = vertex_edge_local[ke]
+        q = sc.pair_verts[kr]
+        role = sc.pair_role[kr]
+        ref = sc.pair_ref[kr]
+        tri = tri_indices[t]
+        dm_inv = tri_dm_inv[t]
+        area = tri_area[t]
+        mu = tri_mu[t]
+        lam = tri_lam[t]
+        t_damp = tri_damping[t]
+        strain_prev = tri_strain_prev[t]
+        hinge = edge_indices[e]
+        rest_angle = edge_rest_angle[e]
+        k_edge = edge_stiffness[e]
+        e_damp = edge_damping[e]
+        angle_prev = edge_angle_prev[e]
+        xa = x[tri[0]]
+        xb = x[tri[1]]
+        xc = x[tri[2]]
+        h0 = x[hinge[0]]
+        h1 = x[hinge[1]]
+        h2 = x[hinge[2]]
+        h3 = x[hinge[3]]
+        y0 = x[q[0]]
+        y1 = x[q[1]]
+        y2 = x[q[2]]
+        y3 = x[q[3]]
+        z0 = x_prev[q[0]]
+        z1 = x_prev[q[1]]
+        z2 = x_prev[q[2]]
+        z3 = x_prev[q[3]]
+        if r < tri_n:
+            if membrane == MEMBRANE_COROTATED:
+                fe, he = corotated_damped_vertex_force_hessian(xa, xb, xc, dm_inv, area, mu, lam, strain_prev,
+                                                               t_damp * inv_h, t_local)
+            else:
+                fe, he = stvk_damped_vertex_force_hessian(xa, xb, xc, dm_inv, area, mu, lam, strain_prev,
+                                                          t_damp * inv_h, t_local)
+            f = f + fe
+            H = H + he
+        if r < edge_n:
+            fb, hb = bending_damped_vertex_force_hessian(h0, h1, h2, h3, rest_angle, k_edge, angle_prev,
+                                                         e_damp * inv_h, e_local)
+            f = f + fb
+            H = H + hb
+        if r < rec_n:
+            fs, hs = record_force_hessian(y0, y1, y2, y3, z0, z1, z2, z3, ref, role, sc, eps_u)
+            f = f + fs
+            H = H + hs
+    if lists:
+        fs, hs = self_contact_list_force_hessian(i, lane, stride, x, x_prev, tri_indices, vertex_tri_offsets,
+                                                 vertex_tri_ids, vertex_tri_local, sc, eps_u)
         f = f + fs
         H = H + hs
     return f, H
 
 
+@wp.struct
+class ParticleStep:
+    """What the Newton step of one particle reads besides its gathered force and Hessian: loaded
+    before the block's reductions (``load_particle_step``), so the loads overlap them."""
+
+    x: wp.vec3
+    x_prev: wp.vec3
+    y: wp.vec3
+    mass: float
+    flags: int
+    contact_active: int
+    contact_point: wp.vec3
+    contact_normal: wp.vec3
+    contact_body_velocity: wp.vec3
+    thickness: float
+    friction: float
+    bound: float
+    reference: wp.vec3
+
+
 @wp.func
-def vertex_newton_step(
+def load_particle_step(
     i: int,
-    f: wp.vec3,
-    H: wp.mat33,
     x_prev: wp.array(dtype=wp.vec3),
     y: wp.array(dtype=wp.vec3),
     mass: wp.array(dtype=float),
+    flags: wp.array(dtype=wp.int32),
     particle_instance: wp.array(dtype=wp.int32),
     contact_point: wp.array(dtype=wp.vec3),
     contact_normal: wp.array(dtype=wp.vec3),
@@ -247,22 +325,50 @@ def vertex_newton_step(
     contact_active: wp.array(dtype=wp.int32),
     instance_thickness: wp.array(dtype=float),
     instance_friction: wp.array(dtype=float),
+    sc: SelfContactData,
+    x: wp.array(dtype=wp.vec3),
+):
+    p = ParticleStep()
+    inst = particle_instance[i]
+    p.x = x[i]
+    p.x_prev = x_prev[i]
+    p.y = y[i]
+    p.mass = mass[i]
+    p.flags = flags[i]
+    p.contact_active = contact_active[i]
+    p.contact_point = contact_point[i]
+    p.contact_normal = contact_normal[i]
+    p.contact_body_velocity = contact_body_velocity[i]
+    p.thickness = instance_thickness[inst]
+    p.friction = instance_friction[inst]
+    p.bound = float(0.0)
+    p.reference = wp.vec3(0.0)
+    if sc.enabled != 0 and sc.use_bounds != 0:
+        p.bound = sc.bound[i]
+        p.reference = sc.reference[inst]
+    return p
+
+
+@wp.func
+def vertex_newton_step(
+    p: ParticleStep,
+    f: wp.vec3,
+    H: wp.mat33,
     k_contact: float,
     eps_u: float,
     h: float,
     air_damping: float,
     sc: SelfContactData,
-    x_inout: wp.array(dtype=wp.vec3),
-):
-    """Add inertia, air damping and body contact to the gathered ``f``, ``H`` of particle ``i``
-    and take its Newton step ``x += H^-1 f`` (Chen et al. 2024, Eq. 9-10)."""
-    xi = x_inout[i]
-    xp = x_prev[i]
+) -> wp.vec3:
+    """Add inertia, air damping and body contact to the gathered ``f``, ``H`` of a particle and
+    take its Newton step ``x += H^-1 f`` (Chen et al. 2024, Eq. 9-10): its new position."""
+    xi = p.x
+    xp = p.x_prev
     inv_h = 1.0 / h
     # inertia m/h^2 (y - x), Hessian m/h^2 I; mass-proportional (air) damping alpha m (x - x_prev)/h
-    mh = mass[i] * inv_h * inv_h
-    ca = air_damping * mass[i] * inv_h
-    f = f + mh * (y[i] - xi) - ca * (xi - xp)
+    mh = p.mass * inv_h * inv_h
+    ca = air_damping * p.mass * inv_h
+    f = f + mh * (p.y - xi) - ca * (xi - xp)
     H = H + (mh + ca) * wp.identity(n=3, dtype=float)
 
     bounded = sc.enabled != 0 and sc.use_bounds != 0
@@ -270,20 +376,18 @@ def vertex_newton_step(
     # the substep), so layers riding on a moving limb together are not held back; elsewhere
     # relative to the instance's reference velocity (the frame the detection searched in)
     x_ref = xp
-    inst = particle_instance[i]
-    if contact_active[i] != 0:
-        x_ref = xp + h * contact_body_velocity[i]
-        thickness = instance_thickness[inst]
-        fc, hc = contact_force_hessian(xi, xp, contact_point[i], contact_normal[i], contact_body_velocity[i],
-                                       thickness, k_contact, instance_friction[inst], eps_u, h)
+    if p.contact_active != 0:
+        x_ref = xp + h * p.contact_body_velocity
+        fc, hc = contact_force_hessian(xi, xp, p.contact_point, p.contact_normal, p.contact_body_velocity,
+                                       p.thickness, k_contact, p.friction, eps_u, h)
         f = f + fc
         H = H + hc
         # a particle the body is pushing is not held by the self-contact bound: where the body
         # squeezes cloth layers together (armpits, between the legs) the body wins
-        if wp.dot(contact_normal[i], xi - contact_point[i]) < thickness + sc.radius:
+        if wp.dot(p.contact_normal, xi - p.contact_point) < p.thickness + sc.radius:
             bounded = False
     elif bounded:
-        x_ref = xp + h * sc.reference[inst]
+        x_ref = xp + h * p.reference
 
     # the block is symmetric positive definite (inertia + PSD terms); guard tiny determinants
     x_new = xi
@@ -291,8 +395,8 @@ def vertex_newton_step(
         x_new = xi + wp.inverse(H) * f
     if bounded:
         # self-contact displacement bound (sim.cloth.self_contact): stays intersection-free
-        x_new = apply_bound(x_new, x_ref, sc.bound[i])
-    x_inout[i] = x_new
+        x_new = apply_bound(x_new, x_ref, p.bound)
+    return x_new
 
 
 _SOLVE_KERNELS: dict = {}
@@ -383,6 +487,15 @@ def solve_color_kernel(particles: int, lanes: int):
                 if sc.heavy_cap > 0:
                     if sc.heavy[i] != 0 and sc.heavy_count[color] <= sc.heavy_cap:
                         i = -1
+        # the solving thread's particle inputs, loaded first so their loads overlap the gather's
+        step = ParticleStep()
+        solver = lane == 0 and i >= 0
+        if heavy_block:
+            solver = thread == 0
+        if solver:
+            step = load_particle_step(i, x_prev, y, mass, flags, particle_instance, contact_point,
+                                      contact_normal, contact_body_velocity, contact_active,
+                                      instance_thickness, instance_friction, sc, x_inout)
         f = wp.vec3(0.0)
         H = wp.mat33(0.0)
         if i >= 0:
@@ -401,15 +514,9 @@ def solve_color_kernel(particles: int, lanes: int):
             for k in range(1, wp.static(P)):
                 f = f + wp.tile_extract(f_sum, (local + k) % wp.static(P))
                 H = H + wp.tile_extract(H_sum, (local + k) % wp.static(P))
-        if lane != 0 or i < 0:
+        if not solver or step.flags == PINNED:
             return
-        if heavy_block and local != 0:
-            return
-        if flags[i] == PINNED:
-            return
-        vertex_newton_step(i, f, H, x_prev, y, mass, particle_instance, contact_point, contact_normal,
-                           contact_body_velocity, contact_active, instance_thickness, instance_friction,
-                           k_contact, eps_u, h, air_damping, sc, x_inout)
+        x_inout[i] = vertex_newton_step(step, f, H, k_contact, eps_u, h, air_damping, sc)
 
     solve.__name__ = solve.__qualname__ = f"solve_color_p{P}_l{L}"
     kernel = wp.kernel(solve, enable_backward=False, module="unique")
