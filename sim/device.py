@@ -59,3 +59,37 @@ def resolve_device(device: str | None = None) -> str:
             raise WrinklesInputError(f"--device {device}: no CUDA device is available here (use cpu)")
         return device
     raise WrinklesInputError(f"--device {device}: unknown device (use auto, cpu, cuda or cuda:N)")
+
+
+class SideStreams:
+    """CUDA streams that fork from the device's current stream and join back into it, so
+    independent latency-bound kernels of a step run side by side (in a CUDA graph captured on
+    the current stream too: the forks and joins are its edges). On the CPU everything runs in
+    order on the one stream.
+
+    ``with side.on(k):`` runs the block's launches on side stream ``k``, after everything issued
+    so far on the current stream; ``side.join()`` makes the current stream wait for all of them.
+
+    Args:
+        device: Warp device.
+        count: side streams.
+    """
+
+    def __init__(self, device: str, count: int):
+        wp = warp()
+        self.device = device
+        self.cuda = wp.get_device(device).is_cuda
+        self.streams = [wp.Stream(device) for _ in range(count)] if self.cuda else []
+
+    def on(self, k: int):
+        import contextlib
+
+        if not self.cuda:
+            return contextlib.nullcontext()
+        return warp().ScopedStream(self.streams[k], sync_enter=True)
+
+    def join(self) -> None:
+        if self.cuda:
+            main = warp().get_stream(self.device)
+            for s in self.streams:
+                main.wait_stream(s)

@@ -51,7 +51,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from sim.device import warp
+from sim.device import SideStreams, warp
 
 # closest points with every barycentric weight (VT) or edge parameter (EE) above this are
 # interior: only there is a reversed separation a crossing (``track_side``)
@@ -900,6 +900,7 @@ class SelfContact:
         self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
         self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
         self.vertex_bvh = w.Bvh(self._points, self._points, groups=model.particle_instance)
+        self._side = SideStreams(d, 3)
 
     @staticmethod
     def _components(model) -> np.ndarray:
@@ -959,14 +960,18 @@ class SelfContact:
             w.copy(getattr(sc, f"{name}_{ids}_prev"), getattr(sc, f"{name}_{ids}"))
             w.copy(getattr(sc, f"{name}_ref_prev"), getattr(sc, f"{name}_ref"))
         self._update_bounds(x0)
-        for bvh in (self.tri_bvh, self.edge_bvh, self.vertex_bvh):
-            if rebuild:
-                bvh.rebuild()
-            else:
-                bvh.refit()
-        self.query_vertices(x0, v, h)
-        self.query_triangles(x0, v, h)
-        self.query_edges(x0, v, h)
+        # three independent chains (refit a tree, query it), each on its own stream on CUDA:
+        # the queries are latency-bound (a few thousand threads), so they overlap almost fully
+        for k, (bvh, query) in enumerate(((self.tri_bvh, self.query_vertices),
+                                          (self.vertex_bvh, self.query_triangles),
+                                          (self.edge_bvh, self.query_edges))):
+            with self._side.on(k):
+                if rebuild:
+                    bvh.rebuild()
+                else:
+                    bvh.refit()
+                query(x0, v, h)
+        self._side.join()
         sc.pair_cursor.zero_()
         w.launch(vertex_summary_kernel, dim=m.particle_count,
                  inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.tri_indices, m.vertex_tri_offsets,

@@ -10,11 +10,11 @@ over the vertex colouring. Per substep:
    ``previous_deformation_kernel``: substep-start strains and hinge angles (damping reference);
 3. ``body_contact_kernel``: one contact plane per particle against its instance's body,
    found from the particle's substep-start position (outside the body) against the body's
-   substep-end placement;
+   substep-end placement; on CUDA on a side stream, beside 4 (``sim.device.SideStreams``);
 4. with ``self_contact``: refit the cloth BVHs (rebuild them in the step's first substep),
    find vertex-triangle and edge-edge pairs and per-vertex displacement bounds
-   (``sim.cloth.self_contact``), with speeds measured relative to each instance's
-   ``control.instance_velocity``;
+   (``sim.cloth.self_contact``; its three tree-and-query chains on three streams on CUDA),
+   with speeds measured relative to each instance's ``control.instance_velocity``;
 5. ``iterations`` x colours launches of the solve kernel (``solve_color_kernel(particles,
    lanes)``), each iteration followed by ``chebyshev_kernel`` when ``chebyshev_rho`` > 0;
 6. ``velocity_kernel``.
@@ -37,7 +37,7 @@ from sim.cloth import vbd_kernels as K
 from sim.cloth.model import ClothModel
 from sim.cloth.self_contact import SelfContact, disabled_data
 from sim.cloth.state import ClothControl, ClothState
-from sim.device import warp
+from sim.device import SideStreams, warp
 
 
 @dataclass(frozen=True)
@@ -259,6 +259,7 @@ class SolverVBD:
         self._lanes = lanes if cuda else 1
         self._particles = particles if cuda else 1
         self._solve = K.solve_color_kernel(self._particles, self._lanes)
+        self._side = SideStreams(d, 1)
         self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
         # the solve's fused gather reads entry 0 of the per-hinge arrays for vertices without
         # hinges: a model without any gets one-entry placeholders
@@ -352,11 +353,13 @@ class SolverVBD:
                       inputs=[self._x_prev, m.tri_indices, m.tri_dm_inv, m.edge_indices, m.tri_count],
                       outputs=[self._tri_strain_prev, self._edge_angle_prev], device=d)
             if control.bodies:
-                wp.launch(K.body_contact_kernel, dim=n,
-                          inputs=[self._x_prev, m.particle_instance, control.instance_body,
-                                  cfg.contact_margin],
-                          outputs=[self._contact_point, self._contact_normal, self._contact_body_velocity,
-                                   self._contact_active], device=d)
+                # on a side stream (CUDA), beside the self-contact detection: both only read x_prev
+                with self._side.on(0):
+                    wp.launch(K.body_contact_kernel, dim=n,
+                              inputs=[self._x_prev, m.particle_instance, control.instance_body,
+                                      cfg.contact_margin],
+                              outputs=[self._contact_point, self._contact_normal, self._contact_body_velocity,
+                                       self._contact_active], device=d)
             else:
                 self._contact_active.zero_()
             if self.self_contact is not None and s % cfg.self_contact_interval == 0:
@@ -364,6 +367,7 @@ class SolverVBD:
                 self.self_contact.detect(self._x_prev, v, h * cfg.self_contact_interval,
                                          rebuild=cfg.self_contact_rebuild and s == 0,
                                          reference=control.instance_velocity)
+            self._side.join()
             if self._omegas:
                 wp.copy(self._cheb_prev1, x)
             for it in range(cfg.iterations):
