@@ -576,3 +576,38 @@ def test_heavy_vertices_solved_by_whole_blocks_take_the_same_step(device):
             assert heavy.min() < heavy.max(), heavy
             caps.append(int(heavy.min()))
         np.testing.assert_allclose(x, ref, atol=1e-4 * moved if device == "cuda" else 0.0, err_msg=str(cap))
+
+
+def test_a_step_captured_in_a_cuda_graph_takes_the_plain_step(device):
+    """On CUDA the step forks body contact and the three self-contact tree/query chains onto side
+    streams (``sim.device.SideStreams``) and joins them before the sweeps: captured in a CUDA
+    graph (as ``sim.simulate`` runs it), the step must be the plain launches' step, a body in
+    contact and the layers in self-contact (a fork left unjoined fails the capture; a join in
+    the wrong place lets the sweeps read half-written contacts). CUDA only: the CPU has no
+    graphs and one stream."""
+    if device != "cuda":
+        pytest.skip("CUDA graphs and streams only")
+    wp = warp()
+    m, *start = draped_layers_in_contact(device)
+    sphere_v, sphere_f = uv_sphere(start[0].mean(axis=0) - np.array([0.0, 0.012, 0.0], np.float32), 0.01)
+    out = []
+    for graph in (False, True):
+        solver = SolverVBD(m, VBDConfig(substeps=2, iterations=4, self_contact=True))
+        body = BodyCollider(sphere_v, sphere_f, device=device)
+        control = m.control()
+        control.set_body(0, body)
+        s = m.state()
+        s.positions.assign(start[0])
+        s.velocities.assign(start[1])
+        if graph:
+            with wp.ScopedCapture(device=device) as cap:  # records the launches, runs none
+                solver.step(s, s, control, 1.0 / 120.0)
+            wp.capture_launch(cap.graph)
+        else:
+            solver.step(s, s, control, 1.0 / 120.0)
+        wp.synchronize()
+        assert solver._contact_active.numpy().sum() > 0  # the body touches the cloth
+        out.append(s.positions.numpy().copy())
+    moved = np.abs(out[0] - start[0]).max()
+    assert moved > 1e-4
+    np.testing.assert_allclose(out[1], out[0], atol=1e-4 * moved)
