@@ -66,6 +66,13 @@ class VBDConfig:
             session 12).
         particles_per_block: particles solved by one GPU thread block (``particles x lanes``
             threads; 1 on CPU); with ``lanes`` 0 it is chosen with them.
+        gather: how a solve thread gathers its share of a particle's triangles, hinges and
+            self-contact records (``vbd_kernels.vertex_share_force_hessian``): "fused" (item ``r``
+            of every kind loaded together: one chain of dependent loads; single garments,
+            latency-bound), "split" (one kind after the other, only the items a lane has:
+            batches, throughput-bound), "auto" (default: fused from ``vbd_kernels.FUSED_LANES`` lanes per
+            particle, so with the 16-lane layout of single garments, split with the 4-lane
+            layout of batches and on the CPU).
         chebyshev_rho: estimated spectral radius rho of the sweeps for Chebyshev acceleration
             (Chen et al. 2024, Sec. 3.8: ``omega_1 = 1, omega_2 = 2 / (2 - rho^2), omega_k = 4 /
             (4 - rho^2 omega_{k-1})``); 0 turns it off. It converges further per sweep, but
@@ -144,6 +151,7 @@ class VBDConfig:
     air_damping: float = 0.5
     lanes: int = 0
     particles_per_block: int = 8
+    gather: str = "auto"
     chebyshev_rho: float = 0.0
     membrane: str = "corotated"
     self_contact: bool = False
@@ -175,6 +183,8 @@ class VBDConfig:
         if self.self_contact_bounds and self.self_contact_interval != 1:
             raise ValueError("VBDConfig.self_contact_interval must be 1 with self_contact_bounds (the bounds "
                              f"hold for one substep), got {self.self_contact_interval}")
+        if self.gather not in ("auto", "fused", "split"):
+            raise ValueError(f"VBDConfig.gather must be 'auto', 'fused' or 'split', got {self.gather!r}")
         if self.membrane not in ("stvk", "corotated"):
             raise ValueError(f"VBDConfig.membrane must be 'stvk' or 'corotated', got {self.membrane!r}")
         if self.lanes < 0 or self.lanes > 256:
@@ -258,7 +268,8 @@ class SolverVBD:
                                               default=0))
         self._lanes = lanes if cuda else 1
         self._particles = particles if cuda else 1
-        self._solve = K.solve_color_kernel(self._particles, self._lanes)
+        fused = {"auto": None, "fused": True, "split": False}[self.config.gather]
+        self._solve = K.solve_color_kernel(self._particles, self._lanes, fused)
         self._side = SideStreams(d, 1)
         self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
         # the solve's fused gather reads entry 0 of the per-hinge arrays for vertices without

@@ -24,6 +24,7 @@ from sim.cloth.self_contact import (
     SelfContactData,
     apply_bound,
     record_force_hessian,
+    self_contact_force_hessian,
     self_contact_list_force_hessian,
 )
 
@@ -172,6 +173,17 @@ def contact_force_hessian(
 
 
 @wp.func
+def membrane_force_hessian(membrane: int, xa: wp.vec3, xb: wp.vec3, xc: wp.vec3, dm_inv: wp.mat22,
+                           area: float, mu: float, lam: float, strain_prev: wp.vec3, kd_over_h: float,
+                           local: int):
+    """The damped membrane force and Hessian block of corner ``local`` of one triangle."""
+    if membrane == MEMBRANE_COROTATED:
+        return corotated_damped_vertex_force_hessian(xa, xb, xc, dm_inv, area, mu, lam, strain_prev,
+                                                     kd_over_h, local)
+    return stvk_damped_vertex_force_hessian(xa, xb, xc, dm_inv, area, mu, lam, strain_prev, kd_over_h, local)
+
+
+@wp.func
 def vertex_share_force_hessian(
     i: int,
     lane: int,
@@ -199,6 +211,7 @@ def vertex_share_force_hessian(
     eps_u: float,
     inv_h: float,
     sc: SelfContactData,
+    fused: int,
     x: wp.array(dtype=wp.vec3),
 ):
     """This lane's share (items ``lane, lane + stride, ...``) of the membrane, bending and
@@ -210,9 +223,38 @@ def vertex_share_force_hessian(
     (an item a kind does not have reads a valid placeholder: entry 0), so the lane waits for
     one chain of dependent loads (item id, its vertices, their positions) instead of one per
     kind, one kind after the other (session 14: the chains, not the arithmetic, set a launch's
-    length at a 5k t-shirt's ~1000 particles per colour). The arrays must not be empty."""
+    length at a 5k t-shirt's ~1000 particles per colour). The arrays must not be empty.
+
+    With ``fused`` 0 the kinds are gathered one after the other, each lane loading only items
+    it has: where the GPU is full (batches, 4 lanes per particle) the latency is hidden by other
+    threads, and the fused loop's placeholder loads cost throughput (session 14: batch 64 ran
+    at 339 garment-frames/s fused against 400 split)."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
+    if fused == 0:
+        for k in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
+            t = vertex_tri_ids[k]
+            tri = tri_indices[t]
+            fe, he = membrane_force_hessian(membrane, x[tri[0]], x[tri[1]], x[tri[2]], tri_dm_inv[t],
+                                            tri_area[t], tri_mu[t], tri_lam[t], tri_strain_prev[t],
+                                            tri_damping[t] * inv_h, vertex_tri_local[k])
+            f = f + fe
+            H = H + he
+        for k in range(vertex_edge_offsets[i] + lane, vertex_edge_offsets[i + 1], stride):
+            e = vertex_edge_ids[k]
+            q = edge_indices[e]
+            fb, hb = bending_damped_vertex_force_hessian(x[q[0]], x[q[1]], x[q[2]], x[q[3]],
+                                                         edge_rest_angle[e], edge_stiffness[e],
+                                                         edge_angle_prev[e], edge_damping[e] * inv_h,
+                                                         vertex_edge_local[k])
+            f = f + fb
+            H = H + hb
+        if sc.enabled != 0:
+            fs, hs = self_contact_force_hessian(i, lane, stride, x, x_prev, tri_indices, vertex_tri_offsets,
+                                                vertex_tri_ids, vertex_tri_local, sc, eps_u)
+            f = f + fs
+            H = H + hs
+        return f, H
     tri_begin = vertex_tri_offsets[i]
     tri_n = vertex_tri_offsets[i + 1] - tri_begin
     edge_begin = vertex_edge_offsets[i]
@@ -266,12 +308,8 @@ def vertex_share_force_hessian(
         z2 = x_prev[q[2]]
         z3 = x_prev[q[3]]
         if r < tri_n:
-            if membrane == MEMBRANE_COROTATED:
-                fe, he = corotated_damped_vertex_force_hessian(xa, xb, xc, dm_inv, area, mu, lam, strain_prev,
-                                                               t_damp * inv_h, t_local)
-            else:
-                fe, he = stvk_damped_vertex_force_hessian(xa, xb, xc, dm_inv, area, mu, lam, strain_prev,
-                                                          t_damp * inv_h, t_local)
+            fe, he = membrane_force_hessian(membrane, xa, xb, xc, dm_inv, area, mu, lam, strain_prev,
+                                            t_damp * inv_h, t_local)
             f = f + fe
             H = H + he
         if r < edge_n:
@@ -400,9 +438,10 @@ def vertex_newton_step(
 
 
 _SOLVE_KERNELS: dict = {}
+FUSED_LANES = 8  # lanes per particle from which the solve gathers with the fused loop
 
 
-def solve_color_kernel(particles: int, lanes: int):
+def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
     """The per-colour VBD kernel (Chen et al. 2024, Alg. 1) for blocks of ``particles`` x
     ``lanes`` threads: launch it with ``wp.launch_tiled(kernel, dim=[ceil(count / particles)],
     block_dim=particles * lanes)`` (on the CPU, where a block is one thread: 1 x 1).
@@ -413,11 +452,14 @@ def solve_color_kernel(particles: int, lanes: int):
     particle (a latency chain of dependent loads) into short ones; several particles per block
     fill the 32-thread warps and the SM's block slots (a 16-thread block leaves half of every
     warp idle and caps occupancy at a quarter). One kernel per (particles, lanes), compiled in
-    its own module and cached."""
-    key = (int(particles), int(lanes))
+    its own module and cached. ``fused``: the gather of ``vertex_share_force_hessian`` (None:
+    fused from ``FUSED_LANES`` lanes per particle)."""
+    if fused is None:
+        fused = lanes >= FUSED_LANES
+    key = (int(particles), int(lanes), bool(fused))
     if key in _SOLVE_KERNELS:
         return _SOLVE_KERNELS[key]
-    P, L = key
+    P, L, FUSED = int(particles), int(lanes), int(fused)
 
     def solve(
         count: int,
@@ -503,7 +545,7 @@ def solve_color_kernel(particles: int, lanes: int):
                 i, share, stride, membrane, x_prev, tri_indices, tri_dm_inv, tri_area, tri_mu, tri_lam,
                 tri_damping, tri_strain_prev, edge_indices, edge_rest_angle, edge_stiffness, edge_damping,
                 edge_angle_prev, vertex_tri_offsets, vertex_tri_ids, vertex_tri_local, vertex_edge_offsets,
-                vertex_edge_ids, vertex_edge_local, eps_u, 1.0 / h, sc, x_inout)
+                vertex_edge_ids, vertex_edge_local, eps_u, 1.0 / h, sc, wp.static(FUSED), x_inout)
         # every thread of the block reaches the reductions
         shape = (wp.static(P), wp.static(L))
         f_sum = wp.tile_sum(wp.tile_reshape(wp.tile(f, preserve_type=True), shape=shape), axis=1)
@@ -518,7 +560,7 @@ def solve_color_kernel(particles: int, lanes: int):
             return
         x_inout[i] = vertex_newton_step(step, f, H, k_contact, eps_u, h, air_damping, sc)
 
-    solve.__name__ = solve.__qualname__ = f"solve_color_p{P}_l{L}"
+    solve.__name__ = solve.__qualname__ = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}"
     kernel = wp.kernel(solve, enable_backward=False, module="unique")
     _SOLVE_KERNELS[key] = kernel
     return kernel
