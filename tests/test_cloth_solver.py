@@ -535,9 +535,9 @@ def test_the_solve_does_not_depend_on_its_lanes(device):
     split) computes the same Gauss-Seidel step: from one state of two draped sheets in
     self-contact, a step with the automatic layout (16 x 8 at this size), with 4 x 32 (the layout
     of large batches) and with 1 x 64 ends at the same positions to float32 round-off (the lanes
-    and the gather only change the summation order). One step
-    from a shared state: over several frames contact switching amplifies round-off into
-    centimetres, which says nothing about the layouts. On the CPU every layout is one thread
+    and the gather only change the summation order). One step from a shared state: over several
+    frames contact switching amplifies round-off into centimetres, which says nothing about the
+    layouts. On the CPU every layout is one thread
     per particle: the steps must match exactly but for the gather, which orders a particle's
     sums by kind (split) or by item (fused)."""
     from sim.cloth.solver_vbd import AUTO_LANES_PARTICLES, auto_lanes

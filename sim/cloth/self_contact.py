@@ -346,8 +346,8 @@ def self_contact_force_hessian(
 
     The pairs come from the vertex's gather records (``vertex_summary_kernel``: the pair's
     vertices, the vertex's role and the side reference in one place), so a pair costs one
-    record load, then its positions. (The solve kernel reads the records in its own fused loop,
-    ``vbd_kernels.vertex_share_force_hessian``; this is the reference of the tests.) A vertex
+    record load, then its positions. (The solve's split gather calls this; its fused gather reads
+    the records in its own loop, ``vbd_kernels.vertex_share_force_hessian``.) A vertex
     whose records did not fit in the pool (``pair_first < 0``) is gathered from the lists
     (``self_contact_list_force_hessian``)."""
     f = wp.vec3(0.0)

@@ -98,7 +98,7 @@ class BodyCollider:
         self.indices = w.array(f.reshape(-1), dtype=w.int32, device=device)
         # a top-down SAH tree (built on the host, refit on the device each substep): its
         # closest-point queries ran 25-30 % faster on an H100 than the default CUDA LBVH's
-        # (session 14, the body's upper half at walk and run frames, `.gpu_data/s14_bq.py`)
+        # (session 14, the body's upper half at walk and run frames, ``benchmarks/profile_body_query.py``)
         self.mesh = w.Mesh(points=self.points, indices=self.indices, velocities=self.velocities,
                            bvh_constructor="sah")
 
