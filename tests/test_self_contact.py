@@ -140,7 +140,7 @@ def _force_kernel(x: wp.array(dtype=wp.vec3), tri_indices: wp.array(dtype=wp.vec
                   vt_local: wp.array(dtype=wp.int32), sc: SelfContactData,
                   f_out: wp.array(dtype=wp.vec3), h_out: wp.array(dtype=wp.mat33)):
     i = wp.tid()
-    f, h = self_contact_force_hessian(i, 0, 1, x, x, tri_indices, vt_off, vt_ids, vt_local, sc, 1.0e-3)
+    f, h = self_contact_force_hessian(i, 0, 1, x, x, x, tri_indices, vt_off, vt_ids, vt_local, sc, 1.0e-3)
     f_out[i] = f
     h_out[i] = h
 
@@ -372,8 +372,8 @@ def _lane_force_kernel(x: wp.array(dtype=wp.vec3), tri_indices: wp.array(dtype=w
     f = wp.vec3(0.0)
     h = wp.mat33(0.0)
     for lane in range(stride):
-        fl, hl = self_contact_force_hessian(i, lane, stride, x, x, tri_indices, vt_off, vt_ids, vt_local, sc,
-                                            1.0e-3)
+        fl, hl = self_contact_force_hessian(i, lane, stride, x, x, x, tri_indices, vt_off, vt_ids, vt_local,
+                                            sc, 1.0e-3)
         f = f + fl
         h = h + hl
     f_out[i] = f

@@ -65,8 +65,9 @@ class SelfContactData:
     ``enabled`` 0 turns everything off (the arrays may then be empty). ``heavy`` (per particle),
     ``heavy_list`` (per colour slot) and ``heavy_count`` (per colour): the vertices with more
     than ``heavy_threshold`` gather records, which the solve gives a whole thread block each
-    when their colour has at most ``heavy_cap`` of them (``heavy_partition_kernel``; cap 0:
-    off)."""
+    when their colour has at most ``heavy_cap`` of them (``vertex_summary_kernel``; cap 0:
+    off). ``particle_color`` / ``color_start``: each particle's colour, each colour's first
+    slot in the model's ``color_vertices``."""
 
     enabled: int
     use_bounds: int
@@ -115,6 +116,8 @@ class SelfContactData:
     heavy_count: wp.array(dtype=wp.int32)
     heavy_threshold: int
     heavy_cap: int
+    particle_color: wp.array(dtype=wp.int32)
+    color_start: wp.array(dtype=wp.int32)
     mesh_edges: wp.array(dtype=wp.vec2i)
     vertex_edge_offsets: wp.array(dtype=wp.int32)
     vertex_edge_ids: wp.array(dtype=wp.int32)
@@ -256,12 +259,39 @@ def record_force_hessian(y0: wp.vec3, y1: wp.vec3, y2: wp.vec3, y3: wp.vec3, z0:
 
 
 @wp.func
-def record_force_hessian_at(x: wp.array(dtype=wp.vec3), x0: wp.array(dtype=wp.vec3), q: wp.vec4i,
-                            ref: wp.vec3, role: int, sc: SelfContactData, eps_u: float):
+def read_position(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.vec3), j: int, same: int) -> wp.vec3:
+    """Vertex ``j``'s position as the solve of a colour sees it: from ``snap`` (the sweep-start
+    positions) where ``same`` is set (``j`` has the solved vertex's colour, so its own thread may
+    be writing ``x[j]`` in this launch), else the current ``x`` (Gauss-Seidel)."""
+    if same != 0:
+        return snap[j]
+    return x[j]
+
+
+@wp.func
+def same_color_mask(color: wp.array(dtype=wp.int32), c: int, q: wp.vec4i) -> int:
+    """Bit ``k`` set where vertex ``q[k]`` has colour ``c``."""
+    mask = int(0)
+    for k in range(4):
+        if color[q[k]] == c:
+            mask = mask | (1 << k)
+    return mask
+
+
+@wp.func
+def record_force_hessian_at(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.vec3),
+                            x0: wp.array(dtype=wp.vec3), q: wp.vec4i, ref: wp.vec3, role: int,
+                            sc: SelfContactData, eps_u: float):
     """``record_force_hessian`` of the pair of vertices ``q`` (a record, or a pair from the lists
-    laid out as one)."""
-    return record_force_hessian(x[q[0]], x[q[1]], x[q[2]], x[q[3]], x0[q[0]], x0[q[1]], x0[q[2]], x0[q[3]],
-                                ref, role, sc, eps_u)
+    laid out as one); ``role`` packed as in ``pair_role`` (the role in bits 0-3, the
+    same-colour mask above: those vertices are read from ``snap``, ``read_position``)."""
+    same = role >> 4
+    y0 = read_position(x, snap, q[0], same & 1)
+    y1 = read_position(x, snap, q[1], same & 2)
+    y2 = read_position(x, snap, q[2], same & 4)
+    y3 = read_position(x, snap, q[3], same & 8)
+    return record_force_hessian(y0, y1, y2, y3, x0[q[0]], x0[q[1]], x0[q[2]], x0[q[3]], ref, role & 15, sc,
+                                eps_u)
 
 
 @wp.func
@@ -270,6 +300,7 @@ def self_contact_list_force_hessian(
     lane: int,
     stride: int,
     x: wp.array(dtype=wp.vec3),
+    snap: wp.array(dtype=wp.vec3),
     x0: wp.array(dtype=wp.vec3),
     tri_indices: wp.array(dtype=wp.vec3i),
     vertex_tri_offsets: wp.array(dtype=wp.int32),
@@ -285,11 +316,14 @@ def self_contact_list_force_hessian(
     against 10 us without self-contact)."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
+    c = sc.particle_color[i]
     # i as the point of vertex-triangle pairs
     for s in range(lane, sc.vt_count[i], stride):
         tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
         ref = sc.vt_ref[i * sc.vt_capacity + s]
-        fc, hc = record_force_hessian_at(x, x0, wp.vec4i(i, tri[0], tri[1], tri[2]), ref, 0, sc, eps_u)
+        q = wp.vec4i(i, tri[0], tri[1], tri[2])
+        role = same_color_mask(sc.particle_color, c, q) << 4
+        fc, hc = record_force_hessian_at(x, snap, x0, q, ref, role, sc, eps_u)
         f = f + fc
         H = H + hc
     # i as a corner of triangles that vertices are close to: the lanes split the flattened list
@@ -303,9 +337,9 @@ def self_contact_list_force_hessian(
         t = vertex_tri_ids[kk]
         s = j - sc.tv_first[kk]
         tri = tri_indices[t]
-        u = sc.tv_vertex[t * cap + s]
-        fc, hc = record_force_hessian_at(x, x0, wp.vec4i(u, tri[0], tri[1], tri[2]), sc.tv_ref[t * cap + s],
-                                         1 + vertex_tri_local[kk], sc, eps_u)
+        q = wp.vec4i(sc.tv_vertex[t * cap + s], tri[0], tri[1], tri[2])
+        role = (1 + vertex_tri_local[kk]) | (same_color_mask(sc.particle_color, c, q) << 4)
+        fc, hc = record_force_hessian_at(x, snap, x0, q, sc.tv_ref[t * cap + s], role, sc, eps_u)
         f = f + fc
         H = H + hc
     # i as an end of edges close to other edges (lanes split the flattened stored pairs alike)
@@ -319,8 +353,9 @@ def self_contact_list_force_hessian(
         s = j - sc.ee_first[kk]
         ea = sc.mesh_edges[e]
         eb = sc.mesh_edges[sc.ee_edge[e * ecap + s]]
-        fc, hc = record_force_hessian_at(x, x0, wp.vec4i(ea[0], ea[1], eb[0], eb[1]), sc.ee_ref[e * ecap + s],
-                                         4 + sc.vertex_edge_local[kk], sc, eps_u)
+        q = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
+        role = (4 + sc.vertex_edge_local[kk]) | (same_color_mask(sc.particle_color, c, q) << 4)
+        fc, hc = record_force_hessian_at(x, snap, x0, q, sc.ee_ref[e * ecap + s], role, sc, eps_u)
         f = f + fc
         H = H + hc
     return f, H
@@ -332,6 +367,7 @@ def self_contact_force_hessian(
     lane: int,
     stride: int,
     x: wp.array(dtype=wp.vec3),
+    snap: wp.array(dtype=wp.vec3),
     x0: wp.array(dtype=wp.vec3),
     tri_indices: wp.array(dtype=wp.vec3i),
     vertex_tri_offsets: wp.array(dtype=wp.int32),
@@ -354,10 +390,11 @@ def self_contact_force_hessian(
     H = wp.mat33(0.0)
     first = sc.pair_first[i]
     if first < 0:
-        return self_contact_list_force_hessian(i, lane, stride, x, x0, tri_indices, vertex_tri_offsets,
+        return self_contact_list_force_hessian(i, lane, stride, x, snap, x0, tri_indices, vertex_tri_offsets,
                                                vertex_tri_ids, vertex_tri_local, sc, eps_u)
     for j in range(first + lane, first + sc.pair_count[i], stride):
-        fc, hc = record_force_hessian_at(x, x0, sc.pair_verts[j], sc.pair_ref[j], sc.pair_role[j], sc, eps_u)
+        fc, hc = record_force_hessian_at(x, snap, x0, sc.pair_verts[j], sc.pair_ref[j], sc.pair_role[j], sc,
+                                         eps_u)
         f = f + fc
         H = H + hc
     return f, H
@@ -705,9 +742,20 @@ def vertex_summary_kernel(
     offsets of the vertex's flattened pair lists, for the list fallback of the solve); and the
     vertex's gather records: every pair it takes part in (its VT pairs, its triangles' TV
     pairs, its edges' EE pairs, in that order) as the pair's four vertices, the vertex's role
-    in it and the pair's side reference, in one block of the shared pool (``pair_first``: -1
-    where the pool is full; the solve then reads the lists). The block's place in the pool
-    depends on the threads' order, its contents do not: the solve's sums are deterministic."""
+    in it (bits 0-3 of ``pair_role``; above them which of the four vertices have the vertex's
+    colour, ``read_position``) and the pair's side reference, in one block of the shared pool
+    (``pair_first``: -1 where the pool is full; the solve then reads the lists). The block's
+    place in the pool depends on the threads' order, its contents do not: the solve's sums are
+    deterministic.
+
+    With ``heavy_cap`` > 0 (``heavy_count`` zeroed before) it also marks the vertices with more
+    than ``heavy_threshold`` records and lists them in their colour's range of ``heavy_list``
+    (a separate launch until session 15). The solve gives each a whole thread block
+    (``vbd_kernels.solve_color_kernel``) when the colour has at most ``heavy_cap`` of them, so
+    the few vertices of a dense fold (session 13: up to 160 records against a mean of 2-6) no
+    longer set the length of every launch at a round of records per 16 lanes. The list's order
+    follows the threads' order; which vertices are in it does not, and each is solved the same
+    wherever it sits."""
     i = wp.tid()
     b = dmin_vertex[i]
     tv = int(0)
@@ -729,25 +777,34 @@ def vertex_summary_kernel(
     total = vt + tv + ee
     sc.pair_count[i] = total
     first = int(0)
+    sc.heavy[i] = 0
     if total > 0:
         first = wp.atomic_add(sc.pair_cursor, 0, total)
         if first + total > sc.pool_size:
             sc.pair_first[i] = -1
             return
     sc.pair_first[i] = first
+    c = sc.particle_color[i]
+    if sc.heavy_cap > 0 and total > sc.heavy_threshold:
+        k = wp.atomic_add(sc.heavy_count, c, 1)
+        sc.heavy[i] = 1
+        if k < sc.heavy_cap:
+            sc.heavy_list[sc.color_start[c] + k] = i
     r = first
     for s in range(vt):
         tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
-        sc.pair_verts[r] = wp.vec4i(i, tri[0], tri[1], tri[2])
-        sc.pair_role[r] = 0
+        q = wp.vec4i(i, tri[0], tri[1], tri[2])
+        sc.pair_verts[r] = q
+        sc.pair_role[r] = same_color_mask(sc.particle_color, c, q) << 4
         sc.pair_ref[r] = sc.vt_ref[i * sc.vt_capacity + s]
         r += 1
     for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
         t = vertex_tri_ids[k]
         tri = tri_indices[t]
         for s in range(sc.tv_count[t]):
-            sc.pair_verts[r] = wp.vec4i(sc.tv_vertex[t * sc.tv_capacity + s], tri[0], tri[1], tri[2])
-            sc.pair_role[r] = 1 + vertex_tri_local[k]
+            q = wp.vec4i(sc.tv_vertex[t * sc.tv_capacity + s], tri[0], tri[1], tri[2])
+            sc.pair_verts[r] = q
+            sc.pair_role[r] = (1 + vertex_tri_local[k]) | (same_color_mask(sc.particle_color, c, q) << 4)
             sc.pair_ref[r] = sc.tv_ref[t * sc.tv_capacity + s]
             r += 1
     for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
@@ -755,37 +812,11 @@ def vertex_summary_kernel(
         ea = sc.mesh_edges[e]
         for s in range(sc.ee_count[e]):
             eb = sc.mesh_edges[sc.ee_edge[e * sc.ee_capacity + s]]
-            sc.pair_verts[r] = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
-            sc.pair_role[r] = 4 + sc.vertex_edge_local[k]
+            q = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
+            sc.pair_verts[r] = q
+            sc.pair_role[r] = (4 + sc.vertex_edge_local[k]) | (same_color_mask(sc.particle_color, c, q) << 4)
             sc.pair_ref[r] = sc.ee_ref[e * sc.ee_capacity + s]
             r += 1
-
-
-@wp.kernel
-def heavy_partition_kernel(
-    color_vertices: wp.array(dtype=wp.int32),
-    slot_color: wp.array(dtype=wp.int32),
-    color_start: wp.array(dtype=wp.int32),
-    sc: SelfContactData,
-):
-    """Per colour slot, once per detection (after ``vertex_summary_kernel``, ``heavy_count``
-    zeroed): mark the vertices with more than ``heavy_threshold`` gather records and list them
-    in their colour's range of ``heavy_list``. The solve gives each a whole thread block
-    (``vbd_kernels.solve_color_kernel``) when the colour has at most ``heavy_cap`` of them, so
-    the few vertices of a dense fold (session 13: up to 160 records against a mean of 2-6) no
-    longer set the length of every launch at a round of records per 16 lanes. The list's
-    order follows the threads' order; which vertices are in it does not, and each is solved
-    the same wherever it sits, so the solve stays deterministic."""
-    p = wp.tid()
-    i = color_vertices[p]
-    sc.heavy[i] = 0
-    if sc.pair_first[i] < 0 or sc.pair_count[i] <= sc.heavy_threshold:
-        return
-    c = slot_color[p]
-    k = wp.atomic_add(sc.heavy_count, c, 1)
-    sc.heavy[i] = 1
-    if k < sc.heavy_cap:
-        sc.heavy_list[color_start[c] + k] = i
 
 
 class SelfContact:
@@ -813,7 +844,7 @@ class SelfContact:
         pool: gather records per vertex on average (``vertex_summary_kernel``); a vertex whose
             records do not fit is gathered from the lists, slower but the same forces.
         heavy_cap: vertices per colour with more than ``heavy_threshold`` records that the solve
-            gives a thread block each (``heavy_partition_kernel``); 0: none.
+            gives a thread block each (``vertex_summary_kernel``); 0: none.
         heavy_threshold: records above which a vertex is heavy (the solve's lanes per particle:
             more takes a vertex more than one round of its lanes).
     """
@@ -880,9 +911,14 @@ class SelfContact:
         sc.heavy = w.zeros(n, dtype=w.int32, device=d)
         sc.heavy_list = w.zeros(n, dtype=w.int32, device=d)
         sc.heavy_count = w.zeros(max(len(offsets) - 1, 1), dtype=w.int32, device=d)
-        self._color_start = w.array(offsets[:-1], dtype=w.int32, device=d)
-        self._slot_color = w.array(np.repeat(np.arange(len(offsets) - 1, dtype=np.int32), np.diff(offsets)),
-                                   dtype=w.int32, device=d)
+        color = np.zeros(n, dtype=np.int32)
+        color[model.color_vertices.numpy()] = np.repeat(np.arange(len(offsets) - 1, dtype=np.int32),
+                                                        np.diff(offsets))
+        sc.particle_color = w.array(color, dtype=w.int32, device=d)
+        # the positions at the start of the solve's sweep, for the partners of a vertex's
+        # pairs that share its colour; the sweeps alternate between the two (``snapshots``)
+        self.snapshots = (w.zeros(n, dtype=w.vec3, device=d), w.zeros(n, dtype=w.vec3, device=d))
+        sc.color_start = w.array(offsets[:-1], dtype=w.int32, device=d)
         sc.rest = model.particle_rest
         sc.component = w.array(self._components(model), dtype=w.int32, device=d)
         sc.exclusion = max(float(rest_exclusion), float(radius))
@@ -973,13 +1009,11 @@ class SelfContact:
                 query(x0, v, h)
         self._side.join()
         sc.pair_cursor.zero_()
+        if sc.heavy_cap > 0:
+            sc.heavy_count.zero_()
         w.launch(vertex_summary_kernel, dim=m.particle_count,
                  inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.tri_indices, m.vertex_tri_offsets,
                          m.vertex_tri_ids, m.vertex_tri_local, self.relaxation, sc], device=d)
-        if sc.heavy_cap > 0:
-            sc.heavy_count.zero_()
-            w.launch(heavy_partition_kernel, dim=m.particle_count,
-                     inputs=[m.color_vertices, self._slot_color, self._color_start, sc], device=d)
 
 
 def disabled_data(device) -> SelfContactData:
@@ -1004,6 +1038,7 @@ def disabled_data(device) -> SelfContactData:
     sc.heavy = sc.heavy_list = sc.heavy_count = empty_i
     sc.heavy_threshold = 0
     sc.heavy_cap = 0
+    sc.particle_color = sc.color_start = empty_i
     sc.mesh_edges = w.zeros(1, dtype=w.vec2i, device=device)
     sc.bound = w.zeros(1, dtype=float, device=device)
     sc.vt_dist = sc.tv_dist = sc.ee_dist = sc.bound

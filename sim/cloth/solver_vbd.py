@@ -17,6 +17,8 @@ over the vertex colouring. Per substep:
    with speeds measured relative to each instance's ``control.instance_velocity``;
 5. ``iterations`` x colours launches of the solve kernel (``solve_color_kernel(particles,
    lanes)``), each iteration followed by ``chebyshev_kernel`` when ``chebyshev_rho`` > 0;
+   self-contact partners of a vertex's own colour are read from the sweep-start snapshot, so
+   the step does not depend on the order of the GPU's threads;
 6. ``velocity_kernel``.
 
 Substep safety: contact is found against the body where it will be at the end of each
@@ -296,9 +298,12 @@ class SolverVBD:
                 relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool,
                 heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes)
             self._sc_data = self.self_contact.data
+            self._snapshots = self.self_contact.snapshots
         else:
             self.self_contact = None
             self._sc_data = disabled_data(d)
+            placeholder = wp.zeros(1, dtype=wp.vec3, device=d)
+            self._snapshots = (placeholder, placeholder)
 
     def heavy_cap(self, cuda: bool) -> int:
         """Heavy-vertex blocks per colour launch (``VBDConfig.self_contact_heavy_cap``; -1: auto,
@@ -308,10 +313,13 @@ class SolverVBD:
             return cap
         return AUTO_HEAVY_CAP * self.model.instance_count if cuda and self._lanes >= 8 else 0
 
-    def sweep(self, x, sc_data, eps_u: float, h: float) -> None:
+    def sweep(self, x, sc_data, eps_u: float, h: float, parity: int = 0) -> None:
         """One Gauss-Seidel sweep: the solve kernel over every colour, updating ``x`` in place
-        against the substep's current buffers (``sc_data``: the self-contact data to use)."""
+        against the substep's current buffers (``sc_data``: the self-contact data to use). Sweep
+        ``k`` of a substep has ``parity`` ``k % 2``: it reads same-colour contact partners from
+        snapshot ``parity`` (which must hold ``x``) and writes snapshot ``1 - parity``."""
         wp = warp()
+        snap, snap_out = self._snapshots[parity], self._snapshots[1 - parity]
         m = self.model
         cfg = self.config
         heavy = sc_data.heavy_cap if sc_data.enabled else 0
@@ -328,8 +336,8 @@ class SolverVBD:
                         m.vertex_tri_ids, m.vertex_tri_local, *self._vertex_hinges, self._contact_point,
                         self._contact_normal, self._contact_body_velocity, self._contact_active,
                         m.instance_thickness, m.instance_friction, cfg.contact_stiffness, eps_u, h,
-                        cfg.air_damping, sc_data],
-                outputs=[x], device=m.device)
+                        cfg.air_damping, sc_data, snap],
+                outputs=[x, snap_out], device=m.device)
 
     def step(self, state_in: ClothState, state_out: ClothState, control: ClothControl, dt: float) -> None:
         """Advance by ``dt`` [s]; ``state_out`` may be ``state_in``.
@@ -351,15 +359,15 @@ class SolverVBD:
         wp.copy(self._x_step_start, x)
         h = dt / cfg.substeps
         eps_u = cfg.friction_epsilon * h
+        snapshot = 1 if self.self_contact is not None else 0
         for s in range(cfg.substeps):
             alpha = (s + 1) / cfg.substeps
             for body in control.bodies:
                 body.place(alpha, dt)
             wp.launch(K.forward_kernel, dim=n,
                       inputs=[x, v, state_out.accelerations, m.particle_flags, self._x_step_start,
-                              control.pin_targets,
-                              self._gravity, h, alpha],
-                      outputs=[self._x_prev, self._y, x], device=d)
+                              control.pin_targets, self._gravity, h, alpha, snapshot],
+                      outputs=[self._x_prev, self._y, x, self._snapshots[0]], device=d)
             wp.launch(K.previous_deformation_kernel, dim=m.tri_count + m.edge_count,
                       inputs=[self._x_prev, m.tri_indices, m.tri_dm_inv, m.edge_indices, m.tri_count],
                       outputs=[self._tri_strain_prev, self._edge_angle_prev], device=d)
@@ -382,9 +390,11 @@ class SolverVBD:
             if self._omegas:
                 wp.copy(self._cheb_prev1, x)
             for it in range(cfg.iterations):
-                self.sweep(x, self._sc_data, eps_u, h)
+                self.sweep(x, self._sc_data, eps_u, h, it % 2)
                 if self._omegas:
-                    wp.launch(K.chebyshev_kernel, dim=n, inputs=[self._omegas[it], m.particle_flags],
-                              outputs=[x, self._cheb_prev1, self._cheb_prev2], device=d)
+                    wp.launch(K.chebyshev_kernel, dim=n,
+                              inputs=[self._omegas[it], m.particle_flags, snapshot],
+                              outputs=[x, self._cheb_prev1, self._cheb_prev2, self._snapshots[(it + 1) % 2]],
+                              device=d)
             wp.launch(K.velocity_kernel, dim=n, inputs=[x, self._x_prev, 1.0 / h],
                       outputs=[v, state_out.accelerations], device=d)

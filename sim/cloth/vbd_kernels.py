@@ -23,6 +23,7 @@ from sim.cloth.energies import (
 from sim.cloth.self_contact import (
     SelfContactData,
     apply_bound,
+    read_position,
     record_force_hessian,
     self_contact_force_hessian,
     self_contact_list_force_hessian,
@@ -44,9 +45,11 @@ def forward_kernel(
     gravity: wp.vec3,
     h: float,
     pin_alpha: float,
+    snapshot: int,
     x_prev_out: wp.array(dtype=wp.vec3),
     y_out: wp.array(dtype=wp.vec3),
     x_out: wp.array(dtype=wp.vec3),
+    snap_out: wp.array(dtype=wp.vec3),
 ):
     """Start a substep: remember ``x``, inertial target ``y = x + h v + h^2 g`` (Eq. 2) and the
     initial guess ``x + h v + h^2 a_g g/|g|`` with ``a_g`` the previous substep's acceleration
@@ -55,7 +58,8 @@ def forward_kernel(
     With a truncated iteration count the inertial guess ``y`` biases resting cloth (the fixed
     point of a few sweeps started from ``y`` is not the equilibrium); the adaptive guess is
     ``x`` at rest and ``y`` in free fall. Pinned particles move linearly from their
-    step-start position to the pin target.
+    step-start position to the pin target. With ``snapshot`` the guess also goes to
+    ``snap_out``, the first sweep's snapshot (``solve_color_kernel``).
     """
     i = wp.tid()
     xi = x[i]
@@ -65,6 +69,8 @@ def forward_kernel(
         p = s + pin_alpha * (pin_targets[i] - s)
         y_out[i] = p
         x_out[i] = p
+        if snapshot != 0:
+            snap_out[i] = p
     else:
         vi = v[i]
         y_out[i] = xi + h * vi + (h * h) * gravity
@@ -75,6 +81,8 @@ def forward_kernel(
             a_g = wp.clamp(wp.dot(a[i], g_dir), 0.0, g_len)
             guess = guess + (h * h * a_g) * g_dir
         x_out[i] = guess
+        if snapshot != 0:
+            snap_out[i] = guess
 
 
 @wp.kernel
@@ -213,6 +221,7 @@ def vertex_share_force_hessian(
     sc: SelfContactData,
     fused: int,
     x: wp.array(dtype=wp.vec3),
+    snap: wp.array(dtype=wp.vec3),
 ):
     """This lane's share (items ``lane, lane + stride, ...``) of the membrane, bending and
     self-contact force on particle ``i`` and their Hessian blocks, with strain-rate damping
@@ -250,8 +259,9 @@ def vertex_share_force_hessian(
             f = f + fb
             H = H + hb
         if sc.enabled != 0:
-            fs, hs = self_contact_force_hessian(i, lane, stride, x, x_prev, tri_indices, vertex_tri_offsets,
-                                                vertex_tri_ids, vertex_tri_local, sc, eps_u)
+            fs, hs = self_contact_force_hessian(i, lane, stride, x, snap, x_prev, tri_indices,
+                                                vertex_tri_offsets, vertex_tri_ids, vertex_tri_local, sc,
+                                                eps_u)
             f = f + fs
             H = H + hs
         return f, H
@@ -278,7 +288,7 @@ def vertex_share_force_hessian(
         e = vertex_edge_ids[ke]
         e_local = vertex_edge_local[ke]
         q = sc.pair_verts[kr]
-        role = sc.pair_role[kr]
+        packed = sc.pair_role[kr]
         ref = sc.pair_ref[kr]
         tri = tri_indices[t]
         dm_inv = tri_dm_inv[t]
@@ -299,10 +309,11 @@ def vertex_share_force_hessian(
         h1 = x[hinge[1]]
         h2 = x[hinge[2]]
         h3 = x[hinge[3]]
-        y0 = x[q[0]]
-        y1 = x[q[1]]
-        y2 = x[q[2]]
-        y3 = x[q[3]]
+        same = packed >> 4
+        y0 = read_position(x, snap, q[0], same & 1)
+        y1 = read_position(x, snap, q[1], same & 2)
+        y2 = read_position(x, snap, q[2], same & 4)
+        y3 = read_position(x, snap, q[3], same & 8)
         z0 = x_prev[q[0]]
         z1 = x_prev[q[1]]
         z2 = x_prev[q[2]]
@@ -318,12 +329,13 @@ def vertex_share_force_hessian(
             f = f + fb
             H = H + hb
         if r < rec_n:
-            fs, hs = record_force_hessian(y0, y1, y2, y3, z0, z1, z2, z3, ref, role, sc, eps_u)
+            fs, hs = record_force_hessian(y0, y1, y2, y3, z0, z1, z2, z3, ref, packed & 15, sc, eps_u)
             f = f + fs
             H = H + hs
     if lists:
-        fs, hs = self_contact_list_force_hessian(i, lane, stride, x, x_prev, tri_indices, vertex_tri_offsets,
-                                                 vertex_tri_ids, vertex_tri_local, sc, eps_u)
+        fs, hs = self_contact_list_force_hessian(i, lane, stride, x, snap, x_prev, tri_indices,
+                                                 vertex_tri_offsets, vertex_tri_ids, vertex_tri_local, sc,
+                                                 eps_u)
         f = f + fs
         H = H + hs
     return f, H
@@ -453,7 +465,17 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
     fill the 32-thread warps and the SM's block slots (a 16-thread block leaves half of every
     warp idle and caps occupancy at a quarter). One kernel per (particles, lanes), compiled in
     its own module and cached. ``fused``: the gather of ``vertex_share_force_hessian`` (None:
-    fused from ``FUSED_LANES`` lanes per particle)."""
+    fused from ``FUSED_LANES`` lanes per particle).
+
+    Race-free self-contact (session 15): the colouring separates the vertices of every
+    triangle and hinge, but a self-contact pair found at run time can join two vertices of one
+    colour, and a thread reading its partner's ``x`` while the partner's thread writes it made
+    CUDA runs timing-dependent. Such partners (the same-colour bits of a gather record) are
+    read from ``snap``, the positions at the start of the sweep; every solved particle writes
+    its new position to ``snap_out``, the next sweep's snapshot (the solver alternates the
+    two). Partners of other colours are read from ``x`` as before (Gauss-Seidel). The step no
+    longer depends on the order of the threads: every layout, gather and device takes the same
+    step up to round-off."""
     if fused is None:
         fused = lanes >= FUSED_LANES
     key = (int(particles), int(lanes), bool(fused))
@@ -502,7 +524,9 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
         h: float,
         air_damping: float,
         sc: SelfContactData,
+        snap: wp.array(dtype=wp.vec3),
         x_inout: wp.array(dtype=wp.vec3),
+        snap_out: wp.array(dtype=wp.vec3),
     ):
         block, thread = wp.tid()
         local = thread // wp.static(L)
@@ -545,7 +569,7 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
                 i, share, stride, membrane, x_prev, tri_indices, tri_dm_inv, tri_area, tri_mu, tri_lam,
                 tri_damping, tri_strain_prev, edge_indices, edge_rest_angle, edge_stiffness, edge_damping,
                 edge_angle_prev, vertex_tri_offsets, vertex_tri_ids, vertex_tri_local, vertex_edge_offsets,
-                vertex_edge_ids, vertex_edge_local, eps_u, 1.0 / h, sc, wp.static(FUSED), x_inout)
+                vertex_edge_ids, vertex_edge_local, eps_u, 1.0 / h, sc, wp.static(FUSED), x_inout, snap)
         # every thread of the block reaches the reductions
         shape = (wp.static(P), wp.static(L))
         f_sum = wp.tile_sum(wp.tile_reshape(wp.tile(f, preserve_type=True), shape=shape), axis=1)
@@ -556,9 +580,14 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
             for k in range(1, wp.static(P)):
                 f = f + wp.tile_extract(f_sum, (local + k) % wp.static(P))
                 H = H + wp.tile_extract(H_sum, (local + k) % wp.static(P))
-        if not solver or step.flags == PINNED:
+        if not solver:
             return
-        x_inout[i] = vertex_newton_step(step, f, H, k_contact, eps_u, h, air_damping, sc)
+        x_new = step.x
+        if step.flags != PINNED:
+            x_new = vertex_newton_step(step, f, H, k_contact, eps_u, h, air_damping, sc)
+            x_inout[i] = x_new
+        if sc.enabled != 0:
+            snap_out[i] = x_new
 
     solve.__name__ = solve.__qualname__ = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}"
     kernel = wp.kernel(solve, enable_backward=False, module="unique")
@@ -570,14 +599,17 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
 def chebyshev_kernel(
     omega: float,
     flags: wp.array(dtype=wp.int32),
+    snapshot: int,
     x_inout: wp.array(dtype=wp.vec3),
     prev1_inout: wp.array(dtype=wp.vec3),
     prev2_inout: wp.array(dtype=wp.vec3),
+    snap_out: wp.array(dtype=wp.vec3),
 ):
     """Chebyshev semi-iterative acceleration of the sweeps (Wang 2015; Chen et al. 2024,
     Sec. 3.8): ``x_k = x_{k-2} + omega_k (xbar_k - x_{k-2})`` with ``xbar_k`` the sweep's
     result; ``prev1``/``prev2`` hold ``x_{k-1}``/``x_{k-2}`` and are shifted. Pinned particles
-    keep the sweep's (prescribed) position."""
+    keep the sweep's (prescribed) position. With ``snapshot`` the result also goes to
+    ``snap_out`` (the next sweep's snapshot, ``solve_color_kernel``)."""
     i = wp.tid()
     xb = x_inout[i]
     p1 = prev1_inout[i]
@@ -588,6 +620,8 @@ def chebyshev_kernel(
     prev2_inout[i] = p1
     prev1_inout[i] = xa
     x_inout[i] = xa
+    if snapshot != 0:
+        snap_out[i] = xa
 
 
 @wp.kernel
