@@ -237,21 +237,39 @@ def test_hinges_and_coloring():
     b = ClothModelBuilder()
     b.add_cloth(v, f, ClothMaterialParams())
     m = b.finalize("cpu")
-    assert validate_coloring(vertex_adjacency(len(v), f, hinges), m.colors)
+    no_hinges = np.zeros((0, 4), np.int64)
+    assert validate_coloring(vertex_adjacency(len(v), f, no_hinges), m.colors)
+    # the hinges' opposite vertices may share a colour: bits 2-5 of vertex_edge_local say which
+    # of a hinge's vertices have the vertex's colour (the solve reads those from its snapshot)
+    offsets = m.vertex_edge_offsets.numpy()
+    ids, packed = m.vertex_edge_ids.numpy(), m.vertex_edge_local.numpy()
+    shared = 0
+    for i in range(len(v)):
+        for k in range(offsets[i], offsets[i + 1]):
+            q = hinges[ids[k]]
+            local = packed[k] & 3
+            assert q[local] == i
+            expect = sum(1 << j for j in range(4) if j != local and m.colors[q[j]] == m.colors[i])
+            assert packed[k] >> 2 == expect
+            if expect:
+                assert local in (0, 1) and expect == 1 << (1 - local)  # only the other opposite vertex
+                shared += 1
+    assert shared > 0  # the case the snapshot serves occurs
 
 
 def test_compact_coloring_needs_fewer_colours_than_greedy_on_a_tshirt():
-    """Every colour is one launch per sweep: the t-shirt template's dependency graph (triangle
-    edges plus hinge diagonals) gets 6 colours where degree-ordered greedy needs 8."""
+    """Every colour is one launch per sweep: the t-shirt template's triangle graph (the model's
+    colouring since session 15; with the hinge diagonals too it needed 6) gets 4 colours where
+    degree-ordered greedy needs 6."""
     from sim.bodies.default import load_default_body
     from sim.garments import make_garment
 
     g = make_garment("t_shirt", load_default_body(), None, resolution=0.04)
-    nb = vertex_adjacency(len(g.rest_vertices), g.faces, build_hinges(g.faces))
+    nb = vertex_adjacency(len(g.rest_vertices), g.faces, np.zeros((0, 4), np.int64))
     greedy, dsatur, compact = greedy_coloring(nb), dsatur_coloring(nb), compact_coloring(nb)
     for c in (greedy, dsatur, compact):
         assert validate_coloring(nb, c)
-    assert compact.max() + 1 == 6 < greedy.max() + 1
+    assert compact.max() + 1 == 4 < greedy.max() + 1
     assert compact.max() <= dsatur.max()
     sizes = np.bincount(compact)
     assert np.all(sizes > 0) and np.all(np.diff(sizes) <= 0)  # no empty launch, largest first
@@ -501,8 +519,9 @@ def test_chebyshev_acceleration_converges_further_per_sweep(device):
 
 
 def draped_layers_in_contact(device):
-    """Two 12 x 12 sheets 6 mm apart, pinned at two corners, after 6 frames of draping into
-    self-contact: (model, positions, velocities)."""
+    """Two 12 x 12 sheets 6 mm apart, pinned at two corners, after 3 or more frames of draping
+    into self-contact (the first frame from the third on where they are): (model, positions,
+    velocities)."""
     n = 12
     v, f = grid(n, n, 0.3, 0.3, plane="xz")
     x = np.concatenate([v, v + np.array([0.004, 0.006, 0.003], np.float32)])
@@ -512,8 +531,10 @@ def draped_layers_in_contact(device):
     m = b.finalize(device)
     first = SolverVBD(m, VBDConfig(substeps=4, iterations=4, self_contact=True))
     state = m.state()
-    for _ in range(6):
+    for frame in range(12):
         first.step(state, state, m.control(), 1.0 / 30.0)
+        if frame >= 2 and first.self_contact.data.pair_count.numpy().mean() > 0.5:
+            break
     assert first.self_contact.data.pair_count.numpy().mean() > 0.5  # the layers are in contact
     return m, state.positions.numpy().copy(), state.velocities.numpy().copy()
 

@@ -915,9 +915,6 @@ class SelfContact:
         color[model.color_vertices.numpy()] = np.repeat(np.arange(len(offsets) - 1, dtype=np.int32),
                                                         np.diff(offsets))
         sc.particle_color = w.array(color, dtype=w.int32, device=d)
-        # the positions at the start of the solve's sweep, for the partners of a vertex's
-        # pairs that share its colour; the sweeps alternate between the two (``snapshots``)
-        self.snapshots = (w.zeros(n, dtype=w.vec3, device=d), w.zeros(n, dtype=w.vec3, device=d))
         sc.color_start = w.array(offsets[:-1], dtype=w.int32, device=d)
         sc.rest = model.particle_rest
         sc.component = w.array(self._components(model), dtype=w.int32, device=d)

@@ -17,8 +17,9 @@ over the vertex colouring. Per substep:
    with speeds measured relative to each instance's ``control.instance_velocity``;
 5. ``iterations`` x colours launches of the solve kernel (``solve_color_kernel(particles,
    lanes)``), each iteration followed by ``chebyshev_kernel`` when ``chebyshev_rho`` > 0;
-   self-contact partners of a vertex's own colour are read from the sweep-start snapshot, so
-   the step does not depend on the order of the GPU's threads;
+   neighbours of a vertex's own colour (a hinge's opposite vertex, self-contact partners) are
+   read from the sweep-start snapshot, so the step does not depend on the order of the GPU's
+   threads;
 6. ``velocity_kernel``.
 
 Substep safety: contact is found against the body where it will be at the end of each
@@ -298,12 +299,12 @@ class SolverVBD:
                 relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool,
                 heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes)
             self._sc_data = self.self_contact.data
-            self._snapshots = self.self_contact.snapshots
         else:
             self.self_contact = None
             self._sc_data = disabled_data(d)
-            placeholder = wp.zeros(1, dtype=wp.vec3, device=d)
-            self._snapshots = (placeholder, placeholder)
+        # the positions at the start of each sweep, for same-colour neighbours (hinge opposites,
+        # contact partners); the sweeps alternate between the two (``sweep``)
+        self._snapshots = (wp.zeros(n, dtype=wp.vec3, device=d), wp.zeros(n, dtype=wp.vec3, device=d))
 
     def heavy_cap(self, cuda: bool) -> int:
         """Heavy-vertex blocks per colour launch (``VBDConfig.self_contact_heavy_cap``; -1: auto,
@@ -317,7 +318,9 @@ class SolverVBD:
         """One Gauss-Seidel sweep: the solve kernel over every colour, updating ``x`` in place
         against the substep's current buffers (``sc_data``: the self-contact data to use). Sweep
         ``k`` of a substep has ``parity`` ``k % 2``: it reads same-colour contact partners from
-        snapshot ``parity`` (which must hold ``x``) and writes snapshot ``1 - parity``."""
+        snapshot ``parity`` (which must hold ``x``) and writes snapshot ``1 - parity``: the
+        neighbours of a particle's own colour (hinge opposites, contact partners) are read from
+        it."""
         wp = warp()
         snap, snap_out = self._snapshots[parity], self._snapshots[1 - parity]
         m = self.model
@@ -359,14 +362,13 @@ class SolverVBD:
         wp.copy(self._x_step_start, x)
         h = dt / cfg.substeps
         eps_u = cfg.friction_epsilon * h
-        snapshot = 1 if self.self_contact is not None else 0
         for s in range(cfg.substeps):
             alpha = (s + 1) / cfg.substeps
             for body in control.bodies:
                 body.place(alpha, dt)
             wp.launch(K.forward_kernel, dim=n,
                       inputs=[x, v, state_out.accelerations, m.particle_flags, self._x_step_start,
-                              control.pin_targets, self._gravity, h, alpha, snapshot],
+                              control.pin_targets, self._gravity, h, alpha],
                       outputs=[self._x_prev, self._y, x, self._snapshots[0]], device=d)
             wp.launch(K.previous_deformation_kernel, dim=m.tri_count + m.edge_count,
                       inputs=[self._x_prev, m.tri_indices, m.tri_dm_inv, m.edge_indices, m.tri_count],
@@ -393,7 +395,7 @@ class SolverVBD:
                 self.sweep(x, self._sc_data, eps_u, h, it % 2)
                 if self._omegas:
                     wp.launch(K.chebyshev_kernel, dim=n,
-                              inputs=[self._omegas[it], m.particle_flags, snapshot],
+                              inputs=[self._omegas[it], m.particle_flags],
                               outputs=[x, self._cheb_prev1, self._cheb_prev2, self._snapshots[(it + 1) % 2]],
                               device=d)
             wp.launch(K.velocity_kernel, dim=n, inputs=[x, self._x_prev, 1.0 / h],

@@ -45,7 +45,6 @@ def forward_kernel(
     gravity: wp.vec3,
     h: float,
     pin_alpha: float,
-    snapshot: int,
     x_prev_out: wp.array(dtype=wp.vec3),
     y_out: wp.array(dtype=wp.vec3),
     x_out: wp.array(dtype=wp.vec3),
@@ -58,8 +57,8 @@ def forward_kernel(
     With a truncated iteration count the inertial guess ``y`` biases resting cloth (the fixed
     point of a few sweeps started from ``y`` is not the equilibrium); the adaptive guess is
     ``x`` at rest and ``y`` in free fall. Pinned particles move linearly from their
-    step-start position to the pin target. With ``snapshot`` the guess also goes to
-    ``snap_out``, the first sweep's snapshot (``solve_color_kernel``).
+    step-start position to the pin target. The guess also goes to ``snap_out``, the first
+    sweep's snapshot (``solve_color_kernel``).
     """
     i = wp.tid()
     xi = x[i]
@@ -69,8 +68,7 @@ def forward_kernel(
         p = s + pin_alpha * (pin_targets[i] - s)
         y_out[i] = p
         x_out[i] = p
-        if snapshot != 0:
-            snap_out[i] = p
+        snap_out[i] = p
     else:
         vi = v[i]
         y_out[i] = xi + h * vi + (h * h) * gravity
@@ -81,8 +79,7 @@ def forward_kernel(
             a_g = wp.clamp(wp.dot(a[i], g_dir), 0.0, g_len)
             guess = guess + (h * h * a_g) * g_dir
         x_out[i] = guess
-        if snapshot != 0:
-            snap_out[i] = guess
+        snap_out[i] = guess
 
 
 @wp.kernel
@@ -252,10 +249,15 @@ def vertex_share_force_hessian(
         for k in range(vertex_edge_offsets[i] + lane, vertex_edge_offsets[i + 1], stride):
             e = vertex_edge_ids[k]
             q = edge_indices[e]
-            fb, hb = bending_damped_vertex_force_hessian(x[q[0]], x[q[1]], x[q[2]], x[q[3]],
+            packed = vertex_edge_local[k]
+            same = packed >> 2
+            fb, hb = bending_damped_vertex_force_hessian(read_position(x, snap, q[0], same & 1),
+                                                         read_position(x, snap, q[1], same & 2),
+                                                         read_position(x, snap, q[2], same & 4),
+                                                         read_position(x, snap, q[3], same & 8),
                                                          edge_rest_angle[e], edge_stiffness[e],
                                                          edge_angle_prev[e], edge_damping[e] * inv_h,
-                                                         vertex_edge_local[k])
+                                                         packed & 3)
             f = f + fb
             H = H + hb
         if sc.enabled != 0:
@@ -286,7 +288,7 @@ def vertex_share_force_hessian(
         t = vertex_tri_ids[kt]
         t_local = vertex_tri_local[kt]
         e = vertex_edge_ids[ke]
-        e_local = vertex_edge_local[ke]
+        e_packed = vertex_edge_local[ke]
         q = sc.pair_verts[kr]
         packed = sc.pair_role[kr]
         ref = sc.pair_ref[kr]
@@ -305,10 +307,11 @@ def vertex_share_force_hessian(
         xa = x[tri[0]]
         xb = x[tri[1]]
         xc = x[tri[2]]
-        h0 = x[hinge[0]]
-        h1 = x[hinge[1]]
-        h2 = x[hinge[2]]
-        h3 = x[hinge[3]]
+        e_same = e_packed >> 2
+        h0 = read_position(x, snap, hinge[0], e_same & 1)
+        h1 = read_position(x, snap, hinge[1], e_same & 2)
+        h2 = read_position(x, snap, hinge[2], e_same & 4)
+        h3 = read_position(x, snap, hinge[3], e_same & 8)
         same = packed >> 4
         y0 = read_position(x, snap, q[0], same & 1)
         y1 = read_position(x, snap, q[1], same & 2)
@@ -325,7 +328,7 @@ def vertex_share_force_hessian(
             H = H + he
         if r < edge_n:
             fb, hb = bending_damped_vertex_force_hessian(h0, h1, h2, h3, rest_angle, k_edge, angle_prev,
-                                                         e_damp * inv_h, e_local)
+                                                         e_damp * inv_h, e_packed & 3)
             f = f + fb
             H = H + hb
         if r < rec_n:
@@ -467,15 +470,16 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
     its own module and cached. ``fused``: the gather of ``vertex_share_force_hessian`` (None:
     fused from ``FUSED_LANES`` lanes per particle).
 
-    Race-free self-contact (session 15): the colouring separates the vertices of every
-    triangle and hinge, but a self-contact pair found at run time can join two vertices of one
-    colour, and a thread reading its partner's ``x`` while the partner's thread writes it made
-    CUDA runs timing-dependent. Such partners (the same-colour bits of a gather record) are
-    read from ``snap``, the positions at the start of the sweep; every solved particle writes
-    its new position to ``snap_out``, the next sweep's snapshot (the solver alternates the
-    two). Partners of other colours are read from ``x`` as before (Gauss-Seidel). The step no
-    longer depends on the order of the threads: every layout, gather and device takes the same
-    step up to round-off."""
+    Same-colour neighbours (session 15): the colouring separates the vertices of every
+    triangle, but a bending hinge's two opposite vertices may share a colour
+    (``vertex_edge_local`` bits 2-5), and a self-contact pair found at run time can join any two
+    vertices (``pair_role`` bits 4-7). A thread reading such a neighbour's ``x`` while the
+    neighbour's thread writes it made CUDA runs timing-dependent, so these neighbours are read
+    from ``snap``, the positions at the start of the sweep (a Jacobi step for that coupling);
+    every solved particle writes its new position to ``snap_out``, the next sweep's snapshot
+    (the solver alternates the two). Neighbours of other colours are read from ``x``
+    (Gauss-Seidel). The step does not depend on the order of the threads: every layout, gather
+    and device takes the same step up to round-off."""
     if fused is None:
         fused = lanes >= FUSED_LANES
     key = (int(particles), int(lanes), bool(fused))
@@ -586,8 +590,7 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
         if step.flags != PINNED:
             x_new = vertex_newton_step(step, f, H, k_contact, eps_u, h, air_damping, sc)
             x_inout[i] = x_new
-        if sc.enabled != 0:
-            snap_out[i] = x_new
+        snap_out[i] = x_new
 
     solve.__name__ = solve.__qualname__ = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}"
     kernel = wp.kernel(solve, enable_backward=False, module="unique")
@@ -599,7 +602,6 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
 def chebyshev_kernel(
     omega: float,
     flags: wp.array(dtype=wp.int32),
-    snapshot: int,
     x_inout: wp.array(dtype=wp.vec3),
     prev1_inout: wp.array(dtype=wp.vec3),
     prev2_inout: wp.array(dtype=wp.vec3),
@@ -608,8 +610,8 @@ def chebyshev_kernel(
     """Chebyshev semi-iterative acceleration of the sweeps (Wang 2015; Chen et al. 2024,
     Sec. 3.8): ``x_k = x_{k-2} + omega_k (xbar_k - x_{k-2})`` with ``xbar_k`` the sweep's
     result; ``prev1``/``prev2`` hold ``x_{k-1}``/``x_{k-2}`` and are shifted. Pinned particles
-    keep the sweep's (prescribed) position. With ``snapshot`` the result also goes to
-    ``snap_out`` (the next sweep's snapshot, ``solve_color_kernel``)."""
+    keep the sweep's (prescribed) position. The result also goes to ``snap_out`` (the next
+    sweep's snapshot, ``solve_color_kernel``)."""
     i = wp.tid()
     xb = x_inout[i]
     p1 = prev1_inout[i]
@@ -620,8 +622,7 @@ def chebyshev_kernel(
     prev2_inout[i] = p1
     prev1_inout[i] = xa
     x_inout[i] = xa
-    if snapshot != 0:
-        snap_out[i] = xa
+    snap_out[i] = xa
 
 
 @wp.kernel
