@@ -640,8 +640,7 @@ def test_heavy_vertices_solved_by_whole_blocks_take_the_same_step(device):
     CPU (one lane, one thread per block) the orders agree and the steps match exactly. On CUDA
     the block sums a heavy vertex's items in another order than its lanes do: the steps agree
     to round-off (session 14, before same-colour contact partners were read from the sweep's
-    snapshot, only to 3 % of the motion: heavy blocks, then last in a launch, saw more moved
-    partners)."""
+    snapshot, only to 3 % of the motion: heavy blocks run last and saw more moved partners)."""
     m, *start = draped_layers_in_contact(device)
     layout = {"lanes": 4, "particles_per_block": 32} if device == "cuda" else {}
     ref, _ = one_step_from(m, start, self_contact_heavy_cap=0, **layout)

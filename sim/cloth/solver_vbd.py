@@ -329,12 +329,11 @@ class SolverVBD:
         for c in range(m.color_count):
             start, end = m.color_offsets[c], m.color_offsets[c + 1]
             light = -(-(end - start) // self._particles)
-            heavy_blocks = min(heavy, end - start)
             wp.launch_tiled(
-                self._solve, dim=[heavy_blocks + light],
+                self._solve, dim=[light + min(heavy, end - start)],
                 block_dim=self._particles * self._lanes,
-                inputs=[end - start, c, heavy_blocks, self._membrane, m.color_vertices, start, self._x_prev,
-                        self._y, m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
+                inputs=[end - start, c, light, self._membrane, m.color_vertices, start, self._x_prev, self._y,
+                        m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
                         m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
                         self._tri_strain_prev, *self._hinges, self._edge_angle_prev, m.vertex_tri_offsets,
                         m.vertex_tri_ids, m.vertex_tri_local, *self._vertex_hinges, self._contact_point,

@@ -490,7 +490,7 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
     def solve(
         count: int,
         color: int,
-        heavy_blocks: int,
+        light_blocks: int,
         membrane: int,
         color_vertices: wp.array(dtype=wp.int32),
         color_start: int,
@@ -538,15 +538,11 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
         share = lane
         stride = wp.static(L)
         i = int(-1)
-        # the heavy blocks come first: the longest work starts in the first wave of blocks, and
-        # the unused ones leave at once, their slots taken by the lanes layout's blocks (last,
-        # until session 15, they ran in a second wave behind ~190 light blocks: ncu, 215
-        # registers per thread leave 2 blocks of 128 threads per SM)
-        heavy_block = block < heavy_blocks
+        heavy_block = block >= light_blocks
         if heavy_block:
             # one heavy vertex per block, its items shared by all the block's threads; a block
             # without one leaves as a whole (no thread waits at the reductions)
-            hb = block
+            hb = block - light_blocks
             nh = sc.heavy_count[color]
             if nh > sc.heavy_cap or hb >= nh:
                 return
@@ -554,7 +550,7 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
             share = thread
             stride = wp.static(P * L)
         else:
-            slot = (block - heavy_blocks) * wp.static(P) + local
+            slot = block * wp.static(P) + local
             if slot < count:
                 i = color_vertices[color_start + slot]
                 # solved by a heavy block (when its colour's heavy vertices all have one)
