@@ -215,7 +215,11 @@ class VBDConfig:
 
 
 AUTO_LANES_PARTICLES = 16384
-AUTO_HEAVY_CAP = 256
+# heavy blocks per colour launch and instance (auto): every launch carries the cap's blocks, and
+# those without a vertex still cost their place in the grid. t-shirt 20x10, H100, session 15
+# (4 colours), walk/run ms per frame: cap 0 17.6/18.0, 64 16.3/16.4, 96 16.3/16.4,
+# 128 16.4/16.5, 160 16.3/16.4, 256 16.7/16.8, 512 17.3/17.5
+AUTO_HEAVY_CAP = 96
 
 
 def auto_lanes(largest_color: int) -> tuple[int, int]:
