@@ -95,7 +95,7 @@ class VBDConfig:
         self_contact_stiffness: penalty stiffness [N/m] of a cloth-cloth pair. 3e4 (was 1e4
             until session 10): at 1e4 body contact (1e5) squeezes sleeve layers through each
             other. Repeated t-shirt runs at 20x10: walk 5/8 and run 8/8 pass the gates at 3e4,
-            2/5 and 0/5 at 1e4 (GPU runs are not bit-reproducible: a single pass proves little).
+            2/5 and 0/5 at 1e4 (GPU runs were not bit-reproducible then: a single pass proved little).
         self_contact_friction: cloth-cloth Coulomb friction coefficient.
         self_contact_relaxation: gamma of the bounds (< 0.5 keeps the guarantee).
         self_contact_speed_factor: query radius at least this times |v| h, so fast cloth with
