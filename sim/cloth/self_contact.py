@@ -279,6 +279,13 @@ def same_color_mask(color: wp.array(dtype=wp.int32), c: int, q: wp.vec4i) -> int
 
 
 @wp.func
+def packed_role(role: int, color: wp.array(dtype=wp.int32), c: int, q: wp.vec4i) -> int:
+    """A record's ``pair_role``: ``role`` (0-5) in bits 0-3, ``same_color_mask`` of its vertices
+    ``q`` against colour ``c`` (the owner's) in bits 4-7."""
+    return role | (same_color_mask(color, c, q) << 4)
+
+
+@wp.func
 def record_force_hessian_at(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.vec3),
                             x0: wp.array(dtype=wp.vec3), q: wp.vec4i, ref: wp.vec3, role: int,
                             sc: SelfContactData, eps_u: float):
@@ -322,8 +329,8 @@ def self_contact_list_force_hessian(
         tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
         ref = sc.vt_ref[i * sc.vt_capacity + s]
         q = wp.vec4i(i, tri[0], tri[1], tri[2])
-        role = same_color_mask(sc.particle_color, c, q) << 4
-        fc, hc = record_force_hessian_at(x, snap, x0, q, ref, role, sc, eps_u)
+        fc, hc = record_force_hessian_at(x, snap, x0, q, ref, packed_role(0, sc.particle_color, c, q), sc,
+                                         eps_u)
         f = f + fc
         H = H + hc
     # i as a corner of triangles that vertices are close to: the lanes split the flattened list
@@ -338,7 +345,7 @@ def self_contact_list_force_hessian(
         s = j - sc.tv_first[kk]
         tri = tri_indices[t]
         q = wp.vec4i(sc.tv_vertex[t * cap + s], tri[0], tri[1], tri[2])
-        role = (1 + vertex_tri_local[kk]) | (same_color_mask(sc.particle_color, c, q) << 4)
+        role = packed_role(1 + vertex_tri_local[kk], sc.particle_color, c, q)
         fc, hc = record_force_hessian_at(x, snap, x0, q, sc.tv_ref[t * cap + s], role, sc, eps_u)
         f = f + fc
         H = H + hc
@@ -354,7 +361,7 @@ def self_contact_list_force_hessian(
         ea = sc.mesh_edges[e]
         eb = sc.mesh_edges[sc.ee_edge[e * ecap + s]]
         q = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
-        role = (4 + sc.vertex_edge_local[kk]) | (same_color_mask(sc.particle_color, c, q) << 4)
+        role = packed_role(4 + sc.vertex_edge_local[kk], sc.particle_color, c, q)
         fc, hc = record_force_hessian_at(x, snap, x0, q, sc.ee_ref[e * ecap + s], role, sc, eps_u)
         f = f + fc
         H = H + hc
@@ -795,7 +802,7 @@ def vertex_summary_kernel(
         tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
         q = wp.vec4i(i, tri[0], tri[1], tri[2])
         sc.pair_verts[r] = q
-        sc.pair_role[r] = same_color_mask(sc.particle_color, c, q) << 4
+        sc.pair_role[r] = packed_role(0, sc.particle_color, c, q)
         sc.pair_ref[r] = sc.vt_ref[i * sc.vt_capacity + s]
         r += 1
     for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
@@ -804,7 +811,7 @@ def vertex_summary_kernel(
         for s in range(sc.tv_count[t]):
             q = wp.vec4i(sc.tv_vertex[t * sc.tv_capacity + s], tri[0], tri[1], tri[2])
             sc.pair_verts[r] = q
-            sc.pair_role[r] = (1 + vertex_tri_local[k]) | (same_color_mask(sc.particle_color, c, q) << 4)
+            sc.pair_role[r] = packed_role(1 + vertex_tri_local[k], sc.particle_color, c, q)
             sc.pair_ref[r] = sc.tv_ref[t * sc.tv_capacity + s]
             r += 1
     for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
@@ -814,7 +821,7 @@ def vertex_summary_kernel(
             eb = sc.mesh_edges[sc.ee_edge[e * sc.ee_capacity + s]]
             q = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
             sc.pair_verts[r] = q
-            sc.pair_role[r] = (4 + sc.vertex_edge_local[k]) | (same_color_mask(sc.particle_color, c, q) << 4)
+            sc.pair_role[r] = packed_role(4 + sc.vertex_edge_local[k], sc.particle_color, c, q)
             sc.pair_ref[r] = sc.ee_ref[e * sc.ee_capacity + s]
             r += 1
 

@@ -321,10 +321,9 @@ class SolverVBD:
     def sweep(self, x, sc_data, eps_u: float, h: float, parity: int = 0) -> None:
         """One Gauss-Seidel sweep: the solve kernel over every colour, updating ``x`` in place
         against the substep's current buffers (``sc_data``: the self-contact data to use). Sweep
-        ``k`` of a substep has ``parity`` ``k % 2``: it reads same-colour contact partners from
-        snapshot ``parity`` (which must hold ``x``) and writes snapshot ``1 - parity``: the
-        neighbours of a particle's own colour (hinge opposites, contact partners) are read from
-        it."""
+        ``k`` of a substep has ``parity`` ``k % 2``: the neighbours of a particle's own colour
+        (hinge opposites, contact partners) are read from snapshot ``parity``, which must hold
+        ``x``, and every solved particle writes its new position to snapshot ``1 - parity``."""
         wp = warp()
         snap, snap_out = self._snapshots[parity], self._snapshots[1 - parity]
         m = self.model
