@@ -269,6 +269,14 @@ def read_position(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.vec3), j: 
 
 
 @wp.func
+def read_positions(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.vec3), q: wp.vec4i, same: int):
+    """``read_position`` of the four vertices ``q``, vertex ``q[k]`` from ``snap`` where bit ``k``
+    of ``same`` is set."""
+    return (read_position(x, snap, q[0], same & 1), read_position(x, snap, q[1], same & 2),
+            read_position(x, snap, q[2], same & 4), read_position(x, snap, q[3], same & 8))
+
+
+@wp.func
 def same_color_mask(color: wp.array(dtype=wp.int32), c: int, q: wp.vec4i) -> int:
     """Bit ``k`` set where vertex ``q[k]`` has colour ``c``."""
     mask = int(0)
@@ -292,11 +300,7 @@ def record_force_hessian_at(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.
     """``record_force_hessian`` of the pair of vertices ``q`` (a record, or a pair from the lists
     laid out as one); ``role`` packed as in ``pair_role`` (the role in bits 0-3, the
     same-colour mask above: those vertices are read from ``snap``, ``read_position``)."""
-    same = role >> 4
-    y0 = read_position(x, snap, q[0], same & 1)
-    y1 = read_position(x, snap, q[1], same & 2)
-    y2 = read_position(x, snap, q[2], same & 4)
-    y3 = read_position(x, snap, q[3], same & 8)
+    y0, y1, y2, y3 = read_positions(x, snap, q, role >> 4)
     return record_force_hessian(y0, y1, y2, y3, x0[q[0]], x0[q[1]], x0[q[2]], x0[q[3]], ref, role & 15, sc,
                                 eps_u)
 

@@ -23,7 +23,7 @@ from sim.cloth.energies import (
 from sim.cloth.self_contact import (
     SelfContactData,
     apply_bound,
-    read_position,
+    read_positions,
     record_force_hessian,
     self_contact_force_hessian,
     self_contact_list_force_hessian,
@@ -250,14 +250,10 @@ def vertex_share_force_hessian(
             e = vertex_edge_ids[k]
             q = edge_indices[e]
             packed = vertex_edge_local[k]
-            same = packed >> 2
-            fb, hb = bending_damped_vertex_force_hessian(read_position(x, snap, q[0], same & 1),
-                                                         read_position(x, snap, q[1], same & 2),
-                                                         read_position(x, snap, q[2], same & 4),
-                                                         read_position(x, snap, q[3], same & 8),
-                                                         edge_rest_angle[e], edge_stiffness[e],
-                                                         edge_angle_prev[e], edge_damping[e] * inv_h,
-                                                         packed & 3)
+            h0, h1, h2, h3 = read_positions(x, snap, q, packed >> 2)
+            fb, hb = bending_damped_vertex_force_hessian(h0, h1, h2, h3, edge_rest_angle[e],
+                                                         edge_stiffness[e], edge_angle_prev[e],
+                                                         edge_damping[e] * inv_h, packed & 3)
             f = f + fb
             H = H + hb
         if sc.enabled != 0:
@@ -307,16 +303,8 @@ def vertex_share_force_hessian(
         xa = x[tri[0]]
         xb = x[tri[1]]
         xc = x[tri[2]]
-        e_same = e_packed >> 2
-        h0 = read_position(x, snap, hinge[0], e_same & 1)
-        h1 = read_position(x, snap, hinge[1], e_same & 2)
-        h2 = read_position(x, snap, hinge[2], e_same & 4)
-        h3 = read_position(x, snap, hinge[3], e_same & 8)
-        same = packed >> 4
-        y0 = read_position(x, snap, q[0], same & 1)
-        y1 = read_position(x, snap, q[1], same & 2)
-        y2 = read_position(x, snap, q[2], same & 4)
-        y3 = read_position(x, snap, q[3], same & 8)
+        h0, h1, h2, h3 = read_positions(x, snap, hinge, e_packed >> 2)
+        y0, y1, y2, y3 = read_positions(x, snap, q, packed >> 4)
         z0 = x_prev[q[0]]
         z1 = x_prev[q[1]]
         z2 = x_prev[q[2]]
