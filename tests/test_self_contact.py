@@ -297,23 +297,31 @@ def test_self_contact_config_is_checked():
         VBDConfig(self_contact_radius=0.02, self_contact_margin=0.01)
 
 
+def folded_sheet(nx: int, ny: int, e: float, mid: int, gap: float):
+    """An ``nx`` x ``ny`` grid of spacing ``e`` in the xz plane (its rest shape ``v``) and the
+    same sheet folded flat onto itself at column ``mid``: the columns past it lie ``gap``
+    above the ones before it. Returns ``v``, the folded positions, the faces and each vertex's
+    column."""
+    v, f = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
+    col = np.arange(len(v)) % nx
+    folded = v.copy()
+    over = col > mid
+    folded[over, 0] = (2 * mid - col[over]) * e
+    folded[over, 1] = gap
+    return v, folded, f, col
+
+
 def test_a_fold_of_one_sheet_is_in_contact_a_ring_away(device):
     """A sheet folded flat onto itself (zero fold radius at column ``m``): the vertex one
     column past the fold lies 2 mm above the column before it, two edges away on the surface.
     It is a contact pair (the exclusion is by the pair's own rest distance, not by a few edge
     lengths: a sleeve that crumples is two rings meeting); pairs incident at the fold, at rest
     distance 0, are not."""
-    nx, ny, e, gap = 11, 4, 0.02, 0.002
-    v, f = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
+    nx, ny, mid = 11, 4, 5
+    v, folded, f, col = folded_sheet(nx, ny, 0.02, mid, 0.002)
     b = ClothModelBuilder()
     b.add_cloth(v.astype(np.float32), f, ClothMaterialParams())
     m = b.finalize(device)
-    mid = 5
-    col = np.arange(len(v)) % nx
-    folded = v.copy()
-    over = col > mid
-    folded[over, 0] = (2 * mid - col[over]) * e
-    folded[over, 1] = gap
     sc = SelfContact(m, radius=0.003, margin=0.01, stiffness=1e4, friction=0.0, relaxation=0.45,
                      speed_factor=2.5, capacity=16)
     x0 = wp.array(folded.astype(np.float32), dtype=wp.vec3, device=device)
@@ -619,13 +627,10 @@ def hairpin_pass(device, gap: float, frames: int = 8):
     as under a t-shirt's arm or at the crotch of trousers), the lower arm pinned and the upper
     one thrown down onto it at 1 m/s. Returns, per frame, the mean height [m] of the upper
     arm's interior (away from the fold and the rims) above the lower arm."""
-    nx, ny, e, mid = 13, 5, 0.02, 6
-    v, f = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
-    col, row = np.arange(len(v)) % nx, np.arange(len(v)) // nx
-    folded = v.copy()
+    nx, ny, mid = 13, 5, 6
+    _, folded, f, col = folded_sheet(nx, ny, 0.02, mid, gap)
+    row = np.arange(len(folded)) // nx
     over = col > mid
-    folded[over, 0] = (2 * mid - col[over]) * e
-    folded[over, 1] = gap
     b = ClothModelBuilder()
     b.add_cloth(folded.astype(np.float32), f, ClothMaterialParams(mu=300.0, lam=100.0, thickness=0.001),
                 pinned=np.flatnonzero(col < mid))
