@@ -99,7 +99,8 @@ def stvk_energy_np(x: np.ndarray, dm_inv: np.ndarray, area: float, mu: float, la
 
 def bending_energy_np(x: np.ndarray, rest_angle: float, k: float) -> float:
     th = dihedral_angles(x, np.array([[0, 1, 2, 3]]))[0]
-    return 0.5 * k * (th - rest_angle) ** 2
+    d = (th - rest_angle + np.pi) % (2 * np.pi) - np.pi  # the short way round
+    return 0.5 * k * d**2
 
 
 def fd_gradient_hessian(energy, x: np.ndarray, vertex: int, h: float = 1e-5):
@@ -227,6 +228,47 @@ def test_bending_force_and_hessian_match_finite_differences(device):
     for v in range(4):
         _, hess = fd_gradient_hessian(lambda y: bending_energy_np(y, theta, k), x, v, h=1e-4)
         np.testing.assert_allclose(h_out.numpy()[v], hess, rtol=2e-3, atol=2e-3 * np.abs(hess).max())
+
+
+def hinge_folded(phi: float) -> np.ndarray:
+    """A hinge (o0, o1, a, b) along x whose wing o1 is turned by ``phi`` [rad] about the hinge
+    from flat (0) towards folded onto wing o0 (pi)."""
+    return np.array([[0.05, 0.08, 0.0], [0.06, -0.08 * np.cos(phi), 0.08 * np.sin(phi)],
+                     [0.0, 0.0, 0.0], [0.1, 0.0, 0.0]])
+
+
+def test_a_hinge_folded_at_rest_resists_folding_past_flat_the_short_way(device):
+    """A crease folded at rest (170 degrees, a seam or a hairpin) folded 20 degrees further, so
+    past flat, where the signed dihedral angle jumps from +pi to -pi: the bending energy is that
+    of a 20-degree bend, not of a 340-degree one, and the force turns the wing back the short
+    way (until session 17 it drove it on round through the other wing). Forces match finite
+    differences of the wrapped energy."""
+    from sim.cloth import energies
+
+    wp = warp()
+    hinge = np.array([[0, 1, 2, 3]])
+    rest = dihedral_angles(hinge_folded(np.radians(170.0)), hinge)[0]
+    x = hinge_folded(np.radians(190.0))
+    theta = dihedral_angles(x, hinge)[0]
+    assert abs(abs(rest) - np.radians(170.0)) < 1e-6 and np.sign(theta) != np.sign(rest)  # wrapped
+    k = 2e-3
+    x32 = wp.array(x.astype(np.float32), dtype=wp.vec3, device=device)
+    e_out = wp.zeros(1, dtype=float, device=device)
+    wp.launch(energies.bending_energy_kernel, dim=1,
+              inputs=[x32, wp.array(hinge, dtype=wp.vec4i, device=device),
+                      wp.array([rest], dtype=float, device=device), wp.array([k], dtype=float, device=device)],
+              outputs=[e_out], device=device)
+    np.testing.assert_allclose(e_out.numpy()[0], 0.5 * k * np.radians(20.0) ** 2, rtol=1e-4)
+    f_out = wp.zeros(4, dtype=wp.vec3, device=device)
+    h_out = wp.zeros(4, dtype=wp.mat33, device=device)
+    wp.launch(energies.bending_vertex_derivatives_kernel, dim=4, inputs=[x32, float(rest), k],
+              outputs=[f_out, h_out], device=device)
+    for v in range(4):
+        grad, _ = fd_gradient_hessian(lambda y: bending_energy_np(y, rest, k), x, v)
+        np.testing.assert_allclose(f_out.numpy()[v], -grad, rtol=1e-3, atol=1e-3 * np.abs(grad).max())
+    # the wing o1 is pushed back towards 170 degrees: along d x1 / d phi with phi decreasing
+    back = -(hinge_folded(np.radians(190.0) + 1e-6)[1] - x[1])
+    assert np.dot(f_out.numpy()[1], back) > 0.0
 
 
 def test_hinges_and_coloring():

@@ -622,40 +622,71 @@ def test_a_vertex_sliding_around_a_rim_is_not_taken_for_a_crossing(device):
     assert np.linalg.norm(f_tip) <= sc.data.vt_count.numpy()[i] * k * (0.003 - d) * 1.001
 
 
-def hairpin_pass(device, gap: float, frames: int = 8):
+def hairpin_pass(device, gap: float, speed: float = 1.0, frames: int = 8, **config):
     """One sheet folded at rest into a hairpin whose arms lie ``gap`` apart (a crease at a seam,
     as under a t-shirt's arm or at the crotch of trousers), the lower arm pinned and the upper
-    one thrown down onto it at 1 m/s. Returns, per frame, the mean height [m] of the upper
-    arm's interior (away from the fold and the rims) above the lower arm."""
-    nx, ny, mid = 13, 5, 6
-    _, folded, f, col = folded_sheet(nx, ny, 0.02, mid, gap)
+    one thrown down onto it at ``speed`` [m/s]. Returns, per frame, the mean height [m] of the
+    upper arm's interior (away from the fold and the rims) above the lower arm, the largest
+    distance [m] of that interior past the fold line (> 0: the arm flipped over the fold, off
+    the lower arm) and the kinetic plus gravitational energy [J] of the sheet, with the energy
+    at the throw as the last entry."""
+    nx, ny, mid, e = 13, 5, 6, 0.02
+    _, folded, f, col = folded_sheet(nx, ny, e, mid, gap)
     row = np.arange(len(folded)) // nx
     over = col > mid
     b = ClothModelBuilder()
     b.add_cloth(folded.astype(np.float32), f, ClothMaterialParams(mu=300.0, lam=100.0, thickness=0.001),
                 pinned=np.flatnonzero(col < mid))
     m = b.finalize(device)
-    solver = SolverVBD(m, VBDConfig(substeps=10, iterations=10, self_contact=True))
+    solver = SolverVBD(m, VBDConfig(substeps=10, iterations=10, self_contact=True, **config))
     state, control = m.state(), m.control()
     vel = np.zeros_like(folded)
-    vel[over, 1] = -1.0
+    vel[over, 1] = -speed
     state.velocities.assign(vel.astype(np.float32))
     control.pin_targets.assign(folded.astype(np.float32))
     interior = (col >= mid + 2) & (col <= nx - 3) & (row > 0) & (row < ny - 1)
-    heights = []
+    mass = m.particle_mass.numpy().astype(np.float64)
+    g = -float(m.gravity[1])
+
+    def energy(x, v):
+        return float(0.5 * (mass[:, None] * v.astype(np.float64) ** 2).sum() + g * (mass * x[:, 1]).sum())
+
+    e0 = energy(folded, vel)
+    heights, flipped, energies = [], [], []
     for _ in range(frames):
         solver.step(state, state, control, 1.0 / 30.0)
-        x = state.positions.numpy()
+        x, v = state.positions.numpy(), state.velocities.numpy()
         assert np.all(np.isfinite(x))
         heights.append(float(x[interior, 1].mean()))
-    return np.array(heights)
+        flipped.append(float(x[interior, 0].max() - mid * e))
+        energies.append(energy(x, v))
+    return np.array(heights), np.array(flipped), np.array(energies + [e0])
 
 
-def test_a_hairpin_whose_arms_start_apart_lands_on_itself(device):
+@pytest.mark.parametrize("speed", [1.1, 2.0])
+def test_a_hairpin_whose_arms_start_apart_lands_on_itself(device, speed):
     """The scene of the known limitation below with the arms 10 mm apart at rest (outside the
-    rest exclusion): the thrown arm lands on the pinned one and stays above it."""
-    h = hairpin_pass(device, gap=0.01)
-    assert np.all(h > 0.0)
+    rest exclusion): the thrown arm lands on the pinned one and stays above it, without flipping
+    over the fold, and the contact creates no energy: the sheet starts at rest shape (no elastic
+    energy) out of contact and its pins hold still, so its kinetic plus gravitational energy can
+    only fall. Without the displacement bounds (``VBDConfig.self_contact_bounds``, before
+    session 17) a rim vertex left the first contact at 12 m/s: at 1.1 m/s the sheet gained 10x
+    its energy and the arm flipped over the fold and fell past the pinned one."""
+    h, flipped, energy = hairpin_pass(device, gap=0.01, speed=speed)
+    assert np.all(h > 0.0), h
+    assert np.all(flipped < 0.0), flipped
+    e0 = energy[-1]
+    assert np.all(energy[:-1] <= e0 + 0.02 * abs(e0)), (energy[:-1], e0)
+
+
+def test_the_exact_contact_hessian_lets_a_thrown_hairpin_gain_energy(device):
+    """Why the contact Hessian has a weight floor (``VBDConfig.self_contact_weight_floor``):
+    with the exact ``w^2 k`` (floor 0, until session 17) the hairpin above, thrown at 1.1 m/s,
+    gains energy in its first contact (a rim vertex with a small weight in its pairs took their
+    whole penetration as its own step and left at 12 m/s; the arm then flipped over the fold).
+    This keeps the energy check above a test that can fail."""
+    _, _, energy = hairpin_pass(device, gap=0.01, speed=1.1, frames=2, self_contact_weight_floor=0.0)
+    assert energy[:-1].max() > energy[-1] + 1e-3  # more than a millijoule made
 
 
 @pytest.mark.xfail(strict=True, reason="known limitation (session 16): pairs of one piece closer than "
@@ -663,5 +694,5 @@ def test_a_hairpin_whose_arms_start_apart_lands_on_itself(device):
                    "folded at rest passes through itself (the 1k t-shirt's underarm in the CPU benchmark); "
                    "planned fix: a per-pair radius from the rest distance instead of the exclusion")
 def test_parts_of_one_piece_close_at_rest_do_not_pass_through_each_other(device):
-    h = hairpin_pass(device, gap=0.001)
-    assert np.all(h > 0.0)
+    h, flipped, _ = hairpin_pass(device, gap=0.001)
+    assert np.all(h > 0.0) and np.all(flipped < 0.0)

@@ -273,10 +273,22 @@ def dihedral_angle(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3) -> floa
 
 
 @wp.func
+def angle_difference(a: float, b: float) -> float:
+    """``a - b`` wrapped into [-pi, pi) [rad]. A hinge's signed angle (``dihedral_angle``) jumps
+    by 2 pi where a fold passes flat (+-pi): against a rest angle near +-pi (a crease folded at
+    rest, a seam) the plain difference would read a small further fold as almost a full turn
+    and drive the hinge around the long way, through the cloth. Wrapped, the jump sits half a
+    turn from the rest angle."""
+    d = a - b
+    return d - 2.0 * wp.pi * wp.floor((d + wp.pi) / (2.0 * wp.pi))
+
+
+@wp.func
 def bending_energy(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3, rest_angle: float,
                    k_edge: float) -> float:
-    """Hinge bending energy ``k_e/2 (theta - theta_rest)^2`` [J]."""
-    d = dihedral_angle(xo0, xo1, xa, xb) - rest_angle
+    """Hinge bending energy ``k_e/2 (theta - theta_rest)^2`` [J], the difference wrapped into
+    [-pi, pi) (``angle_difference``)."""
+    d = angle_difference(dihedral_angle(xo0, xo1, xa, xb), rest_angle)
     return 0.5 * k_edge * d * d
 
 
@@ -317,7 +329,7 @@ def bending_vertex_force_hessian(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp
     The Hessian drops ``k_e (theta - theta_rest) d2theta``: exact at the rest angle, always
     positive semi-definite.
     """
-    d = dihedral_angle(xo0, xo1, xa, xb) - rest_angle
+    d = angle_difference(dihedral_angle(xo0, xo1, xa, xb), rest_angle)
     g = dihedral_angle_gradient(xo0, xo1, xa, xb, local)
     return -k_edge * d * g, k_edge * wp.outer(g, g)
 
@@ -327,10 +339,11 @@ def bending_damped_vertex_force_hessian(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3,
                                         rest_angle: float, k_edge: float, angle_prev: float,
                                         kd_over_h: float, local: int):
     """Hinge force and Gauss-Newton Hessian plus damping of the angle rate:
-    ``f_d = -(k_d/h) k_e (theta - theta_prev) dtheta/dx``, Hessian ``(k_d/h) k_e g g^T``."""
+    ``f_d = -(k_d/h) k_e (theta - theta_prev) dtheta/dx``, Hessian ``(k_d/h) k_e g g^T`` (both
+    differences wrapped, ``angle_difference``)."""
     theta = dihedral_angle(xo0, xo1, xa, xb)
     g = dihedral_angle_gradient(xo0, xo1, xa, xb, local)
-    f = -k_edge * ((theta - rest_angle) + kd_over_h * (theta - angle_prev)) * g
+    f = -k_edge * (angle_difference(theta, rest_angle) + kd_over_h * angle_difference(theta, angle_prev)) * g
     return f, (k_edge * (1.0 + kd_over_h)) * wp.outer(g, g)
 
 

@@ -76,6 +76,7 @@ class SelfContactData:
     radius: float
     stiffness: float
     friction: float
+    weight_floor: float
     vt_capacity: int
     tv_capacity: int
     ee_capacity: int
@@ -170,7 +171,7 @@ def triangle_closest_bary(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> wp.
 
 @wp.func
 def pair_force_hessian(diff: wp.vec3, diff0: wp.vec3, rel_disp: wp.vec3, w: float, radius: float, k: float,
-                       mu: float, eps_u: float):
+                       mu: float, eps_u: float, w_floor: float):
     """Force on and Hessian block of a vertex taking part with signed weight ``w`` in a contact
     pair whose closest points differ by ``diff = p_a - p_b`` now; ``diff0`` is the pair's
     tracked side (``track_side``: the separation when it was found, followed while it stays
@@ -179,7 +180,16 @@ def pair_force_hessian(diff: wp.vec3, diff0: wp.vec3, rel_disp: wp.vec3, w: floa
     diff0 < 0``), in this substep or an earlier one while it stayed in the lists, is pushed
     back, not further through.
     Friction opposes the tangential part of the pair's relative displacement ``rel_disp`` over
-    the substep (lazy IPC friction, smoothed below ``eps_u``)."""
+    the substep (lazy IPC friction, smoothed below ``eps_u``).
+
+    The Hessian takes ``|w| max(|w|, w_floor)`` for the exact ``w^2``: a vertex taking part
+    with a small weight (an edge end far from the closest point, a triangle corner far from the
+    point) would otherwise, in its own Newton step, move ``(radius - d) / w`` to clear the
+    whole penetration alone, and a light rim vertex left a fresh contact at 12 m/s (session 17:
+    a hairpin thrown onto itself at 1.1 m/s gained 10x its energy). With the floor no single
+    pair's step exceeds ``(radius - d) / w_floor`` (``w_floor`` 0.5: twice the penetration),
+    and a vertex with weight 0 still gets nothing. The force, so the converged state, is
+    unchanged: a larger Hessian only shortens the step."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
     d = wp.length(diff)
@@ -198,7 +208,8 @@ def pair_force_hessian(diff: wp.vec3, diff0: wp.vec3, rel_disp: wp.vec3, w: floa
         return f, H
     lam = k * (radius - d)
     f = (w * lam) * n
-    H = (w * w * k) * wp.outer(n, n)
+    ww = wp.abs(w) * wp.max(wp.abs(w), w_floor)
+    H = (ww * k) * wp.outer(n, n)
     if mu > 0.0:
         T = wp.identity(n=3, dtype=float) - wp.outer(n, n)
         u = T * rel_disp
@@ -207,7 +218,7 @@ def pair_force_hessian(diff: wp.vec3, diff0: wp.vec3, rel_disp: wp.vec3, w: floa
         if ul < eps_u:
             c = 2.0 / eps_u - ul / (eps_u * eps_u)
         f = f - (w * mu * lam * c) * u
-        H = H + (w * w * mu * lam * c) * T
+        H = H + (ww * mu * lam * c) * T
     return f, H
 
 
@@ -225,7 +236,7 @@ def point_triangle_pair_values(xu: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3, 
     if role > 0:
         wi = -w[role - 1]
     return pair_force_hessian(xu - p, ref, (xu - xu0) - (p - p0), wi, sc.radius, sc.stiffness, sc.friction,
-                              eps_u)
+                              eps_u, sc.weight_floor)
 
 
 @wp.func
@@ -243,7 +254,7 @@ def edge_edge_pair_values(p1: wp.vec3, q1: wp.vec3, p2: wp.vec3, q2: wp.vec3, p1
     if end == 1:
         we = st[0]
     return pair_force_hessian(pa - pb, ref, (pa - pa0) - (pb - pb0), we, sc.radius, sc.stiffness, sc.friction,
-                              eps_u)
+                              eps_u, sc.weight_floor)
 
 
 @wp.func
@@ -858,12 +869,15 @@ class SelfContact:
             gives a thread block each (``vertex_summary_kernel``); 0: none.
         heavy_threshold: records above which a vertex is heavy (the solve's lanes per particle:
             more takes a vertex more than one round of its lanes).
+        weight_floor: smallest pair weight the Hessian takes (``pair_force_hessian``): a
+            vertex's Newton step is at most ``1 / weight_floor`` times a pair's penetration;
+            0: the exact Gauss-Newton Hessian.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
-                 pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16):
+                 pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5):
         w = warp()
         d = model.device
         self.model = model
@@ -879,6 +893,9 @@ class SelfContact:
         sc.radius = float(radius)
         sc.stiffness = float(stiffness)
         sc.friction = float(friction)
+        if not 0.0 <= weight_floor <= 1.0:
+            raise ValueError(f"SelfContact: weight_floor must be in [0, 1], got {weight_floor}")
+        sc.weight_floor = float(weight_floor)
         sc.vt_capacity = sc.tv_capacity = sc.ee_capacity = int(capacity)
         sc.vt_count = w.zeros(n, dtype=w.int32, device=d)
         sc.vt_tri = w.zeros(n * capacity, dtype=w.int32, device=d)
@@ -1034,6 +1051,7 @@ def disabled_data(device) -> SelfContactData:
     sc.relative_lists = 0
     sc.radius = 0.0
     sc.stiffness = 0.0
+    sc.weight_floor = 0.0
     sc.friction = 0.0
     sc.vt_capacity = sc.tv_capacity = sc.ee_capacity = 0
     empty_i = w.zeros(1, dtype=w.int32, device=device)

@@ -137,6 +137,13 @@ class VBDConfig:
             (the cap fixes the launch size, as a CUDA graph needs). 0: off; -1 (default):
             ``AUTO_HEAVY_CAP`` per instance in the 16-lane layout on CUDA, otherwise off (the
             batched 4-lane layout fills the GPU: a long vertex no longer idles it).
+        self_contact_weight_floor: smallest weight of a vertex in a self-contact pair that the
+            pair's Hessian block takes (``self_contact.pair_force_hessian``; 0: the exact
+            ``w^2``). 0.5 (session 17): with the exact Hessian a vertex with a small weight in a
+            pair (an edge end far from the closest point) moves ``1/w`` times the penetration in
+            its own Newton step; a hairpin thrown onto itself at 1.1 m/s left the contact with
+            10x its energy, flipped over its fold and fell past itself. The forces, so the
+            converged state, are the same; steps are at most twice a pair's penetration.
         self_contact_rebuild: rebuild the cloth BVHs at the first detection of every step and
             refit them at the others. Refitting a tree built for the rest shape keeps its
             topology while the garment deforms, and queries on the loosened boxes cost 1.5-2x.
@@ -173,6 +180,7 @@ class VBDConfig:
     self_contact_relative_lists: bool = True
     self_contact_pool: int = 16
     self_contact_heavy_cap: int = -1
+    self_contact_weight_floor: float = 0.5
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -301,7 +309,8 @@ class SolverVBD:
                 capacity=cfg.self_contact_capacity, rest_exclusion=cfg.self_contact_rest_exclusion,
                 bounds=cfg.self_contact_bounds, side_memory=cfg.self_contact_side_memory,
                 relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool,
-                heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes)
+                heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes,
+                weight_floor=cfg.self_contact_weight_floor)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
