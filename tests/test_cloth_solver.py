@@ -256,7 +256,8 @@ def test_a_hinge_folded_at_rest_resists_folding_past_flat_the_short_way(device):
     e_out = wp.zeros(1, dtype=float, device=device)
     wp.launch(energies.bending_energy_kernel, dim=1,
               inputs=[x32, wp.array(hinge, dtype=wp.vec4i, device=device),
-                      wp.array([rest], dtype=float, device=device), wp.array([k], dtype=float, device=device)],
+                      wp.array([rest], dtype=float, device=device),
+                      wp.array([k], dtype=float, device=device)],
               outputs=[e_out], device=device)
     np.testing.assert_allclose(e_out.numpy()[0], 0.5 * k * np.radians(20.0) ** 2, rtol=1e-4)
     f_out = wp.zeros(4, dtype=wp.vec3, device=device)
