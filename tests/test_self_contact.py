@@ -687,6 +687,9 @@ def test_the_exact_contact_hessian_lets_a_thrown_hairpin_gain_energy(device):
     This keeps the energy check above a test that can fail."""
     _, _, energy = hairpin_pass(device, gap=0.01, speed=1.1, frames=2, self_contact_weight_floor=0.0)
     assert energy[:-1].max() > energy[-1] + 1e-3  # more than a millijoule made
+    for bad in (-0.1, 1.5):  # a config error, found when the config is made, not at the first step
+        with pytest.raises(ValueError, match="weight_floor"):
+            VBDConfig(self_contact_weight_floor=bad)
 
 
 @pytest.mark.xfail(strict=True, reason="known limitation (session 16): pairs of one piece closer than "

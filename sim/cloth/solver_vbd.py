@@ -208,6 +208,9 @@ class VBDConfig:
                      "self_contact_capacity"):
             if getattr(self, name) <= 0.0:
                 raise ValueError(f"VBDConfig.{name} must be > 0, got {getattr(self, name)}")
+        if not 0.0 <= self.self_contact_weight_floor <= 1.0:
+            raise ValueError("VBDConfig.self_contact_weight_floor must be in [0, 1], got "
+                             f"{self.self_contact_weight_floor}")
         if not 0.0 < self.self_contact_relaxation < 0.5:
             raise ValueError("VBDConfig.self_contact_relaxation must be in (0, 0.5), got "
                              f"{self.self_contact_relaxation}")
