@@ -6,7 +6,15 @@ substeps x iterations x self-contact detection intervals, on walk and run. Per s
 ms per 30 fps frame of the motion and the gates' verdict; then the cheapest setting that passes
 every gate on every motion is run batched (garment-frames per second).
 
+One trajectory is one sample of a chaotic system: a setting that passes walk and run may fail
+the same motions a little faster, and changes far below the gates' resolution move crossings in
+and out (session 17). ``--population N`` therefore also runs, per setting, N sequences in one
+batched model (``population_motions``: the benchmark's walk and run, then walks and runs of
+other speeds and arm swings, seeded) and records how many pass every gate; a setting passes
+only when all of them and the single walk and run do.
+
     python -m benchmarks.sweep_tshirt --device cuda --batch 1,16,64,256
+    python -m benchmarks.sweep_tshirt --device cuda --settings 15x10,10x10 --population 16
     python -m benchmarks.sweep_tshirt --device cpu --vertices 1000 --seconds 0.5 --settings 4x4,2x4
 """
 
@@ -15,6 +23,8 @@ from __future__ import annotations
 import argparse
 import json
 import re
+
+import numpy as np
 
 from benchmarks.bench_tshirt import (
     add_batch_arguments,
@@ -51,12 +61,61 @@ def parse_setting(s: str) -> dict:
     return out
 
 
+def population_motions(n: int, seconds: float, seed: int = 0) -> list:
+    """``n`` motions of ``seconds`` at 30 fps: the benchmark's walk and run (default parameters)
+    first, then walks and runs alternating with speeds drawn uniformly from 1.0-1.8 m/s (walk)
+    and 2.8-4.5 m/s (run), arm swing from 0.7-1.4 (``seed``: the draw)."""
+    from sim.motions import load_motion
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        name = ("walk", "run")[k % 2]
+        params = {}
+        if k >= 2:
+            lo, hi = (1.0, 1.8) if name == "walk" else (2.8, 4.5)
+            params = {"speed": round(float(rng.uniform(lo, hi)), 3),
+                      "arm_swing": round(float(rng.uniform(0.7, 1.4)), 3)}
+        m = load_motion(name, fps=30.0, duration=seconds, **params)
+        out.append((name + "".join(f" {k}={v}" for k, v in params.items()), m))
+    return out
+
+
+def run_population(garment, body, motions: list, cfg) -> dict:
+    """The ``population_motions`` in one batched model (a sequence that blows up is frozen and
+    counted as failing): how many pass every gate, and which gates the others failed."""
+    import time
+
+    from sim.quality import SimulationError
+    from sim.simulate import SimulationJob, simulate_batch
+
+    jobs = [SimulationJob(garment, body, m, None, name=label) for label, m in motions]
+    t0 = time.perf_counter()
+    results = simulate_batch(jobs, config=cfg, failures="return")
+    members = []
+    for (label, _), r in zip(motions, results, strict=True):
+        if isinstance(r, SimulationError):
+            members.append({"motion": label, "passed": False, "error": str(r)})
+        else:
+            q = r.quality
+            members.append({"motion": label, "passed": bool(r.passed), "failed_gates": list(r.failed_gates),
+                            "max_edge_strain": q.max_edge_strain,
+                            "inside_fraction_max": float(np.max(q.inside_fraction)),
+                            "self_intersections_max": int(np.max(q.self_intersections))})
+    return {"size": len(members), "passing": sum(m["passed"] for m in members),
+            "wall_s": time.perf_counter() - t0, "members": members}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_scene_arguments(ap)
     ap.add_argument("--settings", default=DEFAULT_SETTINGS,
                     help="comma list of SUBSTEPSxITERATIONS[iINTERVAL] (default: %(default)s)")
     ap.add_argument("--solver", default="{}", help="JSON dict of VBDConfig fields shared by every setting")
+    ap.add_argument("--population", type=int, default=0,
+                    help="also run N walks and runs of varied speed per setting in one batch; a setting "
+                    "passes only when all N do (default: %(default)s, off)")
+    ap.add_argument("--population-seed", type=int, default=0, help="seed of the population's speeds")
     add_batch_arguments(ap)
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
@@ -66,6 +125,8 @@ def main() -> None:
     device, body, garment, edge, motions = load_scene(args)
     rows = []
     shared = json.loads(args.solver)
+    population = (population_motions(args.population, args.seconds, args.population_seed)
+                  if args.population > 0 else [])
     for s in args.settings.split(","):
         p = parse_setting(s)
         p["solver"] = {**shared, **p["solver"]}
@@ -77,10 +138,16 @@ def main() -> None:
             row["motions"][name] = out
         row["passes"] = all("error" not in o and not o["failed_gates"] for o in row["motions"].values())
         row["ms_per_frame_worst"] = max(o.get("ms_per_frame", float("inf")) for o in row["motions"].values())
+        if population:
+            row["population"] = run_population(garment, body, population, cfg)
+            row["passes"] = row["passes"] and row["population"]["passing"] == row["population"]["size"]
         rows.append(row)
         print(s, "passes" if row["passes"] else "FAILS",
               {n: (round(o["ms_per_frame"], 2) if "ms_per_frame" in o else o["error"],
-                   o.get("failed_gates")) for n, o in row["motions"].items()}, flush=True)
+                   o.get("failed_gates")) for n, o in row["motions"].items()},
+              "" if not population else
+              f"population {row['population']['passing']}/{row['population']['size']} pass "
+              f"{[m['motion'] for m in row['population']['members'] if not m['passed']]}", flush=True)
     passing = [r for r in rows if r["passes"]]
     best = min(passing, key=lambda r: r["ms_per_frame_worst"]) if passing else None
     batch = {}
@@ -92,6 +159,7 @@ def main() -> None:
         "machine": machine(device),
         "sizes": {"garment_vertices": garment.num_vertices, "garment_faces": garment.num_faces,
                   "edge_m": edge, "fps": 30.0, "seconds": args.seconds, "motions": list(motions)},
+        "population": [label for label, _ in population],
         "settings": rows,
         "cheapest_passing": None if best is None else best["setting"],
         "batched": batch,

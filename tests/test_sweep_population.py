@@ -1,0 +1,38 @@
+"""The sweep's population (benchmarks/sweep_tshirt.py): the verdict of a setting rests on it."""
+
+import numpy as np
+import pytest
+
+from benchmarks.sweep_tshirt import parse_setting, population_motions
+
+
+def test_the_population_starts_with_the_benchmark_motions_and_varies_the_rest_within_its_ranges():
+    pop = population_motions(10, 0.5, seed=3)
+    labels = [label for label, _ in pop]
+    assert labels[:2] == ["walk", "run"]
+    assert [label.split()[0] for label in labels] == ["walk", "run"] * 5
+    assert len(set(labels)) == 10
+    for label, m in pop:
+        assert m.fps == 30.0 and m.num_frames == 15
+        fields = dict(f.split("=") for f in label.split()[1:])
+        if fields:
+            lo, hi = (1.0, 1.8) if label.startswith("walk") else (2.8, 4.5)
+            assert lo <= float(fields["speed"]) <= hi and 0.7 <= float(fields["arm_swing"]) <= 1.4
+    # the root travels at the drawn speed: a faster run covers more ground in the same time
+    runs = [(float(dict(f.split("=") for f in label.split()[1:])["speed"]), m) for label, m in pop[2:]
+            if label.startswith("run")]
+    runs.sort(key=lambda t: t[0])
+    dist = [float(np.linalg.norm(m.trans[-1] - m.trans[0])) for _, m in runs]
+    assert dist[-1] > dist[0]
+    # seeded: the same seed draws the same population, another seed another one
+    assert [label for label, _ in population_motions(10, 0.5, seed=3)] == labels
+    assert [label for label, _ in population_motions(10, 0.5, seed=4)] != labels
+
+
+def test_a_setting_is_read_or_refused():
+    p = parse_setting("10x5i2m6c8r0.9")
+    assert (p["substeps"], p["iterations"], p["interval"]) == (10, 5, 2)
+    assert p["solver"] == {"self_contact_interval": 2, "self_contact_margin": 0.006,
+                           "self_contact_capacity": 8, "chebyshev_rho": 0.9}
+    with pytest.raises(SystemExit, match="cannot read"):
+        parse_setting("10by5")
