@@ -51,6 +51,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from sim.cloth.spans import Span, fill_spans, floats, ints, vec2is, vec3s, vec4is
 from sim.device import SideStreams, warp
 
 # closest points with every barycentric weight (VT) or edge parameter (EE) above this are
@@ -128,6 +129,120 @@ class SelfContactData:
     component: wp.array(dtype=wp.int32)
     exclusion: float
     reference: wp.array(dtype=wp.vec3)
+
+
+
+@wp.struct
+class SolveContactArrays:
+    """The part of ``SelfContactData`` the solve kernel reads, its arrays as ``Span``s
+    (``sim.cloth.spans``: a struct of 55 array descriptors as a kernel argument filled the
+    constant cache). Built by ``solve_contact_arrays``; the kernel rebuilds a ``SelfContactData``
+    with these fields set (``contact_view``; the others are empty)."""
+
+    enabled: int
+    use_bounds: int
+    radius: float
+    stiffness: float
+    friction: float
+    vt_capacity: int
+    tv_capacity: int
+    ee_capacity: int
+    heavy_cap: int
+    pair_first: Span
+    pair_count: Span
+    pair_verts: Span
+    pair_role: Span
+    pair_ref: Span
+    heavy: Span
+    heavy_list: Span
+    heavy_count: Span
+    bound: Span
+    reference: Span
+    vt_count: Span
+    vt_tri: Span
+    vt_ref: Span
+    tv_total: Span
+    tv_first: Span
+    tv_vertex: Span
+    tv_ref: Span
+    ee_total: Span
+    ee_first: Span
+    ee_edge: Span
+    ee_ref: Span
+    mesh_edges: Span
+    particle_color: Span
+    vertex_edge_offsets: Span
+    vertex_edge_ids: Span
+    vertex_edge_local: Span
+
+
+SOLVE_CONTACT_SCALARS = (
+    "enabled", "use_bounds", "radius", "stiffness", "friction", "vt_capacity", "tv_capacity",
+    "ee_capacity", "heavy_cap"
+)
+SOLVE_CONTACT_ARRAYS = (
+    "pair_first", "pair_count", "pair_verts", "pair_role", "pair_ref", "heavy", "heavy_list",
+    "heavy_count", "bound", "reference", "vt_count", "vt_tri", "vt_ref", "tv_total", "tv_first",
+    "tv_vertex", "tv_ref", "ee_total", "ee_first", "ee_edge", "ee_ref", "mesh_edges", "particle_color",
+    "vertex_edge_offsets", "vertex_edge_ids", "vertex_edge_local"
+)
+
+
+def solve_contact_key(sc: SelfContactData) -> tuple:
+    """What ``solve_contact_arrays(sc)`` depends on: the scalars and the array addresses."""
+    return (tuple(getattr(sc, n) for n in SOLVE_CONTACT_SCALARS)
+            + tuple(getattr(sc, n).ptr for n in SOLVE_CONTACT_ARRAYS))
+
+
+def solve_contact_arrays(sc: SelfContactData) -> SolveContactArrays:
+    """The ``SolveContactArrays`` of ``sc`` (its arrays must stay alive while it is used)."""
+    a = SolveContactArrays()
+    for n in SOLVE_CONTACT_SCALARS:
+        setattr(a, n, getattr(sc, n))
+    fill_spans(a, {n: getattr(sc, n) for n in SOLVE_CONTACT_ARRAYS})
+    return a
+
+
+@wp.func
+def contact_view(a: SolveContactArrays) -> SelfContactData:
+    """The ``SelfContactData`` the solve's functions take, rebuilt from ``a`` inside a kernel."""
+    sc = SelfContactData()
+    sc.enabled = a.enabled
+    sc.use_bounds = a.use_bounds
+    sc.radius = a.radius
+    sc.stiffness = a.stiffness
+    sc.friction = a.friction
+    sc.vt_capacity = a.vt_capacity
+    sc.tv_capacity = a.tv_capacity
+    sc.ee_capacity = a.ee_capacity
+    sc.heavy_cap = a.heavy_cap
+    sc.pair_first = ints(a.pair_first)
+    sc.pair_count = ints(a.pair_count)
+    sc.pair_verts = vec4is(a.pair_verts)
+    sc.pair_role = ints(a.pair_role)
+    sc.pair_ref = vec3s(a.pair_ref)
+    sc.heavy = ints(a.heavy)
+    sc.heavy_list = ints(a.heavy_list)
+    sc.heavy_count = ints(a.heavy_count)
+    sc.bound = floats(a.bound)
+    sc.reference = vec3s(a.reference)
+    sc.vt_count = ints(a.vt_count)
+    sc.vt_tri = ints(a.vt_tri)
+    sc.vt_ref = vec3s(a.vt_ref)
+    sc.tv_total = ints(a.tv_total)
+    sc.tv_first = ints(a.tv_first)
+    sc.tv_vertex = ints(a.tv_vertex)
+    sc.tv_ref = vec3s(a.tv_ref)
+    sc.ee_total = ints(a.ee_total)
+    sc.ee_first = ints(a.ee_first)
+    sc.ee_edge = ints(a.ee_edge)
+    sc.ee_ref = vec3s(a.ee_ref)
+    sc.mesh_edges = vec2is(a.mesh_edges)
+    sc.particle_color = ints(a.particle_color)
+    sc.vertex_edge_offsets = ints(a.vertex_edge_offsets)
+    sc.vertex_edge_ids = ints(a.vertex_edge_ids)
+    sc.vertex_edge_local = ints(a.vertex_edge_local)
+    return sc
 
 
 @wp.func

@@ -38,7 +38,8 @@ from dataclasses import dataclass
 
 from sim.cloth import vbd_kernels as K
 from sim.cloth.model import ClothModel
-from sim.cloth.self_contact import SelfContact, disabled_data
+from sim.cloth.self_contact import SelfContact, disabled_data, solve_contact_arrays, solve_contact_key
+from sim.cloth.spans import fill_spans
 from sim.cloth.state import ClothControl, ClothState
 from sim.device import SideStreams, warp
 
@@ -321,6 +322,7 @@ class SolverVBD:
         # the positions at the start of each sweep, for same-colour neighbours (hinge opposites,
         # contact partners); the sweeps alternate between the two (``sweep``)
         self._snapshots = (wp.zeros(n, dtype=wp.vec3, device=d), wp.zeros(n, dtype=wp.vec3, device=d))
+        self._solve_arrays_cache: dict = {}
 
     def heavy_cap(self, cuda: bool) -> int:
         """Heavy-vertex blocks per colour launch (``VBDConfig.self_contact_heavy_cap``; -1: auto,
@@ -329,6 +331,27 @@ class SolverVBD:
         if cap >= 0:
             return cap
         return AUTO_HEAVY_CAP * self.model.instance_count if cuda and self._lanes >= 8 else 0
+
+    def _solve_arrays(self, sc_data) -> K.SolveArrays:
+        """The solve kernel's ``SolveArrays`` with ``sc_data``'s self-contact part (cached per
+        ``sc_data`` while its scalars and array addresses stay the same)."""
+        key = solve_contact_key(sc_data)
+        cached = self._solve_arrays_cache.get(id(sc_data))
+        if cached is not None and cached[0] is sc_data and cached[1] == key:
+            return cached[2]
+        m = self.model
+        a = K.SolveArrays()
+        arrays = [m.color_vertices, self._x_prev, self._y, m.particle_mass, m.particle_flags,
+                  m.particle_instance, m.tri_indices, m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam,
+                  m.tri_damping, self._tri_strain_prev, *self._hinges, self._edge_angle_prev,
+                  m.vertex_tri_offsets, m.vertex_tri_ids, m.vertex_tri_local, *self._vertex_hinges,
+                  self._contact_point, self._contact_normal, self._contact_body_velocity,
+                  self._contact_active, m.instance_thickness, m.instance_friction]
+        fill_spans(a, dict(zip(K.SOLVE_ARRAYS, arrays, strict=True)))
+        a.contact = solve_contact_arrays(sc_data)
+        # the cache holds sc_data itself: its arrays stay alive as long as the spans are used
+        self._solve_arrays_cache[id(sc_data)] = (sc_data, key, a)
+        return a
 
     def sweep(self, x, sc_data, eps_u: float, h: float, parity: int = 0) -> None:
         """One Gauss-Seidel sweep: the solve kernel over every colour, updating ``x`` in place
@@ -340,6 +363,7 @@ class SolverVBD:
         snap, snap_out = self._snapshots[parity], self._snapshots[1 - parity]
         m = self.model
         cfg = self.config
+        arrays = self._solve_arrays(sc_data)
         heavy = sc_data.heavy_cap if sc_data.enabled else 0
         for c in range(m.color_count):
             start, end = m.color_offsets[c], m.color_offsets[c + 1]
@@ -347,14 +371,8 @@ class SolverVBD:
             wp.launch_tiled(
                 self._solve, dim=[light + min(heavy, end - start)],
                 block_dim=self._particles * self._lanes,
-                inputs=[end - start, c, light, self._membrane, m.color_vertices, start, self._x_prev, self._y,
-                        m.particle_mass, m.particle_flags, m.particle_instance, m.tri_indices,
-                        m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping,
-                        self._tri_strain_prev, *self._hinges, self._edge_angle_prev, m.vertex_tri_offsets,
-                        m.vertex_tri_ids, m.vertex_tri_local, *self._vertex_hinges, self._contact_point,
-                        self._contact_normal, self._contact_body_velocity, self._contact_active,
-                        m.instance_thickness, m.instance_friction, cfg.contact_stiffness, eps_u, h,
-                        cfg.air_damping, sc_data, snap],
+                inputs=[end - start, c, light, self._membrane, start, cfg.contact_stiffness, eps_u, h,
+                        cfg.air_damping, arrays, snap],
                 outputs=[x, snap_out], device=m.device)
 
     def step(self, state_in: ClothState, state_out: ClothState, control: ClothControl, dt: float) -> None:

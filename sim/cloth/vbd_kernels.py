@@ -22,12 +22,15 @@ from sim.cloth.energies import (
 )
 from sim.cloth.self_contact import (
     SelfContactData,
+    SolveContactArrays,
     apply_bound,
+    contact_view,
     read_positions,
     record_force_hessian,
     self_contact_force_hessian,
     self_contact_list_force_hessian,
 )
+from sim.cloth.spans import Span, floats, ints, mat22s, vec3is, vec3s, vec4is
 
 PINNED = wp.constant(1)
 MEMBRANE_STVK = wp.constant(0)
@@ -440,6 +443,56 @@ def vertex_newton_step(
     return x_new
 
 
+
+@wp.struct
+class SolveArrays:
+    """Every array the solve kernel reads besides ``x``/``snap``/``snap_out``, as ``Span``s
+    (``sim.cloth.spans``: ~100 array arguments filled the constant cache). ``SolverVBD`` builds
+    it (``solve_arrays``) and keeps it while the arrays live."""
+
+    color_vertices: Span
+    x_prev: Span
+    y: Span
+    mass: Span
+    flags: Span
+    particle_instance: Span
+    tri_indices: Span
+    tri_dm_inv: Span
+    tri_area: Span
+    tri_mu: Span
+    tri_lam: Span
+    tri_damping: Span
+    tri_strain_prev: Span
+    edge_indices: Span
+    edge_rest_angle: Span
+    edge_stiffness: Span
+    edge_damping: Span
+    edge_angle_prev: Span
+    vertex_tri_offsets: Span
+    vertex_tri_ids: Span
+    vertex_tri_local: Span
+    vertex_edge_offsets: Span
+    vertex_edge_ids: Span
+    vertex_edge_local: Span
+    contact_point: Span
+    contact_normal: Span
+    contact_body_velocity: Span
+    contact_active: Span
+    instance_thickness: Span
+    instance_friction: Span
+    contact: SolveContactArrays
+
+
+SOLVE_ARRAYS = (
+    "color_vertices", "x_prev", "y", "mass", "flags", "particle_instance", "tri_indices", "tri_dm_inv",
+    "tri_area", "tri_mu", "tri_lam", "tri_damping", "tri_strain_prev", "edge_indices",
+    "edge_rest_angle", "edge_stiffness", "edge_damping", "edge_angle_prev", "vertex_tri_offsets",
+    "vertex_tri_ids", "vertex_tri_local", "vertex_edge_offsets", "vertex_edge_ids", "vertex_edge_local",
+    "contact_point", "contact_normal", "contact_body_velocity", "contact_active", "instance_thickness",
+    "instance_friction"
+)
+
+
 _SOLVE_KERNELS: dict = {}
 FUSED_LANES = 8  # lanes per particle from which the solve gathers with the fused loop
 
@@ -480,46 +533,47 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
         color: int,
         light_blocks: int,
         membrane: int,
-        color_vertices: wp.array(dtype=wp.int32),
         color_start: int,
-        x_prev: wp.array(dtype=wp.vec3),
-        y: wp.array(dtype=wp.vec3),
-        mass: wp.array(dtype=float),
-        flags: wp.array(dtype=wp.int32),
-        particle_instance: wp.array(dtype=wp.int32),
-        tri_indices: wp.array(dtype=wp.vec3i),
-        tri_dm_inv: wp.array(dtype=wp.mat22),
-        tri_area: wp.array(dtype=float),
-        tri_mu: wp.array(dtype=float),
-        tri_lam: wp.array(dtype=float),
-        tri_damping: wp.array(dtype=float),
-        tri_strain_prev: wp.array(dtype=wp.vec3),
-        edge_indices: wp.array(dtype=wp.vec4i),
-        edge_rest_angle: wp.array(dtype=float),
-        edge_stiffness: wp.array(dtype=float),
-        edge_damping: wp.array(dtype=float),
-        edge_angle_prev: wp.array(dtype=float),
-        vertex_tri_offsets: wp.array(dtype=wp.int32),
-        vertex_tri_ids: wp.array(dtype=wp.int32),
-        vertex_tri_local: wp.array(dtype=wp.int32),
-        vertex_edge_offsets: wp.array(dtype=wp.int32),
-        vertex_edge_ids: wp.array(dtype=wp.int32),
-        vertex_edge_local: wp.array(dtype=wp.int32),
-        contact_point: wp.array(dtype=wp.vec3),
-        contact_normal: wp.array(dtype=wp.vec3),
-        contact_body_velocity: wp.array(dtype=wp.vec3),
-        contact_active: wp.array(dtype=wp.int32),
-        instance_thickness: wp.array(dtype=float),
-        instance_friction: wp.array(dtype=float),
         k_contact: float,
         eps_u: float,
         h: float,
         air_damping: float,
-        sc: SelfContactData,
+        a: SolveArrays,
         snap: wp.array(dtype=wp.vec3),
         x_inout: wp.array(dtype=wp.vec3),
         snap_out: wp.array(dtype=wp.vec3),
     ):
+        color_vertices = ints(a.color_vertices)
+        x_prev = vec3s(a.x_prev)
+        y = vec3s(a.y)
+        mass = floats(a.mass)
+        flags = ints(a.flags)
+        particle_instance = ints(a.particle_instance)
+        tri_indices = vec3is(a.tri_indices)
+        tri_dm_inv = mat22s(a.tri_dm_inv)
+        tri_area = floats(a.tri_area)
+        tri_mu = floats(a.tri_mu)
+        tri_lam = floats(a.tri_lam)
+        tri_damping = floats(a.tri_damping)
+        tri_strain_prev = vec3s(a.tri_strain_prev)
+        edge_indices = vec4is(a.edge_indices)
+        edge_rest_angle = floats(a.edge_rest_angle)
+        edge_stiffness = floats(a.edge_stiffness)
+        edge_damping = floats(a.edge_damping)
+        edge_angle_prev = floats(a.edge_angle_prev)
+        vertex_tri_offsets = ints(a.vertex_tri_offsets)
+        vertex_tri_ids = ints(a.vertex_tri_ids)
+        vertex_tri_local = ints(a.vertex_tri_local)
+        vertex_edge_offsets = ints(a.vertex_edge_offsets)
+        vertex_edge_ids = ints(a.vertex_edge_ids)
+        vertex_edge_local = ints(a.vertex_edge_local)
+        contact_point = vec3s(a.contact_point)
+        contact_normal = vec3s(a.contact_normal)
+        contact_body_velocity = vec3s(a.contact_body_velocity)
+        contact_active = ints(a.contact_active)
+        instance_thickness = floats(a.instance_thickness)
+        instance_friction = floats(a.instance_friction)
+        sc = contact_view(a.contact)
         block, thread = wp.tid()
         local = thread // wp.static(L)
         lane = thread - local * wp.static(L)

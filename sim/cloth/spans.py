@@ -1,0 +1,76 @@
+"""Arrays passed to a kernel as raw addresses (``Span``: pointer and length, 16 bytes) instead
+of Warp array arguments (56 bytes each: data, grad, shape, strides, ndim).
+
+Why (session 16): the per-colour solve kernel took ~100 array arguments (~5.6 KB of kernel
+parameters). CUDA kernel parameters live in constant memory and every array access reads its
+descriptor from there; Nsight Compute found 30 % of the solve's stall cycles waiting on
+immediate-constant cache misses. The kernel now takes one struct of spans and rebuilds the
+arrays it reads with ``wp.array(ptr=..., shape=..., dtype=...)``; the strides of such an array
+are a compile-time constant, so an element access is one multiply-add on the pointer.
+
+The spans do not own the memory: whoever builds them keeps the arrays alive (the solver holds
+its model, buffers and self-contact data for its lifetime)."""
+
+from __future__ import annotations
+
+import warp as wp
+
+
+@wp.struct
+class Span:
+    """A 1-D contiguous array as its address and length (``span``)."""
+
+    ptr: wp.uint64
+    n: int
+
+
+def span(a) -> Span:
+    """The ``Span`` of a contiguous 1-D Warp array ``a``."""
+    if a.ndim != 1 or not a.is_contiguous:
+        raise ValueError(f"span: a contiguous 1-D array is needed, got shape {a.shape}")
+    s = Span()
+    s.ptr = wp.uint64(a.ptr or 0)
+    s.n = int(a.shape[0])
+    return s
+
+
+def fill_spans(struct, arrays: dict) -> None:
+    """Set the ``Span`` field of ``struct`` named by each key of ``arrays`` to that array's span."""
+    for name, a in arrays.items():
+        setattr(struct, name, span(a))
+
+
+# the arrays of a span inside a kernel, one function per element type
+@wp.func
+def ints(s: Span):
+    return wp.array(ptr=s.ptr, shape=(s.n,), dtype=wp.int32)
+
+
+@wp.func
+def floats(s: Span):
+    return wp.array(ptr=s.ptr, shape=(s.n,), dtype=float)
+
+
+@wp.func
+def vec3s(s: Span):
+    return wp.array(ptr=s.ptr, shape=(s.n,), dtype=wp.vec3)
+
+
+@wp.func
+def vec2is(s: Span):
+    return wp.array(ptr=s.ptr, shape=(s.n,), dtype=wp.vec2i)
+
+
+@wp.func
+def vec3is(s: Span):
+    return wp.array(ptr=s.ptr, shape=(s.n,), dtype=wp.vec3i)
+
+
+@wp.func
+def vec4is(s: Span):
+    return wp.array(ptr=s.ptr, shape=(s.n,), dtype=wp.vec4i)
+
+
+@wp.func
+def mat22s(s: Span):
+    return wp.array(ptr=s.ptr, shape=(s.n,), dtype=wp.mat22)
