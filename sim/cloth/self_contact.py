@@ -148,6 +148,7 @@ class SolveContactArrays:
     tv_capacity: int
     ee_capacity: int
     heavy_cap: int
+    weight_floor: float
     pair_first: Span
     pair_count: Span
     pair_verts: Span
@@ -178,7 +179,7 @@ class SolveContactArrays:
 
 SOLVE_CONTACT_SCALARS = (
     "enabled", "use_bounds", "radius", "stiffness", "friction", "vt_capacity", "tv_capacity",
-    "ee_capacity", "heavy_cap"
+    "ee_capacity", "heavy_cap", "weight_floor"
 )
 SOLVE_CONTACT_ARRAYS = (
     "pair_first", "pair_count", "pair_verts", "pair_role", "pair_ref", "heavy", "heavy_list",
@@ -216,6 +217,7 @@ def contact_view(a: SolveContactArrays) -> SelfContactData:
     sc.tv_capacity = a.tv_capacity
     sc.ee_capacity = a.ee_capacity
     sc.heavy_cap = a.heavy_cap
+    sc.weight_floor = a.weight_floor
     sc.pair_first = ints(a.pair_first)
     sc.pair_count = ints(a.pair_count)
     sc.pair_verts = vec4is(a.pair_verts)
