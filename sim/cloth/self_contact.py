@@ -93,6 +93,9 @@ class SelfContactData:
     vt_ref: wp.array(dtype=wp.vec3)
     tv_ref: wp.array(dtype=wp.vec3)
     ee_ref: wp.array(dtype=wp.vec3)
+    vt_rk: wp.array(dtype=wp.int32)
+    tv_rk: wp.array(dtype=wp.int32)
+    ee_rk: wp.array(dtype=wp.int32)
     vt_count_prev: wp.array(dtype=wp.int32)
     vt_tri_prev: wp.array(dtype=wp.int32)
     vt_ref_prev: wp.array(dtype=wp.vec3)
@@ -170,6 +173,9 @@ class SolveContactArrays:
     ee_first: Span
     ee_edge: Span
     ee_ref: Span
+    vt_rk: Span
+    tv_rk: Span
+    ee_rk: Span
     mesh_edges: Span
     particle_color: Span
     vertex_edge_offsets: Span
@@ -184,7 +190,8 @@ SOLVE_CONTACT_SCALARS = (
 SOLVE_CONTACT_ARRAYS = (
     "pair_first", "pair_count", "pair_verts", "pair_role", "pair_ref", "heavy", "heavy_list",
     "heavy_count", "bound", "reference", "vt_count", "vt_tri", "vt_ref", "tv_total", "tv_first",
-    "tv_vertex", "tv_ref", "ee_total", "ee_first", "ee_edge", "ee_ref", "mesh_edges", "particle_color",
+    "tv_vertex", "tv_ref", "ee_total", "ee_first", "ee_edge", "ee_ref", "vt_rk", "tv_rk", "ee_rk",
+    "mesh_edges", "particle_color",
     "vertex_edge_offsets", "vertex_edge_ids", "vertex_edge_local"
 )
 
@@ -239,6 +246,9 @@ def contact_view(a: SolveContactArrays) -> SelfContactData:
     sc.ee_first = ints(a.ee_first)
     sc.ee_edge = ints(a.ee_edge)
     sc.ee_ref = vec3s(a.ee_ref)
+    sc.vt_rk = ints(a.vt_rk)
+    sc.tv_rk = ints(a.tv_rk)
+    sc.ee_rk = ints(a.ee_rk)
     sc.mesh_edges = vec2is(a.mesh_edges)
     sc.particle_color = ints(a.particle_color)
     sc.vertex_edge_offsets = ints(a.vertex_edge_offsets)
@@ -341,27 +351,29 @@ def pair_force_hessian(diff: wp.vec3, diff0: wp.vec3, rel_disp: wp.vec3, w: floa
 
 @wp.func
 def point_triangle_pair_values(xu: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3, xu0: wp.vec3, a0: wp.vec3,
-                               b0: wp.vec3, c0: wp.vec3, ref: wp.vec3, role: int, sc: SelfContactData,
-                               eps_u: float):
+                               b0: wp.vec3, c0: wp.vec3, ref: wp.vec3, role: int, radius: float,
+                               sc: SelfContactData, eps_u: float):
     """Force and Hessian block of the vertex with ``role`` in the pair of point ``xu`` and
     triangle ``abc`` (``..0``: their substep-start positions): role 0 the point, role 1-3 the
-    triangle's corner ``role - 1``; ``ref`` the pair's side reference."""
+    triangle's corner ``role - 1``; ``ref`` the pair's side reference, ``radius`` its contact
+    distance (``pair_radius``)."""
     w = triangle_closest_bary(xu, a, b, c)
     p = w[0] * a + w[1] * b + w[2] * c
     p0 = w[0] * a0 + w[1] * b0 + w[2] * c0
     wi = 1.0
     if role > 0:
         wi = -w[role - 1]
-    return pair_force_hessian(xu - p, ref, (xu - xu0) - (p - p0), wi, sc.radius, sc.stiffness, sc.friction,
+    return pair_force_hessian(xu - p, ref, (xu - xu0) - (p - p0), wi, radius, sc.stiffness, sc.friction,
                               eps_u, sc.weight_floor)
 
 
 @wp.func
 def edge_edge_pair_values(p1: wp.vec3, q1: wp.vec3, p2: wp.vec3, q2: wp.vec3, p10: wp.vec3, q10: wp.vec3,
-                          p20: wp.vec3, q20: wp.vec3, ref: wp.vec3, end: int, sc: SelfContactData,
-                          eps_u: float):
+                          p20: wp.vec3, q20: wp.vec3, ref: wp.vec3, end: int, radius: float,
+                          sc: SelfContactData, eps_u: float):
     """Force and Hessian block of end ``end`` (0, 1) of edge ``p1 q1`` in its pair with edge
-    ``p2 q2`` (``..0``: their substep-start positions); ``ref`` the pair's side reference."""
+    ``p2 q2`` (``..0``: their substep-start positions); ``ref`` the pair's side reference,
+    ``radius`` its contact distance (``pair_radius``)."""
     st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
     pa = p1 + st[0] * (q1 - p1)
     pb = p2 + st[1] * (q2 - p2)
@@ -370,20 +382,44 @@ def edge_edge_pair_values(p1: wp.vec3, q1: wp.vec3, p2: wp.vec3, q2: wp.vec3, p1
     we = 1.0 - st[0]
     if end == 1:
         we = st[0]
-    return pair_force_hessian(pa - pb, ref, (pa - pa0) - (pb - pb0), we, sc.radius, sc.stiffness, sc.friction,
+    return pair_force_hessian(pa - pb, ref, (pa - pa0) - (pb - pb0), we, radius, sc.stiffness, sc.friction,
                               eps_u, sc.weight_floor)
+
+
+RADIUS_CODES = 255
+
+
+@wp.func
+def reduced_radius_code(rest_distance: float, radius: float) -> int:
+    """Bits 8-15 of the ``pair_role`` of a pair of one piece of cloth that was ``rest_distance``
+    < ``radius`` apart in the rest shape (not incident: a crease folded at rest, panels meeting
+    at a seam): ``k`` in 1..255 with ``pair_radius = radius (1 - k / 255)`` at most half the
+    rest distance, so the pair exerts nothing at rest and stops the two from passing through
+    each other. 0 (every other pair): the full ``radius``."""
+    k = int(wp.ceil(float(RADIUS_CODES) * (1.0 - 0.5 * rest_distance / radius)))
+    return wp.clamp(k, 1, RADIUS_CODES)
+
+
+@wp.func
+def pair_radius(radius: float, packed: int) -> float:
+    """The contact distance of a pair whose ``pair_role`` is ``packed`` (``reduced_radius_code``
+    in bits 8-15)."""
+    return radius * (1.0 - float((packed >> 8) & 255) / float(RADIUS_CODES))
 
 
 @wp.func
 def record_force_hessian(y0: wp.vec3, y1: wp.vec3, y2: wp.vec3, y3: wp.vec3, z0: wp.vec3, z1: wp.vec3,
-                         z2: wp.vec3, z3: wp.vec3, ref: wp.vec3, role: int, sc: SelfContactData,
+                         z2: wp.vec3, z3: wp.vec3, ref: wp.vec3, packed: int, sc: SelfContactData,
                          eps_u: float):
     """Force and Hessian block of a gather record's vertex: the record's four vertices at ``y``
-    (now) and ``z`` (substep start); role 0-3 a point-triangle pair (point, corners), 4-5 an
-    end of the first edge of an edge-edge pair."""
+    (now) and ``z`` (substep start); ``packed`` its ``pair_role``: role (bits 0-3) 0-3 a
+    point-triangle pair (point, corners), 4-5 an end of the first edge of an edge-edge pair;
+    the pair's radius code in bits 8-15 (``pair_radius``)."""
+    role = packed & 15
+    radius = pair_radius(sc.radius, packed)
     if role < 4:
-        return point_triangle_pair_values(y0, y1, y2, y3, z0, z1, z2, z3, ref, role, sc, eps_u)
-    return edge_edge_pair_values(y0, y1, y2, y3, z0, z1, z2, z3, ref, role - 4, sc, eps_u)
+        return point_triangle_pair_values(y0, y1, y2, y3, z0, z1, z2, z3, ref, role, radius, sc, eps_u)
+    return edge_edge_pair_values(y0, y1, y2, y3, z0, z1, z2, z3, ref, role - 4, radius, sc, eps_u)
 
 
 @wp.func
@@ -427,9 +463,10 @@ def record_force_hessian_at(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.
                             sc: SelfContactData, eps_u: float):
     """``record_force_hessian`` of the pair of vertices ``q`` (a record, or a pair from the lists
     laid out as one); ``role`` packed as in ``pair_role`` (the role in bits 0-3, the
-    same-colour mask above: those vertices are read from ``snap``, ``read_position``)."""
-    y0, y1, y2, y3 = read_positions(x, snap, q, role >> 4)
-    return record_force_hessian(y0, y1, y2, y3, x0[q[0]], x0[q[1]], x0[q[2]], x0[q[3]], ref, role & 15, sc,
+    same-colour mask in bits 4-7: those vertices are read from ``snap``, ``read_position``; the
+    radius code above)."""
+    y0, y1, y2, y3 = read_positions(x, snap, q, (role >> 4) & 15)
+    return record_force_hessian(y0, y1, y2, y3, x0[q[0]], x0[q[1]], x0[q[2]], x0[q[3]], ref, role, sc,
                                 eps_u)
 
 
@@ -461,8 +498,8 @@ def self_contact_list_force_hessian(
         tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
         ref = sc.vt_ref[i * sc.vt_capacity + s]
         q = wp.vec4i(i, tri[0], tri[1], tri[2])
-        fc, hc = record_force_hessian_at(x, snap, x0, q, ref, packed_role(0, sc.particle_color, c, q), sc,
-                                         eps_u)
+        role = packed_role(0, sc.particle_color, c, q) | (sc.vt_rk[i * sc.vt_capacity + s] << 8)
+        fc, hc = record_force_hessian_at(x, snap, x0, q, ref, role, sc, eps_u)
         f = f + fc
         H = H + hc
     # i as a corner of triangles that vertices are close to: the lanes split the flattened list
@@ -477,7 +514,7 @@ def self_contact_list_force_hessian(
         s = j - sc.tv_first[kk]
         tri = tri_indices[t]
         q = wp.vec4i(sc.tv_vertex[t * cap + s], tri[0], tri[1], tri[2])
-        role = packed_role(1 + vertex_tri_local[kk], sc.particle_color, c, q)
+        role = packed_role(1 + vertex_tri_local[kk], sc.particle_color, c, q) | (sc.tv_rk[t * cap + s] << 8)
         fc, hc = record_force_hessian_at(x, snap, x0, q, sc.tv_ref[t * cap + s], role, sc, eps_u)
         f = f + fc
         H = H + hc
@@ -493,7 +530,8 @@ def self_contact_list_force_hessian(
         ea = sc.mesh_edges[e]
         eb = sc.mesh_edges[sc.ee_edge[e * ecap + s]]
         q = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
-        role = packed_role(4 + sc.vertex_edge_local[kk], sc.particle_color, c, q)
+        role = (packed_role(4 + sc.vertex_edge_local[kk], sc.particle_color, c, q)
+                | (sc.ee_rk[e * ecap + s] << 8))
         fc, hc = record_force_hessian_at(x, snap, x0, q, sc.ee_ref[e * ecap + s], role, sc, eps_u)
         f = f + fc
         H = H + hc
@@ -551,24 +589,40 @@ def point_triangle_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> f
     return wp.length(point_triangle_separation(p, a, b, c))
 
 
+FAR = wp.constant(1.0e30)
+
+
 @wp.func
-def rest_near_triangle(sc: SelfContactData, v: int, tri: wp.vec3i) -> bool:
-    """Surface neighbours: vertex ``v`` and triangle ``tri`` of one connected piece of cloth were
-    closer than ``sc.exclusion`` in the rest shape (incident pairs are at distance 0)."""
+def rest_distance_triangle(sc: SelfContactData, v: int, tri: wp.vec3i) -> float:
+    """Distance of vertex ``v`` from triangle ``tri`` in the rest shape where both are of one
+    connected piece of cloth, else ``FAR`` (separate pieces have no rest distance)."""
     if sc.component[v] != sc.component[tri[0]]:
-        return False
-    d = point_triangle_distance(sc.rest[v], sc.rest[tri[0]], sc.rest[tri[1]], sc.rest[tri[2]])
-    return d < sc.exclusion
+        return FAR
+    return point_triangle_distance(sc.rest[v], sc.rest[tri[0]], sc.rest[tri[1]], sc.rest[tri[2]])
 
 
 @wp.func
-def rest_near_edges(sc: SelfContactData, ea: wp.vec2i, eb: wp.vec2i) -> bool:
-    """Surface neighbours: edges ``ea`` and ``eb`` of one connected piece were closer than
-    ``sc.exclusion`` in the rest shape."""
+def rest_distance_edges(sc: SelfContactData, ea: wp.vec2i, eb: wp.vec2i) -> float:
+    """Distance of edges ``ea`` and ``eb`` in the rest shape where both are of one connected
+    piece, else ``FAR``."""
     if sc.component[ea[0]] != sc.component[eb[0]]:
-        return False
+        return FAR
     st = wp.closest_point_edge_edge(sc.rest[ea[0]], sc.rest[ea[1]], sc.rest[eb[0]], sc.rest[eb[1]], 1.0e-12)
-    return st[2] < sc.exclusion
+    return st[2]
+
+
+@wp.func
+def rest_class(sc: SelfContactData, rest_distance: float) -> int:
+    """How a non-incident pair found by detection is treated by its rest distance: -1 left to
+    the elastic forces (closer than ``rest_exclusion``, 0 by default); 0 a contact with the full
+    radius; ``reduced_radius_code`` for a pair of one piece closer than the radius at rest (it
+    does not lower the displacement bounds' ``d_min`` either: at rest it is already that
+    close)."""
+    if rest_distance < sc.exclusion:
+        return -1
+    if rest_distance < sc.radius:
+        return reduced_radius_code(rest_distance, sc.radius)
+    return 0
 
 
 @wp.func
@@ -651,17 +705,25 @@ def track_side(prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.v
 
 @wp.func
 def store_pair(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), ref: wp.array(dtype=wp.vec3),
-               prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.vec3),
+               rk: wp.array(dtype=wp.int32), prev_ids: wp.array(dtype=wp.int32),
+               prev_ref: wp.array(dtype=wp.vec3),
                prev_counts: wp.array(dtype=wp.int32), side_memory: int, owner: int, capacity: int, count: int,
-               item: int, d: float, diff: wp.vec3, interior: bool) -> int:
+               item: int, d: float, diff: wp.vec3, interior: bool, code: int, radius: float) -> int:
     """Put pair ``item`` (distance ``d``, separation ``diff``, closest points ``interior`` or
-    not) in the list of ``owner`` (``keep_closest``) with its side reference (``track_side``);
-    returns the list's new count."""
+    not, radius code ``code`` of ``rest_class``) in the list of ``owner`` (``keep_closest``)
+    with its side reference (``track_side``); returns the list's new count. The list keeps the
+    pairs nearest their own contact distance: a pair with a reduced radius ranks by ``d`` plus
+    the reduction, so seam neighbours resting inside the radius do not crowd out layers that
+    met."""
     base = owner * capacity
-    count, slot = keep_closest(ids, dist, base, count, capacity, item, d)
+    key = d
+    if code > 0:
+        key = d + (radius - pair_radius(radius, code << 8))
+    count, slot = keep_closest(ids, dist, base, count, capacity, item, key)
     if slot >= 0:
         ref[base + slot] = track_side(prev_ids, prev_ref, prev_counts, owner, side_memory, base, item, diff,
                                       interior)
+        rk[base + slot] = code
     return count
 
 
@@ -670,14 +732,14 @@ def vertex_triangle_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v
                               u: int, tri: wp.vec3i, r: float, margin: float, speed_factor: float, h: float,
                               dmin: float, count: int, ids: wp.array(dtype=wp.int32),
                               dist: wp.array(dtype=float), ref: wp.array(dtype=wp.vec3),
-                              prev_ids: wp.array(dtype=wp.int32),
+                              rk: wp.array(dtype=wp.int32), prev_ids: wp.array(dtype=wp.int32),
                               prev_ref: wp.array(dtype=wp.vec3), prev_counts: wp.array(dtype=wp.int32),
                               owner: int, capacity: int, item: int):
     """A vertex ``u`` / triangle ``tri`` candidate of a box query (pair ``item`` of list ``owner``:
     the vertex's triangle or the triangle's vertex): the nearest distance so far and the list's
-    count after it. It lowers ``dmin`` unless it is a rest-shape neighbour, and is stored
-    (``store_pair``) if ``list_pair`` says so. Distance first: most candidates lie beyond ``r``,
-    where they change neither ``dmin`` (which starts at ``r``) nor the list, and skip the
+    count after it. It lowers ``dmin`` unless it was as close at rest (``rest_class``), and is
+    stored (``store_pair``) if ``list_pair`` says so. Distance first: most candidates lie beyond
+    ``r``, where they change neither ``dmin`` (which starts at ``r``) nor the list, and skip the
     rest-shape test."""
     a = x[tri[0]]
     b = x[tri[1]]
@@ -689,12 +751,17 @@ def vertex_triangle_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v
         return dmin, count
     v_rel = v[u] - (w[0] * v[tri[0]] + w[1] * v[tri[1]] + w[2] * v[tri[2]])
     stored = list_pair(sc, d, v_rel, margin, speed_factor, h)
-    if (not stored and d >= dmin) or rest_near_triangle(sc, u, tri):
+    if not stored and d >= dmin:
+        return dmin, count
+    code = rest_class(sc, rest_distance_triangle(sc, u, tri))
+    if code < 0:
         return dmin, count
     if stored:
         interior = wp.min(wp.min(w[0], w[1]), w[2]) > INTERIOR
-        count = store_pair(ids, dist, ref, prev_ids, prev_ref, prev_counts, sc.side_memory, owner, capacity,
-                           count, item, d, diff, interior)
+        count = store_pair(ids, dist, ref, rk, prev_ids, prev_ref, prev_counts, sc.side_memory, owner,
+                           capacity, count, item, d, diff, interior, code, sc.radius)
+    if code > 0:
+        return dmin, count
     return wp.min(dmin, d), count
 
 
@@ -761,7 +828,7 @@ def detect_vertex_kernel(
         if particle_instance[tri[0]] != inst:
             continue
         dmin, count = vertex_triangle_candidate(sc, x, v, i, tri, r, margin, speed_factor, h, dmin, count,
-                                                sc.vt_tri, sc.vt_dist, sc.vt_ref, sc.vt_tri_prev,
+                                                sc.vt_tri, sc.vt_dist, sc.vt_ref, sc.vt_rk, sc.vt_tri_prev,
                                                 sc.vt_ref_prev, sc.vt_count_prev, i, sc.vt_capacity, t)
     sc.vt_count[i] = count
     dmin_out[i] = dmin
@@ -804,8 +871,9 @@ def detect_triangle_kernel(
         if u == tri[0] or u == tri[1] or u == tri[2] or particle_instance[u] != inst:
             continue
         dmin, count = vertex_triangle_candidate(sc, x, v, u, tri, r, margin, speed_factor, h, dmin, count,
-                                                sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_vertex_prev,
-                                                sc.tv_ref_prev, sc.tv_count_prev, t, sc.tv_capacity, u)
+                                                sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_rk,
+                                                sc.tv_vertex_prev, sc.tv_ref_prev, sc.tv_count_prev, t,
+                                                sc.tv_capacity, u)
     sc.tv_count[t] = count
     dmin_out[t] = dmin
 
@@ -850,15 +918,19 @@ def detect_edge_kernel(
             continue
         v_rel = wp.lerp(v[ea[0]], v[ea[1]], st[0]) - wp.lerp(v[eb[0]], v[eb[1]], st[1])
         stored = list_pair(sc, d, v_rel, margin, speed_factor, h)
-        if (not stored and d >= dmin) or rest_near_edges(sc, ea, eb):
+        if not stored and d >= dmin:
             continue
-        dmin = wp.min(dmin, d)
+        code = rest_class(sc, rest_distance_edges(sc, ea, eb))
+        if code < 0:
+            continue
+        if code == 0:
+            dmin = wp.min(dmin, d)
         if stored:
             diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
             interior = wp.min(wp.min(st[0], 1.0 - st[0]), wp.min(st[1], 1.0 - st[1])) > INTERIOR
-            count = store_pair(sc.ee_edge, sc.ee_dist, sc.ee_ref, sc.ee_edge_prev, sc.ee_ref_prev,
+            count = store_pair(sc.ee_edge, sc.ee_dist, sc.ee_ref, sc.ee_rk, sc.ee_edge_prev, sc.ee_ref_prev,
                                sc.ee_count_prev, sc.side_memory, e, sc.ee_capacity, count, e2, d, diff,
-                               interior)
+                               interior, code, sc.radius)
     sc.ee_count[e] = count
     dmin_out[e] = dmin
 
@@ -881,8 +953,9 @@ def vertex_summary_kernel(
     offsets of the vertex's flattened pair lists, for the list fallback of the solve); and the
     vertex's gather records: every pair it takes part in (its VT pairs, its triangles' TV
     pairs, its edges' EE pairs, in that order) as the pair's four vertices, the vertex's role
-    in it (bits 0-3 of ``pair_role``; above them which of the four vertices have the vertex's
-    colour, ``read_position``) and the pair's side reference, in one block of the shared pool
+    in it (bits 0-3 of ``pair_role``; bits 4-7 which of the four vertices have the vertex's
+    colour, ``read_position``; bits 8-15 the pair's radius code, ``reduced_radius_code``) and the
+    pair's side reference, in one block of the shared pool
     (``pair_first``: -1 where the pool is full; the solve then reads the lists). The block's
     place in the pool depends on the threads' order, its contents do not: the solve's sums are
     deterministic.
@@ -934,7 +1007,7 @@ def vertex_summary_kernel(
         tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
         q = wp.vec4i(i, tri[0], tri[1], tri[2])
         sc.pair_verts[r] = q
-        sc.pair_role[r] = packed_role(0, sc.particle_color, c, q)
+        sc.pair_role[r] = packed_role(0, sc.particle_color, c, q) | (sc.vt_rk[i * sc.vt_capacity + s] << 8)
         sc.pair_ref[r] = sc.vt_ref[i * sc.vt_capacity + s]
         r += 1
     for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
@@ -943,7 +1016,8 @@ def vertex_summary_kernel(
         for s in range(sc.tv_count[t]):
             q = wp.vec4i(sc.tv_vertex[t * sc.tv_capacity + s], tri[0], tri[1], tri[2])
             sc.pair_verts[r] = q
-            sc.pair_role[r] = packed_role(1 + vertex_tri_local[k], sc.particle_color, c, q)
+            sc.pair_role[r] = (packed_role(1 + vertex_tri_local[k], sc.particle_color, c, q)
+                               | (sc.tv_rk[t * sc.tv_capacity + s] << 8))
             sc.pair_ref[r] = sc.tv_ref[t * sc.tv_capacity + s]
             r += 1
     for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
@@ -953,7 +1027,8 @@ def vertex_summary_kernel(
             eb = sc.mesh_edges[sc.ee_edge[e * sc.ee_capacity + s]]
             q = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
             sc.pair_verts[r] = q
-            sc.pair_role[r] = packed_role(4 + sc.vertex_edge_local[k], sc.particle_color, c, q)
+            sc.pair_role[r] = (packed_role(4 + sc.vertex_edge_local[k], sc.particle_color, c, q)
+                               | (sc.ee_rk[e * sc.ee_capacity + s] << 8))
             sc.pair_ref[r] = sc.ee_ref[e * sc.ee_capacity + s]
             r += 1
 
@@ -969,10 +1044,13 @@ class SelfContact:
         friction: cloth-cloth Coulomb friction coefficient.
         relaxation: gamma of the bounds, < 0.5.
         rest_exclusion: pairs (vertex-triangle, edge-edge) of one connected piece closer than
-            this [m] in the rest shape (at least ``radius``; incident pairs are at 0) are left to
-            the elastic forces: they are neighbours on the surface, not layers that met. Pairs
-            farther apart at rest, even a ring or two away, are in contact when a fold brings
-            them together.
+            this [m] in the rest shape are left to the elastic forces (default 0: none but the
+            incident ones). A pair of one piece closer than ``radius`` at rest (a crease folded at
+            rest, panels meeting at a seam) is in contact at half its rest distance
+            (``reduced_radius_code``): nothing acts at rest, and it cannot pass through (until
+            session 18 such pairs were excluded, and a fine t-shirt's sleeve caps and trousers'
+            crotch seams had no self-contact). Pairs farther apart at rest, even a ring or two
+            away, are in contact at ``radius`` when a fold brings them together.
         speed_factor: the query radius is at least ``speed_factor |v| h``.
         bounds: apply the displacement bounds (intersection-free guarantee); off: penalty only.
         capacity: pairs kept per vertex / triangle / edge.
@@ -1028,6 +1106,7 @@ class SelfContact:
         for name, ids, size in (("vt", "tri", n), ("tv", "vertex", nt), ("ee", "edge", ne)):
             keep = size if side_memory else 1
             setattr(sc, f"{name}_ref", w.zeros(size * capacity, dtype=w.vec3, device=d))
+            setattr(sc, f"{name}_rk", w.zeros(size * capacity, dtype=w.int32, device=d))
             setattr(sc, f"{name}_ref_prev", w.zeros(keep * capacity, dtype=w.vec3, device=d))
             setattr(sc, f"{name}_count_prev", w.zeros(keep, dtype=w.int32, device=d))
             setattr(sc, f"{name}_{ids}_prev", w.zeros(keep * capacity, dtype=w.int32, device=d))
@@ -1063,7 +1142,9 @@ class SelfContact:
         sc.color_start = w.array(offsets[:-1], dtype=w.int32, device=d)
         sc.rest = model.particle_rest
         sc.component = w.array(self._components(model), dtype=w.int32, device=d)
-        sc.exclusion = max(float(rest_exclusion), float(radius))
+        if rest_exclusion < 0.0:
+            raise ValueError(f"SelfContact: rest_exclusion must be >= 0, got {rest_exclusion}")
+        sc.exclusion = float(rest_exclusion)
         sc.reference = w.zeros(model.instance_count, dtype=w.vec3, device=d)
         self.data = sc
         self._dmin_v = w.zeros(n, dtype=float, device=d)
@@ -1173,6 +1254,7 @@ def disabled_data(device) -> SelfContactData:
     sc.vt_capacity = sc.tv_capacity = sc.ee_capacity = 0
     empty_i = w.zeros(1, dtype=w.int32, device=device)
     sc.vt_count = sc.vt_tri = sc.tv_count = sc.tv_vertex = sc.ee_count = sc.ee_edge = empty_i
+    sc.vt_rk = sc.tv_rk = sc.ee_rk = empty_i
     sc.vertex_edge_offsets = sc.vertex_edge_ids = sc.vertex_edge_local = empty_i
     sc.tv_total = sc.ee_total = sc.tv_first = sc.ee_first = empty_i
     sc.pair_first = sc.pair_count = sc.pair_role = sc.pair_cursor = empty_i

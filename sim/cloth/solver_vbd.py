@@ -110,9 +110,12 @@ class VBDConfig:
             frame the t-shirt passed 5 of 6 runs (session 13; one run stretched an edge to
             0.367 > 0.35), no better than without them; off, contact is penalty only.
         self_contact_rest_exclusion: vertex-triangle and edge-edge pairs closer than this [m]
-            in the rest shape (at least ``self_contact_radius``: incident pairs, and panels that
-            meet at a seam) are surface neighbours left to the elastic forces. Everything else,
-            a ring or two away included, is in contact once a fold brings it together (an
+            in the rest shape are surface neighbours left to the elastic forces (0: only incident
+            pairs). Pairs of one piece closer than ``self_contact_radius`` at rest (panels meeting
+            at a seam, a crease folded at rest) are in contact at half their rest distance, so
+            they exert nothing at rest and cannot pass through each other (until session 18 they
+            were excluded: a folded crease passed through itself). Everything else, a ring or two
+            away included, is in contact at the full radius once a fold brings it together (an
             exclusion of 2.5 edge lengths let sleeves crumple through themselves: hundreds of
             crossings on the t-shirt walk).
         self_contact_side_memory: keep the side each self-contact pair was found on across
@@ -222,6 +225,9 @@ class VBDConfig:
         if self.self_contact_friction < 0.0:
             raise ValueError(f"VBDConfig.self_contact_friction must be >= 0, got "
                              f"{self.self_contact_friction}")
+        if self.self_contact_rest_exclusion < 0.0:
+            raise ValueError(f"VBDConfig.self_contact_rest_exclusion must be >= 0, got "
+                             f"{self.self_contact_rest_exclusion}")
         if self.self_contact_margin < self.self_contact_radius:
             raise ValueError("VBDConfig.self_contact_margin must be >= self_contact_radius")
 

@@ -323,7 +323,7 @@ def vertex_share_force_hessian(
             f = f + fb
             H = H + hb
         if r < rec_n:
-            fs, hs = record_force_hessian(y0, y1, y2, y3, z0, z1, z2, z3, ref, packed & 15, sc, eps_u)
+            fs, hs = record_force_hessian(y0, y1, y2, y3, z0, z1, z2, z3, ref, packed, sc, eps_u)
             f = f + fs
             H = H + hs
     if lists:
