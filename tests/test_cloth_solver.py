@@ -738,3 +738,34 @@ def test_a_step_captured_in_a_cuda_graph_takes_the_plain_step(device):
     moved = np.abs(out[0] - start[0]).max()
     assert moved > 1e-4
     np.testing.assert_allclose(out[1], out[0], atol=1e-4 * moved)
+
+
+def test_solve_layout_caps_registers_only_in_the_automatic_batch_layout():
+    """``VBDConfig.max_registers`` -1 (auto) caps the solve's registers where the automatic
+    layout is the batch one (4 lanes, split gather), never for single garments (16 lanes) or a
+    layout the user chose; 0 and an explicit cap are passed through; out-of-range caps raise."""
+    from sim.cloth.solver_vbd import AUTO_BATCH_MAX_REGISTERS, AUTO_LANES_PARTICLES, solve_layout
+
+    big, small = AUTO_LANES_PARTICLES, 1500
+    assert solve_layout(VBDConfig(), small) == (16, 8, 0)
+    assert solve_layout(VBDConfig(), big) == (4, 32, AUTO_BATCH_MAX_REGISTERS)
+    assert solve_layout(VBDConfig(max_registers=0), big) == (4, 32, 0)
+    assert solve_layout(VBDConfig(max_registers=96), small) == (16, 8, 96)
+    assert solve_layout(VBDConfig(lanes=4, particles_per_block=32), big) == (4, 32, 0)
+    for bad in (-2, 1, 23, 256):
+        with pytest.raises(ValueError, match="max_registers"):
+            VBDConfig(max_registers=bad)
+
+
+def test_register_cap_takes_the_same_step(device):
+    """A register cap changes only where the solve keeps its values (registers or spilled to
+    local memory), not its arithmetic: the step from a state with self-contact is the
+    uncapped one. On the CPU the cap is ignored."""
+    m, *start = draped_layers_in_contact(device)
+    layout = {"lanes": 4, "particles_per_block": 32} if device == "cuda" else {}
+    ref, _ = one_step_from(m, start, max_registers=0, **layout)
+    assert np.abs(ref - start[0]).max() > 1e-4
+    for cap in (128, 64):
+        x, solver = one_step_from(m, start, max_registers=cap, **layout)
+        assert solver._max_registers == (cap if device == "cuda" else 0)
+        np.testing.assert_array_equal(x, ref, err_msg=str(cap))

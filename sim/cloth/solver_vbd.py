@@ -77,6 +77,10 @@ class VBDConfig:
             batches, throughput-bound), "auto" (default: fused from ``vbd_kernels.FUSED_LANES`` lanes per
             particle, so with the 16-lane layout of single garments, split with the 4-lane
             layout of batches and on the CPU).
+        max_registers: CUDA registers per thread of the solve kernel (``__maxnreg__``; the compiler
+            spills what does not fit), 0: the compiler's choice, -1 (default): auto,
+            ``AUTO_BATCH_MAX_REGISTERS`` with the automatic batch layout (4 lanes x 32) and the
+            compiler's choice otherwise. A cap trades spills for resident warps.
         chebyshev_rho: estimated spectral radius rho of the sweeps for Chebyshev acceleration
             (Chen et al. 2024, Sec. 3.8: ``omega_1 = 1, omega_2 = 2 / (2 - rho^2), omega_k = 4 /
             (4 - rho^2 omega_{k-1})``); 0 turns it off. It converges further per sweep, but
@@ -166,6 +170,7 @@ class VBDConfig:
     lanes: int = 0
     particles_per_block: int = 8
     gather: str = "auto"
+    max_registers: int = -1
     chebyshev_rho: float = 0.0
     membrane: str = "corotated"
     self_contact: bool = False
@@ -202,6 +207,9 @@ class VBDConfig:
             raise ValueError(f"VBDConfig.gather must be 'auto', 'fused' or 'split', got {self.gather!r}")
         if self.membrane not in ("stvk", "corotated"):
             raise ValueError(f"VBDConfig.membrane must be 'stvk' or 'corotated', got {self.membrane!r}")
+        if self.max_registers not in (-1, 0) and not 24 <= self.max_registers <= 255:
+            raise ValueError("VBDConfig.max_registers must be -1 (auto), 0 (compiler's choice) or in "
+                             f"24..255, got {self.max_registers}")
         if self.lanes < 0 or self.lanes > 256:
             raise ValueError(f"VBDConfig.lanes must be in 0..256 (0: auto), got {self.lanes}")
         if self.particles_per_block < 1 or self.lanes * self.particles_per_block > 1024:
@@ -233,6 +241,12 @@ class VBDConfig:
 
 
 AUTO_LANES_PARTICLES = 16384
+# register cap of the solve in the automatic batch layout (VBDConfig.max_registers -1). The
+# uncapped 4-lane split kernel takes 146 registers (3 blocks of 128 threads per SM); t-shirt
+# 16x10, walk, H100, session 19: 256 t-shirts 608.3 garment-frames/s uncapped, 632.9 at 128
+# (80 spilled bytes), 589.4 at 96 (208); one t-shirt (16-lane fused layout, 209 registers)
+# 10.18 ms/frame uncapped, 11.56 at 128, so single garments stay uncapped.
+AUTO_BATCH_MAX_REGISTERS = 128
 # heavy blocks per colour launch and instance (auto): every launch carries the cap's blocks, and
 # those without a vertex still cost their place in the grid. t-shirt 20x10, H100, session 15
 # (4 colours), walk/run ms per frame: cap 0 17.6/18.0, 64 16.3/16.4, 96 16.3/16.4,
@@ -248,6 +262,20 @@ def auto_lanes(largest_color: int) -> tuple[int, int]:
     Measured on the t-shirt (session 12, H100, 20x10, walk): batch 1 runs fastest at 16
     lanes; batch 64 gives 248 garment-frames/s at 16 lanes, 314 at 8, 344 at 4 and 2, 320 at 1."""
     return (4, 32) if largest_color >= AUTO_LANES_PARTICLES else (16, 8)
+
+
+def solve_layout(config: VBDConfig, largest_color: int) -> tuple[int, int, int]:
+    """(lanes, particles per block, register cap) of the CUDA solve for ``config`` and the
+    particle count of the model's largest colour: ``auto_lanes`` where ``config.lanes`` is 0,
+    and with ``max_registers`` -1 the cap ``AUTO_BATCH_MAX_REGISTERS`` where that picks the
+    batch layout (fewer than ``vbd_kernels.FUSED_LANES`` lanes), else none (0)."""
+    lanes, particles = config.lanes, config.particles_per_block
+    regs = max(config.max_registers, 0)
+    if lanes == 0:
+        lanes, particles = auto_lanes(largest_color)
+        if config.max_registers == -1 and lanes < K.FUSED_LANES:
+            regs = AUTO_BATCH_MAX_REGISTERS
+    return lanes, particles, regs
 
 
 def chebyshev_omegas(rho: float, iterations: int) -> list[float]:
@@ -286,15 +314,14 @@ class SolverVBD:
         # lanes per particle and particles per block of the solve (Warp runs tiles with one
         # thread per block on the CPU)
         cuda = wp.get_device(d).is_cuda
-        lanes, particles = self.config.lanes, self.config.particles_per_block
-        if lanes == 0:
-            offsets = model.color_offsets
-            lanes, particles = auto_lanes(max((b - a for a, b in zip(offsets[:-1], offsets[1:], strict=True)),
-                                              default=0))
+        offsets = model.color_offsets
+        lanes, particles, regs = solve_layout(
+            self.config, max((b - a for a, b in zip(offsets[:-1], offsets[1:], strict=True)), default=0))
         self._lanes = lanes if cuda else 1
         self._particles = particles if cuda else 1
         fused = {"auto": None, "fused": True, "split": False}[self.config.gather]
-        self._solve = K.solve_color_kernel(self._particles, self._lanes, fused)
+        self._max_registers = regs if cuda else 0
+        self._solve = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers)
         self._side = SideStreams(d, 1)
         self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
         # the solve's fused gather reads entry 0 of the per-hinge arrays for vertices without

@@ -497,7 +497,7 @@ _SOLVE_KERNELS: dict = {}
 FUSED_LANES = 8  # lanes per particle from which the solve gathers with the fused loop
 
 
-def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
+def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, max_registers: int = 0):
     """The per-colour VBD kernel (Chen et al. 2024, Alg. 1) for blocks of ``particles`` x
     ``lanes`` threads: launch it with ``wp.launch_tiled(kernel, dim=[ceil(count / particles)],
     block_dim=particles * lanes)`` (on the CPU, where a block is one thread: 1 x 1).
@@ -509,7 +509,9 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
     fill the 32-thread warps and the SM's block slots (a 16-thread block leaves half of every
     warp idle and caps occupancy at a quarter). One kernel per (particles, lanes), compiled in
     its own module and cached. ``fused``: the gather of ``vertex_share_force_hessian`` (None:
-    fused from ``FUSED_LANES`` lanes per particle).
+    fused from ``FUSED_LANES`` lanes per particle). ``max_registers`` > 0 caps the CUDA registers
+    per thread (``__maxnreg__``; the compiler spills what does not fit): more resident warps for
+    batches, where the uncapped kernel's ~200 registers allow two 128-thread blocks per SM.
 
     Same-colour neighbours (session 15): the colouring separates the vertices of every
     triangle, but a bending hinge's two opposite vertices may share a colour
@@ -523,7 +525,7 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
     and device takes the same step up to round-off."""
     if fused is None:
         fused = lanes >= FUSED_LANES
-    key = (int(particles), int(lanes), bool(fused))
+    key = (int(particles), int(lanes), bool(fused), int(max_registers))
     if key in _SOLVE_KERNELS:
         return _SOLVE_KERNELS[key]
     P, L, FUSED = int(particles), int(lanes), int(fused)
@@ -634,8 +636,10 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None):
             x_inout[i] = x_new
         snap_out[i] = x_new
 
-    solve.__name__ = solve.__qualname__ = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}"
-    kernel = wp.kernel(solve, enable_backward=False, module="unique")
+    regs = f"_r{int(max_registers)}" if max_registers > 0 else ""
+    solve.__name__ = solve.__qualname__ = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}{regs}"
+    options = {"cuda_max_registers": int(max_registers)} if max_registers > 0 else {}
+    kernel = wp.kernel(solve, enable_backward=False, module="unique", **options)
     _SOLVE_KERNELS[key] = kernel
     return kernel
 
