@@ -509,10 +509,10 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
     fill the 32-thread warps and the SM's block slots (a 16-thread block leaves half of every
     warp idle and caps occupancy at a quarter). One kernel per (particles, lanes, gather, register
     cap), compiled in its own module and cached. ``fused``: the gather of
-    ``vertex_share_force_hessian`` (None: fused from ``FUSED_LANES`` lanes per particle). ``max_registers`` > 0 caps the CUDA registers
-    per thread (``__maxnreg__``; the compiler spills what does not fit): more resident warps for
-    batches, where the uncapped 4-lane kernel's 146 registers allow three 128-thread blocks per
-    SM (H100, session 19).
+    ``vertex_share_force_hessian`` (None: fused from ``FUSED_LANES`` lanes per particle).
+    ``max_registers`` > 0 caps the CUDA registers per thread (``__maxnreg__``; the compiler
+    spills what does not fit): more resident warps for batches, where the uncapped 4-lane
+    kernel's 146 registers allow three 128-thread blocks per SM (H100, session 19).
 
     Same-colour neighbours (session 15): the colouring separates the vertices of every
     triangle, but a bending hinge's two opposite vertices may share a colour
