@@ -550,7 +550,7 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
     tracks = [_prepare(j, cfg, device, skinned) for j in jobs]
     n_prelude = tracks[0].n_settle + tracks[0].n_blend
 
-    builder = ClothModelBuilder()
+    builder = ClothModelBuilder(max_colors=vbd.max_colors)
     bindings = []
     for tr in tracks:
         g = tr.job.garment

@@ -324,6 +324,40 @@ def test_compact_coloring_needs_fewer_colours_than_greedy_on_a_tshirt():
     assert not validate_coloring(nb, bad)
 
 
+def test_colourings_with_fewer_colours_mark_their_same_coloured_corners():
+    """``max_colors`` below what a proper colouring needs: the t-shirt's 4 colours become 3 with
+    few same-coloured neighbours (TabuCol's best), deterministically, and the model marks every
+    triangle corner that has its vertex's colour in ``vertex_tri_local`` (bits 2-4), where the
+    solve reads it from the sweep's snapshot; with a proper colouring no corner is marked."""
+    from sim.bodies.default import load_default_body
+    from sim.garments import make_garment
+
+    g = make_garment("t_shirt", load_default_body(), None, resolution=0.04)
+    nb = vertex_adjacency(len(g.rest_vertices), g.faces, np.zeros((0, 4), np.int64))
+    three = compact_coloring(nb, max_colors=3)
+    np.testing.assert_array_equal(three, compact_coloring(nb, max_colors=3))
+    edges = sum(len(x) for x in nb) // 2
+    conflicts = sum(int(np.sum(three[x] == three[v])) for v, x in enumerate(nb)) // 2
+    assert three.max() == 2 and 0 < conflicts < 0.05 * edges
+    np.testing.assert_array_equal(compact_coloring(nb, max_colors=4), compact_coloring(nb))  # enough
+    for max_colors in (0, 3):
+        b = ClothModelBuilder(max_colors=max_colors)
+        b.add_cloth(g.rest_vertices, g.faces, ClothMaterialParams())
+        m = b.finalize("cpu")
+        assert m.color_count == (4 if max_colors == 0 else 3)
+        offsets, ids = m.vertex_tri_offsets.numpy(), m.vertex_tri_ids.numpy()
+        packed = m.vertex_tri_local.numpy()
+        owner = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+        corners = g.faces[ids]
+        local = packed & 3
+        assert np.all(corners[np.arange(len(ids)), local] == owner)
+        same = (m.colors[corners] == m.colors[owner][:, None]) & (np.arange(3)[None, :] != local[:, None])
+        np.testing.assert_array_equal(packed >> 2, (same * np.array([1, 2, 4])).sum(axis=1))
+        assert (packed >> 2).any() == (max_colors == 3)
+    with pytest.raises(ValueError, match="max_colors"):
+        ClothModelBuilder(max_colors=1)
+
+
 def test_tabu_recolor_repairs_a_colouring_down_to_the_chromatic_number():
     """The hinged grid contains K4 (a triangle plus the opposite vertex of a hinge), so it needs
     4 colours; TabuCol finds a 4-colouring from a random 7-colouring, and reports failure for 3."""
@@ -410,6 +444,154 @@ def test_hanging_strip_reaches_analytic_stretch(device):
     np.testing.assert_allclose(delta_sim, delta, rtol=0.04)
     # at rest: the last two frames agree
     np.testing.assert_allclose(x[-1], x[-2], atol=2e-4)
+
+
+@pytest.mark.parametrize("max_colors", [2])
+def test_hanging_strip_with_jacobi_couplings_reaches_the_same_stretch(device, max_colors):
+    """Same-coloured neighbours (a 2-colouring of the strip leaves a third of its edges inside a
+    colour) change how the sweeps get to the equilibrium, not the equilibrium: the strip of
+    ``test_hanging_strip_reaches_analytic_stretch`` hangs at the analytic elongation."""
+    W, L, nx, ny = 0.1, 1.0, 3, 21
+    mat = ClothMaterialParams(density=0.2, mu=15.0, lam=10.0, bending=1e-7, damping=1e-3, friction=0.0)
+    v, f = grid(nx, ny, W, L)
+    b = ClothModelBuilder(max_colors=max_colors)
+    b.add_cloth(v, f, mat, pinned=np.arange(nx))
+    m = b.finalize(device)
+    assert m.color_count == max_colors and (m.vertex_tri_local.numpy() >> 2).any()
+    cfg = VBDConfig(substeps=5, iterations=10, air_damping=2.0, membrane="stvk")
+    x = simulate(m, SolverVBD(m, cfg), m.control(), 150, 1.0 / 30.0)
+    assert np.isfinite(x).all()
+    delta_sim = -(x[-1, -nx:, 1].mean()) - L
+    np.testing.assert_allclose(delta_sim, hanging_elongation(L, mat.density, mat.mu, mat.lam), rtol=0.04)
+    np.testing.assert_allclose(x[-1], x[-2], atol=2e-4)
+
+
+def strain_limit_np(x, rest, mass, pinned, edges, limit, normal=None, active=None):
+    """numpy reference of one ``strain_limit_kernel`` pass (float64)."""
+    out = x.astype(np.float64).copy()
+    corr = np.zeros_like(out)
+    count = np.zeros(len(x))
+    inv = np.where(pinned, 0.0, 1.0 / mass)
+    for a, b in edges:
+        d = x[b].astype(np.float64) - x[a]
+        length = np.linalg.norm(d)
+        l_max = (1.0 + limit) * np.linalg.norm(rest[b].astype(np.float64) - rest[a])
+        if length > l_max:
+            for i, j, s in ((a, b, 1.0), (b, a, -1.0)):
+                if inv[i] > 0:
+                    corr[i] += s * d * (length - l_max) / length * inv[i] / (inv[i] + inv[j])
+                count[i] += 1
+    for i in range(len(x)):
+        if pinned[i] or count[i] == 0:
+            continue
+        c = corr[i] / count[i]
+        if active is not None and active[i]:
+            c = c - min(np.dot(c, normal[i]), 0.0) * normal[i]
+        out[i] += c
+    return out
+
+
+def test_strain_limit_pass_matches_numpy_and_caps_strain(device):
+    """One Jacobi pass of the strain limit against a numpy reference on a randomly stretched
+    sheet with unequal masses, a pinned vertex and body-contact normals; repeated passes bring
+    every edge to at most the limit (the stretch goes to slack edges); a sheet within the limit
+    is left exactly as it is; and a lone stretched edge of two free particles comes out at the
+    limit with its centre of mass unmoved."""
+    from sim.cloth import vbd_kernels as K
+
+    wp = warp()
+    v, f = grid(7, 6, 0.3, 0.25)
+    rng = np.random.default_rng(5)
+    x = (v * np.array([1.25, 1.1, 1.0]) + rng.normal(0, 0.01, v.shape)).astype(np.float32)
+    pinned = np.zeros(len(v), bool)
+    pinned[3] = True
+    b = ClothModelBuilder()
+    b.add_cloth(x, f, ClothMaterialParams(), pinned=pinned, rest_vertices=v)
+    m = b.finalize(device)
+    mass = m.particle_mass.numpy() * rng.uniform(0.5, 2.0, len(v)).astype(np.float32)
+    m.particle_mass.assign(mass)
+    normal = rng.normal(size=v.shape)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    active = (rng.uniform(size=len(v)) < 0.3).astype(np.int32)
+    edges = m.mesh_edge_indices.numpy()
+
+    def run(xin, passes, contact=True):
+        a = wp.array(xin, dtype=wp.vec3, device=device)
+        touching = active if contact else np.zeros_like(active)
+        o = wp.zeros_like(a)
+        for _ in range(passes):
+            wp.launch(K.strain_limit_kernel, dim=len(xin),
+                      inputs=[0.1, a, m.particle_rest, m.particle_mass, m.particle_flags, m.mesh_edge_indices,
+                              m.vertex_mesh_edge_offsets, m.vertex_mesh_edge_ids, m.vertex_mesh_edge_local,
+                              wp.array(normal.astype(np.float32), dtype=wp.vec3, device=device),
+                              wp.array(touching, dtype=wp.int32, device=device)], outputs=[o], device=device)
+            a, o = o, a
+        return a.numpy()
+
+    def max_strain(xs):
+        return float((np.linalg.norm(xs[edges[:, 1]] - xs[edges[:, 0]], axis=1)
+                      / np.linalg.norm(v[edges[:, 1]] - v[edges[:, 0]], axis=1)).max() - 1.0)
+
+    np.testing.assert_allclose(run(x, 1), strain_limit_np(x, v, mass, pinned, edges, 0.1, normal, active),
+                               atol=2e-6)
+    assert max_strain(x) > 0.3
+    out = run(x, 200, contact=False)
+    assert max_strain(out) < 0.105  # from > 0.3 (averaged Jacobi converges slowly at the end)
+    np.testing.assert_array_equal(out[3], x[3])  # pinned
+    within = (v * 1.05).astype(np.float32)
+    np.testing.assert_array_equal(run(within, 3), within)
+    # in contact a particle keeps only the part of its correction that leaves the body
+    moved = run(x, 1) - x
+    touching = active.astype(bool) & ~pinned
+    assert np.all(np.einsum("ij,ij->i", moved[touching], normal[touching]) > -1e-6)
+    # a lone edge: exactly at the limit, centre of mass kept
+    two = ClothModelBuilder()
+    tv = np.array([[0, 0, 0], [0.1, 0, 0], [0.075, 0.2, 0]], np.float32)
+    two.add_cloth(tv, [[0, 1, 2]], ClothMaterialParams())
+    m2 = two.finalize(device)
+    lone = np.array([[0, 0, 0], [0.15, 0, 0], [0.075, 0.2, 0]], np.float32)  # only edge 0-1 past the limit
+    masses = np.array([1.0, 3.0, 1.0], np.float32)
+    m2.particle_mass.assign(masses)
+    a = wp.array(lone, dtype=wp.vec3, device=device)
+    o = wp.zeros_like(a)
+    wp.launch(K.strain_limit_kernel, dim=3,
+              inputs=[0.1, a, m2.particle_rest, m2.particle_mass, m2.particle_flags, m2.mesh_edge_indices,
+                      m2.vertex_mesh_edge_offsets, m2.vertex_mesh_edge_ids, m2.vertex_mesh_edge_local,
+                      wp.zeros(3, dtype=wp.vec3, device=device), wp.zeros(3, dtype=wp.int32, device=device)],
+              outputs=[o], device=device)
+    y = o.numpy()
+    np.testing.assert_allclose(np.linalg.norm(y[1] - y[0]), 0.11, rtol=1e-5)
+    np.testing.assert_allclose(masses[:2] @ y[:2], masses[:2] @ lone[:2], atol=1e-7)
+    np.testing.assert_array_equal(y[2], lone[2])
+
+
+def test_a_strain_limited_strip_hangs_near_the_limit(device):
+    """A soft strip that would hang stretched ~40 % at its top (StVK, few sweeps) hangs with its
+    edges near the 10 % limit when the substeps end with strain-limit passes, nearer with more
+    passes (the averaged Jacobi passes move stretch down the strip a ring at a time), and at
+    rest."""
+    W, L, nx, ny = 0.1, 1.0, 3, 21
+    mat = ClothMaterialParams(density=0.2, mu=1.5, lam=1.0, bending=1e-7, damping=1e-3, friction=0.0)
+    v, f = grid(nx, ny, W, L)
+    b = ClothModelBuilder()
+    b.add_cloth(v, f, mat, pinned=np.arange(nx))
+    m = b.finalize(device)
+    edges = m.mesh_edge_indices.numpy()
+    rest = np.linalg.norm(v[edges[:, 1]] - v[edges[:, 0]], axis=1)
+    out = {}
+    for limit, passes in ((0.0, 4), (0.1, 8), (0.1, 40)):
+        cfg = VBDConfig(substeps=5, iterations=10, air_damping=2.0, membrane="stvk", strain_limit=limit,
+                        strain_limit_passes=passes)
+        x = simulate(m, SolverVBD(m, cfg), m.control(), 120, 1.0 / 30.0)
+        strain = np.linalg.norm(x[-1, edges[:, 1]] - x[-1, edges[:, 0]], axis=1) / rest - 1.0
+        out[limit, passes] = strain.max()
+        if limit:
+            np.testing.assert_allclose(x[-1], x[-2], atol=3e-4)
+    assert out[0.0, 4] > 0.3
+    assert 0.1 < out[0.1, 40] < out[0.1, 8] < 0.16
+    assert out[0.1, 40] < 0.115
+    with pytest.raises(ValueError, match="strain_limit"):
+        VBDConfig(strain_limit=-0.1)
 
 
 def test_pinned_vertices_stay_exactly_put(device):
@@ -561,15 +743,15 @@ def test_chebyshev_acceleration_converges_further_per_sweep(device):
     np.testing.assert_array_equal(step(20, rho)[:nx], v[:nx])  # pins untouched
 
 
-def draped_layers_in_contact(device):
+def draped_layers_in_contact(device, max_colors: int = 0):
     """Two 12 x 12 sheets 6 mm apart, pinned at two corners, after 3 or more frames of draping
     into self-contact (the first frame from the third on where they are): (model, positions,
-    velocities)."""
+    velocities). ``max_colors``: the model's colouring (``ClothModelBuilder``)."""
     n = 12
     v, f = grid(n, n, 0.3, 0.3, plane="xz")
     x = np.concatenate([v, v + np.array([0.004, 0.006, 0.003], np.float32)])
     faces = np.concatenate([f, f + len(v)])
-    b = ClothModelBuilder()
+    b = ClothModelBuilder(max_colors=max_colors)
     b.add_cloth(x, faces, ClothMaterialParams(), pinned=[0, n - 1])
     m = b.finalize(device)
     first = SolverVBD(m, VBDConfig(substeps=4, iterations=4, self_contact=True))
@@ -633,7 +815,8 @@ def same_color_partner_records(solver) -> int:
     return n
 
 
-def test_the_step_does_not_depend_on_the_order_of_a_colours_vertices(device):
+@pytest.mark.parametrize("max_colors", [0, 2])
+def test_the_step_does_not_depend_on_the_order_of_a_colours_vertices(device, max_colors):
     """The threads of one colour launch run in any order on a GPU. Contact pairs found at run
     time can join two vertices of one colour; the solve reads such partners from the sweep's
     snapshot, not from the positions their threads are writing, so the step must not depend on
@@ -641,9 +824,11 @@ def test_the_step_does_not_depend_on_the_order_of_a_colours_vertices(device):
     gives the same step bit for bit (before session 15 a vertex read a same-colour partner's
     new position if its thread had run first: on the CPU the order changed the step, on CUDA
     the timing did)."""
-    m, *start = draped_layers_in_contact(device)
+    m, *start = draped_layers_in_contact(device, max_colors)
     x_ref, solver = one_step_from(m, start)
     assert same_color_partner_records(solver) > 0  # the race the snapshot removes is there
+    if max_colors:  # two colours: triangles with two corners of one colour (Jacobi couplings)
+        assert m.color_count == 2 and (m.vertex_tri_local.numpy() >> 2).any()
     assert np.abs(x_ref - start[0]).max() > 1e-4
     order = m.color_vertices.numpy()
     offsets = list(m.color_offsets)

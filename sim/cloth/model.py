@@ -160,16 +160,18 @@ class _Instance:
 _TOPOLOGY: collections.OrderedDict = collections.OrderedDict()
 
 
-def mesh_topology(vertex_count: int, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def mesh_topology(vertex_count: int, faces: np.ndarray, max_colors: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Hinges and vertex colouring (of the triangle edges: see the module docstring) of a mesh,
     cached by topology (the last 64 meshes): a batch of one garment pattern colours it once (the
     5k t-shirt's compact colouring takes 0.45 s, and 1024 copies of it took longer than their
     simulation)."""
-    key = (int(vertex_count), hashlib.sha1(np.ascontiguousarray(faces, np.int32).tobytes()).hexdigest())
+    key = (int(vertex_count), hashlib.sha1(np.ascontiguousarray(faces, np.int32).tobytes()).hexdigest(),
+           int(max_colors))
     if key not in _TOPOLOGY:
         hinges = build_hinges(faces)
         no_hinges = np.zeros((0, 4), np.int64)
-        _TOPOLOGY[key] = (hinges, compact_coloring(vertex_adjacency(vertex_count, faces, no_hinges)))
+        _TOPOLOGY[key] = (hinges, compact_coloring(vertex_adjacency(vertex_count, faces, no_hinges),
+                                                   max_colors=max_colors))
         if len(_TOPOLOGY) > 64:
             _TOPOLOGY.popitem(last=False)
     hinges, colors = _TOPOLOGY[key]
@@ -181,10 +183,16 @@ class ClothModelBuilder:
 
     Args:
         gravity: gravitational acceleration [m/s^2], shared by all instances (Y up).
+        max_colors: colours of each instance's vertex colouring (``compact_coloring``): 0 (default)
+            as few as a proper colouring needs; fewer leaves some neighbours same-coloured, and
+            the solve couples those by a Jacobi step (``vertex_tri_local``'s mask).
     """
 
-    def __init__(self, *, gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)):
+    def __init__(self, *, gravity: tuple[float, float, float] = (0.0, -9.81, 0.0), max_colors: int = 0):
         self.gravity = tuple(float(g) for g in gravity)
+        if max_colors < 0 or max_colors == 1:
+            raise ValueError(f"ClothModelBuilder: max_colors must be 0 (proper) or >= 2, got {max_colors}")
+        self.max_colors = int(max_colors)
         self._instances: list[_Instance] = []
 
     def add_cloth(self, vertices: np.ndarray, faces: np.ndarray, material: ClothMaterialLike, *,
@@ -221,7 +229,7 @@ class ClothModelBuilder:
                 mask[:] = p
             else:
                 mask[p.astype(np.int64)] = True
-        hinges, colors = mesh_topology(len(v), f)
+        hinges, colors = mesh_topology(len(v), f, self.max_colors)
         self._instances.append(_Instance(v, rest, f, hinges, mask, material, colors))
         return len(self._instances) - 1
 
@@ -275,6 +283,7 @@ class ClothModelBuilder:
         ve = _csr(n, h_all.reshape(-1).astype(np.int64), [edge_ids, np.tile(np.arange(4), len(h_all))])
         colors = np.concatenate([ins.colors for ins in self._instances])
         ve = (*ve[:2], hinge_local_packed(colors, h_all, ve))
+        vt = (*vt[:2], triangle_local_packed(colors, f_all, vt))
         # every mesh edge (boundary included) for edge-edge self-contact, and vertex -> edge
         me_all = mesh_edges(f_all)
         me_ids = np.repeat(np.arange(len(me_all)), 2)
@@ -352,6 +361,21 @@ def hinge_local_packed(colors: np.ndarray, hinges: np.ndarray, ve: tuple[np.ndar
     return np.asarray(local, np.int64) | (mask << 2)
 
 
+def triangle_local_packed(colors: np.ndarray, faces: np.ndarray, vt: tuple[np.ndarray, ...]) -> np.ndarray:
+    """``vertex_tri_local`` of the CSR vertex -> triangle adjacency ``vt`` (offsets, triangle ids,
+    corner of the vertex): the corner in bits 0-1, and in bits 2-4 which of the triangle's other
+    corners have the vertex's colour (only with ``max_colors``: a proper colouring separates
+    every triangle's vertices, and the mask is 0)."""
+    offsets, ids, local = vt
+    if not len(ids):
+        return np.asarray(local, np.int64)
+    owner = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+    q = faces[ids]
+    same = (colors[q] == colors[owner][:, None]) & (np.arange(3)[None, :] != np.asarray(local)[:, None])
+    mask = (same * (1 << np.arange(3))[None, :]).sum(axis=1)
+    return np.asarray(local, np.int64) | (mask << 2)
+
+
 def mesh_edges(faces: np.ndarray) -> np.ndarray:
     """Unique undirected edges ``(a, b)``, ``a < b``, of a triangle mesh, int32 (E, 2), sorted."""
     f = faces.astype(np.int64).reshape(-1, 3)
@@ -387,6 +411,9 @@ class ClothModel:
     Per instance: ``instance_thickness`` [m], ``instance_friction``; ``instance_starts`` (host,
     (I+1,)) slices the particle range of each instance. ``color_vertices`` lists particles by
     colour; colour ``c`` is ``color_vertices[color_offsets[c]:color_offsets[c+1]]``.
+    Vertex -> triangle CSR ``vertex_tri_offsets`` / ``vertex_tri_ids`` / ``vertex_tri_local``
+    (the vertex's corner in bits 0-1, same-coloured corners in bits 2-4:
+    ``triangle_local_packed``); vertex -> hinge ``vertex_edge_*`` (``hinge_local_packed``).
     Self-contact data: ``mesh_edge_indices`` (every undirected edge, vec2i (E,)) with vertex ->
     edge CSR ``vertex_mesh_edge_*``, ``tri_instance`` / ``mesh_edge_instance`` /
     ``particle_instance`` (BVH groups: instances never collide).

@@ -441,6 +441,14 @@ def read_positions(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.vec3), q:
 
 
 @wp.func
+def read_triangle(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.vec3), tri: wp.vec3i, same: int):
+    """``read_position`` of a triangle's three corners, corner ``k`` from ``snap`` where bit ``k``
+    of ``same`` is set (``model.triangle_local_packed``)."""
+    return (read_position(x, snap, tri[0], same & 1), read_position(x, snap, tri[1], same & 2),
+            read_position(x, snap, tri[2], same & 4))
+
+
+@wp.func
 def same_color_mask(color: wp.array(dtype=wp.int32), c: int, q: wp.vec4i) -> int:
     """Bit ``k`` set where vertex ``q[k]`` has colour ``c``."""
     mask = int(0)
@@ -514,7 +522,8 @@ def self_contact_list_force_hessian(
         s = j - sc.tv_first[kk]
         tri = tri_indices[t]
         q = wp.vec4i(sc.tv_vertex[t * cap + s], tri[0], tri[1], tri[2])
-        role = packed_role(1 + vertex_tri_local[kk], sc.particle_color, c, q) | (sc.tv_rk[t * cap + s] << 8)
+        role = (packed_role(1 + (vertex_tri_local[kk] & 3), sc.particle_color, c, q)
+                | (sc.tv_rk[t * cap + s] << 8))
         fc, hc = record_force_hessian_at(x, snap, x0, q, sc.tv_ref[t * cap + s], role, sc, eps_u)
         f = f + fc
         H = H + hc
@@ -1016,7 +1025,7 @@ def vertex_summary_kernel(
         for s in range(sc.tv_count[t]):
             q = wp.vec4i(sc.tv_vertex[t * sc.tv_capacity + s], tri[0], tri[1], tri[2])
             sc.pair_verts[r] = q
-            sc.pair_role[r] = (packed_role(1 + vertex_tri_local[k], sc.particle_color, c, q)
+            sc.pair_role[r] = (packed_role(1 + (vertex_tri_local[k] & 3), sc.particle_color, c, q)
                                | (sc.tv_rk[t * sc.tv_capacity + s] << 8))
             sc.pair_ref[r] = sc.tv_ref[t * sc.tv_capacity + s]
             r += 1

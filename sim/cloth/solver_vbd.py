@@ -155,6 +155,19 @@ class VBDConfig:
         self_contact_rebuild: rebuild the cloth BVHs at the first detection of every step and
             refit them at the others. Refitting a tree built for the rest shape keeps its
             topology while the garment deforms, and queries on the loosened boxes cost 1.5-2x.
+        max_colors: colours of the model's vertex colouring (``ClothModelBuilder(max_colors=...)``,
+            which ``sim.simulate`` builds from this field; the solver itself runs any colouring):
+            0 (default) a proper colouring (the t-shirt: 4); 3 leaves ~2 % of the t-shirt's edges
+            same-coloured, coupled by a Jacobi step, for one launch fewer per sweep.
+        strain_limit: largest edge stretch ``l / l0 - 1`` [-] the substep ends with (0: off):
+            after the sweeps, ``strain_limit_passes`` Jacobi passes shorten every edge stretched
+            further (``vbd_kernels.strain_limit_kernel``; Provot 1995). Truncated Gauss-Seidel
+            sweeps move a stiff sheet's support forces ~1 ring per sweep, so where the body
+            drags cloth (straps carrying a running shirt) edges stretch far more than the
+            material would; the passes move that stretch on to slack edges at a fraction of a
+            sweep's cost, and the velocity update carries the shortening (as position-based
+            dynamics does).
+        strain_limit_passes: Jacobi passes of the strain limit per substep.
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every
@@ -190,6 +203,9 @@ class VBDConfig:
     self_contact_pool: int = 16
     self_contact_heavy_cap: int = -1
     self_contact_weight_floor: float = 0.5
+    max_colors: int = 0
+    strain_limit: float = 0.0
+    strain_limit_passes: int = 4
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -197,7 +213,12 @@ class VBDConfig:
                              f"{self.self_contact_heavy_cap}")
         if self.self_contact_pool < 0:
             raise ValueError(f"VBDConfig.self_contact_pool must be >= 0, got {self.self_contact_pool}")
-        for name in ("substeps", "iterations", "self_contact_interval"):
+        if self.max_colors < 0 or self.max_colors == 1:
+            raise ValueError(f"VBDConfig.max_colors must be 0 (proper colouring) or >= 2, got "
+                             f"{self.max_colors}")
+        if self.strain_limit < 0.0:
+            raise ValueError(f"VBDConfig.strain_limit must be >= 0 (0: off), got {self.strain_limit}")
+        for name in ("substeps", "iterations", "self_contact_interval", "strain_limit_passes"):
             if getattr(self, name) < 1:
                 raise ValueError(f"VBDConfig.{name} must be >= 1, got {getattr(self, name)}")
         if self.self_contact_bounds and self.self_contact_interval != 1:
@@ -356,6 +377,7 @@ class SolverVBD:
         # contact partners); the sweeps alternate between the two (``sweep``)
         self._snapshots = (wp.zeros(n, dtype=wp.vec3, device=d), wp.zeros(n, dtype=wp.vec3, device=d))
         self._solve_arrays_cache: dict = {}
+        self._limit_buffer = wp.zeros(n, dtype=wp.vec3, device=d) if cfg.strain_limit > 0.0 else None
 
     def heavy_cap(self, cuda: bool) -> int:
         """Heavy-vertex blocks per colour launch (``VBDConfig.self_contact_heavy_cap``; -1: auto,
@@ -407,6 +429,22 @@ class SolverVBD:
                 inputs=[end - start, c, light, self._membrane, start, cfg.contact_stiffness, eps_u, h,
                         cfg.air_damping, arrays, snap],
                 outputs=[x, snap_out], device=m.device)
+
+    def limit_strain(self, x) -> None:
+        """``strain_limit_passes`` Jacobi passes of the strain limit on ``x`` (in place; the
+        passes alternate between ``x`` and a buffer, an odd count ends with a copy)."""
+        wp = warp()
+        m = self.model
+        buffers = (x, self._limit_buffer)
+        for p in range(self.config.strain_limit_passes):
+            wp.launch(K.strain_limit_kernel, dim=m.particle_count,
+                      inputs=[self.config.strain_limit, buffers[p % 2], m.particle_rest, m.particle_mass,
+                              m.particle_flags, m.mesh_edge_indices, m.vertex_mesh_edge_offsets,
+                              m.vertex_mesh_edge_ids, m.vertex_mesh_edge_local, self._contact_normal,
+                              self._contact_active],
+                      outputs=[buffers[(p + 1) % 2]], device=m.device)
+        if self.config.strain_limit_passes % 2:
+            wp.copy(x, self._limit_buffer)
 
     def step(self, state_in: ClothState, state_out: ClothState, control: ClothControl, dt: float) -> None:
         """Advance by ``dt`` [s]; ``state_out`` may be ``state_in``.
@@ -464,5 +502,7 @@ class SolverVBD:
                               inputs=[self._omegas[it], m.particle_flags],
                               outputs=[x, self._cheb_prev1, self._cheb_prev2, self._snapshots[(it + 1) % 2]],
                               device=d)
+            if self._limit_buffer is not None:
+                self.limit_strain(x)
             wp.launch(K.velocity_kernel, dim=n, inputs=[x, self._x_prev, 1.0 / h],
                       outputs=[v, state_out.accelerations], device=d)

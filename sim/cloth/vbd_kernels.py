@@ -26,6 +26,7 @@ from sim.cloth.self_contact import (
     apply_bound,
     contact_view,
     read_positions,
+    read_triangle,
     record_force_hessian,
     self_contact_force_hessian,
     self_contact_list_force_hessian,
@@ -192,6 +193,17 @@ def membrane_force_hessian(membrane: int, xa: wp.vec3, xb: wp.vec3, xc: wp.vec3,
 
 
 @wp.func
+def jacobi_scale(t_packed: int) -> float:
+    """Hessian scale of a triangle term in a vertex's Newton step: 2 where another corner has
+    the vertex's colour (``model.triangle_local_packed``): both corners then move in the same
+    launch against each other's sweep-start position (a Jacobi coupling), and taking the whole
+    step each would overshoot by up to twice; 1 otherwise (Gauss-Seidel)."""
+    if (t_packed >> 2) != 0:
+        return 2.0
+    return 1.0
+
+
+@wp.func
 def vertex_share_force_hessian(
     i: int,
     lane: int,
@@ -244,11 +256,13 @@ def vertex_share_force_hessian(
         for k in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
             t = vertex_tri_ids[k]
             tri = tri_indices[t]
-            fe, he = membrane_force_hessian(membrane, x[tri[0]], x[tri[1]], x[tri[2]], tri_dm_inv[t],
-                                            tri_area[t], tri_mu[t], tri_lam[t], tri_strain_prev[t],
-                                            tri_damping[t] * inv_h, vertex_tri_local[k])
+            t_packed = vertex_tri_local[k]
+            ta, tb, tc = read_triangle(x, snap, tri, t_packed >> 2)
+            fe, he = membrane_force_hessian(membrane, ta, tb, tc, tri_dm_inv[t], tri_area[t], tri_mu[t],
+                                            tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h,
+                                            t_packed & 3)
             f = f + fe
-            H = H + he
+            H = H + he * jacobi_scale(t_packed)
         for k in range(vertex_edge_offsets[i] + lane, vertex_edge_offsets[i + 1], stride):
             e = vertex_edge_ids[k]
             q = edge_indices[e]
@@ -303,9 +317,7 @@ def vertex_share_force_hessian(
         k_edge = edge_stiffness[e]
         e_damp = edge_damping[e]
         angle_prev = edge_angle_prev[e]
-        xa = x[tri[0]]
-        xb = x[tri[1]]
-        xc = x[tri[2]]
+        xa, xb, xc = read_triangle(x, snap, tri, t_local >> 2)
         h0, h1, h2, h3 = read_positions(x, snap, hinge, e_packed >> 2)
         y0, y1, y2, y3 = read_positions(x, snap, q, packed >> 4)
         z0 = x_prev[q[0]]
@@ -314,9 +326,9 @@ def vertex_share_force_hessian(
         z3 = x_prev[q[3]]
         if r < tri_n:
             fe, he = membrane_force_hessian(membrane, xa, xb, xc, dm_inv, area, mu, lam, strain_prev,
-                                            t_damp * inv_h, t_local)
+                                            t_damp * inv_h, t_local & 3)
             f = f + fe
-            H = H + he
+            H = H + he * jacobi_scale(t_local)
         if r < edge_n:
             fb, hb = bending_damped_vertex_force_hessian(h0, h1, h2, h3, rest_angle, k_edge, angle_prev,
                                                          e_damp * inv_h, e_packed & 3)
@@ -670,6 +682,57 @@ def chebyshev_kernel(
     prev1_inout[i] = xa
     x_inout[i] = xa
     snap_out[i] = xa
+
+
+@wp.kernel
+def strain_limit_kernel(
+    limit: float,
+    x_in: wp.array(dtype=wp.vec3),
+    rest: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    flags: wp.array(dtype=wp.int32),
+    edges: wp.array(dtype=wp.vec2i),
+    vertex_edge_offsets: wp.array(dtype=wp.int32),
+    vertex_edge_ids: wp.array(dtype=wp.int32),
+    vertex_edge_local: wp.array(dtype=wp.int32),
+    contact_normal: wp.array(dtype=wp.vec3),
+    contact_active: wp.array(dtype=wp.int32),
+    x_out: wp.array(dtype=wp.vec3),
+):
+    """One Jacobi pass of edge strain limiting (Provot 1995): every mesh edge stretched past
+    ``(1 + limit)`` times its rest length is shortened to it, each end moving its inverse-mass
+    share along the edge (pinned ends do not move); a particle's corrections from its edges are
+    averaged. A particle in body contact keeps only the part of its correction that does not
+    point into the body (its contact normal): the body carries it. Reads ``x_in``, writes
+    ``x_out`` (the passes ping-pong), so the result does not depend on thread order."""
+    i = wp.tid()
+    xi = x_in[i]
+    if flags[i] == PINNED:
+        x_out[i] = xi
+        return
+    wi = 1.0 / mass[i]
+    ri = rest[i]
+    corr = wp.vec3(0.0)
+    count = int(0)
+    for k in range(vertex_edge_offsets[i], vertex_edge_offsets[i + 1]):
+        e = edges[vertex_edge_ids[k]]
+        j = e[1 - vertex_edge_local[k]]
+        d = x_in[j] - xi
+        length = wp.length(d)
+        l_max = (1.0 + limit) * wp.length(rest[j] - ri)
+        if length > l_max:
+            wj = 0.0
+            if flags[j] != PINNED:
+                wj = 1.0 / mass[j]
+            corr = corr + d * ((length - l_max) / length * wi / (wi + wj))
+            count += 1
+    if count > 0:
+        corr = corr / float(count)
+        if contact_active[i] != 0:
+            n = contact_normal[i]
+            corr = corr - wp.min(wp.dot(corr, n), 0.0) * n
+        xi = xi + corr
+    x_out[i] = xi
 
 
 @wp.kernel
