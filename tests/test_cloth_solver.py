@@ -426,13 +426,18 @@ def hanging_elongation(L: float, rho: float, mu: float, lam: float) -> float:
     return float(np.trapezoid(s - 1.0, Y))
 
 
+def hanging_strip(device, mat, max_colors: int = 0):
+    """A 0.1 x 1 m strip (3 x 21 vertices) pinned along its top edge: (model, rest vertices)."""
+    v, f = grid(3, 21, 0.1, 1.0)
+    b = ClothModelBuilder(max_colors=max_colors)
+    b.add_cloth(v, f, mat, pinned=np.arange(3))
+    return b.finalize(device), v
+
+
 def test_hanging_strip_reaches_analytic_stretch(device):
-    W, L, nx, ny = 0.1, 1.0, 3, 21
+    L, nx = 1.0, 3
     mat = ClothMaterialParams(density=0.2, mu=15.0, lam=10.0, bending=1e-7, damping=1e-3, friction=0.0)
-    v, f = grid(nx, ny, W, L)
-    b = ClothModelBuilder()
-    b.add_cloth(v, f, mat, pinned=np.arange(nx))
-    m = b.finalize(device)
+    m, v = hanging_strip(device, mat)
     # the asymmetric triangulation makes the stretched strip sway; still air (alpha = 2/s) stops it.
     # The analytic value is StVK's.
     cfg = VBDConfig(substeps=5, iterations=10, air_damping=2.0, membrane="stvk")
@@ -451,12 +456,9 @@ def test_hanging_strip_with_jacobi_couplings_reaches_the_same_stretch(device, ma
     """Same-coloured neighbours (a 2-colouring of the strip leaves a third of its edges inside a
     colour) change how the sweeps get to the equilibrium, not the equilibrium: the strip of
     ``test_hanging_strip_reaches_analytic_stretch`` hangs at the analytic elongation."""
-    W, L, nx, ny = 0.1, 1.0, 3, 21
+    L, nx = 1.0, 3
     mat = ClothMaterialParams(density=0.2, mu=15.0, lam=10.0, bending=1e-7, damping=1e-3, friction=0.0)
-    v, f = grid(nx, ny, W, L)
-    b = ClothModelBuilder(max_colors=max_colors)
-    b.add_cloth(v, f, mat, pinned=np.arange(nx))
-    m = b.finalize(device)
+    m, v = hanging_strip(device, mat, max_colors)
     assert m.color_count == max_colors and (m.vertex_tri_local.numpy() >> 2).any()
     cfg = VBDConfig(substeps=5, iterations=10, air_damping=2.0, membrane="stvk")
     x = simulate(m, SolverVBD(m, cfg), m.control(), 150, 1.0 / 30.0)
@@ -570,12 +572,8 @@ def test_a_strain_limited_strip_hangs_near_the_limit(device):
     edges near the 10 % limit when the substeps end with strain-limit passes, nearer with more
     passes (the averaged Jacobi passes move stretch down the strip a ring at a time), and at
     rest."""
-    W, L, nx, ny = 0.1, 1.0, 3, 21
     mat = ClothMaterialParams(density=0.2, mu=1.5, lam=1.0, bending=1e-7, damping=1e-3, friction=0.0)
-    v, f = grid(nx, ny, W, L)
-    b = ClothModelBuilder()
-    b.add_cloth(v, f, mat, pinned=np.arange(nx))
-    m = b.finalize(device)
+    m, v = hanging_strip(device, mat)
     edges = m.mesh_edge_indices.numpy()
     rest = np.linalg.norm(v[edges[:, 1]] - v[edges[:, 0]], axis=1)
     out = {}

@@ -282,8 +282,8 @@ class ClothModelBuilder:
         edge_ids = np.repeat(np.arange(len(h_all)), 4)
         ve = _csr(n, h_all.reshape(-1).astype(np.int64), [edge_ids, np.tile(np.arange(4), len(h_all))])
         colors = np.concatenate([ins.colors for ins in self._instances])
-        ve = (*ve[:2], hinge_local_packed(colors, h_all, ve))
-        vt = (*vt[:2], triangle_local_packed(colors, f_all, vt))
+        ve = (*ve[:2], local_packed(colors, h_all.reshape(-1, 4), ve))
+        vt = (*vt[:2], local_packed(colors, f_all, vt))
         # every mesh edge (boundary included) for edge-edge self-contact, and vertex -> edge
         me_all = mesh_edges(f_all)
         me_ids = np.repeat(np.arange(len(me_all)), 2)
@@ -346,33 +346,22 @@ class ClothModelBuilder:
         )
 
 
-def hinge_local_packed(colors: np.ndarray, hinges: np.ndarray, ve: tuple[np.ndarray, ...]) -> np.ndarray:
-    """``vertex_edge_local`` of the CSR vertex -> hinge adjacency ``ve`` (offsets, hinge ids, slot
-    of the vertex in the hinge): the slot in bits 0-1, and in bits 2-5 which of the hinge's four
-    vertices other than this one have its colour (only the opposite vertex of an opposite vertex
-    can: the colouring separates every triangle's vertices)."""
-    offsets, ids, local = ve
+def local_packed(colors: np.ndarray, prims: np.ndarray, csr: tuple[np.ndarray, ...]) -> np.ndarray:
+    """The packed ``local`` column of a CSR vertex -> primitive adjacency ``csr`` (offsets,
+    primitive ids, slot of the vertex in the primitive) over ``prims`` (P, k) (hinges: k = 4,
+    ``vertex_edge_local``; triangles: k = 3, ``vertex_tri_local``): the slot in bits 0-1, and in
+    bits 2.. which of the primitive's other vertices have the vertex's colour, where the solve
+    reads them from the sweep's snapshot. For a hinge only the other opposite vertex can (the
+    colouring separates every triangle's vertices); a triangle's corners only with
+    ``max_colors`` (a colouring with same-coloured neighbours)."""
+    offsets, ids, local = csr
     if not len(ids):
         return np.asarray(local, np.int64)
+    k = prims.shape[1]
     owner = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-    q = hinges[ids]
-    same = (colors[q] == colors[owner][:, None]) & (np.arange(4)[None, :] != np.asarray(local)[:, None])
-    mask = (same * (1 << np.arange(4))[None, :]).sum(axis=1)
-    return np.asarray(local, np.int64) | (mask << 2)
-
-
-def triangle_local_packed(colors: np.ndarray, faces: np.ndarray, vt: tuple[np.ndarray, ...]) -> np.ndarray:
-    """``vertex_tri_local`` of the CSR vertex -> triangle adjacency ``vt`` (offsets, triangle ids,
-    corner of the vertex): the corner in bits 0-1, and in bits 2-4 which of the triangle's other
-    corners have the vertex's colour (only with ``max_colors``: a proper colouring separates
-    every triangle's vertices, and the mask is 0)."""
-    offsets, ids, local = vt
-    if not len(ids):
-        return np.asarray(local, np.int64)
-    owner = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-    q = faces[ids]
-    same = (colors[q] == colors[owner][:, None]) & (np.arange(3)[None, :] != np.asarray(local)[:, None])
-    mask = (same * (1 << np.arange(3))[None, :]).sum(axis=1)
+    q = prims[ids]
+    same = (colors[q] == colors[owner][:, None]) & (np.arange(k)[None, :] != np.asarray(local)[:, None])
+    mask = (same * (1 << np.arange(k))[None, :]).sum(axis=1)
     return np.asarray(local, np.int64) | (mask << 2)
 
 
@@ -412,8 +401,8 @@ class ClothModel:
     (I+1,)) slices the particle range of each instance. ``color_vertices`` lists particles by
     colour; colour ``c`` is ``color_vertices[color_offsets[c]:color_offsets[c+1]]``.
     Vertex -> triangle CSR ``vertex_tri_offsets`` / ``vertex_tri_ids`` / ``vertex_tri_local``
-    (the vertex's corner in bits 0-1, same-coloured corners in bits 2-4:
-    ``triangle_local_packed``); vertex -> hinge ``vertex_edge_*`` (``hinge_local_packed``).
+    (the vertex's corner in bits 0-1, same-coloured corners in bits 2-4: ``local_packed``);
+    vertex -> hinge ``vertex_edge_*`` (slot and same-coloured vertices alike).
     Self-contact data: ``mesh_edge_indices`` (every undirected edge, vec2i (E,)) with vertex ->
     edge CSR ``vertex_mesh_edge_*``, ``tri_instance`` / ``mesh_edge_instance`` /
     ``particle_instance`` (BVH groups: instances never collide).

@@ -443,7 +443,7 @@ def read_positions(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.vec3), q:
 @wp.func
 def read_triangle(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.vec3), tri: wp.vec3i, same: int):
     """``read_position`` of a triangle's three corners, corner ``k`` from ``snap`` where bit ``k``
-    of ``same`` is set (``model.triangle_local_packed``)."""
+    of ``same`` is set (``model.local_packed``)."""
     return (read_position(x, snap, tri[0], same & 1), read_position(x, snap, tri[1], same & 2),
             read_position(x, snap, tri[2], same & 4))
 

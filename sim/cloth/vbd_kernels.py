@@ -195,7 +195,7 @@ def membrane_force_hessian(membrane: int, xa: wp.vec3, xb: wp.vec3, xc: wp.vec3,
 @wp.func
 def jacobi_scale(t_packed: int) -> float:
     """Hessian scale of a triangle term in a vertex's Newton step: 2 where another corner has
-    the vertex's colour (``model.triangle_local_packed``): both corners then move in the same
+    the vertex's colour (``model.local_packed``): both corners then move in the same
     launch against each other's sweep-start position (a Jacobi coupling), and taking the whole
     step each would overshoot by up to twice; 1 otherwise (Gauss-Seidel)."""
     if (t_packed >> 2) != 0:
