@@ -68,7 +68,9 @@ class SideStreams:
     order on the one stream.
 
     ``with side.on(k):`` runs the block's launches on side stream ``k``, after everything issued
-    so far on the current stream; ``side.join()`` makes the current stream wait for all of them.
+    so far on the current stream; ``side.join()`` makes the current stream wait for those used
+    since the last join (waiting on an unused one would, in a graph capture, depend on work
+    outside the capture: CUDA error 905).
 
     Args:
         device: Warp device.
@@ -80,16 +82,19 @@ class SideStreams:
         self.device = device
         self.cuda = wp.get_device(device).is_cuda
         self.streams = [wp.Stream(device) for _ in range(count)] if self.cuda else []
+        self._used: set[int] = set()
 
     def on(self, k: int):
         import contextlib
 
         if not self.cuda:
             return contextlib.nullcontext()
+        self._used.add(k)
         return warp().ScopedStream(self.streams[k], sync_enter=True)
 
     def join(self) -> None:
         if self.cuda:
             main = warp().get_stream(self.device)
-            for s in self.streams:
-                main.wait_stream(s)
+            for k in sorted(self._used):
+                main.wait_stream(self.streams[k])
+        self._used.clear()

@@ -837,15 +837,19 @@ def test_the_step_does_not_depend_on_the_order_of_a_colours_vertices(device, max
     np.testing.assert_array_equal(x, x_ref)
 
 
-def test_self_contact_runs_are_bit_identical(device):
+@pytest.mark.parametrize("pipeline", [False, True])
+def test_self_contact_runs_are_bit_identical(device, pipeline):
     """Same inputs, same result, with self-contact on, on every device (issue 3's "same seed,
     same result"): two 4-frame runs of the draped sheets from one contact state end at the same
     positions bit for bit. On CUDA this held only without self-contact before session 15 (the
-    Gauss-Seidel race on same-colour contact partners)."""
+    Gauss-Seidel race on same-colour contact partners). With the pipelined detection the next
+    substep's pairs are found on a side stream while the sweeps run: a sweep reading the lists
+    being written would make the runs differ."""
     m, *start = draped_layers_in_contact(device)
     runs = []
     for _ in range(2):
-        solver = SolverVBD(m, VBDConfig(substeps=4, iterations=4, self_contact=True))
+        solver = SolverVBD(m, VBDConfig(substeps=4, iterations=4, self_contact=True,
+                                        self_contact_pipeline=pipeline))
         s = m.state()
         s.positions.assign(start[0])
         s.velocities.assign(start[1])
@@ -856,6 +860,45 @@ def test_self_contact_runs_are_bit_identical(device):
     assert same_color_partner_records(solver) > 0
     assert np.abs(runs[0] - start[0]).max() > 1e-3
     np.testing.assert_array_equal(runs[1], runs[0])
+
+
+def test_pipelined_detection_takes_the_in_order_step(device):
+    """``self_contact_pipeline``: substep ``s + 1``'s pairs are detected during substep ``s``,
+    from ``s``'s start over two substeps of motion, on a side stream (CUDA). The step must be the
+    one the same detections give run in order on one stream, in plain launches and captured in
+    a CUDA graph (a join in the wrong place lets a sweep read half-written lists, or the
+    detection read positions the next substep already moved). Both pair-list slots are used,
+    and the substeps after the first find their pairs without a detection of their own."""
+    from sim.device import SideStreams
+
+    wp = warp()
+    m, *start = draped_layers_in_contact(device)
+    out = []
+    for mode in ("in order", "plain", "graph"):
+        solver = SolverVBD(m, VBDConfig(substeps=4, iterations=3, self_contact=True,
+                                        self_contact_pipeline=True))
+        if mode == "in order":
+            solver._pipe = SideStreams("cpu", 1)  # no streams: the detections run where they are issued
+        s = m.state()
+        s.positions.assign(start[0])
+        s.velocities.assign(start[1])
+        if mode == "graph" and device == "cuda":
+            with wp.ScopedCapture(device=device) as cap:
+                solver.step(s, s, m.control(), 1.0 / 30.0)
+            wp.capture_launch(cap.graph)
+        else:
+            solver.step(s, s, m.control(), 1.0 / 30.0)
+        wp.synchronize()
+        assert all(d.pair_count.numpy().sum() > 0 for d in solver.self_contact.datas)
+        out.append(s.positions.numpy().copy())
+    moved = np.abs(out[0] - start[0]).max()
+    assert moved > 1e-3
+    for k in (1, 2):
+        np.testing.assert_allclose(out[k], out[0], atol=1e-5 * moved if device == "cuda" else 0.0)
+    with pytest.raises(ValueError, match="pipeline"):
+        VBDConfig(self_contact_pipeline=True, self_contact_interval=2)
+    with pytest.raises(ValueError, match="pipeline"):
+        VBDConfig(self_contact_pipeline=True, self_contact_bounds=True)
 
 
 def test_heavy_vertices_solved_by_whole_blocks_take_the_same_step(device):

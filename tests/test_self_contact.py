@@ -121,6 +121,12 @@ def _bary_np(p, a, b, c):
 
 def _segment_distance_np(p1, q1, p2, q2):
     """Exact segment-segment distance (Ericson, Real-Time Collision Detection, 5.1.9)."""
+    return _segment_closest_np(p1, q1, p2, q2)[0]
+
+
+def _segment_closest_np(p1, q1, p2, q2):
+    """Segment-segment distance and the closest points' parameters ``s`` on ``p1 q1``, ``t`` on
+    ``p2 q2`` (Ericson, Real-Time Collision Detection, 5.1.9)."""
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
     a, e, f = np.dot(d1, d1), np.dot(d2, d2), np.dot(d2, r)
     c, b = np.dot(d1, r), np.dot(d1, d2)
@@ -131,7 +137,7 @@ def _segment_distance_np(p1, q1, p2, q2):
         t, s = 0.0, np.clip(-c / a, 0.0, 1.0)
     elif t > 1.0:
         t, s = 1.0, np.clip((b - c) / a, 0.0, 1.0)
-    return np.linalg.norm((p1 + s * d1) - (p2 + t * d2))
+    return np.linalg.norm((p1 + s * d1) - (p2 + t * d2)), s, t
 
 
 @wp.kernel
@@ -184,11 +190,12 @@ def test_self_contact_forces_match_finite_differences(device):
 
 def stacked_layers(device, self_contact: bool, n: int = 13, frames: int = 12, bounds: bool = True,
                    speed: float = 3.0, carry: float = 0.0, reference: bool = False,
-                   air_damping: float = VBDConfig.air_damping):
+                   air_damping: float = VBDConfig.air_damping, **config):
     """A sheet pinned at its corners and a second sheet dropped onto it at ``speed`` (one mesh),
     the whole scene, pins included, carried along x at ``carry`` [m/s] (``reference``: that is
-    the instance's reference velocity, else zero). Returns the positions per frame with the
-    carrying motion taken out, the faces, the vertices per sheet and the grid size."""
+    the instance's reference velocity, else zero); ``config``: further solver settings. Returns
+    the positions per frame with the carrying motion taken out, the faces, the vertices per
+    sheet and the grid size."""
     v, f = grid(n, n, 0.5, 0.5, plane="xz")
     top = v + np.array([0.011, 0.03, 0.013], np.float32)
     x = np.concatenate([v, top])
@@ -198,7 +205,7 @@ def stacked_layers(device, self_contact: bool, n: int = 13, frames: int = 12, bo
                 pinned=[0, n - 1, n * (n - 1), n * n - 1])
     m = b.finalize(device)
     solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5, self_contact=self_contact,
-                                    self_contact_bounds=bounds, air_damping=air_damping))
+                                    self_contact_bounds=bounds, air_damping=air_damping, **config))
     state = m.state()
     u = np.array([carry, 0.0, 0.0], np.float32)
     vel = np.zeros_like(x) + u
@@ -235,10 +242,13 @@ def test_two_stacked_layers_never_pass_through_each_other(device):
     assert _center_gap(x_off, nv, n).min() < -0.02
 
 
-def test_penalty_self_contact_holds_a_gently_dropped_layer(device):
+@pytest.mark.parametrize("config", [{}, {"self_contact_pipeline": True}, {"self_contact_ee_interior": True}])
+def test_penalty_self_contact_holds_a_gently_dropped_layer(device, config):
     """Without the bounds (the default) the penalty alone stops a layer dropped at 1 m/s (the
-    rims, where the loose layer folds over the pinned one's edge, may cross: no guarantee)."""
-    x, faces, nv, n = stacked_layers(device, True, bounds=False, speed=1.0, frames=20)
+    rims, where the loose layer folds over the pinned one's edge, may cross: no guarantee); so
+    does it with each substep's pairs detected during the substep before (``pipeline``) and with
+    edge pairs stored only where their closest points are inside both edges."""
+    x, faces, nv, n = stacked_layers(device, True, bounds=False, speed=1.0, frames=20, **config)
     gap = _center_gap(x, nv, n)
     assert np.all(gap > 0.0) and gap[-1] < 0.03
     x_off, *_ = stacked_layers(device, False, speed=1.0, frames=20)
@@ -340,6 +350,87 @@ def test_a_fold_of_one_sheet_is_in_contact_a_ring_away(device):
         i = j * nx + mid
         partners = faces[tri[i, :count[i]]]
         assert not np.any(partners == i)
+
+
+def _stored(sc, owners: int, ids: str, count: str) -> set:
+    """The (owner, partner) pairs of one of ``sc``'s lists (``ids`` / ``count``: its arrays)."""
+    c = getattr(sc.data, count).numpy()
+    table = getattr(sc.data, ids).numpy().reshape(owners, -1)
+    return {(k, int(table[k, j])) for k in range(owners) for j in range(c[k])}
+
+
+def test_edge_pairs_at_an_edge_end_are_left_to_vertex_triangle_pairs(device):
+    """``ee_interior``: an edge-edge pair is stored only where its closest points lie inside both
+    edges. Two crossing sheets 2.5 mm apart give both kinds. Every pair of the full lists with
+    closest points well inside both edges is kept, every one with a closest point at an edge's
+    end is dropped, and for each dropped one the end vertex already has a stored vertex-triangle
+    pair at most as far (a triangle at the other edge), so no contact is lost."""
+    x, faces = two_layers(n=7, gap=0.0025, angle=0.5)
+    b = ClothModelBuilder()
+    b.add_cloth(x, faces, ClothMaterialParams())
+    m = b.finalize(device)
+    lists = []
+    for interior in (False, True):
+        sc = SelfContact(m, radius=0.003, margin=0.004, stiffness=1e4, friction=0.0, relaxation=0.45,
+                         speed_factor=2.5, capacity=64, ee_interior=interior)
+        sc.detect(m.particle_q, wp.zeros(len(x), dtype=wp.vec3, device=device), 1.0 / 300.0)
+        lists.append(sc)
+    edges = m.mesh_edge_indices.numpy()
+    ne = len(edges)
+    every, inside = (_stored(sc, ne, "ee_edge", "ee_count") for sc in lists)
+    vt = _stored(lists[1], len(x), "vt_tri", "vt_count")
+    assert vt == _stored(lists[0], len(x), "vt_tri", "vt_count")  # vertex-triangle pairs unchanged
+    xd = x.astype(np.float64)
+    kinds = {"interior": 0, "end": 0}
+    for e, f in every:
+        (a0, a1), (b0, b1) = edges[e], edges[f]
+        d, s, t = _segment_closest_np(xd[a0], xd[a1], xd[b0], xd[b1])
+        u, w = xd[a1] - xd[a0], xd[b1] - xd[b0]
+        if np.linalg.norm(np.cross(u, w)) < 1e-3 * np.linalg.norm(u) * np.linalg.norm(w):
+            continue  # parallel (one sheet's own edges): ends and insides are equally close
+        if min(s, 1 - s, t, 1 - t) > 1e-3:
+            kinds["interior"] += 1
+            assert (e, f) in inside
+        elif min(s, 1 - s) == 0.0 or min(t, 1 - t) == 0.0:
+            kinds["end"] += 1
+            assert (e, f) not in inside
+            end = (a0 if s == 0.0 else a1) if min(s, 1 - s) == 0.0 else (b0 if t == 0.0 else b1)
+            other = (b0, b1) if min(s, 1 - s) == 0.0 else (a0, a1)
+            near = [tri for (i, tri) in vt if i == end and set(other) & set(faces[tri].tolist())]
+            assert near, f"edge pair {e}-{f}: its end vertex {end} has no triangle pair at the other edge"
+            dist = min(np.linalg.norm(xd[end] - _bary_np(xd[end], *xd[faces[t_]]) @ xd[faces[t_]])
+                       for t_ in near)
+            assert dist <= d + 1e-6
+    assert inside <= every
+    assert kinds["interior"] > 5 and kinds["end"] > 5, kinds
+
+
+def test_detection_slots_hold_separate_lists(device):
+    """``SelfContact(slots=2)``: a detection fills only its own slot's lists and gather records,
+    the same as a one-slot detection at those positions; the other slot keeps what it had."""
+    x, faces = two_layers(n=6, gap=0.002, angle=0.4)
+    b = ClothModelBuilder()
+    b.add_cloth(x, faces, ClothMaterialParams())
+    m = b.finalize(device)
+    kw = dict(radius=0.003, margin=0.004, stiffness=1e4, friction=0.0, relaxation=0.45, speed_factor=2.5,
+              capacity=16)
+    shifted = x.copy()
+    shifted[len(x) // 2:, 1] += 0.0015  # the upper sheet 1.5 mm higher: fewer pairs
+    states = [wp.array(p, dtype=wp.vec3, device=device) for p in (x, shifted)]
+    zeros = wp.zeros(len(x), dtype=wp.vec3, device=device)
+    two = SelfContact(m, slots=2, **kw)
+    two.detect(states[0], zeros, 1.0 / 300.0, slot=0)
+    two.detect(states[1], zeros, 1.0 / 300.0, slot=1)
+    names = ("vt_count", "tv_count", "ee_count", "pair_count", "bound")
+    for slot, state in enumerate(states):
+        one = SelfContact(m, **kw)
+        one.detect(state, zeros, 1.0 / 300.0)
+        for name in names:
+            np.testing.assert_array_equal(getattr(two.datas[slot], name).numpy(),
+                                          getattr(one.data, name).numpy(), err_msg=f"slot {slot} {name}")
+    assert two.datas[0].pair_count.numpy().sum() > two.datas[1].pair_count.numpy().sum() > 0
+    with pytest.raises(ValueError, match="slots"):
+        SelfContact(m, slots=2, side_memory=True, **kw)
 
 
 def test_full_pair_lists_keep_the_closest_pairs(device):

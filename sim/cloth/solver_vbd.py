@@ -155,6 +155,23 @@ class VBDConfig:
         self_contact_rebuild: rebuild the cloth BVHs at the first detection of every step and
             refit them at the others. Refitting a tree built for the rest shape keeps its
             topology while the garment deforms, and queries on the loosened boxes cost 1.5-2x.
+        self_contact_ee_interior: store an edge-edge pair only where its closest points lie
+            inside both edges (``SelfContact``'s ``ee_interior``): at an edge's end the vertex-
+            triangle pairs of that end vertex hold the same contact, and the edge pair counted
+            it twice. On the folded t-shirt run ~80 % of the stored edge pairs were of that kind
+            (session 21). H100, 16x10: population 37/48 against 38/48, 1-4 % faster; off by
+            default (docs/BENCHMARKS.md, session 21).
+        self_contact_pipeline: detect the pairs of substep ``s + 1`` during substep ``s``, on a
+            side stream beside the sweeps (CUDA), from the positions and velocities ``s`` starts
+            with and a query that covers two substeps of motion (``2 h``); only the first substep
+            of a step waits for its own detection. Detection then leaves the critical path of a
+            single garment, whose solve launches are latency-bound and leave the GPU room. Needs
+            ``self_contact_interval`` 1, no bounds and no side memory (they hold for the substep
+            detected from). Two sets of pair lists alternate (``SelfContact(slots=2)``); each
+            pair's side is re-measured as its substep starts (``SelfContact.refresh_sides``). On
+            the CPU the same detections run in order. H100, t-shirt 16x10: walk 9.15 against 11.30
+            ms, run 9.74 against 10.90 ms, but the population passed 32/48 against 38/48 (more
+            crossings), so it is off by default (docs/BENCHMARKS.md, session 21).
         max_colors: colours of the model's vertex colouring (``ClothModelBuilder(max_colors=...)``,
             which ``sim.simulate`` builds from this field; the solver itself runs any colouring):
             0 (default) a proper colouring (the t-shirt: 4); 3 leaves ~2 % of the t-shirt's edges
@@ -203,6 +220,8 @@ class VBDConfig:
     self_contact_pool: int = 16
     self_contact_heavy_cap: int = -1
     self_contact_weight_floor: float = 0.5
+    self_contact_ee_interior: bool = False
+    self_contact_pipeline: bool = False
     max_colors: int = 0
     strain_limit: float = 0.0
     strain_limit_passes: int = 4
@@ -224,6 +243,10 @@ class VBDConfig:
         if self.self_contact_bounds and self.self_contact_interval != 1:
             raise ValueError("VBDConfig.self_contact_interval must be 1 with self_contact_bounds (the bounds "
                              f"hold for one substep), got {self.self_contact_interval}")
+        if self.self_contact_pipeline and (self.self_contact_interval != 1 or self.self_contact_bounds
+                                           or self.self_contact_side_memory):
+            raise ValueError("VBDConfig.self_contact_pipeline needs self_contact_interval 1, "
+                             "self_contact_bounds off and self_contact_side_memory off")
         if self.gather not in ("auto", "fused", "split"):
             raise ValueError(f"VBDConfig.gather must be 'auto', 'fused' or 'split', got {self.gather!r}")
         if self.membrane not in ("stvk", "corotated"):
@@ -344,6 +367,7 @@ class SolverVBD:
         self._max_registers = regs if cuda else 0
         self._solve = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers)
         self._side = SideStreams(d, 1)
+        self._pipe = SideStreams(d, 1)
         self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
         # the solve's fused gather reads entry 0 of the per-hinge arrays for vertices without
         # hinges: a model without any gets one-entry placeholders
@@ -368,7 +392,8 @@ class SolverVBD:
                 bounds=cfg.self_contact_bounds, side_memory=cfg.self_contact_side_memory,
                 relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool,
                 heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes,
-                weight_floor=cfg.self_contact_weight_floor)
+                weight_floor=cfg.self_contact_weight_floor, ee_interior=cfg.self_contact_ee_interior,
+                slots=2 if cfg.self_contact_pipeline else 1)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
@@ -487,16 +512,29 @@ class SolverVBD:
                                        self._contact_active], device=d)
             else:
                 self._contact_active.zero_()
-            if self.self_contact is not None and s % cfg.self_contact_interval == 0:
+            sc_data = self._sc_data
+            pipe = self.self_contact is not None and cfg.self_contact_pipeline
+            if self.self_contact is not None and s % cfg.self_contact_interval == 0 and (s == 0 or not pipe):
                 # pairs found now serve the next ``interval`` substeps: the query covers that motion
                 self.self_contact.detect(self._x_prev, v, h * cfg.self_contact_interval,
                                          rebuild=cfg.self_contact_rebuild and s == 0,
                                          reference=control.instance_velocity)
+            if pipe:
+                sc_data = self.self_contact.datas[s % 2]
+                if s > 0:
+                    # lists found from the previous substep's start: sides as this substep starts
+                    self.self_contact.refresh_sides(self._x_prev, slot=s % 2)
+                if s + 1 < cfg.substeps:
+                    # the next substep's pairs, beside this substep's sweeps: from this substep's
+                    # start, over the motion of both substeps; joined before x_prev and v change
+                    with self._pipe.on(0):
+                        self.self_contact.detect(self._x_prev, v, 2.0 * h,
+                                                 reference=control.instance_velocity, slot=(s + 1) % 2)
             self._side.join()
             if self._omegas:
                 wp.copy(self._cheb_prev1, x)
             for it in range(cfg.iterations):
-                self.sweep(x, self._sc_data, eps_u, h, it % 2)
+                self.sweep(x, sc_data, eps_u, h, it % 2)
                 if self._omegas:
                     wp.launch(K.chebyshev_kernel, dim=n,
                               inputs=[self._omegas[it], m.particle_flags],
@@ -504,5 +542,6 @@ class SolverVBD:
                               device=d)
             if self._limit_buffer is not None:
                 self.limit_strain(x)
+            self._pipe.join()
             wp.launch(K.velocity_kernel, dim=n, inputs=[x, self._x_prev, 1.0 / h],
                       outputs=[v, state_out.accelerations], device=d)
