@@ -688,6 +688,16 @@ def keep_closest(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), bas
 
 
 @wp.func
+def side_reference(diff: wp.vec3, old: wp.vec3, interior: bool) -> wp.vec3:
+    """The side reference of a pair with separation ``diff`` now and reference ``old``: ``old``
+    where the closest points are ``interior`` and the separation turned by more than 90 degrees
+    (the pair crossed), else ``diff`` (``track_side`` says why only interior pairs)."""
+    if interior and wp.dot(diff, old) < 0.0:
+        return old
+    return diff
+
+
+@wp.func
 def track_side(prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.vec3),
                prev_counts: wp.array(dtype=wp.int32), k: int, side_memory: int, base: int, item: int,
                diff: wp.vec3, interior: bool) -> wp.vec3:
@@ -706,10 +716,7 @@ def track_side(prev_ids: wp.array(dtype=wp.int32), prev_ref: wp.array(dtype=wp.v
         return diff
     for j in range(prev_counts[k]):
         if prev_ids[base + j] == item:
-            ref = prev_ref[base + j]
-            if interior and wp.dot(diff, ref) < 0.0:
-                return ref
-            return diff
+            return side_reference(diff, prev_ref[base + j], interior)
     return diff
 
 
@@ -975,11 +982,9 @@ def refreshed_side(x: wp.array(dtype=wp.vec3), q: wp.vec4i, role: int, old: wp.v
     """The side reference of pair ``q`` (``role``, as ``pair_separation``) at ``x``, its
     reference ``old`` from the detection: the separation now, or ``old`` where the closest points
     are interior and the separation turned by more than 90 degrees since (the pair crossed:
-    ``track_side``'s rule)."""
+    ``side_reference``)."""
     diff, interior = pair_separation(x, q, role)
-    if interior and wp.dot(diff, old) < 0.0:
-        return old
-    return diff
+    return side_reference(diff, old, interior)
 
 
 @wp.kernel

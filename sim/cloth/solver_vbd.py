@@ -491,6 +491,7 @@ class SolverVBD:
         wp.copy(self._x_step_start, x)
         h = dt / cfg.substeps
         eps_u = cfg.friction_epsilon * h
+        pipe = self.self_contact is not None and cfg.self_contact_pipeline
         for s in range(cfg.substeps):
             alpha = (s + 1) / cfg.substeps
             for body in control.bodies:
@@ -513,7 +514,6 @@ class SolverVBD:
             else:
                 self._contact_active.zero_()
             sc_data = self._sc_data
-            pipe = self.self_contact is not None and cfg.self_contact_pipeline
             if self.self_contact is not None and s % cfg.self_contact_interval == 0 and (s == 0 or not pipe):
                 # pairs found now serve the next ``interval`` substeps: the query covers that motion
                 self.self_contact.detect(self._x_prev, v, h * cfg.self_contact_interval,
