@@ -185,6 +185,12 @@ class VBDConfig:
             sweep's cost, and the velocity update carries the shortening (as position-based
             dynamics does).
         strain_limit_passes: Jacobi passes of the strain limit per substep.
+        coarse_sweeps: sweep indices (0 .. iterations - 1) before which a coarse-level correction
+            runs (``sim.cloth.coarse``; empty, the default: none). A correction evaluates the
+            residual at every particle (one sweep's gather), restricts it to about one node
+            per 20 vertices, solves that level's linear system exactly and adds the
+            prolongated displacement: the long reach the sweeps lack (~1 ring each).
+        coarse_spacing: seed spacing of the coarse level's aggregates [edges].
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every
@@ -225,6 +231,8 @@ class VBDConfig:
     max_colors: int = 0
     strain_limit: float = 0.0
     strain_limit_passes: int = 4
+    coarse_sweeps: tuple[int, ...] = ()
+    coarse_spacing: int = 3
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -270,6 +278,15 @@ class VBDConfig:
         if not 0.0 < self.self_contact_relaxation < 0.5:
             raise ValueError("VBDConfig.self_contact_relaxation must be in (0, 0.5), got "
                              f"{self.self_contact_relaxation}")
+        object.__setattr__(self, "coarse_sweeps", tuple(int(k) for k in self.coarse_sweeps))
+        if any(not 0 <= k < self.iterations for k in self.coarse_sweeps) or \
+                len(set(self.coarse_sweeps)) != len(self.coarse_sweeps):
+            raise ValueError("VBDConfig.coarse_sweeps must hold distinct sweep indices in 0.."
+                             f"{self.iterations - 1}, got {self.coarse_sweeps}")
+        if self.coarse_spacing < 1:
+            raise ValueError(f"VBDConfig.coarse_spacing must be >= 1, got {self.coarse_spacing}")
+        if self.coarse_sweeps and self.chebyshev_rho > 0.0:
+            raise ValueError("VBDConfig.coarse_sweeps and chebyshev_rho cannot be combined")
         if not 0.0 <= self.chebyshev_rho < 1.0:
             raise ValueError(f"VBDConfig.chebyshev_rho must be in [0, 1), got {self.chebyshev_rho}")
         if self.air_damping < 0.0:
@@ -403,6 +420,14 @@ class SolverVBD:
         self._snapshots = (wp.zeros(n, dtype=wp.vec3, device=d), wp.zeros(n, dtype=wp.vec3, device=d))
         self._solve_arrays_cache: dict = {}
         self._limit_buffer = wp.zeros(n, dtype=wp.vec3, device=d) if cfg.strain_limit > 0.0 else None
+        self.coarse = None
+        if cfg.coarse_sweeps:
+            from sim.cloth.coarse import CoarseLevel
+
+            self.coarse = CoarseLevel(model, cfg.coarse_spacing)
+            self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
+                                                  evaluate=True)
+            self._residual = wp.zeros(n, dtype=wp.vec3, device=d)
 
     def heavy_cap(self, cuda: bool) -> int:
         """Heavy-vertex blocks per colour launch (``VBDConfig.self_contact_heavy_cap``; -1: auto,
@@ -433,14 +458,19 @@ class SolverVBD:
         self._solve_arrays_cache[id(sc_data)] = (sc_data, key, a)
         return a
 
-    def sweep(self, x, sc_data, eps_u: float, h: float, parity: int = 0) -> None:
+    def sweep(self, x, sc_data, eps_u: float, h: float, parity: int = 0, evaluate: bool = False) -> None:
         """One Gauss-Seidel sweep: the solve kernel over every colour, updating ``x`` in place
         against the substep's current buffers (``sc_data``: the self-contact data to use). Sweep
         ``k`` of a substep has ``parity`` ``k % 2``: the neighbours of a particle's own colour
         (hinge opposites, contact partners) are read from snapshot ``parity``, which must hold
-        ``x``, and every solved particle writes its new position to snapshot ``1 - parity``."""
+        ``x``, and every solved particle writes its new position to snapshot ``1 - parity``.
+        ``evaluate``: write the residual forces at ``x`` to the coarse level's residual buffer
+        instead (``x`` stays)."""
         wp = warp()
         snap, snap_out = self._snapshots[parity], self._snapshots[1 - parity]
+        kernel = self._solve
+        if evaluate:
+            kernel, snap_out = self._evaluate, self._residual
         m = self.model
         cfg = self.config
         arrays = self._solve_arrays(sc_data)
@@ -449,7 +479,7 @@ class SolverVBD:
             start, end = m.color_offsets[c], m.color_offsets[c + 1]
             light = -(-(end - start) // self._particles)
             wp.launch_tiled(
-                self._solve, dim=[light + min(heavy, end - start)],
+                kernel, dim=[light + min(heavy, end - start)],
                 block_dim=self._particles * self._lanes,
                 inputs=[end - start, c, light, self._membrane, start, cfg.contact_stiffness, eps_u, h,
                         cfg.air_damping, arrays, snap],
@@ -534,6 +564,12 @@ class SolverVBD:
             if self._omegas:
                 wp.copy(self._cheb_prev1, x)
             for it in range(cfg.iterations):
+                if it in cfg.coarse_sweeps:
+                    # the residual at x (snapshot it % 2 holds x), its coarse-level correction
+                    self.sweep(x, sc_data, eps_u, h, it % 2, evaluate=True)
+                    self.coarse.correct(self._residual, m, (self._contact_point, self._contact_normal,
+                                                            self._contact_active),
+                                        cfg.contact_stiffness, h, cfg.air_damping, x, self._snapshots[it % 2])
                 self.sweep(x, sc_data, eps_u, h, it % 2)
                 if self._omegas:
                     wp.launch(K.chebyshev_kernel, dim=n,

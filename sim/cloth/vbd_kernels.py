@@ -406,6 +406,33 @@ def load_particle_step(
 
 
 @wp.func
+def vertex_system(
+    p: ParticleStep,
+    f: wp.vec3,
+    H: wp.mat33,
+    k_contact: float,
+    eps_u: float,
+    h: float,
+    air_damping: float,
+):
+    """Add inertia, air damping and body contact to the gathered ``f``, ``H`` of a particle:
+    the force ``-dG/dx_i`` and Hessian block of the substep's incremental potential at ``p.x``."""
+    xi = p.x
+    inv_h = 1.0 / h
+    # inertia m/h^2 (y - x), Hessian m/h^2 I; mass-proportional (air) damping alpha m (x - x_prev)/h
+    mh = p.mass * inv_h * inv_h
+    ca = air_damping * p.mass * inv_h
+    f = f + mh * (p.y - xi) - ca * (xi - p.x_prev)
+    H = H + (mh + ca) * wp.identity(n=3, dtype=float)
+    if p.contact_active != 0:
+        fc, hc = contact_force_hessian(xi, p.x_prev, p.contact_point, p.contact_normal,
+                                       p.contact_body_velocity, p.thickness, k_contact, p.friction, eps_u, h)
+        f = f + fc
+        H = H + hc
+    return f, H
+
+
+@wp.func
 def vertex_newton_step(
     p: ParticleStep,
     f: wp.vec3,
@@ -416,16 +443,11 @@ def vertex_newton_step(
     air_damping: float,
     sc: SelfContactData,
 ) -> wp.vec3:
-    """Add inertia, air damping and body contact to the gathered ``f``, ``H`` of a particle and
-    take its Newton step ``x += H^-1 f`` (Chen et al. 2024, Eq. 9-10): its new position."""
+    """Take the Newton step ``x += H^-1 f`` of a particle (Chen et al. 2024, Eq. 9-10) with its
+    gathered ``f``, ``H`` completed by ``vertex_system``: its new position."""
     xi = p.x
     xp = p.x_prev
-    inv_h = 1.0 / h
-    # inertia m/h^2 (y - x), Hessian m/h^2 I; mass-proportional (air) damping alpha m (x - x_prev)/h
-    mh = p.mass * inv_h * inv_h
-    ca = air_damping * p.mass * inv_h
-    f = f + mh * (p.y - xi) - ca * (xi - xp)
-    H = H + (mh + ca) * wp.identity(n=3, dtype=float)
+    f, H = vertex_system(p, f, H, k_contact, eps_u, h, air_damping)
 
     bounded = sc.enabled != 0 and sc.use_bounds != 0
     # the bound limits motion relative to the body surface nearby (the skin's displacement over
@@ -434,10 +456,6 @@ def vertex_newton_step(
     x_ref = xp
     if p.contact_active != 0:
         x_ref = xp + h * p.contact_body_velocity
-        fc, hc = contact_force_hessian(xi, xp, p.contact_point, p.contact_normal, p.contact_body_velocity,
-                                       p.thickness, k_contact, p.friction, eps_u, h)
-        f = f + fc
-        H = H + hc
         # a particle the body is pushing is not held by the self-contact bound: where the body
         # squeezes cloth layers together (armpits, between the legs) the body wins
         if wp.dot(p.contact_normal, xi - p.contact_point) < p.thickness + sc.radius:
@@ -453,7 +471,6 @@ def vertex_newton_step(
         # self-contact displacement bound (sim.cloth.self_contact): stays intersection-free
         x_new = apply_bound(x_new, x_ref, p.bound)
     return x_new
-
 
 
 @wp.struct
@@ -509,7 +526,8 @@ _SOLVE_KERNELS: dict = {}
 FUSED_LANES = 8  # lanes per particle from which the solve gathers with the fused loop
 
 
-def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, max_registers: int = 0):
+def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, max_registers: int = 0,
+                       evaluate: bool = False):
     """The per-colour VBD kernel (Chen et al. 2024, Alg. 1) for blocks of ``particles`` x
     ``lanes`` threads: launch it with ``wp.launch_tiled(kernel, dim=[ceil(count / particles)],
     block_dim=particles * lanes)`` (on the CPU, where a block is one thread: 1 x 1).
@@ -535,13 +553,18 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
     every solved particle writes its new position to ``snap_out``, the next sweep's snapshot
     (the solver alternates the two). Neighbours of other colours are read from ``x``
     (Gauss-Seidel). The step does not depend on the order of the threads: every layout, gather
-    and device takes the same step up to round-off."""
+    and device takes the same step up to round-off.
+
+    ``evaluate``: the kernel instead writes each particle's residual force ``-dG/dx_i`` at ``x``
+    (``vertex_system``; zero for pinned particles) to ``snap_out`` and leaves ``x`` alone, so
+    launched over every colour it evaluates the whole residual at one configuration (``snap``
+    must hold ``x``). The coarse-level correction (``sim.cloth.coarse``) restricts it."""
     if fused is None:
         fused = lanes >= FUSED_LANES
-    key = (int(particles), int(lanes), bool(fused), int(max_registers))
+    key = (int(particles), int(lanes), bool(fused), int(max_registers), bool(evaluate))
     if key in _SOLVE_KERNELS:
         return _SOLVE_KERNELS[key]
-    P, L, FUSED = int(particles), int(lanes), int(fused)
+    P, L, FUSED, EVAL = int(particles), int(lanes), int(fused), int(evaluate)
 
     def solve(
         count: int,
@@ -643,14 +666,22 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
                 H = H + wp.tile_extract(H_sum, (local + k) % wp.static(P))
         if not solver:
             return
-        x_new = step.x
-        if step.flags != PINNED:
-            x_new = vertex_newton_step(step, f, H, k_contact, eps_u, h, air_damping, sc)
-            x_inout[i] = x_new
-        snap_out[i] = x_new
+        if wp.static(EVAL):
+            # the residual force -dG/dx_i at x (zero for pinned particles); x is not written
+            r = wp.vec3(0.0)
+            if step.flags != PINNED:
+                r, H = vertex_system(step, f, H, k_contact, eps_u, h, air_damping)
+            snap_out[i] = r
+        else:
+            x_new = step.x
+            if step.flags != PINNED:
+                x_new = vertex_newton_step(step, f, H, k_contact, eps_u, h, air_damping, sc)
+                x_inout[i] = x_new
+            snap_out[i] = x_new
 
     regs = f"_r{int(max_registers)}" if max_registers > 0 else ""
-    solve.__name__ = solve.__qualname__ = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}{regs}"
+    name = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}{regs}{'_eval' if EVAL else ''}"
+    solve.__name__ = solve.__qualname__ = name
     options = {"cuda_max_registers": int(max_registers)} if max_registers > 0 else {}
     kernel = wp.kernel(solve, enable_backward=False, module="unique", **options)
     _SOLVE_KERNELS[key] = kernel

@@ -1,0 +1,373 @@
+"""Coarse-level correction of the VBD sweeps (two-level smoothed aggregation).
+
+A Gauss-Seidel sweep moves a stiff membrane's force about one ring of edges, so within a
+substep the sweeps cannot carry a running sleeve's pull across the 20-30 rings of a shoulder
+strap (docs/BENCHMARKS.md, session 21). This module adds the missing long reach: between
+sweeps, the residual of the substep's incremental potential is restricted to a coarse level
+of about one node per 15 vertices, a linear coarse system is solved exactly, and its
+solution is prolongated back as a displacement of every free particle.
+
+Setup (numpy/scipy, once per distinct garment template, shared by its instances):
+
+- **aggregates**: seeds picked greedily at graph distance > ``spacing`` from each other on the
+  mesh's edge graph, every vertex joined to its nearest seed (a graph Voronoi cell, connected);
+- **prolongation** ``P = S A``: ``A`` the aggregate indicator, smoothed once by ``S`` (each
+  vertex averages its own and its neighbours' aggregates), so the correction has no jumps at
+  aggregate borders; rows of pinned particles are zero (they do not move);
+- **fine operator** ``K``: a scalar proxy of the membrane's stiffness, the P1 finite-element
+  Laplacian (cotangent weights) times the longitudinal modulus ``lambda + 2 mu`` [N/m] of each
+  triangle. Along a stretch it is the membrane's true stiffness; in shear and out of plane it is
+  stiffer than the cloth, so the correction errs on the short side there (bending, contact and
+  self-contact are left to the sweeps that follow);
+- **coarse system** ``A_c = (1/h^2 + alpha/h) M_c + K_c + C_c`` with ``K_c = P^T K P``
+  (Galerkin, sparse), ``M_c = P^T m`` (lumped) and ``C_c = P^T c``, ``c`` the body contact's
+  penalty stiffness at particles pressed onto the body at the correction. Without ``C_c`` the
+  correction pulls supported cloth into the body and the run blows up (session 22): contact
+  pins cloth as firmly as a pin does, so the coarse level must know where it holds.
+  Its sparsity pattern is fixed, so its rows are put in reverse Cuthill-McKee order once (the
+  t-shirt's 326 nodes: bandwidth 60) and each correction factors the band exactly.
+
+Per correction (``CoarseLevel.correct``): the solve kernel's evaluate variant writes the
+residual ``r = -dG/dx`` at ``x`` (inertia, membrane, bending, damping, body and self-contact);
+``restrict_kernel`` forms ``P^T r`` and the diagonal; ``band_solve_kernel`` assembles, factors
+(banded Cholesky) and solves each instance's system, one thread per instance;
+``prolong_kernel`` adds ``P dx_c`` to ``x`` and to the next sweep's snapshot. Every kernel is a
+gather (no atomics): deterministic on every device. Self-contact stiffness is not in ``A_c``;
+the sweeps after a correction restore it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+
+def mesh_edge_graph(vertex_count: int, faces: np.ndarray):
+    """Symmetric CSR adjacency (scipy) of the mesh's edge graph."""
+    import scipy.sparse as sp
+
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.unique(np.sort(e, axis=1), axis=0)
+    ones = np.ones(len(e))
+    g = sp.coo_matrix((ones, (e[:, 0], e[:, 1])), shape=(vertex_count, vertex_count))
+    return (g + g.T).tocsr(), e
+
+
+def aggregate(adjacency, spacing: int) -> tuple[np.ndarray, np.ndarray]:
+    """(aggregate index of every vertex, the aggregates' seed vertices): seeds chosen greedily
+    in index order at graph distance ``> spacing`` from each other, each vertex joined to its
+    nearest seed (ties: the seed found first by ``scipy.sparse.csgraph.dijkstra``). Every
+    component gets at least one seed, and every aggregate is connected."""
+    from scipy.sparse.csgraph import dijkstra
+
+    n = adjacency.shape[0]
+    indptr, indices = adjacency.indptr, adjacency.indices
+    blocked = np.zeros(n, dtype=bool)
+    seeds = []
+    for v in range(n):
+        if blocked[v]:
+            continue
+        seeds.append(v)
+        # block the seed's ball of radius ``spacing`` (breadth-first)
+        frontier = [v]
+        blocked[v] = True
+        for _ in range(spacing):
+            nxt = []
+            for u in frontier:
+                for w in indices[indptr[u]:indptr[u + 1]]:
+                    if not blocked[w]:
+                        blocked[w] = True
+                        nxt.append(w)
+            frontier = nxt
+    seeds = np.asarray(seeds, dtype=np.int64)
+    _, _, sources = dijkstra(adjacency, directed=False, indices=seeds, unweighted=True, min_only=True,
+                             return_predecessors=True)
+    lookup = np.full(n, -1, dtype=np.int64)
+    lookup[seeds] = np.arange(len(seeds))
+    return lookup[sources], seeds
+
+
+def cotangent_stiffness(rest: np.ndarray, faces: np.ndarray, modulus: np.ndarray, vertex_count: int):
+    """Scalar P1 stiffness matrix ``K`` (scipy CSR, [N/m]) of ``sum_t modulus_t/2 int |grad u|^2``
+    on the rest mesh: edge weights ``modulus/2 cot`` of the opposite corners, summed over the
+    edge's triangles and clamped at zero (an obtuse pair would make it indefinite)."""
+    import scipy.sparse as sp
+
+    rows, cols, vals = [], [], []
+    for k in range(3):
+        a, b, c = faces[:, k], faces[:, (k + 1) % 3], faces[:, (k + 2) % 3]
+        u, v = rest[b] - rest[a], rest[c] - rest[a]
+        cot = np.einsum("ij,ij->i", u, v) / np.maximum(np.linalg.norm(np.cross(u, v), axis=1), 1e-20)
+        rows.append(np.minimum(b, c))
+        cols.append(np.maximum(b, c))
+        vals.append(0.5 * modulus * cot)
+    w = sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(vertex_count, vertex_count)).tocsr()
+    w.sum_duplicates()
+    w.data = np.maximum(w.data, 0.0)
+    w = w + w.T
+    return (sp.diags(np.asarray(w.sum(axis=1)).ravel()) - w).tocsr()
+
+
+@dataclass
+class CoarseTemplate:
+    """The coarse level of one garment template (local indices)."""
+
+    prolongation: Any  # scipy CSR (n, nc): rows of pinned particles are zero
+    stiffness: Any  # scipy CSR (nc, nc): K_c = P^T K P [N/m]
+    mass: np.ndarray  # (nc,) lumped P^T m [kg]
+    order: np.ndarray  # (nc,) band row -> node (reverse Cuthill-McKee of K_c)
+    band: np.ndarray  # (nc, b + 1) lower band of K_c in that order, band[r, t] = K_c[r, r - t]
+
+
+def coarse_template(rest: np.ndarray, faces: np.ndarray, mass: np.ndarray, pinned: np.ndarray,
+                    modulus: np.ndarray, spacing: int) -> CoarseTemplate:
+    """Build the coarse level of one garment (module docstring): ``rest`` (n, 3) [m], ``faces``
+    (F, 3), ``mass`` (n,) [kg], ``pinned`` (n,) bool, ``modulus`` (F,) ``lambda + 2 mu`` [N/m]."""
+    import scipy.sparse as sp
+
+    n = len(rest)
+    adjacency, _ = mesh_edge_graph(n, faces)
+    agg, _ = aggregate(adjacency, spacing)
+    nc = int(agg.max()) + 1
+    indicator = sp.csr_matrix((np.ones(n), (np.arange(n), agg)), shape=(n, nc))
+    smooth = adjacency + sp.identity(n, format="csr")
+    smooth = sp.diags(1.0 / np.asarray(smooth.sum(axis=1)).ravel()) @ smooth
+    p = (sp.diags((~pinned).astype(float)) @ smooth @ indicator).tocsr()
+    p.eliminate_zeros()
+    k = cotangent_stiffness(rest.astype(np.float64), faces, modulus.astype(np.float64), n)
+    kc = (p.T @ k @ p).tocsr()
+    kc.eliminate_zeros()
+    mc = np.asarray(p.T @ mass.astype(np.float64)).ravel()
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
+
+    order = np.asarray(reverse_cuthill_mckee(kc, symmetric_mode=True), dtype=np.int64)
+    kp = kc[order][:, order].tocoo()
+    lower = kp.row >= kp.col
+    width = int((kp.row - kp.col).max()) if kp.nnz else 0
+    band = np.zeros((nc, width + 1))
+    band[kp.row[lower], (kp.row - kp.col)[lower]] = kp.data[lower]
+    return CoarseTemplate(p, kc, mc, order, band)
+
+
+def _template_key(*arrays: np.ndarray) -> str:
+    h = hashlib.sha1()
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).tobytes())
+        h.update(str(a.shape).encode())
+    return h.hexdigest()
+
+
+class CoarseLevel:
+    """The coarse level of every instance of a ``ClothModel`` on its device (module docstring).
+
+    Args:
+        model: the cloth model.
+        spacing: seed spacing of the aggregates [edges]; 3 gives about 15 vertices per coarse
+            node on a near-uniform mesh.
+    """
+
+    def __init__(self, model, spacing: int = 3):
+        import scipy.sparse as sp
+
+        if spacing < 1:
+            raise ValueError(f"CoarseLevel: spacing must be >= 1, got {spacing}")
+        d = model.device
+        rest = model.particle_rest.numpy().astype(np.float64)
+        mass = model.particle_mass.numpy().astype(np.float64)
+        pinned = model.particle_flags.numpy() == 1
+        modulus = model.tri_lam.numpy().astype(np.float64) + 2.0 * model.tri_mu.numpy().astype(np.float64)
+        faces = np.asarray(model.faces)
+        starts = np.asarray(model.instance_starts)
+        tri_inst = np.searchsorted(starts, faces[:, 0], side="right") - 1
+        tri_starts = np.searchsorted(tri_inst, np.arange(model.instance_count + 1))
+        templates: dict[str, CoarseTemplate] = {}
+        blocks = []
+        for k in range(model.instance_count):
+            v0, v1 = int(starts[k]), int(starts[k + 1])
+            f = faces[tri_starts[k]:tri_starts[k + 1]] - v0
+            parts = (rest[v0:v1], f, mass[v0:v1], pinned[v0:v1], modulus[tri_starts[k]:tri_starts[k + 1]])
+            key = _template_key(*parts, np.asarray([spacing]))
+            if key not in templates:
+                templates[key] = coarse_template(*parts, spacing=spacing)
+            blocks.append(templates[key])
+        self.templates = list(templates.values())
+        p = sp.block_diag([b.prolongation for b in blocks], format="csr")
+        kc = sp.block_diag([b.stiffness for b in blocks], format="csr")
+        mc = np.concatenate([b.mass for b in blocks])
+        self.node_count = len(mc)
+        self.prolongation = p
+        r = p.T.tocsr()
+        kdiag = kc.diagonal()
+
+        def arr(a, dtype):
+            return wp.array(np.ascontiguousarray(a), dtype=dtype, device=d)
+
+        def csr(m):
+            return (arr(m.indptr.astype(np.int32), wp.int32), arr(m.indices.astype(np.int32), wp.int32),
+                    arr(m.data.astype(np.float32), float))
+
+        self._p, self._r = csr(p), csr(r)
+        self._mass = arr(mc.astype(np.float32), float)
+        self._kdiag = arr(kdiag.astype(np.float32), float)
+        nc = self.node_count
+        self._rhs = wp.zeros(nc, dtype=wp.vec3, device=d)
+        self._diag = wp.zeros(nc, dtype=float, device=d)
+        self._dx = wp.zeros(nc, dtype=wp.vec3, device=d)
+        # banded Cholesky of each instance's coarse system: band rows in RCM order, per instance
+        # (node start, node count, band width, offset of its band in the flat band arrays)
+        widths = np.array([b.band.shape[1] - 1 for b in blocks], dtype=np.int64)
+        counts = np.array([len(b.mass) for b in blocks], dtype=np.int64)
+        band_off = np.concatenate([[0], np.cumsum(counts * (widths + 1))])
+        node_off = np.concatenate([[0], np.cumsum(counts)])
+        self._inst = (arr(node_off[:-1].astype(np.int32), wp.int32), arr(counts.astype(np.int32), wp.int32),
+                      arr(widths.astype(np.int32), wp.int32), arr(band_off[:-1].astype(np.int64), wp.int64))
+        self._order = arr(np.concatenate([b.order for b in blocks]).astype(np.int32), wp.int32)
+        self._band_k = arr(np.concatenate([b.band.ravel() for b in blocks]).astype(np.float32), float)
+        self._band = wp.zeros(int(band_off[-1]), dtype=float, device=d)
+        self._y = wp.zeros(nc, dtype=wp.vec3, device=d)
+        self.instance_count = len(blocks)
+        self.device = d
+
+    def correct(self, residual, model, contact: tuple, k_contact: float, h: float, air_damping: float, x,
+                snap_out) -> None:
+        """Solve the coarse system for ``residual`` (the forces ``-dG/dx`` at ``x`` [N]) and add
+        the prolongated displacement to ``x`` (free particles) and ``snap_out``; a substep of
+        length ``h`` [s] with air damping ``air_damping`` [1/s]; ``contact`` the body contact
+        arrays (point, normal, active), whose penalty ``k_contact`` [N/m] joins the diagonal."""
+        d = self.device
+        nc = self.node_count
+        diag = 1.0 / (h * h) + air_damping / h
+        wp.launch(restrict_kernel, dim=nc,
+                  inputs=[residual, *self._r, self._mass, self._kdiag, diag, x, model.particle_instance,
+                          *contact, model.instance_thickness, k_contact],
+                  outputs=[self._rhs, self._diag], device=d)
+        wp.launch(band_solve_kernel, dim=self.instance_count,
+                  inputs=[self._rhs, self._diag, *self._inst, self._order, self._band_k],
+                  outputs=[self._band, self._y, self._dx], device=d)
+        wp.launch(prolong_kernel, dim=x.shape[0], inputs=[self._dx, *self._p, model.particle_flags],
+                  outputs=[x, snap_out], device=d)
+
+
+@wp.kernel
+def restrict_kernel(
+    r: wp.array(dtype=wp.vec3),
+    offsets: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=float),
+    node_mass: wp.array(dtype=float),
+    node_stiffness: wp.array(dtype=float),
+    inertia: float,
+    x: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    contact_point: wp.array(dtype=wp.vec3),
+    contact_normal: wp.array(dtype=wp.vec3),
+    contact_active: wp.array(dtype=wp.int32),
+    instance_thickness: wp.array(dtype=float),
+    k_contact: float,
+    rhs_out: wp.array(dtype=wp.vec3),
+    diag_out: wp.array(dtype=float),
+):
+    """``rhs = P^T r`` and the coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` with
+    ``k`` the body contact's penalty at particles pressed onto the body (one node per thread)."""
+    c = wp.tid()
+    s = wp.vec3(0.0)
+    kc = float(0.0)
+    for k in range(offsets[c], offsets[c + 1]):
+        i = ids[k]
+        w = weights[k]
+        s = s + w * r[i]
+        if contact_active[i] != 0:
+            if wp.dot(contact_normal[i], x[i] - contact_point[i]) < instance_thickness[particle_instance[i]]:
+                kc = kc + w * k_contact
+    rhs_out[c] = s
+    diag_out[c] = node_mass[c] * inertia + node_stiffness[c] + kc
+
+
+@wp.kernel
+def prolong_kernel(
+    dx: wp.array(dtype=wp.vec3),
+    offsets: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=float),
+    flags: wp.array(dtype=wp.int32),
+    x_inout: wp.array(dtype=wp.vec3),
+    snap_out: wp.array(dtype=wp.vec3),
+):
+    """``x += P dx_c`` for free particles; the result also to ``snap_out``."""
+    i = wp.tid()
+    xi = x_inout[i]
+    if flags[i] != 1:
+        s = wp.vec3(0.0)
+        for k in range(offsets[i], offsets[i + 1]):
+            s = s + weights[k] * dx[ids[k]]
+        xi = xi + s
+        x_inout[i] = xi
+    snap_out[i] = xi
+
+
+@wp.kernel
+def band_solve_kernel(
+    rhs: wp.array(dtype=wp.vec3),
+    diag: wp.array(dtype=float),
+    inst_start: wp.array(dtype=wp.int32),
+    inst_count: wp.array(dtype=wp.int32),
+    inst_width: wp.array(dtype=wp.int32),
+    inst_band: wp.array(dtype=wp.int64),
+    order: wp.array(dtype=wp.int32),
+    band_k: wp.array(dtype=float),
+    band: wp.array(dtype=float),
+    y: wp.array(dtype=wp.vec3),
+    dx_out: wp.array(dtype=wp.vec3),
+):
+    """Solve one instance's coarse system ``(K_c + diag) dx = rhs`` exactly (one thread per
+    instance): assemble its lower band (``K_c``'s off-diagonal band, this correction's
+    diagonal), factor it in place (banded Cholesky, ``L[r, t] = L_{r, r-t}``), then forward and
+    back substitution; rows are in the template's RCM order (``order``: row -> node)."""
+    k = wp.tid()
+    start = inst_start[k]
+    n = inst_count[k]
+    b = inst_width[k]
+    w = wp.int64(b + 1)
+    base = inst_band[k]
+    for r in range(n):
+        row = base + wp.int64(r) * w
+        band[row] = diag[start + order[start + r]]
+        for t in range(1, b + 1):
+            band[row + wp.int64(t)] = band_k[row + wp.int64(t)]
+    # factor: column j, then the rows i = j + 1 .. j + b below it
+    for j in range(n):
+        rj = base + wp.int64(j) * w
+        s = band[rj]
+        for t in range(1, wp.min(b, j) + 1):
+            v = band[rj + wp.int64(t)]
+            s = s - v * v
+        d = wp.sqrt(wp.max(s, 1.0e-30))
+        band[rj] = d
+        for i in range(j + 1, wp.min(n, j + b + 1)):
+            ri = base + wp.int64(i) * w
+            ti = i - j
+            s = band[ri + wp.int64(ti)]
+            # sum over columns c < j inside both rows' bands: c >= i - b
+            for c in range(wp.max(0, i - b), j):
+                s = s - band[ri + wp.int64(i - c)] * band[rj + wp.int64(j - c)]
+            band[ri + wp.int64(ti)] = s / d
+    # L y = rhs
+    for r in range(n):
+        rr = base + wp.int64(r) * w
+        u = rhs[start + order[start + r]]
+        for t in range(1, wp.min(b, r) + 1):
+            u = u - band[rr + wp.int64(t)] * y[start + r - t]
+        y[start + r] = u / band[rr]
+    # L^T x = y (x kept in y, last row first)
+    for q in range(n):
+        r = n - 1 - q
+        u = y[start + r]
+        for t in range(1, wp.min(b, n - 1 - r) + 1):
+            u = u - band[base + wp.int64(r + t) * w + wp.int64(t)] * y[start + r + t]
+        y[start + r] = u / band[base + wp.int64(r) * w]
+        dx_out[start + order[start + r]] = y[start + r]
