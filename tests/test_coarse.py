@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sim.cloth import ClothMaterialParams, ClothModelBuilder, SolverVBD, VBDConfig
-from sim.cloth.coarse import CoarseLevel, aggregate, band_solve_kernel, mesh_edge_graph
+from sim.cloth.coarse import aggregate, band_solve_kernel, mesh_edge_graph
 from sim.device import warp
 from tests.test_cloth_solver import drop_on_sphere, grid, simulate
 
@@ -21,9 +21,14 @@ def strip(device, nx: int = 11, ny: int = 41):
     return b.finalize(device), v
 
 
+def coarse_level(model, spacing: int):
+    """The coarse level a solver with corrections builds for ``model``."""
+    return SolverVBD(model, VBDConfig(coarse_sweeps=(0,), coarse_spacing=spacing)).coarse
+
+
 def test_aggregates_are_connected_cells_around_spaced_seeds():
     v, f = grid(15, 15, 0.3, 0.3)
-    adj, _ = mesh_edge_graph(len(v), f)
+    adj = mesh_edge_graph(len(v), f)
     from scipy.sparse.csgraph import connected_components, shortest_path
 
     dist = shortest_path(adj, unweighted=True)
@@ -43,7 +48,7 @@ def test_aggregates_are_connected_cells_around_spaced_seeds():
 
 def test_prolongation_rows_sum_to_one_and_pins_do_not_move():
     m, _ = strip("cpu")
-    level = CoarseLevel(m, spacing=3)
+    level = coarse_level(m, spacing=3)
     p = level.prolongation
     rows = np.asarray(p.sum(axis=1)).ravel()
     np.testing.assert_allclose(rows[11:], 1.0, rtol=1e-12)
@@ -61,7 +66,7 @@ def test_band_solve_matches_a_dense_solve_for_every_instance(device):
     b.add_cloth(v1, f1, STIFF, pinned=np.arange(11))
     b.add_cloth(v2 + 1.0, f2, ClothMaterialParams())
     m = b.finalize(device)
-    level = CoarseLevel(m, spacing=2)
+    level = coarse_level(m, spacing=2)
     assert len(level.templates) == 2
     rng = np.random.default_rng(0)
     nc = level.node_count

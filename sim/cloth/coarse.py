@@ -45,16 +45,17 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from sim.cloth.model import mesh_edges
+from sim.cloth.vbd_kernels import PINNED
+
 
 def mesh_edge_graph(vertex_count: int, faces: np.ndarray):
-    """Symmetric CSR adjacency (scipy) of the mesh's edge graph."""
+    """Symmetric CSR adjacency (scipy) of the mesh's edge graph (``model.mesh_edges``)."""
     import scipy.sparse as sp
 
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
-    ones = np.ones(len(e))
-    g = sp.coo_matrix((ones, (e[:, 0], e[:, 1])), shape=(vertex_count, vertex_count))
-    return (g + g.T).tocsr(), e
+    e = mesh_edges(faces)
+    g = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(vertex_count, vertex_count))
+    return (g + g.T).tocsr()
 
 
 def aggregate(adjacency, spacing: int) -> tuple[np.ndarray, np.ndarray]:
@@ -131,7 +132,7 @@ def coarse_template(rest: np.ndarray, faces: np.ndarray, mass: np.ndarray, pinne
     import scipy.sparse as sp
 
     n = len(rest)
-    adjacency, _ = mesh_edge_graph(n, faces)
+    adjacency = mesh_edge_graph(n, faces)
     agg, _ = aggregate(adjacency, spacing)
     nc = int(agg.max()) + 1
     indicator = sp.csr_matrix((np.ones(n), (np.arange(n), agg)), shape=(n, nc))
@@ -167,11 +168,15 @@ class CoarseLevel:
 
     Args:
         model: the cloth model.
+        contact: the solver's body contact arrays (point, normal, active), read at each
+            correction.
+        k_contact: the body contact's penalty stiffness [N/m].
+        air_damping: the solver's air damping [1/s].
         spacing: seed spacing of the aggregates [edges]; 3 gives about 15 vertices per coarse
             node on a near-uniform mesh.
     """
 
-    def __init__(self, model, spacing: int = 3):
+    def __init__(self, model, contact: tuple, k_contact: float, air_damping: float, spacing: int = 3):
         import scipy.sparse as sp
 
         if spacing < 1:
@@ -179,7 +184,7 @@ class CoarseLevel:
         d = model.device
         rest = model.particle_rest.numpy().astype(np.float64)
         mass = model.particle_mass.numpy().astype(np.float64)
-        pinned = model.particle_flags.numpy() == 1
+        pinned = model.particle_flags.numpy() == PINNED
         modulus = model.tri_lam.numpy().astype(np.float64) + 2.0 * model.tri_mu.numpy().astype(np.float64)
         faces = np.asarray(model.faces)
         starts = np.asarray(model.instance_starts)
@@ -191,18 +196,17 @@ class CoarseLevel:
             v0, v1 = int(starts[k]), int(starts[k + 1])
             f = faces[tri_starts[k]:tri_starts[k + 1]] - v0
             parts = (rest[v0:v1], f, mass[v0:v1], pinned[v0:v1], modulus[tri_starts[k]:tri_starts[k + 1]])
-            key = _template_key(*parts, np.asarray([spacing]))
+            key = _template_key(*parts)
             if key not in templates:
                 templates[key] = coarse_template(*parts, spacing=spacing)
             blocks.append(templates[key])
         self.templates = list(templates.values())
         p = sp.block_diag([b.prolongation for b in blocks], format="csr")
-        kc = sp.block_diag([b.stiffness for b in blocks], format="csr")
         mc = np.concatenate([b.mass for b in blocks])
         self.node_count = len(mc)
         self.prolongation = p
         r = p.T.tocsr()
-        kdiag = kc.diagonal()
+        kdiag = sp.block_diag([b.stiffness for b in blocks], format="csr").diagonal()
 
         def arr(a, dtype):
             return wp.array(np.ascontiguousarray(a), dtype=dtype, device=d)
@@ -230,27 +234,28 @@ class CoarseLevel:
         self._band_k = arr(np.concatenate([b.band.ravel() for b in blocks]).astype(np.float32), float)
         self._band = wp.zeros(int(band_off[-1]), dtype=float, device=d)
         self._y = wp.zeros(nc, dtype=wp.vec3, device=d)
-        self.instance_count = len(blocks)
-        self.device = d
+        self.residual = wp.zeros(model.particle_count, dtype=wp.vec3, device=d)
+        self.model = model
+        self._contact = tuple(contact)
+        self._k_contact = float(k_contact)
+        self._air_damping = float(air_damping)
 
-    def correct(self, residual, model, contact: tuple, k_contact: float, h: float, air_damping: float, x,
-                snap_out) -> None:
-        """Solve the coarse system for ``residual`` (the forces ``-dG/dx`` at ``x`` [N]) and add
-        the prolongated displacement to ``x`` (free particles) and ``snap_out``; a substep of
-        length ``h`` [s] with air damping ``air_damping`` [1/s]; ``contact`` the body contact
-        arrays (point, normal, active), whose penalty ``k_contact`` [N/m] joins the diagonal."""
-        d = self.device
+    def correct(self, h: float, x, snap_out) -> None:
+        """Solve the coarse system of a substep of length ``h`` [s] for ``self.residual`` (the
+        forces ``-dG/dx`` at ``x`` [N], written by the solve kernel's evaluate variant) and add
+        the prolongated displacement to ``x`` (free particles) and ``snap_out``."""
+        m = self.model
         nc = self.node_count
-        diag = 1.0 / (h * h) + air_damping / h
+        inertia = 1.0 / (h * h) + self._air_damping / h
         wp.launch(restrict_kernel, dim=nc,
-                  inputs=[residual, *self._r, self._mass, self._kdiag, diag, x, model.particle_instance,
-                          *contact, model.instance_thickness, k_contact],
-                  outputs=[self._rhs, self._diag], device=d)
-        wp.launch(band_solve_kernel, dim=self.instance_count,
+                  inputs=[self.residual, *self._r, self._mass, self._kdiag, inertia, x, m.particle_instance,
+                          *self._contact, m.instance_thickness, self._k_contact],
+                  outputs=[self._rhs, self._diag], device=m.device)
+        wp.launch(band_solve_kernel, dim=m.instance_count,
                   inputs=[self._rhs, self._diag, *self._inst, self._order, self._band_k],
-                  outputs=[self._band, self._y, self._dx], device=d)
-        wp.launch(prolong_kernel, dim=x.shape[0], inputs=[self._dx, *self._p, model.particle_flags],
-                  outputs=[x, snap_out], device=d)
+                  outputs=[self._band, self._y, self._dx], device=m.device)
+        wp.launch(prolong_kernel, dim=m.particle_count, inputs=[self._dx, *self._p, m.particle_flags],
+                  outputs=[x, snap_out], device=m.device)
 
 
 @wp.kernel
@@ -301,7 +306,7 @@ def prolong_kernel(
     """``x += P dx_c`` for free particles; the result also to ``snap_out``."""
     i = wp.tid()
     xi = x_inout[i]
-    if flags[i] != 1:
+    if flags[i] != PINNED:
         s = wp.vec3(0.0)
         for k in range(offsets[i], offsets[i + 1]):
             s = s + weights[k] * dx[ids[k]]
@@ -324,10 +329,11 @@ def band_solve_kernel(
     y: wp.array(dtype=wp.vec3),
     dx_out: wp.array(dtype=wp.vec3),
 ):
-    """Solve one instance's coarse system ``(K_c + diag) dx = rhs`` exactly (one thread per
-    instance): assemble its lower band (``K_c``'s off-diagonal band, this correction's
-    diagonal), factor it in place (banded Cholesky, ``L[r, t] = L_{r, r-t}``), then forward and
-    back substitution; rows are in the template's RCM order (``order``: row -> node)."""
+    """Solve one instance's coarse system ``A dx = rhs`` exactly (one thread per instance):
+    assemble the lower band of ``A`` (``K_c``'s off-diagonal band, ``diag`` on the diagonal;
+    ``restrict_kernel`` puts ``K_c``'s own diagonal there), factor it in place (banded Cholesky,
+    ``L[r, t] = L_{r, r-t}``), then forward and back substitution; rows are in the template's
+    RCM order (``order``: row -> node)."""
     k = wp.tid()
     start = inst_start[k]
     n = inst_count[k]

@@ -188,7 +188,7 @@ class VBDConfig:
         coarse_sweeps: sweep indices (0 .. iterations - 1) before which a coarse-level correction
             runs (``sim.cloth.coarse``; empty, the default: none). A correction evaluates the
             residual at every particle (one sweep's gather), restricts it to about one node
-            per 20 vertices, solves that level's linear system exactly and adds the
+            per 15 vertices, solves that level's linear system exactly and adds the
             prolongated displacement: the long reach the sweeps lack (~1 ring each).
         coarse_spacing: seed spacing of the coarse level's aggregates [edges].
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
@@ -424,10 +424,11 @@ class SolverVBD:
         if cfg.coarse_sweeps:
             from sim.cloth.coarse import CoarseLevel
 
-            self.coarse = CoarseLevel(model, cfg.coarse_spacing)
+            contact = (self._contact_point, self._contact_normal, self._contact_active)
+            self.coarse = CoarseLevel(model, contact, cfg.contact_stiffness, cfg.air_damping,
+                                      cfg.coarse_spacing)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True)
-            self._residual = wp.zeros(n, dtype=wp.vec3, device=d)
 
     def heavy_cap(self, cuda: bool) -> int:
         """Heavy-vertex blocks per colour launch (``VBDConfig.self_contact_heavy_cap``; -1: auto,
@@ -470,7 +471,7 @@ class SolverVBD:
         snap, snap_out = self._snapshots[parity], self._snapshots[1 - parity]
         kernel = self._solve
         if evaluate:
-            kernel, snap_out = self._evaluate, self._residual
+            kernel, snap_out = self._evaluate, self.coarse.residual
         m = self.model
         cfg = self.config
         arrays = self._solve_arrays(sc_data)
@@ -567,9 +568,7 @@ class SolverVBD:
                 if it in cfg.coarse_sweeps:
                     # the residual at x (snapshot it % 2 holds x), its coarse-level correction
                     self.sweep(x, sc_data, eps_u, h, it % 2, evaluate=True)
-                    self.coarse.correct(self._residual, m, (self._contact_point, self._contact_normal,
-                                                            self._contact_active),
-                                        cfg.contact_stiffness, h, cfg.air_damping, x, self._snapshots[it % 2])
+                    self.coarse.correct(h, x, self._snapshots[it % 2])
                 self.sweep(x, sc_data, eps_u, h, it % 2)
                 if self._omegas:
                     wp.launch(K.chebyshev_kernel, dim=n,
