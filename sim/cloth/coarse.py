@@ -46,7 +46,8 @@ import numpy as np
 import warp as wp
 
 from sim.cloth.model import mesh_edges
-from sim.cloth.vbd_kernels import PINNED
+from sim.cloth.self_contact import SelfContactData
+from sim.cloth.vbd_kernels import PINNED, ParticleStep, bound_step
 
 
 def mesh_edge_graph(vertex_count: int, faces: np.ndarray):
@@ -155,6 +156,11 @@ def coarse_template(rest: np.ndarray, faces: np.ndarray, mass: np.ndarray, pinne
     return CoarseTemplate(p, kc, mc, order, band)
 
 
+# largest move of a correction at a particle with self-contact pairs, in self-contact radii
+# (bounds off, the default, nothing else keeps a correction from carrying a layer through another)
+SELF_CONTACT_CAP = wp.constant(0.25)
+
+
 def _template_key(*arrays: np.ndarray) -> str:
     h = hashlib.sha1()
     for a in arrays:
@@ -168,15 +174,16 @@ class CoarseLevel:
 
     Args:
         model: the cloth model.
-        contact: the solver's body contact arrays (point, normal, active), read at each
-            correction.
+        contact: the solver's body contact arrays (point, normal, body velocity, active), read
+            at each correction.
+        x_prev: the solver's substep start positions (the displacement bounds' reference).
         k_contact: the body contact's penalty stiffness [N/m].
         air_damping: the solver's air damping [1/s].
         spacing: seed spacing of the aggregates [edges]; 3 gives about 15 vertices per coarse
             node on a near-uniform mesh.
     """
 
-    def __init__(self, model, contact: tuple, k_contact: float, air_damping: float, spacing: int = 3):
+    def __init__(self, model, contact: tuple, x_prev, k_contact: float, air_damping: float, spacing: int = 3):
         import scipy.sparse as sp
 
         if spacing < 1:
@@ -237,25 +244,53 @@ class CoarseLevel:
         self.residual = wp.zeros(model.particle_count, dtype=wp.vec3, device=d)
         self.model = model
         self._contact = tuple(contact)
+        self._x_prev = x_prev
         self._k_contact = float(k_contact)
         self._air_damping = float(air_damping)
+        # CUDA: a thread block per instance (sim.cloth.coarse_block) where its band fits in
+        # one block's shared memory
+        self.block_kernel = None
+        if wp.get_device(d).is_cuda:
+            from sim.cloth import coarse_block
 
-    def correct(self, h: float, x, snap_out) -> None:
+            need = max(coarse_block.shared_floats(int(c), int(b))
+                       for c, b in zip(counts, widths, strict=True))
+            room = wp.get_device(d).max_shared_memory_per_block - 1024
+            if 4 * coarse_block.padded(need) <= room:
+                self.block_kernel = coarse_block.cooperative_kernel(need)
+
+    def correct(self, h: float, x, snap_out, sc_data) -> None:
         """Solve the coarse system of a substep of length ``h`` [s] for ``self.residual`` (the
         forces ``-dG/dx`` at ``x`` [N], written by the solve kernel's evaluate variant) and add
-        the prolongated displacement to ``x`` (free particles) and ``snap_out``."""
+        the prolongated displacement to ``x`` (free particles) and ``snap_out``, bounded like a
+        sweep's moves by ``sc_data`` (the sweeps' self-contact data)."""
         m = self.model
-        nc = self.node_count
+        point, normal, body_velocity, active = self._contact
         inertia = 1.0 / (h * h) + self._air_damping / h
-        wp.launch(restrict_kernel, dim=nc,
+        wp.launch(restrict_kernel, dim=self.node_count,
                   inputs=[self.residual, *self._r, self._mass, self._kdiag, inertia, x, m.particle_instance,
-                          *self._contact, m.instance_thickness, self._k_contact],
+                          point, normal, active, m.instance_thickness, self._k_contact, sc_data],
                   outputs=[self._rhs, self._diag], device=m.device)
-        wp.launch(band_solve_kernel, dim=m.instance_count,
-                  inputs=[self._rhs, self._diag, *self._inst, self._order, self._band_k],
-                  outputs=[self._band, self._y, self._dx], device=m.device)
-        wp.launch(prolong_kernel, dim=m.particle_count, inputs=[self._dx, *self._p, m.particle_flags],
+        self.solve()
+        wp.launch(prolong_kernel, dim=m.particle_count,
+                  inputs=[self._dx, *self._p, m.particle_flags, h, self._x_prev, m.particle_instance,
+                          *self._contact, m.instance_thickness, sc_data],
                   outputs=[x, snap_out], device=m.device)
+
+    def solve(self) -> None:
+        """Every instance's coarse system for the current right-hand side and diagonal (the
+        block kernel on CUDA where it fits, else one thread per instance)."""
+        m = self.model
+        if self.block_kernel is not None:
+            from sim.cloth.coarse_block import COOP_THREADS
+
+            wp.launch_tiled(self.block_kernel, dim=[m.instance_count], block_dim=COOP_THREADS,
+                            inputs=[self._rhs, self._diag, *self._inst, self._order, self._band_k],
+                            outputs=[self._dx], device=m.device)
+        else:
+            wp.launch(band_solve_kernel, dim=m.instance_count,
+                      inputs=[self._rhs, self._diag, *self._inst, self._order, self._band_k],
+                      outputs=[self._band, self._y, self._dx], device=m.device)
 
 
 @wp.kernel
@@ -274,11 +309,13 @@ def restrict_kernel(
     contact_active: wp.array(dtype=wp.int32),
     instance_thickness: wp.array(dtype=float),
     k_contact: float,
+    sc: SelfContactData,
     rhs_out: wp.array(dtype=wp.vec3),
     diag_out: wp.array(dtype=float),
 ):
     """``rhs = P^T r`` and the coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` with
-    ``k`` the body contact's penalty at particles pressed onto the body (one node per thread)."""
+    ``k`` the body contact's penalty at particles pressed onto the body plus the self-contact
+    penalty at particles with cloth-cloth pairs (one node per thread)."""
     c = wp.tid()
     s = wp.vec3(0.0)
     kc = float(0.0)
@@ -289,6 +326,9 @@ def restrict_kernel(
         if contact_active[i] != 0:
             if wp.dot(contact_normal[i], x[i] - contact_point[i]) < instance_thickness[particle_instance[i]]:
                 kc = kc + w * k_contact
+        if sc.enabled != 0:
+            if sc.vt_count[i] + sc.tv_total[i] + sc.ee_total[i] > 0:
+                kc = kc + w * sc.stiffness
     rhs_out[c] = s
     diag_out[c] = node_mass[c] * inertia + node_stiffness[c] + kc
 
@@ -300,17 +340,58 @@ def prolong_kernel(
     ids: wp.array(dtype=wp.int32),
     weights: wp.array(dtype=float),
     flags: wp.array(dtype=wp.int32),
+    h: float,
+    x_prev: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    contact_point: wp.array(dtype=wp.vec3),
+    contact_normal: wp.array(dtype=wp.vec3),
+    contact_body_velocity: wp.array(dtype=wp.vec3),
+    contact_active: wp.array(dtype=wp.int32),
+    instance_thickness: wp.array(dtype=float),
+    sc: SelfContactData,
     x_inout: wp.array(dtype=wp.vec3),
     snap_out: wp.array(dtype=wp.vec3),
 ):
-    """``x += P dx_c`` for free particles; the result also to ``snap_out``."""
+    """``x += P dx_c`` for free particles, the result also to ``snap_out``; a particle with
+    self-contact pairs moves at most ``SELF_CONTACT_CAP`` times the contact radius; one on the
+    body is not moved deeper into it than it is (or than its thickness shell), and the move is
+    truncated to the particle's self-contact displacement bound like a sweep's, on the body too
+    (``vbd_kernels.bound_step``): the correction carries no layer through another."""
     i = wp.tid()
     xi = x_inout[i]
     if flags[i] != PINNED:
         s = wp.vec3(0.0)
         for k in range(offsets[i], offsets[i + 1]):
             s = s + weights[k] * dx[ids[k]]
-        xi = xi + s
+        if sc.enabled != 0:
+            # self-contact is not in the coarse system: a particle with cloth-cloth pairs moves at
+            # most a fraction of the contact radius, so two capped neighbours across a gap close it
+            # by less than the radius the penalty keeps between them
+            if sc.vt_count[i] + sc.tv_total[i] + sc.ee_total[i] > 0:
+                sl = wp.length(s)
+                cap = SELF_CONTACT_CAP * sc.radius
+                if sl > cap:
+                    s = s * (cap / sl)
+        x_new = xi + s
+        p = ParticleStep()
+        p.x = xi
+        p.x_prev = x_prev[i]
+        p.contact_active = contact_active[i]
+        p.contact_point = contact_point[i]
+        p.contact_normal = contact_normal[i]
+        p.contact_body_velocity = contact_body_velocity[i]
+        p.thickness = instance_thickness[particle_instance[i]]
+        p.bound = float(0.0)
+        p.reference = wp.vec3(0.0)
+        if sc.enabled != 0 and sc.use_bounds != 0:
+            p.bound = sc.bound[i]
+            p.reference = sc.reference[particle_instance[i]]
+        if p.contact_active != 0:
+            floor = wp.min(wp.dot(p.contact_normal, xi - p.contact_point), p.thickness)
+            depth = wp.dot(p.contact_normal, x_new - p.contact_point)
+            if depth < floor:
+                x_new = x_new + (floor - depth) * p.contact_normal
+        xi = bound_step(p, x_new, h, sc, 0)
         x_inout[i] = xi
     snap_out[i] = xi
 

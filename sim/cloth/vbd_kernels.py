@@ -433,6 +433,30 @@ def vertex_system(
 
 
 @wp.func
+def bound_step(p: ParticleStep, x_new: wp.vec3, h: float, sc: SelfContactData, body_wins: int) -> wp.vec3:
+    """``x_new``, a particle's move from ``p.x``, truncated to its self-contact displacement
+    bound (``sim.cloth.self_contact``: the cloth stays intersection-free) where the bound holds it;
+    ``body_wins`` (the Newton step): not where the body presses the particle. The coarse
+    correction's prolongation bounds every move: it is no push of the body."""
+    bounded = sc.enabled != 0 and sc.use_bounds != 0
+    # the bound limits motion relative to the body surface nearby (the skin's displacement over
+    # the substep), so layers riding on a moving limb together are not held back; elsewhere
+    # relative to the instance's reference velocity (the frame the detection searched in)
+    x_ref = p.x_prev
+    if p.contact_active != 0:
+        x_ref = p.x_prev + h * p.contact_body_velocity
+        # a particle the body is pushing is not held by the self-contact bound: where the body
+        # squeezes cloth layers together (armpits, between the legs) the body wins
+        if body_wins != 0 and wp.dot(p.contact_normal, p.x - p.contact_point) < p.thickness + sc.radius:
+            bounded = False
+    elif bounded:
+        x_ref = p.x_prev + h * p.reference
+    if bounded:
+        return apply_bound(x_new, x_ref, p.bound)
+    return x_new
+
+
+@wp.func
 def vertex_newton_step(
     p: ParticleStep,
     f: wp.vec3,
@@ -446,31 +470,12 @@ def vertex_newton_step(
     """Take the Newton step ``x += H^-1 f`` of a particle (Chen et al. 2024, Eq. 9-10) with its
     gathered ``f``, ``H`` completed by ``vertex_system``: its new position."""
     xi = p.x
-    xp = p.x_prev
     f, H = vertex_system(p, f, H, k_contact, eps_u, h, air_damping)
-
-    bounded = sc.enabled != 0 and sc.use_bounds != 0
-    # the bound limits motion relative to the body surface nearby (the skin's displacement over
-    # the substep), so layers riding on a moving limb together are not held back; elsewhere
-    # relative to the instance's reference velocity (the frame the detection searched in)
-    x_ref = xp
-    if p.contact_active != 0:
-        x_ref = xp + h * p.contact_body_velocity
-        # a particle the body is pushing is not held by the self-contact bound: where the body
-        # squeezes cloth layers together (armpits, between the legs) the body wins
-        if wp.dot(p.contact_normal, xi - p.contact_point) < p.thickness + sc.radius:
-            bounded = False
-    elif bounded:
-        x_ref = xp + h * p.reference
-
     # the block is symmetric positive definite (inertia + PSD terms); guard tiny determinants
     x_new = xi
     if wp.abs(wp.determinant(H)) > 1.0e-20:
         x_new = xi + wp.inverse(H) * f
-    if bounded:
-        # self-contact displacement bound (sim.cloth.self_contact): stays intersection-free
-        x_new = apply_bound(x_new, x_ref, p.bound)
-    return x_new
+    return bound_step(p, x_new, h, sc, 1)
 
 
 @wp.struct

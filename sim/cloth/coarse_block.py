@@ -1,0 +1,165 @@
+"""Block-cooperative solve of the coarse level's banded systems on CUDA (``sim.cloth.coarse``).
+
+``band_solve_kernel`` gives each instance one thread: correct everywhere, but on a GPU its
+serial factorization costs about 20 ms per correction for the t-shirt's 326 nodes
+(docs/BENCHMARKS.md, session 22). Here a whole thread block solves one instance: the band
+(``n (b + 1)`` floats) and the right-hand side sit in shared memory, the factorization is a
+right-looking ``L D L^T`` that eliminates one column per step with every thread updating a
+share of the ``b (b + 1) / 2`` entries below it, and the substitutions move one row per step.
+That is ``2 n`` block barriers per solve instead of ``n b^2 / 2`` serial multiply-adds.
+
+The kernel uses ``__shared__`` memory and ``__syncthreads`` through a native snippet, so it
+exists on CUDA only; the CPU keeps the serial kernel. Shared memory is sized per model (the
+largest instance's band); a template too large for one block's shared memory also keeps the
+serial kernel. This module has no ``from __future__ import annotations``: Warp reads the
+snippet stub's tile annotation, whose size is a closure value.
+"""
+
+import warp as wp
+
+COOP_THREADS = 256
+# floats of shared memory are allocated in steps of this many (one kernel per size)
+CAPACITY_STEP = 1024
+
+_KERNELS: dict = {}
+
+
+def shared_floats(count: int, width: int) -> int:
+    """Shared floats (4-byte words) one instance of ``count`` nodes and band width ``width``
+    needs: its band, its right-hand side and the index table of the block below a column."""
+    return count * (width + 1) + 3 * count + width * (width + 1) // 2
+
+
+def padded(capacity: int) -> int:
+    """``capacity`` [floats] rounded up to the allocation step."""
+    return -(-int(capacity) // CAPACITY_STEP) * CAPACITY_STEP
+
+
+def cooperative_kernel(capacity: int):
+    """The block solve kernel with at least ``capacity`` floats of shared memory (one kernel per
+    padded size)."""
+    capacity = padded(capacity)
+    if capacity in _KERNELS:
+        return _KERNELS[capacity]
+
+    @wp.func_native(_SNIPPET)
+    def solve(
+        smem: wp.tile[float, capacity],
+        rhs: wp.array(dtype=wp.vec3),
+        diag: wp.array(dtype=float),
+        inst_start: wp.array(dtype=wp.int32),
+        inst_count: wp.array(dtype=wp.int32),
+        inst_width: wp.array(dtype=wp.int32),
+        inst_band: wp.array(dtype=wp.int64),
+        order: wp.array(dtype=wp.int32),
+        band_k: wp.array(dtype=float),
+        dx_out: wp.array(dtype=wp.vec3),
+        k: int,
+        lane: int,
+    ): ...
+
+    def block_solve_kernel(
+        rhs: wp.array(dtype=wp.vec3),
+        diag: wp.array(dtype=float),
+        inst_start: wp.array(dtype=wp.int32),
+        inst_count: wp.array(dtype=wp.int32),
+        inst_width: wp.array(dtype=wp.int32),
+        inst_band: wp.array(dtype=wp.int64),
+        order: wp.array(dtype=wp.int32),
+        band_k: wp.array(dtype=float),
+        dx_out: wp.array(dtype=wp.vec3),
+    ):
+        """Solve instance ``k``'s coarse system with the block (launch with ``wp.launch_tiled``,
+        ``dim=[instance_count]``, ``block_dim=COOP_THREADS``); same inputs as
+        ``coarse.band_solve_kernel`` without its scratch arrays."""
+        k, lane = wp.tid()
+        smem = wp.tile_empty(shape=capacity, dtype=float, storage="shared")
+        solve(smem, rhs, diag, inst_start, inst_count, inst_width, inst_band, order, band_k, dx_out, k, lane)
+
+    kernel = wp.kernel(block_solve_kernel, enable_backward=False, module="unique")
+    _KERNELS[capacity] = kernel
+    return kernel
+
+
+# One instance's coarse system A dx = rhs, solved by the block: A = L D L^T (unit lower L, right-
+# looking, one column per step) in shared memory; band rows as in coarse.band_solve_kernel
+# (row r holds A[r, r - t] at t = 0 .. b), the right-hand side after them, 3 floats per row.
+_SNIPPET = r"""
+    __syncthreads();  // the tile allocation is not a barrier
+    float* L = smem.data.ptr;
+    const int start = inst_start[k];
+    const int n = inst_count[k];
+    const int b = inst_width[k];
+    const int w = b + 1;
+    const long long base = inst_band[k];
+    const int T = (int)blockDim.x;
+    float* u = L + n * w;  // right-hand side, then solution (3 per row)
+    for (int q = lane; q < n * w; q += T) {
+        const int r = q / w;
+        L[q] = (q - r * w == 0) ? diag[start + order[start + r]] : band_k[base + q];
+    }
+    for (int r = lane; r < n; r += T) {
+        const wp::vec3 v = rhs[start + order[start + r]];
+        u[3 * r] = v.c[0];
+        u[3 * r + 1] = v.c[1];
+        u[3 * r + 2] = v.c[2];
+    }
+    // the entries (s, t), 1 <= t <= s <= b, of the block below a column, row by row: s << 16 | t
+    int* tri = (int*)(u + 3 * n);
+    for (int q = lane; q < b * (b + 1) / 2; q += T) {
+        int s = (int)((sqrtf(8.0f * (float)q + 1.0f) - 1.0f) * 0.5f);
+        while ((s + 1) * (s + 2) / 2 <= q) ++s;
+        while (s * (s + 1) / 2 > q) --s;
+        tri[q] = ((s + 1) << 16) | (q - s * (s + 1) / 2 + 1);
+    }
+    __syncthreads();
+    const int w1 = w + 1;
+    for (int j = 0; j < n; ++j) {
+        // eliminate column j from rows j+1 .. j+m (entries A[j+s, j+t], 1 <= t <= s <= m), and
+        // from the right-hand side; column j is only read, its scaling waits for step j+1
+        const int jw = j * w;
+        const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
+        const int m = min(b, n - 1 - j);
+        const int count = m * (m + 1) / 2;
+        for (int q = lane; q < count; q += T) {
+            const int st = tri[q];
+            const int t = st & 0xffff;
+            const int a = jw + (st >> 16) * w1;  // A[j+s, j]; A[j+s, j+t] is t before it
+            L[a - t] -= L[a] * L[jw + t * w1] * inv;
+        }
+        for (int q = lane; q < m; q += T) {
+            const int s = q + 1;
+            const float f = L[(j + s) * w + s] * inv;
+            u[3 * (j + s)] -= f * u[3 * j];
+            u[3 * (j + s) + 1] -= f * u[3 * j + 1];
+            u[3 * (j + s) + 2] -= f * u[3 * j + 2];
+        }
+        if (j > 0) {
+            const int p = j - 1;
+            const float ip = 1.0f / fmaxf(L[p * w], 1.0e-30f);
+            for (int q = lane; q < min(b, n - 1 - p); q += T)
+                L[(p + q + 1) * w + q + 1] *= ip;
+        }
+        __syncthreads();
+    }
+    for (int r = lane; r < n; r += T) {
+        const float ir = 1.0f / fmaxf(L[r * w], 1.0e-30f);
+        u[3 * r] *= ir;
+        u[3 * r + 1] *= ir;
+        u[3 * r + 2] *= ir;
+    }
+    __syncthreads();
+    // L^T x = D^-1 z, last row first: row r is final, then leaves rows r-1 .. r-b
+    for (int r = n - 1; r > 0; --r) {
+        for (int q = lane; q < min(b, r); q += T) {
+            const int t = q + 1;
+            const float l = L[r * w + t];
+            u[3 * (r - t)] -= l * u[3 * r];
+            u[3 * (r - t) + 1] -= l * u[3 * r + 1];
+            u[3 * (r - t) + 2] -= l * u[3 * r + 2];
+        }
+        __syncthreads();
+    }
+    for (int r = lane; r < n; r += T)
+        dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
+"""
