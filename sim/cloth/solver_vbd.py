@@ -426,8 +426,8 @@ class SolverVBD:
 
             contact = (self._contact_point, self._contact_normal, self._contact_body_velocity,
                        self._contact_active)
-            self.coarse = CoarseLevel(model, contact, self._x_prev, cfg.contact_stiffness, cfg.air_damping,
-                                      cfg.coarse_spacing)
+            self.coarse = CoarseLevel(model, contact, self._x_prev, cfg.contact_stiffness, cfg.contact_margin,
+                                      cfg.air_damping, cfg.coarse_spacing)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True)
 
@@ -569,7 +569,7 @@ class SolverVBD:
                 if it in cfg.coarse_sweeps:
                     # the residual at x (snapshot it % 2 holds x), its coarse-level correction
                     self.sweep(x, sc_data, eps_u, h, it % 2, evaluate=True)
-                    self.coarse.correct(h, x, self._snapshots[it % 2], sc_data)
+                    self.coarse.correct(h, x, self._snapshots[it % 2], sc_data, control.instance_body)
                 self.sweep(x, sc_data, eps_u, h, it % 2)
                 if self._omegas:
                     wp.launch(K.chebyshev_kernel, dim=n,
