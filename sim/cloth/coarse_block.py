@@ -85,7 +85,6 @@ def cooperative_kernel(capacity: int):
 # looking, one column per step) in shared memory; band rows as in coarse.band_solve_kernel
 # (row r holds A[r, r - t] at t = 0 .. b), the right-hand side after them, 3 floats per row.
 _SNIPPET = r"""
-    constexpr int UNROLL = 8;
     __syncthreads();  // the tile allocation is not a barrier
     float* L = smem.data.ptr;
     const int start = inst_start[k];
@@ -122,27 +121,11 @@ _SNIPPET = r"""
         const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
         const int m = min(b, n - 1 - j);
         const int count = m * (m + 1) / 2;
-        // UNROLL entries per thread at a time, every load before any store (no entry a step
-        // writes is read by it), so their shared-memory latencies overlap
-        for (int q0 = lane; q0 < count; q0 += UNROLL * T) {
-            int at[UNROLL];
-            float v[UNROLL];
-#pragma unroll
-            for (int r = 0; r < UNROLL; ++r) {
-                const int q = q0 + r * T;
-                at[r] = -1;
-                if (q < count) {
-                    const int st = tri[q];
-                    const int t = st & 0xffff;
-                    const int a = jw + (st >> 16) * w1;  // A[j+s, j]; A[j+s, j+t] is t before it
-                    at[r] = a - t;
-                    v[r] = L[a - t] - L[a] * L[jw + t * w1] * inv;
-                }
-            }
-#pragma unroll
-            for (int r = 0; r < UNROLL; ++r)
-                if (at[r] >= 0)
-                    L[at[r]] = v[r];
+        for (int q = lane; q < count; q += T) {
+            const int st = tri[q];
+            const int t = st & 0xffff;
+            const int a = jw + (st >> 16) * w1;  // A[j+s, j]; A[j+s, j+t] is t before it
+            L[a - t] -= L[a] * L[jw + t * w1] * inv;
         }
         for (int q = lane; q < m; q += T) {
             const int s = q + 1;
