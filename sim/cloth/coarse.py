@@ -54,9 +54,10 @@ from typing import Any
 import numpy as np
 import warp as wp
 
+from sim.cloth import coarse_block
 from sim.cloth.model import mesh_edges
 from sim.cloth.self_contact import SelfContactData
-from sim.cloth.vbd_kernels import PINNED, ParticleStep, bound_step
+from sim.cloth.vbd_kernels import PINNED, bound_step, load_particle_step
 
 
 def mesh_edge_graph(vertex_count: int, faces: np.ndarray):
@@ -183,9 +184,10 @@ class CoarseLevel:
 
     Args:
         model: the cloth model.
-        contact: the solver's body contact arrays (point, normal, body velocity, active), read
-            at each correction.
-        x_prev: the solver's substep start positions (the displacement bounds' reference).
+        particles: the solver's per-particle arrays a Newton step loads besides the model's
+            (``vbd_kernels.load_particle_step``): substep start positions, inertial targets and
+            the body contact's point, normal, body velocity and active flag, read at each
+            correction.
         k_contact: the body contact's penalty stiffness [N/m].
         contact_margin: the body contact's detection margin [m].
         air_damping: the solver's air damping [1/s].
@@ -193,8 +195,8 @@ class CoarseLevel:
             node on a near-uniform mesh.
     """
 
-    def __init__(self, model, contact: tuple, x_prev, k_contact: float, contact_margin: float,
-                 air_damping: float, spacing: int = 3):
+    def __init__(self, model, particles: tuple, k_contact: float, contact_margin: float, air_damping: float,
+                 spacing: int = 3):
         import scipy.sparse as sp
 
         if spacing < 1:
@@ -254,21 +256,18 @@ class CoarseLevel:
         self._y = wp.zeros(nc, dtype=wp.vec3, device=d)
         self.residual = wp.zeros(model.particle_count, dtype=wp.vec3, device=d)
         self.model = model
-        self._contact = tuple(contact)
-        self._x_prev = x_prev
+        self._particles = tuple(particles)
         self._k_contact = float(k_contact)
         self._contact_margin = float(contact_margin)
         self._air_damping = float(air_damping)
         # CUDA: a thread block per instance (sim.cloth.coarse_block) where its band fits in
         # one block's shared memory
         self.block_kernel = None
-        if wp.get_device(d).is_cuda:
-            from sim.cloth import coarse_block
-
+        device = wp.get_device(d)
+        if device.is_cuda:
             need = max(coarse_block.shared_floats(int(c), int(b))
                        for c, b in zip(counts, widths, strict=True))
-            room = wp.get_device(d).max_shared_memory_per_block - 1024
-            if 4 * coarse_block.padded(need) <= room:
+            if 4 * coarse_block.padded(need) <= device.max_shared_memory_per_block - 1024:
                 self.block_kernel = coarse_block.cooperative_kernel(need)
 
     def correct(self, h: float, x, snap_out, sc_data, instance_body) -> None:
@@ -278,7 +277,7 @@ class CoarseLevel:
         sweep's moves by ``sc_data`` (the sweeps' self-contact data); ``instance_body``: the
         control's body mesh of each instance (0: none)."""
         m = self.model
-        point, normal, body_velocity, active = self._contact
+        _, _, point, normal, _, active = self._particles
         inertia = 1.0 / (h * h) + self._air_damping / h
         wp.launch(restrict_kernel, dim=self.node_count,
                   inputs=[self.residual, *self._r, self._mass, self._kdiag, inertia, x, m.particle_instance,
@@ -286,8 +285,9 @@ class CoarseLevel:
                   outputs=[self._rhs, self._diag], device=m.device)
         self.solve()
         wp.launch(prolong_kernel, dim=m.particle_count,
-                  inputs=[self._dx, *self._p, m.particle_flags, h, self._x_prev, m.particle_instance,
-                          *self._contact, m.instance_thickness, instance_body, self._contact_margin, sc_data],
+                  inputs=[self._dx, *self._p, h, *self._particles, m.particle_mass, m.particle_flags,
+                          m.particle_instance, m.instance_thickness, m.instance_friction, instance_body,
+                          self._contact_margin, sc_data],
                   outputs=[x, snap_out], device=m.device)
 
     def solve(self) -> None:
@@ -295,15 +295,31 @@ class CoarseLevel:
         block kernel on CUDA where it fits, else one thread per instance)."""
         m = self.model
         if self.block_kernel is not None:
-            from sim.cloth.coarse_block import COOP_THREADS
-
-            wp.launch_tiled(self.block_kernel, dim=[m.instance_count], block_dim=COOP_THREADS,
+            wp.launch_tiled(self.block_kernel, dim=[m.instance_count], block_dim=coarse_block.COOP_THREADS,
                             inputs=[self._rhs, self._diag, *self._inst, self._order, self._band_k],
                             outputs=[self._dx], device=m.device)
         else:
             wp.launch(band_solve_kernel, dim=m.instance_count,
                       inputs=[self._rhs, self._diag, *self._inst, self._order, self._band_k],
                       outputs=[self._band, self._y, self._dx], device=m.device)
+
+
+@wp.func
+def has_pairs(sc: SelfContactData, i: int) -> bool:
+    """Whether particle ``i`` takes part in a stored self-contact pair (VT, TV or EE); the pair
+    arrays are read only when self-contact is on."""
+    if sc.enabled != 0:
+        return sc.vt_count[i] + sc.tv_total[i] + sc.ee_total[i] > 0
+    return False
+
+
+@wp.func
+def clamp_length(v: wp.vec3, cap: float) -> wp.vec3:
+    """``v`` shortened to length ``cap`` where longer."""
+    vl = wp.length(v)
+    if vl > cap:
+        return v * (cap / vl)
+    return v
 
 
 @wp.kernel
@@ -339,9 +355,8 @@ def restrict_kernel(
         if contact_active[i] != 0:
             if wp.dot(contact_normal[i], x[i] - contact_point[i]) < instance_thickness[particle_instance[i]]:
                 kc = kc + w * k_contact
-        if sc.enabled != 0:
-            if sc.vt_count[i] + sc.tv_total[i] + sc.ee_total[i] > 0:
-                kc = kc + w * sc.stiffness
+        if has_pairs(sc, i):
+            kc = kc + w * sc.stiffness
     rhs_out[c] = s
     diag_out[c] = node_mass[c] * inertia + node_stiffness[c] + kc
 
@@ -352,15 +367,18 @@ def prolong_kernel(
     offsets: wp.array(dtype=wp.int32),
     ids: wp.array(dtype=wp.int32),
     weights: wp.array(dtype=float),
-    flags: wp.array(dtype=wp.int32),
     h: float,
     x_prev: wp.array(dtype=wp.vec3),
-    particle_instance: wp.array(dtype=wp.int32),
+    y: wp.array(dtype=wp.vec3),
     contact_point: wp.array(dtype=wp.vec3),
     contact_normal: wp.array(dtype=wp.vec3),
     contact_body_velocity: wp.array(dtype=wp.vec3),
     contact_active: wp.array(dtype=wp.int32),
+    mass: wp.array(dtype=float),
+    flags: wp.array(dtype=wp.int32),
+    particle_instance: wp.array(dtype=wp.int32),
     instance_thickness: wp.array(dtype=float),
+    instance_friction: wp.array(dtype=float),
     instance_body: wp.array(dtype=wp.uint64),
     contact_margin: float,
     sc: SelfContactData,
@@ -378,37 +396,20 @@ def prolong_kernel(
         s = wp.vec3(0.0)
         for k in range(offsets[i], offsets[i + 1]):
             s = s + weights[k] * dx[ids[k]]
-        if sc.enabled != 0:
+        if has_pairs(sc, i):
             # self-contact is not in the coarse system: a particle with cloth-cloth pairs moves at
             # most a fraction of the contact radius, so two capped neighbours across a gap close it
             # by less than the radius the penalty keeps between them
-            if sc.vt_count[i] + sc.tv_total[i] + sc.ee_total[i] > 0:
-                sl = wp.length(s)
-                cap = SELF_CONTACT_CAP * sc.radius
-                if sl > cap:
-                    s = s * (cap / sl)
-        if contact_active[i] == 0 and instance_body[particle_instance[i]] != wp.uint64(0):
+            s = clamp_length(s, SELF_CONTACT_CAP * sc.radius)
+        p = load_particle_step(i, x_prev, y, mass, flags, particle_instance, contact_point, contact_normal,
+                               contact_body_velocity, contact_active, instance_thickness, instance_friction,
+                               sc, x_inout)
+        if p.contact_active == 0 and instance_body[particle_instance[i]] != wp.uint64(0):
             # off the body (further than the contact margin as the substep began): the move stays
             # within half the margin's room, so the body contact found at the substep's start
             # still covers the particle
-            sl = wp.length(s)
-            cap = 0.5 * wp.max(contact_margin - instance_thickness[particle_instance[i]], 0.0)
-            if sl > cap:
-                s = s * (cap / sl)
+            s = clamp_length(s, 0.5 * wp.max(contact_margin - p.thickness, 0.0))
         x_new = xi + s
-        p = ParticleStep()
-        p.x = xi
-        p.x_prev = x_prev[i]
-        p.contact_active = contact_active[i]
-        p.contact_point = contact_point[i]
-        p.contact_normal = contact_normal[i]
-        p.contact_body_velocity = contact_body_velocity[i]
-        p.thickness = instance_thickness[particle_instance[i]]
-        p.bound = float(0.0)
-        p.reference = wp.vec3(0.0)
-        if sc.enabled != 0 and sc.use_bounds != 0:
-            p.bound = sc.bound[i]
-            p.reference = sc.reference[particle_instance[i]]
         if p.contact_active != 0:
             floor = wp.min(wp.dot(p.contact_normal, xi - p.contact_point), p.thickness)
             depth = wp.dot(p.contact_normal, x_new - p.contact_point)

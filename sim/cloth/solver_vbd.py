@@ -424,9 +424,9 @@ class SolverVBD:
         if cfg.coarse_sweeps:
             from sim.cloth.coarse import CoarseLevel
 
-            contact = (self._contact_point, self._contact_normal, self._contact_body_velocity,
-                       self._contact_active)
-            self.coarse = CoarseLevel(model, contact, self._x_prev, cfg.contact_stiffness, cfg.contact_margin,
+            particles = (self._x_prev, self._y, self._contact_point, self._contact_normal,
+                         self._contact_body_velocity, self._contact_active)
+            self.coarse = CoarseLevel(model, particles, cfg.contact_stiffness, cfg.contact_margin,
                                       cfg.air_damping, cfg.coarse_spacing)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True)
