@@ -59,6 +59,43 @@ def test_prolongation_rows_sum_to_one_and_pins_do_not_move():
     assert 10 < level.node_count < 60
 
 
+def test_restriction_matches_its_sparse_matrix_form(device):
+    """``restrict`` (8 lanes per coarse node, summed in lane order) against scipy: ``P^T r`` and
+    the diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` with ``k`` the contact penalty at
+    particles pressed onto the body closer than the thickness, none elsewhere."""
+    from sim.cloth.self_contact import disabled_data
+
+    v, f = grid(21, 31, 0.4, 0.6)
+    b = ClothModelBuilder()
+    b.add_cloth(v, f, ClothMaterialParams(), pinned=np.arange(21))
+    m = b.finalize(device)
+    level = coarse_level(m, spacing=2)
+    n = m.particle_count
+    rng = np.random.default_rng(3)
+    r = rng.normal(size=(n, 3))
+    x = np.asarray(v, dtype=np.float64)
+    thickness = float(m.instance_thickness.numpy()[0])
+    active = (rng.uniform(size=n) < 0.4).astype(np.int32)
+    gap = rng.uniform(-0.5, 2.0, n) * thickness  # below the thickness: pressed
+    normal = np.tile([0.0, 0.0, 1.0], (n, 1))
+    point = x - gap[:, None] * normal
+    _, _, cp, cn, _, ca = level._particles
+    cp.assign(point.astype(np.float32))
+    cn.assign(normal.astype(np.float32))
+    ca.assign(active)
+    level.residual.assign(r.astype(np.float32))
+    h = 1.0 / 150.0
+    xw = warp().array(x.astype(np.float32), dtype=warp().vec3, device=device)
+    level.restrict(h, xw, disabled_data(device))
+    p = level.prolongation
+    k = np.where((active != 0) & (gap < thickness), level._k_contact, 0.0)
+    inertia = 1.0 / h**2 + level._air_damping / h
+    diag = level._mass.numpy() * inertia + level.templates[0].stiffness.diagonal() + p.T @ k
+    assert (p.T @ k).max() > 0.0 and (p.T @ k).min() == 0.0
+    np.testing.assert_allclose(level._rhs.numpy(), p.T @ r, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(level._diag.numpy(), diag, rtol=1e-5)
+
+
 def test_band_solve_matches_a_dense_solve_for_every_instance(device):
     """Two instances of different templates in one model: the banded Cholesky of each coarse
     system ``K_c + diag`` gives numpy's dense solution."""
@@ -159,20 +196,28 @@ def test_coarse_corrections_carry_no_layer_through_another(device, sweeps, bound
     assert gap[-1] < 0.03
 
 
-def test_block_solve_matches_a_dense_solve_at_garment_size():
-    """CUDA: the block kernel on a 5k-vertex sheet's coarse level (hundreds of nodes, a band
-    tens wide) against numpy's dense solve."""
+@pytest.mark.parametrize("side, spacing, task_per_thread", [(71, 3, True), (81, 2, False)])
+def test_block_solve_matches_a_dense_solve_at_garment_size(side, spacing, task_per_thread):
+    """CUDA: the block kernel on a 5k-6.5k-vertex sheet's coarse level (hundreds of nodes, a band
+    tens wide) against numpy's dense solve, on both of its paths: one task per thread for the
+    whole factorization (band 19), and threads looping over the entries (band 47, whose 1,128
+    entries under a column outnumber a block's 1,024 threads)."""
     if "cuda" not in DEVICES:
         pytest.skip("no CUDA device here")
-    v, f = grid(71, 71, 1.0, 1.0)
+    from sim.cloth.coarse_block import threads
+
+    v, f = grid(side, side, 1.0, 1.0)
     b = ClothModelBuilder()
     b.add_cloth(v, f, ClothMaterialParams())
     m = b.finalize("cuda")
-    level = coarse_level(m, spacing=3)
+    level = coarse_level(m, spacing=spacing)
     assert level.block_kernel is not None
     nc = level.node_count
     assert nc > 250
-    assert level.templates[0].band.shape[1] > 15
+    width = level.templates[0].band.shape[1] - 1
+    assert width > 15
+    assert (level.block_threads >= width * (width + 1) // 2 + 2 * width) == task_per_thread
+    assert level.block_threads == threads(width)
     rng = np.random.default_rng(1)
     dense = level.templates[0].stiffness.toarray()
     diag = np.diag(dense) + rng.uniform(1.0, 1e3, nc)

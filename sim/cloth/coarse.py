@@ -240,6 +240,8 @@ class CoarseLevel:
         self._kdiag = arr(kdiag.astype(np.float32), float)
         nc = self.node_count
         self._rhs = wp.zeros(nc, dtype=wp.vec3, device=d)
+        self._rhs_part = wp.zeros(nc * RESTRICT_LANES, dtype=wp.vec3, device=d)
+        self._k_part = wp.zeros(nc * RESTRICT_LANES, dtype=float, device=d)
         self._diag = wp.zeros(nc, dtype=float, device=d)
         self._dx = wp.zeros(nc, dtype=wp.vec3, device=d)
         # banded Cholesky of each instance's coarse system: band rows in RCM order, per instance
@@ -263,6 +265,7 @@ class CoarseLevel:
         # CUDA: a thread block per instance (sim.cloth.coarse_block) where its band fits in
         # one block's shared memory
         self.block_kernel = None
+        self.block_threads = coarse_block.threads(int(widths.max()))
         device = wp.get_device(d)
         if device.is_cuda:
             need = max(coarse_block.shared_floats(int(c), int(b))
@@ -277,12 +280,7 @@ class CoarseLevel:
         sweep's moves by ``sc_data`` (the sweeps' self-contact data); ``instance_body``: the
         control's body mesh of each instance (0: none)."""
         m = self.model
-        _, _, point, normal, _, active = self._particles
-        inertia = 1.0 / (h * h) + self._air_damping / h
-        wp.launch(restrict_kernel, dim=self.node_count,
-                  inputs=[self.residual, *self._r, self._mass, self._kdiag, inertia, x, m.particle_instance,
-                          point, normal, active, m.instance_thickness, self._k_contact, sc_data],
-                  outputs=[self._rhs, self._diag], device=m.device)
+        self.restrict(h, x, sc_data)
         self.solve()
         wp.launch(prolong_kernel, dim=m.particle_count,
                   inputs=[self._dx, *self._p, h, *self._particles, m.particle_mass, m.particle_flags,
@@ -290,12 +288,27 @@ class CoarseLevel:
                           self._contact_margin, sc_data],
                   outputs=[x, snap_out], device=m.device)
 
+    def restrict(self, h: float, x, sc_data) -> None:
+        """The coarse right-hand side ``P^T residual`` and diagonal ``m_c (1/h^2 + alpha/h) +
+        K_c,JJ + P^T k`` (``k``: body contact penalty at pressed particles of ``x``, self-contact
+        penalty at particles with pairs in ``sc_data``) of a substep of length ``h`` [s]."""
+        m = self.model
+        _, _, point, normal, _, active = self._particles
+        inertia = 1.0 / (h * h) + self._air_damping / h
+        wp.launch(restrict_kernel, dim=self.node_count * RESTRICT_LANES,
+                  inputs=[self.residual, *self._r, x, m.particle_instance, point, normal, active,
+                          m.instance_thickness, self._k_contact, sc_data],
+                  outputs=[self._rhs_part, self._k_part], device=m.device)
+        wp.launch(restrict_sum_kernel, dim=self.node_count,
+                  inputs=[self._rhs_part, self._k_part, self._mass, self._kdiag, inertia],
+                  outputs=[self._rhs, self._diag], device=m.device)
+
     def solve(self) -> None:
         """Every instance's coarse system for the current right-hand side and diagonal (the
         block kernel on CUDA where it fits, else one thread per instance)."""
         m = self.model
         if self.block_kernel is not None:
-            wp.launch_tiled(self.block_kernel, dim=[m.instance_count], block_dim=coarse_block.COOP_THREADS,
+            wp.launch_tiled(self.block_kernel, dim=[m.instance_count], block_dim=self.block_threads,
                             inputs=[self._rhs, self._diag, *self._inst, self._order, self._band_k],
                             outputs=[self._dx], device=m.device)
         else:
@@ -322,15 +335,17 @@ def clamp_length(v: wp.vec3, cap: float) -> wp.vec3:
     return v
 
 
+# threads that share one coarse node's restriction (``restrict_kernel``): a node gathers 30-60
+# particles, which one thread reads one after another
+RESTRICT_LANES = wp.constant(8)
+
+
 @wp.kernel
 def restrict_kernel(
     r: wp.array(dtype=wp.vec3),
     offsets: wp.array(dtype=wp.int32),
     ids: wp.array(dtype=wp.int32),
     weights: wp.array(dtype=float),
-    node_mass: wp.array(dtype=float),
-    node_stiffness: wp.array(dtype=float),
-    inertia: float,
     x: wp.array(dtype=wp.vec3),
     particle_instance: wp.array(dtype=wp.int32),
     contact_point: wp.array(dtype=wp.vec3),
@@ -339,16 +354,18 @@ def restrict_kernel(
     instance_thickness: wp.array(dtype=float),
     k_contact: float,
     sc: SelfContactData,
-    rhs_out: wp.array(dtype=wp.vec3),
-    diag_out: wp.array(dtype=float),
+    rhs_part: wp.array(dtype=wp.vec3),
+    k_part: wp.array(dtype=float),
 ):
-    """``rhs = P^T r`` and the coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` with
-    ``k`` the body contact's penalty at particles pressed onto the body plus the self-contact
-    penalty at particles with cloth-cloth pairs (one node per thread)."""
-    c = wp.tid()
+    """Lane ``l`` of node ``c``'s share of ``rhs = P^T r`` and of ``P^T k``, ``k`` the body
+    contact's penalty at particles pressed onto the body plus the self-contact penalty at
+    particles with cloth-cloth pairs: entries ``l, l + RESTRICT_LANES, ...`` of the node's row
+    (thread ``c * RESTRICT_LANES + l``; ``restrict_sum_kernel`` adds the lanes)."""
+    tid = wp.tid()
+    c = tid // RESTRICT_LANES
     s = wp.vec3(0.0)
     kc = float(0.0)
-    for k in range(offsets[c], offsets[c + 1]):
+    for k in range(offsets[c] + tid % RESTRICT_LANES, offsets[c + 1], RESTRICT_LANES):
         i = ids[k]
         w = weights[k]
         s = s + w * r[i]
@@ -357,6 +374,28 @@ def restrict_kernel(
                 kc = kc + w * k_contact
         if has_pairs(sc, i):
             kc = kc + w * sc.stiffness
+    rhs_part[tid] = s
+    k_part[tid] = kc
+
+
+@wp.kernel
+def restrict_sum_kernel(
+    rhs_part: wp.array(dtype=wp.vec3),
+    k_part: wp.array(dtype=float),
+    node_mass: wp.array(dtype=float),
+    node_stiffness: wp.array(dtype=float),
+    inertia: float,
+    rhs_out: wp.array(dtype=wp.vec3),
+    diag_out: wp.array(dtype=float),
+):
+    """``rhs = P^T r`` and the coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` of node
+    ``c`` from ``restrict_kernel``'s lanes, summed in lane order (one node per thread)."""
+    c = wp.tid()
+    s = wp.vec3(0.0)
+    kc = float(0.0)
+    for lane in range(RESTRICT_LANES):
+        s = s + rhs_part[c * RESTRICT_LANES + lane]
+        kc = kc + k_part[c * RESTRICT_LANES + lane]
     rhs_out[c] = s
     diag_out[c] = node_mass[c] * inertia + node_stiffness[c] + kc
 

@@ -5,8 +5,10 @@ serial factorization costs about 20 ms per correction for the t-shirt's 326 node
 (docs/BENCHMARKS.md, session 22). Here a whole thread block solves one instance: the band
 (``n (b + 1)`` floats) and the right-hand side sit in shared memory, the factorization is a
 right-looking ``L D L^T`` that eliminates one column per step with every thread updating a
-share of the ``b (b + 1) / 2`` entries below it, and the substitutions move one row per step.
-That is ``2 n`` block barriers per solve instead of ``n b^2 / 2`` serial multiply-adds.
+share of the ``b (b + 1) / 2`` entries below it (one entry each, held for the whole
+factorization, where the block has enough threads), and one warp does the back substitution, a
+row per step. That is ``n`` block barriers and ``n`` warp barriers per solve instead of
+``n b^2 / 2`` serial multiply-adds.
 
 The kernel uses ``__shared__`` memory and ``__syncthreads`` through a native snippet, so it
 exists on CUDA only; the CPU keeps the serial kernel. Shared memory is sized per model (the
@@ -17,7 +19,7 @@ snippet stub's tile annotation, whose size is a closure value.
 
 import warp as wp
 
-COOP_THREADS = 256
+COOP_THREADS = 256  # the least threads of a block solve (``threads``)
 # floats of shared memory are allocated in steps of this many (one kernel per size)
 CAPACITY_STEP = 1024
 
@@ -28,6 +30,14 @@ def shared_floats(count: int, width: int) -> int:
     """Shared floats (4-byte words) one instance of ``count`` nodes and band width ``width``
     needs: its band, its right-hand side and the index table of the block below a column."""
     return count * (width + 1) + 3 * count + width * (width + 1) // 2
+
+
+def threads(width: int) -> int:
+    """Threads of the block that solves a band of width ``width``: one per entry of the block
+    under a column plus two rows of ``width`` (``_SNIPPET``'s one-task-per-thread path), in whole
+    warps, at least ``COOP_THREADS`` and at most 1024 (wider bands loop over the entries)."""
+    need = width * (width + 1) // 2 + 2 * width
+    return int(min(1024, max(COOP_THREADS, -(-need // 32) * 32)))
 
 
 def padded(capacity: int) -> int:
@@ -70,7 +80,7 @@ def cooperative_kernel(capacity: int):
         dx_out: wp.array(dtype=wp.vec3),
     ):
         """Solve instance ``k``'s coarse system with the block (launch with ``wp.launch_tiled``,
-        ``dim=[instance_count]``, ``block_dim=COOP_THREADS``); same inputs as
+        ``dim=[instance_count]``, ``block_dim=threads(width)``); same inputs as
         ``coarse.band_solve_kernel`` without its scratch arrays."""
         k, lane = wp.tid()
         smem = wp.tile_empty(shape=capacity, dtype=float, storage="shared")
@@ -114,52 +124,99 @@ _SNIPPET = r"""
     }
     __syncthreads();
     const int w1 = w + 1;
-    for (int j = 0; j < n; ++j) {
-        // eliminate column j from rows j+1 .. j+m (entries A[j+s, j+t], 1 <= t <= s <= m), and
-        // from the right-hand side; column j is only read, its scaling waits for step j+1
-        const int jw = j * w;
-        const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
-        const int m = min(b, n - 1 - j);
-        const int count = m * (m + 1) / 2;
-        for (int q = lane; q < count; q += T) {
-            const int st = tri[q];
-            const int t = st & 0xffff;
-            const int a = jw + (st >> 16) * w1;  // A[j+s, j]; A[j+s, j+t] is t before it
-            L[a - t] -= L[a] * L[jw + t * w1] * inv;
+    const int bb = b * (b + 1) / 2;
+    if (T >= bb + 2 * b) {
+        // enough threads for one task each, kept for the whole factorization: an entry (s, t) of
+        // the block under the column, a right-hand side row, or a row of the previous column's
+        // scaling; the same arithmetic as the loop below
+        int role = 0, s = 0, t = 0;
+        if (lane < bb) {
+            const int st = tri[lane];
+            s = st >> 16;
+            t = st & 0xffff;
+            role = 1;
+        } else if (lane < bb + b) {
+            s = lane - bb + 1;
+            role = 2;
+        } else if (lane < bb + 2 * b) {
+            s = lane - bb - b + 1;
+            role = 3;
         }
-        for (int q = lane; q < m; q += T) {
-            const int s = q + 1;
-            const float f = L[(j + s) * w + s] * inv;
-            u[3 * (j + s)] -= f * u[3 * j];
-            u[3 * (j + s) + 1] -= f * u[3 * j + 1];
-            u[3 * (j + s) + 2] -= f * u[3 * j + 2];
+        for (int j = 0; j < n; ++j) {
+            const int jw = j * w;
+            const int m = min(b, n - 1 - j);
+            if (role == 1) {
+                if (s <= m) {  // the first m (m + 1) / 2 entries of the row-by-row table
+                    const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
+                    const int a = jw + s * w1;
+                    L[a - t] -= L[a] * L[jw + t * w1] * inv;
+                }
+            } else if (role == 2) {
+                if (s <= m) {
+                    const float f = L[(j + s) * w + s] * (1.0f / fmaxf(L[jw], 1.0e-30f));
+                    u[3 * (j + s)] -= f * u[3 * j];
+                    u[3 * (j + s) + 1] -= f * u[3 * j + 1];
+                    u[3 * (j + s) + 2] -= f * u[3 * j + 2];
+                }
+            } else if (role == 3 && j > 0) {
+                const int p = j - 1;
+                if (s <= min(b, n - 1 - p))
+                    L[(p + s) * w + s] *= 1.0f / fmaxf(L[p * w], 1.0e-30f);
+            }
+            __syncthreads();
         }
-        if (j > 0) {
-            const int p = j - 1;
-            const float ip = 1.0f / fmaxf(L[p * w], 1.0e-30f);
-            for (int q = lane; q < min(b, n - 1 - p); q += T)
-                L[(p + q + 1) * w + q + 1] *= ip;
+    } else {
+        for (int j = 0; j < n; ++j) {
+            // eliminate column j from rows j+1 .. j+m (entries A[j+s, j+t], 1 <= t <= s <= m), and
+            // from the right-hand side; column j is only read, its scaling waits for step j+1
+            const int jw = j * w;
+            const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
+            const int m = min(b, n - 1 - j);
+            const int count = m * (m + 1) / 2;
+            for (int q = lane; q < count; q += T) {
+                const int st = tri[q];
+                const int t = st & 0xffff;
+                const int a = jw + (st >> 16) * w1;  // A[j+s, j]; A[j+s, j+t] is t before it
+                L[a - t] -= L[a] * L[jw + t * w1] * inv;
+            }
+            for (int q = lane; q < m; q += T) {
+                const int s = q + 1;
+                const float f = L[(j + s) * w + s] * inv;
+                u[3 * (j + s)] -= f * u[3 * j];
+                u[3 * (j + s) + 1] -= f * u[3 * j + 1];
+                u[3 * (j + s) + 2] -= f * u[3 * j + 2];
+            }
+            if (j > 0) {
+                const int p = j - 1;
+                const float ip = 1.0f / fmaxf(L[p * w], 1.0e-30f);
+                for (int q = lane; q < min(b, n - 1 - p); q += T)
+                    L[(p + q + 1) * w + q + 1] *= ip;
+            }
+            __syncthreads();
         }
-        __syncthreads();
     }
-    for (int r = lane; r < n; r += T) {
-        const float ir = 1.0f / fmaxf(L[r * w], 1.0e-30f);
-        u[3 * r] *= ir;
-        u[3 * r + 1] *= ir;
-        u[3 * r + 2] *= ir;
-    }
-    __syncthreads();
-    // L^T x = D^-1 z, last row first: row r is final, then leaves rows r-1 .. r-b
-    for (int r = n - 1; r > 0; --r) {
-        for (int q = lane; q < min(b, r); q += T) {
-            const int t = q + 1;
-            const float l = L[r * w + t];
-            u[3 * (r - t)] -= l * u[3 * r];
-            u[3 * (r - t) + 1] -= l * u[3 * r + 1];
-            u[3 * (r - t) + 2] -= l * u[3 * r + 2];
+    // the substitutions are a chain of n short rows: one warp, whose barrier is cheaper
+    if (lane < 32) {
+        for (int r = lane; r < n; r += 32) {
+            const float ir = 1.0f / fmaxf(L[r * w], 1.0e-30f);
+            u[3 * r] *= ir;
+            u[3 * r + 1] *= ir;
+            u[3 * r + 2] *= ir;
         }
-        __syncthreads();
+        __syncwarp();
+        // L^T x = D^-1 z, last row first: row r is final, then leaves rows r-1 .. r-b
+        for (int r = n - 1; r > 0; --r) {
+            const float x0 = u[3 * r], x1 = u[3 * r + 1], x2 = u[3 * r + 2];
+            for (int q = lane; q < min(b, r); q += 32) {
+                const int t = q + 1;
+                const float l = L[r * w + t];
+                u[3 * (r - t)] -= l * x0;
+                u[3 * (r - t) + 1] -= l * x1;
+                u[3 * (r - t) + 2] -= l * x2;
+            }
+            __syncwarp();
+        }
+        for (int r = lane; r < n; r += 32)
+            dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
     }
-    for (int r = lane; r < n; r += T)
-        dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
 """

@@ -477,6 +477,14 @@ class SolverVBD:
         cfg = self.config
         arrays = self._solve_arrays(sc_data)
         heavy = sc_data.heavy_cap if sc_data.enabled else 0
+        if evaluate:  # no particle moves: one launch over all colours (solve_color_kernel)
+            n = m.particle_count
+            wp.launch_tiled(
+                kernel, dim=[-(-n // self._particles)], block_dim=self._particles * self._lanes,
+                inputs=[n, 0, -(-n // self._particles), self._membrane, 0, cfg.contact_stiffness, eps_u, h,
+                        cfg.air_damping, arrays, snap],
+                outputs=[x, snap_out], device=m.device)
+            return
         for c in range(m.color_count):
             start, end = m.color_offsets[c], m.color_offsets[c + 1]
             light = -(-(end - start) // self._particles)

@@ -562,8 +562,10 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
 
     ``evaluate``: the kernel instead writes each particle's residual force ``-dG/dx_i`` at ``x``
     (``vertex_system``; zero for pinned particles) to ``snap_out`` and leaves ``x`` alone, so
-    launched over every colour it evaluates the whole residual at one configuration (``snap``
-    must hold ``x``). The coarse-level correction (``sim.cloth.coarse``) restricts it."""
+    one launch over all colours at once (``color_start`` 0, ``count`` all particles, no heavy
+    blocks: light blocks take the heavy particles too) evaluates the whole residual at one
+    configuration (``snap`` must hold ``x``). The coarse-level correction (``sim.cloth.coarse``)
+    restricts it."""
     if fused is None:
         fused = lanes >= FUSED_LANES
     key = (int(particles), int(lanes), bool(fused), int(max_registers), bool(evaluate))
@@ -638,10 +640,12 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
             slot = block * wp.static(P) + local
             if slot < count:
                 i = color_vertices[color_start + slot]
-                # solved by a heavy block (when its colour's heavy vertices all have one)
-                if sc.heavy_cap > 0:
-                    if sc.heavy[i] != 0 and sc.heavy_count[color] <= sc.heavy_cap:
-                        i = -1
+                # solved by a heavy block (when its colour's heavy vertices all have one); an
+                # evaluation has no heavy blocks: it is launched once over all colours
+                if wp.static(EVAL == 0):
+                    if sc.heavy_cap > 0:
+                        if sc.heavy[i] != 0 and sc.heavy_count[color] <= sc.heavy_cap:
+                            i = -1
         # the solving thread's particle inputs, loaded first so their loads overlap the gather's
         step = ParticleStep()
         solver = lane == 0 and i >= 0
