@@ -5,10 +5,9 @@ serial factorization costs about 20 ms per correction for the t-shirt's 326 node
 (docs/BENCHMARKS.md, session 22). Here a whole thread block solves one instance: the band
 (``n (b + 1)`` floats) and the right-hand side sit in shared memory, the factorization is a
 right-looking ``L D L^T`` that eliminates one column per step with every thread updating a
-share of the ``b (b + 1) / 2`` entries below it (one entry each, held for the whole
-factorization, where the block has enough threads), and one warp does the back substitution, a
-row per step. That is ``n`` block barriers and ``n`` warp barriers per solve instead of
-``n b^2 / 2`` serial multiply-adds.
+share of the ``b (b + 1) / 2`` entries below it (one each where the block has enough threads),
+and one warp does the back substitution, a row per step. That is ``n`` block barriers and ``n``
+warp barriers per solve instead of ``n b^2 / 2`` serial multiply-adds.
 
 The kernel uses ``__shared__`` memory and ``__syncthreads`` through a native snippet, so it
 exists on CUDA only; the CPU keeps the serial kernel. Shared memory is sized per model (the
@@ -33,9 +32,10 @@ def shared_floats(count: int, width: int) -> int:
 
 
 def threads(width: int) -> int:
-    """Threads of the block that solves a band of width ``width``: one per entry of the block
-    under a column plus two rows of ``width`` (``_SNIPPET``'s one-task-per-thread path), in whole
-    warps, at least ``COOP_THREADS`` and at most 1024 (wider bands loop over the entries)."""
+    """Threads of the block that solves a band of width ``width``: one per task of a
+    factorization step (the entries of the block under a column plus two rows of ``width``,
+    ``_SNIPPET``), in whole warps, at least ``COOP_THREADS`` and at most 1024 (threads of wider
+    bands take several tasks)."""
     need = width * (width + 1) // 2 + 2 * width
     return int(min(1024, max(COOP_THREADS, -(-need // 32) * 32)))
 
@@ -124,76 +124,38 @@ _SNIPPET = r"""
     }
     __syncthreads();
     const int w1 = w + 1;
+    // a step's tasks: the b (b + 1) / 2 entries A[j+s, j+t], 1 <= t <= s <= b, of the block
+    // under column j (row by row, so the first m (m + 1) / 2 are those with s <= m), the b rows
+    // of the right-hand side below j, and the b rows of column j-1's scaling (column j is only
+    // read in step j); `threads` gives the block one thread per task where that fits
     const int bb = b * (b + 1) / 2;
-    if (T >= bb + 2 * b) {
-        // enough threads for one task each, kept for the whole factorization: an entry (s, t) of
-        // the block under the column, a right-hand side row, or a row of the previous column's
-        // scaling; the same arithmetic as the loop below
-        int role = 0, s = 0, t = 0;
-        if (lane < bb) {
-            const int st = tri[lane];
-            s = st >> 16;
-            t = st & 0xffff;
-            role = 1;
-        } else if (lane < bb + b) {
-            s = lane - bb + 1;
-            role = 2;
-        } else if (lane < bb + 2 * b) {
-            s = lane - bb - b + 1;
-            role = 3;
-        }
-        for (int j = 0; j < n; ++j) {
-            const int jw = j * w;
-            const int m = min(b, n - 1 - j);
-            if (role == 1) {
-                if (s <= m) {  // the first m (m + 1) / 2 entries of the row-by-row table
-                    const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
-                    const int a = jw + s * w1;
+    for (int j = 0; j < n; ++j) {
+        const int jw = j * w;
+        const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
+        const int m = min(b, n - 1 - j);
+        for (int q = lane; q < bb + 2 * b; q += T) {
+            if (q < bb) {
+                if (q < m * (m + 1) / 2) {
+                    const int st = tri[q];
+                    const int t = st & 0xffff;
+                    const int a = jw + (st >> 16) * w1;  // A[j+s, j]; A[j+s, j+t] is t before it
                     L[a - t] -= L[a] * L[jw + t * w1] * inv;
                 }
-            } else if (role == 2) {
+            } else if (q < bb + b) {
+                const int s = q - bb + 1;
                 if (s <= m) {
-                    const float f = L[(j + s) * w + s] * (1.0f / fmaxf(L[jw], 1.0e-30f));
+                    const float f = L[(j + s) * w + s] * inv;
                     u[3 * (j + s)] -= f * u[3 * j];
                     u[3 * (j + s) + 1] -= f * u[3 * j + 1];
                     u[3 * (j + s) + 2] -= f * u[3 * j + 2];
                 }
-            } else if (role == 3 && j > 0) {
-                const int p = j - 1;
-                if (s <= min(b, n - 1 - p))
-                    L[(p + s) * w + s] *= 1.0f / fmaxf(L[p * w], 1.0e-30f);
+            } else if (j > 0) {
+                const int s = q - bb - b + 1;
+                if (s <= min(b, n - j))  // the rows of column j-1 below its diagonal
+                    L[(j - 1 + s) * w + s] *= 1.0f / fmaxf(L[(j - 1) * w], 1.0e-30f);
             }
-            __syncthreads();
         }
-    } else {
-        for (int j = 0; j < n; ++j) {
-            // eliminate column j from rows j+1 .. j+m (entries A[j+s, j+t], 1 <= t <= s <= m), and
-            // from the right-hand side; column j is only read, its scaling waits for step j+1
-            const int jw = j * w;
-            const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
-            const int m = min(b, n - 1 - j);
-            const int count = m * (m + 1) / 2;
-            for (int q = lane; q < count; q += T) {
-                const int st = tri[q];
-                const int t = st & 0xffff;
-                const int a = jw + (st >> 16) * w1;  // A[j+s, j]; A[j+s, j+t] is t before it
-                L[a - t] -= L[a] * L[jw + t * w1] * inv;
-            }
-            for (int q = lane; q < m; q += T) {
-                const int s = q + 1;
-                const float f = L[(j + s) * w + s] * inv;
-                u[3 * (j + s)] -= f * u[3 * j];
-                u[3 * (j + s) + 1] -= f * u[3 * j + 1];
-                u[3 * (j + s) + 2] -= f * u[3 * j + 2];
-            }
-            if (j > 0) {
-                const int p = j - 1;
-                const float ip = 1.0f / fmaxf(L[p * w], 1.0e-30f);
-                for (int q = lane; q < min(b, n - 1 - p); q += T)
-                    L[(p + q + 1) * w + q + 1] *= ip;
-            }
-            __syncthreads();
-        }
+        __syncthreads();
     }
     // the substitutions are a chain of n short rows: one warp, whose barrier is cheaper
     if (lane < 32) {

@@ -469,30 +469,23 @@ class SolverVBD:
         ``evaluate``: write the residual forces at ``x`` to the coarse level's residual buffer
         instead (``x`` stays)."""
         wp = warp()
-        snap, snap_out = self._snapshots[parity], self._snapshots[1 - parity]
-        kernel = self._solve
-        if evaluate:
-            kernel, snap_out = self._evaluate, self.coarse.residual
         m = self.model
         cfg = self.config
         arrays = self._solve_arrays(sc_data)
-        heavy = sc_data.heavy_cap if sc_data.enabled else 0
-        if evaluate:  # no particle moves: one launch over all colours (solve_color_kernel)
-            n = m.particle_count
-            wp.launch_tiled(
-                kernel, dim=[-(-n // self._particles)], block_dim=self._particles * self._lanes,
-                inputs=[n, 0, -(-n // self._particles), self._membrane, 0, cfg.contact_stiffness, eps_u, h,
-                        cfg.air_damping, arrays, snap],
-                outputs=[x, snap_out], device=m.device)
-            return
-        for c in range(m.color_count):
-            start, end = m.color_offsets[c], m.color_offsets[c + 1]
+        if evaluate:  # no particle moves: one launch over all colours, no heavy blocks
+            kernel, snap_out, heavy = self._evaluate, self.coarse.residual, 0
+            spans = [(0, m.particle_count)]
+        else:
+            kernel, snap_out = self._solve, self._snapshots[1 - parity]
+            heavy = sc_data.heavy_cap if sc_data.enabled else 0
+            spans = [(m.color_offsets[c], m.color_offsets[c + 1]) for c in range(m.color_count)]
+        for c, (start, end) in enumerate(spans):
             light = -(-(end - start) // self._particles)
             wp.launch_tiled(
                 kernel, dim=[light + min(heavy, end - start)],
                 block_dim=self._particles * self._lanes,
                 inputs=[end - start, c, light, self._membrane, start, cfg.contact_stiffness, eps_u, h,
-                        cfg.air_damping, arrays, snap],
+                        cfg.air_damping, arrays, self._snapshots[parity]],
                 outputs=[x, snap_out], device=m.device)
 
     def limit_strain(self, x) -> None:
