@@ -10,6 +10,10 @@ motion, CUDA graph per frame). ``ms_per_frame`` is the mean wall time of the sol
 the motion (launch to device synchronisation; host copies and checks excluded). Newton starts
 from our dressed state at the motion's first frame and plays the same body frames at the same
 substeps x iterations (``benchmarks/newton_ref.py``). Quality for both: ``sim.quality``.
+
+The solver runs at the job defaults (``sim.simulate.SimulationConfig``: 14 substeps x 5
+iterations, a coarse-level correction before sweep 2); ``--solver '{"coarse_sweeps": []}'``
+turns the correction off.
 """
 
 from __future__ import annotations
@@ -156,8 +160,10 @@ def run_newton(r, garment, body, cfg, device: str) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_scene_arguments(ap)
-    ap.add_argument("--substeps", type=int, default=10)
-    ap.add_argument("--iterations", type=int, default=10)
+    from sim.simulate import SimulationConfig
+
+    ap.add_argument("--substeps", type=int, default=SimulationConfig.substeps)
+    ap.add_argument("--iterations", type=int, default=SimulationConfig.iterations)
     ap.add_argument("--no-self-contact", action="store_true")
     ap.add_argument("--solver", default="{}", help="JSON dict of extra VBDConfig fields")
     ap.add_argument("--newton", action="store_true", help="also run Newton's SolverVBD (needs newton)")
@@ -165,9 +171,6 @@ def main() -> None:
     ap.add_argument("--batch-motion", default=None, help="motion of the batched runs (default: the first)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
-
-    from sim.simulate import SimulationConfig
-
     device, body, garment, edge, motions = load_scene(args)
     cfg = SimulationConfig(fps=30.0, substeps=args.substeps, iterations=args.iterations,
                            self_contact=not args.no_self_contact, solver=json.loads(args.solver),

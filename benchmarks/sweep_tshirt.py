@@ -13,6 +13,9 @@ batched model (``population_motions``: the benchmark's walk and run, then walks 
 other speeds and arm swings, seeded) and records how many pass every gate; a setting passes
 only when all of them and the single walk and run do.
 
+Every setting runs with the job default's coarse-level correction before sweep 2
+(``SimulationConfig.coarse_sweeps``); ``--solver '{"coarse_sweeps": []}'`` runs without.
+
     python -m benchmarks.sweep_tshirt --device cuda --batch 1,16,64,256
     python -m benchmarks.sweep_tshirt --device cuda --settings 15x10,10x10 --population 16
     python -m benchmarks.sweep_tshirt --device cpu --vertices 1000 --seconds 0.5 --settings 4x4,2x4

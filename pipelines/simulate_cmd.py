@@ -84,11 +84,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_body_arguments(m)
     m.add_argument("--no-ground", action="store_true",
                    help="keep the motion's own height instead of standing its first frame on the floor")
+    from sim.simulate import SimulationConfig
+
     s = p.add_argument_group("simulation")
-    s.add_argument("--substeps", type=int, default=10,
+    s.add_argument("--substeps", type=int, default=SimulationConfig.substeps,
                    help="solver substeps per frame (default: %(default)s)")
-    s.add_argument("--iterations", type=int, default=10,
-                   help="VBD iterations per substep (default: %(default)s)")
+    s.add_argument("--iterations", type=int, default=SimulationConfig.iterations,
+                   help="VBD iterations (Gauss-Seidel sweeps) per substep (default: %(default)s)")
+    s.add_argument("--coarse-sweeps", default="auto",
+                   help="comma-separated sweeps (0 .. iterations-1) before which a coarse-level correction "
+                        "carries forces across the garment, 'none', or 'auto': before sweep 2 where there "
+                        "are 3 or more (default: %(default)s)")
     s.add_argument("--settle", type=float, default=1.0,
                    help="seconds the garment settles on the body at rest (default: %(default)s)")
     s.add_argument("--blend", type=float, default=1.0,
@@ -156,6 +162,19 @@ def parse_pins(spec: str) -> tuple[str, ...]:
     return () if names in ((), ("none",)) else names
 
 
+def parse_sweeps(spec: str) -> tuple[int, ...] | None:
+    """``--coarse-sweeps``: comma-separated sweep indices, 'none' or 'auto' (None)."""
+    if spec.strip().lower() == "auto":
+        return None
+    if spec.strip().lower() in ("none", ""):
+        return ()
+    try:
+        return tuple(int(k) for k in spec.split(","))
+    except ValueError:
+        raise WrinklesInputError(f"--coarse-sweeps {spec!r}: expected comma-separated sweep indices "
+                                 "(e.g. 2 or 1,3), 'none' or 'auto'") from None
+
+
 def build_config(args: argparse.Namespace, device: str):
     """The ``SimulationConfig`` of the command line (validated)."""
     from pipelines.options import parse_numbers
@@ -171,6 +190,7 @@ def build_config(args: argparse.Namespace, device: str):
                                  f"{', '.join(sorted(known))}")
     return SimulationConfig(
         fps=float(args.fps), substeps=args.substeps, iterations=args.iterations,
+        coarse_sweeps=parse_sweeps(args.coarse_sweeps),
         settle_seconds=args.settle, blend_seconds=args.blend, keep_prelude=args.keep_prelude,
         pinned=parse_pins(args.pin), ground=not args.no_ground, self_contact=args.self_collision,
         solver=parse_numbers(args.solver_param, "--solver-param"), gates=QualityGates(**gates),

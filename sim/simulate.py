@@ -71,11 +71,22 @@ the cloth comes to rest on the target shape during the remainder."""
 class SimulationConfig:
     """Settings of a simulation run (saved with every output; ``from_dict`` refuses unknown keys).
 
+    The solver defaults, 14 substeps x 5 sweeps with one coarse-level correction before sweep 2,
+    are the issue benchmark's setting (docs/BENCHMARKS.md, sessions 23-25). On the 5k t-shirt
+    (H100): 0.30x Newton's time per frame, max strain 0.20 / 0.27 on the walk / run, and 43 of
+    48 random walks and runs passing every gate against 38 at 16 x 10 without corrections; on
+    the CPU as cheap per frame as the former default, 10 x 10 without corrections.
+
     Attributes:
         fps: output frame rate [1/s]; the solver takes one step of ``1/fps`` per frame and the
             motion is resampled to it.
         substeps: implicit-Euler substeps per frame.
         iterations: VBD Gauss-Seidel sweeps per substep.
+        coarse_sweeps: sweeps (0 .. iterations - 1) before which a coarse-level correction runs
+            (``VBDConfig.coarse_sweeps``; empty: none; None, the default: before sweep 2 where
+            there are 3 or more sweeps, else none).
+        coarse_spacing: the coarse level's aggregate spacing [edges] (``VBDConfig``; 0: per
+            garment, the least from 4 that gives at most 256 coarse nodes).
         settle_seconds: time [s] the garment settles on the static rest body before the body
             moves.
         blend_seconds: time [s] of the eased transition from rest into the motion's first pose.
@@ -99,8 +110,10 @@ class SimulationConfig:
     """
 
     fps: float = 30.0
-    substeps: int = 10
-    iterations: int = 10
+    substeps: int = 14
+    iterations: int = 5
+    coarse_sweeps: tuple[int, ...] | None = None
+    coarse_spacing: int = 0
     settle_seconds: float = 1.0
     blend_seconds: float = 1.0
     settle_relax: bool = True
@@ -117,6 +130,12 @@ class SimulationConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "pinned", tuple(str(p) for p in self.pinned))
+        if self.coarse_sweeps is not None:
+            if not isinstance(self.coarse_sweeps, (list, tuple)) or not all(
+                    isinstance(k, int) and not isinstance(k, bool) for k in self.coarse_sweeps):
+                raise WrinklesInputError("simulation config: coarse_sweeps must be a list of sweep indices "
+                                         f"or null (automatic), got {self.coarse_sweeps!r}")
+            object.__setattr__(self, "coarse_sweeps", tuple(self.coarse_sweeps))
         object.__setattr__(self, "solver", dict(self.solver))
         if isinstance(self.gates, dict):
             object.__setattr__(self, "gates", _from_fields(QualityGates, self.gates, "gates"))
@@ -167,7 +186,11 @@ class SimulationConfig:
         from sim.cloth import VBDConfig
 
         allowed = {f.name for f in dataclasses.fields(VBDConfig)}
-        kw: dict[str, Any] = {"substeps": self.substeps, "iterations": self.iterations}
+        sweeps = self.coarse_sweeps
+        if sweeps is None:
+            sweeps = (2,) if self.iterations > 2 else ()
+        kw: dict[str, Any] = {"substeps": self.substeps, "iterations": self.iterations,
+                              "coarse_sweeps": sweeps, "coarse_spacing": self.coarse_spacing}
         unknown = sorted(set(self.solver) - allowed)
         if unknown:
             raise WrinklesInputError(f"simulation config: unknown solver option(s) {unknown}; "
@@ -182,13 +205,22 @@ class SimulationConfig:
         try:
             return VBDConfig(**kw)
         except (TypeError, ValueError) as e:
-            raise WrinklesInputError(f"simulation config: {e}") from None
+            hint = ""
+            try:
+                late = any(int(k) >= self.iterations for k in kw["coarse_sweeps"])
+            except (TypeError, ValueError):
+                late = False
+            if late:
+                hint = " (fewer iterations need other coarse_sweeps, or none: coarse_sweeps = [])"
+            raise WrinklesInputError(f"simulation config: {e}{hint}") from None
 
     # --- (de)serialisation ---------------------------------------------------------------
     def to_dict(self) -> dict:
         """JSON-ready dict (``from_dict`` inverts it)."""
         d = dataclasses.asdict(self)
         d["pinned"] = list(self.pinned)
+        if self.coarse_sweeps is not None:
+            d["coarse_sweeps"] = list(self.coarse_sweeps)
         return d
 
     @classmethod

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sim.cloth import ClothMaterialParams, ClothModelBuilder, SolverVBD, VBDConfig
-from sim.cloth.coarse import aggregate, band_solve_kernel, mesh_edge_graph
+from sim.cloth.coarse import AUTO_MAX_NODES, aggregate, auto_aggregate, band_solve_kernel, mesh_edge_graph
 from sim.device import warp
 from sim.quality import self_intersections
 from tests.conftest import DEVICES
@@ -47,6 +47,31 @@ def test_aggregates_are_connected_cells_around_spaced_seeds():
         # nearest seed: no vertex is closer to another seed than to its own
         own = dist[np.arange(len(v)), seeds[agg]]
         assert np.all(own <= dist[:, seeds].min(axis=1))
+
+
+def test_automatic_spacing_is_the_least_from_4_that_fits_the_node_cap():
+    """``coarse_spacing`` 0: a small sheet keeps spacing 4; a 9k-vertex sheet, which has ~370
+    nodes at 4, gets the least larger spacing with at most ``AUTO_MAX_NODES`` (the search starts
+    from an estimate, so both sides of it are checked against plain ``aggregate``)."""
+    for side, expect_min in ((15, True), (95, False)):
+        v, f = grid(side, side, 1.0, 1.0)
+        adj = mesh_edge_graph(len(v), f)
+        agg, seeds = auto_aggregate(adj)
+        counts = {s: len(aggregate(adj, s)[1]) for s in range(4, 14)}
+        least = min(s for s, c in counts.items() if c <= AUTO_MAX_NODES)
+        assert (least == 4) == expect_min
+        ref_agg, ref_seeds = aggregate(adj, least)
+        np.testing.assert_array_equal(seeds, ref_seeds)
+        np.testing.assert_array_equal(agg, ref_agg)
+    # a model's instances each get their own spacing
+    b = ClothModelBuilder()
+    v1, f1 = grid(95, 95, 1.0, 1.0)
+    v2, f2 = grid(15, 15, 0.3, 0.3)
+    b.add_cloth(v1, f1, ClothMaterialParams())
+    b.add_cloth(v2 + 2.0, f2, ClothMaterialParams())
+    level = coarse_level(b.finalize("cpu"), spacing=0)
+    nodes = sorted(len(t.mass) for t in level.templates)
+    assert nodes == sorted([len(aggregate(mesh_edge_graph(len(v2), f2), 4)[1]), counts[least]])
 
 
 def test_prolongation_rows_sum_to_one_and_pins_do_not_move():
@@ -165,13 +190,14 @@ def test_coarse_correction_keeps_cloth_on_a_sphere_outside(device):
     for frame in x:
         assert body.signed_distance(frame).min() > 0.0025
     top = np.abs(x[-1, :, 0]) + np.abs(x[-1, :, 2]) < 0.05
+    assert top.any()  # the cloth is still on the sphere's top (a cloth thrown off it fails here)
     assert np.all(x[-1, top, 1] > 0.19)
     assert np.all(x[-1, top, 1] < 0.215)
 
 
 def test_coarse_config_is_checked():
     for bad in ({"iterations": 4, "coarse_sweeps": (4,)}, {"coarse_sweeps": (1, 1)},
-                {"coarse_sweeps": (-1,)}, {"coarse_spacing": 0},
+                {"coarse_sweeps": (-1,)}, {"coarse_spacing": -1},
                 {"coarse_sweeps": (1,), "chebyshev_rho": 0.5}):
         with pytest.raises(ValueError, match="coarse"):
             VBDConfig(**bad)

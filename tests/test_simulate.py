@@ -75,6 +75,26 @@ def test_config_round_trips_and_refuses_unknown_keys():
     assert SimulationConfig(fps=30, settle_seconds=0.5, blend_seconds=1.0).solver_steps(60) == 15 + 30 + 59
 
 
+def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
+    vbd = SimulationConfig().vbd_config()
+    assert (vbd.substeps, vbd.iterations, vbd.coarse_sweeps, vbd.coarse_spacing) == (14, 5, (2,), 0)
+    cfg = SimulationConfig(iterations=4, coarse_sweeps=[1, 3], coarse_spacing=3)
+    d = json.loads(json.dumps(cfg.to_dict()))
+    assert d["coarse_sweeps"] == [1, 3] and SimulationConfig.from_dict(d) == cfg
+    assert cfg.vbd_config().coarse_sweeps == (1, 3)
+    # the solver dict still overrides: no corrections
+    assert SimulationConfig(solver={"coarse_sweeps": ()}).vbd_config().coarse_sweeps == ()
+    # automatic: two sweeps leave no sweep 2 to correct before, so none
+    assert SimulationConfig(iterations=2).vbd_config().coarse_sweeps == ()
+    assert SimulationConfig(iterations=3).vbd_config().coarse_sweeps == (2,)
+    assert SimulationConfig.from_dict(SimulationConfig().to_dict()).coarse_sweeps is None
+    # asked for explicitly: the error says what to change
+    with pytest.raises(WrinklesInputError, match="coarse_sweeps = \\[\\]"):
+        SimulationConfig(iterations=2, coarse_sweeps=[2])
+    with pytest.raises(WrinklesInputError, match="coarse_sweeps must be a list"):
+        SimulationConfig(coarse_sweeps=2)
+
+
 def test_surface_binding_kernel_matches_numpy_and_round_trips(body, skirt, device):
     from sim.device import warp
     from sim.dressing import AttachmentPins, bind_to_surface
@@ -313,7 +333,8 @@ def test_cli_explosion_is_one_line_nothing_written(tmp_path, capsys, monkeypatch
 
 @pytest.mark.parametrize("case", ["unknown_garment", "unknown_material", "unknown_garment_param",
                                   "bad_garment_param", "bad_suffix", "missing_garment_file", "bad_resolution",
-                                  "bad_material_param", "params_for_file"])
+                                  "bad_material_param", "params_for_file", "bad_coarse_sweeps",
+                                  "late_coarse_sweep"])
 def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
     out = tmp_path / "o.usda"
     args = ["simulate", "--out", str(out), *CLI_FAST]
@@ -341,6 +362,12 @@ def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
     elif case == "bad_material_param":
         args += ["--material-param", "stiffness=3"]
         needles = ("stiffness", "youngs_modulus")
+    elif case == "bad_coarse_sweeps":
+        args += ["--coarse-sweeps", "two"]
+        needles = ("--coarse-sweeps", "'none'")
+    elif case == "late_coarse_sweep":
+        args += ["--iterations", "3", "--coarse-sweeps", "1,3"]
+        needles = ("coarse_sweeps", "0..2")
     else:
         args += ["--garment", str(tmp_path / "nope.obj"), "--garment-param", "length=0.5"]
         needles = ("--garment-param",)

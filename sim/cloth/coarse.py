@@ -103,6 +103,28 @@ def aggregate(adjacency, spacing: int) -> tuple[np.ndarray, np.ndarray]:
     return lookup[sources], seeds
 
 
+# automatic spacing (``spacing`` 0): the least spacing, from ``AUTO_MIN_SPACING`` on, that gives
+# a template at most ``AUTO_MAX_NODES`` coarse nodes. The t-shirt's 4,925 vertices take spacing 4
+# (202 nodes, band 37: the issue setting, docs/BENCHMARKS.md sessions 23-24); a 20k-vertex
+# garment takes 8 (249 nodes) instead of 808 nodes whose band (87) would not fit a CUDA block's
+# shared memory (``coarse_block``), so its solve would fall back to one thread per instance.
+AUTO_MIN_SPACING = 4
+AUTO_MAX_NODES = 256
+
+
+def auto_aggregate(adjacency) -> tuple[np.ndarray, np.ndarray]:
+    """``aggregate`` at the automatic spacing (``AUTO_MAX_NODES``). An aggregate of spacing ``s``
+    holds about ``1.5 s^2`` vertices of a near-uniform triangle mesh, so the search starts
+    there and grows the spacing until the seeds fit."""
+    n = adjacency.shape[0]
+    spacing = max(AUTO_MIN_SPACING, int(np.sqrt(n / (1.5 * AUTO_MAX_NODES))))
+    while True:
+        agg, seeds = aggregate(adjacency, spacing)
+        if len(seeds) <= AUTO_MAX_NODES:
+            return agg, seeds
+        spacing += 1
+
+
 def cotangent_stiffness(rest: np.ndarray, faces: np.ndarray, modulus: np.ndarray, vertex_count: int):
     """Scalar P1 stiffness matrix ``K`` (scipy CSR, [N/m]) of ``sum_t modulus_t/2 int |grad u|^2``
     on the rest mesh: edge weights ``modulus/2 cot`` of the opposite corners, summed over the
@@ -139,12 +161,13 @@ class CoarseTemplate:
 def coarse_template(rest: np.ndarray, faces: np.ndarray, mass: np.ndarray, pinned: np.ndarray,
                     modulus: np.ndarray, spacing: int) -> CoarseTemplate:
     """Build the coarse level of one garment (module docstring): ``rest`` (n, 3) [m], ``faces``
-    (F, 3), ``mass`` (n,) [kg], ``pinned`` (n,) bool, ``modulus`` (F,) ``lambda + 2 mu`` [N/m]."""
+    (F, 3), ``mass`` (n,) [kg], ``pinned`` (n,) bool, ``modulus`` (F,) ``lambda + 2 mu`` [N/m];
+    ``spacing`` 0: ``auto_aggregate``."""
     import scipy.sparse as sp
 
     n = len(rest)
     adjacency = mesh_edge_graph(n, faces)
-    agg, _ = aggregate(adjacency, spacing)
+    agg, _ = auto_aggregate(adjacency) if spacing == 0 else aggregate(adjacency, spacing)
     nc = int(agg.max()) + 1
     indicator = sp.csr_matrix((np.ones(n), (np.arange(n), agg)), shape=(n, nc))
     smooth = adjacency + sp.identity(n, format="csr")
@@ -192,15 +215,16 @@ class CoarseLevel:
         contact_margin: the body contact's detection margin [m].
         air_damping: the solver's air damping [1/s].
         spacing: seed spacing of the aggregates [edges]; 3 gives about 15 vertices per coarse
-            node on a near-uniform mesh.
+            node on a near-uniform mesh; 0: per template, the least from ``AUTO_MIN_SPACING``
+            that gives at most ``AUTO_MAX_NODES`` nodes (``auto_aggregate``).
     """
 
     def __init__(self, model, particles: tuple, k_contact: float, contact_margin: float, air_damping: float,
                  spacing: int = 3):
         import scipy.sparse as sp
 
-        if spacing < 1:
-            raise ValueError(f"CoarseLevel: spacing must be >= 1, got {spacing}")
+        if spacing < 0:
+            raise ValueError(f"CoarseLevel: spacing must be >= 1 (0: automatic), got {spacing}")
         d = model.device
         rest = model.particle_rest.numpy().astype(np.float64)
         mass = model.particle_mass.numpy().astype(np.float64)
