@@ -164,9 +164,10 @@ def parse_pins(spec: str) -> tuple[str, ...]:
 
 def parse_sweeps(spec: str) -> tuple[int, ...] | None:
     """``--coarse-sweeps``: comma-separated sweep indices, 'none' or 'auto' (None)."""
-    if spec.strip().lower() == "auto":
+    word = spec.strip().lower()
+    if word == "auto":
         return None
-    if spec.strip().lower() in ("none", ""):
+    if word in ("none", ""):
         return ()
     try:
         return tuple(int(k) for k in spec.split(","))

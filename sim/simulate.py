@@ -205,14 +205,7 @@ class SimulationConfig:
         try:
             return VBDConfig(**kw)
         except (TypeError, ValueError) as e:
-            hint = ""
-            try:
-                late = any(int(k) >= self.iterations for k in kw["coarse_sweeps"])
-            except (TypeError, ValueError):
-                late = False
-            if late:
-                hint = " (fewer iterations need other coarse_sweeps, or none: coarse_sweeps = [])"
-            raise WrinklesInputError(f"simulation config: {e}{hint}") from None
+            raise WrinklesInputError(f"simulation config: {e}") from None
 
     # --- (de)serialisation ---------------------------------------------------------------
     def to_dict(self) -> dict:

@@ -285,7 +285,7 @@ class VBDConfig:
         if any(not 0 <= k < self.iterations for k in self.coarse_sweeps) or \
                 len(set(self.coarse_sweeps)) != len(self.coarse_sweeps):
             raise ValueError("VBDConfig.coarse_sweeps must hold distinct sweep indices in 0.."
-                             f"{self.iterations - 1}, got {self.coarse_sweeps}")
+                             f"{self.iterations - 1}, got {self.coarse_sweeps} (or none: coarse_sweeps = [])")
         if self.coarse_spacing < 0:
             raise ValueError("VBDConfig.coarse_spacing must be >= 1 (0: automatic), got "
                              f"{self.coarse_spacing}")
