@@ -85,8 +85,9 @@ class SimulationConfig:
         coarse_sweeps: sweeps (0 .. iterations - 1) before which a coarse-level correction runs
             (``VBDConfig.coarse_sweeps``; empty: none; None, the default: before sweep 2 where
             there are 3 or more sweeps, else none).
-        coarse_spacing: the coarse level's aggregate spacing [edges] (``VBDConfig``; 0: per
-            garment, the least from 4 that gives at most 256 coarse nodes).
+        coarse_spacing: the coarse level's aggregate spacing [edges] (``VBDConfig``; 0: 4, with
+            a third level for a garment whose coarse level has more than 256 nodes,
+            ``VBDConfig.coarse_levels``).
         settle_seconds: time [s] the garment settles on the static rest body before the body
             moves.
         blend_seconds: time [s] of the eased transition from rest into the motion's first pose.

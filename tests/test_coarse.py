@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from sim.cloth import ClothMaterialParams, ClothModelBuilder, SolverVBD, VBDConfig
-from sim.cloth.coarse import AUTO_MAX_NODES, aggregate, auto_aggregate, band_solve_kernel, mesh_edge_graph
+from sim.cloth.coarse import (
+    AUTO_MAX_NODES,
+    aggregate,
+    aggregate_graph,
+    auto_aggregate,
+    band_solve_kernel,
+    mesh_edge_graph,
+)
 from sim.device import warp
 from sim.quality import self_intersections
 from tests.conftest import DEVICES
@@ -24,9 +31,11 @@ def strip(device, nx: int = 11, ny: int = 41):
     return b.finalize(device), v
 
 
-def coarse_level(model, spacing: int):
-    """The coarse level a solver with corrections builds for ``model``."""
-    return SolverVBD(model, VBDConfig(coarse_sweeps=(0,), coarse_spacing=spacing)).coarse
+def coarse_level(model, spacing: int, levels: int = 2, smoothing: int = 2):
+    """The coarse level a solver with corrections builds for ``model`` (two levels unless told:
+    the coarse system solved exactly)."""
+    return SolverVBD(model, VBDConfig(coarse_sweeps=(0,), coarse_spacing=spacing, coarse_levels=levels,
+                                      coarse_smoothing=smoothing)).coarse
 
 
 def test_aggregates_are_connected_cells_around_spaced_seeds():
@@ -50,9 +59,10 @@ def test_aggregates_are_connected_cells_around_spaced_seeds():
 
 
 def test_automatic_spacing_is_the_least_from_4_that_fits_the_node_cap():
-    """``coarse_spacing`` 0: a small sheet keeps spacing 4; a 9k-vertex sheet, which has ~370
-    nodes at 4, gets the least larger spacing with at most ``AUTO_MAX_NODES`` (the search starts
-    from an estimate, so both sides of it are checked against plain ``aggregate``)."""
+    """``coarse_spacing`` 0 with two levels: a small sheet keeps spacing 4; a 9k-vertex sheet,
+    which has ~370 nodes at 4, gets the least larger spacing with at most ``AUTO_MAX_NODES`` (the
+    search starts from an estimate, so both sides of it are checked against plain
+    ``aggregate``)."""
     for side, expect_min in ((15, True), (95, False)):
         v, f = grid(side, side, 1.0, 1.0)
         adj = mesh_edge_graph(len(v), f)
@@ -70,8 +80,51 @@ def test_automatic_spacing_is_the_least_from_4_that_fits_the_node_cap():
     b.add_cloth(v1, f1, ClothMaterialParams())
     b.add_cloth(v2 + 2.0, f2, ClothMaterialParams())
     level = coarse_level(b.finalize("cpu"), spacing=0)
+    assert level.levels == 2
     nodes = sorted(len(t.mass) for t in level.templates)
     assert nodes == sorted([len(aggregate(mesh_edge_graph(len(v2), f2), 4)[1]), counts[least]])
+
+
+def test_automatic_levels_add_an_inner_level_where_spacing_4_has_too_many_nodes():
+    """``coarse_spacing`` 0 and ``coarse_levels`` 0 (the job default): spacing 4 everywhere; the
+    9k-vertex sheet's ~370 nodes get an inner level of at most ``AUTO_MAX_NODES`` on their
+    aggregate graph (the least spacing from 1), the small sheet none. The model then runs three
+    levels, and the small sheet's instance takes itself as its inner level."""
+    b = ClothModelBuilder()
+    v1, f1 = grid(95, 95, 1.0, 1.0)
+    v2, f2 = grid(15, 15, 0.3, 0.3)
+    b.add_cloth(v1, f1, ClothMaterialParams())
+    b.add_cloth(v2 + 2.0, f2, ClothMaterialParams())
+    level = coarse_level(b.finalize("cpu"), spacing=0, levels=0)
+    big, small = sorted(level.templates, key=lambda t: -len(t.mass))
+    adj = mesh_edge_graph(len(v1), f1)
+    agg, seeds = aggregate(adj, 4)
+    assert len(big.mass) == len(seeds) > AUTO_MAX_NODES
+    graph = aggregate_graph(adj, agg)
+    inner_agg, inner_seeds = auto_aggregate(graph, min_spacing=1)
+    assert 0.1 * len(seeds) < len(big.inner.mass) == len(inner_seeds) <= AUTO_MAX_NODES
+    np.testing.assert_allclose(big.inner.stiffness.toarray(),
+                               (big.inner.prolongation.T @ big.stiffness @ big.inner.prolongation).toarray())
+    # the inner prolongation's rows sum to one: a uniform coarse move is reproduced
+    np.testing.assert_allclose(np.asarray(big.inner.prolongation.sum(axis=1)).ravel(), 1.0, rtol=1e-12)
+    # neighbours in the aggregate graph share a mesh edge
+    rows, cols = graph.nonzero()
+    e = mesh_edges_set(f1)
+    for a, c in list(zip(rows, cols, strict=True))[:200]:
+        members_a, members_c = np.flatnonzero(agg == a), np.flatnonzero(agg == c)
+        assert any((min(i, j), max(i, j)) in e for i in members_a for j in members_c)
+    assert small.inner is None and len(small.mass) == len(aggregate(mesh_edge_graph(len(v2), f2), 4)[1])
+    assert level.levels == 3 and level.exact_node_count == len(big.inner.mass) + len(small.mass)
+    # a small garment alone keeps two levels
+    b = ClothModelBuilder()
+    b.add_cloth(v2, f2, ClothMaterialParams())
+    assert coarse_level(b.finalize("cpu"), spacing=0, levels=0).levels == 2
+
+
+def mesh_edges_set(faces: np.ndarray) -> set:
+    """The mesh's edges as (low, high) vertex pairs."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    return set(map(tuple, e.tolist()))
 
 
 def test_prolongation_rows_sum_to_one_and_pins_do_not_move():
@@ -157,15 +210,83 @@ def test_band_solve_matches_a_dense_solve_for_every_instance(device):
         np.testing.assert_allclose(serial.numpy(), exact, rtol=2e-3, atol=2e-3 * np.abs(exact).max())
 
 
-def test_coarse_correction_converges_far_further_per_sweep(device):
+def two_grid_reference(templates, rhs, diag, smoothing):
+    """numpy float64 of ``CoarseLevel.solve`` with three levels on the coarse system ``A`` (the
+    templates' stiffness with ``diag`` on its diagonal): ``smoothing`` l1-Jacobi passes from zero,
+    the exact solve of the residual on the inner level (Galerkin: ``P2^T A P2``), its
+    prolongation, ``smoothing`` passes again. A template without an inner level is its own."""
+    import scipy.sparse as sp
+
+    k = sp.block_diag([t.stiffness for t in templates], format="csr").toarray()
+    a = k.copy()
+    np.fill_diagonal(a, diag)
+    dl = diag + np.abs(k - np.diag(np.diag(k))).sum(axis=1)
+    p2 = sp.block_diag([t.inner.prolongation if t.inner is not None else sp.identity(len(t.mass))
+                        for t in templates], format="csr").toarray()
+    x = rhs / dl[:, None]
+    for _ in range(smoothing - 1):
+        x = x + (rhs - a @ x) / dl[:, None]
+    x = x + p2 @ np.linalg.solve(p2.T @ a @ p2, p2.T @ (rhs - a @ x))
+    for _ in range(smoothing):
+        x = x + (rhs - a @ x) / dl[:, None]
+    return x, a
+
+
+def test_three_level_solve_matches_its_numpy_two_grid_cycle(device):
+    """Three levels on a model of a 2.4k-vertex sheet (~300 nodes at spacing 2: an inner level)
+    and a small sheet (none: taken as its own inner level), with body contact on a patch of the
+    sheet: for 1 and 3 smoothing passes the kernels give the numpy two-grid cycle to float
+    round-off; the cycle solves the coarse system to a few percent in the energy norm, better
+    with more smoothing, and exactly on the instance without an inner level."""
+    b = ClothModelBuilder()
+    v1, f1 = grid(49, 49, 1.0, 1.0)
+    v2, f2 = grid(9, 11, 0.2, 0.25)
+    b.add_cloth(v1, f1, ClothMaterialParams(), pinned=np.arange(49))
+    b.add_cloth(v2 + 2.0, f2, ClothMaterialParams())
+    m = b.finalize(device)
+    errors = []
+    for smoothing in (1, 3):
+        level = coarse_level(m, spacing=2, levels=0, smoothing=smoothing)
+        big, small = level.templates
+        assert level.levels == 3 and big.inner is not None and small.inner is None
+        nc, n1 = level.node_count, len(big.mass)
+        rng = np.random.default_rng(5)
+        inertia = (30.0 * 14) ** 2
+        mass = level._mass.numpy()
+        centres = np.concatenate([np.asarray(t.prolongation.T @ v) / np.asarray(t.prolongation.sum(0)).T
+                                  for t, v in ((big, v1), (small, v2))])
+        contact = np.where(centres[:, 0] > 0.6, 20.0, 0.0) * mass * inertia  # a pressed patch
+        diag = level._kdiag.numpy() + mass * inertia + contact
+        rhs = np.sin(3.0 * centres) + 0.1 * rng.normal(size=(nc, 3))  # a smooth load plus noise
+        level._rhs.assign(rhs.astype(np.float32))
+        level._diag.assign(diag.astype(np.float32))
+        level.solve()
+        ref, a = two_grid_reference(level.templates, rhs, diag, smoothing)
+        np.testing.assert_allclose(level._dx.numpy(), ref, rtol=1e-3, atol=1e-3 * np.abs(ref).max())
+        exact = np.linalg.solve(a, rhs)
+        rel = []
+        for rows in (np.arange(n1), np.arange(n1, nc)):
+            e, sub = (ref - exact)[rows], a[np.ix_(rows, rows)]
+            rel.append(np.sqrt(np.sum(e * (sub @ e)) / np.sum(exact[rows] * (sub @ exact[rows]))))
+        assert rel[1] < 1e-10  # the small sheet: its own inner level, solved exactly
+        errors.append(rel[0])
+    assert 1e-3 < errors[1] < errors[0] < 0.15
+
+
+@pytest.mark.parametrize("levels", [2, 3])
+def test_coarse_correction_converges_far_further_per_sweep(device, levels):
     """One stiff implicit step of the long strip: 20 sweeps with a coarse correction before
     every second sweep end an order of magnitude closer to the converged step than 20 plain
-    sweeps; pins stay put; a single correction before the first sweep already helps."""
+    sweeps; pins stay put; a single correction before the first sweep already helps. The same
+    with three levels (the coarse system solved by the two-grid cycle, not exactly)."""
     m, v = strip(device)
 
     def step(iterations: int, sweeps=()) -> np.ndarray:
-        cfg = VBDConfig(substeps=1, iterations=iterations, air_damping=0.0, coarse_sweeps=sweeps)
-        return simulate(m, SolverVBD(m, cfg), m.control(), 1, 1.0 / 30.0)[-1]
+        cfg = VBDConfig(substeps=1, iterations=iterations, air_damping=0.0, coarse_sweeps=sweeps,
+                        coarse_levels=levels)
+        solver = SolverVBD(m, cfg)
+        assert solver.coarse is None or solver.coarse.levels == levels
+        return simulate(m, solver, m.control(), 1, 1.0 / 30.0)[-1]
 
     ref = step(200, tuple(range(1, 200, 2)))
     plain = np.abs(step(20) - ref).max()
@@ -178,13 +299,16 @@ def test_coarse_correction_converges_far_further_per_sweep(device):
     np.testing.assert_allclose(step(3000), ref, atol=0.15 * plain)
 
 
-def test_coarse_correction_keeps_cloth_on_a_sphere_outside(device):
+@pytest.mark.parametrize("levels", [2, 3])
+def test_coarse_correction_keeps_cloth_on_a_sphere_outside(device, levels):
     """The contact penalty is part of the coarse system: corrections do not pull cloth resting
     on a sphere into it (without it they did, and blew the t-shirt up), and a correction moves
     no cloth on the body deeper into it than it is or than its 5 mm thickness: the cloth stays
-    more than half its thickness out (without that clamp it came within 0.3 mm)."""
+    more than half its thickness out (without that clamp it came within 0.3 mm). The same with
+    three levels, whose inner level takes the contact terms through its Galerkin product."""
     m, _, control, body, _ = drop_on_sphere(device)
-    solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5, coarse_sweeps=(0, 2)))
+    solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5, coarse_sweeps=(0, 2), coarse_levels=levels))
+    assert solver.coarse.levels == levels
     x = simulate(m, solver, control, 30, 1.0 / 30.0)
     assert np.isfinite(x).all()
     for frame in x:
@@ -198,7 +322,8 @@ def test_coarse_correction_keeps_cloth_on_a_sphere_outside(device):
 def test_coarse_config_is_checked():
     for bad in ({"iterations": 4, "coarse_sweeps": (4,)}, {"coarse_sweeps": (1, 1)},
                 {"coarse_sweeps": (-1,)}, {"coarse_spacing": -1},
-                {"coarse_sweeps": (1,), "chebyshev_rho": 0.5}):
+                {"coarse_sweeps": (1,), "chebyshev_rho": 0.5}, {"coarse_levels": 1}, {"coarse_levels": 4},
+                {"coarse_smoothing": 0}):
         with pytest.raises(ValueError, match="coarse"):
             VBDConfig(**bad)
     assert VBDConfig(coarse_sweeps=[0, 3]).coarse_sweeps == (0, 3)

@@ -43,6 +43,14 @@ blind to geometry: at a particle with self-contact pairs to a quarter of the con
 on the body not deeper than it is or than its thickness shell; at a particle of an instance
 with a body but outside the contact margin to half the margin's room. Every kernel is a gather
 (no atomics): deterministic on every device.
+
+Three levels (``levels``; automatic where a garment's coarse level has more than
+``AUTO_MAX_NODES`` nodes, whose band would not fit a CUDA block): an inner level aggregates the
+coarse level's own graph (``aggregate_graph``), and ``CoarseLevel.solve`` runs a symmetric
+two-grid cycle on the coarse system: l1-Jacobi passes (``smooth_kernel``), the inner level's exact
+solve of the restricted residual with the Galerkin operator ``P2^T A_c P2`` (its mass and contact
+part added to the inner band at each correction, ``galerkin_band_kernel``), the prolongation
+(``prolong_level_kernel``) and as many passes again.
 """
 
 from __future__ import annotations
@@ -105,24 +113,40 @@ def aggregate(adjacency, spacing: int) -> tuple[np.ndarray, np.ndarray]:
 
 # automatic spacing (``spacing`` 0): the least spacing, from ``AUTO_MIN_SPACING`` on, that gives
 # a template at most ``AUTO_MAX_NODES`` coarse nodes. The t-shirt's 4,925 vertices take spacing 4
-# (202 nodes, band 37: the issue setting, docs/BENCHMARKS.md sessions 23-24); a 20k-vertex
-# garment takes 8 (249 nodes) instead of 808 nodes whose band (87) would not fit a CUDA block's
-# shared memory (``coarse_block``), so its solve would fall back to one thread per instance.
+# (202 nodes, band 37: the issue setting, docs/BENCHMARKS.md sessions 23-24). A finer garment
+# keeps spacing 4 and gets a third level instead (``coarse_template``): its 20k vertices give 808
+# nodes, whose band (87) would not fit a CUDA block's shared memory (``coarse_block``), and the
+# coarser spacing that would fit (8) left the sweeps too long a reach (session 26).
 AUTO_MIN_SPACING = 4
 AUTO_MAX_NODES = 256
 
 
-def auto_aggregate(adjacency) -> tuple[np.ndarray, np.ndarray]:
-    """``aggregate`` at the automatic spacing (``AUTO_MAX_NODES``). An aggregate of spacing ``s``
-    holds about ``1.5 s^2`` vertices of a near-uniform triangle mesh, so the search starts
-    there and grows the spacing until the seeds fit."""
+def auto_aggregate(adjacency, min_spacing: int = AUTO_MIN_SPACING,
+                   max_nodes: int = AUTO_MAX_NODES) -> tuple[np.ndarray, np.ndarray]:
+    """``aggregate`` at the least spacing from ``min_spacing`` that gives at most ``max_nodes``
+    seeds. An aggregate of spacing ``s`` holds about ``1.5 s^2`` vertices of a near-uniform
+    triangle mesh, so the search starts there and grows the spacing until the seeds fit."""
     n = adjacency.shape[0]
-    spacing = max(AUTO_MIN_SPACING, int(np.sqrt(n / (1.5 * AUTO_MAX_NODES))))
+    spacing = max(min_spacing, int(np.sqrt(n / (1.5 * max_nodes))))
     while True:
         agg, seeds = aggregate(adjacency, spacing)
-        if len(seeds) <= AUTO_MAX_NODES:
+        if len(seeds) <= max_nodes:
             return agg, seeds
         spacing += 1
+
+
+def aggregate_graph(adjacency, agg: np.ndarray):
+    """Symmetric CSR adjacency of the aggregates: two are neighbours where an edge of
+    ``adjacency`` joins their members (the coarse level's own mesh graph)."""
+    import scipy.sparse as sp
+
+    n, nc = adjacency.shape[0], int(agg.max()) + 1
+    indicator = sp.csr_matrix((np.ones(n), (np.arange(n), agg)), shape=(n, nc))
+    g = (indicator.T @ adjacency @ indicator).tocsr()
+    g.setdiag(0.0)
+    g.eliminate_zeros()
+    g.data[:] = 1.0
+    return g
 
 
 def cotangent_stiffness(rest: np.ndarray, faces: np.ndarray, modulus: np.ndarray, vertex_count: int):
@@ -149,44 +173,116 @@ def cotangent_stiffness(rest: np.ndarray, faces: np.ndarray, modulus: np.ndarray
 
 @dataclass
 class CoarseTemplate:
-    """The coarse level of one garment template (local indices)."""
+    """One coarse level of a garment template (local indices), built on the level below it."""
 
     prolongation: Any  # scipy CSR (n, nc): rows of pinned particles are zero
     stiffness: Any  # scipy CSR (nc, nc): K_c = P^T K P [N/m]
     mass: np.ndarray  # (nc,) lumped P^T m [kg]
     order: np.ndarray  # (nc,) band row -> node (reverse Cuthill-McKee of K_c)
     band: np.ndarray  # (nc, b + 1) lower band of K_c in that order, band[r, t] = K_c[r, r - t]
+    # a coarser level on this one's nodes (its ``prolongation`` maps them to its own): this
+    # level's system is then smoothed around an exact solve of the inner one's (``CoarseLevel``)
+    inner: CoarseTemplate | None = None
 
 
-def coarse_template(rest: np.ndarray, faces: np.ndarray, mass: np.ndarray, pinned: np.ndarray,
-                    modulus: np.ndarray, spacing: int) -> CoarseTemplate:
-    """Build the coarse level of one garment (module docstring): ``rest`` (n, 3) [m], ``faces``
-    (F, 3), ``mass`` (n,) [kg], ``pinned`` (n,) bool, ``modulus`` (F,) ``lambda + 2 mu`` [N/m];
-    ``spacing`` 0: ``auto_aggregate``."""
+def galerkin_level(adjacency, stiffness, mass: np.ndarray, free: np.ndarray, agg: np.ndarray,
+                   overlap: bool = False) -> CoarseTemplate:
+    """The coarse level of the aggregates ``agg`` of a level with edge graph ``adjacency``,
+    stiffness ``stiffness`` (scipy, [N/m]), lumped ``mass`` [kg] and ``free`` (bool) nodes:
+    smoothed-aggregation prolongation, Galerkin stiffness, lumped mass and the stiffness's
+    lower band in reverse Cuthill-McKee order; ``overlap``: the band also covers every pair of
+    nodes whose prolongations overlap (the pattern of ``P^T D P``, ``D`` diagonal)."""
     import scipy.sparse as sp
+    from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-    n = len(rest)
-    adjacency = mesh_edge_graph(n, faces)
-    agg, _ = auto_aggregate(adjacency) if spacing == 0 else aggregate(adjacency, spacing)
+    n = adjacency.shape[0]
     nc = int(agg.max()) + 1
     indicator = sp.csr_matrix((np.ones(n), (np.arange(n), agg)), shape=(n, nc))
     smooth = adjacency + sp.identity(n, format="csr")
     smooth = sp.diags(1.0 / np.asarray(smooth.sum(axis=1)).ravel()) @ smooth
-    p = (sp.diags((~pinned).astype(float)) @ smooth @ indicator).tocsr()
+    p = (sp.diags(free.astype(float)) @ smooth @ indicator).tocsr()
     p.eliminate_zeros()
-    k = cotangent_stiffness(rest.astype(np.float64), faces, modulus.astype(np.float64), n)
-    kc = (p.T @ k @ p).tocsr()
+    kc = (p.T @ stiffness @ p).tocsr()
     kc.eliminate_zeros()
     mc = np.asarray(p.T @ mass.astype(np.float64)).ravel()
-    from scipy.sparse.csgraph import reverse_cuthill_mckee
-
-    order = np.asarray(reverse_cuthill_mckee(kc, symmetric_mode=True), dtype=np.int64)
+    pattern = (abs(kc) + abs(p.T @ p)).tocsr() if overlap else kc
+    order = np.asarray(reverse_cuthill_mckee(pattern, symmetric_mode=True), dtype=np.int64)
+    pp = pattern[order][:, order].tocoo()
+    width = int((pp.row - pp.col).max()) if pp.nnz else 0
     kp = kc[order][:, order].tocoo()
     lower = kp.row >= kp.col
-    width = int((kp.row - kp.col).max()) if kp.nnz else 0
     band = np.zeros((nc, width + 1))
     band[kp.row[lower], (kp.row - kp.col)[lower]] = kp.data[lower]
     return CoarseTemplate(p, kc, mc, order, band)
+
+
+def coarse_template(rest: np.ndarray, faces: np.ndarray, mass: np.ndarray, pinned: np.ndarray,
+                    modulus: np.ndarray, spacing: int, levels: int = 0) -> CoarseTemplate:
+    """Build the coarse level of one garment (module docstring): ``rest`` (n, 3) [m], ``faces``
+    (F, 3), ``mass`` (n,) [kg], ``pinned`` (n,) bool, ``modulus`` (F,) ``lambda + 2 mu`` [N/m].
+
+    ``spacing`` 0: ``AUTO_MIN_SPACING`` with ``levels`` 0 or 3, ``auto_aggregate`` with 2.
+    ``levels``: 2 solves the coarse level exactly; 3 adds an inner level on its aggregate graph
+    (``auto_aggregate`` from spacing 1, at most ``AUTO_MAX_NODES`` nodes) whose solve, between
+    smoothing passes, solves this one; 0 picks 3 where the coarse level has more than
+    ``AUTO_MAX_NODES`` nodes."""
+    n = len(rest)
+    adjacency = mesh_edge_graph(n, faces)
+    if spacing == 0:
+        agg, _ = auto_aggregate(adjacency) if levels == 2 else aggregate(adjacency, AUTO_MIN_SPACING)
+    else:
+        agg, _ = aggregate(adjacency, spacing)
+    k = cotangent_stiffness(rest.astype(np.float64), faces, modulus.astype(np.float64), n)
+    level = galerkin_level(adjacency, k, mass, ~pinned, agg)
+    nc = len(level.mass)
+    if levels == 3 or (levels == 0 and nc > AUTO_MAX_NODES):
+        graph = aggregate_graph(adjacency, agg)
+        inner, _ = auto_aggregate(graph, min_spacing=1)
+        level.inner = galerkin_level(graph, level.stiffness, level.mass, np.ones(nc, dtype=bool), inner,
+                                     overlap=True)
+    return level
+
+
+def galerkin_slots(exact: list) -> Any:
+    """Where ``P2^T diag(d) P2`` adds to the inner levels' bands: a scipy CSR matrix with a row per
+    slot of the flat band arrays (the instances' ``exact`` templates' bands, in order; diagonal
+    slots stay empty) and a column per coarse node ``J`` of the instances, holding ``P2_Ja P2_Jb``
+    for the slot of nodes ``a``, ``b``."""
+    import scipy.sparse as sp
+
+    slots, nodes, values = [], [], []
+    node_off = band_off = 0
+    local: dict[int, tuple] = {}
+    for e in exact:
+        n1, n2 = e.prolongation.shape
+        w = e.band.shape[1]
+        if id(e) not in local:
+            p2 = e.prolongation.tocsr()
+            rank = np.empty(n2, dtype=np.int64)
+            rank[e.order] = np.arange(n2)
+            ls, ln, lv = [], [], []
+            for j in range(n1):
+                cols = rank[p2.indices[p2.indptr[j]:p2.indptr[j + 1]]]
+                vals = p2.data[p2.indptr[j]:p2.indptr[j + 1]]
+                ra, rb = np.meshgrid(cols, cols, indexing="ij")
+                va = np.outer(vals, vals)
+                low = ra > rb
+                if np.any(ra[low] - rb[low] >= w):
+                    raise ValueError("galerkin_slots: a prolongation overlap lies outside the inner band")
+                ls.append(ra[low] * w + (ra[low] - rb[low]))
+                ln.append(np.full(int(low.sum()), j))
+                lv.append(va[low])
+            local[id(e)] = (np.concatenate(ls), np.concatenate(ln), np.concatenate(lv))
+        ls, ln, lv = local[id(e)]
+        slots.append(ls + band_off)
+        nodes.append(ln + node_off)
+        values.append(lv)
+        node_off += n1
+        band_off += n2 * w
+    m = sp.coo_matrix((np.concatenate(values), (np.concatenate(slots), np.concatenate(nodes))),
+                      shape=(band_off, node_off)).tocsr()
+    m.sum_duplicates()
+    return m
 
 
 # largest move of a correction at a particle with self-contact pairs, in self-contact radii
@@ -216,15 +312,22 @@ class CoarseLevel:
         air_damping: the solver's air damping [1/s].
         spacing: seed spacing of the aggregates [edges]; 3 gives about 15 vertices per coarse
             node on a near-uniform mesh; 0: per template, the least from ``AUTO_MIN_SPACING``
-            that gives at most ``AUTO_MAX_NODES`` nodes (``auto_aggregate``).
+            that gives at most ``AUTO_MAX_NODES`` nodes (``auto_aggregate``) with ``levels`` 2,
+            else ``AUTO_MIN_SPACING``.
+        levels: 2, 3 or 0 (automatic; ``coarse_template``).
+        smoothing: l1-Jacobi passes before and after the inner solve (three levels).
     """
 
     def __init__(self, model, particles: tuple, k_contact: float, contact_margin: float, air_damping: float,
-                 spacing: int = 3):
+                 spacing: int = 3, levels: int = 0, smoothing: int = 2):
         import scipy.sparse as sp
 
         if spacing < 0:
             raise ValueError(f"CoarseLevel: spacing must be >= 1 (0: automatic), got {spacing}")
+        if levels not in (0, 2, 3):
+            raise ValueError(f"CoarseLevel: levels must be 2, 3 or 0 (automatic), got {levels}")
+        if smoothing < 1:
+            raise ValueError(f"CoarseLevel: smoothing must be >= 1, got {smoothing}")
         d = model.device
         rest = model.particle_rest.numpy().astype(np.float64)
         mass = model.particle_mass.numpy().astype(np.float64)
@@ -242,15 +345,14 @@ class CoarseLevel:
             parts = (rest[v0:v1], f, mass[v0:v1], pinned[v0:v1], modulus[tri_starts[k]:tri_starts[k + 1]])
             key = _template_key(*parts)
             if key not in templates:
-                templates[key] = coarse_template(*parts, spacing=spacing)
+                templates[key] = coarse_template(*parts, spacing=spacing, levels=levels)
             blocks.append(templates[key])
         self.templates = list(templates.values())
         p = sp.block_diag([b.prolongation for b in blocks], format="csr")
         mc = np.concatenate([b.mass for b in blocks])
         self.node_count = len(mc)
         self.prolongation = p
-        r = p.T.tocsr()
-        kdiag = sp.block_diag([b.stiffness for b in blocks], format="csr").diagonal()
+        kc = sp.block_diag([b.stiffness for b in blocks], format="csr")
 
         def arr(a, dtype):
             return wp.array(np.ascontiguousarray(a), dtype=dtype, device=d)
@@ -259,27 +361,58 @@ class CoarseLevel:
             return (arr(m.indptr.astype(np.int32), wp.int32), arr(m.indices.astype(np.int32), wp.int32),
                     arr(m.data.astype(np.float32), float))
 
-        self._p, self._r = csr(p), csr(r)
+        self._p, self._r = csr(p), csr(p.T.tocsr())
         self._mass = arr(mc.astype(np.float32), float)
-        self._kdiag = arr(kdiag.astype(np.float32), float)
+        self._kdiag = arr(kc.diagonal().astype(np.float32), float)
         nc = self.node_count
         self._rhs = wp.zeros(nc, dtype=wp.vec3, device=d)
         self._rhs_part = wp.zeros(nc * RESTRICT_LANES, dtype=wp.vec3, device=d)
         self._k_part = wp.zeros(nc * RESTRICT_LANES, dtype=float, device=d)
         self._diag = wp.zeros(nc, dtype=float, device=d)
         self._dx = wp.zeros(nc, dtype=wp.vec3, device=d)
-        # banded Cholesky of each instance's coarse system: band rows in RCM order, per instance
-        # (node start, node count, band width, offset of its band in the flat band arrays)
-        widths = np.array([b.band.shape[1] - 1 for b in blocks], dtype=np.int64)
-        counts = np.array([len(b.mass) for b in blocks], dtype=np.int64)
+        # three levels where any template has an inner level; a template without one then
+        # takes itself as its inner level (identity prolongation), whose exact solve the
+        # smoothing passes leave exact
+        self.levels = 3 if any(b.inner is not None for b in blocks) else 2
+        self.smoothing = int(smoothing)
+        if self.levels == 3:
+            own = {id(b): CoarseTemplate(sp.identity(len(b.mass), format="csr"), b.stiffness, b.mass, b.order,
+                                         b.band) for b in blocks if b.inner is None}
+            exact = [b.inner if b.inner is not None else own[id(b)] for b in blocks]
+            p2 = sp.block_diag([e.prolongation for e in exact], format="csr")
+            off = (kc - sp.diags(kc.diagonal())).tocsr()
+            off.eliminate_zeros()
+            self._p2, self._r2, self._off = csr(p2), csr(p2.T.tocsr()), csr(off)
+            # l1-Jacobi: the diagonal plus the off-diagonal's absolute row sum, a convergent
+            # smoother for any symmetric positive definite level matrix
+            self._l1 = arr(np.asarray(abs(off).sum(axis=1)).ravel().astype(np.float32), float)
+            self._x1 = wp.zeros(nc, dtype=wp.vec3, device=d)
+            self._res1 = wp.zeros(nc, dtype=wp.vec3, device=d)
+            kc2 = sp.block_diag([e.stiffness for e in exact], format="csr")
+            self._kdiag2 = arr(kc2.diagonal().astype(np.float32), float)
+            nc2 = kc2.shape[0]
+            self._exact = (wp.zeros(nc2, dtype=wp.vec3, device=d), wp.zeros(nc2, dtype=float, device=d),
+                           wp.zeros(nc2, dtype=wp.vec3, device=d))
+            self._galerkin = csr(galerkin_slots(exact))
+        else:
+            self._galerkin = None
+            exact = blocks
+            self._exact = (self._rhs, self._diag, self._dx)
+        self.exact_node_count = len(self._exact[0])
+        # banded Cholesky of each instance's exactly solved system: band rows in RCM order, per
+        # instance (node start, node count, band width, offset of its band in the flat band arrays)
+        widths = np.array([e.band.shape[1] - 1 for e in exact], dtype=np.int64)
+        counts = np.array([len(e.mass) for e in exact], dtype=np.int64)
         band_off = np.concatenate([[0], np.cumsum(counts * (widths + 1))])
         node_off = np.concatenate([[0], np.cumsum(counts)])
         self._inst = (arr(node_off[:-1].astype(np.int32), wp.int32), arr(counts.astype(np.int32), wp.int32),
                       arr(widths.astype(np.int32), wp.int32), arr(band_off[:-1].astype(np.int64), wp.int64))
-        self._order = arr(np.concatenate([b.order for b in blocks]).astype(np.int32), wp.int32)
-        self._band_k = arr(np.concatenate([b.band.ravel() for b in blocks]).astype(np.float32), float)
+        self._order = arr(np.concatenate([e.order for e in exact]).astype(np.int32), wp.int32)
+        self._band_k = arr(np.concatenate([e.band.ravel() for e in exact]).astype(np.float32), float)
         self._band = wp.zeros(int(band_off[-1]), dtype=float, device=d)
-        self._y = wp.zeros(nc, dtype=wp.vec3, device=d)
+        # three levels: the inner band's values at each correction (``galerkin_band_kernel``)
+        self._band_a = wp.zeros_like(self._band_k) if self.levels == 3 else self._band_k
+        self._y = wp.zeros(int(node_off[-1]), dtype=wp.vec3, device=d)
         self.residual = wp.zeros(model.particle_count, dtype=wp.vec3, device=d)
         self.model = model
         self._particles = tuple(particles)
@@ -328,17 +461,163 @@ class CoarseLevel:
                   outputs=[self._rhs, self._diag], device=m.device)
 
     def solve(self) -> None:
-        """Every instance's coarse system for the current right-hand side and diagonal (the
-        block kernel on CUDA where it fits, else one thread per instance)."""
+        """Every instance's coarse system for the current right-hand side and diagonal: solved
+        exactly with two levels; with three, ``smoothing`` l1-Jacobi passes, the inner level's
+        exact solve of the residual (Galerkin: its stiffness ``P2^T K_c P2``, its mass and
+        contact terms lumped through ``P2``), its prolongation, and as many passes again (a
+        two-grid cycle, symmetric, so the correction stays a descent direction)."""
         m = self.model
+        if self.levels == 2:
+            self.exact_solve()
+            return
+        bufs = (self._dx, self._x1)
+        nc, d = self.node_count, m.device
+        for j in range(2 * self.smoothing):
+            if j == self.smoothing:
+                wp.launch(level_residual_kernel, dim=nc,
+                          inputs=[bufs[j % 2], self._rhs, self._diag, *self._off], outputs=[self._res1],
+                          device=d)
+                wp.launch(restrict_level_kernel, dim=self.exact_node_count,
+                          inputs=[self._res1, self._diag, self._kdiag, *self._r2, self._kdiag2],
+                          outputs=[self._exact[0], self._exact[1]], device=d)
+                wp.launch(galerkin_band_kernel, dim=self._band_a.shape[0],
+                          inputs=[self._band_k, self._diag, self._kdiag, *self._galerkin],
+                          outputs=[self._band_a], device=d)
+                self.exact_solve()
+                wp.launch(prolong_level_kernel, dim=nc, inputs=[self._exact[2], *self._p2],
+                          outputs=[bufs[j % 2]], device=d)
+            # pass j reads bufs[j % 2] and writes bufs[(j + 1) % 2]: the last lands in ``_dx``
+            wp.launch(smooth_kernel, dim=nc,
+                      inputs=[bufs[j % 2], self._rhs, self._diag, *self._off, self._l1, int(j == 0)],
+                      outputs=[bufs[(j + 1) % 2]], device=d)
+
+    def exact_solve(self) -> None:
+        """The exactly solved level's systems (``_exact``: right-hand side, diagonal, solution):
+        the block kernel on CUDA where it fits, else one thread per instance."""
+        m = self.model
+        rhs, diag, dx = self._exact
         if self.block_kernel is not None:
             wp.launch_tiled(self.block_kernel, dim=[m.instance_count], block_dim=self.block_threads,
-                            inputs=[self._rhs, self._diag, *self._inst, self._order, self._band_k],
-                            outputs=[self._dx], device=m.device)
+                            inputs=[rhs, diag, *self._inst, self._order, self._band_a],
+                            outputs=[dx], device=m.device)
         else:
             wp.launch(band_solve_kernel, dim=m.instance_count,
-                      inputs=[self._rhs, self._diag, *self._inst, self._order, self._band_k],
-                      outputs=[self._band, self._y, self._dx], device=m.device)
+                      inputs=[rhs, diag, *self._inst, self._order, self._band_a],
+                      outputs=[self._band, self._y, dx], device=m.device)
+
+
+@wp.func
+def level_product(i: int, x: wp.array(dtype=wp.vec3), diag: wp.array(dtype=float),
+                  offsets: wp.array(dtype=wp.int32), ids: wp.array(dtype=wp.int32),
+                  weights: wp.array(dtype=float)) -> wp.vec3:
+    """Row ``i`` of ``A_c x``: ``diag`` (mass, stiffness and contact) times ``x_i`` plus the
+    stiffness's off-diagonal row (CSR ``offsets, ids, weights``)."""
+    s = diag[i] * x[i]
+    for k in range(offsets[i], offsets[i + 1]):
+        s = s + weights[k] * x[ids[k]]
+    return s
+
+
+@wp.kernel
+def smooth_kernel(
+    x: wp.array(dtype=wp.vec3),
+    rhs: wp.array(dtype=wp.vec3),
+    diag: wp.array(dtype=float),
+    offsets: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=float),
+    l1: wp.array(dtype=float),
+    first: int,
+    x_out: wp.array(dtype=wp.vec3),
+):
+    """One l1-Jacobi pass on the coarse system ``A_c x = rhs``: ``x + (rhs - A_c x) / (diag +
+    l1)``, ``l1`` the off-diagonal's absolute row sum; ``first`` != 0 starts from ``x = 0``
+    (``x`` is not read)."""
+    i = wp.tid()
+    dl = diag[i] + l1[i]
+    if first != 0:
+        x_out[i] = rhs[i] / dl
+    else:
+        x_out[i] = x[i] + (rhs[i] - level_product(i, x, diag, offsets, ids, weights)) / dl
+
+
+@wp.kernel
+def level_residual_kernel(
+    x: wp.array(dtype=wp.vec3),
+    rhs: wp.array(dtype=wp.vec3),
+    diag: wp.array(dtype=float),
+    offsets: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=float),
+    res_out: wp.array(dtype=wp.vec3),
+):
+    """``rhs - A_c x`` at coarse node ``i``."""
+    i = wp.tid()
+    res_out[i] = rhs[i] - level_product(i, x, diag, offsets, ids, weights)
+
+
+@wp.kernel
+def restrict_level_kernel(
+    res: wp.array(dtype=wp.vec3),
+    diag: wp.array(dtype=float),
+    node_stiffness: wp.array(dtype=float),
+    offsets: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=float),
+    inner_stiffness: wp.array(dtype=float),
+    rhs_out: wp.array(dtype=wp.vec3),
+    diag_out: wp.array(dtype=float),
+):
+    """Inner node ``c``: ``rhs = P2^T res`` and the Galerkin diagonal ``K_2,cc + sum_J P2_Jc^2
+    d_J``, ``d = diag - node_stiffness`` the coarse diagonal's mass and contact part
+    (``offsets, ids, weights``: ``P2^T`` as CSR)."""
+    c = wp.tid()
+    s = wp.vec3(0.0)
+    dc = float(0.0)
+    for k in range(offsets[c], offsets[c + 1]):
+        j = ids[k]
+        w = weights[k]
+        s = s + w * res[j]
+        dc = dc + w * w * (diag[j] - node_stiffness[j])
+    rhs_out[c] = s
+    diag_out[c] = inner_stiffness[c] + dc
+
+
+@wp.kernel
+def galerkin_band_kernel(
+    band_k: wp.array(dtype=float),
+    diag: wp.array(dtype=float),
+    node_stiffness: wp.array(dtype=float),
+    offsets: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=float),
+    band_out: wp.array(dtype=float),
+):
+    """Slot ``s`` of the inner levels' bands: ``K_2``'s value plus ``sum P2_Ja P2_Jb d_J`` over
+    the slot's coarse nodes ``J`` (``galerkin_slots``; ``d = diag - node_stiffness``), the
+    off-diagonal of ``P2^T diag(d) P2``."""
+    s = wp.tid()
+    v = band_k[s]
+    for k in range(offsets[s], offsets[s + 1]):
+        j = ids[k]
+        v = v + weights[k] * (diag[j] - node_stiffness[j])
+    band_out[s] = v
+
+
+@wp.kernel
+def prolong_level_kernel(
+    dx: wp.array(dtype=wp.vec3),
+    offsets: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=float),
+    x_inout: wp.array(dtype=wp.vec3),
+):
+    """``x += P2 dx`` at coarse node ``i`` (``P2`` as CSR)."""
+    i = wp.tid()
+    s = wp.vec3(0.0)
+    for k in range(offsets[i], offsets[i + 1]):
+        s = s + weights[k] * dx[ids[k]]
+    x_inout[i] = x_inout[i] + s
 
 
 @wp.func

@@ -191,9 +191,16 @@ class VBDConfig:
             per 15 vertices, solves that level's linear system exactly and adds the
             prolongated displacement: the long reach the sweeps lack (~1 ring each).
         coarse_spacing: seed spacing of the coarse level's aggregates [edges]; 0: per garment,
-            the least from 4 that gives at most 256 coarse nodes (``coarse.auto_aggregate``: the
-            t-shirt's 5k vertices take 4, a 20k-vertex garment 8), so the solve stays one CUDA
-            block's.
+            4, or with ``coarse_levels`` 2 the least from 4 that gives at most 256 coarse nodes
+            (``coarse.auto_aggregate``: the t-shirt's 5k vertices take 4, a 20k-vertex garment 8).
+        coarse_levels: 2 solves the coarse level exactly (one CUDA block per garment where its
+            band fits in shared memory); 3 adds an inner level of at most 256 nodes on the coarse
+            level's aggregate graph and solves the coarse level by a two-grid cycle around the
+            inner one's exact solve (``coarse.coarse_template``); 0, the default: 3 for a garment
+            whose coarse level has more than 256 nodes (a 20k-vertex t-shirt has 808 at spacing
+            4), else 2.
+        coarse_smoothing: l1-Jacobi passes on the coarse level before and after the inner solve
+            (three levels only).
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every
@@ -236,6 +243,8 @@ class VBDConfig:
     strain_limit_passes: int = 4
     coarse_sweeps: tuple[int, ...] = ()
     coarse_spacing: int = 3
+    coarse_levels: int = 0
+    coarse_smoothing: int = 2
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -289,6 +298,11 @@ class VBDConfig:
         if self.coarse_spacing < 0:
             raise ValueError("VBDConfig.coarse_spacing must be >= 1 (0: automatic), got "
                              f"{self.coarse_spacing}")
+        if self.coarse_levels not in (0, 2, 3):
+            raise ValueError("VBDConfig.coarse_levels must be 2, 3 or 0 (automatic), got "
+                             f"{self.coarse_levels}")
+        if self.coarse_smoothing < 1:
+            raise ValueError(f"VBDConfig.coarse_smoothing must be >= 1, got {self.coarse_smoothing}")
         if self.coarse_sweeps and self.chebyshev_rho > 0.0:
             raise ValueError("VBDConfig.coarse_sweeps and chebyshev_rho cannot be combined")
         if not 0.0 <= self.chebyshev_rho < 1.0:
@@ -431,7 +445,8 @@ class SolverVBD:
             particles = (self._x_prev, self._y, self._contact_point, self._contact_normal,
                          self._contact_body_velocity, self._contact_active)
             self.coarse = CoarseLevel(model, particles, cfg.contact_stiffness, cfg.contact_margin,
-                                      cfg.air_damping, cfg.coarse_spacing)
+                                      cfg.air_damping, cfg.coarse_spacing, cfg.coarse_levels,
+                                      cfg.coarse_smoothing)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True)
 
