@@ -47,7 +47,7 @@ with a body but outside the contact margin to half the margin's room. Every kern
 Three levels (``levels``; automatic where a garment's coarse level has more than
 ``AUTO_MAX_NODES`` nodes, whose band would not fit a CUDA block): an inner level aggregates the
 coarse level's own graph (``aggregate_graph``), and ``CoarseLevel.solve`` runs a symmetric
-two-grid cycle on the coarse system: l1-Jacobi passes (``smooth_kernel``), the inner level's exact
+two-grid cycle on the coarse system: l1-Jacobi passes (``level_pass_kernel``), the inner level's exact
 solve of the restricted residual with the Galerkin operator ``P2^T A_c P2`` (its mass and contact
 part added to the inner band at each correction, ``galerkin_band_kernel``), the prolongation
 (``prolong_level_kernel``) and as many passes again.
@@ -474,9 +474,9 @@ class CoarseLevel:
         nc, d = self.node_count, m.device
         for j in range(2 * self.smoothing):
             if j == self.smoothing:
-                wp.launch(level_residual_kernel, dim=nc,
-                          inputs=[bufs[j % 2], self._rhs, self._diag, *self._off], outputs=[self._res1],
-                          device=d)
+                wp.launch(level_pass_kernel, dim=nc,
+                          inputs=[bufs[j % 2], self._rhs, self._diag, *self._off, self._l1, PASS_RESIDUAL],
+                          outputs=[self._res1], device=d)
                 wp.launch(restrict_level_kernel, dim=self.exact_node_count,
                           inputs=[self._res1, self._diag, self._kdiag, *self._r2, self._kdiag2],
                           outputs=[self._exact[0], self._exact[1]], device=d)
@@ -487,8 +487,9 @@ class CoarseLevel:
                 wp.launch(prolong_level_kernel, dim=nc, inputs=[self._exact[2], *self._p2],
                           outputs=[bufs[j % 2]], device=d)
             # pass j reads bufs[j % 2] and writes bufs[(j + 1) % 2]: the last lands in ``_dx``
-            wp.launch(smooth_kernel, dim=nc,
-                      inputs=[bufs[j % 2], self._rhs, self._diag, *self._off, self._l1, int(j == 0)],
+            wp.launch(level_pass_kernel, dim=nc,
+                      inputs=[bufs[j % 2], self._rhs, self._diag, *self._off, self._l1,
+                              PASS_FIRST if j == 0 else PASS_SMOOTH],
                       outputs=[bufs[(j + 1) % 2]], device=d)
 
     def exact_solve(self) -> None:
@@ -518,8 +519,14 @@ def level_product(i: int, x: wp.array(dtype=wp.vec3), diag: wp.array(dtype=float
     return s
 
 
+# what ``level_pass_kernel`` writes
+PASS_FIRST = wp.constant(0)  # an l1-Jacobi pass from x = 0
+PASS_SMOOTH = wp.constant(1)  # an l1-Jacobi pass from x
+PASS_RESIDUAL = wp.constant(2)  # the residual rhs - A_c x
+
+
 @wp.kernel
-def smooth_kernel(
+def level_pass_kernel(
     x: wp.array(dtype=wp.vec3),
     rhs: wp.array(dtype=wp.vec3),
     diag: wp.array(dtype=float),
@@ -527,33 +534,22 @@ def smooth_kernel(
     ids: wp.array(dtype=wp.int32),
     weights: wp.array(dtype=float),
     l1: wp.array(dtype=float),
-    first: int,
-    x_out: wp.array(dtype=wp.vec3),
+    mode: int,
+    out: wp.array(dtype=wp.vec3),
 ):
-    """One l1-Jacobi pass on the coarse system ``A_c x = rhs``: ``x + (rhs - A_c x) / (diag +
-    l1)``, ``l1`` the off-diagonal's absolute row sum; ``first`` != 0 starts from ``x = 0``
-    (``x`` is not read)."""
+    """Coarse node ``i`` of the coarse system ``A_c x = rhs``: an l1-Jacobi pass ``x + (rhs - A_c
+    x) / (diag + l1)`` (``PASS_SMOOTH``; ``l1`` the off-diagonal's absolute row sum), the same
+    from ``x = 0`` (``PASS_FIRST``, ``x`` not read), or the residual ``rhs - A_c x``
+    (``PASS_RESIDUAL``)."""
     i = wp.tid()
-    dl = diag[i] + l1[i]
-    if first != 0:
-        x_out[i] = rhs[i] / dl
+    if mode == PASS_FIRST:
+        out[i] = rhs[i] / (diag[i] + l1[i])
     else:
-        x_out[i] = x[i] + (rhs[i] - level_product(i, x, diag, offsets, ids, weights)) / dl
-
-
-@wp.kernel
-def level_residual_kernel(
-    x: wp.array(dtype=wp.vec3),
-    rhs: wp.array(dtype=wp.vec3),
-    diag: wp.array(dtype=float),
-    offsets: wp.array(dtype=wp.int32),
-    ids: wp.array(dtype=wp.int32),
-    weights: wp.array(dtype=float),
-    res_out: wp.array(dtype=wp.vec3),
-):
-    """``rhs - A_c x`` at coarse node ``i``."""
-    i = wp.tid()
-    res_out[i] = rhs[i] - level_product(i, x, diag, offsets, ids, weights)
+        r = rhs[i] - level_product(i, x, diag, offsets, ids, weights)
+        if mode == PASS_RESIDUAL:
+            out[i] = r
+        else:
+            out[i] = x[i] + r / (diag[i] + l1[i])
 
 
 @wp.kernel
