@@ -14,6 +14,7 @@ from sim.cloth.coarse import (
     band_solve_kernel,
     mesh_edge_graph,
 )
+from sim.cloth.model import mesh_edges
 from sim.device import warp
 from sim.quality import self_intersections
 from tests.conftest import DEVICES
@@ -109,7 +110,7 @@ def test_automatic_levels_add_an_inner_level_where_spacing_4_has_too_many_nodes(
     np.testing.assert_allclose(np.asarray(big.inner.prolongation.sum(axis=1)).ravel(), 1.0, rtol=1e-12)
     # neighbours in the aggregate graph share a mesh edge
     rows, cols = graph.nonzero()
-    e = mesh_edges_set(f1)
+    e = set(map(tuple, mesh_edges(f1).tolist()))  # (low, high) vertex pairs
     for a, c in list(zip(rows, cols, strict=True))[:200]:
         members_a, members_c = np.flatnonzero(agg == a), np.flatnonzero(agg == c)
         assert any((min(i, j), max(i, j)) in e for i in members_a for j in members_c)
@@ -119,12 +120,6 @@ def test_automatic_levels_add_an_inner_level_where_spacing_4_has_too_many_nodes(
     b = ClothModelBuilder()
     b.add_cloth(v2, f2, ClothMaterialParams())
     assert coarse_level(b.finalize("cpu"), spacing=0, levels=0).levels == 2
-
-
-def mesh_edges_set(faces: np.ndarray) -> set:
-    """The mesh's edges as (low, high) vertex pairs."""
-    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    return set(map(tuple, e.tolist()))
 
 
 def test_prolongation_rows_sum_to_one_and_pins_do_not_move():

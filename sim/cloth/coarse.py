@@ -115,8 +115,8 @@ def aggregate(adjacency, spacing: int) -> tuple[np.ndarray, np.ndarray]:
 # a template at most ``AUTO_MAX_NODES`` coarse nodes. The t-shirt's 4,925 vertices take spacing 4
 # (202 nodes, band 37: the issue setting, docs/BENCHMARKS.md sessions 23-24). A finer garment
 # keeps spacing 4 and gets a third level instead (``coarse_template``): its 20k vertices give 808
-# nodes, whose band (87) would not fit a CUDA block's shared memory (``coarse_block``), and the
-# coarser spacing that would fit (8) left the sweeps too long a reach (session 26).
+# nodes, whose band (87) would not fit a CUDA block's shared memory (``coarse_block``); the
+# coarser spacing that would fit (8) gave higher worst strains than three levels (session 26).
 AUTO_MIN_SPACING = 4
 AUTO_MAX_NODES = 256
 
@@ -207,9 +207,9 @@ def galerkin_level(adjacency, stiffness, mass: np.ndarray, free: np.ndarray, agg
     mc = np.asarray(p.T @ mass.astype(np.float64)).ravel()
     pattern = (abs(kc) + abs(p.T @ p)).tocsr() if overlap else kc
     order = np.asarray(reverse_cuthill_mckee(pattern, symmetric_mode=True), dtype=np.int64)
-    pp = pattern[order][:, order].tocoo()
-    width = int((pp.row - pp.col).max()) if pp.nnz else 0
     kp = kc[order][:, order].tocoo()
+    pp = pattern[order][:, order].tocoo() if overlap else kp
+    width = int((pp.row - pp.col).max()) if pp.nnz else 0
     lower = kp.row >= kp.col
     band = np.zeros((nc, width + 1))
     band[kp.row[lower], (kp.row - kp.col)[lower]] = kp.data[lower]
@@ -463,9 +463,10 @@ class CoarseLevel:
     def solve(self) -> None:
         """Every instance's coarse system for the current right-hand side and diagonal: solved
         exactly with two levels; with three, ``smoothing`` l1-Jacobi passes, the inner level's
-        exact solve of the residual (Galerkin: its stiffness ``P2^T K_c P2``, its mass and
-        contact terms lumped through ``P2``), its prolongation, and as many passes again (a
-        two-grid cycle, symmetric, so the correction stays a descent direction)."""
+        exact solve of the residual with the Galerkin operator ``P2^T A_c P2`` (its mass and
+        contact part added to the inner band here, ``galerkin_band_kernel``), its prolongation,
+        and as many passes again (a two-grid cycle, symmetric, so the correction stays a descent
+        direction)."""
         m = self.model
         if self.levels == 2:
             self.exact_solve()
