@@ -16,7 +16,7 @@ from sim.bodies.default import parse_shape
 from sim.errors import WrinklesInputError
 from sim.garments import TEMPLATES, make_garment
 from sim.garments.panels import corner_angles, stitch
-from sim.garments.templates import PARAM_RANGES, resolve_resolution
+from sim.garments.templates import PARAM_RANGES, fillet_inset, resolve_resolution
 from sim.garments.uv import UV_MARGIN, uv_stats
 
 SHAPES = {"mean": "", "tall_heavy": "height=0.7,weight=0.9", "short_slim": "height=0.1,weight=0.1"}
@@ -298,6 +298,53 @@ def test_fine_resolution_vertex_count(body, category):
     assert s.mean_edge_texels_256 * 2 >= 2.0  # a fine edge spans >= 2 texels at 512²
     e = np.linalg.norm(np.diff(g.rest_vertices[g.faces[:, [0, 1, 2, 0]]], axis=1), axis=2)
     assert abs(e.mean() / resolve_resolution("fine", category) - 1.0) < 0.15
+
+
+def _strap_corner_angle(g) -> float:
+    """Largest angle of cloth [deg] around a boundary vertex of a strap (the sum of its
+    triangles' corner angles there): 270° at a square neckline corner."""
+    total = np.bincount(g.faces.ravel(), weights=corner_angles(g.rest_vertices, g.faces).ravel(),
+                        minlength=g.num_vertices)
+    e, count = _edges(g.faces)
+    boundary = np.zeros(g.num_vertices, bool)
+    boundary[e[count == 1].ravel()] = True
+    strap = np.zeros(g.num_vertices, bool)
+    for name in ("left_strap", "right_strap"):
+        strap[g.faces[g.panel_ids == g.panel_names.index(name)].ravel()] = True
+    return float(total[boundary & strap].max())
+
+
+@pytest.mark.parametrize("category", ["tank_top", "t_shirt"])
+@pytest.mark.parametrize("shape", ["mean", "short_slim"])
+def test_neckline_corners_are_rounded(body, category, shape):
+    """Where a strap meets a neckline the cloth has no re-entrant corner: with the default
+    ``neck_fillet`` no strap boundary vertex has more than 235° of cloth around it (a straight
+    edge has 180°); with ``neck_fillet=0`` the square corner has about 270°. The mesh stays
+    manifold with its vertex count within 1 %."""
+    betas = parse_shape(SHAPES[shape])
+    rounded = make_garment(category, body, betas, resolution=0.01)
+    square = make_garment(category, body, betas, resolution=0.01, neck_fillet=0.0)
+    assert _strap_corner_angle(rounded) < 235.0
+    assert _strap_corner_angle(square) > 260.0
+    e, count = _edges(rounded.faces)
+    assert count.max() == 2
+    assert rounded.num_vertices == pytest.approx(square.num_vertices, rel=0.01)
+
+
+def test_fillet_inset_is_a_quarter_circle_tangent_at_both_ends():
+    """``fillet_inset``: the strap's inner edge at (x_in - inset(s), s) lies on the circle of
+    radius r about (x_in - r, r), from the neckline (s = 0, inset r) to the straight edge (s = r,
+    inset 0); beyond r it is the straight edge; the inset falls monotonically."""
+    r = 0.02
+    s = np.linspace(0.0, r, 201)
+    d = fillet_inset(s, r)
+    np.testing.assert_allclose((r - d) ** 2 + (s - r) ** 2, r * r, rtol=1e-12)
+    assert d[0] == pytest.approx(r) and d[-1] == pytest.approx(0.0, abs=1e-15)
+    assert np.all(np.diff(d) <= 0.0)
+    np.testing.assert_array_equal(fillet_inset(np.array([0.021, 0.1]), r), 0.0)
+    # tangent to the strap's edge at s = r (slope -> 0) and to the neckline at s = 0 (slope -> -inf)
+    assert abs(fillet_inset(r - 1e-6, r)) < 1e-9
+    assert (fillet_inset(0.0, r) - fillet_inset(1e-6, r)) / 1e-6 > 20.0
 
 
 def test_params_and_errors(body):

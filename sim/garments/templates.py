@@ -369,6 +369,10 @@ class TopParams:
         strap_width: shoulder strap width [m].
         neck_ease: gap between the neck and the inner edge of a strap [m].
         front_rise, back_rise: neckline heights above the armhole's lowest point [m].
+        neck_fillet: radius of the rounded corners where the neckline meets the straps [m], at
+            most what leaves a neckline four edges wide; 0: square corners, where stress
+            concentrates in the cloth (a re-entrant corner) and the largest edge strain grows as
+            the mesh is refined.
         flare: extra radius at the hem relative to the hips [-] (dresses).
         sleeve_length: sleeve length from the shoulder joint along the arm [m]; 0 = none
             (the armholes stay open); sleeves stop 3 cm before the wrist.
@@ -381,6 +385,7 @@ class TopParams:
     neck_ease: float = 0.02
     front_rise: float = 0.08
     back_rise: float = 0.10
+    neck_fillet: float = 0.02
     flare: float = 0.0
     sleeve_length: float = 0.0
 
@@ -401,6 +406,27 @@ def _pieces(row: np.ndarray, cuts: list[int], h: float) -> list[np.ndarray]:
 
 def _join(pieces: list[np.ndarray]) -> np.ndarray:
     return np.concatenate([pieces[0]] + [q[1:] for q in pieces[1:]])
+
+
+def fillet_inset(s: np.ndarray | float, radius: float) -> np.ndarray:
+    """How far [m] a quarter-circle fillet of ``radius`` [m] reaches beyond a strap's straight
+    inner edge at distance ``s`` [m] along the strap from the neckline: ``radius`` at the
+    neckline (where the fillet meets it tangentially), 0 from ``radius`` on (where it meets the
+    strap's edge tangentially)."""
+    d = np.clip(radius - np.asarray(s, dtype=float), 0.0, radius)
+    return radius - np.sqrt(np.maximum(radius * radius - d * d, 0.0))
+
+
+def _extend_inner(row: np.ndarray, inner: int, inset: float, h: float) -> np.ndarray:
+    """A strap row extended at its ``inner`` end (0 or -1) by ``inset`` [m] in |x|, straight on
+    along the row's last segment, then resampled at ``h``."""
+    if inset <= 1e-9:
+        return row
+    a, b = (row[0], row[1]) if inner == 0 else (row[-1], row[-2])
+    t = (a - b) / max(abs(a[0] - b[0]), 1e-9)  # unit step in |x|
+    tip = a + inset * t
+    ext = np.vstack([tip, row]) if inner == 0 else np.vstack([row, tip])
+    return resample(ext, h, min_segments=2)
 
 
 def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) -> list[Panel]:
@@ -432,6 +458,10 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
     x_out = min(x_in + p.strap_width, 0.93 * abs(j[16, 0]))  # stays inside the shoulder joint
     if x_out - x_in < 0.03:
         raise WrinklesInputError(f"strap_width {p.strap_width} m: the shoulder is too narrow for a strap")
+    # the rounded corners take the neckline's ends: it runs between -x_neck and x_neck, at least
+    # four edges wide (a coarse mesh gets smaller corners)
+    fillet = min(p.neck_fillet, max(x_in - 2 * h, 0.0))
+    x_neck = x_in - fillet
     hn = _RING_SAMPLES // 2
     n_rows = max(3, int(round(length / hv)) + 1)
     y_hip, y_hem = j[1, 1], y_top - length
@@ -459,9 +489,9 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
     panels = [Panel("front", tuple(front), top=None), Panel("back", tuple(back), top=None)]
     # bibs between the armholes, from the necklines down to the tube
     bib_mask = np.abs(v[:, 0]) <= x_out + 0.03
-    ends, bibs, strap_rows = {}, {}, {}
-    for name, rise, xs in (("front", p.front_rise, [x_out, x_in, -x_in, -x_out]),
-                           ("back", p.back_rise, [-x_out, -x_in, x_in, x_out])):
+    ends, cores, bibs, strap_rows = {}, {}, {}, {}
+    for name, rise, xs in (("front", p.front_rise, [x_out, x_neck, -x_neck, -x_out]),
+                           ("back", p.back_rise, [-x_out, -x_neck, x_neck, x_out])):
         n_bib = max(1, int(round(rise / hv)))
         rows = []
         for y in y_top + rise * np.linspace(1.0, 0.0, n_bib + 1)[:-1]:
@@ -473,15 +503,22 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
                 tp = _pieces(hr[cuts[0]: cuts[3] + 1], [c - cuts[0] for c in cuts[1:3]], h)
                 rows.append(_join(tp))
                 ends[name] = tp
+                # the straps' straight parts (|x| from x_in), which their columns follow
+                c_in = _cut_indices(hr, [xs[0], np.sign(xs[0]) * x_in, -np.sign(xs[0]) * x_in, xs[3]])
+                cores[name] = (resample(hr[c_in[0]: c_in[1] + 1], h, min_segments=1),
+                               resample(hr[c_in[2]: c_in[3] + 1], h, min_segments=1))
             else:
                 rows.append(resample(hr[cuts[0]: cuts[3] + 1], h, min_segments=2))
         rows.append(bib_bottom[name])
         panels.append(Panel(f"{name}_bib", tuple(rows), top=None, bottom=None, local_spacing=True))
         bibs[name] = rows
-    # straps, rows running towards +x: (front end reversed, back end)
-    straps = {"left": (ends["front"][0][::-1], ends["back"][2]),
-              "right": (ends["front"][2][::-1], ends["back"][0])}
-    for side, (fe, be) in straps.items():
+    # straps, rows running towards +x: (front end reversed, back end); their columns follow the
+    # straight parts (from x_in), the rows near either end reach on into the rounded corners
+    straps = {
+        "left": (ends["front"][0][::-1], ends["back"][2], cores["front"][0][::-1], cores["back"][1], 0),
+        "right": (ends["front"][2][::-1], ends["back"][0], cores["front"][1][::-1], cores["back"][0], -1),
+    }
+    for side, (fe_row, be_row, fe, be, inner) in straps.items():
         n_u = max(len(fe), len(be), 3)
         u = np.linspace(0.0, 1.0, n_u)
         sf, sb = arc_length(fe), arc_length(be)
@@ -507,12 +544,17 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
         s_mid = arc_length(paths[len(paths) // 2])
         n_k = max(4, int(round(s_mid[-1] / hv)))
         n_k += n_k % 2  # even: a middle row on the shoulder line
-        t_k = np.interp(np.linspace(0.0, s_mid[-1], n_k + 1), s_mid, t)
-        rows = [fe]
-        for tk in t_k[1:-1]:
+        s_k = np.linspace(0.0, s_mid[-1], n_k + 1)
+        if 2.0 * fillet > s_mid[-1]:
+            raise WrinklesInputError(f"neck_fillet {p.neck_fillet} m is more than half the strap's length "
+                                     f"over the shoulder ({s_mid[-1]:.3f} m)")
+        t_k = np.interp(s_k, s_mid, t)
+        rows = [fe_row]
+        for sk, tk in zip(s_k[1:-1], t_k[1:-1], strict=True):
             row = np.stack([[np.interp(tk, t, pa[:, c]) for c in range(3)] for pa in paths])
-            rows.append(resample(row, h, min_segments=2))
-        rows.append(be)
+            inset = float(fillet_inset(min(sk, s_mid[-1] - sk), fillet))
+            rows.append(_extend_inner(resample(row, h, min_segments=2), inner, inset, h))
+        rows.append(be_row)
         panels.append(Panel(f"{side}_strap", tuple(rows), top=None, bottom=None,
                             local_spacing=True, marks=((n_k // 2, "shoulders"),)))
         strap_rows[side] = rows
@@ -621,15 +663,15 @@ TEMPLATES: dict[str, Template] = {
     "trousers": Template(PantsParams, {}, pants_panels, ("waistband", "hem"),
                          "full-length trousers, hem above the ankle", 0.02, 0.0075, (3100, 21548)),
     "tank_top": Template(TopParams, {}, tank_top_panels, ("shoulders", "hem"),
-                         "sleeveless top with shoulder straps", 0.015, 0.006, (3210, 19226)),
+                         "sleeveless top with shoulder straps", 0.015, 0.006, (3210, 19230)),
     "t_shirt": Template(TopParams, {**_SLEEVED, "sleeve_length": 0.2}, tank_top_panels,
-                        ("shoulders", "hem", "cuffs"), "short-sleeved shirt", 0.018, 0.007, (3056, 19497)),
+                        ("shoulders", "hem", "cuffs"), "short-sleeved shirt", 0.018, 0.007, (3056, 19500)),
     "long_sleeve": Template(TopParams, {**_SLEEVED, "sleeve_length": 1.0}, tank_top_panels,
                             ("shoulders", "hem", "cuffs"), "long-sleeved shirt, cuffs before the wrists",
-                            0.02, 0.0075, (3082, 21394)),
+                            0.02, 0.0075, (3082, 21396)),
     "dress": Template(TopParams, {"length": 0.95, "flare": 0.35, "ease": 0.025}, tank_top_panels,
                       ("shoulders", "hem"), "sleeveless strap dress flaring below the hips", 0.0235, 0.009,
-                      (3185, 20788)),
+                      (3183, 20787)),
 }
 
 GARMENT_ALIASES: dict[str, str] = {
@@ -708,6 +750,7 @@ PARAM_RANGES: dict[str, tuple[float, float]] = {
     "strap_width": (0.02, 0.2),
     "neck_ease": (0.0, 0.1),
     "front_rise": (0.0, 0.3),
+    "neck_fillet": (0.0, 0.08),
     "back_rise": (0.0, 0.3),
     "sleeve_length": (0.0, 1.0),
 }
