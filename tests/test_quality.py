@@ -48,6 +48,26 @@ def test_edge_strain_of_scaled_mesh_is_exact(device):
     np.testing.assert_allclose(s[2], -0.2, atol=1e-5)
 
 
+def test_edge_strain_of_an_anisotropic_stretch_matches_each_edge(device):
+    """``edge_strain`` (the gates' strain, which ``benchmarks.worst_edges`` ranks): a sheet
+    stretched 10 % along x and then squeezed 20 % along y gives its x edges strain 0.1 then 0,
+    its y edges 0 then -0.2, and its diagonals the analytic value; every mesh edge appears once."""
+    from tests.test_cloth_solver import grid as sheet
+
+    v, f = sheet(4, 3, 0.3, 0.2)
+    v = v.astype(np.float64)
+    frames = np.stack([v * [1.1, 1.0, 1.0], v * [1.0, 0.8, 1.0]])
+    e, strain = unique_edges(f), edge_strain(frames, v, f, device=device)
+    assert len(e) == len({tuple(sorted(t)) for t in f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2).tolist()})
+    d = v[e[:, 1]] - v[e[:, 0]]
+    expect = [np.linalg.norm(d * s, axis=1) / np.linalg.norm(d, axis=1) - 1.0
+              for s in ([1.1, 1, 1], [1, 0.8, 1])]
+    np.testing.assert_allclose(strain, np.stack(expect), atol=1e-6)
+    along_x = np.abs(d[:, 1]) < 1e-9
+    np.testing.assert_allclose(strain[0, along_x], 0.1, atol=1e-6)
+    np.testing.assert_allclose(strain[1, ~along_x & (np.abs(d[:, 0]) < 1e-9)], -0.2, atol=1e-6)
+
+
 def test_inside_fraction_sphere(device):
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
     rng = np.random.default_rng(0)
