@@ -6,21 +6,70 @@ the largest strain ``l / l0 - 1`` over the motion's frames. Written: the run's m
 strain, how many edges exceed 0.2 and the 0.35 gate, and the worst edges with their frame, rest
 length, triangles per end vertex, panel and rest position. The max-strain gate is set by a few
 edges; this shows whether they sit at a feature of the pattern (session 26: the neckline's
-square corners) or spread over the garment.
+square corners) or spread over the garment. It also lists, per sequence, the frames with
+self-intersections and the edges that cross at the first of them; ``--copies K`` runs the same
+motions K times in one batched model beside the runs alone, to tell a batch's result from a
+single garment's.
 
     python -m benchmarks.worst_edges --device cuda --vertices 20000 --motion run --tag _19k_run
     python -m benchmarks.worst_edges --device cpu --vertices 1000 --seconds 0.5 --param neck_fillet=0
+  python -m benchmarks.worst_edges --device cuda --vertices 20000 --setting 20x5 --motion walk,run --copies 8
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import time
 
 import numpy as np
 
 from benchmarks.common import machine, write_result
+
+
+def _edge_rows(keys, worst, strain, rest, e, tris, panel, names) -> list[dict]:
+    rows = []
+    for k in keys:
+        a, b = (int(i) for i in e[k])
+        row = {"edge": [a, b], "rest_length_mm": float(1000.0 * np.linalg.norm(rest[a] - rest[b])),
+               "triangles": [int(tris[a]), int(tris[b])], "panel": names[panel[a]],
+               "rest_position": np.round(rest[a], 4).tolist()}
+        if worst is not None:
+            row = {"edge": [a, b], "strain": float(worst[k]), "frame": int(strain[:, k].argmax()), **row}
+        rows.append(row)
+    return rows
+
+
+def describe(result, g, device: str, n_worst: int) -> dict:
+    """One sequence's strain and crossing figures: the worst edges, and the edges that cross a
+    face at the first frame with crossings (panel and rest position of each)."""
+    from sim.quality import SimulationError, crossing_edges, edge_strain, unique_edges
+
+    if isinstance(result, SimulationError):
+        return {"error": str(result)}
+    rest = g.rest_vertices
+    e = unique_edges(g.faces)
+    x = result.sequence.vertices
+    # the quality gates' own strain (l / l0 - 1 per edge and frame), so the worst edge is the gate's
+    strain = edge_strain(x, rest, g.faces, device=device)
+    worst = strain.max(axis=0)
+    tris = np.bincount(g.faces.ravel(), minlength=len(rest))
+    panel = np.full(len(rest), -1)
+    panel[g.faces.ravel()] = np.repeat(g.panel_ids, 3)
+    crossings = np.asarray(result.quality.self_intersections)
+    out = {"ms_per_frame": float(np.mean(result.step_ms)), "failed_gates": list(result.failed_gates),
+           "max_strain": float(worst.max()), "mean_strain": float(np.abs(strain).mean()),
+           "edges_over_0.2": int((worst > 0.2).sum()), "edges_over_0.35": int((worst > 0.35).sum()),
+           "worst": _edge_rows(np.argsort(-worst)[:n_worst], worst, strain, rest, e, tris, panel,
+                               g.panel_names),
+           "crossings_per_frame": {int(t): int(c) for t, c in enumerate(crossings) if c}}
+    if crossings.any():
+        t = int(np.flatnonzero(crossings)[0])
+        hit = np.flatnonzero(crossing_edges(x[t], g.faces, device=device))
+        out["first_crossing_frame"] = t
+        out["crossing_edges"] = _edge_rows(hit[:20], None, None, rest, e, tris, panel, g.panel_names)
+    return out
 
 
 def main() -> None:
@@ -29,17 +78,24 @@ def main() -> None:
     from sim.device import resolve_device
     from sim.garments import make_garment
     from sim.motions import load_motion
-    from sim.quality import edge_strain, unique_edges
     from sim.simulate import SimulationConfig, SimulationJob, simulate_batch
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default="auto")
     ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: %(default)s)")
-    ap.add_argument("--motion", default="walk")
+    ap.add_argument("--motion", default="walk",
+                    help="motion, or a comma list of motions (default: %(default)s)")
     ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s]")
+    ap.add_argument("--setting", default="", metavar="SxI",
+                    help="substeps x sweeps, e.g. 20x5 (default: the job default, SimulationConfig)")
     ap.add_argument("--solver", default="{}", help="JSON dict of extra VBDConfig fields")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                     help="a t-shirt template parameter, e.g. neck_fillet=0 (repeatable)")
+    ap.add_argument("--copies", type=int, default=0, metavar="K",
+                    help="also run every motion K times in one batched model and report each member, "
+                    "beside the runs alone (default: %(default)s, off)")
+    ap.add_argument("--keep-prelude", action="store_true",
+                    help="count the settle and blend frames too (frame 0 is then the settle's first)")
     ap.add_argument("--worst", type=int, default=15, help="edges to list (default: %(default)s)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
@@ -50,37 +106,40 @@ def main() -> None:
             params[name] = float(value)
         except ValueError:
             raise SystemExit(f"--param: expected NAME=NUMBER, got {item!r}") from None
+    setting = {}
+    if args.setting:
+        m = re.fullmatch(r"(\d+)x(\d+)", args.setting)
+        if m is None:
+            raise SystemExit(f"--setting: expected SUBSTEPSxSWEEPS such as 20x5, got {args.setting!r}")
+        setting = {"substeps": int(m[1]), "iterations": int(m[2])}
     device = resolve_device(args.device)
     body = load_default_body()
     _, edge = build_garment(body, args.vertices)
     g = make_garment("t_shirt", body, None, resolution=edge, **params)
-    motion = load_motion(args.motion, fps=30.0, duration=args.seconds)
-    cfg = SimulationConfig(device=device, solver=json.loads(args.solver))
+    names = args.motion.split(",")
+    motions = [load_motion(n, fps=30.0, duration=args.seconds) for n in names]
+    cfg = SimulationConfig(device=device, solver=json.loads(args.solver), keep_prelude=args.keep_prelude,
+                           **setting)
+    runs = {}
     t0 = time.perf_counter()
-    r = simulate_batch([SimulationJob(g, body, motion, None)], config=cfg, failures="raise")[0]
+    for n, mot in zip(names, motions, strict=True):
+        r = simulate_batch([SimulationJob(g, body, mot, None)], config=cfg, failures="return")[0]
+        runs[f"alone {n}"] = describe(r, g, device, args.worst)
+    if args.copies > 0:
+        jobs = [SimulationJob(g, body, mot, None) for _ in range(args.copies) for mot in motions]
+        results = simulate_batch(jobs, config=cfg, failures="return")
+        for k, r in enumerate(results):
+            label = f"batch of {len(jobs)}, member {k} {names[k % len(names)]}"
+            runs[label] = describe(r, g, device, args.worst)
     wall = time.perf_counter() - t0
-    # the quality gates' own strain (l / l0 - 1 per edge and frame), so the worst edge is the gate's
-    rest = g.rest_vertices
-    e = unique_edges(g.faces)
-    strain = edge_strain(r.sequence.vertices, rest, g.faces, device=device)
-    worst = strain.max(axis=0)
-    tris = np.bincount(g.faces.ravel(), minlength=len(rest))
-    panel = np.full(len(rest), -1)
-    panel[g.faces.ravel()] = np.repeat(g.panel_ids, 3)
-    rows = []
-    for k in np.argsort(-worst)[: args.worst]:
-        a, b = (int(i) for i in e[k])
-        rows.append({"edge": [a, b], "strain": float(worst[k]), "frame": int(strain[:, k].argmax()),
-                     "rest_length_mm": float(1000.0 * np.linalg.norm(rest[a] - rest[b])),
-                     "triangles": [int(tris[a]), int(tris[b])], "panel": g.panel_names[panel[a]],
-                     "rest_position": np.round(rest[a], 4).tolist()})
+    for label, d in runs.items():
+        print(f"{label}: max strain {d.get('max_strain', float('nan')):.3f}, crossings by frame "
+              f"{d.get('crossings_per_frame', d.get('error'))}", flush=True)
+    first = runs[f"alone {names[0]}"]
     write_result(f"worst_edges_{device.split(':')[0]}{args.tag}", {
-        "machine": machine(device), "vertices": len(rest), "motion": args.motion, "seconds": args.seconds,
-        "solver": json.loads(args.solver), "params": params, "wall_s": wall,
-        "ms_per_frame": float(np.mean(r.step_ms)), "failed_gates": list(r.failed_gates),
-        "max_strain": float(worst.max()), "mean_strain": float(np.abs(strain).mean()),
-        "edges_over_0.2": int((worst > 0.2).sum()), "edges_over_0.35": int((worst > 0.35).sum()),
-        "worst": rows,
+        "machine": machine(device), "vertices": len(g.rest_vertices), "motion": args.motion,
+        "seconds": args.seconds, "setting": args.setting or "default", "solver": json.loads(args.solver),
+        "params": params, "copies": args.copies, "wall_s": wall, **first, "runs": runs,
     })
 
 

@@ -202,27 +202,84 @@ def test_no_self_intersection_at_rest(garments, shape):
 
 
 @pytest.mark.parametrize("category", ["t_shirt", "long_sleeve"])
-def test_sleeve_that_dipped_through_the_back_panel_is_untangled(body, category):
+def test_sleeve_that_dipped_through_the_back_panel_no_longer_does(body, category):
     """A shape and resolution where the sleeve's first rows crossed the back panel under the arm
-    (17 edge-face crossings before the rest shape was untangled)."""
+    (17 edge-face crossings; until session 28 ``_untangle`` smoothed them out). The cause was
+    the left sleeve taking each row point's x from the mirrored armhole loop; the raw build is
+    now clean."""
     from sim.garments.panels import sew
-    from sim.garments.templates import BodyMeasure, _untangle, make_params
+    from sim.garments.templates import BodyMeasure, make_params
     from sim.quality import crossing_edges
 
     betas = body.full_betas(np.array([0.12573022, -0.13210486, 0.64042264, 0.10490011], np.float32))
     g = make_garment(category, body, betas, resolution=0.0125)
-    assert not crossing_edges(g.rest_vertices, g.faces, device="cpu").any()
-    # against the raw build: only sleeve vertices moved, by less than a few edge lengths
     raw = sew(TEMPLATES[category].build(BodyMeasure.of(body, betas), make_params(category), 0.0125,
                                 g.material.thickness))
-    assert crossing_edges(raw.vertices, raw.faces, device="cpu").sum() > 0  # the case still needs it
-    moved = np.linalg.norm(raw.vertices - g.rest_vertices, axis=1) > 1e-7
+    assert not crossing_edges(raw.vertices, raw.faces, device="cpu").any()
+    np.testing.assert_array_equal(raw.vertices.astype(np.float32), g.rest_vertices)
+
+
+@pytest.mark.parametrize("category", ["t_shirt", "long_sleeve"])
+def test_a_sleeve_vertex_through_the_back_panel_is_untangled(body, category):
+    """``_untangle``, the rest shape's safety net: a sleeve vertex pushed 1 cm through the back
+    panel (past the back vertex nearest to it) is smoothed back. No edge crosses a face after,
+    only sleeve vertices move, and the result lies within an edge length of the clean shape."""
+    from sim.garments.templates import _untangle
+    from sim.quality import crossing_edges
+
+    h = 0.0125
+    g = make_garment(category, body, None, resolution=h)
+    v = g.rest_vertices.astype(np.float64)
     names = np.array(g.panel_names)[g.panel_ids]
-    moved_faces = moved[g.faces].any(axis=1)
-    assert moved.any() and all("sleeve" in n for n in names[moved_faces & moved[g.faces].all(axis=1)])
-    assert np.linalg.norm(raw.vertices - g.rest_vertices, axis=1).max() < 3 * 0.0125
+    sleeve_v = np.unique(g.faces[np.char.find(names.astype(str), "sleeve") >= 0].ravel())
+    back_v = np.unique(g.faces[names == "back"].ravel())
+    only_sleeve = np.setdiff1d(sleeve_v, back_v)
+    d = np.linalg.norm(v[only_sleeve][:, None] - v[back_v][None], axis=2)
+    i, j = np.unravel_index(d.argmin(), d.shape)
+    a, b = only_sleeve[i], back_v[j]
+    tangled = v.copy()
+    tangled[a] = v[b] + 0.01 * (v[b] - v[a]) / np.linalg.norm(v[b] - v[a])
+    assert crossing_edges(tangled, g.faces, device="cpu").sum() > 0
+    out = _untangle(tangled, g.faces, g.panel_ids, list(g.panel_names))
+    assert not crossing_edges(out, g.faces, device="cpu").any()
+    moved = np.linalg.norm(out - tangled, axis=1) > 1e-9
+    assert moved.any() and np.isin(np.flatnonzero(moved), only_sleeve).all()
+    assert np.linalg.norm(out - v, axis=1).max() < h
     # a clean mesh passes through unchanged
     assert _untangle(g.rest_vertices, g.faces, g.panel_ids, list(g.panel_names)) is g.rest_vertices
+
+
+@pytest.mark.parametrize("category", list(TEMPLATES))
+def test_fine_template_has_no_long_edges_or_slivers(body, category):
+    """At the fine resolution (~20k vertices) no edge is longer than 2.7 median edges and no
+    corner is under 12°. Before session 28 a fine sleeve's first row jumped 4 row spacings off
+    the armhole (edges 4.4 medians long, where a batched run's cloth crossed itself) and hip
+    rings shifted sideways by their hull's vertex mean (7° corners on the shorts)."""
+    from sim.quality import unique_edges
+
+    g = make_garment(category, body, resolution="fine")
+    e = unique_edges(g.faces)
+    length = np.linalg.norm(g.rest_vertices[e[:, 0]] - g.rest_vertices[e[:, 1]], axis=1)
+    assert length.max() < 2.7 * np.median(length), (category, length.max() / np.median(length))
+    assert corner_angles(g.rest_vertices, g.faces).min() > 12.0
+
+
+@pytest.mark.parametrize("shape", list(SHAPES))
+def test_fine_sleeves_follow_the_armhole(body, shape):
+    """Each sleeve row stays within reach of the one before, on both sides: at the fine
+    resolution no sleeve edge is longer than 2.6 median edges for any body shape (the left
+    sleeve, built from the mirrored loop, had edges 3.1 medians long on the tall body)."""
+    from sim.quality import unique_edges
+
+    for category in ("t_shirt", "long_sleeve"):
+        g = make_garment(category, body, parse_shape(SHAPES[shape]), resolution="fine")
+        e = unique_edges(g.faces)
+        length = np.linalg.norm(g.rest_vertices[e[:, 0]] - g.rest_vertices[e[:, 1]], axis=1)
+        for side in ("left_sleeve", "right_sleeve"):
+            on = np.zeros(g.num_vertices, bool)
+            on[g.faces[g.panel_ids == g.panel_names.index(side)].ravel()] = True
+            worst = length[on[e[:, 0]] & on[e[:, 1]]].max() / np.median(length)
+            assert worst < 2.6, (category, shape, side, worst)
 
 
 @pytest.mark.parametrize("shape", list(SHAPES))

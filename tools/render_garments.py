@@ -142,9 +142,9 @@ def measure(body) -> None:
         row.append(f"{times[0]:.2f} s")
         print("| " + " | ".join(row) + " |", flush=True)
     print()
-    print("| template | resolution | edge p95/p5 | min angle | UV angle mean / p95 / max | "
-          "UV area p5 / p95 | texel at 512² | mean edge at 256² | UV fill |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| template | resolution | edge p95/p5 | longest / median edge | min angle | "
+          "UV angle mean / p95 / max | UV area p5 / p95 | texel at 512² | mean edge at 256² | UV fill |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for name, res, g in quality:
         v, f = g.rest_vertices.astype(np.float64), g.faces
         e = np.unique(np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
@@ -152,7 +152,8 @@ def measure(body) -> None:
         ang = corner_angles(v, f)
         s = uv_stats(g.rest_vertices, g.faces, g.uvs, g.uv_faces)
         print(f"| {name} | {res} | {np.percentile(el, 95) / np.percentile(el, 5):.2f} | "
-              f"{np.min(ang):.0f}° | {s.angle_mean:.3f} / {s.angle_p95:.3f} / {s.angle_max:.2f} | "
+              f"{el.max() / np.median(el):.2f} | {np.min(ang):.0f}° | "
+              f"{s.angle_mean:.3f} / {s.angle_p95:.3f} / {s.angle_max:.2f} | "
               f"{s.area_p5:.3f} / {s.area_p95:.3f} | {1000 / (2 * s.texels_per_metre_256):.1f} mm | "
               f"{s.mean_edge_texels_256:.1f} px | {s.fill:.2f} |", flush=True)
 

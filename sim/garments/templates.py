@@ -102,6 +102,14 @@ def offset_hull(points_xz: np.ndarray, offset: float) -> np.ndarray:
     return pts[hull.vertices]
 
 
+def _ring_center(hull_xz: np.ndarray) -> np.ndarray:
+    """(0, z) of a hull's area centroid in (x, z): the centre a ring's angles are taken about,
+    on the body's mid-plane so both halves of a ring split there. The mean of the hull's
+    vertices moved a ring's side points by up to 16 mm between rows 5 mm apart, as clusters of
+    hull vertices came and went; the centroid moves continuously with the hull."""
+    return np.array([0.0, _centroid(hull_xz)[1]])
+
+
 def polar_ring(hull_xz: np.ndarray, center: np.ndarray, y: float, n: int = _RING_SAMPLES) -> np.ndarray:
     """Points of a convex polygon at ``n + 1`` equal angles θ ∈ [0, 2π] around ``center``.
 
@@ -160,7 +168,7 @@ def skirt_panels(m: BodyMeasure, p: SkirtParams, h: float, thickness: float) -> 
         below_waist = (y_waist - y) / max(y_waist - y_hip, 1e-3)
         off = margin + p.waist_ease + (p.ease - p.waist_ease) * _smoothstep(below_waist)
         hull = offset_hull(acc, off)
-        center = np.array([0.0, hull[:, 1].mean()])
+        center = _ring_center(hull)
         if p.flare:
             k = 1.0 + p.flare * float(_smoothstep((j[1, 1] - y) / max(length - (y_waist - y_hip), 1e-3)))
             hull = center + (hull - center) * k
@@ -195,6 +203,11 @@ LEG_CLIP = 0.0015
 """Leg tubes stay at |x| >= 1.5 mm so the two legs never cross between the thighs [m]."""
 BLEND = 0.06
 """Height over which a leg's rows blend from the crotch loop to the leg's own hull [m]."""
+
+SLEEVE_STEP = 1.0
+"""Most a sleeve row's radius (about the arm) changes from the previous row's, in row spacings:
+where the armhole loop lies inside the arm's hull (under the arm, whose hull takes in the
+torso's side) the rows reach the hull over a few rows instead of in one jump."""
 
 
 def _polar(poly_xz: np.ndarray, center: np.ndarray, theta: np.ndarray):
@@ -304,7 +317,7 @@ def pants_panels(m: BodyMeasure, p: PantsParams, h: float, thickness: float) -> 
     ring = None
     for y in np.linspace(y_waist, y_c, n_up):
         hull = offset_hull(m.band(float(y) - half, float(y) + half, m.torso_mask), ease_at(float(y)))
-        ring = polar_ring(hull, np.array([0.0, hull[:, 1].mean()]), float(y))
+        ring = polar_ring(hull, _ring_center(hull), float(y))
         hn = _RING_SAMPLES // 2
         front.append(resample(ring[: hn + 1], h, min_segments=2))
         back.append(resample(ring[hn:], h, min_segments=2))
@@ -471,7 +484,7 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
         acc = np.concatenate([acc, m.band(float(y) - half, float(y) + half, m.torso_mask)])
         acc = acc[ConvexHull(acc).vertices]  # hanging cloth: hull of all that is above
         hull = offset_hull(acc, margin + p.ease)
-        center = np.array([0.0, hull[:, 1].mean()])
+        center = _ring_center(hull)
         if p.flare and y < y_hip:
             grow = p.flare * float(_smoothstep((y_hip - y) / (y_hip - y_hem)))
             hull = center + (hull - center) * (1.0 + grow)
@@ -496,7 +509,7 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
         rows = []
         for y in y_top + rise * np.linspace(1.0, 0.0, n_bib + 1)[:-1]:
             hull = offset_hull(m.band(float(y) - half, float(y) + half, bib_mask), margin + p.ease)
-            ring = polar_ring(hull, np.array([0.0, hull[:, 1].mean()]), float(y))
+            ring = polar_ring(hull, _ring_center(hull), float(y))
             hr = ring[: hn + 1] if name == "front" else ring[hn:]
             cuts = _cut_indices(hr, xs)
             if not rows:  # the neckline row: strap ends as exact pieces
@@ -603,11 +616,13 @@ def _sleeve_panel(m: BodyMeasure, p: TopParams, h: float, margin: float, loop: n
     # the left loop is walked backwards (mirror image), so both sleeves' windings match the body
     if sign > 0:
         loop = loop[::-1].copy()
+        x_d = x_d[::-1]  # indexed like the loop (``_polar`` returns the loop's segments)
     theta = np.arctan2(*(loop[0, [1, 2]] - c0[::-1])) - sign * np.linspace(0.0, 2 * np.pi, _RING_SAMPLES + 1)
     qz = loop[:, [2, 1]]
     r_d, edge, s_d = _polar(qz, c0, theta)
     xd = x_d[edge] + s_d * (np.roll(x_d, -1)[edge] - x_d[edge])
     rows = [loop]
+    r_prev = r_d
     for k in range(1, n_sl + 1):
         s = float(_smoothstep(k / n_blend))
         s_x = min(1.0, k / n_fade)
@@ -615,7 +630,11 @@ def _sleeve_panel(m: BodyMeasure, p: TopParams, h: float, margin: float, loop: n
         hull = arm_hull(float(xk.min()) - half, float(xk.max()) + half)
         c = _row_center(c0, hull, k - max(n_blend, n_fade), n_blend)
         r_a = _polar(hull, c, theta)[0]
-        r = np.maximum((1 - s) * r_d + s * r_a, r_a)
+        # outside the arm's hull, moving at most SLEEVE_STEP row spacings radially per row (a jump
+        # to the hull under the arm left a gap of 4 rows between the loop and a fine sleeve's first)
+        r = np.clip(np.maximum((1 - s) * r_d + s * r_a, r_a), r_prev - SLEEVE_STEP * hv,
+                    r_prev + SLEEVE_STEP * hv)
+        r_prev = r
         row = np.stack([sign * xk, c[1] + r * np.sin(theta), c[0] + r * np.cos(theta)], axis=1)
         row[-1] = row[0]
         rows.append(resample(row, h, min_segments=3))
@@ -654,24 +673,24 @@ _SLEEVED = {"length": 0.42, "strap_width": 0.1, "front_rise": 0.11, "back_rise":
 TEMPLATES: dict[str, Template] = {
     "straight_skirt": Template(SkirtParams, {}, skirt_panels, ("waistband", "hem"),
                                "knee-length straight skirt hanging from the waist", 0.0155, 0.006,
-                               (3003, 19626)),
+                               (3004, 19634)),
     "flared_skirt": Template(SkirtParams, {"flare": 0.6, "length": 0.6, "ease": 0.02}, skirt_panels,
                              ("waistband", "hem"), "A-line skirt widening below the hips", 0.018, 0.007,
-                             (3008, 19663)),
+                             (3009, 19668)),
     "shorts": Template(PantsParams, {"length": 0.45, "ease": 0.02}, pants_panels, ("waistband", "hem"),
-                       "shorts: hip tube split into two legs at the crotch", 0.0145, 0.0055, (3146, 21268)),
+                       "shorts: hip tube split into two legs at the crotch", 0.0145, 0.0055, (3146, 21274)),
     "trousers": Template(PantsParams, {}, pants_panels, ("waistband", "hem"),
-                         "full-length trousers, hem above the ankle", 0.02, 0.0075, (3100, 21548)),
+                         "full-length trousers, hem above the ankle", 0.02, 0.0075, (3099, 21558)),
     "tank_top": Template(TopParams, {}, tank_top_panels, ("shoulders", "hem"),
-                         "sleeveless top with shoulder straps", 0.015, 0.006, (3210, 19230)),
+                         "sleeveless top with shoulder straps", 0.015, 0.006, (3218, 19209)),
     "t_shirt": Template(TopParams, {**_SLEEVED, "sleeve_length": 0.2}, tank_top_panels,
-                        ("shoulders", "hem", "cuffs"), "short-sleeved shirt", 0.018, 0.007, (3056, 19500)),
+                        ("shoulders", "hem", "cuffs"), "short-sleeved shirt", 0.018, 0.007, (3061, 19542)),
     "long_sleeve": Template(TopParams, {**_SLEEVED, "sleeve_length": 1.0}, tank_top_panels,
                             ("shoulders", "hem", "cuffs"), "long-sleeved shirt, cuffs before the wrists",
-                            0.02, 0.0075, (3082, 21396)),
+                            0.02, 0.0075, (3079, 21438)),
     "dress": Template(TopParams, {"length": 0.95, "flare": 0.35, "ease": 0.025}, tank_top_panels,
                       ("shoulders", "hem"), "sleeveless strap dress flaring below the hips", 0.0235, 0.009,
-                      (3183, 20787)),
+                      (3193, 20786)),
 }
 
 GARMENT_ALIASES: dict[str, str] = {
