@@ -29,14 +29,17 @@ from benchmarks.common import machine, write_result
 
 
 def _edge_rows(keys, worst, strain, rest, e, tris, panel, names) -> list[dict]:
+    """One dict per edge index in ``keys``: its strain and frame (unless ``worst`` is None), rest
+    length, triangles per end, panel and rest position."""
     rows = []
     for k in keys:
         a, b = (int(i) for i in e[k])
-        row = {"edge": [a, b], "rest_length_mm": float(1000.0 * np.linalg.norm(rest[a] - rest[b])),
-               "triangles": [int(tris[a]), int(tris[b])], "panel": names[panel[a]],
-               "rest_position": np.round(rest[a], 4).tolist()}
+        row = {"edge": [a, b]}
         if worst is not None:
-            row = {"edge": [a, b], "strain": float(worst[k]), "frame": int(strain[:, k].argmax()), **row}
+            row.update(strain=float(worst[k]), frame=int(strain[:, k].argmax()))
+        row.update({"rest_length_mm": float(1000.0 * np.linalg.norm(rest[a] - rest[b])),
+                    "triangles": [int(tris[a]), int(tris[b])], "panel": names[panel[a]],
+                    "rest_position": np.round(rest[a], 4).tolist()})
         rows.append(row)
     return rows
 

@@ -32,6 +32,27 @@ def garments(body):
     return {(c, s): make_garment(c, body, parse_shape(spec)) for c in TEMPLATES for s, spec in SHAPES.items()}
 
 
+@pytest.fixture(scope="module")
+def fine(body):
+    """Fine-resolution garments, built once per (category, shape) on first use."""
+    cache = {}
+
+    def get(category: str, shape: str = "mean"):
+        if (category, shape) not in cache:
+            cache[(category, shape)] = make_garment(category, body, parse_shape(SHAPES[shape]),
+                                                    resolution="fine")
+        return cache[(category, shape)]
+    return get
+
+
+def _edge_lengths(g) -> np.ndarray:
+    """Length [m] of every edge of a garment (``sim.quality.unique_edges``)."""
+    from sim.quality import unique_edges
+
+    e = unique_edges(g.faces)
+    return np.linalg.norm(g.rest_vertices[e[:, 0]] - g.rest_vertices[e[:, 1]], axis=1)
+
+
 def _edges(faces):
     e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     return np.unique(e, axis=0, return_counts=True)
@@ -250,31 +271,28 @@ def test_a_sleeve_vertex_through_the_back_panel_is_untangled(body, category):
 
 
 @pytest.mark.parametrize("category", list(TEMPLATES))
-def test_fine_template_has_no_long_edges_or_slivers(body, category):
+def test_fine_template_has_no_long_edges_or_slivers(fine, category):
     """At the fine resolution (~20k vertices) no edge is longer than 2.7 median edges and no
     corner is under 12°. Before session 28 a fine sleeve's first row jumped 4 row spacings off
     the armhole (edges 4.4 medians long, where a batched run's cloth crossed itself) and hip
     rings shifted sideways by their hull's vertex mean (7° corners on the shorts)."""
-    from sim.quality import unique_edges
-
-    g = make_garment(category, body, resolution="fine")
-    e = unique_edges(g.faces)
-    length = np.linalg.norm(g.rest_vertices[e[:, 0]] - g.rest_vertices[e[:, 1]], axis=1)
+    g = fine(category)
+    length = _edge_lengths(g)
     assert length.max() < 2.7 * np.median(length), (category, length.max() / np.median(length))
     assert corner_angles(g.rest_vertices, g.faces).min() > 12.0
 
 
 @pytest.mark.parametrize("shape", list(SHAPES))
-def test_fine_sleeves_follow_the_armhole(body, shape):
+def test_fine_sleeves_follow_the_armhole(fine, shape):
     """Each sleeve row stays within reach of the one before, on both sides: at the fine
     resolution no sleeve edge is longer than 2.6 median edges for any body shape (the left
     sleeve, built from the mirrored loop, had edges 3.1 medians long on the tall body)."""
     from sim.quality import unique_edges
 
     for category in ("t_shirt", "long_sleeve"):
-        g = make_garment(category, body, parse_shape(SHAPES[shape]), resolution="fine")
+        g = fine(category, shape)
         e = unique_edges(g.faces)
-        length = np.linalg.norm(g.rest_vertices[e[:, 0]] - g.rest_vertices[e[:, 1]], axis=1)
+        length = _edge_lengths(g)
         for side in ("left_sleeve", "right_sleeve"):
             on = np.zeros(g.num_vertices, bool)
             on[g.faces[g.panel_ids == g.panel_names.index(side)].ravel()] = True
@@ -346,8 +364,8 @@ def test_deterministic(body, category):
 
 
 @pytest.mark.parametrize("category", ["t_shirt", "dress"])
-def test_fine_resolution_vertex_count(body, category):
-    g = make_garment(category, body, resolution="fine")
+def test_fine_resolution_vertex_count(fine, category):
+    g = fine(category)
     assert 15_000 < g.num_vertices < 30_000
     assert g.num_vertices == pytest.approx(TEMPLATES[category].vertices[1], rel=0.01)
     s = uv_stats(g.rest_vertices, g.faces, g.uvs, g.uv_faces)
