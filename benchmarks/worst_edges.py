@@ -13,7 +13,9 @@ single garment's.
 
     python -m benchmarks.worst_edges --device cuda --vertices 20000 --motion run --tag _19k_run
     python -m benchmarks.worst_edges --device cpu --vertices 1000 --seconds 0.5 --param neck_fillet=0
-  python -m benchmarks.worst_edges --device cuda --vertices 20000 --setting 20x5 --motion walk,run --copies 8
+    python -m benchmarks.worst_edges --vertices 20000 --setting 20x5 --motion walk,run --copies 8
+    python -m benchmarks.worst_edges --device cuda --vertices 20000 --motion walk --save f19.npz  # then
+    python -m benchmarks.neckline_stretch f19_walk.npz --motion walk
 """
 
 from __future__ import annotations
@@ -100,6 +102,10 @@ def main() -> None:
     ap.add_argument("--keep-prelude", action="store_true",
                     help="count the settle and blend frames too (frame 0 is then the settle's first)")
     ap.add_argument("--worst", type=int, default=15, help="edges to list (default: %(default)s)")
+    ap.add_argument("--save", default="", metavar="PATH.npz",
+                    help="also write each alone run's garment positions per frame (float32) and the "
+                    "rest mesh, one file per motion (PATH_walk.npz, ...), for a look at the worst "
+                    "frames (default: off)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
     params = {}
@@ -123,11 +129,13 @@ def main() -> None:
     motions = [load_motion(n, fps=30.0, duration=args.seconds) for n in names]
     cfg = SimulationConfig(device=device, solver=json.loads(args.solver), keep_prelude=args.keep_prelude,
                            **setting)
-    runs = {}
+    runs, frames = {}, {}
     t0 = time.perf_counter()
     for n, mot in zip(names, motions, strict=True):
         r = simulate_batch([SimulationJob(g, body, mot, None)], config=cfg, failures="return")[0]
         runs[f"alone {n}"] = describe(r, g, device, args.worst)
+        if args.save and not isinstance(r, Exception):
+            frames[n] = np.asarray(r.sequence.vertices, dtype=np.float32)
     if args.copies > 0:
         jobs = [SimulationJob(g, body, mot, None) for _ in range(args.copies) for mot in motions]
         results = simulate_batch(jobs, config=cfg, failures="return")
@@ -138,6 +146,10 @@ def main() -> None:
     for label, d in runs.items():
         print(f"{label}: max strain {d.get('max_strain', float('nan')):.3f}, crossings by frame "
               f"{d.get('crossings_per_frame', d.get('error'))}", flush=True)
+    for n, x in frames.items():  # one file per motion: PATH_walk.npz, ...
+        np.savez_compressed(re.sub(r"(\.npz)?$", f"_{n}.npz", args.save, count=1), rest=g.rest_vertices,
+                            faces=g.faces, panel_ids=g.panel_ids, panel_names=np.asarray(g.panel_names),
+                            x=x)
     first = runs[f"alone {names[0]}"]
     write_result(f"worst_edges_{device.split(':')[0]}{args.tag}", {
         "machine": machine(device), "vertices": len(g.rest_vertices), "motion": args.motion,
