@@ -49,8 +49,8 @@ def stretch_report(x: np.ndarray, rest: np.ndarray, faces: np.ndarray, body_rest
     under = np.array([np.argmin(np.linalg.norm(body_rest - p, axis=1)) for p in rest[loop]])
     front = rest[loop, 2] > front_z
     nxt_front = front & np.roll(front, -1)  # segments with both ends in front
-    ends = loop[front][np.argsort(rest[loop[front], 0])[[0, -1]]]
-    ends_under = under[front][np.argsort(rest[loop[front], 0])[[0, -1]]]
+    side = np.argsort(rest[loop[front], 0])[[0, -1]]  # the front segment's two ends, by x
+    ends, ends_under = loop[front][side], under[front][side]
     cloth_all = polyline_strain(x[:, loop], rest[loop], np.ones(len(loop), bool))
     cloth_front = polyline_strain(x[:, loop], rest[loop], nxt_front)
     skin_all = polyline_strain(body_frames[:, under], body_rest[under], np.ones(len(loop), bool))
