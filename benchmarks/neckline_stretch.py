@@ -45,8 +45,10 @@ def stretch_report(x: np.ndarray, rest: np.ndarray, faces: np.ndarray, body_rest
                    body_frames: np.ndarray, front_z: float) -> dict:
     """The neckline's figures per frame (see the module docstring) and at the frame where its front
     segment stretches most."""
+    from scipy.spatial import cKDTree
+
     loop = neckline_loop(rest, faces)
-    under = np.array([np.argmin(np.linalg.norm(body_rest - p, axis=1)) for p in rest[loop]])
+    under = cKDTree(body_rest).query(rest[loop])[1]  # the body vertex nearest to each, at rest
     front = rest[loop, 2] > front_z
     nxt_front = front & np.roll(front, -1)  # segments with both ends in front
     side = np.argsort(rest[loop[front], 0])[[0, -1]]  # the front segment's two ends, by x
@@ -55,6 +57,7 @@ def stretch_report(x: np.ndarray, rest: np.ndarray, faces: np.ndarray, body_rest
     cloth_front = polyline_strain(x[:, loop], rest[loop], nxt_front)
     skin_all = polyline_strain(body_frames[:, under], body_rest[under], np.ones(len(loop), bool))
     skin_front = polyline_strain(body_frames[:, under], body_rest[under], nxt_front)
+
     def chord(p, p0, i, j):  # distance of two points per frame over their rest distance
         return np.linalg.norm(p[:, i] - p[:, j], axis=1) / np.linalg.norm(p0[i] - p0[j])
 
@@ -74,6 +77,7 @@ def stretch_report(x: np.ndarray, rest: np.ndarray, faces: np.ndarray, body_rest
 
 def main() -> None:
     from sim.bodies.default import load_default_body
+    from sim.bodies.placement import floor_offset, translate_frames
     from sim.motions import load_motion
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -89,12 +93,12 @@ def main() -> None:
         ap.exit(2, f"{args.npz}: not a worst_edges --save file ({e})\n")
     body = load_default_body()
     motion = load_motion(args.motion, fps=30.0, duration=args.seconds)
-    frames = body.pose_motion(motion, device="cpu").vertices
-    if len(frames) != len(x):
+    frames = body.pose_motion(motion, device="cpu")
+    if len(frames.vertices) != len(x):
         ap.exit(2, f"{args.npz}: {len(x)} frames, but {args.motion} at {args.seconds:g} s has "
-                   f"{len(frames)}\n")
-    frames = frames - np.array([0.0, frames[0, :, 1].min(), 0.0], np.float32)  # sim.simulate's floor
-    r = stretch_report(x, rest, faces, body.rest_mesh(), frames, args.front_z)
+                   f"{len(frames.vertices)}\n")
+    frames = translate_frames(frames, np.array([0.0, floor_offset(frames), 0.0]))  # as sim.simulate
+    r = stretch_report(x, rest, faces, body.rest_mesh(), frames.vertices, args.front_z)
     print(json.dumps({k: v for k, v in r.items() if k != "per_frame"}, indent=1))
 
 
