@@ -32,11 +32,11 @@ def strip(device, nx: int = 11, ny: int = 41):
     return b.finalize(device), v
 
 
-def coarse_level(model, spacing: int, levels: int = 2, smoothing: int = 2):
+def coarse_level(model, spacing: int, levels: int = 2, smoothing: int = 2, prefactor: bool = False):
     """The coarse level a solver with corrections builds for ``model`` (two levels unless told:
     the coarse system solved exactly)."""
     return SolverVBD(model, VBDConfig(coarse_sweeps=(0,), coarse_spacing=spacing, coarse_levels=levels,
-                                      coarse_smoothing=smoothing)).coarse
+                                      coarse_smoothing=smoothing, coarse_prefactor=prefactor)).coarse
 
 
 def test_aggregates_are_connected_cells_around_spaced_seeds():
@@ -133,9 +133,10 @@ def test_prolongation_rows_sum_to_one_and_pins_do_not_move():
 
 
 def test_restriction_matches_its_sparse_matrix_form(device):
-    """``restrict`` (8 lanes per coarse node, summed in lane order) against scipy: ``P^T r`` and
-    the diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` with ``k`` the contact penalty at
-    particles pressed onto the body closer than the thickness, none elsewhere."""
+    """``restrict`` and ``diagonal`` (8 lanes per coarse node, summed in lane order) against
+    scipy: ``P^T r`` and the diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` with ``k`` the
+    contact penalty at particles pressed onto the body closer than the thickness, none
+    elsewhere."""
     from sim.cloth.self_contact import disabled_data
 
     v, f = grid(21, 31, 0.4, 0.6)
@@ -159,7 +160,8 @@ def test_restriction_matches_its_sparse_matrix_form(device):
     level.residual.assign(r.astype(np.float32))
     h = 1.0 / 150.0
     xw = warp().array(x.astype(np.float32), dtype=warp().vec3, device=device)
-    level.restrict(h, xw, disabled_data(device))
+    level.restrict()
+    level.diagonal(h, xw, disabled_data(device))
     p = level.prolongation
     k = np.where((active != 0) & (gap < thickness), level._k_contact, 0.0)
     inertia = 1.0 / h**2 + level._air_damping / h
@@ -167,6 +169,51 @@ def test_restriction_matches_its_sparse_matrix_form(device):
     assert (p.T @ k).max() > 0.0 and (p.T @ k).min() == 0.0
     np.testing.assert_allclose(level._rhs.numpy(), p.T @ r, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(level._diag.numpy(), diag, rtol=1e-5)
+
+
+def test_prefactor_takes_the_contact_stiffness_at_the_inertial_targets(device):
+    """``coarse_prefactor``: ``prepare`` forms the diagonal at the substep start, with the body
+    contact's stiffness at particles pressed at the inertial targets ``y``, and the corrections
+    keep it; without it each correction forms the diagonal at the positions it corrects."""
+    from sim.cloth.self_contact import disabled_data
+
+    wp = warp()
+    v, f = grid(21, 31, 0.4, 0.6)
+    b = ClothModelBuilder()
+    b.add_cloth(v, f, ClothMaterialParams(), pinned=np.arange(21))
+    m = b.finalize(device)
+    x = np.asarray(v, dtype=np.float64)
+    n = m.particle_count
+    rng = np.random.default_rng(7)
+    active = (rng.uniform(size=n) < 0.4).astype(np.int32)
+    normal = np.tile([0.0, 0.0, 1.0], (n, 1))
+    y = x - 0.03 * normal  # the inertial targets sink 1 cm under the contact planes
+    h = 1.0 / 420.0
+    sc = disabled_data(device)
+    xw = wp.array(x.astype(np.float32), dtype=wp.vec3, device=device)
+    snap = wp.zeros_like(xw)
+    bodies = wp.zeros(1, dtype=wp.uint64, device=device)
+    diags = {}
+    for prefactor in (True, False):
+        level = coarse_level(m, spacing=2, prefactor=prefactor)
+        assert level.prefactor == prefactor
+        _, yw, cp, cn, _, ca = level._particles
+        yw.assign(y.astype(np.float32))
+        cp.assign((x - 0.02 * normal).astype(np.float32))  # x is 2 cm out: pressed only at y
+        cn.assign(normal.astype(np.float32))
+        ca.assign(active)
+        level.residual.zero_()
+        level.prepare(h, sc)
+        level.correct(h, xw, snap, sc, bodies)
+        diags[prefactor] = level._diag.numpy()
+    p = level.prolongation
+    inertia = 1.0 / h**2 + level._air_damping / h
+    base = level._mass.numpy() * inertia + level.templates[0].stiffness.diagonal()
+    np.testing.assert_allclose(diags[False], base, rtol=1e-5)
+    pressed = p.T @ (active * level._k_contact)
+    assert pressed.max() > 0.0
+    np.testing.assert_allclose(diags[True], base + pressed, rtol=1e-5)
+    np.testing.assert_array_equal(xw.numpy(), x.astype(np.float32))  # no residual: nothing moved
 
 
 def test_band_solve_matches_a_dense_solve_for_every_instance(device):
@@ -179,7 +226,7 @@ def test_band_solve_matches_a_dense_solve_for_every_instance(device):
     b.add_cloth(v1, f1, STIFF, pinned=np.arange(11))
     b.add_cloth(v2 + 1.0, f2, ClothMaterialParams())
     m = b.finalize(device)
-    level = coarse_level(m, spacing=2)
+    level = coarse_level(m, spacing=2, prefactor=True)
     assert len(level.templates) == 2
     rng = np.random.default_rng(0)
     nc = level.node_count
@@ -194,15 +241,32 @@ def test_band_solve_matches_a_dense_solve_for_every_instance(device):
     level._rhs.assign(rhs.astype(np.float32))
     # the block kernel on CUDA (sim.cloth.coarse_block), one thread per instance on the CPU
     assert (level.block_kernel is not None) == device.startswith("cuda")
+    level.factor()
     level.solve()
     exact = np.linalg.solve(dense, rhs)
     np.testing.assert_allclose(level._dx.numpy(), exact, rtol=2e-3, atol=2e-3 * np.abs(exact).max())
+    assert_split_equals_whole_block_solve(level, device)
     if level.block_kernel is not None:
         serial = wp.zeros_like(level._dx)
         wp.launch(band_solve_kernel, dim=2, inputs=[level._rhs, level._diag, *level._inst, level._order,
                                                     level._band_k],
                   outputs=[level._band, level._y, serial], device=device)
         np.testing.assert_allclose(serial.numpy(), exact, rtol=2e-3, atol=2e-3 * np.abs(exact).max())
+
+
+def assert_split_equals_whole_block_solve(level, device):
+    """On CUDA with two levels and ``prefactor`` ``solve`` substitutes with ``factor``'s factor
+    (two launches); the whole block solve (one launch) must give the same floats
+    (``coarse_block``)."""
+    if level.block_kernel is None:
+        return
+    assert level.substitute_kernel is not None and level.factor_kernel is not None
+    wp = warp()
+    whole = wp.zeros_like(level._dx)
+    wp.launch_tiled(level.block_kernel, dim=[level.model.instance_count], block_dim=level.block_threads,
+                    inputs=[level._rhs, level._diag, *level._inst, level._order, level._band_k],
+                    outputs=[whole], device=device)
+    np.testing.assert_array_equal(level._dx.numpy(), whole.numpy())
 
 
 def two_grid_reference(templates, rhs, diag, smoothing):
@@ -294,16 +358,19 @@ def test_coarse_correction_converges_far_further_per_sweep(device, levels):
     np.testing.assert_allclose(step(3000), ref, atol=0.15 * plain)
 
 
-@pytest.mark.parametrize("levels", [2, 3])
-def test_coarse_correction_keeps_cloth_on_a_sphere_outside(device, levels):
+@pytest.mark.parametrize("levels, prefactor", [(2, False), (3, False), (2, True)])
+def test_coarse_correction_keeps_cloth_on_a_sphere_outside(device, levels, prefactor):
     """The contact penalty is part of the coarse system: corrections do not pull cloth resting
     on a sphere into it (without it they did, and blew the t-shirt up), and a correction moves
     no cloth on the body deeper into it than it is or than its 5 mm thickness: the cloth stays
     more than half its thickness out (without that clamp it came within 0.3 mm). The same with
-    three levels, whose inner level takes the contact terms through its Galerkin product."""
+    three levels, whose inner level takes the contact terms through its Galerkin product, and
+    with ``coarse_prefactor`` (the contact stiffness at the inertial targets, the factor from
+    the substep start: the system of both corrections of a substep)."""
     m, _, control, body, _ = drop_on_sphere(device)
-    solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5, coarse_sweeps=(0, 2), coarse_levels=levels))
-    assert solver.coarse.levels == levels
+    solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5, coarse_sweeps=(0, 2), coarse_levels=levels,
+                                    coarse_prefactor=prefactor))
+    assert solver.coarse.levels == levels and solver.coarse.prefactor == prefactor
     x = simulate(m, solver, control, 30, 1.0 / 30.0)
     assert np.isfinite(x).all()
     for frame in x:
@@ -356,7 +423,7 @@ def test_block_solve_matches_a_dense_solve_at_garment_size(side, spacing, task_p
     b = ClothModelBuilder()
     b.add_cloth(v, f, ClothMaterialParams())
     m = b.finalize("cuda")
-    level = coarse_level(m, spacing=spacing)
+    level = coarse_level(m, spacing=spacing, prefactor=True)
     assert level.block_kernel is not None
     nc = level.node_count
     assert nc > 250
@@ -371,6 +438,8 @@ def test_block_solve_matches_a_dense_solve_at_garment_size(side, spacing, task_p
     rhs = rng.normal(size=(nc, 3))
     level._diag.assign(diag.astype(np.float32))
     level._rhs.assign(rhs.astype(np.float32))
+    level.factor()
     level.solve()
     exact = np.linalg.solve(dense, rhs)
     np.testing.assert_allclose(level._dx.numpy(), exact, rtol=2e-3, atol=2e-3 * np.abs(exact).max())
+    assert_split_equals_whole_block_solve(level, "cuda")

@@ -22,7 +22,8 @@ Setup (numpy/scipy, once per distinct garment template, shared by its instances)
 - **coarse system** ``A_c = (1/h^2 + alpha/h) M_c + K_c + C_c`` with ``K_c = P^T K P``
   (Galerkin, sparse), ``M_c = P^T m`` (lumped) and ``C_c = P^T c``, ``c`` the body contact's
   penalty stiffness at particles pressed onto the body plus the self-contact penalty stiffness
-  at particles with cloth-cloth pairs, at the correction. The residual holds both contacts'
+    at particles with cloth-cloth pairs, pressed at the correction (with ``prefactor``: at the
+  substep's inertial targets, ``CoarseLevel.prepare``). The residual holds both contacts'
   forces; without their stiffness in ``A_c`` the correction answers them with the membrane
   alone: it pulled supported cloth into the body and blew the t-shirt up (session 22), and it
   threw stacked layers metres apart within 4 frames (session 23). Contact pins cloth as firmly
@@ -30,12 +31,16 @@ Setup (numpy/scipy, once per distinct garment template, shared by its instances)
   Its sparsity pattern is fixed, so its rows are put in reverse Cuthill-McKee order once (the
   t-shirt's 326 nodes: bandwidth 60) and each correction factors the band exactly.
 
-Per correction (``CoarseLevel.correct``): the solve kernel's evaluate variant writes the
-residual ``r = -dG/dx`` at ``x`` (inertia, membrane, bending, damping, body and self-contact);
-``restrict_kernel`` forms ``P^T r`` and the diagonal; ``CoarseLevel.solve`` assembles, factors
-and solves each instance's system: on CUDA a thread block per instance
-(``sim.cloth.coarse_block``, 0.31 ms for the t-shirt's 326 nodes on an H100 against 20 ms for
-one thread), on the CPU one thread per instance (``band_solve_kernel``, banded Cholesky);
+With ``prefactor`` (two levels), per substep (``CoarseLevel.prepare``, from the substep-start
+contacts and the inertial targets, beside the first sweeps): ``contact_stiffness_kernel`` forms
+the diagonal, and on CUDA a thread block per instance factors each system
+(``sim.cloth.coarse_block``). Otherwise ``contact_stiffness_kernel`` forms it at each correction.
+Per correction (``CoarseLevel.correct``): the solve kernel's evaluate variant writes the residual
+``r = -dG/dx`` at ``x`` (inertia, membrane, bending, damping, body and self-contact);
+``restrict_kernel`` forms ``P^T r``; ``CoarseLevel.solve`` solves each instance's system: on
+CUDA a thread block per instance factors and solves it (0.31 ms for 326 nodes on an H100
+against 20 ms for one thread; with ``prefactor`` one warp substitutes with the prepared factor),
+on the CPU one thread per instance (``band_solve_kernel``, banded Cholesky);
 ``prolong_kernel`` adds ``P dx_c`` to ``x`` and to the next sweep's snapshot. The prolongated
 move is limited where a move could cross something, since the coarse system is linear and
 blind to geometry: at a particle with self-contact pairs to a quarter of the contact radius
@@ -316,10 +321,12 @@ class CoarseLevel:
             else ``AUTO_MIN_SPACING``.
         levels: 2, 3 or 0 (automatic; ``coarse_template``).
         smoothing: l1-Jacobi passes before and after the inner solve (three levels).
+        prefactor: with two levels, the diagonal and (CUDA) the factor at the substep start
+            (``prepare``) instead of at each correction (``VBDConfig.coarse_prefactor``).
     """
 
     def __init__(self, model, particles: tuple, k_contact: float, contact_margin: float, air_damping: float,
-                 spacing: int = 3, levels: int = 0, smoothing: int = 2):
+                 spacing: int = 3, levels: int = 0, smoothing: int = 2, prefactor: bool = False):
         import scipy.sparse as sp
 
         if spacing < 0:
@@ -423,21 +430,51 @@ class CoarseLevel:
         # one block's shared memory
         self.block_kernel = None
         self.block_threads = coarse_block.threads(int(widths.max()))
+        # with two levels and ``prefactor`` the system's matrix is known at the substep start
+        # (``prepare``), so the block path splits: the factor there (beside the sweeps), the
+        # substitutions at each correction; the three-level path's inner band changes at each
+        # correction
+        self.prefactor = bool(prefactor) and self.levels == 2
+        self.factor_kernel = self.substitute_kernel = None
         device = wp.get_device(d)
         if device.is_cuda:
             need = max(coarse_block.shared_floats(int(c), int(b))
                        for c, b in zip(counts, widths, strict=True))
             if 4 * coarse_block.padded(need) <= device.max_shared_memory_per_block - 1024:
                 self.block_kernel = coarse_block.cooperative_kernel(need)
+                if self.prefactor:
+                    self.factor_kernel = coarse_block.factor_kernel(need)
+                    self.substitute_kernel = coarse_block.substitute_kernel(need)
+
+    def prepare(self, h: float, sc_data) -> None:
+        """With ``prefactor``: what every correction of a substep of length ``h`` [s] shares,
+        made from the substep's start: the coarse diagonal (``diagonal``) with the body contacts
+        pressed at the inertial targets ``y`` (where the cloth goes if nothing holds it; the
+        solver's substep-start contact planes) and ``sc_data``'s pairs, and on the split block
+        path each instance's factor (``factor``). It reads nothing a sweep writes, so the solver
+        runs it beside the first sweeps (on a side stream on CUDA) and joins it before the first
+        correction: the factorization, most of a correction's time, leaves the chain of dependent
+        launches (session 30). Pressed at the substep-start positions instead, two corrections
+        per substep threw cloth dropped on a sphere off it (``tests/test_coarse.py``). Three
+        levels always take the diagonal at each correction (their inner band is assembled per
+        correction anyway; from ``y`` the cycle let that cloth come within 0.9 mm of the
+        sphere)."""
+        if not self.prefactor:
+            return
+        self.diagonal(h, self._particles[1], sc_data)
+        self.factor()
 
     def correct(self, h: float, x, snap_out, sc_data, instance_body) -> None:
-        """Solve the coarse system of a substep of length ``h`` [s] for ``self.residual`` (the
-        forces ``-dG/dx`` at ``x`` [N], written by the solve kernel's evaluate variant) and add
-        the prolongated displacement to ``x`` (free particles) and ``snap_out``, bounded like a
-        sweep's moves by ``sc_data`` (the sweeps' self-contact data); ``instance_body``: the
-        control's body mesh of each instance (0: none)."""
+        """Solve the coarse system of a substep of length ``h`` [s] (its diagonal and factor from
+        ``prepare``) for ``self.residual`` (the forces ``-dG/dx`` at ``x`` [N], written by the
+        solve kernel's evaluate variant) and add the prolongated displacement to ``x`` (free
+        particles) and ``snap_out``, bounded like a sweep's moves by ``sc_data`` (the sweeps'
+        self-contact data); ``instance_body``: the control's body mesh of each instance (0:
+        none)."""
         m = self.model
-        self.restrict(h, x, sc_data)
+        if not self.prefactor:
+            self.diagonal(h, x, sc_data)
+        self.restrict()
         self.solve()
         wp.launch(prolong_kernel, dim=m.particle_count,
                   inputs=[self._dx, *self._p, h, *self._particles, m.particle_mass, m.particle_flags,
@@ -445,24 +482,44 @@ class CoarseLevel:
                           self._contact_margin, sc_data],
                   outputs=[x, snap_out], device=m.device)
 
-    def restrict(self, h: float, x, sc_data) -> None:
-        """The coarse right-hand side ``P^T residual`` and diagonal ``m_c (1/h^2 + alpha/h) +
-        K_c,JJ + P^T k`` (``k``: body contact penalty at pressed particles of ``x``, self-contact
-        penalty at particles with pairs in ``sc_data``) of a substep of length ``h`` [s]."""
+    def restrict(self) -> None:
+        """The coarse right-hand side ``P^T residual``."""
+        m = self.model
+        wp.launch(restrict_kernel, dim=self.node_count * RESTRICT_LANES, inputs=[self.residual, *self._r],
+                  outputs=[self._rhs_part], device=m.device)
+        wp.launch(restrict_sum_kernel, dim=self.node_count, inputs=[self._rhs_part], outputs=[self._rhs],
+                  device=m.device)
+
+    def diagonal(self, h: float, x, sc_data) -> None:
+        """The coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` of a substep of length
+        ``h`` [s] (``k``: body contact penalty at particles of ``x`` pressed onto the body by the
+        solver's contacts, self-contact penalty at particles with pairs in ``sc_data``)."""
         m = self.model
         _, _, point, normal, _, active = self._particles
         inertia = 1.0 / (h * h) + self._air_damping / h
-        wp.launch(restrict_kernel, dim=self.node_count * RESTRICT_LANES,
-                  inputs=[self.residual, *self._r, x, m.particle_instance, point, normal, active,
-                          m.instance_thickness, self._k_contact, sc_data],
-                  outputs=[self._rhs_part, self._k_part], device=m.device)
-        wp.launch(restrict_sum_kernel, dim=self.node_count,
-                  inputs=[self._rhs_part, self._k_part, self._mass, self._kdiag, inertia],
-                  outputs=[self._rhs, self._diag], device=m.device)
+        wp.launch(contact_stiffness_kernel, dim=self.node_count * RESTRICT_LANES,
+                  inputs=[*self._r, x, m.particle_instance, point, normal, active, m.instance_thickness,
+                          self._k_contact, sc_data],
+                  outputs=[self._k_part], device=m.device)
+        wp.launch(diagonal_sum_kernel, dim=self.node_count,
+                  inputs=[self._k_part, self._mass, self._kdiag, inertia],
+                  outputs=[self._diag], device=m.device)
+
+    def factor(self) -> None:
+        """On the split block path (CUDA, two levels, ``factor_kernel`` set): each instance's
+        ``L D L^T`` of its coarse system with the current diagonal, for ``solve``. Elsewhere
+        nothing: ``solve`` factors as it solves."""
+        if self.factor_kernel is None:
+            return
+        m = self.model
+        wp.launch_tiled(self.factor_kernel, dim=[m.instance_count], block_dim=self.block_threads,
+                        inputs=[self._diag, *self._inst, self._order, self._band_k], outputs=[self._band],
+                        device=m.device)
 
     def solve(self) -> None:
         """Every instance's coarse system for the current right-hand side and diagonal: solved
-        exactly with two levels; with three, ``smoothing`` l1-Jacobi passes, the inner level's
+        exactly with two levels (on the split block path with ``factor``'s factor, which must be
+        current); with three, ``smoothing`` l1-Jacobi passes, the inner level's
         exact solve of the residual with the Galerkin operator ``P2^T A_c P2`` (its mass and
         contact part added to the inner band here, ``galerkin_band_kernel``), its prolongation,
         and as many passes again (a two-grid cycle, symmetric, so the correction stays a descent
@@ -498,7 +555,11 @@ class CoarseLevel:
         the block kernel on CUDA where it fits, else one thread per instance."""
         m = self.model
         rhs, diag, dx = self._exact
-        if self.block_kernel is not None:
+        if self.substitute_kernel is not None:
+            wp.launch_tiled(self.substitute_kernel, dim=[m.instance_count],
+                            block_dim=coarse_block.SUBSTITUTE_THREADS,
+                            inputs=[rhs, *self._inst, self._order, self._band], outputs=[dx], device=m.device)
+        elif self.block_kernel is not None:
             wp.launch_tiled(self.block_kernel, dim=[m.instance_count], block_dim=self.block_threads,
                             inputs=[rhs, diag, *self._inst, self._order, self._band_a],
                             outputs=[dx], device=m.device)
@@ -646,6 +707,35 @@ def restrict_kernel(
     offsets: wp.array(dtype=wp.int32),
     ids: wp.array(dtype=wp.int32),
     weights: wp.array(dtype=float),
+    rhs_part: wp.array(dtype=wp.vec3),
+):
+    """Lane ``l`` of node ``c``'s share of ``rhs = P^T r``: entries ``l, l + RESTRICT_LANES,
+    ...`` of the node's row (thread ``c * RESTRICT_LANES + l``; ``restrict_sum_kernel`` adds the
+    lanes)."""
+    tid = wp.tid()
+    c = tid // RESTRICT_LANES
+    s = wp.vec3(0.0)
+    for k in range(offsets[c] + tid % RESTRICT_LANES, offsets[c + 1], RESTRICT_LANES):
+        s = s + weights[k] * r[ids[k]]
+    rhs_part[tid] = s
+
+
+@wp.kernel
+def restrict_sum_kernel(rhs_part: wp.array(dtype=wp.vec3), rhs_out: wp.array(dtype=wp.vec3)):
+    """``rhs = P^T r`` of node ``c`` from ``restrict_kernel``'s lanes, summed in lane order (one
+    node per thread)."""
+    c = wp.tid()
+    s = wp.vec3(0.0)
+    for lane in range(RESTRICT_LANES):
+        s = s + rhs_part[c * RESTRICT_LANES + lane]
+    rhs_out[c] = s
+
+
+@wp.kernel
+def contact_stiffness_kernel(
+    offsets: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=float),
     x: wp.array(dtype=wp.vec3),
     particle_instance: wp.array(dtype=wp.int32),
     contact_point: wp.array(dtype=wp.vec3),
@@ -654,49 +744,39 @@ def restrict_kernel(
     instance_thickness: wp.array(dtype=float),
     k_contact: float,
     sc: SelfContactData,
-    rhs_part: wp.array(dtype=wp.vec3),
     k_part: wp.array(dtype=float),
 ):
-    """Lane ``l`` of node ``c``'s share of ``rhs = P^T r`` and of ``P^T k``, ``k`` the body
-    contact's penalty at particles pressed onto the body plus the self-contact penalty at
-    particles with cloth-cloth pairs: entries ``l, l + RESTRICT_LANES, ...`` of the node's row
-    (thread ``c * RESTRICT_LANES + l``; ``restrict_sum_kernel`` adds the lanes)."""
+    """Lane ``l`` of node ``c``'s share of ``P^T k``, ``k`` the body contact's penalty at
+    particles of ``x`` pressed onto the body plus the self-contact penalty at particles with
+    cloth-cloth pairs (lanes as ``restrict_kernel``; ``diagonal_sum_kernel`` adds them)."""
     tid = wp.tid()
     c = tid // RESTRICT_LANES
-    s = wp.vec3(0.0)
     kc = float(0.0)
     for k in range(offsets[c] + tid % RESTRICT_LANES, offsets[c + 1], RESTRICT_LANES):
         i = ids[k]
         w = weights[k]
-        s = s + w * r[i]
         if contact_active[i] != 0:
             if wp.dot(contact_normal[i], x[i] - contact_point[i]) < instance_thickness[particle_instance[i]]:
                 kc = kc + w * k_contact
         if has_pairs(sc, i):
             kc = kc + w * sc.stiffness
-    rhs_part[tid] = s
     k_part[tid] = kc
 
 
 @wp.kernel
-def restrict_sum_kernel(
-    rhs_part: wp.array(dtype=wp.vec3),
+def diagonal_sum_kernel(
     k_part: wp.array(dtype=float),
     node_mass: wp.array(dtype=float),
     node_stiffness: wp.array(dtype=float),
     inertia: float,
-    rhs_out: wp.array(dtype=wp.vec3),
     diag_out: wp.array(dtype=float),
 ):
-    """``rhs = P^T r`` and the coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` of node
-    ``c`` from ``restrict_kernel``'s lanes, summed in lane order (one node per thread)."""
+    """The coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` of node ``c`` from
+    ``contact_stiffness_kernel``'s lanes, summed in lane order (one node per thread)."""
     c = wp.tid()
-    s = wp.vec3(0.0)
     kc = float(0.0)
     for lane in range(RESTRICT_LANES):
-        s = s + rhs_part[c * RESTRICT_LANES + lane]
         kc = kc + k_part[c * RESTRICT_LANES + lane]
-    rhs_out[c] = s
     diag_out[c] = node_mass[c] * inertia + node_stiffness[c] + kc
 
 

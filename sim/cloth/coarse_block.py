@@ -45,56 +45,153 @@ def padded(capacity: int) -> int:
     return -(-int(capacity) // CAPACITY_STEP) * CAPACITY_STEP
 
 
-def cooperative_kernel(capacity: int):
-    """The block solve kernel with at least ``capacity`` floats of shared memory (one kernel per
-    padded size)."""
+def _kernel(capacity: int, kind: str):
+    """The block kernel ``kind`` ("solve", "factor" or "substitute") with at least ``capacity``
+    floats of shared memory (one kernel per kind and padded size)."""
     capacity = padded(capacity)
-    if capacity in _KERNELS:
-        return _KERNELS[capacity]
+    key = (kind, capacity)
+    if key in _KERNELS:
+        return _KERNELS[key]
 
-    @wp.func_native(_SNIPPET)
-    def solve(
-        smem: wp.tile[float, capacity],
-        rhs: wp.array(dtype=wp.vec3),
-        diag: wp.array(dtype=float),
-        inst_start: wp.array(dtype=wp.int32),
-        inst_count: wp.array(dtype=wp.int32),
-        inst_width: wp.array(dtype=wp.int32),
-        inst_band: wp.array(dtype=wp.int64),
-        order: wp.array(dtype=wp.int32),
-        band_k: wp.array(dtype=float),
-        dx_out: wp.array(dtype=wp.vec3),
-        k: int,
-        lane: int,
-    ): ...
+    if kind == "solve":
+        @wp.func_native(_SOLVE)
+        def native(
+            smem: wp.tile[float, capacity],
+            rhs: wp.array(dtype=wp.vec3),
+            diag: wp.array(dtype=float),
+            inst_start: wp.array(dtype=wp.int32),
+            inst_count: wp.array(dtype=wp.int32),
+            inst_width: wp.array(dtype=wp.int32),
+            inst_band: wp.array(dtype=wp.int64),
+            order: wp.array(dtype=wp.int32),
+            band_k: wp.array(dtype=float),
+            dx_out: wp.array(dtype=wp.vec3),
+            k: int,
+            lane: int,
+        ): ...
 
-    def block_solve_kernel(
-        rhs: wp.array(dtype=wp.vec3),
-        diag: wp.array(dtype=float),
-        inst_start: wp.array(dtype=wp.int32),
-        inst_count: wp.array(dtype=wp.int32),
-        inst_width: wp.array(dtype=wp.int32),
-        inst_band: wp.array(dtype=wp.int64),
-        order: wp.array(dtype=wp.int32),
-        band_k: wp.array(dtype=float),
-        dx_out: wp.array(dtype=wp.vec3),
-    ):
-        """Solve instance ``k``'s coarse system with the block (launch with ``wp.launch_tiled``,
-        ``dim=[instance_count]``, ``block_dim=threads(width)``); same inputs as
-        ``coarse.band_solve_kernel`` without its scratch arrays."""
-        k, lane = wp.tid()
-        smem = wp.tile_empty(shape=capacity, dtype=float, storage="shared")
-        solve(smem, rhs, diag, inst_start, inst_count, inst_width, inst_band, order, band_k, dx_out, k, lane)
+        def block_solve_kernel(
+            rhs: wp.array(dtype=wp.vec3),
+            diag: wp.array(dtype=float),
+            inst_start: wp.array(dtype=wp.int32),
+            inst_count: wp.array(dtype=wp.int32),
+            inst_width: wp.array(dtype=wp.int32),
+            inst_band: wp.array(dtype=wp.int64),
+            order: wp.array(dtype=wp.int32),
+            band_k: wp.array(dtype=float),
+            dx_out: wp.array(dtype=wp.vec3),
+        ):
+            """Solve instance ``k``'s coarse system with the block (launch with
+            ``wp.launch_tiled``, ``dim=[instance_count]``, ``block_dim=threads(width)``); same
+            inputs as ``coarse.band_solve_kernel`` without its scratch arrays."""
+            k, lane = wp.tid()
+            smem = wp.tile_empty(shape=capacity, dtype=float, storage="shared")
+            native(smem, rhs, diag, inst_start, inst_count, inst_width, inst_band, order, band_k, dx_out, k,
+                   lane)
 
-    kernel = wp.kernel(block_solve_kernel, enable_backward=False, module="unique")
-    _KERNELS[capacity] = kernel
+        kernel = wp.kernel(block_solve_kernel, enable_backward=False, module="unique")
+    elif kind == "factor":
+        @wp.func_native(_FACTOR)
+        def native(
+            smem: wp.tile[float, capacity],
+            diag: wp.array(dtype=float),
+            inst_start: wp.array(dtype=wp.int32),
+            inst_count: wp.array(dtype=wp.int32),
+            inst_width: wp.array(dtype=wp.int32),
+            inst_band: wp.array(dtype=wp.int64),
+            order: wp.array(dtype=wp.int32),
+            band_k: wp.array(dtype=float),
+            factor_out: wp.array(dtype=float),
+            k: int,
+            lane: int,
+        ): ...
+
+        def block_factor_kernel(
+            diag: wp.array(dtype=float),
+            inst_start: wp.array(dtype=wp.int32),
+            inst_count: wp.array(dtype=wp.int32),
+            inst_width: wp.array(dtype=wp.int32),
+            inst_band: wp.array(dtype=wp.int64),
+            order: wp.array(dtype=wp.int32),
+            band_k: wp.array(dtype=float),
+            factor_out: wp.array(dtype=float),
+        ):
+            """Factor instance ``k``'s coarse system ``L D L^T`` with the block and write it to
+            ``factor_out`` (the band layout of ``band_k``: ``D`` on the diagonal entries, the
+            unit ``L`` below; launch as ``block_solve_kernel``)."""
+            k, lane = wp.tid()
+            smem = wp.tile_empty(shape=capacity, dtype=float, storage="shared")
+            native(smem, diag, inst_start, inst_count, inst_width, inst_band, order, band_k, factor_out, k,
+                   lane)
+
+        kernel = wp.kernel(block_factor_kernel, enable_backward=False, module="unique")
+    else:
+        @wp.func_native(_SUBSTITUTE)
+        def native(
+            smem: wp.tile[float, capacity],
+            rhs: wp.array(dtype=wp.vec3),
+            inst_start: wp.array(dtype=wp.int32),
+            inst_count: wp.array(dtype=wp.int32),
+            inst_width: wp.array(dtype=wp.int32),
+            inst_band: wp.array(dtype=wp.int64),
+            order: wp.array(dtype=wp.int32),
+            factor: wp.array(dtype=float),
+            dx_out: wp.array(dtype=wp.vec3),
+            k: int,
+            lane: int,
+        ): ...
+
+        def block_substitute_kernel(
+            rhs: wp.array(dtype=wp.vec3),
+            inst_start: wp.array(dtype=wp.int32),
+            inst_count: wp.array(dtype=wp.int32),
+            inst_width: wp.array(dtype=wp.int32),
+            inst_band: wp.array(dtype=wp.int64),
+            order: wp.array(dtype=wp.int32),
+            factor: wp.array(dtype=float),
+            dx_out: wp.array(dtype=wp.vec3),
+        ):
+            """Solve instance ``k``'s coarse system with ``block_factor_kernel``'s ``factor``:
+            the forward substitution, ``D^-1`` and the back substitution, each a chain of short
+            rows for one warp (launch with ``block_dim=SUBSTITUTE_THREADS``)."""
+            k, lane = wp.tid()
+            smem = wp.tile_empty(shape=capacity, dtype=float, storage="shared")
+            native(smem, rhs, inst_start, inst_count, inst_width, inst_band, order, factor, dx_out, k, lane)
+
+        kernel = wp.kernel(block_substitute_kernel, enable_backward=False, module="unique")
+    _KERNELS[key] = kernel
     return kernel
 
+
+def cooperative_kernel(capacity: int):
+    """The block solve kernel (factor and solve in one launch) with at least ``capacity`` floats
+    of shared memory."""
+    return _kernel(capacity, "solve")
+
+
+def factor_kernel(capacity: int):
+    """The block factor kernel (``_kernel``): ``L D L^T`` of each instance to a global band."""
+    return _kernel(capacity, "factor")
+
+
+def substitute_kernel(capacity: int):
+    """The substitution kernel (``_kernel``) with a factor from ``factor_kernel``."""
+    return _kernel(capacity, "substitute")
+
+
+# threads of the substitution kernel: they load the factor into shared memory together, then
+# one warp substitutes
+SUBSTITUTE_THREADS = 256
 
 # One instance's coarse system A dx = rhs, solved by the block: A = L D L^T (unit lower L, right-
 # looking, one column per step) in shared memory; band rows as in coarse.band_solve_kernel
 # (row r holds A[r, r - t] at t = 0 .. b), the right-hand side after them, 3 floats per row.
-_SNIPPET = r"""
+# The snippets are put together from these parts: the whole solve (``_SOLVE``), the factor alone
+# (``_FACTOR``: no right-hand side; the band goes to global memory) and the substitutions with
+# that factor (``_SUBSTITUTE``). The split gives the same floats as the whole solve: the forward
+# substitution subtracts l_{j+s,j} u_j from row j+s in the same column order, and l_{j+s,j} is
+# the same product A[j+s, j] * (1 / d_j) either way.
+_HEAD = r"""
     __syncthreads();  // the tile allocation is not a barrier
     float* L = smem.data.ptr;
     const int start = inst_start[k];
@@ -104,16 +201,23 @@ _SNIPPET = r"""
     const long long base = inst_band[k];
     const int T = (int)blockDim.x;
     float* u = L + n * w;  // right-hand side, then solution (3 per row)
+"""
+_LOAD_BAND = r"""
     for (int q = lane; q < n * w; q += T) {
         const int r = q / w;
         L[q] = (q - r * w == 0) ? diag[start + order[start + r]] : band_k[base + q];
     }
+"""
+_LOAD_RHS = r"""
     for (int r = lane; r < n; r += T) {
         const wp::vec3 v = rhs[start + order[start + r]];
         u[3 * r] = v.c[0];
         u[3 * r + 1] = v.c[1];
         u[3 * r + 2] = v.c[2];
     }
+"""
+# the elimination; RHS_TASK is the forward substitution's task (or nothing)
+_ELIMINATE = r"""
     // the entries (s, t), 1 <= t <= s <= b, of the block below a column, row by row: s << 16 | t
     int* tri = (int*)(u + 3 * n);
     for (int q = lane; q < b * (b + 1) / 2; q += T) {
@@ -126,8 +230,9 @@ _SNIPPET = r"""
     const int w1 = w + 1;
     // a step's tasks: the b (b + 1) / 2 entries A[j+s, j+t], 1 <= t <= s <= b, of the block
     // under column j (row by row, so the first m (m + 1) / 2 are those with s <= m), the b rows
-    // of the right-hand side below j, and the b rows of column j-1's scaling (column j is only
-    // read in step j); `threads` gives the block one thread per task where that fits
+    // of the right-hand side below j (the whole solve only), and the b rows of column j-1's
+    // scaling (column j is only read in step j); `threads` gives the block one thread per task
+    // where that fits
     const int bb = b * (b + 1) / 2;
     for (int j = 0; j < n; ++j) {
         const int jw = j * w;
@@ -142,13 +247,7 @@ _SNIPPET = r"""
                     L[a - t] -= L[a] * L[jw + t * w1] * inv;
                 }
             } else if (q < bb + b) {
-                const int s = q - bb + 1;
-                if (s <= m) {
-                    const float f = L[(j + s) * w + s] * inv;
-                    u[3 * (j + s)] -= f * u[3 * j];
-                    u[3 * (j + s) + 1] -= f * u[3 * j + 1];
-                    u[3 * (j + s) + 2] -= f * u[3 * j + 2];
-                }
+                RHS_TASK
             } else if (j > 0) {
                 const int s = q - bb - b + 1;
                 if (s <= min(b, n - j))  // the rows of column j-1 below its diagonal
@@ -157,7 +256,16 @@ _SNIPPET = r"""
         }
         __syncthreads();
     }
-    // the substitutions are a chain of n short rows: one warp, whose barrier is cheaper
+"""
+_RHS_TASK = r"""const int s = q - bb + 1;
+                if (s <= m) {
+                    const float f = L[(j + s) * w + s] * inv;
+                    u[3 * (j + s)] -= f * u[3 * j];
+                    u[3 * (j + s) + 1] -= f * u[3 * j + 1];
+                    u[3 * (j + s) + 2] -= f * u[3 * j + 2];
+                }"""
+# D^-1, then L^T x = D^-1 z: a chain of n short rows for one warp, whose barrier is cheaper
+_BACK = r"""
     if (lane < 32) {
         for (int r = lane; r < n; r += 32) {
             const float ir = 1.0f / fmaxf(L[r * w], 1.0e-30f);
@@ -166,7 +274,7 @@ _SNIPPET = r"""
             u[3 * r + 2] *= ir;
         }
         __syncwarp();
-        // L^T x = D^-1 z, last row first: row r is final, then leaves rows r-1 .. r-b
+        // last row first: row r is final, then leaves rows r-1 .. r-b
         for (int r = n - 1; r > 0; --r) {
             const float x0 = u[3 * r], x1 = u[3 * r + 1], x2 = u[3 * r + 2];
             for (int q = lane; q < min(b, r); q += 32) {
@@ -182,3 +290,32 @@ _SNIPPET = r"""
             dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
     }
 """
+_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE.replace("RHS_TASK", _RHS_TASK) + _BACK
+# the factor: the elimination without the right-hand side, then the band to global memory
+# (column n-1 has no rows below it to scale)
+_FACTOR = _HEAD + _LOAD_BAND + _ELIMINATE.replace("RHS_TASK", "") + r"""
+    for (int q = lane; q < n * w; q += T)
+        factor_out[base + q] = L[q];
+"""
+# the forward substitution column by column in one warp, as the whole solve's tasks do it:
+# row j is final once the columns before it are done, then leaves rows j+1 .. j+b
+_SUBSTITUTE = _HEAD + r"""
+    for (int q = lane; q < n * w; q += T)
+        L[q] = factor[base + q];
+""" + _LOAD_RHS + r"""
+    __syncthreads();
+    if (lane < 32) {
+        for (int j = 0; j < n - 1; ++j) {
+            const float z0 = u[3 * j], z1 = u[3 * j + 1], z2 = u[3 * j + 2];
+            const int m = min(b, n - 1 - j);
+            for (int q = lane; q < m; q += 32) {
+                const int s = q + 1;
+                const float l = L[(j + s) * w + s];
+                u[3 * (j + s)] -= l * z0;
+                u[3 * (j + s) + 1] -= l * z1;
+                u[3 * (j + s) + 2] -= l * z2;
+            }
+            __syncwarp();
+        }
+    }
+""" + _BACK

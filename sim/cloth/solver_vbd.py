@@ -19,7 +19,9 @@ over the vertex colouring. Per substep:
    lanes)``), each iteration followed by ``chebyshev_kernel`` when ``chebyshev_rho`` > 0;
    neighbours of a vertex's own colour (a hinge's opposite vertex, self-contact partners) are
    read from the sweep-start snapshot, so the step does not depend on the order of the GPU's
-   threads;
+   threads; with ``coarse_sweeps``, a coarse-level correction before the sweeps named there
+   (with ``coarse_prefactor`` its diagonal and factor are made from the substep-start state
+   beside the first sweeps, on CUDA on a side stream: ``CoarseLevel.prepare``);
 6. ``velocity_kernel``.
 
 Substep safety: contact is found against the body where it will be at the end of each
@@ -201,6 +203,15 @@ class VBDConfig:
             4), else 2.
         coarse_smoothing: l1-Jacobi passes on the coarse level before and after the inner solve
             (three levels only).
+        coarse_prefactor: with two coarse levels, form each substep's coarse diagonal (its body
+            contact stiffness at particles pressed at the inertial targets ``y``) and, on CUDA,
+            factor each instance's coarse system at the substep start, beside the first sweeps on
+            a side stream; a correction then only substitutes (``CoarseLevel.prepare``). Off
+            (default): the diagonal at each correction's positions, factored and solved there.
+            H100, 5k t-shirt (docs/BENCHMARKS.md, session 30): 9.25 -> 8.30 ms per frame, 137
+            of 144 sequences pass against 133, but the single run's worst strain is 0.356 (gate
+            0.35) against 0.278, and a 164-vertex skirt dressed at 3 x 3 keeps 2 vertices inside
+            the body, so it is not the default.
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every
@@ -245,6 +256,7 @@ class VBDConfig:
     coarse_spacing: int = 3
     coarse_levels: int = 0
     coarse_smoothing: int = 2
+    coarse_prefactor: bool = False
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -403,6 +415,7 @@ class SolverVBD:
         self._solve = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers)
         self._side = SideStreams(d, 1)
         self._pipe = SideStreams(d, 1)
+        self._coarse_side = SideStreams(d, 1)
         self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
         # the solve's fused gather reads entry 0 of the per-hinge arrays for vertices without
         # hinges: a model without any gets one-entry placeholders
@@ -446,7 +459,7 @@ class SolverVBD:
                          self._contact_body_velocity, self._contact_active)
             self.coarse = CoarseLevel(model, particles, cfg.contact_stiffness, cfg.contact_margin,
                                       cfg.air_damping, cfg.coarse_spacing, cfg.coarse_levels,
-                                      cfg.coarse_smoothing)
+                                      cfg.coarse_smoothing, cfg.coarse_prefactor)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True)
 
@@ -583,12 +596,17 @@ class SolverVBD:
                         self.self_contact.detect(self._x_prev, v, 2.0 * h,
                                                  reference=control.instance_velocity, slot=(s + 1) % 2)
             self._side.join()
+            if self.coarse is not None and self.coarse.prefactor:
+                # the coarse diagonal and factor from the substep start, beside the first sweeps
+                with self._coarse_side.on(0):
+                    self.coarse.prepare(h, sc_data)
             if self._omegas:
                 wp.copy(self._cheb_prev1, x)
             for it in range(cfg.iterations):
                 if it in cfg.coarse_sweeps:
                     # the residual at x (snapshot it % 2 holds x), its coarse-level correction
                     self.sweep(x, sc_data, eps_u, h, it % 2, evaluate=True)
+                    self._coarse_side.join()
                     self.coarse.correct(h, x, self._snapshots[it % 2], sc_data, control.instance_body)
                 self.sweep(x, sc_data, eps_u, h, it % 2)
                 if self._omegas:
