@@ -133,10 +133,9 @@ def test_prolongation_rows_sum_to_one_and_pins_do_not_move():
 
 
 def test_restriction_matches_its_sparse_matrix_form(device):
-    """``restrict`` and ``diagonal`` (8 lanes per coarse node, summed in lane order) against
-    scipy: ``P^T r`` and the diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` with ``k`` the
-    contact penalty at particles pressed onto the body closer than the thickness, none
-    elsewhere."""
+    """``restrict`` (8 lanes per coarse node, summed in lane order) against scipy: ``P^T r`` and
+    the diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` with ``k`` the contact penalty at
+    particles pressed onto the body closer than the thickness, none elsewhere."""
     from sim.cloth.self_contact import disabled_data
 
     v, f = grid(21, 31, 0.4, 0.6)
@@ -160,8 +159,7 @@ def test_restriction_matches_its_sparse_matrix_form(device):
     level.residual.assign(r.astype(np.float32))
     h = 1.0 / 150.0
     xw = warp().array(x.astype(np.float32), dtype=warp().vec3, device=device)
-    level.restrict()
-    level.diagonal(h, xw, disabled_data(device))
+    level.restrict(h, xw, disabled_data(device))
     p = level.prolongation
     k = np.where((active != 0) & (gap < thickness), level._k_contact, 0.0)
     inertia = 1.0 / h**2 + level._air_damping / h

@@ -31,15 +31,15 @@ Setup (numpy/scipy, once per distinct garment template, shared by its instances)
   Its sparsity pattern is fixed, so its rows are put in reverse Cuthill-McKee order once (the
   t-shirt's 326 nodes: bandwidth 60) and each correction factors the band exactly.
 
-With ``prefactor`` (two levels), per substep (``CoarseLevel.prepare``, from the substep-start
-contacts and the inertial targets, beside the first sweeps): ``contact_stiffness_kernel`` forms
-the diagonal, and on CUDA a thread block per instance factors each system
-(``sim.cloth.coarse_block``). Otherwise ``contact_stiffness_kernel`` forms it at each correction.
 Per correction (``CoarseLevel.correct``): the solve kernel's evaluate variant writes the residual
 ``r = -dG/dx`` at ``x`` (inertia, membrane, bending, damping, body and self-contact);
-``restrict_kernel`` forms ``P^T r``; ``CoarseLevel.solve`` solves each instance's system: on
-CUDA a thread block per instance factors and solves it (0.31 ms for 326 nodes on an H100
-against 20 ms for one thread; with ``prefactor`` one warp substitutes with the prepared factor),
+``restrict_kernel`` forms ``P^T r`` and the diagonal (with ``prefactor``, two levels, the
+diagonal is formed per substep instead, by ``CoarseLevel.prepare`` from the substep-start
+contacts and the inertial targets beside the first sweeps, and on CUDA a thread block per
+instance factors each system there, ``sim.cloth.coarse_block``); ``CoarseLevel.solve`` solves
+each instance's system: on CUDA a thread block per instance factors and solves it (0.31 ms for
+326 nodes on an H100 against 20 ms for one thread; with ``prefactor`` one warp substitutes with
+the prepared factor),
 on the CPU one thread per instance (``band_solve_kernel``, banded Cholesky);
 ``prolong_kernel`` adds ``P dx_c`` to ``x`` and to the next sweep's snapshot. The prolongated
 move is limited where a move could cross something, since the coarse system is linear and
@@ -450,8 +450,8 @@ class CoarseLevel:
         """With ``prefactor``: what every correction of a substep of length ``h`` [s] shares,
         made from the substep's start: the coarse diagonal (``diagonal``) with the body contacts
         pressed at the inertial targets ``y`` (where the cloth goes if nothing holds it; the
-        solver's substep-start contact planes) and ``sc_data``'s pairs, and on the split block
-        path each instance's factor (``factor``). It reads nothing a sweep writes, so the solver
+        solver's substep-start contact planes) and ``sc_data``'s pairs (``restrict``), and on the
+        split block path each instance's factor (``factor``). It reads nothing a sweep writes, so the solver
         runs it beside the first sweeps (on a side stream on CUDA) and joins it before the first
         correction: the factorization, most of a correction's time, leaves the chain of dependent
         launches (session 30). Pressed at the substep-start positions instead, two corrections
@@ -461,20 +461,20 @@ class CoarseLevel:
         sphere)."""
         if not self.prefactor:
             return
-        self.diagonal(h, self._particles[1], sc_data)
+        self.restrict(h, self._particles[1], sc_data, RESTRICT_DIAGONAL)
         self.factor()
 
     def correct(self, h: float, x, snap_out, sc_data, instance_body) -> None:
-        """Solve the coarse system of a substep of length ``h`` [s] (its diagonal and factor from
-        ``prepare``) for ``self.residual`` (the forces ``-dG/dx`` at ``x`` [N], written by the
-        solve kernel's evaluate variant) and add the prolongated displacement to ``x`` (free
-        particles) and ``snap_out``, bounded like a sweep's moves by ``sc_data`` (the sweeps'
-        self-contact data); ``instance_body``: the control's body mesh of each instance (0:
-        none)."""
+        """Solve the coarse system of a substep of length ``h`` [s] (with ``prefactor`` its
+        diagonal and factor from ``prepare``) for ``self.residual`` (the forces ``-dG/dx`` at
+        ``x`` [N], written by the solve kernel's evaluate variant) and add the prolongated
+        displacement to ``x`` (free particles) and ``snap_out``, bounded like a sweep's moves by
+        ``sc_data`` (the sweeps' self-contact data); ``instance_body``: the control's body mesh
+        of each instance (0: none)."""
         m = self.model
-        if not self.prefactor:
-            self.diagonal(h, x, sc_data)
-        self.restrict()
+        # the right-hand side, and the diagonal at x where ``prepare`` did not form it
+        parts = RESTRICT_RHS if self.prefactor else RESTRICT_RHS | RESTRICT_DIAGONAL
+        self.restrict(h, x, sc_data, parts)
         self.solve()
         wp.launch(prolong_kernel, dim=m.particle_count,
                   inputs=[self._dx, *self._p, h, *self._particles, m.particle_mass, m.particle_flags,
@@ -482,28 +482,22 @@ class CoarseLevel:
                           self._contact_margin, sc_data],
                   outputs=[x, snap_out], device=m.device)
 
-    def restrict(self) -> None:
-        """The coarse right-hand side ``P^T residual``."""
-        m = self.model
-        wp.launch(restrict_kernel, dim=self.node_count * RESTRICT_LANES, inputs=[self.residual, *self._r],
-                  outputs=[self._rhs_part], device=m.device)
-        wp.launch(restrict_sum_kernel, dim=self.node_count, inputs=[self._rhs_part], outputs=[self._rhs],
-                  device=m.device)
-
-    def diagonal(self, h: float, x, sc_data) -> None:
-        """The coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` of a substep of length
-        ``h`` [s] (``k``: body contact penalty at particles of ``x`` pressed onto the body by the
-        solver's contacts, self-contact penalty at particles with pairs in ``sc_data``)."""
+    def restrict(self, h: float, x, sc_data, parts: int = 3) -> None:
+        """The coarse right-hand side ``P^T residual`` (``parts`` bit ``RESTRICT_RHS``) and
+        diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` (bit ``RESTRICT_DIAGONAL``; ``k``: body
+        contact penalty at particles of ``x`` pressed onto the body by the solver's contacts,
+        self-contact penalty at particles with pairs in ``sc_data``) of a substep of length ``h``
+        [s]; both in one pass by default."""
         m = self.model
         _, _, point, normal, _, active = self._particles
         inertia = 1.0 / (h * h) + self._air_damping / h
-        wp.launch(contact_stiffness_kernel, dim=self.node_count * RESTRICT_LANES,
-                  inputs=[*self._r, x, m.particle_instance, point, normal, active, m.instance_thickness,
-                          self._k_contact, sc_data],
-                  outputs=[self._k_part], device=m.device)
-        wp.launch(diagonal_sum_kernel, dim=self.node_count,
-                  inputs=[self._k_part, self._mass, self._kdiag, inertia],
-                  outputs=[self._diag], device=m.device)
+        wp.launch(restrict_kernel, dim=self.node_count * RESTRICT_LANES,
+                  inputs=[parts, self.residual, *self._r, x, m.particle_instance, point, normal, active,
+                          m.instance_thickness, self._k_contact, sc_data],
+                  outputs=[self._rhs_part, self._k_part], device=m.device)
+        wp.launch(restrict_sum_kernel, dim=self.node_count,
+                  inputs=[parts, self._rhs_part, self._k_part, self._mass, self._kdiag, inertia],
+                  outputs=[self._rhs, self._diag], device=m.device)
 
     def factor(self) -> None:
         """On the split block path (CUDA, two levels, ``factor_kernel`` set): each instance's
@@ -701,38 +695,15 @@ def clamp_length(v: wp.vec3, cap: float) -> wp.vec3:
 RESTRICT_LANES = wp.constant(8)
 
 
+# what ``restrict_kernel`` / ``restrict_sum_kernel`` form (bits): the right-hand side, the diagonal
+RESTRICT_RHS = wp.constant(1)
+RESTRICT_DIAGONAL = wp.constant(2)
+
+
 @wp.kernel
 def restrict_kernel(
+    parts: int,
     r: wp.array(dtype=wp.vec3),
-    offsets: wp.array(dtype=wp.int32),
-    ids: wp.array(dtype=wp.int32),
-    weights: wp.array(dtype=float),
-    rhs_part: wp.array(dtype=wp.vec3),
-):
-    """Lane ``l`` of node ``c``'s share of ``rhs = P^T r``: entries ``l, l + RESTRICT_LANES,
-    ...`` of the node's row (thread ``c * RESTRICT_LANES + l``; ``restrict_sum_kernel`` adds the
-    lanes)."""
-    tid = wp.tid()
-    c = tid // RESTRICT_LANES
-    s = wp.vec3(0.0)
-    for k in range(offsets[c] + tid % RESTRICT_LANES, offsets[c + 1], RESTRICT_LANES):
-        s = s + weights[k] * r[ids[k]]
-    rhs_part[tid] = s
-
-
-@wp.kernel
-def restrict_sum_kernel(rhs_part: wp.array(dtype=wp.vec3), rhs_out: wp.array(dtype=wp.vec3)):
-    """``rhs = P^T r`` of node ``c`` from ``restrict_kernel``'s lanes, summed in lane order (one
-    node per thread)."""
-    c = wp.tid()
-    s = wp.vec3(0.0)
-    for lane in range(RESTRICT_LANES):
-        s = s + rhs_part[c * RESTRICT_LANES + lane]
-    rhs_out[c] = s
-
-
-@wp.kernel
-def contact_stiffness_kernel(
     offsets: wp.array(dtype=wp.int32),
     ids: wp.array(dtype=wp.int32),
     weights: wp.array(dtype=float),
@@ -744,40 +715,63 @@ def contact_stiffness_kernel(
     instance_thickness: wp.array(dtype=float),
     k_contact: float,
     sc: SelfContactData,
+    rhs_part: wp.array(dtype=wp.vec3),
     k_part: wp.array(dtype=float),
 ):
-    """Lane ``l`` of node ``c``'s share of ``P^T k``, ``k`` the body contact's penalty at
-    particles of ``x`` pressed onto the body plus the self-contact penalty at particles with
-    cloth-cloth pairs (lanes as ``restrict_kernel``; ``diagonal_sum_kernel`` adds them)."""
+    """Lane ``l`` of node ``c``'s share of ``rhs = P^T r`` (``parts`` bit ``RESTRICT_RHS``) and of
+    ``P^T k`` (bit ``RESTRICT_DIAGONAL``), ``k`` the body contact's penalty at particles of ``x``
+    pressed onto the body plus the self-contact penalty at particles with cloth-cloth pairs:
+    entries ``l, l + RESTRICT_LANES, ...`` of the node's row (thread ``c * RESTRICT_LANES + l``;
+    ``restrict_sum_kernel`` adds the lanes)."""
     tid = wp.tid()
     c = tid // RESTRICT_LANES
+    s = wp.vec3(0.0)
     kc = float(0.0)
+    rhs = (parts & RESTRICT_RHS) != 0
+    diagonal = (parts & RESTRICT_DIAGONAL) != 0
     for k in range(offsets[c] + tid % RESTRICT_LANES, offsets[c + 1], RESTRICT_LANES):
         i = ids[k]
         w = weights[k]
-        if contact_active[i] != 0:
-            if wp.dot(contact_normal[i], x[i] - contact_point[i]) < instance_thickness[particle_instance[i]]:
-                kc = kc + w * k_contact
-        if has_pairs(sc, i):
-            kc = kc + w * sc.stiffness
-    k_part[tid] = kc
+        if rhs:
+            s = s + w * r[i]
+        if diagonal:
+            if contact_active[i] != 0:
+                th = instance_thickness[particle_instance[i]]
+                if wp.dot(contact_normal[i], x[i] - contact_point[i]) < th:
+                    kc = kc + w * k_contact
+            if has_pairs(sc, i):
+                kc = kc + w * sc.stiffness
+    if rhs:
+        rhs_part[tid] = s
+    if diagonal:
+        k_part[tid] = kc
 
 
 @wp.kernel
-def diagonal_sum_kernel(
+def restrict_sum_kernel(
+    parts: int,
+    rhs_part: wp.array(dtype=wp.vec3),
     k_part: wp.array(dtype=float),
     node_mass: wp.array(dtype=float),
     node_stiffness: wp.array(dtype=float),
     inertia: float,
+    rhs_out: wp.array(dtype=wp.vec3),
     diag_out: wp.array(dtype=float),
 ):
-    """The coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` of node ``c`` from
-    ``contact_stiffness_kernel``'s lanes, summed in lane order (one node per thread)."""
+    """``rhs = P^T r`` and the coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` of node
+    ``c`` (the ``parts`` of ``restrict_kernel``) from its lanes, summed in lane order (one node
+    per thread)."""
     c = wp.tid()
-    kc = float(0.0)
-    for lane in range(RESTRICT_LANES):
-        kc = kc + k_part[c * RESTRICT_LANES + lane]
-    diag_out[c] = node_mass[c] * inertia + node_stiffness[c] + kc
+    if (parts & RESTRICT_RHS) != 0:
+        s = wp.vec3(0.0)
+        for lane in range(RESTRICT_LANES):
+            s = s + rhs_part[c * RESTRICT_LANES + lane]
+        rhs_out[c] = s
+    if (parts & RESTRICT_DIAGONAL) != 0:
+        kc = float(0.0)
+        for lane in range(RESTRICT_LANES):
+            kc = kc + k_part[c * RESTRICT_LANES + lane]
+        diag_out[c] = node_mass[c] * inertia + node_stiffness[c] + kc
 
 
 @wp.kernel
