@@ -784,17 +784,14 @@ def test_the_solve_does_not_depend_on_its_lanes(device):
     frames contact switching amplifies round-off into centimetres, which says nothing about the
     layouts. On the CPU every layout is one thread
     per particle: the steps must match exactly but for the gather, which orders a particle's
-    sums by kind (split, and kinds, which is split there) or by item (fused). The kinds layout
-    (session 31) gives each kind its own lanes and warps on CUDA."""
+    sums by kind (split) or by item (fused)."""
     from sim.cloth.solver_vbd import AUTO_LANES_PARTICLES, auto_lanes
 
     assert auto_lanes(AUTO_LANES_PARTICLES - 1) == (16, 8) and auto_lanes(AUTO_LANES_PARTICLES) == (4, 32)
     m, *start = draped_layers_in_contact(device)
     layouts = ({}, {"lanes": 4, "particles_per_block": 32}, {"lanes": 1, "particles_per_block": 64},
                {"gather": "fused"}, {"gather": "split"},
-               {"lanes": 4, "particles_per_block": 32, "gather": "fused"},
-               {"gather": "kinds"}, {"gather": "kinds", "lanes": 40, "particles_per_block": 8},
-               {"gather": "kinds", "kind_lanes": (8, 8, 8)})
+               {"lanes": 4, "particles_per_block": 32, "gather": "fused"})
     out = [one_step_from(m, start, **layout)[0] for layout in layouts]
     moved = np.abs(out[0] - start[0]).max()
     assert moved > 1e-4  # the step did work
@@ -905,60 +902,7 @@ def test_pipelined_detection_takes_the_in_order_step(device):
         VBDConfig(self_contact_pipeline=True, self_contact_bounds=True)
 
 
-def test_the_kinds_layout_gives_every_thread_one_item_slot_and_every_particle_its_rows(device):
-    """The kinds layout's thread map (``vbd_kernels.kind_thread``): over one block every
-    (kind, particle, lane) slot has exactly one thread, each kind's threads fill whole warps, and
-    the reduction's rows of T threads (``kind_row``) give each particle exactly the rows its
-    threads sum into, no row to two particles."""
-    from sim.cloth import vbd_kernels as K
-
-    wp = warp()
-
-    @wp.kernel
-    def thread_map(particles: int, kt: int, ke: int, kr: int, out: wp.array2d(dtype=wp.int32),
-                   rows: wp.array2d(dtype=wp.int32)):
-        t = wp.tid()
-        kind, local, lane, lanes = K.kind_thread(t, particles, kt, ke, kr)
-        out[t, 0] = kind
-        out[t, 1] = local
-        out[t, 2] = lane
-        out[t, 3] = lanes
-        if t < particles:
-            for k in range((ke + kr) // kt):
-                rows[t, k] = K.kind_row(t, k, particles, kt, ke, kr)
-
-    for particles, lanes in ((4, (8, 16, 16)), (8, (8, 16, 16)), (4, (8, 8, 8)), (8, (4, 12, 8))):
-        kt, ke, kr = lanes
-        n = particles * sum(lanes)
-        out = wp.zeros((n, 4), dtype=wp.int32, device=device)
-        rows = wp.zeros((particles, (ke + kr) // kt), dtype=wp.int32, device=device)
-        wp.launch(thread_map, dim=n, inputs=[particles, kt, ke, kr, out, rows], device=device)
-        got, rows = out.numpy(), rows.numpy()
-        slots = {tuple(r[:3]) for r in got}
-        assert len(slots) == n == sum(particles * v for v in lanes)
-        for kind, width in enumerate(lanes):
-            sel = got[:, 0] == kind
-            assert (got[sel, 3] == width).all() and set(got[sel, 1]) == set(range(particles))
-            assert set(got[sel, 2]) == set(range(width))
-            idx = np.flatnonzero(sel)
-            assert idx.min() % 32 == 0 and (idx.max() + 1) % 32 == 0  # whole warps of one kind
-        # thread t sums into row t // T; a particle's rows: its triangle row, then kind_row's
-        owned = {p: {p, *rows[p].tolist()} for p in range(particles)}
-        assert sorted(r for rs in owned.values() for r in rs) == list(range(n // kt))
-        for t, (_, local, _, _) in enumerate(got):
-            assert t // kt in owned[local]
-    with pytest.raises(ValueError, match="warps"):
-        VBDConfig(gather="kinds", kind_lanes=(4, 16, 16))
-    with pytest.raises(ValueError, match="dividing"):
-        VBDConfig(gather="kinds", kind_lanes=(8, 12, 16))
-    with pytest.raises(ValueError, match="lanes"):
-        VBDConfig(gather="kinds", lanes=16)
-    with pytest.raises(ValueError, match="gather"):
-        VBDConfig(gather="kind")
-
-
-@pytest.mark.parametrize("kinds", [False, True])
-def test_heavy_vertices_solved_by_whole_blocks_take_the_same_step(device, kinds):
+def test_heavy_vertices_solved_by_whole_blocks_take_the_same_step(device):
     """Vertices with more gather records than lanes may each get a whole thread block
     (``self_contact_heavy_cap``): the step must be the lanes layout's, whether every colour's
     heavy vertices fit under the cap, only some colours' do (the others solve theirs in the
@@ -969,8 +913,6 @@ def test_heavy_vertices_solved_by_whole_blocks_take_the_same_step(device, kinds)
     snapshot, only to 3 % of the motion: heavy blocks run last and saw more moved partners)."""
     m, *start = draped_layers_in_contact(device)
     layout = {"lanes": 4, "particles_per_block": 32} if device == "cuda" else {}
-    if kinds:  # 8 pair lanes: vertices with more records are heavy (split on the CPU)
-        layout = {"gather": "kinds", "kind_lanes": (8, 16, 8)}
     ref, _ = one_step_from(m, start, self_contact_heavy_cap=0, **layout)
     moved = np.abs(ref - start[0]).max()
     assert moved > 1e-4

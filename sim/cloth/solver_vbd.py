@@ -78,15 +78,7 @@ class VBDConfig:
             latency-bound), "split" (one kind after the other, only the items a lane has:
             batches, throughput-bound), "auto" (default: fused from ``vbd_kernels.FUSED_LANES`` lanes per
             particle, so with the 16-lane layout of single garments, split with the 4-lane
-            layout of batches and on the CPU), "kinds" (CUDA; session 31: a particle's triangles,
-            hinges and self-contact pairs gathered by separate lanes, ``kind_lanes``, in warps of
-            one kind each, so the kinds' chains of loads and arithmetic run side by side instead
-            of one after the other; ``vbd_kernels.solve_color_kernel``. ``lanes`` is then their
-            sum, and ``particles_per_block`` ``AUTO_KIND_PARTICLES`` where ``lanes`` is 0; split
-            on the CPU).
-        kind_lanes: lanes per particle for its triangles, hinges and pairs with gather "kinds"
-            (default 8 / 16 / 16: the t-shirt's vertices have at most 8 triangles and 16 hinges;
-            vertices with more pairs than their pair lanes get heavy blocks).
+            layout of batches and on the CPU).
         max_registers: CUDA registers per thread of the solve kernel (``__maxnreg__``; the compiler
             spills what does not fit), 0: the compiler's choice, -1 (default): auto,
             ``AUTO_BATCH_MAX_REGISTERS`` with the automatic batch layout (4 lanes x 32) and the
@@ -235,7 +227,6 @@ class VBDConfig:
     lanes: int = 0
     particles_per_block: int = 8
     gather: str = "auto"
-    kind_lanes: tuple[int, int, int] = (8, 16, 16)
     max_registers: int = -1
     chebyshev_rho: float = 0.0
     membrane: str = "corotated"
@@ -288,18 +279,8 @@ class VBDConfig:
                                            or self.self_contact_side_memory):
             raise ValueError("VBDConfig.self_contact_pipeline needs self_contact_interval 1, "
                              "self_contact_bounds off and self_contact_side_memory off")
-        if self.gather not in ("auto", "fused", "split", "kinds"):
-            raise ValueError(f"VBDConfig.gather must be 'auto', 'fused', 'split' or 'kinds', got "
-                             f"{self.gather!r}")
-        object.__setattr__(self, "kind_lanes", tuple(int(v) for v in self.kind_lanes))
-        if self.gather == "kinds":
-            if len(self.kind_lanes) != 3:
-                raise ValueError(f"VBDConfig.kind_lanes must be 3 lane counts, got {self.kind_lanes}")
-            particles = self.particles_per_block if self.lanes else AUTO_KIND_PARTICLES
-            try:
-                K.check_kind_lanes(particles, self.lanes or sum(self.kind_lanes), self.kind_lanes)
-            except ValueError as e:
-                raise ValueError(f"VBDConfig.kind_lanes / lanes / particles_per_block: {e}") from None
+        if self.gather not in ("auto", "fused", "split"):
+            raise ValueError(f"VBDConfig.gather must be 'auto', 'fused' or 'split', got {self.gather!r}")
         if self.membrane not in ("stvk", "corotated"):
             raise ValueError(f"VBDConfig.membrane must be 'stvk' or 'corotated', got {self.membrane!r}")
         if self.max_registers not in (-1, 0) and not 24 <= self.max_registers <= 255:
@@ -357,7 +338,6 @@ AUTO_LANES_PARTICLES = 16384
 # (80 spilled bytes), 589.4 at 96 (208); one t-shirt (16-lane fused layout, 209 registers)
 # 10.18 ms/frame uncapped, 11.56 at 128, so single garments stay uncapped.
 AUTO_BATCH_MAX_REGISTERS = 128
-AUTO_KIND_PARTICLES = 4  # particles per block of the kinds layout with lanes 0
 # heavy blocks per colour launch and instance (auto): every launch carries the cap's blocks, and
 # those without a vertex still cost their place in the grid. t-shirt 20x10, H100, session 15
 # (4 colours), walk/run ms per frame: cap 0 17.6/18.0, 64 16.3/16.4, 96 16.3/16.4,
@@ -382,10 +362,7 @@ def solve_layout(config: VBDConfig, largest_color: int) -> tuple[int, int, int]:
     batch layout (fewer than ``vbd_kernels.FUSED_LANES`` lanes), else none (0)."""
     lanes, particles = config.lanes, config.particles_per_block
     regs = max(config.max_registers, 0)
-    if config.gather == "kinds":
-        if lanes == 0:
-            lanes, particles = sum(config.kind_lanes), AUTO_KIND_PARTICLES
-    elif lanes == 0:
+    if lanes == 0:
         lanes, particles = auto_lanes(largest_color)
         if config.max_registers == -1 and lanes < K.FUSED_LANES:
             regs = AUTO_BATCH_MAX_REGISTERS
@@ -433,12 +410,9 @@ class SolverVBD:
             self.config, max((b - a for a, b in zip(offsets[:-1], offsets[1:], strict=True)), default=0))
         self._lanes = lanes if cuda else 1
         self._particles = particles if cuda else 1
-        fused = {"auto": None, "fused": True, "split": False, "kinds": False}[self.config.gather]
+        fused = {"auto": None, "fused": True, "split": False}[self.config.gather]
         self._max_registers = regs if cuda else 0
-        # the kinds layout's lanes per kind (a CPU block is one thread: split there)
-        self._kind_lanes = self.config.kind_lanes if cuda and self.config.gather == "kinds" else None
-        self._solve = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
-                                           kind_lanes=self._kind_lanes)
+        self._solve = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers)
         self._side = SideStreams(d, 1)
         self._pipe = SideStreams(d, 1)
         self._coarse_side = SideStreams(d, 1)
@@ -465,8 +439,7 @@ class SolverVBD:
                 capacity=cfg.self_contact_capacity, rest_exclusion=cfg.self_contact_rest_exclusion,
                 bounds=cfg.self_contact_bounds, side_memory=cfg.self_contact_side_memory,
                 relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool,
-                heavy_cap=self.heavy_cap(cuda),
-                heavy_threshold=self._kind_lanes[2] if self._kind_lanes else self._lanes,
+                heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes,
                 weight_floor=cfg.self_contact_weight_floor, ee_interior=cfg.self_contact_ee_interior,
                 slots=2 if cfg.self_contact_pipeline else 1)
             self._sc_data = self.self_contact.data
@@ -488,7 +461,7 @@ class SolverVBD:
                                       cfg.air_damping, cfg.coarse_spacing, cfg.coarse_levels,
                                       cfg.coarse_smoothing, cfg.coarse_prefactor)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
-                                                  evaluate=True, kind_lanes=self._kind_lanes)
+                                                  evaluate=True)
 
     def heavy_cap(self, cuda: bool) -> int:
         """Heavy-vertex blocks per colour launch (``VBDConfig.self_contact_heavy_cap``; -1: auto,

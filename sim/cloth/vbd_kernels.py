@@ -204,76 +204,6 @@ def jacobi_scale(t_packed: int) -> float:
 
 
 @wp.func
-def kind_share_force_hessian(
-    kind: int,
-    i: int,
-    lane: int,
-    stride: int,
-    membrane: int,
-    x_prev: wp.array(dtype=wp.vec3),
-    tri_indices: wp.array(dtype=wp.vec3i),
-    tri_dm_inv: wp.array(dtype=wp.mat22),
-    tri_area: wp.array(dtype=float),
-    tri_mu: wp.array(dtype=float),
-    tri_lam: wp.array(dtype=float),
-    tri_damping: wp.array(dtype=float),
-    tri_strain_prev: wp.array(dtype=wp.vec3),
-    edge_indices: wp.array(dtype=wp.vec4i),
-    edge_rest_angle: wp.array(dtype=float),
-    edge_stiffness: wp.array(dtype=float),
-    edge_damping: wp.array(dtype=float),
-    edge_angle_prev: wp.array(dtype=float),
-    vertex_tri_offsets: wp.array(dtype=wp.int32),
-    vertex_tri_ids: wp.array(dtype=wp.int32),
-    vertex_tri_local: wp.array(dtype=wp.int32),
-    vertex_edge_offsets: wp.array(dtype=wp.int32),
-    vertex_edge_ids: wp.array(dtype=wp.int32),
-    vertex_edge_local: wp.array(dtype=wp.int32),
-    eps_u: float,
-    inv_h: float,
-    sc: SelfContactData,
-    x: wp.array(dtype=wp.vec3),
-    snap: wp.array(dtype=wp.vec3),
-    f_in: wp.vec3,
-    H_in: wp.mat33,
-):
-    """``f_in``, ``H_in`` plus this lane's share (items ``lane, lane + stride, ...``) of one kind
-    of particle ``i``'s terms: ``kind`` 0 its triangles (damped membrane), 1 its hinges (damped
-    bending), 2 its self-contact pairs (nothing where self-contact is off); force and Hessian
-    block, added one item after the other."""
-    f = f_in
-    H = H_in
-    if kind == 0:
-        for k in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
-            t = vertex_tri_ids[k]
-            tri = tri_indices[t]
-            t_packed = vertex_tri_local[k]
-            ta, tb, tc = read_triangle(x, snap, tri, t_packed >> 2)
-            fe, he = membrane_force_hessian(membrane, ta, tb, tc, tri_dm_inv[t], tri_area[t], tri_mu[t],
-                                            tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h,
-                                            t_packed & 3)
-            f = f + fe
-            H = H + he * jacobi_scale(t_packed)
-    elif kind == 1:
-        for k in range(vertex_edge_offsets[i] + lane, vertex_edge_offsets[i + 1], stride):
-            e = vertex_edge_ids[k]
-            q = edge_indices[e]
-            packed = vertex_edge_local[k]
-            h0, h1, h2, h3 = read_positions(x, snap, q, packed >> 2)
-            fb, hb = bending_damped_vertex_force_hessian(h0, h1, h2, h3, edge_rest_angle[e],
-                                                         edge_stiffness[e], edge_angle_prev[e],
-                                                         edge_damping[e] * inv_h, packed & 3)
-            f = f + fb
-            H = H + hb
-    elif sc.enabled != 0:
-        fs, hs = self_contact_force_hessian(i, lane, stride, x, snap, x_prev, tri_indices, vertex_tri_offsets,
-                                            vertex_tri_ids, vertex_tri_local, sc, eps_u)
-        f = f + fs
-        H = H + hs
-    return f, H
-
-
-@wp.func
 def vertex_share_force_hessian(
     i: int,
     lane: int,
@@ -323,12 +253,32 @@ def vertex_share_force_hessian(
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
     if fused == 0:
-        for kind in range(3):
-            f, H = kind_share_force_hessian(
-                kind, i, lane, stride, membrane, x_prev, tri_indices, tri_dm_inv, tri_area, tri_mu, tri_lam,
-                tri_damping, tri_strain_prev, edge_indices, edge_rest_angle, edge_stiffness, edge_damping,
-                edge_angle_prev, vertex_tri_offsets, vertex_tri_ids, vertex_tri_local, vertex_edge_offsets,
-                vertex_edge_ids, vertex_edge_local, eps_u, inv_h, sc, x, snap, f, H)
+        for k in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
+            t = vertex_tri_ids[k]
+            tri = tri_indices[t]
+            t_packed = vertex_tri_local[k]
+            ta, tb, tc = read_triangle(x, snap, tri, t_packed >> 2)
+            fe, he = membrane_force_hessian(membrane, ta, tb, tc, tri_dm_inv[t], tri_area[t], tri_mu[t],
+                                            tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h,
+                                            t_packed & 3)
+            f = f + fe
+            H = H + he * jacobi_scale(t_packed)
+        for k in range(vertex_edge_offsets[i] + lane, vertex_edge_offsets[i + 1], stride):
+            e = vertex_edge_ids[k]
+            q = edge_indices[e]
+            packed = vertex_edge_local[k]
+            h0, h1, h2, h3 = read_positions(x, snap, q, packed >> 2)
+            fb, hb = bending_damped_vertex_force_hessian(h0, h1, h2, h3, edge_rest_angle[e],
+                                                         edge_stiffness[e], edge_angle_prev[e],
+                                                         edge_damping[e] * inv_h, packed & 3)
+            f = f + fb
+            H = H + hb
+        if sc.enabled != 0:
+            fs, hs = self_contact_force_hessian(i, lane, stride, x, snap, x_prev, tri_indices,
+                                                vertex_tri_offsets, vertex_tri_ids, vertex_tri_local, sc,
+                                                eps_u)
+            f = f + fs
+            H = H + hs
         return f, H
     tri_begin = vertex_tri_offsets[i]
     tri_n = vertex_tri_offsets[i + 1] - tri_begin
@@ -581,54 +531,8 @@ _SOLVE_KERNELS: dict = {}
 FUSED_LANES = 8  # lanes per particle from which the solve gathers with the fused loop
 
 
-def check_kind_lanes(particles: int, lanes: int, kind_lanes: tuple) -> None:
-    """Raise ``ValueError`` unless ``kind_lanes`` (T, E, R) fit the kinds layout of
-    ``solve_color_kernel``: positive, T dividing E and R, ``particles`` x each a multiple of the
-    32-thread warp, ``lanes`` their sum."""
-    t, e, r = (int(v) for v in kind_lanes)
-    if min(t, e, r) < 1 or e % t or r % t:
-        raise ValueError(f"kind lanes (triangles, hinges, pairs) must be positive with the triangles' "
-                         f"dividing the others, got {tuple(kind_lanes)}")
-    if any((particles * v) % 32 for v in (t, e, r)):
-        raise ValueError(f"kind lanes {tuple(kind_lanes)} x {particles} particles per block must each fill "
-                         "whole 32-thread warps")
-    if lanes != t + e + r:
-        raise ValueError(f"the kinds layout has {t + e + r} lanes per particle, got lanes={lanes}")
-
-
-@wp.func
-def kind_thread(thread: int, particles: int, kt: int, ke: int, kr: int):
-    """(kind, particle in the block, lane among the particle's lanes of that kind, the kind's
-    lanes per particle) of a thread of the kinds layout (``solve_color_kernel``): threads
-    ``[0, P T)`` gather triangles (kind 0), the next ``P E`` hinges (1), the last ``P R`` pairs (2)."""
-    u = thread
-    kind = int(0)
-    lanes = kt
-    if u >= particles * kt:
-        u = u - particles * kt
-        kind = 1
-        lanes = ke
-        if u >= particles * ke:
-            u = u - particles * ke
-            kind = 2
-            lanes = kr
-    local = u // lanes
-    return kind, local, u - local * lanes, lanes
-
-
-@wp.func
-def kind_row(local: int, k: int, particles: int, kt: int, ke: int, kr: int) -> int:
-    """Row of the kinds layout's reduction (rows of T threads; the P triangle rows first, one per
-    particle) that holds particle ``local``'s ``k``-th further partial sum: its E / T hinge rows,
-    then its R / T pair rows."""
-    he = ke // kt
-    if k < he:
-        return particles + local * he + k
-    return particles * (1 + he) + local * (kr // kt) + (k - he)
-
-
 def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, max_registers: int = 0,
-                       evaluate: bool = False, kind_lanes: tuple | None = None):
+                       evaluate: bool = False):
     """The per-colour VBD kernel (Chen et al. 2024, Alg. 1) for blocks of ``particles`` x
     ``lanes`` threads: launch it with ``wp.launch_tiled(kernel, dim=[ceil(count / particles)],
     block_dim=particles * lanes)`` (on the CPU, where a block is one thread: 1 x 1).
@@ -661,30 +565,13 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
     one launch over all colours at once (``color_start`` 0, ``count`` all particles, no heavy
     blocks: light blocks take the heavy particles too) evaluates the whole residual at one
     configuration (``snap`` must hold ``x``). The coarse-level correction (``sim.cloth.coarse``)
-    restricts it.
-
-    ``kind_lanes`` (T, E, R) (session 31): the kinds layout. A particle's triangles, hinges and
-    self-contact pairs are gathered by separate lanes, T, E and R of them (``lanes`` must be
-    their sum), in warps of one kind each: the block's first ``particles x T`` threads take the
-    triangles of its particles, the next ``particles x E`` their hinges, the last ``particles x
-    R`` their pairs (each a multiple of 32; T divides E and R). A warp then runs one kind's code
-    (in a warp of mixed kinds the lanes of each kind wait for the others' branches), and the
-    SM interleaves the kinds' chains instead of running them one after the other. The block
-    reduction sums rows of T threads, then a particle's rows (``kind_row``)."""
+    restricts it."""
     if fused is None:
         fused = lanes >= FUSED_LANES
-    KT, KE, KR = (0, 0, 0) if kind_lanes is None else (int(v) for v in kind_lanes)
-    KINDS = int(kind_lanes is not None)
-    if KINDS:
-        check_kind_lanes(particles, lanes, (KT, KE, KR))
-        fused = False
-    key = (int(particles), int(lanes), bool(fused), int(max_registers), bool(evaluate), (KT, KE, KR))
+    key = (int(particles), int(lanes), bool(fused), int(max_registers), bool(evaluate))
     if key in _SOLVE_KERNELS:
         return _SOLVE_KERNELS[key]
     P, L, FUSED, EVAL = int(particles), int(lanes), int(fused), int(evaluate)
-    # the reduction's rows: L threads per particle, in rows of T (kinds) or one row (lanes layout)
-    ROW = KT if KINDS else L
-    ROWS = P * L // ROW
 
     def solve(
         count: int,
@@ -733,29 +620,22 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
         instance_friction = floats(a.instance_friction)
         sc = contact_view(a.contact)
         block, thread = wp.tid()
-        # the thread's particle in the block (local), its kind, and its lane among the particle's
-        # lanes of that kind (the lanes layout: one kind, 0, that gathers all three)
-        kind = int(0)
         local = thread // wp.static(L)
         lane = thread - local * wp.static(L)
-        kl = wp.static(L)
-        if wp.static(KINDS):
-            kind, local, lane, kl = kind_thread(thread, wp.static(P), wp.static(KT), wp.static(KE),
-                                                wp.static(KR))
         share = lane
-        stride = kl
+        stride = wp.static(L)
         i = int(-1)
         heavy_block = block >= light_blocks
         if heavy_block:
-            # one heavy vertex per block, its items shared by all the block's threads (of its
-            # kind); a block without one leaves as a whole (no thread waits at the reductions)
+            # one heavy vertex per block, its items shared by all the block's threads; a block
+            # without one leaves as a whole (no thread waits at the reductions)
             hb = block - light_blocks
             nh = sc.heavy_count[color]
             if nh > sc.heavy_cap or hb >= nh:
                 return
             i = sc.heavy_list[color_start + hb]
-            share = local * kl + lane
-            stride = wp.static(P) * kl
+            share = thread
+            stride = wp.static(P * L)
         else:
             slot = block * wp.static(P) + local
             if slot < count:
@@ -768,7 +648,7 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
                             i = -1
         # the solving thread's particle inputs, loaded first so their loads overlap the gather's
         step = ParticleStep()
-        solver = lane == 0 and kind == 0 and i >= 0
+        solver = lane == 0 and i >= 0
         if heavy_block:
             solver = thread == 0
         if solver:
@@ -778,35 +658,21 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
         f = wp.vec3(0.0)
         H = wp.mat33(0.0)
         if i >= 0:
-            if wp.static(KINDS):
-                f, H = kind_share_force_hessian(
-                    kind, i, share, stride, membrane, x_prev, tri_indices, tri_dm_inv, tri_area, tri_mu,
-                    tri_lam, tri_damping, tri_strain_prev, edge_indices, edge_rest_angle, edge_stiffness,
-                    edge_damping, edge_angle_prev, vertex_tri_offsets, vertex_tri_ids, vertex_tri_local,
-                    vertex_edge_offsets, vertex_edge_ids, vertex_edge_local, eps_u, 1.0 / h, sc, x_inout,
-                    snap, f, H)
-            else:
-                f, H = vertex_share_force_hessian(
-                    i, share, stride, membrane, x_prev, tri_indices, tri_dm_inv, tri_area, tri_mu, tri_lam,
-                    tri_damping, tri_strain_prev, edge_indices, edge_rest_angle, edge_stiffness,
-                    edge_damping, edge_angle_prev, vertex_tri_offsets, vertex_tri_ids, vertex_tri_local,
-                    vertex_edge_offsets, vertex_edge_ids, vertex_edge_local, eps_u, 1.0 / h, sc,
-                    wp.static(FUSED), x_inout, snap)
+            f, H = vertex_share_force_hessian(
+                i, share, stride, membrane, x_prev, tri_indices, tri_dm_inv, tri_area, tri_mu, tri_lam,
+                tri_damping, tri_strain_prev, edge_indices, edge_rest_angle, edge_stiffness, edge_damping,
+                edge_angle_prev, vertex_tri_offsets, vertex_tri_ids, vertex_tri_local, vertex_edge_offsets,
+                vertex_edge_ids, vertex_edge_local, eps_u, 1.0 / h, sc, wp.static(FUSED), x_inout, snap)
         # every thread of the block reaches the reductions
-        shape = (wp.static(ROWS), wp.static(ROW))
+        shape = (wp.static(P), wp.static(L))
         f_sum = wp.tile_sum(wp.tile_reshape(wp.tile(f, preserve_type=True), shape=shape), axis=1)
         H_sum = wp.tile_sum(wp.tile_reshape(wp.tile(H, preserve_type=True), shape=shape), axis=1)
         f = wp.tile_extract(f_sum, local)
         H = wp.tile_extract(H_sum, local)
-        if heavy_block:  # the same for the whole block: the rows' partial sums are all vertex i's
-            for k in range(1, wp.static(ROWS)):
-                f = f + wp.tile_extract(f_sum, (local + k) % wp.static(ROWS))
-                H = H + wp.tile_extract(H_sum, (local + k) % wp.static(ROWS))
-        elif wp.static(KINDS):  # the particle's hinge and pair rows after its triangle row
-            for k in range(wp.static((KE + KR) // max(KT, 1))):
-                row = kind_row(local, k, wp.static(P), wp.static(KT), wp.static(KE), wp.static(KR))
-                f = f + wp.tile_extract(f_sum, row)
-                H = H + wp.tile_extract(H_sum, row)
+        if heavy_block:  # the same for the whole block: the P partial sums are all vertex i's
+            for k in range(1, wp.static(P)):
+                f = f + wp.tile_extract(f_sum, (local + k) % wp.static(P))
+                H = H + wp.tile_extract(H_sum, (local + k) % wp.static(P))
         if not solver:
             return
         if wp.static(EVAL):
@@ -823,8 +689,7 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
             snap_out[i] = x_new
 
     regs = f"_r{int(max_registers)}" if max_registers > 0 else ""
-    kinds = f"_k{KT}_{KE}_{KR}" if KINDS else ""
-    name = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}{kinds}{regs}{'_eval' if EVAL else ''}"
+    name = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}{regs}{'_eval' if EVAL else ''}"
     solve.__name__ = solve.__qualname__ = name
     options = {"cuda_max_registers": int(max_registers)} if max_registers > 0 else {}
     kernel = wp.kernel(solve, enable_backward=False, module="unique", **options)
