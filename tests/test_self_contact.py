@@ -545,10 +545,9 @@ def _point_triangle_distance_np(p, a, b, c):
     return min(to_segment(a, b), to_segment(b, c), to_segment(c, a))
 
 
-@pytest.mark.parametrize("leaf", [1, 4])
 @pytest.mark.parametrize("motion,frame", [("still", 0.0), ("together", 0.0), ("sliding", 0.0),
                                           ("together", 3.0), ("sliding", 3.0)])
-def test_detection_finds_exactly_the_pairs_within_the_query_radius(device, motion, frame, leaf):
+def test_detection_finds_exactly_the_pairs_within_the_query_radius(device, motion, frame):
     """Pair detection against brute force: a flat sheet and a jittered sheet 2-8 mm above it
     (one instance, two pieces), still, moving together at 3 m/s, or the upper one sliding over
     the lower at 3 m/s, searched in the frame moving at ``frame`` m/s along x (the instance's
@@ -558,8 +557,7 @@ def test_detection_finds_exactly_the_pairs_within_the_query_radius(device, motio
     keep only the 6 mm pairs, a sliding layer the 25 mm ones), never an incident pair; the
     nearest distance is the minimum over every pair within the query radius, stored or not
     (capped at it). Layers moving together, searched in their own frame, are searched as if
-    still: every query radius is the margin. BVHs with 4 primitives per leaf
-    (``self_contact_leaf_size``) find the same pairs."""
+    still: every query radius is the margin."""
     nx, ny, e, r, h, sf = 7, 6, 0.012, 0.006, 1.0 / 300.0, 2.5
     v1, f1 = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
     rng = np.random.default_rng(5)
@@ -577,7 +575,7 @@ def test_detection_finds_exactly_the_pairs_within_the_query_radius(device, motio
     m = b.finalize(device)
     cap = 128
     sc = SelfContact(m, radius=0.003, margin=r, stiffness=1e4, friction=0.0, relaxation=0.45,
-                     speed_factor=sf, capacity=cap, leaf_size=leaf)
+                     speed_factor=sf, capacity=cap)
     ref = np.array([frame, 0.0, 0.0], np.float32)
     sc.detect(m.particle_q, wp.array(vel, dtype=wp.vec3, device=device), h,
               reference=wp.array(ref[None], dtype=wp.vec3, device=device))

@@ -1171,15 +1171,13 @@ class SelfContact:
             can fill in turn (``SelfContact.datas``; ``data`` is slot 0), so one detection can
             run while the solve reads another's (``VBDConfig.self_contact_pipeline``). The BVHs
             are shared: detections must not overlap each other.
-        leaf_size: primitives per leaf of the three BVHs (``warp.Bvh``'s ``leaf_size``): the
-            same pairs are found at any size, in another order.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
-                 ee_interior: bool = False, slots: int = 1, leaf_size: int = 1):
+                 ee_interior: bool = False, slots: int = 1):
         w = warp()
         d = model.device
         self.model = model
@@ -1268,12 +1266,9 @@ class SelfContact:
         self._hi_e = w.zeros(ne, dtype=w.vec3, device=d)
         self._points = w.zeros(n, dtype=w.vec3, device=d)
         self._update_bounds(model.particle_q)
-        if leaf_size < 1:
-            raise ValueError(f"SelfContact: leaf_size must be >= 1, got {leaf_size}")
-        leaf = int(leaf_size)
-        self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance, leaf_size=leaf)
-        self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance, leaf_size=leaf)
-        self.vertex_bvh = w.Bvh(self._points, self._points, groups=model.particle_instance, leaf_size=leaf)
+        self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
+        self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
+        self.vertex_bvh = w.Bvh(self._points, self._points, groups=model.particle_instance)
         self._side = SideStreams(d, 3)
 
     @staticmethod

@@ -157,10 +157,6 @@ class VBDConfig:
         self_contact_rebuild: rebuild the cloth BVHs at the first detection of every step and
             refit them at the others. Refitting a tree built for the rest shape keeps its
             topology while the garment deforms, and queries on the loosened boxes cost 1.5-2x.
-        self_contact_leaf_size: primitives per leaf of the self-contact BVHs (``warp.Bvh``
-            ``leaf_size``; the same pairs in another order). A detection query's box holds ~13
-            edges at the 5k t-shirt's size (mostly the edge's own mesh neighbours), and a leaf of
-            one primitive makes each a tree node visit: a chain of dependent loads per thread.
         self_contact_ee_interior: store an edge-edge pair only where its closest points lie
             inside both edges (``SelfContact``'s ``ee_interior``): at an edge's end the vertex-
             triangle pairs of that end vertex hold the same contact, and the edge pair counted
@@ -253,7 +249,6 @@ class VBDConfig:
     self_contact_weight_floor: float = 0.5
     self_contact_ee_interior: bool = False
     self_contact_pipeline: bool = False
-    self_contact_leaf_size: int = 1
     max_colors: int = 0
     strain_limit: float = 0.0
     strain_limit_passes: int = 4
@@ -274,8 +269,7 @@ class VBDConfig:
                              f"{self.max_colors}")
         if self.strain_limit < 0.0:
             raise ValueError(f"VBDConfig.strain_limit must be >= 0 (0: off), got {self.strain_limit}")
-        for name in ("substeps", "iterations", "self_contact_interval", "strain_limit_passes",
-                     "self_contact_leaf_size"):
+        for name in ("substeps", "iterations", "self_contact_interval", "strain_limit_passes"):
             if getattr(self, name) < 1:
                 raise ValueError(f"VBDConfig.{name} must be >= 1, got {getattr(self, name)}")
         if self.self_contact_bounds and self.self_contact_interval != 1:
@@ -447,7 +441,7 @@ class SolverVBD:
                 relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool,
                 heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes,
                 weight_floor=cfg.self_contact_weight_floor, ee_interior=cfg.self_contact_ee_interior,
-                slots=2 if cfg.self_contact_pipeline else 1, leaf_size=cfg.self_contact_leaf_size)
+                slots=2 if cfg.self_contact_pipeline else 1)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
