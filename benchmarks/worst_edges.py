@@ -114,17 +114,20 @@ def main() -> None:
         try:
             params[name] = float(value)
         except ValueError:
-            raise SystemExit(f"--param: expected NAME=NUMBER, got {item!r}") from None
+            ap.error(f"--param: expected NAME=NUMBER, got {item!r}")
     setting = {}
     if args.setting:
         m = re.fullmatch(r"(\d+)x(\d+)", args.setting)
         if m is None:
-            raise SystemExit(f"--setting: expected SUBSTEPSxSWEEPS such as 20x5, got {args.setting!r}")
+            ap.error(f"--setting: expected SUBSTEPSxSWEEPS such as 20x5, got {args.setting!r}")
         setting = {"substeps": int(m[1]), "iterations": int(m[2])}
     device = resolve_device(args.device)
     body = load_default_body()
     _, edge = build_garment(body, args.vertices)
-    g = make_garment("t_shirt", body, None, resolution=edge, **params)
+    try:
+        g = make_garment("t_shirt", body, None, resolution=edge, **params)
+    except (TypeError, ValueError) as e:
+        ap.error(f"--param: {e}")
     names = args.motion.split(",")
     motions = [load_motion(n, fps=30.0, duration=args.seconds) for n in names]
     cfg = SimulationConfig(device=device, solver=json.loads(args.solver), keep_prelude=args.keep_prelude,

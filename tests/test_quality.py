@@ -160,3 +160,19 @@ def test_check_frame_names_frame_and_cause():
     p[3, 1] = 1e6
     with pytest.raises(SimulationError, match="frame 2.*explosion"):
         check_frame(p, 2)
+
+
+@pytest.mark.parametrize("bad", [["--param", "neck_fillet=x"], ["--setting", "20by5"],
+                                 ["--param", "no_such_param=1"]])
+def test_worst_edges_refuses_bad_options_with_status_2(bad, monkeypatch, capsys):
+    """``benchmarks.worst_edges`` with a malformed ``--param`` / ``--setting`` or an unknown
+    template parameter: a one-line error naming the option, exit status 2, before any
+    simulation."""
+    from benchmarks import worst_edges
+
+    monkeypatch.setattr("sys.argv", ["worst_edges", "--device", "cpu", "--seconds", "0.1", *bad])
+    with pytest.raises(SystemExit) as e:
+        worst_edges.main()
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("worst_edges: error: --") and bad[0] in err
