@@ -300,6 +300,56 @@ def test_instances_do_not_collide_with_each_other(device):
     np.testing.assert_allclose(both[:, len(v):], run([upper]), atol=1e-6)
 
 
+@wp.kernel
+def _group_roots_direct(bvh: wp.uint64, out: wp.array(dtype=wp.int32)):
+    g = wp.tid()
+    out[g] = wp.bvh_get_group_root(bvh, g)
+
+
+def test_instance_roots_found_at_rebuilds_give_each_instance_its_own_pairs(device):
+    """The detection queries start at each instance's subtree root, found once per tree build
+    (``group_roots_kernel``) instead of by every query thread. Three instances of two layers in
+    contact: the roots equal Warp's per-thread ``bvh_get_group_root``, and each instance's pair
+    lists equal those of the same layers detected alone, both as built and after the instances
+    moved apart and the trees were rebuilt (stale roots would search the wrong subtrees)."""
+    nx, e = 7, 0.012
+    v1, f1 = grid(nx, nx, (nx - 1) * e, (nx - 1) * e, plane="xz")
+    v2 = v1 + np.array([0.4 * e, 0.003, 0.3 * e], np.float32)
+    layers = np.concatenate([v1, v2]).astype(np.float32)
+    faces = np.concatenate([f1, f1 + len(v1)]).astype(np.int32)
+    kw = dict(radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45, speed_factor=2.5,
+              capacity=32)
+    n = len(layers)
+
+    def detect(parts, rebuild=False):
+        b = ClothModelBuilder()
+        for p in parts:
+            b.add_cloth(p, faces, ClothMaterialParams())
+        m = b.finalize(device)
+        sc = SelfContact(m, **kw)
+        if rebuild:  # build at other positions, then detect (and rebuild) where the parts are
+            sc.detect(wp.array(np.concatenate(parts) * 0.5, dtype=wp.vec3, device=device),
+                      wp.zeros(m.particle_count, dtype=wp.vec3, device=device), 1.0 / 300.0, rebuild=True)
+        sc.detect(m.particle_q, wp.zeros(m.particle_count, dtype=wp.vec3, device=device), 1.0 / 300.0,
+                  rebuild=rebuild)
+        for k, bvh in enumerate(sc.bvhs):
+            direct = wp.zeros(m.instance_count, dtype=wp.int32, device=device)
+            wp.launch(_group_roots_direct, dim=m.instance_count, inputs=[bvh.id], outputs=[direct],
+                      device=device)
+            np.testing.assert_array_equal(sc._roots[k].numpy(), direct.numpy())
+        d = sc.data
+        counts = np.stack([d.vt_count.numpy(), d.tv_total.numpy(), d.ee_total.numpy()], axis=1)
+        return [counts[a:a + n].tolist() for a in range(0, m.particle_count, n)]
+
+    for rebuild in (False, True):
+        offsets = [np.zeros(3), np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.7, -0.3])]
+        parts = [(layers + o).astype(np.float32) for o in offsets]
+        alone = detect(parts[:1], rebuild)[0]
+        assert sum(sum(t) for t in alone) > 50  # the layers are in contact
+        for got in detect(parts, rebuild):
+            assert got == alone
+
+
 def test_self_contact_config_is_checked():
     with pytest.raises(ValueError, match="relaxation"):
         VBDConfig(self_contact_relaxation=0.6)

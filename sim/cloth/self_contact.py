@@ -816,25 +816,37 @@ def primitive_bounds_kernel(
 
 
 @wp.kernel
+def group_roots_kernel(bvh: wp.uint64, roots_out: wp.array(dtype=wp.int32)):
+    """Each group's (instance's) subtree root of ``bvh``, for the detection queries. Warp's
+    ``bvh_get_group_root`` finds it by two binary searches over the leaves (each step three
+    dependent loads) and a walk up from two leaves to their common ancestor: ~100 dependent
+    loads that every query thread paid before its traversal. The tree's topology only changes
+    when it is rebuilt, so the roots are found once then (session 31)."""
+    g = wp.tid()
+    roots_out[g] = wp.bvh_get_group_root(bvh, g)
+
+
+@wp.kernel
 def detect_vertex_kernel(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     particle_instance: wp.array(dtype=wp.int32),
     tri_indices: wp.array(dtype=wp.vec3i),
     tri_bvh: wp.uint64,
+    tri_roots: wp.array(dtype=wp.int32),
     margin: float,
     speed_factor: float,
     h: float,
     sc: SelfContactData,
     dmin_out: wp.array(dtype=float),
 ):
-    """Per vertex: nearest non-incident triangle distance and the VT pairs within the radius."""
+    """Per vertex: nearest non-incident triangle distance and the VT pairs within the radius
+    (``tri_roots``: each instance's subtree root, ``group_roots_kernel``)."""
     i = wp.tid()
     xi = x[i]
     inst = particle_instance[i]
     r = query_radius(margin, wp.length(v[i] - sc.reference[inst]), h, speed_factor)
-    root = wp.bvh_get_group_root(tri_bvh, inst)
-    query = wp.bvh_query_aabb(tri_bvh, xi - wp.vec3(r), xi + wp.vec3(r), root)
+    query = wp.bvh_query_aabb(tri_bvh, xi - wp.vec3(r), xi + wp.vec3(r), tri_roots[inst])
     t = int(0)
     dmin = r
     count = int(0)
@@ -858,6 +870,7 @@ def detect_triangle_kernel(
     particle_instance: wp.array(dtype=wp.int32),
     tri_indices: wp.array(dtype=wp.vec3i),
     vertex_bvh: wp.uint64,
+    vertex_roots: wp.array(dtype=wp.int32),
     margin: float,
     speed_factor: float,
     h: float,
@@ -879,8 +892,7 @@ def detect_triangle_kernel(
     r = query_radius(margin, speed, h, speed_factor)
     lo = wp.min(wp.min(a, b), c) - wp.vec3(r)
     hi = wp.max(wp.max(a, b), c) + wp.vec3(r)
-    root = wp.bvh_get_group_root(vertex_bvh, inst)
-    query = wp.bvh_query_aabb(vertex_bvh, lo, hi, root)
+    query = wp.bvh_query_aabb(vertex_bvh, lo, hi, vertex_roots[inst])
     u = int(0)
     dmin = r
     count = int(0)
@@ -901,6 +913,7 @@ def detect_edge_kernel(
     v: wp.array(dtype=wp.vec3),
     particle_instance: wp.array(dtype=wp.int32),
     edge_bvh: wp.uint64,
+    edge_roots: wp.array(dtype=wp.int32),
     margin: float,
     speed_factor: float,
     h: float,
@@ -916,8 +929,8 @@ def detect_edge_kernel(
     vr = sc.reference[inst]
     speed = wp.max(wp.length(v[ea[0]] - vr), wp.length(v[ea[1]] - vr))
     r = query_radius(margin, speed, h, speed_factor)
-    root = wp.bvh_get_group_root(edge_bvh, inst)
-    query = wp.bvh_query_aabb(edge_bvh, wp.min(p1, q1) - wp.vec3(r), wp.max(p1, q1) + wp.vec3(r), root)
+    query = wp.bvh_query_aabb(edge_bvh, wp.min(p1, q1) - wp.vec3(r), wp.max(p1, q1) + wp.vec3(r),
+                              edge_roots[inst])
     e2 = int(0)
     dmin = r
     count = int(0)
@@ -1269,7 +1282,27 @@ class SelfContact:
         self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
         self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
         self.vertex_bvh = w.Bvh(self._points, self._points, groups=model.particle_instance)
+        # each instance's subtree root per tree (triangles, vertices, edges), refound at rebuilds
+        self._roots = [w.zeros(model.instance_count, dtype=w.int32, device=d) for _ in range(3)]
+        self.find_roots()
         self._side = SideStreams(d, 3)
+
+    @property
+    def bvhs(self) -> tuple:
+        """The three cloth BVHs in the order of their queries' roots: triangles (the vertex
+        query's), vertices (the triangle query's), edges (the edge query's)."""
+        return self.tri_bvh, self.vertex_bvh, self.edge_bvh
+
+    def find_roots(self) -> None:
+        """Refind every instance's subtree roots; needed after rebuilding a tree outside
+        ``detect`` (which refinds a tree's roots when it rebuilds it)."""
+        for k, bvh in enumerate(self.bvhs):
+            self._find_roots(k, bvh)
+
+    def _find_roots(self, k: int, bvh) -> None:
+        """Each instance's subtree root of ``bvh`` into ``_roots[k]`` (``group_roots_kernel``)."""
+        warp().launch(group_roots_kernel, dim=self.model.instance_count, inputs=[bvh.id],
+                      outputs=[self._roots[k]], device=self.model.device)
 
     @staticmethod
     def _copy_outputs(sc: SelfContactData) -> SelfContactData:
@@ -1312,19 +1345,19 @@ class SelfContact:
     def query_vertices(self, x0, v, h: float, slot: int = 0) -> None:
         """``detect_vertex_kernel``: each vertex's VT pairs and nearest triangle distance."""
         m = self.model
-        self._query(detect_vertex_kernel, m.particle_count, x0, v, h, [m.tri_indices, self.tri_bvh.id],
-                    self._dmin_v, slot)
+        self._query(detect_vertex_kernel, m.particle_count, x0, v, h,
+                    [m.tri_indices, self.tri_bvh.id, self._roots[0]], self._dmin_v, slot)
 
     def query_triangles(self, x0, v, h: float, slot: int = 0) -> None:
         """``detect_triangle_kernel``: each triangle's TV pairs and nearest vertex distance."""
         m = self.model
-        self._query(detect_triangle_kernel, m.tri_count, x0, v, h, [m.tri_indices, self.vertex_bvh.id],
-                    self._dmin_t, slot)
+        self._query(detect_triangle_kernel, m.tri_count, x0, v, h,
+                    [m.tri_indices, self.vertex_bvh.id, self._roots[1]], self._dmin_t, slot)
 
     def query_edges(self, x0, v, h: float, slot: int = 0) -> None:
         """``detect_edge_kernel``: each edge's EE pairs and nearest edge distance."""
-        self._query(detect_edge_kernel, self._lo_e.shape[0], x0, v, h, [self.edge_bvh.id], self._dmin_e,
-                    slot)
+        self._query(detect_edge_kernel, self._lo_e.shape[0], x0, v, h, [self.edge_bvh.id, self._roots[2]],
+                    self._dmin_e, slot)
 
     def refresh_sides(self, x0, slot: int = 0) -> None:
         """Bring the side reference of every pair in slot ``slot`` to ``x0``
@@ -1366,6 +1399,7 @@ class SelfContact:
             with self._side.on(k):
                 if rebuild:
                     bvh.rebuild()
+                    self._find_roots(k, bvh)
                 else:
                     bvh.refit()
                 query(x0, v, h, slot)

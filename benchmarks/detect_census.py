@@ -1,0 +1,153 @@
+"""What a self-contact detection query finds (development aid, see docs/BENCHMARKS.md, session 31).
+
+Simulates the t-shirt benchmark scene (``bench_tshirt``: ~5k-vertex t-shirt on the default body,
+the job default setting), keeps the state every solver step starts from, and on sampled frames of
+the motion counts the BVH hits of every detection query (the vertex query on the triangle tree,
+the triangle query on the vertex tree, the edge query on the edge tree) with the query boxes of
+``sim.cloth.self_contact`` (radius ``max(margin, speed_factor |v - v_ref| h)``), once more with
+the margin alone, on trees rebuilt at that state. A query thread's work is its hits: the queries
+are latency-bound, so the slowest thread sets a launch's length.
+
+``python -m benchmarks.detect_census --device cpu --motion run --seconds 2``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from benchmarks.bench_tshirt import build_garment
+from benchmarks.common import machine, write_result
+
+
+def count_kernel(wp):
+    """A kernel that counts each query's BVH hits: primitive ``k`` of ``prims`` (up to 4 vertex
+    ids, ``nverts`` used), its box grown by the detection's radius (``margin_only``: the margin)."""
+    from sim.cloth.self_contact import query_radius
+
+    @wp.kernel
+    def count_hits(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), vr: wp.vec3,
+                   prims: wp.array(dtype=wp.vec4i), nverts: int, bvh: wp.uint64, margin: float,
+                   speed_factor: float, h: float, margin_only: int, hits: wp.array(dtype=wp.int32),
+                   radius: wp.array(dtype=float)):
+        k = wp.tid()
+        q = prims[k]
+        lo = x[q[0]]
+        hi = x[q[0]]
+        speed = wp.length(v[q[0]] - vr)
+        for j in range(1, nverts):
+            lo = wp.min(lo, x[q[j]])
+            hi = wp.max(hi, x[q[j]])
+            speed = wp.max(speed, wp.length(v[q[j]] - vr))
+        r = query_radius(margin, speed, h, speed_factor)
+        if margin_only != 0:
+            r = margin
+        query = wp.bvh_query_aabb(bvh, lo - wp.vec3(r), hi + wp.vec3(r), wp.bvh_get_group_root(bvh, 0))
+        n = int(0)
+        t = int(0)
+        while wp.bvh_query_next(query, t):
+            n += 1
+        hits[k] = n
+        radius[k] = r
+
+    return count_hits
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: %(default)s)")
+    ap.add_argument("--motion", default="run")
+    ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s] (default: %(default)s)")
+    ap.add_argument("--frames", type=int, default=15, help="frames sampled from the motion's last 60 "
+                    "(default: %(default)s)")
+    ap.add_argument("--tag", default="")
+    args = ap.parse_args()
+
+    import sim.cloth as cloth
+    from sim.bodies.default import load_default_body
+    from sim.device import resolve_device, warp
+    from sim.motions import load_motion
+    from sim.simulate import SimulationConfig, SimulationJob, simulate_batch
+
+    wp = warp()
+    device = resolve_device(args.device)
+    body = load_default_body()
+    garment, _ = build_garment(body, args.vertices)
+    motion = load_motion(args.motion, fps=30.0, duration=args.seconds)
+    cfg = SimulationConfig(fps=30.0, self_contact=True, device=device)
+    seen: dict = {}
+    starts: list = []
+    base = cloth.SolverVBD
+
+    class Recording(base):
+        def step(self, state_in, state_out, control, dt):
+            seen.update(solver=self, dt=dt)
+            starts.append((state_in.positions.numpy().copy(), state_in.velocities.numpy().copy(),
+                           control.instance_velocity.numpy()[0].copy()))
+            super().step(state_in, state_out, control, dt)
+
+    cloth.SolverVBD = Recording
+    try:
+        t0 = time.perf_counter()
+        simulate_batch([SimulationJob(garment, body, motion)], config=cfg)
+        sim_s = time.perf_counter() - t0
+    finally:
+        cloth.SolverVBD = base
+    solver = seen["solver"]
+    sc, m = solver.self_contact, solver.model
+    h = seen["dt"] / solver.config.substeps
+    tri = m.tri_indices.numpy()
+    edges = m.mesh_edge_indices.numpy()
+    pad = lambda a: np.c_[a, np.zeros((len(a), 4 - a.shape[1]), int)].astype(np.int32)  # noqa: E731
+    queries = {"vertex": (pad(np.arange(m.particle_count)[:, None]), 1, sc.tri_bvh),
+               "triangle": (pad(tri), 3, sc.vertex_bvh), "edge": (pad(edges), 2, sc.edge_bvh)}
+    kernel = count_kernel(wp)
+    first = max(len(starts) - 60, 0)
+    picks = np.unique(np.linspace(first, len(starts) - 1, args.frames).astype(int))
+    per_frame = []
+    for f in picks:
+        x, v, vr = starts[f]
+        xd = wp.array(x, dtype=wp.vec3, device=device)
+        vd = wp.array(v, dtype=wp.vec3, device=device)
+        sc._update_bounds(xd)
+        for bvh in sc.bvhs:
+            bvh.rebuild()
+        sc.find_roots()
+        row = {"step": int(f)}
+        for name, (prims, nverts, bvh) in queries.items():
+            pd = wp.array(prims, dtype=wp.vec4i, device=device)
+            for margin_only, key in ((0, name), (1, f"{name}_margin")):
+                hits = wp.zeros(len(prims), dtype=wp.int32, device=device)
+                radius = wp.zeros(len(prims), dtype=float, device=device)
+                wp.launch(kernel, dim=len(prims), inputs=[xd, vd, wp.vec3(*vr), pd, nverts, bvh.id, sc.margin,
+                                                          sc.speed_factor, h, margin_only, hits, radius],
+                          device=device)
+                n, r = hits.numpy(), radius.numpy()
+                row[key] = {"hits_mean": float(n.mean()), "hits_p99": float(np.quantile(n, 0.99)),
+                            "hits_max": int(n.max()), "radius_mean_mm": 1e3 * float(r.mean()),
+                            "radius_max_mm": 1e3 * float(r.max())}
+        per_frame.append(row)
+        print(json.dumps(row), flush=True)
+    summary = {}
+    for key in per_frame[0]:
+        if key == "step":
+            continue
+        summary[key] = {"hits_mean": float(np.mean([r[key]["hits_mean"] for r in per_frame])),
+                        "hits_p99_max": float(max(r[key]["hits_p99"] for r in per_frame)),
+                        "hits_max": int(max(r[key]["hits_max"] for r in per_frame)),
+                        "radius_max_mm": float(max(r[key]["radius_max_mm"] for r in per_frame))}
+    out = {"machine": machine(device),
+           "sizes": {"garment_vertices": int(m.particle_count), "triangles": int(m.tri_count),
+                     "edges": int(len(edges)), "motion": args.motion, "seconds": args.seconds,
+                     "substeps": solver.config.substeps, "margin_mm": 1e3 * sc.margin},
+           "figures": {"simulate_s": sim_s, "summary": summary, "frames": per_frame}}
+    print(json.dumps(summary, indent=1))
+    write_result(f"detect_census_{device}{args.tag}", out)
+
+
+if __name__ == "__main__":
+    main()
