@@ -745,8 +745,7 @@ def store_pair(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), ref: 
 
 
 @wp.func
-def vertex_triangle_candidate(sc: SelfContactData, xu: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3,
-                              v: wp.array(dtype=wp.vec3),
+def vertex_triangle_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3),
                               u: int, tri: wp.vec3i, r: float, margin: float, speed_factor: float, h: float,
                               dmin: float, count: int, ids: wp.array(dtype=wp.int32),
                               dist: wp.array(dtype=float), ref: wp.array(dtype=wp.vec3),
@@ -754,14 +753,16 @@ def vertex_triangle_candidate(sc: SelfContactData, xu: wp.vec3, a: wp.vec3, b: w
                               prev_ref: wp.array(dtype=wp.vec3), prev_counts: wp.array(dtype=wp.int32),
                               owner: int, capacity: int, item: int):
     """A vertex ``u`` / triangle ``tri`` candidate of a box query (pair ``item`` of list ``owner``:
-    the vertex's triangle or the triangle's vertex; ``xu``, ``a``, ``b``, ``c`` their positions,
-    which the query loads with the candidate's other data): the nearest distance so far and the list's
+    the vertex's triangle or the triangle's vertex): the nearest distance so far and the list's
     count after it. It lowers ``dmin`` unless it was as close at rest (``rest_class``), and is
     stored (``store_pair``) if ``list_pair`` says so. Distance first: most candidates lie beyond
     ``r``, where they change neither ``dmin`` (which starts at ``r``) nor the list, and skip the
     rest-shape test."""
-    w = triangle_closest_bary(xu, a, b, c)
-    diff = xu - (w[0] * a + w[1] * b + w[2] * c)
+    a = x[tri[0]]
+    b = x[tri[1]]
+    c = x[tri[2]]
+    w = triangle_closest_bary(x[u], a, b, c)
+    diff = x[u] - (w[0] * a + w[1] * b + w[2] * c)
     d = wp.length(diff)
     if d >= r:
         return dmin, count
@@ -851,18 +852,13 @@ def detect_vertex_kernel(
     count = int(0)
     while wp.bvh_query_next(query, t):
         tri = tri_indices[t]
-        # the hit's positions and instance are loaded before the tests: one step of dependent
-        # loads per hit instead of two
-        a = x[tri[0]]
-        b = x[tri[1]]
-        c = x[tri[2]]
-        other = particle_instance[tri[0]] != inst
-        if tri[0] == i or tri[1] == i or tri[2] == i or other:
+        if tri[0] == i or tri[1] == i or tri[2] == i:
             continue
-        dmin, count = vertex_triangle_candidate(sc, xi, a, b, c, v, i, tri, r, margin, speed_factor, h, dmin,
-                                                count, sc.vt_tri, sc.vt_dist, sc.vt_ref, sc.vt_rk,
-                                                sc.vt_tri_prev, sc.vt_ref_prev, sc.vt_count_prev, i,
-                                                sc.vt_capacity, t)
+        if particle_instance[tri[0]] != inst:
+            continue
+        dmin, count = vertex_triangle_candidate(sc, x, v, i, tri, r, margin, speed_factor, h, dmin, count,
+                                                sc.vt_tri, sc.vt_dist, sc.vt_ref, sc.vt_rk, sc.vt_tri_prev,
+                                                sc.vt_ref_prev, sc.vt_count_prev, i, sc.vt_capacity, t)
     sc.vt_count[i] = count
     dmin_out[i] = dmin
 
@@ -901,12 +897,10 @@ def detect_triangle_kernel(
     dmin = r
     count = int(0)
     while wp.bvh_query_next(query, u):
-        xu = x[u]  # loaded with the instance, before the tests
-        other = particle_instance[u] != inst
-        if u == tri[0] or u == tri[1] or u == tri[2] or other:
+        if u == tri[0] or u == tri[1] or u == tri[2] or particle_instance[u] != inst:
             continue
-        dmin, count = vertex_triangle_candidate(sc, xu, a, b, c, v, u, tri, r, margin, speed_factor, h, dmin,
-                                                count, sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_rk,
+        dmin, count = vertex_triangle_candidate(sc, x, v, u, tri, r, margin, speed_factor, h, dmin, count,
+                                                sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_rk,
                                                 sc.tv_vertex_prev, sc.tv_ref_prev, sc.tv_count_prev, t,
                                                 sc.tv_capacity, u)
     sc.tv_count[t] = count
@@ -942,12 +936,12 @@ def detect_edge_kernel(
     count = int(0)
     while wp.bvh_query_next(query, e2):
         eb = sc.mesh_edges[e2]
-        # the hit's positions and instance are loaded before the tests (one step of dependent loads)
+        if eb[0] == ea[0] or eb[0] == ea[1] or eb[1] == ea[0] or eb[1] == ea[1]:
+            continue
+        if particle_instance[eb[0]] != inst:
+            continue
         p2 = x[eb[0]]
         q2 = x[eb[1]]
-        other = particle_instance[eb[0]] != inst
-        if eb[0] == ea[0] or eb[0] == ea[1] or eb[1] == ea[0] or eb[1] == ea[1] or other:
-            continue
         st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
         d = st[2]
         if d >= r:
