@@ -49,6 +49,28 @@ def load_scene(args: argparse.Namespace):
     return resolve_device(args.device), body, garment, edge, motions
 
 
+def add_single_scene_arguments(ap: argparse.ArgumentParser, device: str = "auto", motion: str = "walk",
+                               seconds: float = 1.0) -> None:
+    """The options of the one-motion diagnostics (``profile_tshirt``, ``detect_census``,
+    ``pair_share``): device, t-shirt size, motion, length."""
+    ap.add_argument("--device", default=device)
+    ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: %(default)s)")
+    ap.add_argument("--motion", default=motion, help="(default: %(default)s)")
+    ap.add_argument("--seconds", type=float, default=seconds, help="motion length [s] (default: %(default)s)")
+
+
+def load_single_scene(args: argparse.Namespace):
+    """The scene of ``add_single_scene_arguments``: (device, default body, t-shirt, motion)."""
+    from sim.bodies.default import load_default_body
+    from sim.device import resolve_device
+    from sim.motions import load_motion
+
+    body = load_default_body()
+    garment, _ = build_garment(body, args.vertices)
+    return (resolve_device(args.device), body, garment,
+            load_motion(args.motion, fps=30.0, duration=args.seconds))
+
+
 def build_garment(body, vertices: int):
     """The t-shirt template at the edge length that gives about ``vertices`` vertices."""
     from sim.garments import make_garment

@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from benchmarks.bench_tshirt import build_garment
+from benchmarks.bench_tshirt import add_single_scene_arguments, load_single_scene
 from benchmarks.common import machine, write_result
 
 
@@ -58,26 +58,18 @@ def count_kernel(wp):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--device", default="cpu")
-    ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: %(default)s)")
-    ap.add_argument("--motion", default="run")
-    ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s] (default: %(default)s)")
+    add_single_scene_arguments(ap, device="cpu", motion="run", seconds=2.0)
     ap.add_argument("--frames", type=int, default=15, help="frames sampled from the motion's last 60 "
                     "(default: %(default)s)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
 
     import sim.cloth as cloth
-    from sim.bodies.default import load_default_body
-    from sim.device import resolve_device, warp
-    from sim.motions import load_motion
+    from sim.device import warp
     from sim.simulate import SimulationConfig, SimulationJob, simulate_batch
 
     wp = warp()
-    device = resolve_device(args.device)
-    body = load_default_body()
-    garment, _ = build_garment(body, args.vertices)
-    motion = load_motion(args.motion, fps=30.0, duration=args.seconds)
+    device, body, garment, motion = load_single_scene(args)
     cfg = SimulationConfig(fps=30.0, self_contact=True, device=device)
     seen: dict = {}
     starts: list = []

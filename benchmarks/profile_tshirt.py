@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from benchmarks.bench_tshirt import build_garment
+from benchmarks.bench_tshirt import add_single_scene_arguments, load_single_scene
 from benchmarks.common import machine, write_result
 
 
@@ -67,10 +67,7 @@ def kernel_timings(wp, device: str, fn) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--device", default="auto")
-    ap.add_argument("--vertices", type=int, default=5000)
-    ap.add_argument("--motion", default="walk")
-    ap.add_argument("--seconds", type=float, default=1.0)
+    add_single_scene_arguments(ap)
     ap.add_argument("--repeats", type=int, default=10)
     ap.add_argument("--batch", type=int, default=1, help="t-shirts in the one model (default: %(default)s)")
     ap.add_argument("--solver", default="{}", help="JSON dict of VBDConfig fields of the base solver")
@@ -84,18 +81,13 @@ def main() -> None:
     args = ap.parse_args()
 
     import sim.cloth as cloth
-    from sim.bodies.default import load_default_body
     from sim.cloth import self_contact as SC
     from sim.cloth.self_contact import disabled_data
-    from sim.device import resolve_device, warp
-    from sim.motions import load_motion
+    from sim.device import warp
     from sim.simulate import SimulationConfig, SimulationJob, simulate_batch
 
     wp = warp()
-    device = resolve_device(args.device)
-    body = load_default_body()
-    garment, _ = build_garment(body, args.vertices)
-    motion = load_motion(args.motion, fps=30.0, duration=args.seconds)
+    device, body, garment, motion = load_single_scene(args)
     cfg = SimulationConfig(fps=30.0, self_contact=True, solver=json.loads(args.solver), device=device)
 
     seen: dict = {}
