@@ -222,7 +222,6 @@ def main() -> None:
     sc._update_bounds(x)
     res["rebuild_tri_ms"] = timed(lambda: sc.tri_bvh.rebuild(), graph=True)
     res["rebuild_edge_ms"] = timed(lambda: sc.edge_bvh.rebuild(), graph=True)
-    sc.vertex_bvh.rebuild()
     sc.find_roots()  # the rebuilt trees' instance roots, for the queries below
     res.update(kernels("_rebuilt"))
     sc.tri_bvh.refit()  # the same boxes: a refit tree should query as fast as the rebuilt one

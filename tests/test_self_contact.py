@@ -310,8 +310,11 @@ def test_instance_roots_found_at_rebuilds_give_each_instance_its_own_pairs(devic
     """The detection queries start at each instance's subtree root, found once per tree build
     (``group_roots_kernel``) instead of by every query thread. Three instances of two layers in
     contact: the roots equal Warp's per-thread ``bvh_get_group_root``, and each instance's pair
-    lists equal those of the same layers detected alone, both as built and after the instances
-    moved apart and the trees were rebuilt (stale roots would search the wrong subtrees)."""
+    counts equal those of the same layers detected alone, as built and after rebuilds at other
+    positions. (In Warp 1.19 a group's root index depends only on the groups' sizes, so a rebuild
+    leaves it where it was; ``detect`` still refinds the roots at every rebuild, and the equality
+    with ``bvh_get_group_root`` after rebuilds is what would catch a builder that numbers its
+    nodes otherwise.)"""
     nx, e = 7, 0.012
     v1, f1 = grid(nx, nx, (nx - 1) * e, (nx - 1) * e, plane="xz")
     v2 = v1 + np.array([0.4 * e, 0.003, 0.3 * e], np.float32)
