@@ -4,10 +4,11 @@
 serial factorization costs about 20 ms per correction for the t-shirt's 326 nodes
 (docs/BENCHMARKS.md, session 22). Here a whole thread block solves one instance: the band
 (``n (b + 1)`` floats) and the right-hand side sit in shared memory, the factorization is a
-right-looking ``L D L^T`` that eliminates one column per step with every thread updating a
-share of the ``b (b + 1) / 2`` entries below it (one each where the block has enough threads),
-and one warp does the back substitution, a row per step. That is ``n`` block barriers and ``n``
-warp barriers per solve instead of ``n b^2 / 2`` serial multiply-adds.
+right-looking ``L D L^T`` that eliminates one column per step, its first warp's lanes updating
+a share of the ``b (b + 1) / 2`` entries below it each (``ELIMINATION``; until session 31 every
+thread of the block took one, with a block barrier per step), and the same warp does the back
+substitution, a row per step. That is ``2 n`` warp barriers per solve instead of ``n b^2 / 2``
+serial multiply-adds.
 
 The kernel uses ``__shared__`` memory and ``__syncthreads`` through a native snippet, so it
 exists on CUDA only; the CPU keeps the serial kernel. Shared memory is sized per model (the
@@ -45,16 +46,20 @@ def padded(capacity: int) -> int:
     return -(-int(capacity) // CAPACITY_STEP) * CAPACITY_STEP
 
 
-def _kernel(capacity: int, kind: str):
+def _kernel(capacity: int, kind: str, elimination: str | None = None):
     """The block kernel ``kind`` ("solve", "factor" or "substitute") with at least ``capacity``
-    floats of shared memory (one kernel per kind and padded size)."""
+    floats of shared memory, its elimination by ``elimination`` (``_ELIMINATORS``; None:
+    ``ELIMINATION``); one kernel per kind, padded size and eliminator."""
     capacity = padded(capacity)
-    key = (kind, capacity)
+    elimination = elimination or ELIMINATION
+    if kind == "substitute":
+        elimination = "none"
+    key = (kind, capacity, elimination)
     if key in _KERNELS:
         return _KERNELS[key]
 
     if kind == "solve":
-        @wp.func_native(_SOLVE)
+        @wp.func_native(_solve_snippet(elimination))
         def native(
             smem: wp.tile[float, capacity],
             rhs: wp.array(dtype=wp.vec3),
@@ -91,7 +96,7 @@ def _kernel(capacity: int, kind: str):
 
         kernel = wp.kernel(block_solve_kernel, enable_backward=False, module="unique")
     elif kind == "factor":
-        @wp.func_native(_FACTOR)
+        @wp.func_native(_factor_snippet(elimination))
         def native(
             smem: wp.tile[float, capacity],
             diag: wp.array(dtype=float),
@@ -163,15 +168,15 @@ def _kernel(capacity: int, kind: str):
     return kernel
 
 
-def cooperative_kernel(capacity: int):
+def cooperative_kernel(capacity: int, elimination: str | None = None):
     """The block solve kernel (factor and solve in one launch) with at least ``capacity`` floats
-    of shared memory."""
-    return _kernel(capacity, "solve")
+    of shared memory (``elimination``: see ``_kernel``)."""
+    return _kernel(capacity, "solve", elimination)
 
 
-def factor_kernel(capacity: int):
+def factor_kernel(capacity: int, elimination: str | None = None):
     """The block factor kernel (``_kernel``): ``L D L^T`` of each instance to a global band."""
-    return _kernel(capacity, "factor")
+    return _kernel(capacity, "factor", elimination)
 
 
 def substitute_kernel(capacity: int):
@@ -234,11 +239,13 @@ _ELIMINATE = r"""
     // scaling (column j is only read in step j); `threads` gives the block one thread per task
     // where that fits
     const int bb = b * (b + 1) / 2;
+    // ELIM_THREADS threads take the steps' tasks, with ELIM_BARRIER between steps
+    if (lane < ELIM_THREADS) {
     for (int j = 0; j < n; ++j) {
         const int jw = j * w;
         const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
         const int m = min(b, n - 1 - j);
-        for (int q = lane; q < bb + 2 * b; q += T) {
+        for (int q = lane; q < bb + 2 * b; q += ELIM_THREADS) {
             if (q < bb) {
                 if (q < m * (m + 1) / 2) {
                     const int st = tri[q];
@@ -254,9 +261,24 @@ _ELIMINATE = r"""
                     L[(j - 1 + s) * w + s] *= 1.0f / fmaxf(L[(j - 1) * w], 1.0e-30f);
             }
         }
-        __syncthreads();
+        ELIM_BARRIER;
     }
+    }
+    __syncthreads();
 """
+# who eliminates (``ELIMINATION``): the whole block, a barrier per step ("block", sessions 23-30),
+# or its first warp alone, each lane taking ~b^2 / 64 tasks per step between warp barriers
+# ("warp", session 31). The tasks and their arithmetic are the same: so are the floats.
+_ELIMINATORS = {"block": ("T", "__syncthreads()"), "warp": ("32", "__syncwarp()")}
+ELIMINATION = "warp"
+
+
+def _eliminate(rhs_task: str, elimination: str) -> str:
+    """The elimination snippet with ``rhs_task`` (the forward substitution's task, or nothing)
+    for the eliminator ``elimination`` (``_ELIMINATORS``)."""
+    threads_, barrier = _ELIMINATORS[elimination]
+    return (_ELIMINATE.replace("RHS_TASK", rhs_task).replace("ELIM_THREADS", threads_)
+            .replace("ELIM_BARRIER", barrier))
 _RHS_TASK = r"""const int s = q - bb + 1;
                 if (s <= m) {
                     const float f = L[(j + s) * w + s] * inv;
@@ -290,10 +312,18 @@ _BACK = r"""
             dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
     }
 """
-_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE.replace("RHS_TASK", _RHS_TASK) + _BACK
+def _solve_snippet(elimination: str) -> str:
+    """The whole solve: factor, forward substitution as the elimination's tasks, back
+    substitution."""
+    return _HEAD + _LOAD_BAND + _LOAD_RHS + _eliminate(_RHS_TASK, elimination) + _BACK
+
+
+
 # the factor: the elimination without the right-hand side, then the band to global memory
 # (column n-1 has no rows below it to scale)
-_FACTOR = _HEAD + _LOAD_BAND + _ELIMINATE.replace("RHS_TASK", "") + r"""
+def _factor_snippet(elimination: str) -> str:
+    """The factor alone, written to global memory."""
+    return _HEAD + _LOAD_BAND + _eliminate("", elimination) + r"""
     for (int q = lane; q < n * w; q += T)
         factor_out[base + q] = L[q];
 """
