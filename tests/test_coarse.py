@@ -255,22 +255,16 @@ def test_band_solve_matches_a_dense_solve_for_every_instance(device):
 def assert_split_equals_whole_block_solve(level, device):
     """On CUDA with two levels and ``prefactor`` ``solve`` substitutes with ``factor``'s factor
     (two launches); the whole block solve (one launch) must give the same floats
-    (``coarse_block``), with the elimination by one warp (the default) and by the whole block
-    (session 31: the same tasks, so the same floats)."""
+    (``coarse_block``)."""
     if level.block_kernel is None:
         return
     assert level.substitute_kernel is not None and level.factor_kernel is not None
-    from sim.cloth import coarse_block
-
-    assert coarse_block.ELIMINATION == "warp"
     wp = warp()
-    for elimination in ("warp", "block"):
-        kernel = coarse_block.cooperative_kernel(level.shared_capacity, elimination)
-        whole = wp.zeros_like(level._dx)
-        wp.launch_tiled(kernel, dim=[level.model.instance_count], block_dim=level.block_threads,
-                        inputs=[level._rhs, level._diag, *level._inst, level._order, level._band_k],
-                        outputs=[whole], device=device)
-        np.testing.assert_array_equal(level._dx.numpy(), whole.numpy(), err_msg=elimination)
+    whole = wp.zeros_like(level._dx)
+    wp.launch_tiled(level.block_kernel, dim=[level.model.instance_count], block_dim=level.block_threads,
+                    inputs=[level._rhs, level._diag, *level._inst, level._order, level._band_k],
+                    outputs=[whole], device=device)
+    np.testing.assert_array_equal(level._dx.numpy(), whole.numpy())
 
 
 def two_grid_reference(templates, rhs, diag, smoothing):

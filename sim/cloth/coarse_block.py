@@ -4,11 +4,10 @@
 serial factorization costs about 20 ms per correction for the t-shirt's 326 nodes
 (docs/BENCHMARKS.md, session 22). Here a whole thread block solves one instance: the band
 (``n (b + 1)`` floats) and the right-hand side sit in shared memory, the factorization is a
-right-looking ``L D L^T`` that eliminates one column per step, its first warp's lanes updating
-a share of the ``b (b + 1) / 2`` entries below it each (``ELIMINATION``; until session 31 every
-thread of the block took one, with a block barrier per step), and the same warp does the back
-substitution, a row per step. That is ``2 n`` warp barriers per solve instead of ``n b^2 / 2``
-serial multiply-adds.
+right-looking ``L D L^T`` that eliminates one column per step with every thread updating a
+share of the ``b (b + 1) / 2`` entries below it (one each where the block has enough threads),
+and one warp does the back substitution, a row per step. That is ``n`` block barriers and ``n``
+warp barriers per solve instead of ``n b^2 / 2`` serial multiply-adds.
 
 The kernel uses ``__shared__`` memory and ``__syncthreads`` through a native snippet, so it
 exists on CUDA only; the CPU keeps the serial kernel. Shared memory is sized per model (the
@@ -46,20 +45,16 @@ def padded(capacity: int) -> int:
     return -(-int(capacity) // CAPACITY_STEP) * CAPACITY_STEP
 
 
-def _kernel(capacity: int, kind: str, elimination: str | None = None):
+def _kernel(capacity: int, kind: str):
     """The block kernel ``kind`` ("solve", "factor" or "substitute") with at least ``capacity``
-    floats of shared memory, its elimination by ``elimination`` (``_ELIMINATORS``; None:
-    ``ELIMINATION``); one kernel per kind, padded size and eliminator."""
+    floats of shared memory (one kernel per kind and padded size)."""
     capacity = padded(capacity)
-    elimination = elimination or ELIMINATION
-    if kind == "substitute":
-        elimination = "none"
-    key = (kind, capacity, elimination)
+    key = (kind, capacity)
     if key in _KERNELS:
         return _KERNELS[key]
 
     if kind == "solve":
-        @wp.func_native(_solve_snippet(elimination))
+        @wp.func_native(_SOLVE)
         def native(
             smem: wp.tile[float, capacity],
             rhs: wp.array(dtype=wp.vec3),
@@ -96,7 +91,7 @@ def _kernel(capacity: int, kind: str, elimination: str | None = None):
 
         kernel = wp.kernel(block_solve_kernel, enable_backward=False, module="unique")
     elif kind == "factor":
-        @wp.func_native(_factor_snippet(elimination))
+        @wp.func_native(_FACTOR)
         def native(
             smem: wp.tile[float, capacity],
             diag: wp.array(dtype=float),
@@ -168,15 +163,15 @@ def _kernel(capacity: int, kind: str, elimination: str | None = None):
     return kernel
 
 
-def cooperative_kernel(capacity: int, elimination: str | None = None):
+def cooperative_kernel(capacity: int):
     """The block solve kernel (factor and solve in one launch) with at least ``capacity`` floats
-    of shared memory (``elimination``: see ``_kernel``)."""
-    return _kernel(capacity, "solve", elimination)
+    of shared memory."""
+    return _kernel(capacity, "solve")
 
 
-def factor_kernel(capacity: int, elimination: str | None = None):
+def factor_kernel(capacity: int):
     """The block factor kernel (``_kernel``): ``L D L^T`` of each instance to a global band."""
-    return _kernel(capacity, "factor", elimination)
+    return _kernel(capacity, "factor")
 
 
 def substitute_kernel(capacity: int):
@@ -239,13 +234,11 @@ _ELIMINATE = r"""
     // scaling (column j is only read in step j); `threads` gives the block one thread per task
     // where that fits
     const int bb = b * (b + 1) / 2;
-    // ELIM_THREADS threads take the steps' tasks, with ELIM_BARRIER between steps
-    if (lane < ELIM_THREADS) {
     for (int j = 0; j < n; ++j) {
         const int jw = j * w;
         const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
         const int m = min(b, n - 1 - j);
-        for (int q = lane; q < bb + 2 * b; q += ELIM_THREADS) {
+        for (int q = lane; q < bb + 2 * b; q += T) {
             if (q < bb) {
                 if (q < m * (m + 1) / 2) {
                     const int st = tri[q];
@@ -261,24 +254,9 @@ _ELIMINATE = r"""
                     L[(j - 1 + s) * w + s] *= 1.0f / fmaxf(L[(j - 1) * w], 1.0e-30f);
             }
         }
-        ELIM_BARRIER;
+        __syncthreads();
     }
-    }
-    __syncthreads();
 """
-# who eliminates (``ELIMINATION``): the whole block, a barrier per step ("block", sessions 23-30),
-# or its first warp alone, each lane taking ~b^2 / 64 tasks per step between warp barriers
-# ("warp", session 31). The tasks and their arithmetic are the same: so are the floats.
-_ELIMINATORS = {"block": ("T", "__syncthreads()"), "warp": ("32", "__syncwarp()")}
-ELIMINATION = "warp"
-
-
-def _eliminate(rhs_task: str, elimination: str) -> str:
-    """The elimination snippet with ``rhs_task`` (the forward substitution's task, or nothing)
-    for the eliminator ``elimination`` (``_ELIMINATORS``)."""
-    threads_, barrier = _ELIMINATORS[elimination]
-    return (_ELIMINATE.replace("RHS_TASK", rhs_task).replace("ELIM_THREADS", threads_)
-            .replace("ELIM_BARRIER", barrier))
 _RHS_TASK = r"""const int s = q - bb + 1;
                 if (s <= m) {
                     const float f = L[(j + s) * w + s] * inv;
@@ -312,18 +290,10 @@ _BACK = r"""
             dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
     }
 """
-def _solve_snippet(elimination: str) -> str:
-    """The whole solve: factor, forward substitution as the elimination's tasks, back
-    substitution."""
-    return _HEAD + _LOAD_BAND + _LOAD_RHS + _eliminate(_RHS_TASK, elimination) + _BACK
-
-
-
+_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE.replace("RHS_TASK", _RHS_TASK) + _BACK
 # the factor: the elimination without the right-hand side, then the band to global memory
 # (column n-1 has no rows below it to scale)
-def _factor_snippet(elimination: str) -> str:
-    """The factor alone, written to global memory."""
-    return _HEAD + _LOAD_BAND + _eliminate("", elimination) + r"""
+_FACTOR = _HEAD + _LOAD_BAND + _ELIMINATE.replace("RHS_TASK", "") + r"""
     for (int q = lane; q < n * w; q += T)
         factor_out[base + q] = L[q];
 """
