@@ -93,7 +93,6 @@ class _AnchorIndex:
     normals: Any
     groups: Any
     bvh: Any = None
-    roots: Any = None  # each sample's subtree root of ``bvh``, refound at every build
 
 
 def cloth_params(material: str | Material | Any) -> Any:
@@ -436,20 +435,14 @@ class CollisionLoss(PhysicsLoss):
                 wp.launch(K.nearest_anchor_brute_kernel, dim=(bsz, nv), inputs=[xw, apts, anrm, per],
                           outputs=[pw, nw], device=wdev)
             else:
-                built = idx.bvh is None or wdev.is_cuda
                 if idx.bvh is None:
                     idx.bvh = wp.Bvh(apts, apts, groups=idx.groups)
-                    idx.roots = wp.zeros(bsz, dtype=wp.int32, device=wdev)
                 elif wdev.is_cuda:
                     idx.bvh.rebuild()
                 else:
-                    idx.bvh.refit()  # the topology stays, and with it the roots
-                if built:
-                    wp.launch(K.group_roots_kernel, dim=bsz, inputs=[idx.bvh.id], outputs=[idx.roots],
-                              device=wdev)
+                    idx.bvh.refit()
                 wp.launch(K.nearest_anchor_bvh_kernel, dim=(bsz, nv),
-                          inputs=[idx.bvh.id, idx.roots, xw, apts, anrm, self.radius0], outputs=[pw, nw],
-                          device=wdev)
+                          inputs=[idx.bvh.id, xw, apts, anrm, self.radius0], outputs=[pw, nw], device=wdev)
         return BodyAnchors(points=points, normals=normals)
 
     def energy(self, x: torch.Tensor, body_vertices: torch.Tensor) -> torch.Tensor:

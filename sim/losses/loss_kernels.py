@@ -211,18 +211,8 @@ def chosen_anchor(best: int, p: wp.vec3, anchors: wp.array(dtype=wp.vec3),
 
 
 @wp.kernel
-def group_roots_kernel(bvh: wp.uint64, roots_out: wp.array(dtype=wp.int32)):
-    """Each group's subtree root of ``bvh`` (Warp's ``bvh_get_group_root``: two binary searches
-    over the leaves and a walk up to a common ancestor, ~100 dependent loads, so it is done once
-    per build, not in every query thread; ``sim.cloth.self_contact`` does the same)."""
-    g = wp.tid()
-    roots_out[g] = wp.bvh_get_group_root(bvh, g)
-
-
-@wp.kernel
 def nearest_anchor_bvh_kernel(
     bvh: wp.uint64,
-    roots: wp.array(dtype=wp.int32),
     x: wp.array2d(dtype=wp.vec3),
     anchors: wp.array(dtype=wp.vec3),
     anchor_normals: wp.array(dtype=wp.vec3),
@@ -235,13 +225,11 @@ def nearest_anchor_bvh_kernel(
 
     Sphere queries confined to sample ``b``'s subtree of a grouped BVH of zero-size anchor boxes,
     the radius doubling from ``radius0`` until an anchor lies inside: the closest anchor inside
-    the first non-empty sphere is the nearest of all. Ties go to the lower index. ``roots``:
-    each sample's subtree root (``group_roots_kernel``, found once per build instead of by
-    every thread).
+    the first non-empty sphere is the nearest of all. Ties go to the lower index.
     """
     b, v = wp.tid()
     p = x[b, v]
-    root = roots[b]
+    root = wp.bvh_get_group_root(bvh, b)
     r = radius0
     best = int(-1)
     best_d2 = float(0.0)
