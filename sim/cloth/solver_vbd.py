@@ -5,12 +5,12 @@
 over the vertex colouring. Per substep:
 
 1. bodies move to the substep's end (linear in time between the step's two body frames) and
-   their BVHs are refit;
+   their BVHs are refit; on CUDA on a side stream, beside 2 and 4 (``sim.device.SideStreams``);
 2. ``forward_kernel``: inertial target and initial guess; pinned particles placed;
    ``previous_deformation_kernel``: substep-start strains and hinge angles (damping reference);
 3. ``body_contact_kernel``: one contact plane per particle against its instance's body,
    found from the particle's substep-start position (outside the body) against the body's
-   substep-end placement; on CUDA on a side stream, beside 4 (``sim.device.SideStreams``);
+   substep-end placement; on CUDA on the same side stream after 1, beside 4;
 4. with ``self_contact``: refit the cloth BVHs (rebuild them in the step's first substep),
    find vertex-triangle and edge-edge pairs and per-vertex displacement bounds
    (``sim.cloth.self_contact``; its three tree-and-query chains on three streams on CUDA),
