@@ -14,12 +14,11 @@ against numpy's dense solve and the split against the whole solve (the same floa
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
 from benchmarks.bench_tshirt import build_garment
-from benchmarks.common import machine, write_result
+from benchmarks.common import machine, timed_ms, write_result
 
 
 def main() -> None:
@@ -42,18 +41,7 @@ def main() -> None:
     body = load_default_body()
 
     def timed(launch) -> float:
-        launch()
-        wp.synchronize_device(device)
-        with wp.ScopedCapture(device=device) as cap:
-            launch()
-        for _ in range(5):
-            wp.capture_launch(cap.graph)
-        wp.synchronize_device(device)
-        t = time.perf_counter()
-        for _ in range(args.repeats):
-            wp.capture_launch(cap.graph)
-        wp.synchronize_device(device)
-        return 1000.0 * (time.perf_counter() - t) / args.repeats
+        return timed_ms(wp, device, launch, args.repeats, graph=True)
 
     figures = {}
     for size in (int(s) for s in args.vertices.split(",")):

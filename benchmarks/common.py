@@ -8,6 +8,7 @@ import os
 import platform
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -62,3 +63,22 @@ def write_result(name: str, result: dict) -> Path:
         tmp.write_text(text + "\n")
         os.replace(tmp, p)
     return paths[0]
+
+
+def timed_ms(wp, device: str, fn, repeats: int, graph: bool = False) -> float:
+    """Milliseconds per call of ``fn`` (launches on ``device``): one warm-up call, then the mean of
+    ``repeats`` calls, synchronised; ``graph`` (CUDA): the calls replay a CUDA graph of one."""
+    fn()
+    wp.synchronize_device(device)
+    run = fn
+    if graph and wp.get_device(device).is_cuda:
+        with wp.ScopedCapture(device=device) as cap:
+            fn()
+        run = lambda: wp.capture_launch(cap.graph)  # noqa: E731
+    run()
+    wp.synchronize_device(device)
+    t = time.perf_counter()
+    for _ in range(repeats):
+        run()
+    wp.synchronize_device(device)
+    return 1000.0 * (time.perf_counter() - t) / repeats

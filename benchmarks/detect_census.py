@@ -25,12 +25,13 @@ from benchmarks.common import machine, write_result
 
 def count_kernel(wp):
     """A kernel that counts each query's BVH hits: primitive ``k`` of ``prims`` (up to 4 vertex
-    ids, ``nverts`` used), its box grown by the detection's radius (``margin_only``: the margin)."""
+    ids, ``nverts`` used), its box grown by the detection's radius (``margin_only``: the margin),
+    searched from ``root`` (the instance's, ``SelfContact.find_roots``)."""
     from sim.cloth.self_contact import query_radius
 
     @wp.kernel
     def count_hits(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), vr: wp.vec3,
-                   prims: wp.array(dtype=wp.vec4i), nverts: int, bvh: wp.uint64, margin: float,
+                   prims: wp.array(dtype=wp.vec4i), nverts: int, bvh: wp.uint64, root: int, margin: float,
                    speed_factor: float, h: float, margin_only: int, hits: wp.array(dtype=wp.int32),
                    radius: wp.array(dtype=float)):
         k = wp.tid()
@@ -45,7 +46,7 @@ def count_kernel(wp):
         r = query_radius(margin, speed, h, speed_factor)
         if margin_only != 0:
             r = margin
-        query = wp.bvh_query_aabb(bvh, lo - wp.vec3(r), hi + wp.vec3(r), wp.bvh_get_group_root(bvh, 0))
+        query = wp.bvh_query_aabb(bvh, lo - wp.vec3(r), hi + wp.vec3(r), root)
         n = int(0)
         t = int(0)
         while wp.bvh_query_next(query, t):
@@ -95,8 +96,10 @@ def main() -> None:
     tri = m.tri_indices.numpy()
     edges = m.mesh_edge_indices.numpy()
     pad = lambda a: np.c_[a, np.zeros((len(a), 4 - a.shape[1]), int)].astype(np.int32)  # noqa: E731
-    queries = {"vertex": (pad(np.arange(m.particle_count)[:, None]), 1, sc.tri_bvh),
-               "triangle": (pad(tri), 3, sc.vertex_bvh), "edge": (pad(edges), 2, sc.edge_bvh)}
+    # per query: its primitives, their vertex count, and the index of the tree it searches in
+    # ``sc.bvhs`` (and ``sc._roots``)
+    queries = {"vertex": (pad(np.arange(m.particle_count)[:, None]), 1, 0),
+               "triangle": (pad(tri), 3, 1), "edge": (pad(edges), 2, 2)}
     kernel = count_kernel(wp)
     first = max(len(starts) - 60, 0)
     picks = np.unique(np.linspace(first, len(starts) - 1, args.frames).astype(int))
@@ -110,14 +113,15 @@ def main() -> None:
             bvh.rebuild()
         sc.find_roots()
         row = {"step": int(f)}
-        for name, (prims, nverts, bvh) in queries.items():
+        for name, (prims, nverts, k) in queries.items():
             pd = wp.array(prims, dtype=wp.vec4i, device=device)
+            bvh, root = sc.bvhs[k], int(sc._roots[k].numpy()[0])
             for margin_only, key in ((0, name), (1, f"{name}_margin")):
                 hits = wp.zeros(len(prims), dtype=wp.int32, device=device)
                 radius = wp.zeros(len(prims), dtype=float, device=device)
-                wp.launch(kernel, dim=len(prims), inputs=[xd, vd, wp.vec3(*vr), pd, nverts, bvh.id, sc.margin,
-                                                          sc.speed_factor, h, margin_only, hits, radius],
-                          device=device)
+                wp.launch(kernel, dim=len(prims),
+                          inputs=[xd, vd, wp.vec3(*vr), pd, nverts, bvh.id, root, sc.margin, sc.speed_factor,
+                                  h, margin_only, hits, radius], device=device)
                 n, r = hits.numpy(), radius.numpy()
                 row[key] = {"hits_mean": float(n.mean()), "hits_p99": float(np.quantile(n, 0.99)),
                             "hits_max": int(n.max()), "radius_mean_mm": 1e3 * float(r.mean()),

@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from benchmarks.bench_tshirt import add_single_scene_arguments, load_single_scene
-from benchmarks.common import machine, write_result
+from benchmarks.common import machine, timed_ms, write_result
 
 
 class _NoCapture:
@@ -132,20 +132,7 @@ def main() -> None:
     h = dt / vcfg.substeps
 
     def timed(fn, graph: bool = False) -> float:
-        fn()
-        wp.synchronize_device(device)
-        run = fn
-        if graph and wp.get_device(device).is_cuda:
-            with wp.ScopedCapture(device=device) as cap:
-                fn()
-            run = lambda: wp.capture_launch(cap.graph)  # noqa: E731
-        run()
-        wp.synchronize_device(device)
-        t = time.perf_counter()
-        for _ in range(args.repeats):
-            run()
-        wp.synchronize_device(device)
-        return 1000.0 * (time.perf_counter() - t) / args.repeats
+        return timed_ms(wp, device, fn, args.repeats, graph)
 
     def sweep(sc_data):
         return lambda: solver.sweep(state.positions, sc_data, vcfg.friction_epsilon * h, h)

@@ -436,13 +436,11 @@ class CoarseLevel:
         # correction
         self.prefactor = bool(prefactor) and self.levels == 2
         self.factor_kernel = self.substitute_kernel = None
-        self.shared_capacity = 0  # floats of shared memory of the block kernels (0: none)
         device = wp.get_device(d)
         if device.is_cuda:
             need = max(coarse_block.shared_floats(int(c), int(b))
                        for c, b in zip(counts, widths, strict=True))
             if 4 * coarse_block.padded(need) <= device.max_shared_memory_per_block - 1024:
-                self.shared_capacity = need
                 self.block_kernel = coarse_block.cooperative_kernel(need)
                 if self.prefactor:
                     self.factor_kernel = coarse_block.factor_kernel(need)

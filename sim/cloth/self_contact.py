@@ -1393,9 +1393,8 @@ class SelfContact:
         self._update_bounds(x0)
         # three independent chains (refit a tree, query it), each on its own stream on CUDA:
         # the queries are latency-bound (a few thousand threads), so they overlap almost fully
-        for k, (bvh, query) in enumerate(((self.tri_bvh, self.query_vertices),
-                                          (self.vertex_bvh, self.query_triangles),
-                                          (self.edge_bvh, self.query_edges))):
+        queries = (self.query_vertices, self.query_triangles, self.query_edges)
+        for k, (bvh, query) in enumerate(zip(self.bvhs, queries, strict=True)):
             with self._side.on(k):
                 if rebuild:
                     bvh.rebuild()
