@@ -33,10 +33,10 @@ def shared_floats(count: int, width: int) -> int:
 
 def threads(width: int) -> int:
     """Threads of the block that solves a band of width ``width``: one per task of a
-    factorization step (the entries of the block under a column plus two rows of ``width``,
-    ``_SNIPPET``), in whole warps, at least ``COOP_THREADS`` and at most 1024 (threads of wider
-    bands take several tasks)."""
-    need = width * (width + 1) // 2 + 2 * width
+    factorization step (the entries of the block under a column, ``_ELIMINATE``), in whole
+    warps, at least ``COOP_THREADS`` and at most 1024 (threads of wider bands take several
+    tasks)."""
+    need = width * (width + 1) // 2
     return int(min(1024, max(COOP_THREADS, -(-need // 32) * 32)))
 
 
@@ -216,11 +216,18 @@ _LOAD_RHS = r"""
         u[3 * r + 2] = v.c[2];
     }
 """
-# the elimination; RHS_TASK is the forward substitution's task (or nothing)
+# the elimination, one column per step: every thread keeps its entries (s, t) of the block below a
+# column, decoded once (session 32: before, each step looked its task up in the index table, and
+# 88 more tasks per step, the right-hand side's rows and the previous column's scaling, gave some
+# threads two tasks at the band of 44). The thread of a diagonal entry (s, s) also takes the
+# forward substitution's row j+s (RHS_TASK: it has A[j+s, j] loaded), and the columns are scaled
+# to the unit L after the last step (nothing reads a column after its own step). Each entry takes
+# the same products in the same column order as before, so the floats are the same.
 _ELIMINATE = r"""
     // the entries (s, t), 1 <= t <= s <= b, of the block below a column, row by row: s << 16 | t
     int* tri = (int*)(u + 3 * n);
-    for (int q = lane; q < b * (b + 1) / 2; q += T) {
+    const int bb = b * (b + 1) / 2;
+    for (int q = lane; q < bb; q += T) {
         int s = (int)((sqrtf(8.0f * (float)q + 1.0f) - 1.0f) * 0.5f);
         while ((s + 1) * (s + 2) / 2 <= q) ++s;
         while (s * (s + 1) / 2 > q) --s;
@@ -228,42 +235,73 @@ _ELIMINATE = r"""
     }
     __syncthreads();
     const int w1 = w + 1;
-    // a step's tasks: the b (b + 1) / 2 entries A[j+s, j+t], 1 <= t <= s <= b, of the block
-    // under column j (row by row, so the first m (m + 1) / 2 are those with s <= m), the b rows
-    // of the right-hand side below j (the whole solve only), and the b rows of column j-1's
-    // scaling (column j is only read in step j); `threads` gives the block one thread per task
-    // where that fits
-    const int bb = b * (b + 1) / 2;
+    // this thread's first two entries (s > b: none); entries q >= 2T come from the table
+    int s0 = b + 1, t0 = 1, s1 = b + 1, t1 = 1;
+    if (lane < bb) {
+        s0 = tri[lane] >> 16;
+        t0 = tri[lane] & 0xffff;
+    }
+    if (lane + T < bb) {
+        s1 = tri[lane + T] >> 16;
+        t1 = tri[lane + T] & 0xffff;
+    }
     for (int j = 0; j < n; ++j) {
         const int jw = j * w;
         const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
-        const int m = min(b, n - 1 - j);
-        for (int q = lane; q < bb + 2 * b; q += T) {
-            if (q < bb) {
-                if (q < m * (m + 1) / 2) {
-                    const int st = tri[q];
-                    const int t = st & 0xffff;
-                    const int a = jw + (st >> 16) * w1;  // A[j+s, j]; A[j+s, j+t] is t before it
-                    L[a - t] -= L[a] * L[jw + t * w1] * inv;
-                }
-            } else if (q < bb + b) {
-                RHS_TASK
-            } else if (j > 0) {
-                const int s = q - bb - b + 1;
-                if (s <= min(b, n - j))  // the rows of column j-1 below its diagonal
-                    L[(j - 1 + s) * w + s] *= 1.0f / fmaxf(L[(j - 1) * w], 1.0e-30f);
-            }
+        const int m = min(b, n - 1 - j);  // rows below column j
+        if (s0 <= m) {
+            ELIMINATE_ENTRY(s0, t0)
+        }
+        if (s1 <= m) {
+            ELIMINATE_ENTRY(s1, t1)
+        }
+        for (int q = lane + 2 * T; q < m * (m + 1) / 2; q += T) {
+            const int st = tri[q];
+            ELIMINATE_ENTRY(st >> 16, st & 0xffff)
         }
         __syncthreads();
     }
+    // the unit L: each column below its diagonal by 1 / d
+    for (int q = lane; q < n * b; q += T) {
+        const int k = q / b;
+        const int s = q - k * b + 1;
+        if (s <= n - 1 - k)
+            L[(k + s) * w + s] *= 1.0f / fmaxf(L[k * w], 1.0e-30f);
+    }
+    __syncthreads();
 """
-_RHS_TASK = r"""const int s = q - bb + 1;
-                if (s <= m) {
-                    const float f = L[(j + s) * w + s] * inv;
-                    u[3 * (j + s)] -= f * u[3 * j];
-                    u[3 * (j + s) + 1] -= f * u[3 * j + 1];
-                    u[3 * (j + s) + 2] -= f * u[3 * j + 2];
-                }"""
+# A[j+s, j+t] -= A[j+s, j] A[j+t, j] / d_j (a is A[j+s, j]; A[j+s, j+t] is t before it)
+_ENTRY = r"""{
+            const int a_ = jw + (S_) * w1;
+            const float la_ = L[a_];
+            L[a_ - (T_)] -= la_ * L[jw + (T_) * w1] * inv;
+            RHS_TASK
+        }"""
+# the forward substitution's row j+s, by the thread of the diagonal entry (s, s)
+_RHS_TASK = r"""if ((T_) == (S_)) {
+                const float f = la_ * inv;
+                const int r_ = 3 * (j + (S_));
+                u[r_] -= f * u[3 * j];
+                u[r_ + 1] -= f * u[3 * j + 1];
+                u[r_ + 2] -= f * u[3 * j + 2];
+            }"""
+
+
+def _entry(rhs: bool, s: str, t: str) -> str:
+    """One elimination task for entry (``s``, ``t``) (C expressions), with the forward
+    substitution's row where ``rhs``."""
+    return _ENTRY.replace("RHS_TASK", _RHS_TASK if rhs else "").replace("S_", s).replace("T_", t)
+
+
+def _eliminate(rhs: bool) -> str:
+    """The elimination's text, with (``rhs``) or without the forward substitution."""
+    text = _ELIMINATE
+    for args in ("s0, t0", "s1, t1", "st >> 16, st & 0xffff"):
+        s, t = args.split(", ")
+        text = text.replace(f"ELIMINATE_ENTRY({args})", _entry(rhs, s, t))
+    return text
+
+
 # D^-1, then L^T x = D^-1 z: a chain of n short rows for one warp, whose barrier is cheaper
 _BACK = r"""
     if (lane < 32) {
@@ -290,10 +328,10 @@ _BACK = r"""
             dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
     }
 """
-_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE.replace("RHS_TASK", _RHS_TASK) + _BACK
+_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _eliminate(True) + _BACK
 # the factor: the elimination without the right-hand side, then the band to global memory
 # (column n-1 has no rows below it to scale)
-_FACTOR = _HEAD + _LOAD_BAND + _ELIMINATE.replace("RHS_TASK", "") + r"""
+_FACTOR = _HEAD + _LOAD_BAND + _eliminate(False) + r"""
     for (int q = lane; q < n * w; q += T)
         factor_out[base + q] = L[q];
 """

@@ -1,0 +1,170 @@
+"""CPU emulation of ``sim.cloth.coarse_block``'s CUDA snippets, for tests without a GPU.
+
+The snippets are C++ with CUDA's block primitives. Here each is compiled by the system's C++
+compiler into a function of one thread, and a block is emulated by ``threads`` OS threads with
+``std::barrier`` for ``__syncthreads`` (the whole block), ``__syncwarp`` (the first 32 threads,
+the only ones that call it) and the panel's named barrier (the first ``PANEL_THREADS``). A race
+that the barriers do not order shows up as a wrong or run-to-run varying result. Compiled with
+``-ffp-contract=off``: every multiply and add rounds as written, so two snippets that do the same
+operations in the same order give the same floats.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+_PRELUDE = r"""
+#include <algorithm>
+#include <barrier>
+#include <cmath>
+#include <thread>
+#include <vector>
+namespace wp {
+struct vec3 {
+    float c[3];
+    vec3() : c{0.0f, 0.0f, 0.0f} {}
+    vec3(float a, float b, float d) : c{a, b, d} {}
+};
+}  // namespace wp
+using std::max;
+using std::min;
+struct Dim { unsigned x; };
+static std::barrier<>* g_block;
+static std::barrier<>* g_warp;
+static std::barrier<>* g_panel;
+#define __syncthreads() g_block->arrive_and_wait()
+#define __syncwarp() g_warp->arrive_and_wait()
+#define PANEL_BARRIER() g_panel->arrive_and_wait()
+struct Smem { struct { float* ptr; } data; };
+
+static void body(int kind, Dim blockDim, float* shared, const wp::vec3* rhs, const float* diag,
+                 const int* inst_start, const int* inst_count, const int* inst_width,
+                 const long long* inst_band, const int* order, const float* band_k, const float* factor,
+                 float* factor_out, wp::vec3* dx_out, int k, int lane) {
+    Smem smem{{shared}};
+    if (kind == 0) {
+SOLVE
+    } else if (kind == 1) {
+FACTOR
+    } else {
+SUBSTITUTE
+    }
+}
+
+extern "C" void run(int kind, int threads, int panel_threads, int instances, int capacity,
+                    const wp::vec3* rhs, const float* diag, const int* inst_start, const int* inst_count,
+                    const int* inst_width, const long long* inst_band, const int* order,
+                    const float* band_k, float* factor, wp::vec3* dx_out) {
+    for (int k = 0; k < instances; ++k) {
+        std::vector<float> shared(capacity, 0.0f);
+        std::barrier<> block(threads), warp(32), panel(panel_threads);
+        g_block = &block;
+        g_warp = &warp;
+        g_panel = &panel;
+        std::vector<std::thread> pool;
+        for (int lane = 0; lane < threads; ++lane)
+            pool.emplace_back(body, kind, Dim{(unsigned)threads}, shared.data(), rhs, diag, inst_start,
+                              inst_count, inst_width, inst_band, order, band_k, factor, factor, dx_out, k,
+                              lane);
+        for (auto& t : pool)
+            t.join();
+    }
+}
+"""
+
+KINDS = {"solve": 0, "factor": 1, "substitute": 2}
+
+
+def compiler() -> str | None:
+    """The C++ compiler the emulation uses (None: none on this machine)."""
+    return shutil.which("g++") or shutil.which("clang++")
+
+
+def build(snippets: dict[str, str], panel_threads: int) -> ctypes.CDLL:
+    """Compile ``snippets`` (``solve`` / ``factor`` / ``substitute`` texts, panel placeholders
+    filled) into one library (cached by content in the temporary directory)."""
+    src = _PRELUDE
+    for name in ("solve", "factor", "substitute"):
+        text = snippets[name].replace(
+            f'asm volatile("bar.sync 1, {panel_threads};" ::: "memory")', "PANEL_BARRIER()")
+        src = src.replace(name.upper(), text, 1)
+    digest = hashlib.sha1(src.encode()).hexdigest()[:16]
+    out = Path(tempfile.gettempdir()) / f"wrinkles_block_emulator_{digest}.so"
+    if not out.exists():
+        cc = compiler()
+        if cc is None:
+            raise RuntimeError("no C++ compiler (g++ or clang++) for the block emulation")
+        cpp = out.with_suffix(".cpp")
+        cpp.write_text(src)
+        tmp = out.with_suffix(f".{np.random.default_rng().integers(1 << 30)}.so")
+        subprocess.run([cc, "-std=c++20", "-O1", "-ffp-contract=off", "-shared", "-fPIC", "-pthread",
+                        str(cpp), "-o", str(tmp)], check=True, capture_output=True)
+        tmp.replace(out)
+    return ctypes.CDLL(str(out))
+
+
+def _ptr(a: np.ndarray) -> ctypes.c_void_p:
+    return ctypes.c_void_p(a.ctypes.data)
+
+
+def run(lib: ctypes.CDLL, kind: str, threads: int, panel_threads: int, capacity: int, system: dict,
+        factor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Run snippet ``kind`` over every instance of ``system`` (``band_system``'s arrays) with
+    blocks of ``threads``; returns ``(dx, factor)`` (the solution per node, and the factor
+    buffer: written by ``factor``, read by ``substitute``)."""
+    nodes = len(system["diag"])
+    dx = np.zeros((nodes, 3), np.float32)
+    fac = np.zeros_like(system["band"]) if factor is None else np.ascontiguousarray(factor, np.float32)
+    arrays = [np.ascontiguousarray(system[k]) for k in
+              ("rhs", "diag", "start", "count", "width", "band_start", "order", "band")]
+    lib.run(ctypes.c_int(KINDS[kind]), ctypes.c_int(threads), ctypes.c_int(panel_threads),
+            ctypes.c_int(len(system["count"])), ctypes.c_int(capacity), *(_ptr(a) for a in arrays),
+            _ptr(fac), _ptr(dx))
+    return dx, fac
+
+
+def band_system(sizes: list[tuple[int, int]], seed: int = 0) -> dict:
+    """Random symmetric positive definite band systems, one per ``(nodes, width)``, in the
+    layout of ``sim.cloth.coarse`` (row ``r`` of an instance's band holds ``A[r, r - t]`` at
+    ``t = 0 .. width``, the diagonal taken from ``diag``; rows in ``order``), with vec3 right-hand
+    sides; ``dense`` holds each instance's matrix in row order."""
+    rng = np.random.default_rng(seed)
+    starts, bands, band_starts, diag, rhs, order, dense = [], [], [], [], [], [], []
+    node0 = band0 = 0
+    for n, b in sizes:
+        w = b + 1
+        a = np.zeros((n, n))
+        for t in range(1, min(b, n - 1) + 1):
+            off = rng.uniform(-1.0, 0.0, n - t) * (rng.random(n - t) < 0.7)
+            a[np.arange(t, n), np.arange(n - t)] = off
+            a[np.arange(n - t), np.arange(t, n)] = off
+        a[np.arange(n), np.arange(n)] = np.abs(a).sum(1) + rng.uniform(0.05, 1.0, n)
+        a = a.astype(np.float32).astype(np.float64)
+        band = np.zeros((n, w), np.float32)
+        for t in range(min(w, n)):
+            band[t:, t] = a[np.arange(t, n), np.arange(n - t)]
+        perm = rng.permutation(n)  # band row r is node perm[r]
+        d = np.zeros(n, np.float32)
+        d[perm] = band[:, 0]
+        band[:, 0] = rng.uniform(-5, 5, n)  # the band's diagonal is not read: diag is
+        r = rng.standard_normal((n, 3)).astype(np.float32)
+        starts.append(node0)
+        band_starts.append(band0)
+        bands.append(band.ravel())
+        diag.append(d)
+        rhs.append(r)
+        order.append(perm)  # local: the snippets read start + order[start + r]
+        dense.append(a)
+        node0 += n
+        band0 += n * w
+    return {"start": np.array(starts, np.int32), "count": np.array([s[0] for s in sizes], np.int32),
+            "width": np.array([s[1] for s in sizes], np.int32), "band_start": np.array(band_starts, np.int64),
+            "band": np.concatenate(bands), "diag": np.concatenate(diag), "rhs": np.concatenate(rhs),
+            "order": np.concatenate(order).astype(np.int32), "dense": dense}

@@ -1,0 +1,102 @@
+"""The coarse level's CUDA block kernels (``sim.cloth.coarse_block``) on the CPU: their snippets
+compiled by the system's C++ compiler, each block emulated by OS threads with barriers
+(``tests/block_emulator.py``). CI has no GPU, so this is where the snippets' logic (indices,
+barriers, the split into factor and substitutions) is checked on every run; the CUDA tests in
+``test_coarse.py`` check the same kernels on a device."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim.cloth import coarse_block
+from tests import block_emulator as emu
+
+pytestmark = pytest.mark.skipif(emu.compiler() is None, reason="no C++ compiler for the block emulation")
+
+# (nodes, band width) per instance: a band wider than its instance, a tridiagonal one, the
+# 5k t-shirt's coarse level (200 nodes, band 44) and the 19k one's (249, 44), a band whose
+# entries under a column outnumber 1,024 threads (50: 1,275)
+SIZES = [[(37, 5), (60, 12), (9, 12), (25, 1)], [(200, 44)], [(249, 44), (120, 30)], [(150, 50)]]
+
+
+@pytest.fixture(scope="module")
+def lib():
+    return emu.build({"solve": coarse_block._SOLVE, "factor": coarse_block._FACTOR,
+                      "substitute": coarse_block._SUBSTITUTE}, 32)
+
+
+def dense_solution(system: dict) -> np.ndarray:
+    """Each instance's system solved by numpy, per node (float64)."""
+    out = np.zeros(system["rhs"].shape)
+    for i, a in enumerate(system["dense"]):
+        s0, n = system["start"][i], system["count"][i]
+        rows = system["order"][s0:s0 + n] + s0  # band row r is node order[r]
+        out[rows] = np.linalg.solve(a, system["rhs"][rows].astype(np.float64))
+    return out
+
+
+def capacity(sizes) -> int:
+    return max(coarse_block.shared_floats(n, b) for n, b in sizes)
+
+
+@pytest.mark.parametrize("case", range(len(SIZES)))
+def test_block_solve_matches_a_dense_solve(lib, case):
+    """The whole solve (one block per instance, nodes in a permuted band order) equals numpy's
+    dense solve to float precision, at the block size ``threads`` picks and at 256 threads,
+    where threads loop over several entries per column (the index-table path)."""
+    sizes = SIZES[case]
+    system = emu.band_system(sizes, seed=case)
+    exact = dense_solution(system)
+    for threads in sorted({256, coarse_block.threads(max(b for _, b in sizes))}):
+        dx, _ = emu.run(lib, "solve", threads, 32, capacity(sizes), system)
+        err = np.abs(dx - exact).max() / np.abs(exact).max()
+        assert err < 5e-5, (sizes, threads, err)
+
+
+@pytest.mark.parametrize("case", range(len(SIZES)))
+def test_split_solve_gives_the_whole_solves_floats(lib, case):
+    """``coarse_prefactor``'s split (the factor to a global band, then the substitutions with it)
+    gives the whole solve's floats exactly, and runs repeat to the bit (a race between threads
+    that the barriers leave unordered would show as run-to-run differences)."""
+    sizes = SIZES[case]
+    system = emu.band_system(sizes, seed=10 + case)
+    threads = coarse_block.threads(max(b for _, b in sizes))
+    whole, _ = emu.run(lib, "solve", threads, 32, capacity(sizes), system)
+    _, factor = emu.run(lib, "factor", threads, 32, capacity(sizes), system)
+    split, _ = emu.run(lib, "substitute", coarse_block.SUBSTITUTE_THREADS, 32, capacity(sizes), system,
+                       factor=factor)
+    np.testing.assert_array_equal(split, whole)
+    again, _ = emu.run(lib, "solve", threads, 32, capacity(sizes), system)
+    np.testing.assert_array_equal(again, whole)
+
+
+def test_factor_is_the_unit_ldlt_of_the_band(lib):
+    """The factor kernel's band holds ``D`` on the diagonal and the unit ``L`` below it, with
+    ``L D L^T`` equal to the instance's matrix (rows in band order)."""
+    sizes = [(60, 7)]
+    system = emu.band_system(sizes, seed=3)
+    _, factor = emu.run(lib, "factor", 256, 32, capacity(sizes), system)
+    n, b = sizes[0]
+    band = factor[: n * (b + 1)].reshape(n, b + 1).astype(np.float64)
+    lower = np.eye(n)
+    for t in range(1, b + 1):
+        lower[np.arange(t, n), np.arange(n - t)] = band[t:, t]
+    ldlt = lower @ np.diag(band[:, 0]) @ lower.T
+    a = system["dense"][0]
+    np.testing.assert_allclose(ldlt, a, rtol=1e-5, atol=1e-5 * np.abs(a).max())
+
+
+def test_a_missing_barrier_is_caught(lib):
+    """The emulation orders threads only by the snippets' barriers: the solve with its
+    elimination step's barrier removed goes wrong (so the tests above can fail on a race)."""
+    sizes = [(200, 44)]
+    system = emu.band_system(sizes, seed=2)
+    text = coarse_block._SOLVE
+    step_end = "        __syncthreads();\n    }\n    // the unit L"
+    assert step_end in text
+    racy = emu.build({"solve": text.replace(step_end, "    }\n    // the unit L"),
+                      "factor": coarse_block._FACTOR, "substitute": coarse_block._SUBSTITUTE}, 32)
+    exact = dense_solution(system)
+    dx, _ = emu.run(racy, "solve", coarse_block.threads(44), 32, capacity(sizes), system)
+    assert np.abs(dx - exact).max() > 1e-2 * np.abs(exact).max()
