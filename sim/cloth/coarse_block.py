@@ -274,16 +274,20 @@ _ELIMINATE = r"""
 _ENTRY = r"""{
             const int a_ = jw + (S_) * w1;
             const float la_ = L[a_];
-            L[a_ - (T_)] -= la_ * L[jw + (T_) * w1] * inv;
+            const float lt_ = L[jw + (T_) * w1];
+            const float le_ = L[a_ - (T_)];
             RHS_TASK
+            L[a_ - (T_)] = le_ - la_ * lt_ * inv;
         }"""
 # the forward substitution's row j+s, by the thread of the diagonal entry (s, s)
 _RHS_TASK = r"""if ((T_) == (S_)) {
-                const float f = la_ * inv;
                 const int r_ = 3 * (j + (S_));
-                u[r_] -= f * u[3 * j];
-                u[r_ + 1] -= f * u[3 * j + 1];
-                u[r_ + 2] -= f * u[3 * j + 2];
+                const float z0_ = u[3 * j], z1_ = u[3 * j + 1], z2_ = u[3 * j + 2];
+                const float y0_ = u[r_], y1_ = u[r_ + 1], y2_ = u[r_ + 2];
+                const float f = la_ * inv;
+                u[r_] = y0_ - f * z0_;
+                u[r_ + 1] = y1_ - f * z1_;
+                u[r_ + 2] = y2_ - f * z2_;
             }"""
 
 
@@ -315,20 +319,59 @@ _BACK = r"""
         // last row first: row r is final, then leaves rows r-1 .. r-b
         for (int r = n - 1; r > 0; --r) {
             const float x0 = u[3 * r], x1 = u[3 * r + 1], x2 = u[3 * r + 2];
-            for (int q = lane; q < min(b, r); q += 32) {
-                const int t = q + 1;
-                const float l = L[r * w + t];
-                u[3 * (r - t)] -= l * x0;
-                u[3 * (r - t) + 1] -= l * x1;
-                u[3 * (r - t) + 2] -= l * x2;
-            }
+            ROW_TASKS(min(b, r); r * w + q + 1; 3 * (r - q - 1))
             __syncwarp();
         }
         for (int r = lane; r < n; r += 32)
             dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
     }
 """
-_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _eliminate(True) + _BACK
+# a substitution step's tasks for one warp: u[U(q)] -= L[L(q)] x for the row's entries q < count,
+# lane q and q + 32 loading both entries before either store (the compiler keeps the order of
+# shared loads and stores that may alias), more entries one by one
+_ROW_PAIR = r"""{
+                const int cnt_ = COUNT;
+                float l_[2], p_[2][3];
+                for (int k_ = 0; k_ < 2; ++k_) {
+                    const int q = lane + 32 * k_;
+                    if (q < cnt_) {
+                        l_[k_] = L[LIDX];
+                        p_[k_][0] = u[UIDX];
+                        p_[k_][1] = u[UIDX + 1];
+                        p_[k_][2] = u[UIDX + 2];
+                    }
+                }
+                for (int k_ = 0; k_ < 2; ++k_) {
+                    const int q = lane + 32 * k_;
+                    if (q < cnt_) {
+                        u[UIDX] = p_[k_][0] - l_[k_] * x0;
+                        u[UIDX + 1] = p_[k_][1] - l_[k_] * x1;
+                        u[UIDX + 2] = p_[k_][2] - l_[k_] * x2;
+                    }
+                }
+                for (int q = lane + 64; q < cnt_; q += 32) {
+                    const float l = L[LIDX];
+                    u[UIDX] -= l * x0;
+                    u[UIDX + 1] -= l * x1;
+                    u[UIDX + 2] -= l * x2;
+                }
+            }"""
+
+
+def _row_tasks(text: str) -> str:
+    """``text`` with its ``ROW_TASKS(count; L index; u index)`` expanded (``_ROW_PAIR``; the
+    indices are expressions of ``q``)."""
+    while "ROW_TASKS(" in text:
+        i = text.index("ROW_TASKS(")
+        j = text.index("\n", i)
+        args = text[i + len("ROW_TASKS("):j].rstrip()[:-1]
+        count, lidx, uidx = (a.strip() for a in args.split(";"))
+        body = _ROW_PAIR.replace("COUNT", count).replace("LIDX", lidx).replace("UIDX", f"({uidx})")
+        text = text[:i] + body + text[j:]
+    return text
+
+
+_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _eliminate(True) + _row_tasks(_BACK)
 # the factor: the elimination without the right-hand side, then the band to global memory
 # (column n-1 has no rows below it to scale)
 _FACTOR = _HEAD + _LOAD_BAND + _eliminate(False) + r"""
@@ -337,23 +380,16 @@ _FACTOR = _HEAD + _LOAD_BAND + _eliminate(False) + r"""
 """
 # the forward substitution column by column in one warp, as the whole solve's tasks do it:
 # row j is final once the columns before it are done, then leaves rows j+1 .. j+b
-_SUBSTITUTE = _HEAD + r"""
+_SUBSTITUTE = _row_tasks(_HEAD + r"""
     for (int q = lane; q < n * w; q += T)
         L[q] = factor[base + q];
 """ + _LOAD_RHS + r"""
     __syncthreads();
     if (lane < 32) {
         for (int j = 0; j < n - 1; ++j) {
-            const float z0 = u[3 * j], z1 = u[3 * j + 1], z2 = u[3 * j + 2];
-            const int m = min(b, n - 1 - j);
-            for (int q = lane; q < m; q += 32) {
-                const int s = q + 1;
-                const float l = L[(j + s) * w + s];
-                u[3 * (j + s)] -= l * z0;
-                u[3 * (j + s) + 1] -= l * z1;
-                u[3 * (j + s) + 2] -= l * z2;
-            }
+            const float x0 = u[3 * j], x1 = u[3 * j + 1], x2 = u[3 * j + 2];
+            ROW_TASKS(min(b, n - 1 - j); (j + q + 1) * w + q + 1; 3 * (j + q + 1))
             __syncwarp();
         }
     }
-""" + _BACK
+""" + _BACK)
