@@ -48,13 +48,16 @@ def parse_setting(s: str) -> dict:
     """``"10x5i2m6c8r0.9"`` -> substeps 10, iterations 5, self-contact detection every 2
     substeps, smallest self-contact query radius 6 mm, 8 pairs stored per vertex / triangle /
     edge, Chebyshev acceleration with rho 0.9 (``i``, ``m``, ``c``, ``r`` optional, in this
-    order: the solver's defaults)."""
+    order; a field left out is --solver's or the solver's default: without ``i`` the interval
+    is None here)."""
     m = SETTING.match(s)
     if m is None:
         raise SystemExit(f"--settings: cannot read {s!r} "
                          "(SUBSTEPSxITERATIONS[iINTERVAL][mMILLIMETRES][cCAPACITY][rRHO])")
-    out = {"substeps": int(m[1]), "iterations": int(m[2]), "interval": int(m[3] or 1)}
-    out["solver"] = {"self_contact_interval": out["interval"]}
+    out = {"substeps": int(m[1]), "iterations": int(m[2]), "interval": int(m[3]) if m[3] else None,
+           "solver": {}}
+    if m[3]:  # without ``i``, the interval of --solver (or the solver's default) holds
+        out["solver"]["self_contact_interval"] = int(m[3])
     if m[4]:
         out["solver"]["self_contact_margin"] = float(m[4]) / 1000.0
     if m[5]:
@@ -133,6 +136,7 @@ def main() -> None:
     for s in args.settings.split(","):
         p = parse_setting(s)
         p["solver"] = {**shared, **p["solver"]}
+        p["interval"] = int(p["solver"].get("self_contact_interval", 1))
         cfg = SimulationConfig(fps=30.0, substeps=p["substeps"], iterations=p["iterations"],
                                self_contact=True, solver=p["solver"], device=device)
         row = {"setting": s, **p, "motions": {}}

@@ -34,6 +34,10 @@ def test_a_setting_is_read_or_refused():
     assert (p["substeps"], p["iterations"], p["interval"]) == (10, 5, 2)
     assert p["solver"] == {"self_contact_interval": 2, "self_contact_margin": 0.006,
                            "self_contact_capacity": 8, "chebyshev_rho": 0.9}
+    # a field the setting leaves out is not set: --solver's value holds (session 32: "14x5" set
+    # the interval to 1 over --solver '{"self_contact_interval": 2}')
+    p = parse_setting("14x5")
+    assert p["solver"] == {} and p["interval"] is None
     with pytest.raises(SystemExit, match="cannot read"):
         parse_setting("10by5")
 
