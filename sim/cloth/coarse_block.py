@@ -27,9 +27,8 @@ _KERNELS: dict = {}
 
 def shared_floats(count: int, width: int) -> int:
     """Shared floats (4-byte words) one instance of ``count`` nodes and band width ``width``
-    needs: its band, its right-hand side, the index table of the block below a column and the
-    reciprocal pivots."""
-    return count * (width + 1) + 3 * count + width * (width + 1) // 2 + count
+    needs: its band, its right-hand side and the index table of the block below a column."""
+    return count * (width + 1) + 3 * count + width * (width + 1) // 2
 
 
 def threads(width: int) -> int:
@@ -234,11 +233,6 @@ _ELIMINATE = r"""
         while (s * (s + 1) / 2 > q) --s;
         tri[q] = ((s + 1) << 16) | (q - s * (s + 1) / 2 + 1);
     }
-    // 1 / d_j, column j's reciprocal pivot: the thread of entry (1, 1) writes column j+1's in
-    // step j, where the pivot gets its last update (lane 0 loaded L[0] itself)
-    float* invd = (float*)(tri + bb);
-    if (lane == 0)
-        invd[0] = 1.0f / fmaxf(L[0], 1.0e-30f);
     __syncthreads();
     const int w1 = w + 1;
     // this thread's first two entries (s > b: none); entries q >= 2T come from the table
@@ -253,7 +247,7 @@ _ELIMINATE = r"""
     }
     for (int j = 0; j < n; ++j) {
         const int jw = j * w;
-        const float inv = b > 0 ? invd[j] : 1.0f / fmaxf(L[jw], 1.0e-30f);  // no entry (1, 1) at b = 0
+        const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
         const int m = min(b, n - 1 - j);  // rows below column j
         if (s0 <= m) {
             ELIMINATE_ENTRY(s0, t0)
@@ -272,7 +266,7 @@ _ELIMINATE = r"""
         const int k = q / b;
         const int s = q - k * b + 1;
         if (s <= n - 1 - k)
-            L[(k + s) * w + s] *= invd[k];
+            L[(k + s) * w + s] *= 1.0f / fmaxf(L[k * w], 1.0e-30f);
     }
     __syncthreads();
 """
@@ -283,10 +277,7 @@ _ENTRY = r"""{
             const float lt_ = L[jw + (T_) * w1];
             const float le_ = L[a_ - (T_)];
             RHS_TASK
-            const float nv_ = le_ - la_ * lt_ * inv;
-            L[a_ - (T_)] = nv_;
-            if ((S_) == 1 && (T_) == 1)
-                invd[j + 1] = 1.0f / fmaxf(nv_, 1.0e-30f);
+            L[a_ - (T_)] = le_ - la_ * lt_ * inv;
         }"""
 # the forward substitution's row j+s, by the thread of the diagonal entry (s, s)
 _RHS_TASK = r"""if ((T_) == (S_)) {
