@@ -14,10 +14,10 @@ from tests import block_emulator as emu
 
 pytestmark = pytest.mark.skipif(emu.compiler() is None, reason="no C++ compiler for the block emulation")
 
-# (nodes, band width) per instance: a band wider than its instance, a tridiagonal one, the
-# 5k t-shirt's coarse level (200 nodes, band 44) and the 19k one's (249, 44), a band whose
-# entries under a column outnumber 1,024 threads (50: 1,275)
-SIZES = [[(37, 5), (60, 12), (9, 12), (25, 1)], [(200, 44)], [(249, 44), (120, 30)], [(150, 50)]]
+# (nodes, band width) per instance: a band wider than its instance, a tridiagonal one, a
+# diagonal one, the 5k t-shirt's coarse level (200 nodes, band 44) and the 19k one's (249, 44),
+# a band whose entries under a column outnumber 1,024 threads (50: 1,275)
+SIZES = [[(37, 5), (60, 12), (9, 12), (25, 1), (6, 0)], [(200, 44)], [(249, 44), (120, 30)], [(150, 50)]]
 
 
 @pytest.fixture(scope="module")
