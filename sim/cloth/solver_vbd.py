@@ -570,22 +570,20 @@ class SolverVBD:
                       inputs=[x, v, state_out.accelerations, m.particle_flags, self._x_step_start,
                               control.pin_targets, self._gravity, h, alpha],
                       outputs=[self._x_prev, self._y, x, self._snapshots[0]], device=d)
-            with self._side.on(0):
-                # on the side stream, beside the self-contact detection (all read only x_prev; the
-                # sweeps read their outputs after the join below): the substep's starting strains
-                # (session 32: ~8 us per substep off the critical path) and, after the bodies'
-                # placement, the body contact
-                wp.launch(K.previous_deformation_kernel, dim=m.tri_count + m.edge_count,
-                          inputs=[self._x_prev, m.tri_indices, m.tri_dm_inv, m.edge_indices, m.tri_count],
-                          outputs=[self._tri_strain_prev, self._edge_angle_prev], device=d)
-                if control.bodies:
+            wp.launch(K.previous_deformation_kernel, dim=m.tri_count + m.edge_count,
+                      inputs=[self._x_prev, m.tri_indices, m.tri_dm_inv, m.edge_indices, m.tri_count],
+                      outputs=[self._tri_strain_prev, self._edge_angle_prev], device=d)
+            if control.bodies:
+                # on the same side stream, after the bodies' placement and beside the self-contact
+                # detection: both only read x_prev
+                with self._side.on(0):
                     wp.launch(K.body_contact_kernel, dim=n,
                               inputs=[self._x_prev, m.particle_instance, control.instance_body,
                                       cfg.contact_margin],
                               outputs=[self._contact_point, self._contact_normal, self._contact_body_velocity,
                                        self._contact_active], device=d)
-                else:
-                    self._contact_active.zero_()
+            else:
+                self._contact_active.zero_()
             sc_data = self._sc_data
             if self.self_contact is not None and s % cfg.self_contact_interval == 0 and (s == 0 or not pipe):
                 # pairs found now serve the next ``interval`` substeps: the query covers that motion
