@@ -219,10 +219,10 @@ _LOAD_RHS = r"""
 # the elimination, one column per step: every thread keeps its entries (s, t) of the block below a
 # column, decoded once (session 32: before, each step looked its task up in the index table, and
 # 88 more tasks per step, the right-hand side's rows and the previous column's scaling, gave some
-# threads two tasks at the band of 44). The thread of a diagonal entry (s, s) also takes the
-# forward substitution's row j+s (RHS_TASK: it has A[j+s, j] loaded), and the columns are scaled
-# to the unit L after the last step (nothing reads a column after its own step). Each entry takes
-# the same products in the same column order as before, so the floats are the same.
+# threads two tasks at the band of 44). The forward substitution follows the elimination
+# (``_FORWARD``), and the columns are scaled to the unit L after the last step (nothing reads a
+# column after its own step). Each entry takes the same products in the same column order as
+# before, so the floats are the same.
 _ELIMINATE = r"""
     // the entries (s, t), 1 <= t <= s <= b, of the block below a column, row by row: s << 16 | t
     int* tri = (int*)(u + 3 * n);
@@ -270,40 +270,18 @@ _ELIMINATE = r"""
     }
     __syncthreads();
 """
-# A[j+s, j+t] -= A[j+s, j] A[j+t, j] / d_j (a is A[j+s, j]; A[j+s, j+t] is t before it)
+# A[j+s, j+t] -= A[j+s, j] A[j+t, j] / d_j (a is A[j+s, j]; A[j+s, j+t] is t before it), every
+# load before the store
 _ENTRY = r"""{
             const int a_ = jw + (S_) * w1;
             const float la_ = L[a_];
             const float lt_ = L[jw + (T_) * w1];
             const float le_ = L[a_ - (T_)];
-            RHS_TASK
             L[a_ - (T_)] = le_ - la_ * lt_ * inv;
         }"""
-# the forward substitution's row j+s, by the thread of the diagonal entry (s, s)
-_RHS_TASK = r"""if ((T_) == (S_)) {
-                const int r_ = 3 * (j + (S_));
-                const float z0_ = u[3 * j], z1_ = u[3 * j + 1], z2_ = u[3 * j + 2];
-                const float y0_ = u[r_], y1_ = u[r_ + 1], y2_ = u[r_ + 2];
-                const float f = la_ * inv;
-                u[r_] = y0_ - f * z0_;
-                u[r_ + 1] = y1_ - f * z1_;
-                u[r_ + 2] = y2_ - f * z2_;
-            }"""
-
-
-def _entry(rhs: bool, s: str, t: str) -> str:
-    """One elimination task for entry (``s``, ``t``) (C expressions), with the forward
-    substitution's row where ``rhs``."""
-    return _ENTRY.replace("RHS_TASK", _RHS_TASK if rhs else "").replace("S_", s).replace("T_", t)
-
-
-def _eliminate(rhs: bool) -> str:
-    """The elimination's text, with (``rhs``) or without the forward substitution."""
-    text = _ELIMINATE
-    for args in ("s0, t0", "s1, t1", "st >> 16, st & 0xffff"):
-        s, t = args.split(", ")
-        text = text.replace(f"ELIMINATE_ENTRY({args})", _entry(rhs, s, t))
-    return text
+for _args in ("s0, t0", "s1, t1", "st >> 16, st & 0xffff"):
+    _s, _t = _args.split(", ")
+    _ELIMINATE = _ELIMINATE.replace(f"ELIMINATE_ENTRY({_args})", _ENTRY.replace("S_", _s).replace("T_", _t))
 
 
 # D^-1, then L^T x = D^-1 z: a chain of n short rows for one warp, whose barrier is cheaper
@@ -371,19 +349,15 @@ def _row_tasks(text: str) -> str:
     return text
 
 
-_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _eliminate(True) + _row_tasks(_BACK)
 # the factor: the elimination without the right-hand side, then the band to global memory
 # (column n-1 has no rows below it to scale)
-_FACTOR = _HEAD + _LOAD_BAND + _eliminate(False) + r"""
+_FACTOR = _HEAD + _LOAD_BAND + _ELIMINATE + r"""
     for (int q = lane; q < n * w; q += T)
         factor_out[base + q] = L[q];
 """
 # the forward substitution column by column in one warp, as the whole solve's tasks do it:
 # row j is final once the columns before it are done, then leaves rows j+1 .. j+b
-_SUBSTITUTE = _row_tasks(_HEAD + r"""
-    for (int q = lane; q < n * w; q += T)
-        L[q] = factor[base + q];
-""" + _LOAD_RHS + r"""
+_FORWARD = _row_tasks(r"""
     __syncthreads();
     if (lane < 32) {
         for (int j = 0; j < n - 1; ++j) {
@@ -392,4 +366,11 @@ _SUBSTITUTE = _row_tasks(_HEAD + r"""
             __syncwarp();
         }
     }
-""" + _BACK)
+""")
+# the whole solve: the factor as below, then both substitutions by one warp (session 32: the
+# forward substitution as tasks of the elimination's diagonal entries made each step longer)
+_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE + _FORWARD + _row_tasks(_BACK)
+_SUBSTITUTE = _HEAD + r"""
+    for (int q = lane; q < n * w; q += T)
+        L[q] = factor[base + q];
+""" + _LOAD_RHS + _FORWARD + _row_tasks(_BACK)
