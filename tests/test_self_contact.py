@@ -893,3 +893,65 @@ def test_pairs_close_at_rest_get_half_their_rest_distance_and_push_nothing_at_re
         s2.step(st, st, m2.control(), 1.0 / 120.0)
         assert s2.self_contact.data.pair_count.numpy().sum() > 0
         np.testing.assert_allclose(st.positions.numpy(), folded, atol=1e-7)
+
+
+def test_gather_records_hold_each_vertexs_pairs_in_list_order(device):
+    """Each vertex's block of gather records (``pair_first`` / ``pair_count``) holds, in order,
+    its VT pairs, its triangles' TV pairs and its edges' EE pairs, each as the pair's four
+    vertices, the vertex's role (0 VT, 1-3 its corner of the TV triangle, 4-5 its end of the EE
+    edge), the same-colour mask of those vertices against its own colour, the radius code and
+    the side reference, as read from the detection's lists (numpy here; on the device one
+    thread per list slot writes them, ``pair_records_kernel``). Two instances of a sheet folded
+    1 mm onto itself give pairs of all three kinds."""
+    _, folded, f, _ = folded_sheet(13, 5, 0.02, 6, 0.001)
+    b = ClothModelBuilder()
+    for dz in (0.0, 0.5):
+        b.add_cloth((folded + [0.0, 0.0, dz]).astype(np.float32), f,
+                    ClothMaterialParams(mu=300.0, lam=100.0, thickness=0.001))
+    m = b.finalize(device)
+    solver = SolverVBD(m, VBDConfig(substeps=1, iterations=2, self_contact=True, self_contact_radius=0.003,
+                                    self_contact_pool=64))  # room for every vertex's records
+    state = m.state()
+    contact = solver.self_contact
+    contact.detect(state.positions, state.velocities, 1.0 / 300.0)
+    sc = contact.data
+    a = {k: getattr(sc, k).numpy() for k in (
+        "pair_first", "pair_count", "pair_verts", "pair_role", "pair_ref", "vt_count", "vt_tri", "vt_rk",
+        "vt_ref", "tv_count", "tv_vertex", "tv_rk", "tv_ref", "ee_count", "ee_edge", "ee_rk", "ee_ref",
+        "particle_color", "mesh_edges")}
+    tris = m.tri_indices.numpy()
+    vt_off, vt_ids, vt_local = (x.numpy() for x in (m.vertex_tri_offsets, m.vertex_tri_ids,
+                                                    m.vertex_tri_local))
+    ve_off, ve_ids, ve_local = (x.numpy() for x in (m.vertex_mesh_edge_offsets, m.vertex_mesh_edge_ids,
+                                                    m.vertex_mesh_edge_local))
+    cap_vt, cap_tv, cap_ee = sc.vt_capacity, sc.tv_capacity, sc.ee_capacity
+    color = a["particle_color"]
+    kinds = set()
+    for i in range(m.particle_count):
+        expect = []  # (q, role, rank, ref)
+        for s in range(a["vt_count"][i]):
+            expect.append(((i, *tris[a["vt_tri"][i * cap_vt + s]]), 0, a["vt_rk"][i * cap_vt + s],
+                           a["vt_ref"][i * cap_vt + s]))
+        for k in range(vt_off[i], vt_off[i + 1]):
+            t = vt_ids[k]
+            for s in range(a["tv_count"][t]):
+                expect.append(((a["tv_vertex"][t * cap_tv + s], *tris[t]), 1 + (vt_local[k] & 3),
+                               a["tv_rk"][t * cap_tv + s], a["tv_ref"][t * cap_tv + s]))
+        for k in range(ve_off[i], ve_off[i + 1]):
+            e = ve_ids[k]
+            for s in range(a["ee_count"][e]):
+                eb = a["mesh_edges"][a["ee_edge"][e * cap_ee + s]]
+                expect.append(((*a["mesh_edges"][e], *eb), 4 + ve_local[k], a["ee_rk"][e * cap_ee + s],
+                               a["ee_ref"][e * cap_ee + s]))
+        assert a["pair_count"][i] == len(expect)
+        if not expect:
+            continue
+        first = a["pair_first"][i]
+        assert first >= 0
+        for r, (q, role, rank, ref) in enumerate(expect, start=first):
+            mask = sum(1 << j for j in range(4) if color[q[j]] == color[i])
+            np.testing.assert_array_equal(a["pair_verts"][r], q)
+            assert a["pair_role"][r] == role | (mask << 4) | (rank << 8)
+            np.testing.assert_array_equal(a["pair_ref"][r], ref)
+            kinds.add(0 if role == 0 else 1 if role < 4 else 2)
+    assert kinds == {0, 1, 2}

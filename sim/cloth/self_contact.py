@@ -1045,10 +1045,8 @@ def vertex_summary_kernel(
     dmin_vertex: wp.array(dtype=float),
     dmin_tri: wp.array(dtype=float),
     dmin_edge: wp.array(dtype=float),
-    tri_indices: wp.array(dtype=wp.vec3i),
     vertex_tri_offsets: wp.array(dtype=wp.int32),
     vertex_tri_ids: wp.array(dtype=wp.int32),
-    vertex_tri_local: wp.array(dtype=wp.int32),
     relaxation: float,
     sc: SelfContactData,
 ):
@@ -1056,14 +1054,14 @@ def vertex_summary_kernel(
     triangles), d_min(incident edges))``; the number of stored pairs of its triangles (TV) and
     of its edges (EE), and for each incident triangle / edge the number of pairs before it (the
     offsets of the vertex's flattened pair lists, for the list fallback of the solve); and the
-    vertex's gather records: every pair it takes part in (its VT pairs, its triangles' TV
-    pairs, its edges' EE pairs, in that order) as the pair's four vertices, the vertex's role
-    in it (bits 0-3 of ``pair_role``; bits 4-7 which of the four vertices have the vertex's
-    colour, ``read_position``; bits 8-15 the pair's radius code, ``reduced_radius_code``) and the
-    pair's side reference, in one block of the shared pool
-    (``pair_first``: -1 where the pool is full; the solve then reads the lists). The block's
-    place in the pool depends on the threads' order, its contents do not: the solve's sums are
-    deterministic.
+    place of the vertex's gather records in the shared pool, a block of ``pair_count`` records
+    from ``pair_first`` (-1 where the pool is full; the solve then reads the lists), which
+    ``pair_records_kernel`` fills: every pair the vertex takes part in (its VT pairs, its
+    triangles' TV pairs, its edges' EE pairs, in that order) as the pair's four vertices, the
+    vertex's role in it (bits 0-3 of ``pair_role``; bits 4-7 which of the four vertices have
+    the vertex's colour, ``read_position``; bits 8-15 the pair's radius code,
+    ``reduced_radius_code``) and the pair's side reference. The block's place in the pool
+    depends on the threads' order, its contents do not: the solve's sums are deterministic.
 
     With ``heavy_cap`` > 0 (``heavy_count`` zeroed before) it also marks the vertices with more
     than ``heavy_threshold`` records and lists them in their colour's range of ``heavy_list``
@@ -1107,35 +1105,92 @@ def vertex_summary_kernel(
         sc.heavy[i] = 1
         if k < sc.heavy_cap:
             sc.heavy_list[sc.color_start[c] + k] = i
-    r = first
-    for s in range(vt):
-        tri = tri_indices[sc.vt_tri[i * sc.vt_capacity + s]]
-        q = wp.vec4i(i, tri[0], tri[1], tri[2])
-        sc.pair_verts[r] = q
-        sc.pair_role[r] = packed_role(0, sc.particle_color, c, q) | (sc.vt_rk[i * sc.vt_capacity + s] << 8)
-        sc.pair_ref[r] = sc.vt_ref[i * sc.vt_capacity + s]
-        r += 1
-    for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
-        t = vertex_tri_ids[k]
+
+
+@wp.kernel
+def pair_records_kernel(
+    tri_indices: wp.array(dtype=wp.vec3i),
+    tri_slot: wp.array(dtype=wp.int32),
+    edge_slot: wp.array(dtype=wp.int32),
+    n: int,
+    nt: int,
+    sc: SelfContactData,
+):
+    """The gather records of ``vertex_summary_kernel``'s blocks, one thread per list (the
+    vertices' VT lists, then the triangles' TV lists, then the edges' EE lists): a stored pair's
+    record goes to the block of every vertex it belongs to (a VT pair to its vertex, a TV pair
+    to the triangle's three corners, an EE pair to the edge's two ends), at the place the
+    vertex's order gives it (its VT pairs, its triangles' TV pairs, its edges' EE pairs;
+    ``tv_first`` / ``ee_first`` count the pairs before each incident triangle / edge).
+    ``tri_slot`` / ``edge_slot``: where a triangle's corner / an edge's end sits in that vertex's
+    incidence list. (Session 32: one thread per vertex wrote all of its records, and the few
+    vertices of a dense fold, with up to 160, set the launch's length; a list holds at most its
+    capacity.)"""
+    j = wp.tid()
+    if j < n:
+        first = sc.pair_first[j]
+        if first < 0:
+            return
+        c = sc.particle_color[j]
+        for s in range(sc.vt_count[j]):
+            k = j * sc.vt_capacity + s
+            tri = tri_indices[sc.vt_tri[k]]
+            q = wp.vec4i(j, tri[0], tri[1], tri[2])
+            sc.pair_verts[first + s] = q
+            sc.pair_role[first + s] = packed_role(0, sc.particle_color, c, q) | (sc.vt_rk[k] << 8)
+            sc.pair_ref[first + s] = sc.vt_ref[k]
+        return
+    if j < n + nt:
+        t = j - n
+        count = sc.tv_count[t]
+        if count == 0:
+            return
         tri = tri_indices[t]
-        for s in range(sc.tv_count[t]):
-            q = wp.vec4i(sc.tv_vertex[t * sc.tv_capacity + s], tri[0], tri[1], tri[2])
-            sc.pair_verts[r] = q
-            sc.pair_role[r] = (packed_role(1 + (vertex_tri_local[k] & 3), sc.particle_color, c, q)
-                               | (sc.tv_rk[t * sc.tv_capacity + s] << 8))
-            sc.pair_ref[r] = sc.tv_ref[t * sc.tv_capacity + s]
-            r += 1
-    for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
-        e = sc.vertex_edge_ids[k]
-        ea = sc.mesh_edges[e]
-        for s in range(sc.ee_count[e]):
-            eb = sc.mesh_edges[sc.ee_edge[e * sc.ee_capacity + s]]
-            q = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
-            sc.pair_verts[r] = q
-            sc.pair_role[r] = (packed_role(4 + sc.vertex_edge_local[k], sc.particle_color, c, q)
-                               | (sc.ee_rk[e * sc.ee_capacity + s] << 8))
-            sc.pair_ref[r] = sc.ee_ref[e * sc.ee_capacity + s]
-            r += 1
+        for corner in range(3):
+            v = tri[corner]
+            first = sc.pair_first[v]
+            if first >= 0:
+                base = first + sc.vt_count[v] + sc.tv_first[tri_slot[3 * t + corner]]
+                c = sc.particle_color[v]
+                for s in range(count):
+                    k = t * sc.tv_capacity + s
+                    q = wp.vec4i(sc.tv_vertex[k], tri[0], tri[1], tri[2])
+                    sc.pair_verts[base + s] = q
+                    role = packed_role(1 + corner, sc.particle_color, c, q)
+                    sc.pair_role[base + s] = role | (sc.tv_rk[k] << 8)
+                    sc.pair_ref[base + s] = sc.tv_ref[k]
+        return
+    e = j - n - nt
+    count = sc.ee_count[e]
+    if count == 0:
+        return
+    ea = sc.mesh_edges[e]
+    for end in range(2):
+        v = ea[end]
+        first = sc.pair_first[v]
+        if first >= 0:
+            slot = edge_slot[2 * e + end]
+            base = first + sc.vt_count[v] + sc.tv_total[v] + sc.ee_first[slot]
+            role = 4 + sc.vertex_edge_local[slot]
+            c = sc.particle_color[v]
+            for s in range(count):
+                k = e * sc.ee_capacity + s
+                eb = sc.mesh_edges[sc.ee_edge[k]]
+                q = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
+                sc.pair_verts[base + s] = q
+                sc.pair_role[base + s] = packed_role(role, sc.particle_color, c, q) | (sc.ee_rk[k] << 8)
+                sc.pair_ref[base + s] = sc.ee_ref[k]
+
+def incidence_slots(ids: np.ndarray, local: np.ndarray, corners: int, count: int) -> np.ndarray:
+    """For each of ``count`` primitives (triangles: ``corners`` 3, edges: 2) and corner ``c``, the
+    index ``k`` of that corner's entry in the vertices' incidence CSR (``ids``: the primitive of
+    each entry, ``local``: the vertex's corner in it), as a flat array ``[corners * p + c]``."""
+    slots = np.full(corners * count, -1, np.int64)
+    k = np.arange(len(ids))
+    slots[corners * ids.astype(np.int64) + local.astype(np.int64)] = k
+    if count and slots.min() < 0:
+        raise ValueError("incidence_slots: a primitive corner has no incidence entry")
+    return slots.astype(np.int32)
 
 
 class SelfContact:
@@ -1278,6 +1333,14 @@ class SelfContact:
         self._lo_e = w.zeros(ne, dtype=w.vec3, device=d)
         self._hi_e = w.zeros(ne, dtype=w.vec3, device=d)
         self._points = w.zeros(n, dtype=w.vec3, device=d)
+        # where each triangle corner / edge end sits in its vertex's incidence list
+        # (``pair_records_kernel``)
+        self._tri_slot = w.array(incidence_slots(model.vertex_tri_ids.numpy(),
+                                                 model.vertex_tri_local.numpy() & 3, 3, nt),
+                                 dtype=w.int32, device=d)
+        self._edge_slot = w.array(incidence_slots(model.vertex_mesh_edge_ids.numpy(),
+                                                  model.vertex_mesh_edge_local.numpy(), 2, ne),
+                                  dtype=w.int32, device=d)
         self._update_bounds(model.particle_q)
         self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
         self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
@@ -1407,8 +1470,11 @@ class SelfContact:
         if sc.heavy_cap > 0:
             sc.heavy_count.zero_()
         w.launch(vertex_summary_kernel, dim=m.particle_count,
-                 inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.tri_indices, m.vertex_tri_offsets,
-                         m.vertex_tri_ids, m.vertex_tri_local, self.relaxation, sc], device=d)
+                 inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.vertex_tri_offsets, m.vertex_tri_ids,
+                         self.relaxation, sc], device=d)
+        nt, ne = m.tri_count, self._lo_e.shape[0]
+        w.launch(pair_records_kernel, dim=m.particle_count + nt + ne,
+                 inputs=[m.tri_indices, self._tri_slot, self._edge_slot, m.particle_count, nt, sc], device=d)
 
 
 # the SelfContactData arrays a detection writes (each ``SelfContact`` slot has its own)
