@@ -126,6 +126,7 @@ def main() -> None:
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
 
+    from sim.cloth import VBDConfig
     from sim.simulate import SimulationConfig
 
     device, body, garment, edge, motions = load_scene(args)
@@ -136,7 +137,7 @@ def main() -> None:
     for s in args.settings.split(","):
         p = parse_setting(s)
         p["solver"] = {**shared, **p["solver"]}
-        p["interval"] = int(p["solver"].get("self_contact_interval", 1))
+        p["interval"] = int(p["solver"].get("self_contact_interval", VBDConfig.self_contact_interval))
         cfg = SimulationConfig(fps=30.0, substeps=p["substeps"], iterations=p["iterations"],
                                self_contact=True, solver=p["solver"], device=device)
         row = {"setting": s, **p, "motions": {}}

@@ -2,8 +2,8 @@
 
 The snippets are C++ with CUDA's block primitives. Here each is compiled by the system's C++
 compiler into a function of one thread, and a block is emulated by ``threads`` OS threads with
-``std::barrier`` for ``__syncthreads`` (the whole block), ``__syncwarp`` (the first 32 threads,
-the only ones that call it) and the panel's named barrier (the first ``PANEL_THREADS``). A race
+``std::barrier`` for ``__syncthreads`` (the whole block) and ``__syncwarp`` (the first 32
+threads, the only ones that call it). A race
 that the barriers do not order shows up as a wrong or run-to-run varying result. Compiled with
 ``-ffp-contract=off``: every multiply and add rounds as written, so two snippets that do the same
 operations in the same order give the same floats.
@@ -12,7 +12,9 @@ operations in the same order give the same floats.
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
+import os
 import shutil
 import subprocess
 import tempfile
@@ -38,10 +40,8 @@ using std::min;
 struct Dim { unsigned x; };
 static std::barrier<>* g_block;
 static std::barrier<>* g_warp;
-static std::barrier<>* g_panel;
 #define __syncthreads() g_block->arrive_and_wait()
 #define __syncwarp() g_warp->arrive_and_wait()
-#define PANEL_BARRIER() g_panel->arrive_and_wait()
 struct Smem { struct { float* ptr; } data; };
 
 static void body(int kind, Dim blockDim, float* shared, const wp::vec3* rhs, const float* diag,
@@ -58,16 +58,15 @@ SUBSTITUTE
     }
 }
 
-extern "C" void run(int kind, int threads, int panel_threads, int instances, int capacity,
+extern "C" void run(int kind, int threads, int instances, int capacity,
                     const wp::vec3* rhs, const float* diag, const int* inst_start, const int* inst_count,
                     const int* inst_width, const long long* inst_band, const int* order,
                     const float* band_k, float* factor, wp::vec3* dx_out) {
     for (int k = 0; k < instances; ++k) {
         std::vector<float> shared(capacity, 0.0f);
-        std::barrier<> block(threads), warp(32), panel(panel_threads);
+        std::barrier<> block(threads), warp(32);
         g_block = &block;
         g_warp = &warp;
-        g_panel = &panel;
         std::vector<std::thread> pool;
         for (int lane = 0; lane < threads; ++lane)
             pool.emplace_back(body, kind, Dim{(unsigned)threads}, shared.data(), rhs, diag, inst_start,
@@ -82,31 +81,55 @@ extern "C" void run(int kind, int threads, int panel_threads, int instances, int
 KINDS = {"solve": 0, "factor": 1, "substitute": 2}
 
 
+FLAGS = ["-std=c++20", "-O1", "-ffp-contract=off", "-shared", "-fPIC", "-pthread"]
+
+
+def _cache() -> Path:
+    """This user's cache of compiled snippets (not shared: a library here is loaded and run)."""
+    path = Path(tempfile.gettempdir()) / f"wrinkles_block_emulator_{os.getuid()}"
+    path.mkdir(mode=0o700, exist_ok=True)
+    return path
+
+
+def _compile(cc: str, src: str, out: Path) -> subprocess.CompletedProcess:
+    """Compile ``src`` to the library ``out`` (through a private directory, then an atomic
+    rename: concurrent builds of the same source do not see each other's files)."""
+    with tempfile.TemporaryDirectory(dir=_cache()) as tmp:
+        cpp, lib = Path(tmp) / "snippets.cpp", Path(tmp) / "snippets.so"
+        cpp.write_text(src)
+        done = subprocess.run([cc, *FLAGS, str(cpp), "-o", str(lib)], capture_output=True, text=True)
+        if done.returncode == 0:
+            lib.replace(out)
+        return done
+
+
+@functools.cache
 def compiler() -> str | None:
-    """The C++ compiler the emulation uses (None: none on this machine)."""
-    return shutil.which("g++") or shutil.which("clang++")
+    """The C++ compiler the emulation uses: g++ or clang++ where it builds a ``std::barrier``
+    program (C++20); None where there is none."""
+    for name in ("g++", "clang++"):
+        cc = shutil.which(name)
+        if cc and _compile(cc, _PRELUDE.split("namespace wp")[0] + "std::barrier<> b(1);\n",
+                           _cache() / f"probe_{name}.so").returncode == 0:
+            return cc
+    return None
 
 
-def build(snippets: dict[str, str], panel_threads: int) -> ctypes.CDLL:
-    """Compile ``snippets`` (``solve`` / ``factor`` / ``substitute`` texts, panel placeholders
-    filled) into one library (cached by content in the temporary directory)."""
+def build(snippets: dict[str, str]) -> ctypes.CDLL:
+    """Compile ``snippets`` (``solve`` / ``factor`` / ``substitute`` texts) into one library,
+    cached by source, compiler and flags."""
+    cc = compiler()
+    if cc is None:
+        raise RuntimeError("no C++20 compiler (g++ or clang++) for the block emulation")
     src = _PRELUDE
     for name in ("solve", "factor", "substitute"):
-        text = snippets[name].replace(
-            f'asm volatile("bar.sync 1, {panel_threads};" ::: "memory")', "PANEL_BARRIER()")
-        src = src.replace(name.upper(), text, 1)
-    digest = hashlib.sha1(src.encode()).hexdigest()[:16]
-    out = Path(tempfile.gettempdir()) / f"wrinkles_block_emulator_{digest}.so"
+        src = src.replace(name.upper(), snippets[name], 1)
+    digest = hashlib.sha1("\0".join([src, cc, *FLAGS]).encode()).hexdigest()[:16]
+    out = _cache() / f"snippets_{digest}.so"
     if not out.exists():
-        cc = compiler()
-        if cc is None:
-            raise RuntimeError("no C++ compiler (g++ or clang++) for the block emulation")
-        cpp = out.with_suffix(".cpp")
-        cpp.write_text(src)
-        tmp = out.with_suffix(f".{np.random.default_rng().integers(1 << 30)}.so")
-        subprocess.run([cc, "-std=c++20", "-O1", "-ffp-contract=off", "-shared", "-fPIC", "-pthread",
-                        str(cpp), "-o", str(tmp)], check=True, capture_output=True)
-        tmp.replace(out)
+        done = _compile(cc, src, out)
+        if done.returncode != 0:
+            raise RuntimeError(f"block emulation: {cc} failed: {done.stderr.strip()[-2000:]}")
     return ctypes.CDLL(str(out))
 
 
@@ -114,7 +137,7 @@ def _ptr(a: np.ndarray) -> ctypes.c_void_p:
     return ctypes.c_void_p(a.ctypes.data)
 
 
-def run(lib: ctypes.CDLL, kind: str, threads: int, panel_threads: int, capacity: int, system: dict,
+def run(lib: ctypes.CDLL, kind: str, threads: int, capacity: int, system: dict,
         factor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Run snippet ``kind`` over every instance of ``system`` (``band_system``'s arrays) with
     blocks of ``threads``; returns ``(dx, factor)`` (the solution per node, and the factor
@@ -124,9 +147,8 @@ def run(lib: ctypes.CDLL, kind: str, threads: int, panel_threads: int, capacity:
     fac = np.zeros_like(system["band"]) if factor is None else np.ascontiguousarray(factor, np.float32)
     arrays = [np.ascontiguousarray(system[k]) for k in
               ("rhs", "diag", "start", "count", "width", "band_start", "order", "band")]
-    lib.run(ctypes.c_int(KINDS[kind]), ctypes.c_int(threads), ctypes.c_int(panel_threads),
-            ctypes.c_int(len(system["count"])), ctypes.c_int(capacity), *(_ptr(a) for a in arrays),
-            _ptr(fac), _ptr(dx))
+    lib.run(ctypes.c_int(KINDS[kind]), ctypes.c_int(threads), ctypes.c_int(len(system["count"])),
+            ctypes.c_int(capacity), *(_ptr(a) for a in arrays), _ptr(fac), _ptr(dx))
     return dx, fac
 
 

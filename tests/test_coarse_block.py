@@ -15,15 +15,17 @@ from tests import block_emulator as emu
 pytestmark = pytest.mark.skipif(emu.compiler() is None, reason="no C++ compiler for the block emulation")
 
 # (nodes, band width) per instance: a band wider than its instance, a tridiagonal one, a
-# diagonal one, the 5k t-shirt's coarse level (200 nodes, band 44) and the 19k one's (249, 44),
-# a band whose entries under a column outnumber 1,024 threads (50: 1,275)
-SIZES = [[(37, 5), (60, 12), (9, 12), (25, 1), (6, 0)], [(200, 44)], [(249, 44), (120, 30)], [(150, 50)]]
+# diagonal one, a single node, the 5k t-shirt's coarse level (200 nodes, band 44) and the 19k
+# one's (249, 44), bands whose entries under a column outnumber 1,024 threads (50: 1,275) and
+# 2,048 (64: 2,080, the index table's path at ``threads``)
+SIZES = [[(37, 5), (60, 12), (9, 12), (25, 1), (6, 0), (1, 3)], [(200, 44)], [(249, 44), (120, 30)],
+         [(150, 50)], [(80, 64)]]
 
 
 @pytest.fixture(scope="module")
 def lib():
     return emu.build({"solve": coarse_block._SOLVE, "factor": coarse_block._FACTOR,
-                      "substitute": coarse_block._SUBSTITUTE}, 32)
+                      "substitute": coarse_block._SUBSTITUTE})
 
 
 def dense_solution(system: dict) -> np.ndarray:
@@ -49,7 +51,7 @@ def test_block_solve_matches_a_dense_solve(lib, case):
     system = emu.band_system(sizes, seed=case)
     exact = dense_solution(system)
     for threads in sorted({256, coarse_block.threads(max(b for _, b in sizes))}):
-        dx, _ = emu.run(lib, "solve", threads, 32, capacity(sizes), system)
+        dx, _ = emu.run(lib, "solve", threads, capacity(sizes), system)
         err = np.abs(dx - exact).max() / np.abs(exact).max()
         assert err < 5e-5, (sizes, threads, err)
 
@@ -62,12 +64,12 @@ def test_split_solve_gives_the_whole_solves_floats(lib, case):
     sizes = SIZES[case]
     system = emu.band_system(sizes, seed=10 + case)
     threads = coarse_block.threads(max(b for _, b in sizes))
-    whole, _ = emu.run(lib, "solve", threads, 32, capacity(sizes), system)
-    _, factor = emu.run(lib, "factor", threads, 32, capacity(sizes), system)
-    split, _ = emu.run(lib, "substitute", coarse_block.SUBSTITUTE_THREADS, 32, capacity(sizes), system,
+    whole, _ = emu.run(lib, "solve", threads, capacity(sizes), system)
+    _, factor = emu.run(lib, "factor", threads, capacity(sizes), system)
+    split, _ = emu.run(lib, "substitute", coarse_block.SUBSTITUTE_THREADS, capacity(sizes), system,
                        factor=factor)
     np.testing.assert_array_equal(split, whole)
-    again, _ = emu.run(lib, "solve", threads, 32, capacity(sizes), system)
+    again, _ = emu.run(lib, "solve", threads, capacity(sizes), system)
     np.testing.assert_array_equal(again, whole)
 
 
@@ -76,7 +78,7 @@ def test_factor_is_the_unit_ldlt_of_the_band(lib):
     ``L D L^T`` equal to the instance's matrix (rows in band order)."""
     sizes = [(60, 7)]
     system = emu.band_system(sizes, seed=3)
-    _, factor = emu.run(lib, "factor", 256, 32, capacity(sizes), system)
+    _, factor = emu.run(lib, "factor", 256, capacity(sizes), system)
     n, b = sizes[0]
     band = factor[: n * (b + 1)].reshape(n, b + 1).astype(np.float64)
     lower = np.eye(n)
@@ -96,7 +98,7 @@ def test_a_missing_barrier_is_caught(lib):
     step_end = "        __syncthreads();\n    }\n    // the unit L"
     assert step_end in text
     racy = emu.build({"solve": text.replace(step_end, "    }\n    // the unit L"),
-                      "factor": coarse_block._FACTOR, "substitute": coarse_block._SUBSTITUTE}, 32)
+                      "factor": coarse_block._FACTOR, "substitute": coarse_block._SUBSTITUTE})
     exact = dense_solution(system)
-    dx, _ = emu.run(racy, "solve", coarse_block.threads(44), 32, capacity(sizes), system)
+    dx, _ = emu.run(racy, "solve", coarse_block.threads(44), capacity(sizes), system)
     assert np.abs(dx - exact).max() > 1e-2 * np.abs(exact).max()

@@ -901,7 +901,7 @@ def test_gather_records_hold_each_vertexs_pairs_in_list_order(device):
     vertices, the vertex's role (0 VT, 1-3 its corner of the TV triangle, 4-5 its end of the EE
     edge), the same-colour mask of those vertices against its own colour, the radius code and
     the side reference, as read from the detection's lists (numpy here; on the device one
-    thread per list slot writes them, ``pair_records_kernel``). Two instances of a sheet folded
+    thread per list writes them, ``pair_records_kernel``). Two instances of a sheet folded
     1 mm onto itself give pairs of all three kinds."""
     _, folded, f, _ = folded_sheet(13, 5, 0.02, 6, 0.001)
     b = ClothModelBuilder()

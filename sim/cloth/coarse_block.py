@@ -6,8 +6,9 @@ serial factorization costs about 20 ms per correction for the t-shirt's 326 node
 (``n (b + 1)`` floats) and the right-hand side sit in shared memory, the factorization is a
 right-looking ``L D L^T`` that eliminates one column per step with every thread updating a
 share of the ``b (b + 1) / 2`` entries below it (one each where the block has enough threads),
-and one warp does the back substitution, a row per step. That is ``n`` block barriers and ``n``
-warp barriers per solve instead of ``n b^2 / 2`` serial multiply-adds.
+and one warp does each substitution, a row per step. That is about ``n`` block barriers and
+``2 n`` warp barriers per solve instead of ``n b^2 / 2`` serial multiply-adds. The snippets are
+checked on the CPU by an emulation of the block (``tests/block_emulator.py``).
 
 The kernel uses ``__shared__`` memory and ``__syncthreads`` through a native snippet, so it
 exists on CUDA only; the CPU keeps the serial kernel. Shared memory is sized per model (the
@@ -188,9 +189,8 @@ SUBSTITUTE_THREADS = 256
 # (row r holds A[r, r - t] at t = 0 .. b), the right-hand side after them, 3 floats per row.
 # The snippets are put together from these parts: the whole solve (``_SOLVE``), the factor alone
 # (``_FACTOR``: no right-hand side; the band goes to global memory) and the substitutions with
-# that factor (``_SUBSTITUTE``). The split gives the same floats as the whole solve: the forward
-# substitution subtracts l_{j+s,j} u_j from row j+s in the same column order, and l_{j+s,j} is
-# the same product A[j+s, j] * (1 / d_j) either way.
+# that factor (``_SUBSTITUTE``). The split gives the same floats as the whole solve: both run
+# the same substitutions (``_FORWARD``, ``_BACK``) on the same scaled factor.
 _HEAD = r"""
     __syncthreads();  // the tile allocation is not a barrier
     float* L = smem.data.ptr;
@@ -263,10 +263,10 @@ _ELIMINATE = r"""
     }
     // the unit L: each column below its diagonal by 1 / d
     for (int q = lane; q < n * b; q += T) {
-        const int k = q / b;
-        const int s = q - k * b + 1;
-        if (s <= n - 1 - k)
-            L[(k + s) * w + s] *= 1.0f / fmaxf(L[k * w], 1.0e-30f);
+        const int c = q / b;  // column c, row c + s
+        const int s = q - c * b + 1;
+        if (s <= n - 1 - c)
+            L[(c + s) * w + s] *= 1.0f / fmaxf(L[c * w], 1.0e-30f);
     }
     __syncthreads();
 """
@@ -349,14 +349,13 @@ def _row_tasks(text: str) -> str:
     return text
 
 
-# the factor: the elimination without the right-hand side, then the band to global memory
-# (column n-1 has no rows below it to scale)
+# the factor: the elimination, then the band to global memory
 _FACTOR = _HEAD + _LOAD_BAND + _ELIMINATE + r"""
     for (int q = lane; q < n * w; q += T)
         factor_out[base + q] = L[q];
 """
-# the forward substitution column by column in one warp, as the whole solve's tasks do it:
-# row j is final once the columns before it are done, then leaves rows j+1 .. j+b
+# the forward substitution column by column in one warp: row j is final once the columns before
+# it are done, then leaves rows j+1 .. j+b
 _FORWARD = _row_tasks(r"""
     __syncthreads();
     if (lane < 32) {
@@ -367,7 +366,7 @@ _FORWARD = _row_tasks(r"""
         }
     }
 """)
-# the whole solve: the factor as below, then both substitutions by one warp (session 32: the
+# the whole solve: the factor as above, then both substitutions by one warp (session 32: the
 # forward substitution as tasks of the elimination's diagonal entries made each step longer)
 _SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE + _FORWARD + _row_tasks(_BACK)
 _SUBSTITUTE = _HEAD + r"""

@@ -567,7 +567,7 @@ def self_contact_force_hessian(
     of its VT pairs, as a corner of its triangles' TV pairs, as an end of its edges' EE pairs.
     This lane's share only: items ``lane, lane + stride, ...`` of the vertex's pairs.
 
-    The pairs come from the vertex's gather records (``vertex_summary_kernel``: the pair's
+    The pairs come from the vertex's gather records (``pair_records_kernel``: the pair's
     vertices, the vertex's role and the side reference in one place), so a pair costs one
     record load, then its positions. (The solve's split gather calls this; its fused gather reads
     the records in its own loop, ``vbd_kernels.vertex_share_force_hessian``.) A vertex
@@ -1181,15 +1181,19 @@ def pair_records_kernel(
                 sc.pair_role[base + s] = packed_role(role, sc.particle_color, c, q) | (sc.ee_rk[k] << 8)
                 sc.pair_ref[base + s] = sc.ee_ref[k]
 
+
 def incidence_slots(ids: np.ndarray, local: np.ndarray, corners: int, count: int) -> np.ndarray:
     """For each of ``count`` primitives (triangles: ``corners`` 3, edges: 2) and corner ``c``, the
     index ``k`` of that corner's entry in the vertices' incidence CSR (``ids``: the primitive of
     each entry, ``local``: the vertex's corner in it), as a flat array ``[corners * p + c]``."""
+    ids, local = ids.astype(np.int64), local.astype(np.int64)
+    if len(ids) != corners * count or np.any((local < 0) | (local >= corners)):
+        raise ValueError(f"incidence_slots: {len(ids)} incidence entries for {count} primitives of "
+                         f"{corners} corners, or a corner outside 0..{corners - 1}")
     slots = np.full(corners * count, -1, np.int64)
-    k = np.arange(len(ids))
-    slots[corners * ids.astype(np.int64) + local.astype(np.int64)] = k
+    slots[corners * ids + local] = np.arange(len(ids))
     if count and slots.min() < 0:
-        raise ValueError("incidence_slots: a primitive corner has no incidence entry")
+        raise ValueError("incidence_slots: a primitive corner has no incidence entry (or two have one)")
     return slots.astype(np.int32)
 
 
