@@ -1,9 +1,11 @@
 """CPU emulation of ``sim.cloth.coarse_block``'s CUDA snippets, for tests without a GPU.
 
 The snippets are C++ with CUDA's block primitives. Here each is compiled by the system's C++
-compiler into a function of one thread, and a block is emulated by ``threads`` OS threads with
-``std::barrier`` for ``__syncthreads`` (the whole block) and ``__syncwarp`` (the first 32
-threads, the only ones that call it). A race
+compiler into a function of one thread, and a block is emulated by ``threads`` OS threads with a
+barrier for ``__syncthreads`` (the whole block) and one for ``__syncwarp`` (the first 32
+threads, the only ones that call it). A block that does not finish in time (threads waiting at a
+barrier others never reach) or whose threads cannot all start fails the run with an error
+instead of hanging it. A race
 that the barriers do not order shows up as a wrong or run-to-run varying result. Compiled with
 ``-ffp-contract=off``: every multiply and add rounds as written, so two snippets that do the same
 operations in the same order give the same floats.
@@ -24,10 +26,37 @@ import numpy as np
 
 _PRELUDE = r"""
 #include <algorithm>
-#include <barrier>
+#include <atomic>
+#include <chrono>
 #include <cmath>
+#include <condition_variable>
+#include <mutex>
 #include <thread>
 #include <vector>
+// set when the block does not finish in time or a thread cannot start: every barrier then lets
+// threads through, the block runs to its end and run() reports the failure
+static std::atomic<bool> g_failed{false};
+struct Barrier {  // a generation barrier on C++20 atomic waits (futexes)
+    std::atomic<int> arrived{0};
+    std::atomic<long> generation{0};
+    int count;
+    explicit Barrier(int n) : count(n) {}
+    void wait() {
+        const long g = generation.load();
+        if (arrived.fetch_add(1) + 1 == count) {
+            arrived.store(0);
+            generation.fetch_add(1);
+            generation.notify_all();
+            return;
+        }
+        while (generation.load() == g && !g_failed.load())
+            generation.wait(g);
+    }
+    void release() {  // after g_failed: wake every waiter
+        generation.fetch_add(1);
+        generation.notify_all();
+    }
+};
 namespace wp {
 struct vec3 {
     float c[3];
@@ -38,10 +67,10 @@ struct vec3 {
 using std::max;
 using std::min;
 struct Dim { unsigned x; };
-static std::barrier<>* g_block;
-static std::barrier<>* g_warp;
-#define __syncthreads() g_block->arrive_and_wait()
-#define __syncwarp() g_warp->arrive_and_wait()
+static Barrier* g_block;
+static Barrier* g_warp;
+#define __syncthreads() g_block->wait()
+#define __syncwarp() g_warp->wait()
 struct Smem { struct { float* ptr; } data; };
 
 static void body(int kind, Dim blockDim, float* shared, const wp::vec3* rhs, const float* diag,
@@ -58,23 +87,52 @@ SUBSTITUTE
     }
 }
 
-extern "C" void run(int kind, int threads, int instances, int capacity,
+extern "C" int run(int kind, int threads, int instances, int capacity, int timeout_ms,
                     const wp::vec3* rhs, const float* diag, const int* inst_start, const int* inst_count,
                     const int* inst_width, const long long* inst_band, const int* order,
                     const float* band_k, float* factor, wp::vec3* dx_out) {
-    for (int k = 0; k < instances; ++k) {
+    g_failed = false;
+    for (int k = 0; k < instances && !g_failed; ++k) {
         std::vector<float> shared(capacity, 0.0f);
-        std::barrier<> block(threads), warp(32);
+        Barrier block(threads), warp(32);
         g_block = &block;
         g_warp = &warp;
         std::vector<std::thread> pool;
-        for (int lane = 0; lane < threads; ++lane)
-            pool.emplace_back(body, kind, Dim{(unsigned)threads}, shared.data(), rhs, diag, inst_start,
-                              inst_count, inst_width, inst_band, order, band_k, factor, factor, dx_out, k,
-                              lane);
+        // a block that has not finished in time has threads waiting at a barrier others never
+        // reach: fail the run instead of hanging it
+        std::mutex m;
+        std::condition_variable cv;
+        bool done = false;
+        std::thread watchdog([&] {
+            std::unique_lock<std::mutex> lock(m);
+            if (!cv.wait_for(lock, std::chrono::milliseconds(timeout_ms), [&] { return done; })) {
+                g_failed = true;
+                block.release();
+                warp.release();
+            }
+        });
+        try {
+            for (int lane = 0; lane < threads; ++lane)
+                pool.emplace_back(body, kind, Dim{(unsigned)threads}, shared.data(), rhs, diag, inst_start,
+                                  inst_count, inst_width, inst_band, order, band_k, factor, factor, dx_out,
+                                  k, lane);
+        } catch (...) {
+            g_failed = true;
+        }
+        if (g_failed) {  // a thread did not start: the others must not wait for it
+            block.release();
+            warp.release();
+        }
         for (auto& t : pool)
             t.join();
+        {
+            std::lock_guard<std::mutex> lock(m);
+            done = true;
+        }
+        cv.notify_all();
+        watchdog.join();
     }
+    return g_failed ? 1 : 0;
 }
 """
 
@@ -105,12 +163,12 @@ def _compile(cc: str, src: str, out: Path) -> subprocess.CompletedProcess:
 
 @functools.cache
 def compiler() -> str | None:
-    """The C++ compiler the emulation uses: g++ or clang++ where it builds a ``std::barrier``
-    program (C++20); None where there is none."""
+    """The C++ compiler the emulation uses: g++ or clang++ where it builds the emulation's
+    barrier (C++20 flags); None where there is none."""
     for name in ("g++", "clang++"):
         cc = shutil.which(name)
-        if cc and _compile(cc, _PRELUDE.split("namespace wp")[0] + "std::barrier<> b(1);\n",
-                           _cache() / f"probe_{name}.so").returncode == 0:
+        probe = _PRELUDE.split("namespace wp")[0]
+        if cc and _compile(cc, probe, _cache() / f"probe_{name}.so").returncode == 0:
             return cc
     return None
 
@@ -138,17 +196,22 @@ def _ptr(a: np.ndarray) -> ctypes.c_void_p:
 
 
 def run(lib: ctypes.CDLL, kind: str, threads: int, capacity: int, system: dict,
-        factor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        factor: np.ndarray | None = None, timeout: float = 60.0) -> tuple[np.ndarray, np.ndarray]:
     """Run snippet ``kind`` over every instance of ``system`` (``band_system``'s arrays) with
     blocks of ``threads``; returns ``(dx, factor)`` (the solution per node, and the factor
-    buffer: written by ``factor``, read by ``substitute``)."""
+    buffer: written by ``factor``, read by ``substitute``). A block not done in ``timeout`` [s]
+    raises ``RuntimeError``."""
     nodes = len(system["diag"])
     dx = np.zeros((nodes, 3), np.float32)
     fac = np.zeros_like(system["band"]) if factor is None else np.ascontiguousarray(factor, np.float32)
     arrays = [np.ascontiguousarray(system[k]) for k in
               ("rhs", "diag", "start", "count", "width", "band_start", "order", "band")]
-    lib.run(ctypes.c_int(KINDS[kind]), ctypes.c_int(threads), ctypes.c_int(len(system["count"])),
-            ctypes.c_int(capacity), *(_ptr(a) for a in arrays), _ptr(fac), _ptr(dx))
+    failed = lib.run(ctypes.c_int(KINDS[kind]), ctypes.c_int(threads), ctypes.c_int(len(system["count"])),
+                     ctypes.c_int(capacity), ctypes.c_int(int(timeout * 1000)), *(_ptr(a) for a in arrays),
+                     _ptr(fac), _ptr(dx))
+    if failed:
+        raise RuntimeError(f"block emulation of {kind!r}: a barrier timed out (some threads never reach "
+                           "it) or a thread could not start")
     return dx, fac
 
 

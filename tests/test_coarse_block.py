@@ -102,3 +102,19 @@ def test_a_missing_barrier_is_caught(lib):
     exact = dense_solution(system)
     dx, _ = emu.run(racy, "solve", coarse_block.threads(44), capacity(sizes), system)
     assert np.abs(dx - exact).max() > 1e-2 * np.abs(exact).max()
+
+
+def test_a_barrier_some_threads_never_reach_fails_instead_of_hanging(lib):
+    """A snippet whose barrier only the first warp reaches (a ``__syncthreads`` inside ``lane <
+    32``, a deadlock on a GPU) makes the emulation raise after its timeout, not hang the tests."""
+    sizes = [(20, 3)]
+    system = emu.band_system(sizes, seed=4)
+    warp_only = "    if (lane < 32) {\n"
+    text = coarse_block._SOLVE.replace(warp_only, warp_only + "        __syncthreads();\n", 1)
+    assert text != coarse_block._SOLVE
+    stuck = emu.build({"solve": text, "factor": coarse_block._FACTOR, "substitute": coarse_block._SUBSTITUTE})
+    with pytest.raises(RuntimeError, match="timed out|never reach"):
+        emu.run(stuck, "solve", 64, capacity(sizes), system, timeout=1.0)
+    # the library still works afterwards
+    dx, _ = emu.run(lib, "solve", 64, capacity(sizes), system)
+    np.testing.assert_allclose(dx, dense_solution(system), rtol=1e-4, atol=1e-4 * np.abs(dx).max())
