@@ -250,14 +250,14 @@ _ELIMINATE = r"""
         const float inv = 1.0f / fmaxf(L[jw], 1.0e-30f);
         const int m = min(b, n - 1 - j);  // rows below column j
         if (s0 <= m) {
-            ELIMINATE_ENTRY(s0, t0)
+            ENTRY_FIRST
         }
         if (s1 <= m) {
-            ELIMINATE_ENTRY(s1, t1)
+            ENTRY_SECOND
         }
         for (int q = lane + 2 * T; q < m * (m + 1) / 2; q += T) {
             const int st = tri[q];
-            ELIMINATE_ENTRY(st >> 16, st & 0xffff)
+            ENTRY_TABLE
         }
         __syncthreads();
     }
@@ -279,9 +279,16 @@ _ENTRY = r"""{
             const float le_ = L[a_ - (T_)];
             L[a_ - (T_)] = le_ - la_ * lt_ * inv;
         }"""
-for _args in ("s0, t0", "s1, t1", "st >> 16, st & 0xffff"):
-    _s, _t = _args.split(", ")
-    _ELIMINATE = _ELIMINATE.replace(f"ELIMINATE_ENTRY({_args})", _ENTRY.replace("S_", _s).replace("T_", _t))
+
+
+def _entry(s: str, t: str) -> str:
+    """``_ENTRY`` for the entry (``s``, ``t``) (C expressions)."""
+    return _ENTRY.replace("S_", s).replace("T_", t)
+
+
+_ELIMINATE = (_ELIMINATE.replace("ENTRY_FIRST", _entry("s0", "t0"))
+              .replace("ENTRY_SECOND", _entry("s1", "t1"))
+              .replace("ENTRY_TABLE", _entry("st >> 16", "st & 0xffff")))
 
 
 # D^-1, then L^T x = D^-1 z: a chain of n short rows for one warp, whose barrier is cheaper
@@ -297,7 +304,7 @@ _BACK = r"""
         // last row first: row r is final, then leaves rows r-1 .. r-b
         for (int r = n - 1; r > 0; --r) {
             const float x0 = u[3 * r], x1 = u[3 * r + 1], x2 = u[3 * r + 2];
-            ROW_TASKS(min(b, r); r * w + q + 1; 3 * (r - q - 1))
+            BACK_ROW
             __syncwarp();
         }
         for (int r = lane; r < n; r += 32)
@@ -336,17 +343,13 @@ _ROW_PAIR = r"""{
             }"""
 
 
-def _row_tasks(text: str) -> str:
-    """``text`` with its ``ROW_TASKS(count; L index; u index)`` expanded (``_ROW_PAIR``; the
-    indices are expressions of ``q``)."""
-    while "ROW_TASKS(" in text:
-        i = text.index("ROW_TASKS(")
-        j = text.index("\n", i)
-        args = text[i + len("ROW_TASKS("):j].rstrip()[:-1]
-        count, lidx, uidx = (a.strip() for a in args.split(";"))
-        body = _ROW_PAIR.replace("COUNT", count).replace("LIDX", lidx).replace("UIDX", f"({uidx})")
-        text = text[:i] + body + text[j:]
-    return text
+def _row_pair(count: str, lidx: str, uidx: str) -> str:
+    """``_ROW_PAIR`` for a row of ``count`` entries at band index ``lidx`` and right-hand-side
+    index ``uidx`` (C expressions of ``q``)."""
+    return _ROW_PAIR.replace("COUNT", count).replace("LIDX", lidx).replace("UIDX", f"({uidx})")
+
+
+_BACK = _BACK.replace("BACK_ROW", _row_pair("min(b, r)", "r * w + q + 1", "3 * (r - q - 1)"))
 
 
 # the factor: the elimination, then the band to global memory
@@ -356,20 +359,20 @@ _FACTOR = _HEAD + _LOAD_BAND + _ELIMINATE + r"""
 """
 # the forward substitution column by column in one warp: row j is final once the columns before
 # it are done, then leaves rows j+1 .. j+b
-_FORWARD = _row_tasks(r"""
+_FORWARD = r"""
     __syncthreads();
     if (lane < 32) {
         for (int j = 0; j < n - 1; ++j) {
             const float x0 = u[3 * j], x1 = u[3 * j + 1], x2 = u[3 * j + 2];
-            ROW_TASKS(min(b, n - 1 - j); (j + q + 1) * w + q + 1; 3 * (j + q + 1))
+            FORWARD_ROW
             __syncwarp();
         }
     }
-""")
+""".replace("FORWARD_ROW", _row_pair("min(b, n - 1 - j)", "(j + q + 1) * w + q + 1", "3 * (j + q + 1)"))
 # the whole solve: the factor as above, then both substitutions by one warp (session 32: the
 # forward substitution as tasks of the elimination's diagonal entries made each step longer)
-_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE + _FORWARD + _row_tasks(_BACK)
+_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE + _FORWARD + _BACK
 _SUBSTITUTE = _HEAD + r"""
     for (int q = lane; q < n * w; q += T)
         L[q] = factor[base + q];
-""" + _LOAD_RHS + _FORWARD + _row_tasks(_BACK)
+""" + _LOAD_RHS + _FORWARD + _BACK
