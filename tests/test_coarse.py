@@ -356,49 +356,18 @@ def test_coarse_correction_converges_far_further_per_sweep(device, levels):
     np.testing.assert_allclose(step(3000), ref, atol=0.15 * plain)
 
 
-@pytest.mark.parametrize("levels", [2, 3])
-def test_overlapped_correction_still_converges_far_further_than_sweeps(device, levels):
-    """``coarse_overlap``: the coarse system solved beside the next sweeps (a side stream on
-    CUDA) and its displacement added after them. The long strip's stiff step: with a correction
-    solved beside every other sweep, 20 sweeps still end several times closer to the converged
-    step than 20 plain sweeps, pins stay put, and the step is not the immediate correction's
-    (the displacement lands on later positions); one correction solved beside the first two
-    sweeps helps as well."""
-    m, v = strip(device)
-
-    def step(iterations: int, sweeps=(), overlap: int = 0) -> np.ndarray:
-        cfg = VBDConfig(substeps=1, iterations=iterations, air_damping=0.0, coarse_sweeps=sweeps,
-                        coarse_levels=levels, coarse_overlap=overlap)
-        return simulate(m, SolverVBD(m, cfg), m.control(), 1, 1.0 / 30.0)[-1]
-
-    ref = step(200, tuple(range(1, 200, 2)))
-    plain = np.abs(step(20) - ref).max()
-    immediate = step(20, tuple(range(0, 20, 2)))
-    overlapped = step(20, tuple(range(0, 20, 2)), overlap=1)
-    assert plain > 5e-3
-    assert np.abs(overlapped - ref).max() < 0.25 * plain
-    assert np.abs(overlapped - immediate).max() > 1e-6
-    assert np.abs(step(20, (0,), overlap=2) - ref).max() < 0.5 * plain
-    np.testing.assert_array_equal(overlapped[:11], v[:11])
-
-
-@pytest.mark.parametrize("levels, prefactor, sweeps, overlap", [
-    (2, False, (0, 2), 0), (3, False, (0, 2), 0), (2, True, (0, 2), 0),
-    (2, False, (1,), 2), (2, True, (1,), 2)])
-def test_coarse_correction_keeps_cloth_on_a_sphere_outside(device, levels, prefactor, sweeps, overlap):
+@pytest.mark.parametrize("levels, prefactor", [(2, False), (3, False), (2, True)])
+def test_coarse_correction_keeps_cloth_on_a_sphere_outside(device, levels, prefactor):
     """The contact penalty is part of the coarse system: corrections do not pull cloth resting
     on a sphere into it (without it they did, and blew the t-shirt up), and a correction moves
     no cloth on the body deeper into it than it is or than its 5 mm thickness: the cloth stays
     more than half its thickness out (without that clamp it came within 0.3 mm). The same with
     three levels, whose inner level takes the contact terms through its Galerkin product, and
     with ``coarse_prefactor`` (the contact stiffness at the inertial targets, the factor from
-    the substep start: the system of both corrections of a substep), and with ``coarse_overlap``
-    (one correction per substep, added two sweeps after its residual was taken; two corrections
-    per substep overlapped by one sweep each lifted the cloth's top 2.5 cm off the sphere, the
-    contact push counted twice: by the sweeps and by the stale correction)."""
+    the substep start: the system of both corrections of a substep)."""
     m, _, control, body, _ = drop_on_sphere(device)
-    solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5, coarse_sweeps=sweeps, coarse_levels=levels,
-                                    coarse_prefactor=prefactor, coarse_overlap=overlap))
+    solver = SolverVBD(m, VBDConfig(substeps=5, iterations=5, coarse_sweeps=(0, 2), coarse_levels=levels,
+                                    coarse_prefactor=prefactor))
     assert solver.coarse.levels == levels and solver.coarse.prefactor == prefactor
     x = simulate(m, solver, control, 30, 1.0 / 30.0)
     assert np.isfinite(x).all()
@@ -414,29 +383,23 @@ def test_coarse_config_is_checked():
     for bad in ({"iterations": 4, "coarse_sweeps": (4,)}, {"coarse_sweeps": (1, 1)},
                 {"coarse_sweeps": (-1,)}, {"coarse_spacing": -1},
                 {"coarse_sweeps": (1,), "chebyshev_rho": 0.5}, {"coarse_levels": 1}, {"coarse_levels": 4},
-                {"coarse_smoothing": 0}, {"coarse_overlap": -1},
-                {"iterations": 5, "coarse_sweeps": (1, 3), "coarse_overlap": 2},
-                {"iterations": 5, "coarse_sweeps": (3,), "coarse_overlap": 2}):
+                {"coarse_smoothing": 0}):
         with pytest.raises(ValueError, match="coarse"):
             VBDConfig(**bad)
     assert VBDConfig(coarse_sweeps=[0, 3]).coarse_sweeps == (0, 3)
-    # a sweep after each overlapped correction's displacement, before the next one and the end
-    assert VBDConfig(iterations=5, coarse_sweeps=(0, 2), coarse_overlap=1).coarse_overlap == 1
-    assert VBDConfig(iterations=5, coarse_sweeps=(1,), coarse_overlap=3).coarse_overlap == 3
 
 
 @pytest.mark.parametrize(("bounds", "speed"), [(True, 3.0), (False, 1.0)])
-@pytest.mark.parametrize("sweeps, overlap", [((0, 2, 4), 0), ((0, 1, 2, 3, 4), 0), ((1,), 2)])
-def test_coarse_corrections_carry_no_layer_through_another(device, sweeps, overlap, bounds, speed):
+@pytest.mark.parametrize("sweeps", [(0, 2, 4), (0, 1, 2, 3, 4)])
+def test_coarse_corrections_carry_no_layer_through_another(device, sweeps, bounds, speed):
     """A sheet dropped onto a pinned one (``test_self_contact``'s stacked layers) with corrections
     before the sweeps. The self-contact penalty is part of the coarse system at particles with
     pairs (without it the residual's contact forces met no stiffness there and the sheets blew
     up to metres in 4 frames), the prolongated moves are held by the sweeps' displacement bounds
     (``bounds``, 3 m/s) and capped near pairs (penalty only, 1 m/s, the speed the penalty alone
-    holds): the sheets never cross and the top one lands on the other. The same with the
-    correction's solve overlapped by two sweeps (``coarse_overlap``)."""
+    holds): the sheets never cross and the top one lands on the other."""
     x, faces, nv, n = stacked_layers(device, True, bounds=bounds, speed=speed, frames=12 if bounds else 20,
-                                     coarse_sweeps=sweeps, coarse_overlap=overlap)
+                                     coarse_sweeps=sweeps)
     assert np.all(np.isfinite(x))
     assert np.all(self_intersections(x, faces, device=device) == 0)
     gap = _center_gap(x, nv, n)

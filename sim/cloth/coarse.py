@@ -471,21 +471,11 @@ class CoarseLevel:
         displacement to ``x`` (free particles) and ``snap_out``, bounded like a sweep's moves by
         ``sc_data`` (the sweeps' self-contact data); ``instance_body``: the control's body mesh
         of each instance (0: none)."""
-        self.restrict_residual(h, x, sc_data)
-        self.solve()
-        self.prolong(h, x, snap_out, sc_data, instance_body)
-
-    def restrict_residual(self, h: float, x, sc_data) -> None:
-        """A correction's first part: the right-hand side from ``self.residual``, and the
-        diagonal at ``x`` where ``prepare`` did not form it (``VBDConfig.coarse_overlap`` then
-        runs ``solve`` beside sweeps and ``prolong`` after them)."""
+        m = self.model
+        # the right-hand side, and the diagonal at x where ``prepare`` did not form it
         parts = RESTRICT_RHS if self.prefactor else RESTRICT_RHS | RESTRICT_DIAGONAL
         self.restrict(h, x, sc_data, parts)
-
-    def prolong(self, h: float, x, snap_out, sc_data, instance_body) -> None:
-        """A correction's last part: add the prolongated coarse displacement (``solve``'s) to
-        ``x``, bounded as in ``correct``, and write the result to ``snap_out`` too."""
-        m = self.model
+        self.solve()
         wp.launch(prolong_kernel, dim=m.particle_count,
                   inputs=[self._dx, *self._p, h, *self._particles, m.particle_mass, m.particle_flags,
                           m.particle_instance, m.instance_thickness, m.instance_friction, instance_body,

@@ -212,13 +212,6 @@ class VBDConfig:
             of 144 sequences pass against 133, but the single run's worst strain is 0.356 (gate
             0.35) against 0.278, and a 164-vertex skirt dressed at 3 x 3 keeps 2 vertices inside
             the body, so it is not the default.
-        coarse_overlap: sweeps that run beside each correction's coarse solve (0, the default:
-            none). With ``k`` > 0 the correction before sweep ``c`` only evaluates and restricts
-            the residual there; the coarse system is solved on a side stream (CUDA) while sweeps
-            ``c .. c + k - 1`` run, and the prolongated displacement is added before sweep
-            ``c + k``, which must be followed by a sweep before the next correction and the
-            substep's end. The solve (most of a correction's time) leaves the chain of dependent
-            launches; the correction is then ``k`` sweeps older than the positions it moves.
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every
@@ -264,7 +257,6 @@ class VBDConfig:
     coarse_levels: int = 0
     coarse_smoothing: int = 2
     coarse_prefactor: bool = False
-    coarse_overlap: int = 0
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -315,20 +307,6 @@ class VBDConfig:
                 len(set(self.coarse_sweeps)) != len(self.coarse_sweeps):
             raise ValueError("VBDConfig.coarse_sweeps must hold distinct sweep indices in 0.."
                              f"{self.iterations - 1}, got {self.coarse_sweeps} (or none: coarse_sweeps = [])")
-        if self.coarse_overlap < 0:
-            raise ValueError(f"VBDConfig.coarse_overlap must be >= 0 sweeps, got {self.coarse_overlap}")
-        starts = sorted(self.coarse_sweeps)
-        ends = [*starts[1:], self.iterations]
-        lag = self.coarse_overlap
-        if lag > 0 and any(b <= a + lag for a, b in zip(starts, ends, strict=True)):
-            # a residual taken right after a prolongation is all aggregate-sized steps (the coarse
-            # system then corrects the wrong error: cloth dropped on a sphere sank 4.7 mm into its
-            # 5 mm shell with two back-to-back corrections), and a displacement added after the
-            # last sweep is never smoothed
-            raise ValueError(f"VBDConfig.coarse_overlap {self.coarse_overlap}: each correction's "
-                             f"displacement needs a sweep after it before the next correction and the "
-                             f"substep's end "
-                             f"({self.iterations} sweeps, coarse_sweeps {self.coarse_sweeps})")
         if self.coarse_spacing < 0:
             raise ValueError("VBDConfig.coarse_spacing must be >= 1 (0: automatic), got "
                              f"{self.coarse_spacing}")
@@ -630,24 +608,12 @@ class SolverVBD:
                     self.coarse.prepare(h, sc_data)
             if self._omegas:
                 wp.copy(self._cheb_prev1, x)
-            lag = cfg.coarse_overlap
-            for it in range(cfg.iterations + 1):
-                if lag and it - lag in cfg.coarse_sweeps:
-                    # the overlapped correction's displacement, solved beside the last ``lag`` sweeps
-                    self._coarse_side.join()
-                    self.coarse.prolong(h, x, self._snapshots[it % 2], sc_data, control.instance_body)
-                if it == cfg.iterations:
-                    break
+            for it in range(cfg.iterations):
                 if it in cfg.coarse_sweeps:
                     # the residual at x (snapshot it % 2 holds x), its coarse-level correction
                     self.sweep(x, sc_data, eps_u, h, it % 2, evaluate=True)
-                    if lag:
-                        self.coarse.restrict_residual(h, x, sc_data)
-                        with self._coarse_side.on(0):
-                            self.coarse.solve()
-                    else:
-                        self._coarse_side.join()
-                        self.coarse.correct(h, x, self._snapshots[it % 2], sc_data, control.instance_body)
+                    self._coarse_side.join()
+                    self.coarse.correct(h, x, self._snapshots[it % 2], sc_data, control.instance_body)
                 self.sweep(x, sc_data, eps_u, h, it % 2)
                 if self._omegas:
                     wp.launch(K.chebyshev_kernel, dim=n,
