@@ -323,13 +323,10 @@ class CoarseLevel:
         smoothing: l1-Jacobi passes before and after the inner solve (three levels).
         prefactor: with two levels, the diagonal and (CUDA) the factor at the substep start
             (``prepare``) instead of at each correction (``VBDConfig.coarse_prefactor``).
-        pressed_either: with ``prefactor``, particles pressed at the substep start count as
-            pressed as well as those pressed at the inertial targets.
     """
 
     def __init__(self, model, particles: tuple, k_contact: float, contact_margin: float, air_damping: float,
-                 spacing: int = 3, levels: int = 0, smoothing: int = 2, prefactor: bool = False,
-                 pressed_either: bool = False):
+                 spacing: int = 3, levels: int = 0, smoothing: int = 2, prefactor: bool = False):
         import scipy.sparse as sp
 
         if spacing < 0:
@@ -438,7 +435,6 @@ class CoarseLevel:
         # substitutions at each correction; the three-level path's inner band changes at each
         # correction
         self.prefactor = bool(prefactor) and self.levels == 2
-        self.pressed_either = bool(pressed_either)
         self.factor_kernel = self.substitute_kernel = None
         device = wp.get_device(d)
         if device.is_cuda:
@@ -465,8 +461,7 @@ class CoarseLevel:
         sphere)."""
         if not self.prefactor:
             return
-        self.restrict(h, self._particles[1], sc_data, RESTRICT_DIAGONAL,
-                      self._particles[0] if self.pressed_either else None)
+        self.restrict(h, self._particles[1], sc_data, RESTRICT_DIAGONAL)
         self.factor()
 
     def correct(self, h: float, x, snap_out, sc_data, instance_body) -> None:
@@ -487,19 +482,17 @@ class CoarseLevel:
                           self._contact_margin, sc_data],
                   outputs=[x, snap_out], device=m.device)
 
-    def restrict(self, h: float, x, sc_data, parts: int = 3, x_also=None) -> None:
+    def restrict(self, h: float, x, sc_data, parts: int = 3) -> None:
         """The coarse right-hand side ``P^T residual`` (``parts`` bit ``RESTRICT_RHS``) and
         diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` (bit ``RESTRICT_DIAGONAL``; ``k``: body
         contact penalty at particles of ``x`` pressed onto the body by the solver's contacts,
         self-contact penalty at particles with pairs in ``sc_data``) of a substep of length ``h``
-        [s]; both in one pass by default. ``x_also``: particles pressed at these positions
-        count as pressed too."""
+        [s]; both in one pass by default."""
         m = self.model
         _, _, point, normal, _, active = self._particles
         inertia = 1.0 / (h * h) + self._air_damping / h
         wp.launch(restrict_kernel, dim=self.node_count * RESTRICT_LANES,
-                  inputs=[parts, self.residual, *self._r, x, x if x_also is None else x_also,
-                          int(x_also is not None), m.particle_instance, point, normal, active,
+                  inputs=[parts, self.residual, *self._r, x, m.particle_instance, point, normal, active,
                           m.instance_thickness, self._k_contact, sc_data],
                   outputs=[self._rhs_part, self._k_part], device=m.device)
         wp.launch(restrict_sum_kernel, dim=self.node_count,
@@ -715,8 +708,6 @@ def restrict_kernel(
     ids: wp.array(dtype=wp.int32),
     weights: wp.array(dtype=float),
     x: wp.array(dtype=wp.vec3),
-    x_also: wp.array(dtype=wp.vec3),
-    either: int,
     particle_instance: wp.array(dtype=wp.int32),
     contact_point: wp.array(dtype=wp.vec3),
     contact_normal: wp.array(dtype=wp.vec3),
@@ -729,8 +720,7 @@ def restrict_kernel(
 ):
     """Lane ``l`` of node ``c``'s share of ``rhs = P^T r`` (``parts`` bit ``RESTRICT_RHS``) and of
     ``P^T k`` (bit ``RESTRICT_DIAGONAL``), ``k`` the body contact's penalty at particles of ``x``
-    pressed onto the body (with ``either``: pressed at ``x`` or at ``x_also``) plus the
-    self-contact penalty at particles with cloth-cloth pairs:
+    pressed onto the body plus the self-contact penalty at particles with cloth-cloth pairs:
     entries ``l, l + RESTRICT_LANES, ...`` of the node's row (thread ``c * RESTRICT_LANES + l``;
     ``restrict_sum_kernel`` adds the lanes)."""
     tid = wp.tid()
@@ -747,10 +737,7 @@ def restrict_kernel(
         if diagonal:
             if contact_active[i] != 0:
                 th = instance_thickness[particle_instance[i]]
-                pressed = wp.dot(contact_normal[i], x[i] - contact_point[i]) < th
-                if either != 0 and not pressed:
-                    pressed = wp.dot(contact_normal[i], x_also[i] - contact_point[i]) < th
-                if pressed:
+                if wp.dot(contact_normal[i], x[i] - contact_point[i]) < th:
                     kc = kc + w * k_contact
             if has_pairs(sc, i):
                 kc = kc + w * sc.stiffness

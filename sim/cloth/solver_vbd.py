@@ -212,8 +212,6 @@ class VBDConfig:
             of 144 sequences pass against 133, but the single run's worst strain is 0.356 (gate
             0.35) against 0.278, and a 164-vertex skirt dressed at 3 x 3 keeps 2 vertices inside
             the body, so it is not the default.
-        coarse_pressed_either: with ``coarse_prefactor``, the diagonal's body contact stiffness
-            also at particles pressed at the substep start (not only at the inertial targets).
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every
@@ -259,7 +257,6 @@ class VBDConfig:
     coarse_levels: int = 0
     coarse_smoothing: int = 2
     coarse_prefactor: bool = False
-    coarse_pressed_either: bool = False
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -462,7 +459,7 @@ class SolverVBD:
                          self._contact_body_velocity, self._contact_active)
             self.coarse = CoarseLevel(model, particles, cfg.contact_stiffness, cfg.contact_margin,
                                       cfg.air_damping, cfg.coarse_spacing, cfg.coarse_levels,
-                                      cfg.coarse_smoothing, cfg.coarse_prefactor, cfg.coarse_pressed_either)
+                                      cfg.coarse_smoothing, cfg.coarse_prefactor)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True)
 
