@@ -358,9 +358,9 @@ _FACTOR = _HEAD + _LOAD_BAND + _ELIMINATE + r"""
         factor_out[base + q] = L[q];
 """
 # the forward substitution column by column in one warp: row j is final once the columns before
-# it are done, then leaves rows j+1 .. j+b
+# it are done, then leaves rows j+1 .. j+b (after a barrier: ``_ELIMINATE`` ends with one, the
+# split path's loads get their own)
 _FORWARD = r"""
-    __syncthreads();
     if (lane < 32) {
         for (int j = 0; j < n - 1; ++j) {
             const float x0 = u[3 * j], x1 = u[3 * j + 1], x2 = u[3 * j + 2];
@@ -375,4 +375,6 @@ _SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE + _FORWARD + _BACK
 _SUBSTITUTE = _HEAD + r"""
     for (int q = lane; q < n * w; q += T)
         L[q] = factor[base + q];
-""" + _LOAD_RHS + _FORWARD + _BACK
+""" + _LOAD_RHS + r"""
+    __syncthreads();
+""" + _FORWARD + _BACK

@@ -1107,6 +1107,16 @@ def vertex_summary_kernel(
             sc.heavy_list[sc.color_start[c] + k] = i
 
 
+@wp.func
+def put_record(sc: SelfContactData, at: int, q: wp.vec4i, role: int, c: int, code: int, ref: wp.vec3):
+    """Gather record ``at`` of the pool: the pair's vertices ``q``, the owner's ``role`` (0 VT
+    vertex, 1-3 TV corner, 4+ EE end) with the same-colour mask of ``q`` against the owner's
+    colour ``c`` and the radius ``code`` (``pair_role``'s bits), and the side reference."""
+    sc.pair_verts[at] = q
+    sc.pair_role[at] = packed_role(role, sc.particle_color, c, q) | (code << 8)
+    sc.pair_ref[at] = ref
+
+
 @wp.kernel
 def pair_records_kernel(
     tri_indices: wp.array(dtype=wp.vec3i),
@@ -1135,10 +1145,7 @@ def pair_records_kernel(
         for s in range(sc.vt_count[j]):
             k = j * sc.vt_capacity + s
             tri = tri_indices[sc.vt_tri[k]]
-            q = wp.vec4i(j, tri[0], tri[1], tri[2])
-            sc.pair_verts[first + s] = q
-            sc.pair_role[first + s] = packed_role(0, sc.particle_color, c, q) | (sc.vt_rk[k] << 8)
-            sc.pair_ref[first + s] = sc.vt_ref[k]
+            put_record(sc, first + s, wp.vec4i(j, tri[0], tri[1], tri[2]), 0, c, sc.vt_rk[k], sc.vt_ref[k])
         return
     if j < n + nt:
         t = j - n
@@ -1154,11 +1161,8 @@ def pair_records_kernel(
                 c = sc.particle_color[v]
                 for s in range(count):
                     k = t * sc.tv_capacity + s
-                    q = wp.vec4i(sc.tv_vertex[k], tri[0], tri[1], tri[2])
-                    sc.pair_verts[base + s] = q
-                    role = packed_role(1 + corner, sc.particle_color, c, q)
-                    sc.pair_role[base + s] = role | (sc.tv_rk[k] << 8)
-                    sc.pair_ref[base + s] = sc.tv_ref[k]
+                    put_record(sc, base + s, wp.vec4i(sc.tv_vertex[k], tri[0], tri[1], tri[2]), 1 + corner, c,
+                               sc.tv_rk[k], sc.tv_ref[k])
         return
     e = j - n - nt
     count = sc.ee_count[e]
@@ -1176,10 +1180,8 @@ def pair_records_kernel(
             for s in range(count):
                 k = e * sc.ee_capacity + s
                 eb = sc.mesh_edges[sc.ee_edge[k]]
-                q = wp.vec4i(ea[0], ea[1], eb[0], eb[1])
-                sc.pair_verts[base + s] = q
-                sc.pair_role[base + s] = packed_role(role, sc.particle_color, c, q) | (sc.ee_rk[k] << 8)
-                sc.pair_ref[base + s] = sc.ee_ref[k]
+                put_record(sc, base + s, wp.vec4i(ea[0], ea[1], eb[0], eb[1]), role, c, sc.ee_rk[k],
+                           sc.ee_ref[k])
 
 
 def incidence_slots(ids: np.ndarray, local: np.ndarray, corners: int, count: int) -> np.ndarray:
