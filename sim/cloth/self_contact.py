@@ -51,7 +51,18 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from sim.cloth.spans import Span, fill_spans, floats, ints, vec2is, vec3s, vec4is
+from sim.cloth.spans import (
+    Span,
+    fill_spans,
+    floats,
+    ints,
+    load_int,
+    load_vec3,
+    load_vec4i,
+    vec2is,
+    vec3s,
+    vec4is,
+)
 from sim.device import SideStreams, warp
 
 # closest points with every barycentric weight (VT) or edge parameter (EE) above this are
@@ -429,8 +440,8 @@ def read_position(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.vec3), j: 
     positions) where ``same`` is set (``j`` has the solved vertex's colour, so its own thread may
     be writing ``x[j]`` in this launch), else the current ``x`` (Gauss-Seidel)."""
     if same != 0:
-        return snap[j]
-    return x[j]
+        return load_vec3(snap, j)
+    return load_vec3(x, j)
 
 
 @wp.func
@@ -475,8 +486,8 @@ def record_force_hessian_at(x: wp.array(dtype=wp.vec3), snap: wp.array(dtype=wp.
     same-colour mask in bits 4-7: those vertices are read from ``snap``, ``read_position``; the
     radius code above)."""
     y0, y1, y2, y3 = read_positions(x, snap, q, (role >> 4) & 15)
-    return record_force_hessian(y0, y1, y2, y3, x0[q[0]], x0[q[1]], x0[q[2]], x0[q[3]], ref, role, sc,
-                                eps_u)
+    return record_force_hessian(y0, y1, y2, y3, load_vec3(x0, q[0]), load_vec3(x0, q[1]), load_vec3(x0, q[2]),
+                                load_vec3(x0, q[3]), ref, role, sc, eps_u)
 
 
 @wp.func
@@ -575,13 +586,13 @@ def self_contact_force_hessian(
     (``self_contact_list_force_hessian``)."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
-    first = sc.pair_first[i]
+    first = load_int(sc.pair_first, i)
     if first < 0:
         return self_contact_list_force_hessian(i, lane, stride, x, snap, x0, tri_indices, vertex_tri_offsets,
                                                vertex_tri_ids, vertex_tri_local, sc, eps_u)
-    for j in range(first + lane, first + sc.pair_count[i], stride):
-        fc, hc = record_force_hessian_at(x, snap, x0, sc.pair_verts[j], sc.pair_ref[j], sc.pair_role[j], sc,
-                                         eps_u)
+    for j in range(first + lane, first + load_int(sc.pair_count, i), stride):
+        fc, hc = record_force_hessian_at(x, snap, x0, load_vec4i(sc.pair_verts, j), load_vec3(sc.pair_ref, j),
+                                         load_int(sc.pair_role, j), sc, eps_u)
         f = f + fc
         H = H + hc
     return f, H

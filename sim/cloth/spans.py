@@ -74,3 +74,33 @@ def vec4is(s: Span):
 @wp.func
 def mat22s(s: Span):
     return wp.array(ptr=s.ptr, shape=(s.n,), dtype=wp.mat22)
+
+
+# Element loads without Warp's index arithmetic (session 33). ``a[i]`` on a Warp array wraps a
+# negative index (``if (i < 0) i += shape[0]``) and scales the index by the runtime stride in
+# 64 bits before the load: Nsight Compute put 23 % of the 5k t-shirt solve kernel's executed
+# instructions in that code (``array.h``). These read ``a.data[i]`` directly: for the
+# non-negative indices of contiguous arrays the same element, so the same floats. ``i`` must
+# be in range; nothing checks it.
+@wp.func_native("return a.data[i];")
+def load_int(a: wp.array(dtype=wp.int32), i: int) -> int: ...
+
+
+@wp.func_native("return a.data[i];")
+def load_float(a: wp.array(dtype=float), i: int) -> float: ...
+
+
+@wp.func_native("return a.data[i];")
+def load_vec3(a: wp.array(dtype=wp.vec3), i: int) -> wp.vec3: ...
+
+
+@wp.func_native("return a.data[i];")
+def load_vec3i(a: wp.array(dtype=wp.vec3i), i: int) -> wp.vec3i: ...
+
+
+@wp.func_native("return a.data[i];")
+def load_vec4i(a: wp.array(dtype=wp.vec4i), i: int) -> wp.vec4i: ...
+
+
+@wp.func_native("return a.data[i];")
+def load_mat22(a: wp.array(dtype=wp.mat22), i: int) -> wp.mat22: ...

@@ -31,7 +31,21 @@ from sim.cloth.self_contact import (
     self_contact_force_hessian,
     self_contact_list_force_hessian,
 )
-from sim.cloth.spans import Span, floats, ints, mat22s, vec3is, vec3s, vec4is
+from sim.cloth.spans import (
+    Span,
+    floats,
+    ints,
+    load_float,
+    load_int,
+    load_mat22,
+    load_vec3,
+    load_vec3i,
+    load_vec4i,
+    mat22s,
+    vec3is,
+    vec3s,
+    vec4is,
+)
 
 PINNED = wp.constant(1)
 MEMBRANE_STVK = wp.constant(0)
@@ -253,24 +267,27 @@ def vertex_share_force_hessian(
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
     if fused == 0:
-        for k in range(vertex_tri_offsets[i] + lane, vertex_tri_offsets[i + 1], stride):
-            t = vertex_tri_ids[k]
-            tri = tri_indices[t]
-            t_packed = vertex_tri_local[k]
+        for k in range(load_int(vertex_tri_offsets, i) + lane, load_int(vertex_tri_offsets, i + 1), stride):
+            t = load_int(vertex_tri_ids, k)
+            tri = load_vec3i(tri_indices, t)
+            t_packed = load_int(vertex_tri_local, k)
             ta, tb, tc = read_triangle(x, snap, tri, t_packed >> 2)
-            fe, he = membrane_force_hessian(membrane, ta, tb, tc, tri_dm_inv[t], tri_area[t], tri_mu[t],
-                                            tri_lam[t], tri_strain_prev[t], tri_damping[t] * inv_h,
+            fe, he = membrane_force_hessian(membrane, ta, tb, tc, load_mat22(tri_dm_inv, t),
+                                            load_float(tri_area, t), load_float(tri_mu, t),
+                                            load_float(tri_lam, t), load_vec3(tri_strain_prev, t),
+                                            load_float(tri_damping, t) * inv_h,
                                             t_packed & 3)
             f = f + fe
             H = H + he * jacobi_scale(t_packed)
-        for k in range(vertex_edge_offsets[i] + lane, vertex_edge_offsets[i + 1], stride):
-            e = vertex_edge_ids[k]
-            q = edge_indices[e]
-            packed = vertex_edge_local[k]
+        for k in range(load_int(vertex_edge_offsets, i) + lane, load_int(vertex_edge_offsets, i + 1), stride):
+            e = load_int(vertex_edge_ids, k)
+            q = load_vec4i(edge_indices, e)
+            packed = load_int(vertex_edge_local, k)
             h0, h1, h2, h3 = read_positions(x, snap, q, packed >> 2)
-            fb, hb = bending_damped_vertex_force_hessian(h0, h1, h2, h3, edge_rest_angle[e],
-                                                         edge_stiffness[e], edge_angle_prev[e],
-                                                         edge_damping[e] * inv_h, packed & 3)
+            fb, hb = bending_damped_vertex_force_hessian(h0, h1, h2, h3, load_float(edge_rest_angle, e),
+                                                         load_float(edge_stiffness, e),
+                                                         load_float(edge_angle_prev, e),
+                                                         load_float(edge_damping, e) * inv_h, packed & 3)
             f = f + fb
             H = H + hb
         if sc.enabled != 0:
@@ -280,16 +297,16 @@ def vertex_share_force_hessian(
             f = f + fs
             H = H + hs
         return f, H
-    tri_begin = vertex_tri_offsets[i]
-    tri_n = vertex_tri_offsets[i + 1] - tri_begin
-    edge_begin = vertex_edge_offsets[i]
-    edge_n = vertex_edge_offsets[i + 1] - edge_begin
+    tri_begin = load_int(vertex_tri_offsets, i)
+    tri_n = load_int(vertex_tri_offsets, i + 1) - tri_begin
+    edge_begin = load_int(vertex_edge_offsets, i)
+    edge_n = load_int(vertex_edge_offsets, i + 1) - edge_begin
     rec_begin = int(0)
     rec_n = int(0)
     lists = False
     if sc.enabled != 0:
-        rec_begin = sc.pair_first[i]
-        rec_n = sc.pair_count[i]
+        rec_begin = load_int(sc.pair_first, i)
+        rec_n = load_int(sc.pair_count, i)
         if rec_begin < 0:  # no gather records: the pair lists, after the loop
             lists = True
             rec_begin = 0
@@ -298,32 +315,32 @@ def vertex_share_force_hessian(
         kt = wp.where(r < tri_n, tri_begin + r, 0)
         ke = wp.where(r < edge_n, edge_begin + r, 0)
         kr = wp.where(r < rec_n, rec_begin + r, 0)
-        t = vertex_tri_ids[kt]
-        t_local = vertex_tri_local[kt]
-        e = vertex_edge_ids[ke]
-        e_packed = vertex_edge_local[ke]
-        q = sc.pair_verts[kr]
-        packed = sc.pair_role[kr]
-        ref = sc.pair_ref[kr]
-        tri = tri_indices[t]
-        dm_inv = tri_dm_inv[t]
-        area = tri_area[t]
-        mu = tri_mu[t]
-        lam = tri_lam[t]
-        t_damp = tri_damping[t]
-        strain_prev = tri_strain_prev[t]
-        hinge = edge_indices[e]
-        rest_angle = edge_rest_angle[e]
-        k_edge = edge_stiffness[e]
-        e_damp = edge_damping[e]
-        angle_prev = edge_angle_prev[e]
+        t = load_int(vertex_tri_ids, kt)
+        t_local = load_int(vertex_tri_local, kt)
+        e = load_int(vertex_edge_ids, ke)
+        e_packed = load_int(vertex_edge_local, ke)
+        q = load_vec4i(sc.pair_verts, kr)
+        packed = load_int(sc.pair_role, kr)
+        ref = load_vec3(sc.pair_ref, kr)
+        tri = load_vec3i(tri_indices, t)
+        dm_inv = load_mat22(tri_dm_inv, t)
+        area = load_float(tri_area, t)
+        mu = load_float(tri_mu, t)
+        lam = load_float(tri_lam, t)
+        t_damp = load_float(tri_damping, t)
+        strain_prev = load_vec3(tri_strain_prev, t)
+        hinge = load_vec4i(edge_indices, e)
+        rest_angle = load_float(edge_rest_angle, e)
+        k_edge = load_float(edge_stiffness, e)
+        e_damp = load_float(edge_damping, e)
+        angle_prev = load_float(edge_angle_prev, e)
         xa, xb, xc = read_triangle(x, snap, tri, t_local >> 2)
         h0, h1, h2, h3 = read_positions(x, snap, hinge, e_packed >> 2)
         y0, y1, y2, y3 = read_positions(x, snap, q, packed >> 4)
-        z0 = x_prev[q[0]]
-        z1 = x_prev[q[1]]
-        z2 = x_prev[q[2]]
-        z3 = x_prev[q[3]]
+        z0 = load_vec3(x_prev, q[0])
+        z1 = load_vec3(x_prev, q[1])
+        z2 = load_vec3(x_prev, q[2])
+        z3 = load_vec3(x_prev, q[3])
         if r < tri_n:
             fe, he = membrane_force_hessian(membrane, xa, xb, xc, dm_inv, area, mu, lam, strain_prev,
                                             t_damp * inv_h, t_local & 3)
@@ -385,18 +402,18 @@ def load_particle_step(
     x: wp.array(dtype=wp.vec3),
 ):
     p = ParticleStep()
-    inst = particle_instance[i]
-    p.x = x[i]
-    p.x_prev = x_prev[i]
-    p.y = y[i]
-    p.mass = mass[i]
-    p.flags = flags[i]
-    p.contact_active = contact_active[i]
-    p.contact_point = contact_point[i]
-    p.contact_normal = contact_normal[i]
-    p.contact_body_velocity = contact_body_velocity[i]
-    p.thickness = instance_thickness[inst]
-    p.friction = instance_friction[inst]
+    inst = load_int(particle_instance, i)
+    p.x = load_vec3(x, i)
+    p.x_prev = load_vec3(x_prev, i)
+    p.y = load_vec3(y, i)
+    p.mass = load_float(mass, i)
+    p.flags = load_int(flags, i)
+    p.contact_active = load_int(contact_active, i)
+    p.contact_point = load_vec3(contact_point, i)
+    p.contact_normal = load_vec3(contact_normal, i)
+    p.contact_body_velocity = load_vec3(contact_body_velocity, i)
+    p.thickness = load_float(instance_thickness, inst)
+    p.friction = load_float(instance_friction, inst)
     p.bound = float(0.0)
     p.reference = wp.vec3(0.0)
     if sc.enabled != 0 and sc.use_bounds != 0:
@@ -639,7 +656,7 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
         else:
             slot = block * wp.static(P) + local
             if slot < count:
-                i = color_vertices[color_start + slot]
+                i = load_int(color_vertices, color_start + slot)
                 # solved by a heavy block (when its colour's heavy vertices all have one); an
                 # evaluation has no heavy blocks: it is launched once over all colours
                 if wp.static(EVAL == 0):
