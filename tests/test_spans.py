@@ -11,6 +11,7 @@ from sim.cloth.spans import (
     load_float,
     load_int,
     load_mat22,
+    load_vec2i,
     load_vec3,
     load_vec3i,
     load_vec4i,
@@ -22,7 +23,7 @@ from sim.cloth.spans import (
 @wp.kernel
 def _loads_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=float), c: wp.array(dtype=wp.vec3),
                   d: wp.array(dtype=wp.vec3i), e: wp.array(dtype=wp.vec4i), f: wp.array(dtype=wp.mat22),
-                  sa: Span, sc: Span, order: wp.array(dtype=wp.int32),
+                  g: wp.array(dtype=wp.vec2i), sa: Span, sc: Span, order: wp.array(dtype=wp.int32),
                   raw: wp.array(dtype=float, ndim=2), ref: wp.array(dtype=float, ndim=2)):
     k = wp.tid()
     j = order[k]
@@ -38,6 +39,7 @@ def _loads_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=float), c: wp.a
     raw[k, 4] = float(vq[0] + 5 * vq[1] + 25 * vq[2] + 125 * vq[3])
     raw[k, 5] = m[0, 0] + 2.0 * m[0, 1] + 4.0 * m[1, 0] + 8.0 * m[1, 1]
     raw[k, 6] = float(load_int(ints(sa), j)) + w[2]
+    raw[k, 7] = float(load_vec2i(g, j)[0] - 7 * load_vec2i(g, j)[1])
     vi = d[j]
     vq = e[j]
     m = f[j]
@@ -50,6 +52,7 @@ def _loads_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=float), c: wp.a
     ref[k, 4] = float(vq[0] + 5 * vq[1] + 25 * vq[2] + 125 * vq[3])
     ref[k, 5] = m[0, 0] + 2.0 * m[0, 1] + 4.0 * m[1, 0] + 8.0 * m[1, 1]
     ref[k, 6] = float(ints(sa)[j]) + w[2]
+    ref[k, 7] = float(g[j][0] - 7 * g[j][1])
 
 
 def test_raw_loads_read_the_element_warp_indexing_reads(device):
@@ -64,10 +67,11 @@ def test_raw_loads_read_the_element_warp_indexing_reads(device):
         wp.array(rng.integers(-9, 9, (n, 3)).astype(np.int32), dtype=wp.vec3i, device=device),
         wp.array(rng.integers(-9, 9, (n, 4)).astype(np.int32), dtype=wp.vec4i, device=device),
         wp.array(rng.normal(size=(n, 2, 2)).astype(np.float32), dtype=wp.mat22, device=device),
+        wp.array(rng.integers(-9, 9, (n, 2)).astype(np.int32), dtype=wp.vec2i, device=device),
     ]
     order = wp.array(rng.permutation(n).astype(np.int32), dtype=wp.int32, device=device)
-    raw = wp.zeros((n, 7), dtype=float, device=device)
-    ref = wp.zeros((n, 7), dtype=float, device=device)
+    raw = wp.zeros((n, 8), dtype=float, device=device)
+    ref = wp.zeros((n, 8), dtype=float, device=device)
     wp.launch(_loads_kernel, dim=n, inputs=[*arrays, span(arrays[0]), span(arrays[2]), order],
               outputs=[raw, ref], device=device)
     np.testing.assert_array_equal(raw.numpy(), ref.numpy())

@@ -57,7 +57,9 @@ from sim.cloth.spans import (
     floats,
     ints,
     load_int,
+    load_vec2i,
     load_vec3,
+    load_vec3i,
     load_vec4i,
     vec2is,
     vec3s,
@@ -769,15 +771,17 @@ def vertex_triangle_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v
     stored (``store_pair``) if ``list_pair`` says so. Distance first: most candidates lie beyond
     ``r``, where they change neither ``dmin`` (which starts at ``r``) nor the list, and skip the
     rest-shape test."""
-    a = x[tri[0]]
-    b = x[tri[1]]
-    c = x[tri[2]]
-    w = triangle_closest_bary(x[u], a, b, c)
-    diff = x[u] - (w[0] * a + w[1] * b + w[2] * c)
+    a = load_vec3(x, tri[0])
+    b = load_vec3(x, tri[1])
+    c = load_vec3(x, tri[2])
+    xu = load_vec3(x, u)
+    w = triangle_closest_bary(xu, a, b, c)
+    diff = xu - (w[0] * a + w[1] * b + w[2] * c)
     d = wp.length(diff)
     if d >= r:
         return dmin, count
-    v_rel = v[u] - (w[0] * v[tri[0]] + w[1] * v[tri[1]] + w[2] * v[tri[2]])
+    v_rel = load_vec3(v, u) - (w[0] * load_vec3(v, tri[0]) + w[1] * load_vec3(v, tri[1])
+                               + w[2] * load_vec3(v, tri[2]))
     stored = list_pair(sc, d, v_rel, margin, speed_factor, h)
     if not stored and d >= dmin:
         return dmin, count
@@ -862,10 +866,10 @@ def detect_vertex_kernel(
     dmin = r
     count = int(0)
     while wp.bvh_query_next(query, t):
-        tri = tri_indices[t]
+        tri = load_vec3i(tri_indices, t)
         if tri[0] == i or tri[1] == i or tri[2] == i:
             continue
-        if particle_instance[tri[0]] != inst:
+        if load_int(particle_instance, tri[0]) != inst:
             continue
         dmin, count = vertex_triangle_candidate(sc, x, v, i, tri, r, margin, speed_factor, h, dmin, count,
                                                 sc.vt_tri, sc.vt_dist, sc.vt_ref, sc.vt_rk, sc.vt_tri_prev,
@@ -908,7 +912,7 @@ def detect_triangle_kernel(
     dmin = r
     count = int(0)
     while wp.bvh_query_next(query, u):
-        if u == tri[0] or u == tri[1] or u == tri[2] or particle_instance[u] != inst:
+        if u == tri[0] or u == tri[1] or u == tri[2] or load_int(particle_instance, u) != inst:
             continue
         dmin, count = vertex_triangle_candidate(sc, x, v, u, tri, r, margin, speed_factor, h, dmin, count,
                                                 sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_rk,
@@ -946,18 +950,18 @@ def detect_edge_kernel(
     dmin = r
     count = int(0)
     while wp.bvh_query_next(query, e2):
-        eb = sc.mesh_edges[e2]
+        eb = load_vec2i(sc.mesh_edges, e2)
         if eb[0] == ea[0] or eb[0] == ea[1] or eb[1] == ea[0] or eb[1] == ea[1]:
             continue
-        if particle_instance[eb[0]] != inst:
+        if load_int(particle_instance, eb[0]) != inst:
             continue
-        p2 = x[eb[0]]
-        q2 = x[eb[1]]
+        p2 = load_vec3(x, eb[0])
+        q2 = load_vec3(x, eb[1])
         st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
         d = st[2]
         if d >= r:
             continue
-        v_rel = wp.lerp(v[ea[0]], v[ea[1]], st[0]) - wp.lerp(v[eb[0]], v[eb[1]], st[1])
+        v_rel = wp.lerp(v[ea[0]], v[ea[1]], st[0]) - wp.lerp(load_vec3(v, eb[0]), load_vec3(v, eb[1]), st[1])
         stored = list_pair(sc, d, v_rel, margin, speed_factor, h)
         if stored and sc.ee_interior != 0:
             # closest point at an edge's end: a point-edge or point-point distance, which the

@@ -95,6 +95,10 @@ def load_vec3(a: wp.array(dtype=wp.vec3), i: int) -> wp.vec3: ...
 
 
 @wp.func_native("return a.data[i];")
+def load_vec2i(a: wp.array(dtype=wp.vec2i), i: int) -> wp.vec2i: ...
+
+
+@wp.func_native("return a.data[i];")
 def load_vec3i(a: wp.array(dtype=wp.vec3i), i: int) -> wp.vec3i: ...
 
 
