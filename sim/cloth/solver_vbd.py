@@ -83,6 +83,8 @@ class VBDConfig:
             spills what does not fit), 0: the compiler's choice, -1 (default): auto,
             ``AUTO_BATCH_MAX_REGISTERS`` with the automatic batch layout (4 lanes x 32) and the
             compiler's choice otherwise. A cap trades spills for resident warps.
+        fast_math: compile the CUDA solve kernel with fast math (approximate division, square
+            root and transcendentals, denormals flushed); the CPU is unaffected.
         chebyshev_rho: estimated spectral radius rho of the sweeps for Chebyshev acceleration
             (Chen et al. 2024, Sec. 3.8: ``omega_1 = 1, omega_2 = 2 / (2 - rho^2), omega_k = 4 /
             (4 - rho^2 omega_{k-1})``); 0 turns it off. It converges further per sweep, but
@@ -229,6 +231,7 @@ class VBDConfig:
     particles_per_block: int = 8
     gather: str = "auto"
     max_registers: int = -1
+    fast_math: bool = False
     chebyshev_rho: float = 0.0
     membrane: str = "corotated"
     self_contact: bool = False
@@ -413,7 +416,8 @@ class SolverVBD:
         self._particles = particles if cuda else 1
         fused = {"auto": None, "fused": True, "split": False}[self.config.gather]
         self._max_registers = regs if cuda else 0
-        self._solve = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers)
+        self._solve = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
+                                           fast_math=self.config.fast_math)
         self._side = SideStreams(d, 1)
         self._pipe = SideStreams(d, 1)
         self._coarse_side = SideStreams(d, 1)
@@ -462,7 +466,7 @@ class SolverVBD:
                                       cfg.air_damping, cfg.coarse_spacing, cfg.coarse_levels,
                                       cfg.coarse_smoothing, cfg.coarse_prefactor)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
-                                                  evaluate=True)
+                                                  evaluate=True, fast_math=cfg.fast_math)
 
     def heavy_cap(self, cuda: bool) -> int:
         """Heavy-vertex blocks per colour launch (``VBDConfig.self_contact_heavy_cap``; -1: auto,

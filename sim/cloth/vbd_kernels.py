@@ -549,7 +549,7 @@ FUSED_LANES = 8  # lanes per particle from which the solve gathers with the fuse
 
 
 def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, max_registers: int = 0,
-                       evaluate: bool = False):
+                       evaluate: bool = False, fast_math: bool = False):
     """The per-colour VBD kernel (Chen et al. 2024, Alg. 1) for blocks of ``particles`` x
     ``lanes`` threads: launch it with ``wp.launch_tiled(kernel, dim=[ceil(count / particles)],
     block_dim=particles * lanes)`` (on the CPU, where a block is one thread: 1 x 1).
@@ -585,7 +585,7 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
     restricts it."""
     if fused is None:
         fused = lanes >= FUSED_LANES
-    key = (int(particles), int(lanes), bool(fused), int(max_registers), bool(evaluate))
+    key = (int(particles), int(lanes), bool(fused), int(max_registers), bool(evaluate), bool(fast_math))
     if key in _SOLVE_KERNELS:
         return _SOLVE_KERNELS[key]
     P, L, FUSED, EVAL = int(particles), int(lanes), int(fused), int(evaluate)
@@ -707,8 +707,11 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
 
     regs = f"_r{int(max_registers)}" if max_registers > 0 else ""
     name = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}{regs}{'_eval' if EVAL else ''}"
+    name += "_fm" if fast_math else ""
     solve.__name__ = solve.__qualname__ = name
     options = {"cuda_max_registers": int(max_registers)} if max_registers > 0 else {}
+    if fast_math:
+        options["module_options"] = {"fast_math": True}
     kernel = wp.kernel(solve, enable_backward=False, module="unique", **options)
     _SOLVE_KERNELS[key] = kernel
     return kernel
