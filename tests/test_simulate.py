@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from pipelines.cli import main
+from sim.cloth import VBDConfig
 from sim.errors import WrinklesInputError
 from sim.quality import SimulationError
 from sim.simulate import SimulationConfig, SimulationJob, simulate, simulate_batch
@@ -78,6 +79,9 @@ def test_config_round_trips_and_refuses_unknown_keys():
 def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
     vbd = SimulationConfig().vbd_config()
     assert (vbd.substeps, vbd.iterations, vbd.coarse_sweeps, vbd.coarse_spacing) == (14, 5, (2,), 0)
+    # the CUDA solve kernel with fast math by default, off on request (the solver-level default)
+    assert vbd.fast_math and not SimulationConfig(solver={"fast_math": False}).vbd_config().fast_math
+    assert not VBDConfig().fast_math
     cfg = SimulationConfig(iterations=4, coarse_sweeps=[1, 3], coarse_spacing=3)
     d = json.loads(json.dumps(cfg.to_dict()))
     assert d["coarse_sweeps"] == [1, 3] and SimulationConfig.from_dict(d) == cfg
