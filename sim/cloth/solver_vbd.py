@@ -214,7 +214,8 @@ class VBDConfig:
             of 144 sequences pass against 133, but the single run's worst strain is 0.356 (gate
             0.35) against 0.278, and a 164-vertex skirt dressed at 3 x 3 keeps 2 vertices inside
             the body, so it is not the default. At 15 substeps (session 33) it passes both
-            singles and 137 of 144 sequences at 7.67 / 7.65 ms against the default's 8.00 / 8.01.
+            singles and 137 of 144 sequences at 7.67 / 7.65 ms against the default's 8.00 / 8.01
+            (both before the raw loads and fast math).
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every

@@ -5,8 +5,9 @@ Why (session 16): the per-colour solve kernel took ~100 array arguments (~5.6 KB
 parameters). CUDA kernel parameters live in constant memory and every array access reads its
 descriptor from there; Nsight Compute found 30 % of the solve's stall cycles waiting on
 immediate-constant cache misses. The kernel now takes one struct of spans and rebuilds the
-arrays it reads with ``wp.array(ptr=..., shape=..., dtype=...)``; the strides of such an array
-are a compile-time constant, so an element access is one multiply-add on the pointer.
+arrays it reads with ``wp.array(ptr=..., shape=..., dtype=...)``. An element access ``a[i]`` on
+such an array still wraps a negative index and scales by the stride at run time (Warp's
+``index``); the hot loads go through ``load_*`` below instead (session 33).
 
 The spans do not own the memory: whoever builds them keeps the arrays alive (the solver holds
 its model, buffers and self-contact data for its lifetime)."""
