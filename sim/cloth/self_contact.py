@@ -1256,8 +1256,6 @@ class SelfContact:
             stiffness there and, on a folded t-shirt, made ~80 % of the stored edge pairs
             (session 21), which the solve evaluates every iteration. The bounds' ``d_min``
             still takes every edge pair.
-        leaf_size: primitives per leaf of the three cloth BVHs (``warp.Bvh``'s ``leaf_size``); the
-            pairs found do not depend on it.
         slots: sets of detection outputs (pair lists, gather records, bounds) that ``detect``
             can fill in turn (``SelfContact.datas``; ``data`` is slot 0), so one detection can
             run while the solve reads another's (``VBDConfig.self_contact_pipeline``). The BVHs
@@ -1268,10 +1266,8 @@ class SelfContact:
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
-                 ee_interior: bool = False, slots: int = 1, leaf_size: int = 1):
+                 ee_interior: bool = False, slots: int = 1):
         w = warp()
-        if leaf_size < 1:
-            raise ValueError(f"SelfContact: leaf_size must be >= 1, got {leaf_size}")
         d = model.device
         self.model = model
         self.margin = float(margin)
@@ -1367,9 +1363,9 @@ class SelfContact:
                                                   model.vertex_mesh_edge_local.numpy(), 2, ne),
                                   dtype=w.int32, device=d)
         self._update_bounds(model.particle_q)
-        self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance, leaf_size=leaf_size)
-        self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance, leaf_size=leaf_size)
-        self.vertex_bvh = w.Bvh(self._points, self._points, groups=model.particle_instance, leaf_size=leaf_size)
+        self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
+        self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
+        self.vertex_bvh = w.Bvh(self._points, self._points, groups=model.particle_instance)
         # each instance's subtree root per tree (triangles, vertices, edges), refound at rebuilds
         self._roots = [w.zeros(model.instance_count, dtype=w.int32, device=d) for _ in range(3)]
         self.find_roots()
