@@ -78,7 +78,9 @@ class SimulationConfig:
     the CPU as cheap per frame as the former default, 10 x 10 without corrections. On CUDA the
     solve kernel is compiled with fast math (``VBDConfig.fast_math``; session 33, 8.00 -> 7.04 ms
     per 5k t-shirt frame with raw loads and fast math, 134 of 144 sequences passing against
-    133); ``solver={"fast_math": false}`` turns it off.
+    133), and the coarse system is factored beside the first sweeps (``VBDConfig.
+    coarse_prefactor``; session 34, 7.05 -> 6.25 ms, 133 of 144 sequences passing);
+    ``solver={"fast_math": false, "coarse_prefactor": false}`` turns them off.
 
     Attributes:
         fps: output frame rate [1/s]; the solver takes one step of ``1/fps`` per frame and the
@@ -194,10 +196,11 @@ class SimulationConfig:
         if sweeps is None:
             sweeps = (2,) if self.iterations > 2 else ()
         # fast math in the CUDA solve kernel (session 33): 8 % faster per 5k t-shirt frame, the
-        # population passing as often (docs/BENCHMARKS.md); the CPU is unaffected
+        # population passing as often (docs/BENCHMARKS.md); the CPU is unaffected. The coarse
+        # factor beside the first sweeps (session 34): 11 % faster, the population within noise
         kw: dict[str, Any] = {"substeps": self.substeps, "iterations": self.iterations,
                               "coarse_sweeps": sweeps, "coarse_spacing": self.coarse_spacing,
-                              "fast_math": True}
+                              "fast_math": True, "coarse_prefactor": True}
         unknown = sorted(set(self.solver) - allowed)
         if unknown:
             raise WrinklesInputError(f"simulation config: unknown solver option(s) {unknown}; "

@@ -14,7 +14,7 @@ from sim.errors import WrinklesInputError
 from sim.simulate import SimulationConfig, morph_frames, morph_settle, simulate
 
 RES = 0.07  # template edge length [m] (the sample config's coarse resolution)
-FAST = dict(fps=30.0, substeps=3, iterations=3, settle_seconds=0.5, blend_seconds=0.1, device="cpu")
+FAST = dict(fps=30.0, substeps=5, iterations=5, settle_seconds=0.5, blend_seconds=0.1, device="cpu")
 TARGET = np.array([1.5, -1.0], np.float32)
 
 

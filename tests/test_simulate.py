@@ -82,6 +82,9 @@ def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
     # the CUDA solve kernel with fast math by default, off on request (the solver-level default)
     assert vbd.fast_math and not SimulationConfig(solver={"fast_math": False}).vbd_config().fast_math
     assert not VBDConfig().fast_math
+    # the coarse factor beside the first sweeps likewise (session 34)
+    assert vbd.coarse_prefactor and not VBDConfig().coarse_prefactor
+    assert not SimulationConfig(solver={"coarse_prefactor": False}).vbd_config().coarse_prefactor
     cfg = SimulationConfig(iterations=4, coarse_sweeps=[1, 3], coarse_spacing=3)
     d = json.loads(json.dumps(cfg.to_dict()))
     assert d["coarse_sweeps"] == [1, 3] and SimulationConfig.from_dict(d) == cfg

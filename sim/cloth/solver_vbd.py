@@ -209,13 +209,16 @@ class VBDConfig:
             contact stiffness at particles pressed at the inertial targets ``y``) and, on CUDA,
             factor each instance's coarse system at the substep start, beside the first sweeps on
             a side stream; a correction then only substitutes (``CoarseLevel.prepare``). Off
-            (default): the diagonal at each correction's positions, factored and solved there.
+            (default here; ``SimulationConfig`` turns it on since session 34): the diagonal at
+            each correction's positions, factored and solved there.
             H100, 5k t-shirt (docs/BENCHMARKS.md, session 30): 9.25 -> 8.30 ms per frame, 137
             of 144 sequences pass against 133, but the single run's worst strain is 0.356 (gate
             0.35) against 0.278, and a 164-vertex skirt dressed at 3 x 3 keeps 2 vertices inside
-            the body, so it is not the default. At 15 substeps (session 33) it passes both
+            the body, so it was not then the job default. At 15 substeps (session 33) it passes both
             singles and 137 of 144 sequences at 7.67 / 7.65 ms against the default's 8.00 / 8.01
-            (both before the raw loads and fast math).
+            (both before the raw loads and fast math). With them (session 34), at 14 substeps:
+            6.25 / 6.24 ms against 7.05 / 7.06, both singles pass (run 0.250), 133 of 144
+            sequences against 134; the skirt passes at 5 x 5.
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every
