@@ -78,9 +78,9 @@ class SimulationConfig:
     the CPU as cheap per frame as the former default, 10 x 10 without corrections. On CUDA the
     solve kernel is compiled with fast math (``VBDConfig.fast_math``; session 33, 8.00 -> 7.04 ms
     per 5k t-shirt frame with raw loads and fast math, 134 of 144 sequences passing against
-    133), and the coarse system is factored beside the first sweeps (``VBDConfig.
-    coarse_prefactor``; session 34, 7.05 -> 6.25 ms, 133 of 144 sequences passing);
-    ``solver={"fast_math": false, "coarse_prefactor": false}`` turns them off.
+    133), and the coarse system is factored beside the first sweeps
+    (``VBDConfig.coarse_prefactor``; session 34, 7.05 -> 6.25 ms, 133 of 144 sequences
+    passing); ``solver={"fast_math": false, "coarse_prefactor": false}`` turns them off.
 
     Attributes:
         fps: output frame rate [1/s]; the solver takes one step of ``1/fps`` per frame and the
