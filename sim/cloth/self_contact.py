@@ -758,69 +758,23 @@ def store_pair(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), ref: 
 
 
 @wp.func
-def longest_axis(lo: wp.vec3, hi: wp.vec3) -> int:
-    """The axis (0-2) along which the box ``lo``-``hi`` is longest."""
-    s = hi - lo
-    a = int(0)
-    if s[1] > s[a]:
-        a = 1
-    if s[2] > s[a]:
-        a = 2
-    return a
-
-
-@wp.func
-def query_part(lo: wp.vec3, hi: wp.vec3, axis: int, part: int, parts: int):
-    """Slice ``part`` of ``parts`` equal slices of the box ``lo``-``hi`` along ``axis``, widened by
-    a thousandth of a slice on both sides (so rounding never loses a candidate its owner test,
-    ``owns_candidate``, gives it): the box that query thread searches."""
-    if parts == 1:
-        return lo, hi
-    w = (hi[axis] - lo[axis]) / float(parts)
-    u = wp.vec3(wp.where(axis == 0, 1.0, 0.0), wp.where(axis == 1, 1.0, 0.0), wp.where(axis == 2, 1.0, 0.0))
-    a = lo[axis] + float(part) * w - 1.0e-3 * w
-    b = lo[axis] + float(part + 1) * w + 1.0e-3 * w
-    return lo + u * (a - lo[axis]), hi + u * (b - hi[axis])
-
-
-@wp.func
-def owns_candidate(c: wp.vec3, lo: wp.vec3, hi: wp.vec3, axis: int, part: int, parts: int) -> bool:
-    """Whether query thread ``part`` of ``parts`` (``query_part``) takes the candidate whose box
-    holds point ``c``: the slice that holds ``c`` along ``axis``, clamped to the query box. A
-    candidate found by the whole box's query has a box that overlaps the box and holds ``c``, so
-    it overlaps that slice: exactly one thread takes it, and the threads together take every
-    candidate the whole box finds."""
-    if parts == 1:
-        return True
-    w = (hi[axis] - lo[axis]) / float(parts)
-    k = wp.clamp(int(wp.floor((c[axis] - lo[axis]) / w)), 0, parts - 1)
-    return k == part
-
-
-@wp.func
 def vertex_triangle_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3),
                               u: int, tri: wp.vec3i, r: float, margin: float, speed_factor: float, h: float,
                               dmin: float, count: int, ids: wp.array(dtype=wp.int32),
                               dist: wp.array(dtype=float), ref: wp.array(dtype=wp.vec3),
                               rk: wp.array(dtype=wp.int32), prev_ids: wp.array(dtype=wp.int32),
                               prev_ref: wp.array(dtype=wp.vec3), prev_counts: wp.array(dtype=wp.int32),
-                              owner: int, capacity: int, item: int, own_vertex: bool, box_lo: wp.vec3,
-                              box_hi: wp.vec3, axis: int, part: int, parts: int):
+                              owner: int, capacity: int, item: int):
     """A vertex ``u`` / triangle ``tri`` candidate of a box query (pair ``item`` of list ``owner``:
     the vertex's triangle or the triangle's vertex): the nearest distance so far and the list's
     count after it. It lowers ``dmin`` unless it was as close at rest (``rest_class``), and is
     stored (``store_pair``) if ``list_pair`` says so. Distance first: most candidates lie beyond
     ``r``, where they change neither ``dmin`` (which starts at ``r``) nor the list, and skip the
-    rest-shape test. With ``parts`` > 1 query threads per list the candidate is this thread's
-    (``owns_candidate``) by the vertex (``own_vertex``: the triangle's query found the vertex)
-    or by the triangle's centroid."""
+    rest-shape test."""
     a = load_vec3(x, tri[0])
     b = load_vec3(x, tri[1])
     c = load_vec3(x, tri[2])
     xu = load_vec3(x, u)
-    if parts > 1:
-        if not owns_candidate(wp.where(own_vertex, xu, (a + b + c) / 3.0), box_lo, box_hi, axis, part, parts):
-            return dmin, count
     w = triangle_closest_bary(xu, a, b, c)
     diff = xu - (w[0] * a + w[1] * b + w[2] * c)
     d = wp.length(diff)
@@ -898,31 +852,16 @@ def detect_vertex_kernel(
     margin: float,
     speed_factor: float,
     h: float,
-    parts: int,
     sc: SelfContactData,
-    ids_out: wp.array(dtype=wp.int32),
-    dist_out: wp.array(dtype=float),
-    ref_out: wp.array(dtype=wp.vec3),
-    rk_out: wp.array(dtype=wp.int32),
-    count_out: wp.array(dtype=wp.int32),
     dmin_out: wp.array(dtype=float),
 ):
     """Per vertex: nearest non-incident triangle distance and the VT pairs within the radius
-    (``tri_roots``: each instance's subtree root, ``group_roots_kernel``). ``parts`` threads per
-    vertex (``SelfContact`` ``query_parts``), each searching a slice of the box (``query_part``)
-    into list ``tid`` of the outputs (``merge_parts_kernel`` merges them); 1: thread ``i`` is
-    vertex ``i`` and writes its list directly."""
-    k = wp.tid()
-    i = k // parts
-    part = k - i * parts
+    (``tri_roots``: each instance's subtree root, ``group_roots_kernel``)."""
+    i = wp.tid()
     xi = x[i]
     inst = particle_instance[i]
     r = query_radius(margin, wp.length(v[i] - sc.reference[inst]), h, speed_factor)
-    lo = xi - wp.vec3(r)
-    hi = xi + wp.vec3(r)
-    axis = int(0)
-    qlo, qhi = query_part(lo, hi, axis, part, parts)
-    query = wp.bvh_query_aabb(tri_bvh, qlo, qhi, tri_roots[inst])
+    query = wp.bvh_query_aabb(tri_bvh, xi - wp.vec3(r), xi + wp.vec3(r), tri_roots[inst])
     t = int(0)
     dmin = r
     count = int(0)
@@ -933,11 +872,10 @@ def detect_vertex_kernel(
         if load_int(particle_instance, tri[0]) != inst:
             continue
         dmin, count = vertex_triangle_candidate(sc, x, v, i, tri, r, margin, speed_factor, h, dmin, count,
-                                                ids_out, dist_out, ref_out, rk_out, sc.vt_tri_prev,
-                                                sc.vt_ref_prev, sc.vt_count_prev, k, sc.vt_capacity, t, False,
-                                                lo, hi, axis, part, parts)
-    count_out[k] = count
-    dmin_out[k] = dmin
+                                                sc.vt_tri, sc.vt_dist, sc.vt_ref, sc.vt_rk, sc.vt_tri_prev,
+                                                sc.vt_ref_prev, sc.vt_count_prev, i, sc.vt_capacity, t)
+    sc.vt_count[i] = count
+    dmin_out[i] = dmin
 
 
 @wp.kernel
@@ -951,22 +889,14 @@ def detect_triangle_kernel(
     margin: float,
     speed_factor: float,
     h: float,
-    parts: int,
     sc: SelfContactData,
-    ids_out: wp.array(dtype=wp.int32),
-    dist_out: wp.array(dtype=float),
-    ref_out: wp.array(dtype=wp.vec3),
-    rk_out: wp.array(dtype=wp.int32),
-    count_out: wp.array(dtype=wp.int32),
     dmin_out: wp.array(dtype=float),
 ):
     """Per triangle: nearest non-incident vertex distance and the TV pairs within the radius.
     Candidate vertices come straight from the vertex BVH (session 13; through the triangle BVH
     each vertex was one of ~3 candidate triangles' corners, found again at its other
-    triangles and skipped there: 6.5 of the run's 13.7 ms of detection per frame). ``parts``: as ``detect_vertex_kernel``."""
-    k = wp.tid()
-    t = k // parts
-    part = k - t * parts
+    triangles and skipped there: 6.5 of the run's 13.7 ms of detection per frame)."""
+    t = wp.tid()
     tri = tri_indices[t]
     a = x[tri[0]]
     b = x[tri[1]]
@@ -977,9 +907,7 @@ def detect_triangle_kernel(
     r = query_radius(margin, speed, h, speed_factor)
     lo = wp.min(wp.min(a, b), c) - wp.vec3(r)
     hi = wp.max(wp.max(a, b), c) + wp.vec3(r)
-    axis = longest_axis(lo, hi)
-    qlo, qhi = query_part(lo, hi, axis, part, parts)
-    query = wp.bvh_query_aabb(vertex_bvh, qlo, qhi, vertex_roots[inst])
+    query = wp.bvh_query_aabb(vertex_bvh, lo, hi, vertex_roots[inst])
     u = int(0)
     dmin = r
     count = int(0)
@@ -987,11 +915,11 @@ def detect_triangle_kernel(
         if u == tri[0] or u == tri[1] or u == tri[2] or load_int(particle_instance, u) != inst:
             continue
         dmin, count = vertex_triangle_candidate(sc, x, v, u, tri, r, margin, speed_factor, h, dmin, count,
-                                                ids_out, dist_out, ref_out, rk_out,
-                                                sc.tv_vertex_prev, sc.tv_ref_prev, sc.tv_count_prev, k,
-                                                sc.tv_capacity, u, True, lo, hi, axis, part, parts)
-    count_out[k] = count
-    dmin_out[k] = dmin
+                                                sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_rk,
+                                                sc.tv_vertex_prev, sc.tv_ref_prev, sc.tv_count_prev, t,
+                                                sc.tv_capacity, u)
+    sc.tv_count[t] = count
+    dmin_out[t] = dmin
 
 
 @wp.kernel
@@ -1004,20 +932,11 @@ def detect_edge_kernel(
     margin: float,
     speed_factor: float,
     h: float,
-    parts: int,
     sc: SelfContactData,
-    ids_out: wp.array(dtype=wp.int32),
-    dist_out: wp.array(dtype=float),
-    ref_out: wp.array(dtype=wp.vec3),
-    rk_out: wp.array(dtype=wp.int32),
-    count_out: wp.array(dtype=wp.int32),
     dmin_out: wp.array(dtype=float),
 ):
-    """Per edge: nearest edge (sharing no vertex) distance and the EE pairs within the radius.
-    ``parts``: as ``detect_vertex_kernel``; a candidate edge is owned by its midpoint."""
-    k = wp.tid()
-    e = k // parts
-    part = k - e * parts
+    """Per edge: nearest edge (sharing no vertex) distance and the EE pairs within the radius."""
+    e = wp.tid()
     ea = sc.mesh_edges[e]
     p1 = x[ea[0]]
     q1 = x[ea[1]]
@@ -1025,11 +944,8 @@ def detect_edge_kernel(
     vr = sc.reference[inst]
     speed = wp.max(wp.length(v[ea[0]] - vr), wp.length(v[ea[1]] - vr))
     r = query_radius(margin, speed, h, speed_factor)
-    lo = wp.min(p1, q1) - wp.vec3(r)
-    hi = wp.max(p1, q1) + wp.vec3(r)
-    axis = longest_axis(lo, hi)
-    qlo, qhi = query_part(lo, hi, axis, part, parts)
-    query = wp.bvh_query_aabb(edge_bvh, qlo, qhi, edge_roots[inst])
+    query = wp.bvh_query_aabb(edge_bvh, wp.min(p1, q1) - wp.vec3(r), wp.max(p1, q1) + wp.vec3(r),
+                              edge_roots[inst])
     e2 = int(0)
     dmin = r
     count = int(0)
@@ -1041,9 +957,6 @@ def detect_edge_kernel(
             continue
         p2 = load_vec3(x, eb[0])
         q2 = load_vec3(x, eb[1])
-        if parts > 1:
-            if not owns_candidate(0.5 * (p2 + q2), lo, hi, axis, part, parts):
-                continue
         st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
         d = st[2]
         if d >= r:
@@ -1064,48 +977,11 @@ def detect_edge_kernel(
         if stored:
             diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
             interior = wp.min(wp.min(st[0], 1.0 - st[0]), wp.min(st[1], 1.0 - st[1])) > INTERIOR
-            count = store_pair(ids_out, dist_out, ref_out, rk_out, sc.ee_edge_prev, sc.ee_ref_prev,
-                               sc.ee_count_prev, sc.side_memory, k, sc.ee_capacity, count, e2, d, diff,
+            count = store_pair(sc.ee_edge, sc.ee_dist, sc.ee_ref, sc.ee_rk, sc.ee_edge_prev, sc.ee_ref_prev,
+                               sc.ee_count_prev, sc.side_memory, e, sc.ee_capacity, count, e2, d, diff,
                                interior, code, sc.radius)
-    count_out[k] = count
-    dmin_out[k] = dmin
-
-
-@wp.kernel
-def merge_parts_kernel(
-    parts: int,
-    capacity: int,
-    ids_in: wp.array(dtype=wp.int32),
-    dist_in: wp.array(dtype=float),
-    ref_in: wp.array(dtype=wp.vec3),
-    rk_in: wp.array(dtype=wp.int32),
-    count_in: wp.array(dtype=wp.int32),
-    dmin_in: wp.array(dtype=float),
-    ids_out: wp.array(dtype=wp.int32),
-    dist_out: wp.array(dtype=float),
-    ref_out: wp.array(dtype=wp.vec3),
-    rk_out: wp.array(dtype=wp.int32),
-    count_out: wp.array(dtype=wp.int32),
-    dmin_out: wp.array(dtype=float),
-):
-    """One list per owner from its ``parts`` query threads' lists (``detect_*_kernel``), part 0
-    first: every pair passes through ``keep_closest`` as the query would have stored it, so the
-    list keeps the same pairs (the ``capacity`` nearest; each part kept its own nearest), in an
-    order fixed by the parts; the nearest distance is the parts' least."""
-    i = wp.tid()
-    count = int(0)
-    dmin = dmin_in[i * parts]
-    for p in range(parts):
-        o = i * parts + p
-        dmin = wp.min(dmin, dmin_in[o])
-        for s in range(count_in[o]):
-            j = o * capacity + s
-            count, slot = keep_closest(ids_out, dist_out, i * capacity, count, capacity, ids_in[j], dist_in[j])
-            if slot >= 0:
-                ref_out[i * capacity + slot] = ref_in[j]
-                rk_out[i * capacity + slot] = rk_in[j]
-    count_out[i] = count
-    dmin_out[i] = dmin
+    sc.ee_count[e] = count
+    dmin_out[e] = dmin
 
 
 @wp.func
@@ -1384,21 +1260,13 @@ class SelfContact:
             can fill in turn (``SelfContact.datas``; ``data`` is slot 0), so one detection can
             run while the solve reads another's (``VBDConfig.self_contact_pipeline``). The BVHs
             are shared: detections must not overlap each other.
-        query_parts: threads per vertex, triangle and edge query (session 35). Each searches one
-            of that many slices of the query box along its longest axis and takes the candidates
-            whose centroid (a vertex, a triangle's centroid, an edge's midpoint) falls in its
-            slice, into its own list; ``merge_parts_kernel`` then keeps each list's nearest
-            pairs as one thread would have (the same pairs; their order in a list differs). A
-            single garment's queries are latency-bound: the slowest thread's walk sets their
-            length, and slices shorten it. Needs ``side_memory`` off (the parts' lists are not
-            the previous detection's).
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
-                 ee_interior: bool = False, slots: int = 1, query_parts: int = 1):
+                 ee_interior: bool = False, slots: int = 1):
         w = warp()
         d = model.device
         self.model = model
@@ -1481,20 +1349,6 @@ class SelfContact:
         self._dmin_v = w.zeros(n, dtype=float, device=d)
         self._dmin_t = w.zeros(nt, dtype=float, device=d)
         self._dmin_e = w.zeros(ne, dtype=float, device=d)
-        if query_parts < 1 or (query_parts > 1 and side_memory):
-            raise ValueError(f"SelfContact: query_parts must be >= 1, and 1 with side_memory, got {query_parts}")
-        self.query_parts = int(query_parts)
-        # with several query threads per list, each thread's own list (ids, keys, side references,
-        # radius codes, count, nearest distance) before ``merge_parts_kernel``
-        self._parts = {}
-        if query_parts > 1:
-            for kind, size in (("vt", n), ("tv", nt), ("ee", ne)):
-                rows = size * query_parts
-                self._parts[kind] = (w.zeros(rows * capacity, dtype=w.int32, device=d),
-                                     w.zeros(rows * capacity, dtype=float, device=d),
-                                     w.zeros(rows * capacity, dtype=w.vec3, device=d),
-                                     w.zeros(rows * capacity, dtype=w.int32, device=d),
-                                     w.zeros(rows, dtype=w.int32, device=d), w.zeros(rows, dtype=float, device=d))
         self._lo_t = w.zeros(nt, dtype=w.vec3, device=d)
         self._hi_t = w.zeros(nt, dtype=w.vec3, device=d)
         self._lo_e = w.zeros(ne, dtype=w.vec3, device=d)
@@ -1563,39 +1417,31 @@ class SelfContact:
                       inputs=[x, m.tri_indices, m.mesh_edge_indices, m.tri_count, ne],
                       outputs=[self._lo_t, self._hi_t, self._lo_e, self._hi_e, self._points], device=m.device)
 
-    def _query(self, kernel, dim: int, x0, v, h: float, inputs: list, kind: str, dmin, slot: int) -> None:
+    def _query(self, kernel, dim: int, x0, v, h: float, inputs: list, out, slot: int) -> None:
         """One detection kernel over ``dim`` primitives: ``(x0, v, particle_instance, *inputs,
-        margin, speed_factor, h, parts, data) -> lists, dmin`` (the BVHs must be fitted to ``x0``)
-        into slot ``slot``'s ``kind`` lists ("vt", "tv", "ee") and ``dmin``; with ``query_parts``
-        > 1 into the parts' lists, then merged."""
-        w = warp()
+        margin, speed_factor, h, data) -> out`` (the BVHs must be fitted to ``x0``) into slot
+        ``slot``'s outputs."""
         m = self.model
-        sc = self.datas[slot]
-        ids = {"vt": "tri", "tv": "vertex", "ee": "edge"}[kind]
-        lists = [getattr(sc, f"{kind}_{name}") for name in (ids, "dist", "ref", "rk", "count")] + [dmin]
-        parts = self.query_parts
-        head = [x0, v, m.particle_instance, *inputs, self.margin, self.speed_factor, h, parts, sc]
-        w.launch(kernel, dim=dim * parts, inputs=head, outputs=self._parts.get(kind, lists), device=m.device)
-        if parts > 1:
-            w.launch(merge_parts_kernel, dim=dim, inputs=[parts, sc.vt_capacity, *self._parts[kind]],
-                     outputs=lists, device=m.device)
+        warp().launch(kernel, dim=dim, inputs=[x0, v, m.particle_instance, *inputs, self.margin,
+                                               self.speed_factor, h, self.datas[slot]],
+                      outputs=[out], device=m.device)
 
     def query_vertices(self, x0, v, h: float, slot: int = 0) -> None:
         """``detect_vertex_kernel``: each vertex's VT pairs and nearest triangle distance."""
         m = self.model
         self._query(detect_vertex_kernel, m.particle_count, x0, v, h,
-                    [m.tri_indices, self.tri_bvh.id, self._roots[0]], "vt", self._dmin_v, slot)
+                    [m.tri_indices, self.tri_bvh.id, self._roots[0]], self._dmin_v, slot)
 
     def query_triangles(self, x0, v, h: float, slot: int = 0) -> None:
         """``detect_triangle_kernel``: each triangle's TV pairs and nearest vertex distance."""
         m = self.model
         self._query(detect_triangle_kernel, m.tri_count, x0, v, h,
-                    [m.tri_indices, self.vertex_bvh.id, self._roots[1]], "tv", self._dmin_t, slot)
+                    [m.tri_indices, self.vertex_bvh.id, self._roots[1]], self._dmin_t, slot)
 
     def query_edges(self, x0, v, h: float, slot: int = 0) -> None:
         """``detect_edge_kernel``: each edge's EE pairs and nearest edge distance."""
         self._query(detect_edge_kernel, self._lo_e.shape[0], x0, v, h, [self.edge_bvh.id, self._roots[2]],
-                    "ee", self._dmin_e, slot)
+                    self._dmin_e, slot)
 
     def refresh_sides(self, x0, slot: int = 0) -> None:
         """Bring the side reference of every pair in slot ``slot`` to ``x0``

@@ -176,10 +176,6 @@ class VBDConfig:
             the CPU the same detections run in order. H100, t-shirt 16x10: walk 9.15 against 11.30
             ms, run 9.74 against 10.90 ms, but the population passed 32/48 against 38/48 (more
             crossings), so it is off by default (docs/BENCHMARKS.md, session 21).
-        self_contact_query_parts: threads per vertex, triangle and edge of the self-contact
-            queries (``SelfContact``'s ``query_parts``: each searches a slice of the query box,
-            and the slices' lists are merged into the same pairs). 1 (default): one thread.
-            Needs ``self_contact_side_memory`` off.
         max_colors: colours of the model's vertex colouring (``ClothModelBuilder(max_colors=...)``,
             which ``sim.simulate`` builds from this field; the solver itself runs any colouring):
             0 (default) a proper colouring (the t-shirt: 4); 3 leaves ~2 % of the t-shirt's edges
@@ -261,7 +257,6 @@ class VBDConfig:
     self_contact_weight_floor: float = 0.5
     self_contact_ee_interior: bool = False
     self_contact_pipeline: bool = False
-    self_contact_query_parts: int = 1
     max_colors: int = 0
     strain_limit: float = 0.0
     strain_limit_passes: int = 4
@@ -282,8 +277,7 @@ class VBDConfig:
                              f"{self.max_colors}")
         if self.strain_limit < 0.0:
             raise ValueError(f"VBDConfig.strain_limit must be >= 0 (0: off), got {self.strain_limit}")
-        for name in ("substeps", "iterations", "self_contact_interval", "strain_limit_passes",
-                     "self_contact_query_parts"):
+        for name in ("substeps", "iterations", "self_contact_interval", "strain_limit_passes"):
             if getattr(self, name) < 1:
                 raise ValueError(f"VBDConfig.{name} must be >= 1, got {getattr(self, name)}")
         if self.self_contact_bounds and self.self_contact_interval != 1:
@@ -293,9 +287,6 @@ class VBDConfig:
                                            or self.self_contact_side_memory):
             raise ValueError("VBDConfig.self_contact_pipeline needs self_contact_interval 1, "
                              "self_contact_bounds off and self_contact_side_memory off")
-        if self.self_contact_query_parts > 1 and self.self_contact_side_memory:
-            raise ValueError("VBDConfig.self_contact_query_parts needs self_contact_side_memory off, got "
-                             f"{self.self_contact_query_parts}")
         if self.gather not in ("auto", "fused", "split"):
             raise ValueError(f"VBDConfig.gather must be 'auto', 'fused' or 'split', got {self.gather!r}")
         if self.membrane not in ("stvk", "corotated"):
@@ -459,7 +450,7 @@ class SolverVBD:
                 relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool,
                 heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes,
                 weight_floor=cfg.self_contact_weight_floor, ee_interior=cfg.self_contact_ee_interior,
-                slots=2 if cfg.self_contact_pipeline else 1, query_parts=cfg.self_contact_query_parts)
+                slots=2 if cfg.self_contact_pipeline else 1)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
