@@ -21,8 +21,8 @@ from benchmarks.common import machine, timed_ms, write_result
 
 
 def kernels(wp):
-    """(bvh query, grid query) kernels: per edge, the count of non-adjacent edges closer than
-    ``r`` and the nearest distance (``r`` if none)."""
+    """(query, bounds) kernels: per edge, the count of non-adjacent edges closer than ``r`` and
+    the nearest distance (``r`` if none); each edge's box and midpoint."""
 
     @wp.func
     def candidate(x: wp.array(dtype=wp.vec3), edges: wp.array(dtype=wp.vec2i), ea: wp.vec2i, e2: int,
@@ -36,34 +36,26 @@ def kernels(wp):
         return count, dmin
 
     @wp.kernel
-    def bvh_query(x: wp.array(dtype=wp.vec3), edges: wp.array(dtype=wp.vec2i), bvh: wp.uint64, r: float,
-                  count_out: wp.array(dtype=wp.int32), dmin_out: wp.array(dtype=float)):
+    def edge_query(x: wp.array(dtype=wp.vec3), edges: wp.array(dtype=wp.vec2i), structure: wp.uint64,
+                   use_grid: int, r: float, reach: float, count_out: wp.array(dtype=wp.int32),
+                   dmin_out: wp.array(dtype=float)):
+        """Through the BVH of the edges' boxes (``use_grid`` 0, ``reach`` unused) or the hash
+        grid of their midpoints (searched within ``reach`` plus half the edge's length)."""
         e = wp.tid()
         ea = edges[e]
         p1 = x[ea[0]]
         q1 = x[ea[1]]
-        query = wp.bvh_query_aabb(bvh, wp.min(p1, q1) - wp.vec3(r), wp.max(p1, q1) + wp.vec3(r))
         e2 = int(0)
         count = int(0)
         dmin = r
-        while wp.bvh_query_next(query, e2):
-            count, dmin = candidate(x, edges, ea, e2, p1, q1, r, count, dmin)
-        count_out[e] = count
-        dmin_out[e] = dmin
-
-    @wp.kernel
-    def grid_query(x: wp.array(dtype=wp.vec3), edges: wp.array(dtype=wp.vec2i), grid: wp.uint64, r: float,
-                   reach: float, count_out: wp.array(dtype=wp.int32), dmin_out: wp.array(dtype=float)):
-        e = wp.tid()
-        ea = edges[e]
-        p1 = x[ea[0]]
-        q1 = x[ea[1]]
-        query = wp.hash_grid_query(grid, 0.5 * (p1 + q1), reach + 0.5 * wp.length(q1 - p1))
-        e2 = int(0)
-        count = int(0)
-        dmin = r
-        while wp.hash_grid_query_next(query, e2):
-            count, dmin = candidate(x, edges, ea, e2, p1, q1, r, count, dmin)
+        if use_grid == 0:
+            query = wp.bvh_query_aabb(structure, wp.min(p1, q1) - wp.vec3(r), wp.max(p1, q1) + wp.vec3(r))
+            while wp.bvh_query_next(query, e2):
+                count, dmin = candidate(x, edges, ea, e2, p1, q1, r, count, dmin)
+        else:
+            cells = wp.hash_grid_query(structure, 0.5 * (p1 + q1), reach + 0.5 * wp.length(q1 - p1))
+            while wp.hash_grid_query_next(cells, e2):
+                count, dmin = candidate(x, edges, ea, e2, p1, q1, r, count, dmin)
         count_out[e] = count
         dmin_out[e] = dmin
 
@@ -77,7 +69,7 @@ def kernels(wp):
         hi[e] = wp.max(a, b)
         mid[e] = 0.5 * (a + b)
 
-    return bvh_query, grid_query, bounds
+    return edge_query, bounds
 
 
 def main() -> None:
@@ -104,7 +96,7 @@ def main() -> None:
     x = wp.array(xv, dtype=wp.vec3, device=device)
     edges = wp.array(edges_np, dtype=wp.vec2i, device=device)
     ne = len(edges_np)
-    bvh_query, grid_query, bounds = kernels(wp)
+    edge_query, bounds = kernels(wp)
     lo, hi, mid = (wp.zeros(ne, dtype=wp.vec3, device=device) for _ in range(3))
     wp.launch(bounds, dim=ne, inputs=[x, edges], outputs=[lo, hi, mid], device=device)
     bvh = wp.Bvh(lo, hi)
@@ -113,7 +105,8 @@ def main() -> None:
     rows = []
     for r in (float(s) for s in args.radii.split(",")):
         def run_bvh(r=r):
-            wp.launch(bvh_query, dim=ne, inputs=[x, edges, bvh.id, r], outputs=[count, dmin], device=device)
+            wp.launch(edge_query, dim=ne, inputs=[x, edges, bvh.id, 0, r, 0.0], outputs=[count, dmin],
+                      device=device)
 
         def refit_bvh():
             wp.launch(bounds, dim=ne, inputs=[x, edges], outputs=[lo, hi, mid], device=device)
@@ -131,7 +124,7 @@ def main() -> None:
             grid.build(mid, cell)
 
             def run_grid(r=r, grid=grid, reach=reach):
-                wp.launch(grid_query, dim=ne, inputs=[x, edges, grid.id, r, reach], outputs=[count, dmin],
+                wp.launch(edge_query, dim=ne, inputs=[x, edges, grid.id, 1, r, reach], outputs=[count, dmin],
                           device=device)
 
             def build_grid(grid=grid, cell=cell):
