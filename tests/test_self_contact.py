@@ -242,12 +242,14 @@ def test_two_stacked_layers_never_pass_through_each_other(device):
     assert _center_gap(x_off, nv, n).min() < -0.02
 
 
-@pytest.mark.parametrize("config", [{}, {"self_contact_pipeline": True}, {"self_contact_ee_interior": True}])
+@pytest.mark.parametrize("config", [{}, {"self_contact_pipeline": True}, {"self_contact_ee_interior": True},
+                                    {"self_contact_lookahead": True}])
 def test_penalty_self_contact_holds_a_gently_dropped_layer(device, config):
     """Without the bounds (the default) the penalty alone stops a layer dropped at 1 m/s (the
     rims, where the loose layer folds over the pinned one's edge, may cross: no guarantee); so
-    does it with each substep's pairs detected during the substep before (``pipeline``) and with
-    edge pairs stored only where their closest points are inside both edges."""
+    does it with each substep's pairs detected during the substep before (``pipeline``), with
+    edge pairs stored only where their closest points are inside both edges, and with each
+    substep's lists re-measured from candidates found a substep ahead (``lookahead``)."""
     x, faces, nv, n = stacked_layers(device, True, bounds=False, speed=1.0, frames=20, **config)
     gap = _center_gap(x, nv, n)
     assert np.all(gap > 0.0) and gap[-1] < 0.03
@@ -666,7 +668,7 @@ def test_detection_finds_exactly_the_pairs_within_the_query_radius(device, motio
     assert len(want) > 50 and len(tv_want) > 50
     assert want <= found and not (found & away)
     assert tv_want <= tv_found and not (tv_found & tv_away)
-    np.testing.assert_allclose(sc._dmin_v.numpy(), dmin, atol=2e-5)
+    np.testing.assert_allclose(sc._dmins[0].numpy(), dmin, atol=2e-5)
 
     edges = m.mesh_edge_indices.numpy()
     ee_found = lists(sc.data.ee_count, sc.data.ee_edge, len(edges))
@@ -684,9 +686,9 @@ def test_detection_finds_exactly_the_pairs_within_the_query_radius(device, motio
         assert all(_point_triangle_distance_np(x[i], *x[f[t]]) < r + sep for i, t in found)
         if frame == 0.0:
             # pairs beyond the margin inside the 25 mm query: in d_min, not in the lists
-            assert sc._dmin_v.numpy().max() > r + 1e-3
+            assert sc._dmins[0].numpy().max() > r + 1e-3
         else:  # in their own frame the layers stand still: every query is the margin
-            assert sc._dmin_v.numpy().max() <= r + 1e-6
+            assert sc._dmins[0].numpy().max() <= r + 1e-6
 
 
 def sheet_and_probe(probe, device: str):
@@ -955,3 +957,68 @@ def test_gather_records_hold_each_vertexs_pairs_in_list_order(device):
             np.testing.assert_array_equal(a["pair_ref"][r], ref)
             kinds.add(0 if role == 0 else 1 if role < 4 else 2)
     assert kinds == {0, 1, 2}
+
+
+def _two_sheets(device, lift: float = 0.0):
+    """The detection test's flat sheet and jittered sheet 2-8 mm above it (``lift`` [m] higher)
+    as one model, with a SelfContact that has a lookahead: (model, contact, positions)."""
+    nx, ny, e = 7, 6, 0.012
+    v1, f1 = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
+    v2 = v1 + np.array([0.4 * e, lift, 0.3 * e], np.float32)
+    v2[:, 1] = np.random.default_rng(5).uniform(0.002, 0.008, len(v2)) + lift
+    v = np.concatenate([v1, v2]).astype(np.float32)
+    b = ClothModelBuilder()
+    b.add_cloth(v, np.concatenate([f1, f1 + len(v1)]).astype(np.int32), ClothMaterialParams())
+    m = b.finalize(device)
+    sc = SelfContact(m, radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45,
+                     speed_factor=2.5, capacity=128, bounds=False, lookahead=0.001)
+    return m, sc, v
+
+
+def _all_lists(sc, m) -> dict:
+    """Every list of ``sc`` as a set of (owner, partner) pairs, and each vertex's record count."""
+    ne = m.mesh_edge_indices.shape[0]
+    return {"vt": _stored(sc, m.particle_count, "vt_tri", "vt_count"),
+            "tv": _stored(sc, m.tri_count, "tv_vertex", "tv_count"),
+            "ee": _stored(sc, ne, "ee_edge", "ee_count"),
+            "records": sc.data.pair_count.numpy().tolist()}
+
+
+@pytest.mark.parametrize("motion", ["still", "sliding", "approaching"])
+def test_lists_remeasured_from_lookahead_candidates_equal_a_detection(device, motion):
+    """``remeasure`` re-tests the candidates a query over two substeps found a substep earlier,
+    without a tree: after the cloth moved one substep at its velocity (still, the upper sheet
+    sliding at 3 m/s, or coming down at 1 m/s), its lists and gather records are exactly those a
+    full detection at the new positions gives (as sets: the order follows the candidates'), and
+    there are many of them."""
+    m, sc, v = _two_sheets(device)
+    h = 1.0 / 300.0
+    vel = np.zeros_like(v)
+    top = slice(len(v) // 2, None)
+    vel[top] = {"still": (0.0, 0.0, 0.0), "sliding": (3.0, 0.0, 0.0), "approaching": (0.0, -1.0, 0.0)}[motion]
+    velocities = wp.array(vel, dtype=wp.vec3, device=device)
+    sc.query_candidates(m.particle_q, velocities, 2.0 * h)
+    moved = wp.array(v + vel * h, dtype=wp.vec3, device=device)
+    sc.remeasure(moved, velocities, h)
+    remeasured = _all_lists(sc, m)
+    sc.detect(moved, velocities, h)
+    detected = _all_lists(sc, m)
+    assert remeasured == detected
+    assert len(detected["vt"]) > 50 and len(detected["tv"]) > 50 and len(detected["ee"]) > 50
+
+
+def test_remeasure_finds_only_what_the_candidate_query_saw(device):
+    """The remeasured lists come from the candidates alone: candidates queried with the upper sheet
+    5 cm up hold nothing, so lists remeasured after it came down are empty where a detection at
+    the same positions finds the pairs."""
+    m, sc, v = _two_sheets(device, lift=0.05)
+    h = 1.0 / 300.0
+    velocities = wp.zeros(len(v), dtype=wp.vec3, device=device)
+    sc.query_candidates(m.particle_q, velocities, 2.0 * h)
+    down = v.copy()
+    down[len(v) // 2:, 1] -= 0.05
+    moved = wp.array(down, dtype=wp.vec3, device=device)
+    sc.remeasure(moved, velocities, h)
+    assert all(not pairs for key, pairs in _all_lists(sc, m).items() if key != "records")
+    sc.detect(moved, velocities, h)
+    assert len(_all_lists(sc, m)["vt"]) > 50

@@ -88,6 +88,7 @@ class SelfContactData:
     side_memory: int
     relative_lists: int
     ee_interior: int
+    candidates: int
     radius: float
     stiffness: float
     friction: float
@@ -664,6 +665,15 @@ def query_radius(margin: float, speed: float, h: float, speed_factor: float) -> 
 
 
 @wp.func
+def skip_radius(sc: SelfContactData, r: float) -> float:
+    """The distance from which a query's hits are skipped: the query radius ``r``, or for a
+    candidate query (``candidates``) none (``list_pair``'s relative radius alone decides)."""
+    if sc.candidates != 0:
+        return 1.0e30
+    return r
+
+
+@wp.func
 def list_pair(sc: SelfContactData, d: float, v_rel: wp.vec3, margin: float, speed_factor: float,
               h: float) -> bool:
     """Whether a pair found at distance ``d`` < the query radius is stored for the solve: with
@@ -797,9 +807,49 @@ def vertex_triangle_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v
     return wp.min(dmin, d), count
 
 
+@wp.func
+def edge_edge_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), e: int,
+                        ea: wp.vec2i, p1: wp.vec3, q1: wp.vec3, e2: int, eb: wp.vec2i, r: float,
+                        margin: float, speed_factor: float, h: float, dmin: float, count: int):
+    """An edge ``e`` (ends ``ea`` at ``p1``, ``q1``) / edge ``e2`` (ends ``eb``, sharing none)
+    candidate, as ``vertex_triangle_candidate`` for a vertex and a triangle: the nearest distance
+    so far and ``e``'s list count after it."""
+    p2 = load_vec3(x, eb[0])
+    q2 = load_vec3(x, eb[1])
+    st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
+    d = st[2]
+    if d >= r:
+        return dmin, count
+    v_rel = wp.lerp(load_vec3(v, ea[0]), load_vec3(v, ea[1]), st[0]) - wp.lerp(load_vec3(v, eb[0]),
+                                                                              load_vec3(v, eb[1]), st[1])
+    stored = list_pair(sc, d, v_rel, margin, speed_factor, h)
+    if stored and sc.ee_interior != 0:
+        # closest point at an edge's end: a point-edge or point-point distance, which the
+        # vertex-triangle pairs of that end already hold (``SelfContact``, ``ee_interior``)
+        stored = st[0] > 0.0 and st[0] < 1.0 and st[1] > 0.0 and st[1] < 1.0
+    if not stored and d >= dmin:
+        return dmin, count
+    code = rest_class(sc, rest_distance_edges(sc, ea, eb))
+    if code < 0:
+        return dmin, count
+    if code == 0:
+        dmin = wp.min(dmin, d)
+    if stored:
+        diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
+        interior = wp.min(wp.min(st[0], 1.0 - st[0]), wp.min(st[1], 1.0 - st[1])) > INTERIOR
+        count = store_pair(sc.ee_edge, sc.ee_dist, sc.ee_ref, sc.ee_rk, sc.ee_edge_prev, sc.ee_ref_prev,
+                           sc.ee_count_prev, sc.side_memory, e, sc.ee_capacity, count, e2, d, diff,
+                           interior, code, sc.radius)
+    return dmin, count
+
+
 @wp.kernel
 def primitive_bounds_kernel(
     x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    reference: wp.array(dtype=wp.vec3),
+    expand: float,
     tri_indices: wp.array(dtype=wp.vec3i),
     mesh_edges: wp.array(dtype=wp.vec2i),
     tri_count: int,
@@ -808,26 +858,54 @@ def primitive_bounds_kernel(
     uppers_tri_out: wp.array(dtype=wp.vec3),
     lowers_edge_out: wp.array(dtype=wp.vec3),
     uppers_edge_out: wp.array(dtype=wp.vec3),
-    points_out: wp.array(dtype=wp.vec3),
+    lowers_point_out: wp.array(dtype=wp.vec3),
+    uppers_point_out: wp.array(dtype=wp.vec3),
 ):
     """Axis-aligned boxes of every triangle (threads < tri_count) and edge (the next
-    edge_count), and the vertices (the rest; the vertex BVH's boxes are points)."""
+    edge_count), and the vertices (the rest: points), each grown by ``expand`` times the
+    largest speed of its vertices relative to their instance's ``reference`` velocity (a
+    candidate query's trees: the reach of the primitive's own motion; 0: the boxes at ``x``)."""
     k = wp.tid()
+    a = wp.vec3()
+    b = wp.vec3()
+    speed = float(0.0)
     if k >= tri_count + edge_count:
-        points_out[k - tri_count - edge_count] = x[k - tri_count - edge_count]
+        i = k - tri_count - edge_count
+        a = x[i]
+        b = a
+        if expand > 0.0:
+            speed = wp.length(v[i] - reference[particle_instance[i]])
     elif k < tri_count:
         t = tri_indices[k]
-        a = x[t[0]]
-        b = x[t[1]]
+        p = x[t[0]]
+        q = x[t[1]]
         c = x[t[2]]
-        lowers_tri_out[k] = wp.min(wp.min(a, b), c)
-        uppers_tri_out[k] = wp.max(wp.max(a, b), c)
+        a = wp.min(wp.min(p, q), c)
+        b = wp.max(wp.max(p, q), c)
+        if expand > 0.0:
+            vr = reference[particle_instance[t[0]]]
+            speed = wp.max(wp.max(wp.length(v[t[0]] - vr), wp.length(v[t[1]] - vr)), wp.length(v[t[2]] - vr))
     else:
         e = mesh_edges[k - tri_count]
-        a = x[e[0]]
-        b = x[e[1]]
-        lowers_edge_out[k - tri_count] = wp.min(a, b)
-        uppers_edge_out[k - tri_count] = wp.max(a, b)
+        p = x[e[0]]
+        q = x[e[1]]
+        a = wp.min(p, q)
+        b = wp.max(p, q)
+        if expand > 0.0:
+            vr = reference[particle_instance[e[0]]]
+            speed = wp.max(wp.length(v[e[0]] - vr), wp.length(v[e[1]] - vr))
+    grow = wp.vec3(expand * speed)
+    a = a - grow
+    b = b + grow
+    if k >= tri_count + edge_count:
+        lowers_point_out[k - tri_count - edge_count] = a
+        uppers_point_out[k - tri_count - edge_count] = b
+    elif k < tri_count:
+        lowers_tri_out[k] = a
+        uppers_tri_out[k] = b
+    else:
+        lowers_edge_out[k - tri_count] = a
+        uppers_edge_out[k - tri_count] = b
 
 
 @wp.kernel
@@ -863,7 +941,8 @@ def detect_vertex_kernel(
     r = query_radius(margin, wp.length(v[i] - sc.reference[inst]), h, speed_factor)
     query = wp.bvh_query_aabb(tri_bvh, xi - wp.vec3(r), xi + wp.vec3(r), tri_roots[inst])
     t = int(0)
-    dmin = r
+    rs = skip_radius(sc, r)
+    dmin = rs
     count = int(0)
     while wp.bvh_query_next(query, t):
         tri = load_vec3i(tri_indices, t)
@@ -871,7 +950,7 @@ def detect_vertex_kernel(
             continue
         if load_int(particle_instance, tri[0]) != inst:
             continue
-        dmin, count = vertex_triangle_candidate(sc, x, v, i, tri, r, margin, speed_factor, h, dmin, count,
+        dmin, count = vertex_triangle_candidate(sc, x, v, i, tri, rs, margin, speed_factor, h, dmin, count,
                                                 sc.vt_tri, sc.vt_dist, sc.vt_ref, sc.vt_rk, sc.vt_tri_prev,
                                                 sc.vt_ref_prev, sc.vt_count_prev, i, sc.vt_capacity, t)
     sc.vt_count[i] = count
@@ -909,12 +988,13 @@ def detect_triangle_kernel(
     hi = wp.max(wp.max(a, b), c) + wp.vec3(r)
     query = wp.bvh_query_aabb(vertex_bvh, lo, hi, vertex_roots[inst])
     u = int(0)
-    dmin = r
+    rs = skip_radius(sc, r)
+    dmin = rs
     count = int(0)
     while wp.bvh_query_next(query, u):
         if u == tri[0] or u == tri[1] or u == tri[2] or load_int(particle_instance, u) != inst:
             continue
-        dmin, count = vertex_triangle_candidate(sc, x, v, u, tri, r, margin, speed_factor, h, dmin, count,
+        dmin, count = vertex_triangle_candidate(sc, x, v, u, tri, rs, margin, speed_factor, h, dmin, count,
                                                 sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_rk,
                                                 sc.tv_vertex_prev, sc.tv_ref_prev, sc.tv_count_prev, t,
                                                 sc.tv_capacity, u)
@@ -947,7 +1027,8 @@ def detect_edge_kernel(
     query = wp.bvh_query_aabb(edge_bvh, wp.min(p1, q1) - wp.vec3(r), wp.max(p1, q1) + wp.vec3(r),
                               edge_roots[inst])
     e2 = int(0)
-    dmin = r
+    rs = skip_radius(sc, r)
+    dmin = rs
     count = int(0)
     while wp.bvh_query_next(query, e2):
         eb = load_vec2i(sc.mesh_edges, e2)
@@ -955,33 +1036,83 @@ def detect_edge_kernel(
             continue
         if load_int(particle_instance, eb[0]) != inst:
             continue
-        p2 = load_vec3(x, eb[0])
-        q2 = load_vec3(x, eb[1])
-        st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-12)
-        d = st[2]
-        if d >= r:
-            continue
-        v_rel = wp.lerp(v[ea[0]], v[ea[1]], st[0]) - wp.lerp(load_vec3(v, eb[0]), load_vec3(v, eb[1]), st[1])
-        stored = list_pair(sc, d, v_rel, margin, speed_factor, h)
-        if stored and sc.ee_interior != 0:
-            # closest point at an edge's end: a point-edge or point-point distance, which the
-            # vertex-triangle pairs of that end already hold (``SelfContact``, ``ee_interior``)
-            stored = st[0] > 0.0 and st[0] < 1.0 and st[1] > 0.0 and st[1] < 1.0
-        if not stored and d >= dmin:
-            continue
-        code = rest_class(sc, rest_distance_edges(sc, ea, eb))
-        if code < 0:
-            continue
-        if code == 0:
-            dmin = wp.min(dmin, d)
-        if stored:
-            diff = (p1 + st[0] * (q1 - p1)) - (p2 + st[1] * (q2 - p2))
-            interior = wp.min(wp.min(st[0], 1.0 - st[0]), wp.min(st[1], 1.0 - st[1])) > INTERIOR
-            count = store_pair(sc.ee_edge, sc.ee_dist, sc.ee_ref, sc.ee_rk, sc.ee_edge_prev, sc.ee_ref_prev,
-                               sc.ee_count_prev, sc.side_memory, e, sc.ee_capacity, count, e2, d, diff,
-                               interior, code, sc.radius)
+        dmin, count = edge_edge_candidate(sc, x, v, e, ea, p1, q1, e2, eb, rs, margin, speed_factor, h, dmin,
+                                          count)
     sc.ee_count[e] = count
     dmin_out[e] = dmin
+
+
+@wp.kernel
+def remeasure_kernel(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    particle_count: int,
+    tri_count: int,
+    margin: float,
+    speed_factor: float,
+    h: float,
+    cand: SelfContactData,
+    sc: SelfContactData,
+    dmin_vertex: wp.array(dtype=float),
+    dmin_tri: wp.array(dtype=float),
+    dmin_edge: wp.array(dtype=float),
+):
+    """The detection of ``detect_vertex_kernel``, ``detect_triangle_kernel`` and
+    ``detect_edge_kernel`` at ``x`` with ``v``, over the candidate pairs in ``cand``'s lists
+    instead of a tree query (``SelfContact.lookahead``): threads below ``particle_count`` the
+    vertices, then the triangles, then the edges. Each candidate goes through the same test
+    (``vertex_triangle_candidate``, ``edge_edge_candidate``) with the same query radius, so
+    where the candidates hold every pair the query would find, the lists hold the same pairs
+    (in the candidates' order)."""
+    k = wp.tid()
+    if k < particle_count:
+        inst = load_int(particle_instance, k)
+        r = query_radius(margin, wp.length(load_vec3(v, k) - sc.reference[inst]), h, speed_factor)
+        dmin = r
+        count = int(0)
+        for j in range(cand.vt_count[k]):
+            t = cand.vt_tri[k * cand.vt_capacity + j]
+            dmin, count = vertex_triangle_candidate(sc, x, v, k, load_vec3i(tri_indices, t), r, margin,
+                                                    speed_factor, h, dmin, count, sc.vt_tri, sc.vt_dist,
+                                                    sc.vt_ref, sc.vt_rk, sc.vt_tri_prev, sc.vt_ref_prev,
+                                                    sc.vt_count_prev, k, sc.vt_capacity, t)
+        sc.vt_count[k] = count
+        dmin_vertex[k] = dmin
+    elif k < particle_count + tri_count:
+        t = k - particle_count
+        tri = load_vec3i(tri_indices, t)
+        vr = sc.reference[load_int(particle_instance, tri[0])]
+        speed = wp.max(wp.max(wp.length(load_vec3(v, tri[0]) - vr), wp.length(load_vec3(v, tri[1]) - vr)),
+                       wp.length(load_vec3(v, tri[2]) - vr))
+        r = query_radius(margin, speed, h, speed_factor)
+        dmin = r
+        count = int(0)
+        for j in range(cand.tv_count[t]):
+            u = cand.tv_vertex[t * cand.tv_capacity + j]
+            dmin, count = vertex_triangle_candidate(sc, x, v, u, tri, r, margin, speed_factor, h, dmin, count,
+                                                    sc.tv_vertex, sc.tv_dist, sc.tv_ref, sc.tv_rk,
+                                                    sc.tv_vertex_prev, sc.tv_ref_prev, sc.tv_count_prev, t,
+                                                    sc.tv_capacity, u)
+        sc.tv_count[t] = count
+        dmin_tri[t] = dmin
+    else:
+        e = k - particle_count - tri_count
+        ea = load_vec2i(sc.mesh_edges, e)
+        p1 = load_vec3(x, ea[0])
+        q1 = load_vec3(x, ea[1])
+        vr = sc.reference[load_int(particle_instance, ea[0])]
+        speed = wp.max(wp.length(load_vec3(v, ea[0]) - vr), wp.length(load_vec3(v, ea[1]) - vr))
+        r = query_radius(margin, speed, h, speed_factor)
+        dmin = r
+        count = int(0)
+        for j in range(cand.ee_count[e]):
+            e2 = cand.ee_edge[e * cand.ee_capacity + j]
+            dmin, count = edge_edge_candidate(sc, x, v, e, ea, p1, q1, e2, load_vec2i(sc.mesh_edges, e2), r,
+                                              margin, speed_factor, h, dmin, count)
+        sc.ee_count[e] = count
+        dmin_edge[e] = dmin
 
 
 @wp.func
@@ -1260,13 +1391,18 @@ class SelfContact:
             can fill in turn (``SelfContact.datas``; ``data`` is slot 0), so one detection can
             run while the solve reads another's (``VBDConfig.self_contact_pipeline``). The BVHs
             are shared: detections must not overlap each other.
+        lookahead: None (default) or the widening [m] of the candidate queries' margin
+            (``VBDConfig.self_contact_lookahead``): ``query_candidates`` stores the candidate pairs
+            of a query over two substeps of motion, beside the solve, and ``remeasure`` then
+            forms each substep's lists from them without a tree query. Needs bounds off and one
+            slot.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
-                 ee_interior: bool = False, slots: int = 1):
+                 ee_interior: bool = False, slots: int = 1, lookahead: float | None = None):
         w = warp()
         d = model.device
         self.model = model
@@ -1280,6 +1416,7 @@ class SelfContact:
         sc.side_memory = 1 if side_memory else 0
         sc.relative_lists = 1 if relative_lists else 0
         sc.ee_interior = 1 if ee_interior else 0
+        sc.candidates = 0
         sc.radius = float(radius)
         sc.stiffness = float(stiffness)
         sc.friction = float(friction)
@@ -1344,16 +1481,30 @@ class SelfContact:
         if slots < 1 or (slots > 1 and side_memory):
             raise ValueError(f"SelfContact: slots must be >= 1, and 1 with side_memory (a detection's "
                              f"previous lists are its own slot's), got {slots}")
-        self.datas = [sc] + [self._copy_outputs(sc) for _ in range(slots - 1)]
+        self.datas = [sc] + [self._copy_outputs(sc, DETECTION_OUTPUTS) for _ in range(slots - 1)]
         self.data = sc
-        self._dmin_v = w.zeros(n, dtype=float, device=d)
-        self._dmin_t = w.zeros(nt, dtype=float, device=d)
-        self._dmin_e = w.zeros(ne, dtype=float, device=d)
+        self._dmins = tuple(w.zeros(size, dtype=float, device=d) for size in (n, nt, ne))
+        # the lookahead's candidate lists and their own nearest distances (a candidate query runs
+        # beside the solve, which reads the substep's lists and bounds)
+        self.lookahead = lookahead
+        self.candidates = None
+        if lookahead is not None:
+            if lookahead < 0.0:
+                raise ValueError(f"SelfContact: lookahead must be >= 0 (or None: off), got {lookahead}")
+            if bounds or slots > 1 or not relative_lists:
+                raise ValueError("SelfContact: lookahead needs bounds off, relative lists and one slot (its "
+                                 "lists are re-measured from candidates found by relative speed)")
+            self.candidates = self._copy_outputs(sc, LIST_OUTPUTS)
+            self.candidates.side_memory = 0
+            self.candidates.ee_interior = 0
+            self.candidates.candidates = 1
+            self._candidate_dmins = tuple(w.zeros(size, dtype=float, device=d) for size in (n, nt, ne))
         self._lo_t = w.zeros(nt, dtype=w.vec3, device=d)
         self._hi_t = w.zeros(nt, dtype=w.vec3, device=d)
         self._lo_e = w.zeros(ne, dtype=w.vec3, device=d)
         self._hi_e = w.zeros(ne, dtype=w.vec3, device=d)
-        self._points = w.zeros(n, dtype=w.vec3, device=d)
+        self._lo_p = w.zeros(n, dtype=w.vec3, device=d)
+        self._hi_p = w.zeros(n, dtype=w.vec3, device=d)
         # where each triangle corner / edge end sits in its vertex's incidence list
         # (``pair_records_kernel``)
         self._tri_slot = w.array(incidence_slots(model.vertex_tri_ids.numpy(),
@@ -1365,7 +1516,7 @@ class SelfContact:
         self._update_bounds(model.particle_q)
         self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
         self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
-        self.vertex_bvh = w.Bvh(self._points, self._points, groups=model.particle_instance)
+        self.vertex_bvh = w.Bvh(self._lo_p, self._hi_p, groups=model.particle_instance)
         # each instance's subtree root per tree (triangles, vertices, edges), refound at rebuilds
         self._roots = [w.zeros(model.instance_count, dtype=w.int32, device=d) for _ in range(3)]
         self.find_roots()
@@ -1389,14 +1540,14 @@ class SelfContact:
                       outputs=[self._roots[k]], device=self.model.device)
 
     @staticmethod
-    def _copy_outputs(sc: SelfContactData) -> SelfContactData:
+    def _copy_outputs(sc: SelfContactData, outputs: frozenset) -> SelfContactData:
         """A ``SelfContactData`` with ``sc``'s settings and model arrays and its own (zeroed)
-        detection outputs, ``DETECTION_OUTPUTS``."""
+        arrays ``outputs`` (``DETECTION_OUTPUTS``, ``LIST_OUTPUTS``)."""
         w = warp()
         out = SelfContactData()
         for name in SelfContactData.vars:
             value = getattr(sc, name)
-            setattr(out, name, w.zeros_like(value) if name in DETECTION_OUTPUTS else value)
+            setattr(out, name, w.zeros_like(value) if name in outputs else value)
         return out
 
     @staticmethod
@@ -1410,38 +1561,41 @@ class SelfContact:
         adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
         return connected_components(adj, directed=False)[1].astype(np.int32)
 
-    def _update_bounds(self, x) -> None:
+    def _update_bounds(self, x, v=None, expand: float = 0.0) -> None:
+        """The trees' boxes at ``x`` (``primitive_bounds_kernel``), grown by ``expand`` [s] times
+        each primitive's speed in ``v`` (a candidate query's)."""
         m = self.model
         ne = self._lo_e.shape[0]
         warp().launch(primitive_bounds_kernel, dim=m.tri_count + ne + m.particle_count,
-                      inputs=[x, m.tri_indices, m.mesh_edge_indices, m.tri_count, ne],
-                      outputs=[self._lo_t, self._hi_t, self._lo_e, self._hi_e, self._points], device=m.device)
+                      inputs=[x, x if v is None else v, m.particle_instance, self.data.reference,
+                              float(expand), m.tri_indices, m.mesh_edge_indices, m.tri_count, ne],
+                      outputs=[self._lo_t, self._hi_t, self._lo_e, self._hi_e, self._lo_p, self._hi_p],
+                      device=m.device)
 
-    def _query(self, kernel, dim: int, x0, v, h: float, inputs: list, out, slot: int) -> None:
-        """One detection kernel over ``dim`` primitives: ``(x0, v, particle_instance, *inputs,
-        margin, speed_factor, h, data) -> out`` (the BVHs must be fitted to ``x0``) into slot
-        ``slot``'s outputs."""
+    def _query(self, k: int, x0, v, h: float, data: SelfContactData, margin: float, out) -> None:
+        """Detection kernel ``k`` (0 vertices, 1 triangles, 2 edges: ``detect_vertex_kernel``,
+        ``detect_triangle_kernel``, ``detect_edge_kernel``) at ``x0`` (the BVHs must be fitted to
+        it) with query margin ``margin``: the pairs into ``data``'s lists, the nearest distances
+        into ``out``."""
         m = self.model
-        warp().launch(kernel, dim=dim, inputs=[x0, v, m.particle_instance, *inputs, self.margin,
-                                               self.speed_factor, h, self.datas[slot]],
-                      outputs=[out], device=m.device)
+        kernel, dim, inputs = (
+            (detect_vertex_kernel, m.particle_count, [m.tri_indices, self.tri_bvh.id, self._roots[0]]),
+            (detect_triangle_kernel, m.tri_count, [m.tri_indices, self.vertex_bvh.id, self._roots[1]]),
+            (detect_edge_kernel, self._lo_e.shape[0], [self.edge_bvh.id, self._roots[2]]))[k]
+        warp().launch(kernel, dim=dim, inputs=[x0, v, m.particle_instance, *inputs, margin, self.speed_factor,
+                                               h, data], outputs=[out], device=m.device)
 
     def query_vertices(self, x0, v, h: float, slot: int = 0) -> None:
         """``detect_vertex_kernel``: each vertex's VT pairs and nearest triangle distance."""
-        m = self.model
-        self._query(detect_vertex_kernel, m.particle_count, x0, v, h,
-                    [m.tri_indices, self.tri_bvh.id, self._roots[0]], self._dmin_v, slot)
+        self._query(0, x0, v, h, self.datas[slot], self.margin, self._dmins[0])
 
     def query_triangles(self, x0, v, h: float, slot: int = 0) -> None:
         """``detect_triangle_kernel``: each triangle's TV pairs and nearest vertex distance."""
-        m = self.model
-        self._query(detect_triangle_kernel, m.tri_count, x0, v, h,
-                    [m.tri_indices, self.vertex_bvh.id, self._roots[1]], self._dmin_t, slot)
+        self._query(1, x0, v, h, self.datas[slot], self.margin, self._dmins[1])
 
     def query_edges(self, x0, v, h: float, slot: int = 0) -> None:
         """``detect_edge_kernel``: each edge's EE pairs and nearest edge distance."""
-        self._query(detect_edge_kernel, self._lo_e.shape[0], x0, v, h, [self.edge_bvh.id, self._roots[2]],
-                    self._dmin_e, slot)
+        self._query(2, x0, v, h, self.datas[slot], self.margin, self._dmins[2])
 
     def refresh_sides(self, x0, slot: int = 0) -> None:
         """Bring the side reference of every pair in slot ``slot`` to ``x0``
@@ -1463,35 +1617,82 @@ class SelfContact:
         bounds; ``v`` [m/s] are the velocities the substep starts with, ``reference`` each
         instance's reference velocity (vec3 (I,), ``ClothControl.instance_velocity``; None:
         the one set last, zeros at first). The outputs go to ``datas[slot]``."""
+        sc = self._start_detection(reference, slot)
+        self._tree_queries(x0, v, h, rebuild, sc, self.margin, self._dmins)
+        self._records(sc)
+
+    def _start_detection(self, reference, slot: int = 0) -> SelfContactData:
+        """Slot ``slot``'s data, with the instances' ``reference`` velocities set (None: kept)
+        and, with side memory, its lists kept as the previous ones."""
         w = warp()
-        m = self.model
-        d = m.device
         sc = self.datas[slot]
         if reference is not None:
             for data in self.datas:
                 data.reference = reference
+            if self.candidates is not None:
+                self.candidates.reference = reference
         for name, ids in (("vt", "tri"), ("tv", "vertex"), ("ee", "edge")) if sc.side_memory else ():
             w.copy(getattr(sc, f"{name}_count_prev"), getattr(sc, f"{name}_count"))
             w.copy(getattr(sc, f"{name}_{ids}_prev"), getattr(sc, f"{name}_{ids}"))
             w.copy(getattr(sc, f"{name}_ref_prev"), getattr(sc, f"{name}_ref"))
-        self._update_bounds(x0)
+        return sc
+
+    def _tree_queries(self, x0, v, h: float, rebuild: bool, data: SelfContactData, margin: float,
+                      dmins: tuple) -> None:
+        """Fit (``rebuild``: build) the trees to ``x0`` and run the three queries (``_query``); for
+        ``data`` of a candidate query, to the boxes grown by each primitive's own reach over ``h``
+        (``primitive_bounds_kernel``), so that a slow primitive's query meets a fast one coming."""
+        self._update_bounds(x0, v, self.speed_factor * h if data.candidates else 0.0)
         # three independent chains (refit a tree, query it), each on its own stream on CUDA:
         # the queries are latency-bound (a few thousand threads), so they overlap almost fully
-        queries = (self.query_vertices, self.query_triangles, self.query_edges)
-        for k, (bvh, query) in enumerate(zip(self.bvhs, queries, strict=True)):
+        for k, bvh in enumerate(self.bvhs):
             with self._side.on(k):
                 if rebuild:
                     bvh.rebuild()
                     self._find_roots(k, bvh)
                 else:
                     bvh.refit()
-                query(x0, v, h, slot)
+                self._query(k, x0, v, h, data, margin, dmins[k])
         self._side.join()
+
+    def query_candidates(self, x0, v, h: float, rebuild: bool = False, reference=None) -> None:
+        """The lookahead's candidate pairs (``lookahead`` set): a detection at ``x0`` over
+        ``h`` [s] of motion (the solver passes two substeps: this one and the next) with the
+        margin widened by ``lookahead`` [m], into ``candidates``' lists, for ``remeasure`` at
+        this substep's start and the next one's."""
+        if self.candidates is None:
+            raise ValueError("SelfContact.query_candidates needs a lookahead")
+        self._start_detection(reference)
+        self._tree_queries(x0, v, h, rebuild, self.candidates, self.margin + self.lookahead,
+                           self._candidate_dmins)
+
+    def remeasure(self, x0, v, h: float) -> None:
+        """``detect`` at ``x0`` over the candidate pairs of the last ``query_candidates``
+        (``remeasure_kernel``) instead of the trees: the same tests, radii and records, one
+        thread per primitive and no traversal. The lists equal a detection's as long as the
+        candidates hold every pair it would find (the cloth moved less since the candidate
+        query than its widened radius covers)."""
+        if self.candidates is None:
+            raise ValueError("SelfContact.remeasure needs a lookahead")
+        m = self.model
+        sc = self._start_detection(None)
+        warp().launch(remeasure_kernel, dim=m.particle_count + m.tri_count + self._lo_e.shape[0],
+                      inputs=[x0, v, m.particle_instance, m.tri_indices, m.particle_count, m.tri_count,
+                              self.margin, self.speed_factor, h, self.candidates, sc],
+                      outputs=list(self._dmins), device=m.device)
+        self._records(sc)
+
+    def _records(self, sc: SelfContactData) -> None:
+        """The bounds and gather records of ``sc``'s lists (``vertex_summary_kernel``,
+        ``pair_records_kernel``)."""
+        w = warp()
+        m = self.model
+        d = m.device
         sc.pair_cursor.zero_()
         if sc.heavy_cap > 0:
             sc.heavy_count.zero_()
         w.launch(vertex_summary_kernel, dim=m.particle_count,
-                 inputs=[self._dmin_v, self._dmin_t, self._dmin_e, m.vertex_tri_offsets, m.vertex_tri_ids,
+                 inputs=[*self._dmins, m.vertex_tri_offsets, m.vertex_tri_ids,
                          self.relaxation, sc], device=d)
         nt, ne = m.tri_count, self._lo_e.shape[0]
         w.launch(pair_records_kernel, dim=m.particle_count + nt + ne,
@@ -1504,6 +1705,9 @@ DETECTION_OUTPUTS = frozenset((
     "vt_ref", "tv_ref", "ee_ref", "vt_rk", "tv_rk", "ee_rk", "tv_total", "ee_total", "tv_first", "ee_first",
     "pair_first", "pair_count", "pair_verts", "pair_role", "pair_ref", "pair_cursor", "heavy", "heavy_list",
     "heavy_count", "bound"))
+# the pair lists (``SelfContact.candidates`` has its own)
+LIST_OUTPUTS = frozenset(f"{kind}_{name}" for kind, ids in (("vt", "tri"), ("tv", "vertex"), ("ee", "edge"))
+                         for name in ("count", ids, "dist", "ref", "rk"))
 
 
 def disabled_data(device) -> SelfContactData:
@@ -1515,6 +1719,7 @@ def disabled_data(device) -> SelfContactData:
     sc.side_memory = 0
     sc.relative_lists = 0
     sc.ee_interior = 0
+    sc.candidates = 0
     sc.radius = 0.0
     sc.stiffness = 0.0
     sc.weight_floor = 0.0

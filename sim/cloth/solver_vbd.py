@@ -165,6 +165,16 @@ class VBDConfig:
             it twice. On the folded t-shirt run ~80 % of the stored edge pairs were of that kind
             (session 21). H100, 16x10: population 37/48 against 38/48, 1-4 % faster; off by
             default (docs/BENCHMARKS.md, session 21).
+        self_contact_lookahead: form each substep's pair lists from candidate pairs found a substep
+            ahead (``SelfContact.query_candidates``, ``remeasure``): at a step's first substep a
+            query over two substeps of motion (``2 h``) with the margin widened by
+            ``self_contact_lookahead_margin``, and at substep ``s`` (0 < s < substeps - 1) the
+            same query for ``s + 1`` on a side stream beside the sweeps (CUDA). Each substep then
+            re-measures only its candidates at its own start positions and velocities, with the
+            detection's own tests and radii: no tree refit or traversal on the critical path, and
+            no lists from stale positions (the pipeline's). Needs ``self_contact_interval`` 1, no
+            bounds and no pipeline.
+        self_contact_lookahead_margin: widening [m] of the candidate queries' margin.
         self_contact_pipeline: detect the pairs of substep ``s + 1`` during substep ``s``, on a
             side stream beside the sweeps (CUDA), from the positions and velocities ``s`` starts
             with and a query that covers two substeps of motion (``2 h``); only the first substep
@@ -257,6 +267,8 @@ class VBDConfig:
     self_contact_weight_floor: float = 0.5
     self_contact_ee_interior: bool = False
     self_contact_pipeline: bool = False
+    self_contact_lookahead: bool = False
+    self_contact_lookahead_margin: float = 0.001
     max_colors: int = 0
     strain_limit: float = 0.0
     strain_limit_passes: int = 4
@@ -287,6 +299,13 @@ class VBDConfig:
                                            or self.self_contact_side_memory):
             raise ValueError("VBDConfig.self_contact_pipeline needs self_contact_interval 1, "
                              "self_contact_bounds off and self_contact_side_memory off")
+        if self.self_contact_lookahead and (self.self_contact_interval != 1 or self.self_contact_bounds
+                                            or self.self_contact_pipeline):
+            raise ValueError("VBDConfig.self_contact_lookahead needs self_contact_interval 1, "
+                             "self_contact_bounds off and self_contact_pipeline off")
+        if self.self_contact_lookahead_margin < 0.0:
+            raise ValueError("VBDConfig.self_contact_lookahead_margin must be >= 0, got "
+                             f"{self.self_contact_lookahead_margin}")
         if self.gather not in ("auto", "fused", "split"):
             raise ValueError(f"VBDConfig.gather must be 'auto', 'fused' or 'split', got {self.gather!r}")
         if self.membrane not in ("stvk", "corotated"):
@@ -450,7 +469,8 @@ class SolverVBD:
                 relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool,
                 heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes,
                 weight_floor=cfg.self_contact_weight_floor, ee_interior=cfg.self_contact_ee_interior,
-                slots=2 if cfg.self_contact_pipeline else 1)
+                slots=2 if cfg.self_contact_pipeline else 1,
+                lookahead=cfg.self_contact_lookahead_margin if cfg.self_contact_lookahead else None)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
@@ -594,7 +614,20 @@ class SolverVBD:
             else:
                 self._contact_active.zero_()
             sc_data = self._sc_data
-            if self.self_contact is not None and s % cfg.self_contact_interval == 0 and (s == 0 or not pipe):
+            if self.self_contact is not None and cfg.self_contact_lookahead:
+                if s == 0:
+                    # the step's first candidates, over this substep's motion and the next's
+                    self.self_contact.query_candidates(self._x_prev, v, 2.0 * h,
+                                                       rebuild=cfg.self_contact_rebuild,
+                                                       reference=control.instance_velocity)
+                self.self_contact.remeasure(self._x_prev, v, h)
+                if 0 < s < cfg.substeps - 1:
+                    # the next substep's candidates beside this substep's sweeps, from its start
+                    # over both substeps' motion; joined before x_prev and v change
+                    with self._pipe.on(0):
+                        self.self_contact.query_candidates(self._x_prev, v, 2.0 * h)
+            elif (self.self_contact is not None and s % cfg.self_contact_interval == 0
+                  and (s == 0 or not pipe)):
                 # pairs found now serve the next ``interval`` substeps: the query covers that motion
                 self.self_contact.detect(self._x_prev, v, h * cfg.self_contact_interval,
                                          rebuild=cfg.self_contact_rebuild and s == 0,
