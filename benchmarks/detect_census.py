@@ -5,8 +5,10 @@ the job default setting), keeps the state every solver step starts from, and on 
 the motion counts the BVH hits of every detection query (the vertex query on the triangle tree,
 the triangle query on the vertex tree, the edge query on the edge tree) with the query boxes of
 ``sim.cloth.self_contact`` (radius ``max(margin, speed_factor |v - v_ref| h)``), once more with
-the margin alone, on trees rebuilt at that state. A query thread's work is its hits: the queries
-are latency-bound, so the slowest thread sets a launch's length.
+the margin alone, on trees rebuilt at that state, and once as the lookahead's candidate query
+(``SelfContact.query_candidates``, session 36: trees of boxes grown by each primitive's reach
+over two substeps, queries over two substeps with the widened margin). A query thread's work is
+its hits: the queries are latency-bound, so the slowest thread sets a launch's length.
 
 ``python -m benchmarks.detect_census --device cpu --motion run --seconds 2``
 """
@@ -108,24 +110,29 @@ def main() -> None:
         x, v, vr = starts[f]
         xd = wp.array(x, dtype=wp.vec3, device=device)
         vd = wp.array(v, dtype=wp.vec3, device=device)
-        sc._update_bounds(xd)
-        for bvh in sc.bvhs:
-            bvh.rebuild()
-        sc.find_roots()
+        sc.data.reference = wp.array(vr[None], dtype=wp.vec3, device=device)
         row = {"step": int(f)}
-        for name, (prims, nverts, k) in queries.items():
-            pd = wp.array(prims, dtype=wp.vec4i, device=device)
-            bvh, root = sc.bvhs[k], int(sc._roots[k].numpy()[0])
-            for margin_only, key in ((0, name), (1, f"{name}_margin")):
+        # (suffix, tree boxes grown over [s], query margin [m], query h [s], margin only)
+        wide = sc.margin + solver.config.self_contact_lookahead_margin
+        modes = (("", 0.0, sc.margin, h, 0), ("_margin", 0.0, sc.margin, h, 1),
+                 ("_lookahead", sc.speed_factor * 2.0 * h, wide, 2.0 * h, 0))
+        for suffix, grow, margin, hq, margin_only in modes:
+            sc._update_bounds(xd, vd, grow)
+            for bvh in sc.bvhs:
+                bvh.rebuild()
+            sc.find_roots()
+            for name, (prims, nverts, k) in queries.items():
+                pd = wp.array(prims, dtype=wp.vec4i, device=device)
+                bvh, root = sc.bvhs[k], int(sc._roots[k].numpy()[0])
                 hits = wp.zeros(len(prims), dtype=wp.int32, device=device)
                 radius = wp.zeros(len(prims), dtype=float, device=device)
                 wp.launch(kernel, dim=len(prims),
-                          inputs=[xd, vd, wp.vec3(*vr), pd, nverts, bvh.id, root, sc.margin, sc.speed_factor,
-                                  h, margin_only, hits, radius], device=device)
+                          inputs=[xd, vd, wp.vec3(*vr), pd, nverts, bvh.id, root, margin, sc.speed_factor,
+                                  hq, margin_only, hits, radius], device=device)
                 n, r = hits.numpy(), radius.numpy()
-                row[key] = {"hits_mean": float(n.mean()), "hits_p99": float(np.quantile(n, 0.99)),
-                            "hits_max": int(n.max()), "radius_mean_mm": 1e3 * float(r.mean()),
-                            "radius_max_mm": 1e3 * float(r.max())}
+                row[name + suffix] = {"hits_mean": float(n.mean()), "hits_p99": float(np.quantile(n, 0.99)),
+                                      "hits_max": int(n.max()), "radius_mean_mm": 1e3 * float(r.mean()),
+                                      "radius_max_mm": 1e3 * float(r.max())}
         per_frame.append(row)
         print(json.dumps(row), flush=True)
     summary = {}

@@ -360,6 +360,13 @@ def test_self_contact_config_is_checked():
         VBDConfig(self_contact_relaxation=0.6)
     with pytest.raises(ValueError, match="margin"):
         VBDConfig(self_contact_radius=0.02, self_contact_margin=0.01)
+    # the lookahead re-measures candidates every substep: no interval, no bounds (d_min would only
+    # cover candidates), not with the pipeline; its margin is a widening
+    for other in ({"self_contact_interval": 2}, {"self_contact_bounds": True}, {"self_contact_pipeline": True}):
+        with pytest.raises(ValueError, match="self_contact_lookahead needs"):
+            VBDConfig(self_contact_lookahead=True, **other)
+    with pytest.raises(ValueError, match="lookahead_margin"):
+        VBDConfig(self_contact_lookahead=True, self_contact_lookahead_margin=-0.001)
 
 
 def folded_sheet(nx: int, ny: int, e: float, mid: int, gap: float):

@@ -1621,16 +1621,20 @@ class SelfContact:
         self._tree_queries(x0, v, h, rebuild, sc, self.margin, self._dmins)
         self._records(sc)
 
-    def _start_detection(self, reference, slot: int = 0) -> SelfContactData:
-        """Slot ``slot``'s data, with the instances' ``reference`` velocities set (None: kept)
-        and, with side memory, its lists kept as the previous ones."""
-        w = warp()
-        sc = self.datas[slot]
+    def _set_reference(self, reference) -> None:
+        """The instances' reference velocities for every detection (None: kept)."""
         if reference is not None:
             for data in self.datas:
                 data.reference = reference
             if self.candidates is not None:
                 self.candidates.reference = reference
+
+    def _start_detection(self, reference, slot: int = 0) -> SelfContactData:
+        """Slot ``slot``'s data, with the instances' ``reference`` velocities set (None: kept)
+        and, with side memory, its lists kept as the previous ones."""
+        w = warp()
+        sc = self.datas[slot]
+        self._set_reference(reference)
         for name, ids in (("vt", "tri"), ("tv", "vertex"), ("ee", "edge")) if sc.side_memory else ():
             w.copy(getattr(sc, f"{name}_count_prev"), getattr(sc, f"{name}_count"))
             w.copy(getattr(sc, f"{name}_{ids}_prev"), getattr(sc, f"{name}_{ids}"))
@@ -1662,7 +1666,7 @@ class SelfContact:
         this substep's start and the next one's."""
         if self.candidates is None:
             raise ValueError("SelfContact.query_candidates needs a lookahead")
-        self._start_detection(reference)
+        self._set_reference(reference)
         self._tree_queries(x0, v, h, rebuild, self.candidates, self.margin + self.lookahead,
                            self._candidate_dmins)
 
