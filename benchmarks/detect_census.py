@@ -6,8 +6,8 @@ the motion counts the BVH hits of every detection query (the vertex query on the
 the triangle query on the vertex tree, the edge query on the edge tree) with the query boxes of
 ``sim.cloth.self_contact`` (radius ``max(margin, speed_factor |v - v_ref| h)``), once more with
 the margin alone, on trees rebuilt at that state, and once as the lookahead's candidate query
-(``SelfContact.query_candidates``, session 36: trees of boxes grown by each primitive's reach
-over two substeps, queries over two substeps with the widened margin). A query thread's work is
+(``SelfContact.query_candidates``, session 36: boxes swept over the substep's motion, the trees'
+grown by each primitive's own reach, the queries' by the widened margin). A query thread's work is
 its hits: the queries are latency-bound, so the slowest thread sets a launch's length.
 
 ``python -m benchmarks.detect_census --device cpu --motion run --seconds 2``
@@ -29,13 +29,13 @@ def count_kernel(wp):
     """A kernel that counts each query's BVH hits: primitive ``k`` of ``prims`` (up to 4 vertex
     ids, ``nverts`` used), its box grown by the detection's radius (``margin_only``: the margin),
     searched from ``root`` (the instance's, ``SelfContact.find_roots``)."""
-    from sim.cloth.self_contact import query_radius
+    from sim.cloth.self_contact import query_radius, swept
 
     @wp.kernel
     def count_hits(x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3), vr: wp.vec3,
                    prims: wp.array(dtype=wp.vec4i), nverts: int, bvh: wp.uint64, root: int, margin: float,
-                   speed_factor: float, h: float, margin_only: int, hits: wp.array(dtype=wp.int32),
-                   radius: wp.array(dtype=float)):
+                   speed_factor: float, h: float, margin_only: int, sweep: float,
+                   hits: wp.array(dtype=wp.int32), radius: wp.array(dtype=float)):
         k = wp.tid()
         q = prims[k]
         lo = x[q[0]]
@@ -48,6 +48,9 @@ def count_kernel(wp):
         r = query_radius(margin, speed, h, speed_factor)
         if margin_only != 0:
             r = margin
+        if sweep > 0.0:
+            for j in range(nverts):
+                lo, hi = swept(lo, hi, x[q[j]], v[q[j]], vr, sweep)
         query = wp.bvh_query_aabb(bvh, lo - wp.vec3(r), hi + wp.vec3(r), root)
         n = int(0)
         t = int(0)
@@ -68,6 +71,7 @@ def main() -> None:
     args = ap.parse_args()
 
     import sim.cloth as cloth
+    from sim.cloth.self_contact import LOOKAHEAD_SWEEP
     from sim.device import warp
     from sim.simulate import SimulationConfig, SimulationJob, simulate_batch
 
@@ -112,12 +116,12 @@ def main() -> None:
         vd = wp.array(v, dtype=wp.vec3, device=device)
         sc.data.reference = wp.array(vr[None], dtype=wp.vec3, device=device)
         row = {"step": int(f)}
-        # (suffix, tree boxes grown over [s], query margin [m], query h [s], margin only)
+        # (suffix, boxes swept over [s], query margin [m], margin only)
         wide = sc.margin + solver.config.self_contact_lookahead_margin
-        modes = (("", 0.0, sc.margin, h, 0), ("_margin", 0.0, sc.margin, h, 1),
-                 ("_lookahead", sc.speed_factor * 2.0 * h, wide, 2.0 * h, 0))
-        for suffix, grow, margin, hq, margin_only in modes:
-            sc._update_bounds(xd, vd, grow)
+        modes = (("", 0.0, sc.margin, 0), ("_margin", 0.0, sc.margin, 1),
+                 ("_lookahead", LOOKAHEAD_SWEEP * h, wide, 0))
+        for suffix, sweep, margin, margin_only in modes:
+            sc._update_bounds(xd, vd, sweep, sc.speed_factor * h)
             for bvh in sc.bvhs:
                 bvh.rebuild()
             sc.find_roots()
@@ -128,7 +132,7 @@ def main() -> None:
                 radius = wp.zeros(len(prims), dtype=float, device=device)
                 wp.launch(kernel, dim=len(prims),
                           inputs=[xd, vd, wp.vec3(*vr), pd, nverts, bvh.id, root, margin, sc.speed_factor,
-                                  hq, margin_only, hits, radius], device=device)
+                                  h, margin_only, sweep, hits, radius], device=device)
                 n, r = hits.numpy(), radius.numpy()
                 row[name + suffix] = {"hits_mean": float(n.mean()), "hits_p99": float(np.quantile(n, 0.99)),
                                       "hits_max": int(n.max()), "radius_mean_mm": 1e3 * float(r.mean()),

@@ -360,9 +360,10 @@ def test_self_contact_config_is_checked():
         VBDConfig(self_contact_relaxation=0.6)
     with pytest.raises(ValueError, match="margin"):
         VBDConfig(self_contact_radius=0.02, self_contact_margin=0.01)
-    # the lookahead re-measures candidates every substep: no interval, no bounds (d_min would only
-    # cover candidates), not with the pipeline; its margin is a widening
-    for other in ({"self_contact_interval": 2}, {"self_contact_bounds": True}, {"self_contact_pipeline": True}):
+    # the lookahead re-measures candidates every substep: no interval, no bounds (d_min would
+    # only cover candidates), not with the pipeline; its margin is a widening
+    for other in ({"self_contact_interval": 2}, {"self_contact_bounds": True},
+                  {"self_contact_pipeline": True}):
         with pytest.raises(ValueError, match="self_contact_lookahead needs"):
             VBDConfig(self_contact_lookahead=True, **other)
     with pytest.raises(ValueError, match="lookahead_margin"):
@@ -993,18 +994,19 @@ def _all_lists(sc, m) -> dict:
 
 @pytest.mark.parametrize("motion", ["still", "sliding", "approaching"])
 def test_lists_remeasured_from_lookahead_candidates_equal_a_detection(device, motion):
-    """``remeasure`` re-tests the candidates a query over two substeps found a substep earlier,
-    without a tree: after the cloth moved one substep at its velocity (still, the upper sheet
-    sliding at 3 m/s, or coming down at 1 m/s), its lists and gather records are exactly those a
-    full detection at the new positions gives (as sets: the order follows the candidates'), and
-    there are many of them."""
+    """``remeasure`` re-tests the candidates a query found a substep earlier, without a tree:
+    after the cloth moved one substep at its velocity (still, the upper sheet sliding at 3 m/s,
+    or coming down at 1 m/s), its lists and gather records are exactly those a full detection at
+    the new positions gives (as sets: the order follows the candidates'), and there are many of
+    them. The sliding sheet moves 10 mm in the substep, more than the static sheet's 6 mm query
+    margin: only the swept boxes let the static vertices' queries meet the triangles coming."""
     m, sc, v = _two_sheets(device)
     h = 1.0 / 300.0
     vel = np.zeros_like(v)
     top = slice(len(v) // 2, None)
     vel[top] = {"still": (0.0, 0.0, 0.0), "sliding": (3.0, 0.0, 0.0), "approaching": (0.0, -1.0, 0.0)}[motion]
     velocities = wp.array(vel, dtype=wp.vec3, device=device)
-    sc.query_candidates(m.particle_q, velocities, 2.0 * h)
+    sc.query_candidates(m.particle_q, velocities, h)
     moved = wp.array(v + vel * h, dtype=wp.vec3, device=device)
     sc.remeasure(moved, velocities, h)
     remeasured = _all_lists(sc, m)
@@ -1021,7 +1023,7 @@ def test_remeasure_finds_only_what_the_candidate_query_saw(device):
     m, sc, v = _two_sheets(device, lift=0.05)
     h = 1.0 / 300.0
     velocities = wp.zeros(len(v), dtype=wp.vec3, device=device)
-    sc.query_candidates(m.particle_q, velocities, 2.0 * h)
+    sc.query_candidates(m.particle_q, velocities, h)
     down = v.copy()
     down[len(v) // 2:, 1] -= 0.05
     moved = wp.array(down, dtype=wp.vec3, device=device)

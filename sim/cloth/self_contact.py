@@ -72,6 +72,11 @@ from sim.device import SideStreams, warp
 INTERIOR = wp.constant(1.0e-3)
 
 
+# a candidate query's sweep [substeps] (``SelfContactData.candidates``): the next substep's
+# start, reached at the velocities this one starts with, with half again for acceleration
+LOOKAHEAD_SWEEP = 1.5
+
+
 @wp.struct
 class SelfContactData:
     """Self-contact buffers and settings passed to the solve kernel as one argument.
@@ -88,7 +93,7 @@ class SelfContactData:
     side_memory: int
     relative_lists: int
     ee_interior: int
-    candidates: int
+    candidates: float
     radius: float
     stiffness: float
     friction: float
@@ -668,9 +673,17 @@ def query_radius(margin: float, speed: float, h: float, speed_factor: float) -> 
 def skip_radius(sc: SelfContactData, r: float) -> float:
     """The distance from which a query's hits are skipped: the query radius ``r``, or for a
     candidate query (``candidates``) none (``list_pair``'s relative radius alone decides)."""
-    if sc.candidates != 0:
+    if sc.candidates > 0.0:
         return 1.0e30
     return r
+
+
+@wp.func
+def swept(lo: wp.vec3, hi: wp.vec3, p: wp.vec3, vel: wp.vec3, vr: wp.vec3, sweep: float):
+    """The box ``lo``, ``hi`` grown to hold ``p`` moved by ``sweep`` [s] at velocity ``vel``
+    relative to ``vr``."""
+    q = p + sweep * (vel - vr)
+    return wp.min(lo, q), wp.max(hi, q)
 
 
 @wp.func
@@ -680,10 +693,13 @@ def list_pair(sc: SelfContactData, d: float, v_rel: wp.vec3, margin: float, spee
     ``relative_lists``, only if ``d`` is under the radius of its own relative speed ``|v_rel|``
     (the motion that can close it within the substep), not the absolute speed the query covers.
     Cloth riding on a running limb moves at metres per second, but its neighbours on the
-    surface move with it: they stay 1-2 edge lengths apart and never act."""
+    surface move with it: they stay 1-2 edge lengths apart and never act. A candidate query
+    (``candidates`` > 0, ``SelfContact.query_candidates``) adds the relative motion over
+    ``candidates`` substeps: the pairs that radius can reach by the next substep's start."""
     if sc.relative_lists == 0:
         return True
-    return d < query_radius(margin, wp.length(v_rel), h, speed_factor)
+    speed = wp.length(v_rel)
+    return d < query_radius(margin, speed, h, speed_factor) + sc.candidates * speed * h
 
 
 @wp.func
@@ -849,6 +865,7 @@ def primitive_bounds_kernel(
     v: wp.array(dtype=wp.vec3),
     particle_instance: wp.array(dtype=wp.int32),
     reference: wp.array(dtype=wp.vec3),
+    sweep: float,
     expand: float,
     tri_indices: wp.array(dtype=wp.vec3i),
     mesh_edges: wp.array(dtype=wp.vec2i),
@@ -862,50 +879,44 @@ def primitive_bounds_kernel(
     uppers_point_out: wp.array(dtype=wp.vec3),
 ):
     """Axis-aligned boxes of every triangle (threads < tri_count) and edge (the next
-    edge_count), and the vertices (the rest: points), each grown by ``expand`` times the
-    largest speed of its vertices relative to their instance's ``reference`` velocity (a
-    candidate query's trees: the reach of the primitive's own motion; 0: the boxes at ``x``)."""
+    edge_count), and the vertices (the rest: points). For a candidate query's trees (``sweep``
+    > 0) each box also holds its vertices moved by ``sweep`` [s] at their velocity relative to
+    their instance's ``reference`` (``swept``), and is grown by ``expand`` [s] times its
+    largest such speed: the primitive's own reach (``SelfContact.query_candidates``)."""
     k = wp.tid()
-    a = wp.vec3()
-    b = wp.vec3()
-    speed = float(0.0)
+    ids = wp.vec3i()
+    corners = int(3)
     if k >= tri_count + edge_count:
-        i = k - tri_count - edge_count
-        a = x[i]
-        b = a
-        if expand > 0.0:
-            speed = wp.length(v[i] - reference[particle_instance[i]])
+        ids = wp.vec3i(k - tri_count - edge_count, 0, 0)
+        corners = 1
     elif k < tri_count:
-        t = tri_indices[k]
-        p = x[t[0]]
-        q = x[t[1]]
-        c = x[t[2]]
-        a = wp.min(wp.min(p, q), c)
-        b = wp.max(wp.max(p, q), c)
-        if expand > 0.0:
-            vr = reference[particle_instance[t[0]]]
-            speed = wp.max(wp.max(wp.length(v[t[0]] - vr), wp.length(v[t[1]] - vr)), wp.length(v[t[2]] - vr))
+        ids = tri_indices[k]
     else:
         e = mesh_edges[k - tri_count]
-        p = x[e[0]]
-        q = x[e[1]]
-        a = wp.min(p, q)
-        b = wp.max(p, q)
-        if expand > 0.0:
-            vr = reference[particle_instance[e[0]]]
-            speed = wp.max(wp.length(v[e[0]] - vr), wp.length(v[e[1]] - vr))
-    grow = wp.vec3(expand * speed)
-    a = a - grow
-    b = b + grow
+        ids = wp.vec3i(e[0], e[1], 0)
+        corners = 2
+    lo = x[ids[0]]
+    hi = lo
+    for c in range(1, corners):
+        lo = wp.min(lo, x[ids[c]])
+        hi = wp.max(hi, x[ids[c]])
+    if sweep > 0.0:
+        vr = reference[particle_instance[ids[0]]]
+        speed = float(0.0)
+        for c in range(corners):
+            lo, hi = swept(lo, hi, x[ids[c]], v[ids[c]], vr, sweep)
+            speed = wp.max(speed, wp.length(v[ids[c]] - vr))
+        lo = lo - wp.vec3(expand * speed)
+        hi = hi + wp.vec3(expand * speed)
     if k >= tri_count + edge_count:
-        lowers_point_out[k - tri_count - edge_count] = a
-        uppers_point_out[k - tri_count - edge_count] = b
+        lowers_point_out[k - tri_count - edge_count] = lo
+        uppers_point_out[k - tri_count - edge_count] = hi
     elif k < tri_count:
-        lowers_tri_out[k] = a
-        uppers_tri_out[k] = b
+        lowers_tri_out[k] = lo
+        uppers_tri_out[k] = hi
     else:
-        lowers_edge_out[k - tri_count] = a
-        uppers_edge_out[k - tri_count] = b
+        lowers_edge_out[k - tri_count] = lo
+        uppers_edge_out[k - tri_count] = hi
 
 
 @wp.kernel
@@ -938,8 +949,13 @@ def detect_vertex_kernel(
     i = wp.tid()
     xi = x[i]
     inst = particle_instance[i]
-    r = query_radius(margin, wp.length(v[i] - sc.reference[inst]), h, speed_factor)
-    query = wp.bvh_query_aabb(tri_bvh, xi - wp.vec3(r), xi + wp.vec3(r), tri_roots[inst])
+    vr = sc.reference[inst]
+    r = query_radius(margin, wp.length(v[i] - vr), h, speed_factor)
+    lo = xi
+    hi = xi
+    if sc.candidates > 0.0:  # a candidate query: the box swept over the substep (``SelfContact``)
+        lo, hi = swept(lo, hi, xi, v[i], vr, sc.candidates * h)
+    query = wp.bvh_query_aabb(tri_bvh, lo - wp.vec3(r), hi + wp.vec3(r), tri_roots[inst])
     t = int(0)
     rs = skip_radius(sc, r)
     dmin = rs
@@ -984,9 +1000,14 @@ def detect_triangle_kernel(
     vr = sc.reference[inst]
     speed = wp.max(wp.max(wp.length(v[tri[0]] - vr), wp.length(v[tri[1]] - vr)), wp.length(v[tri[2]] - vr))
     r = query_radius(margin, speed, h, speed_factor)
-    lo = wp.min(wp.min(a, b), c) - wp.vec3(r)
-    hi = wp.max(wp.max(a, b), c) + wp.vec3(r)
-    query = wp.bvh_query_aabb(vertex_bvh, lo, hi, vertex_roots[inst])
+    lo = wp.min(wp.min(a, b), c)
+    hi = wp.max(wp.max(a, b), c)
+    if sc.candidates > 0.0:
+        sweep = sc.candidates * h
+        lo, hi = swept(lo, hi, a, v[tri[0]], vr, sweep)
+        lo, hi = swept(lo, hi, b, v[tri[1]], vr, sweep)
+        lo, hi = swept(lo, hi, c, v[tri[2]], vr, sweep)
+    query = wp.bvh_query_aabb(vertex_bvh, lo - wp.vec3(r), hi + wp.vec3(r), vertex_roots[inst])
     u = int(0)
     rs = skip_radius(sc, r)
     dmin = rs
@@ -1024,8 +1045,12 @@ def detect_edge_kernel(
     vr = sc.reference[inst]
     speed = wp.max(wp.length(v[ea[0]] - vr), wp.length(v[ea[1]] - vr))
     r = query_radius(margin, speed, h, speed_factor)
-    query = wp.bvh_query_aabb(edge_bvh, wp.min(p1, q1) - wp.vec3(r), wp.max(p1, q1) + wp.vec3(r),
-                              edge_roots[inst])
+    lo = wp.min(p1, q1)
+    hi = wp.max(p1, q1)
+    if sc.candidates > 0.0:
+        lo, hi = swept(lo, hi, p1, v[ea[0]], vr, sc.candidates * h)
+        lo, hi = swept(lo, hi, q1, v[ea[1]], vr, sc.candidates * h)
+    query = wp.bvh_query_aabb(edge_bvh, lo - wp.vec3(r), hi + wp.vec3(r), edge_roots[inst])
     e2 = int(0)
     rs = skip_radius(sc, r)
     dmin = rs
@@ -1416,7 +1441,7 @@ class SelfContact:
         sc.side_memory = 1 if side_memory else 0
         sc.relative_lists = 1 if relative_lists else 0
         sc.ee_interior = 1 if ee_interior else 0
-        sc.candidates = 0
+        sc.candidates = 0.0
         sc.radius = float(radius)
         sc.stiffness = float(stiffness)
         sc.friction = float(friction)
@@ -1497,7 +1522,7 @@ class SelfContact:
             self.candidates = self._copy_outputs(sc, LIST_OUTPUTS)
             self.candidates.side_memory = 0
             self.candidates.ee_interior = 0
-            self.candidates.candidates = 1
+            self.candidates.candidates = LOOKAHEAD_SWEEP
             self._candidate_dmins = tuple(w.zeros(size, dtype=float, device=d) for size in (n, nt, ne))
         self._lo_t = w.zeros(nt, dtype=w.vec3, device=d)
         self._hi_t = w.zeros(nt, dtype=w.vec3, device=d)
@@ -1561,14 +1586,16 @@ class SelfContact:
         adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
         return connected_components(adj, directed=False)[1].astype(np.int32)
 
-    def _update_bounds(self, x, v=None, expand: float = 0.0) -> None:
-        """The trees' boxes at ``x`` (``primitive_bounds_kernel``), grown by ``expand`` [s] times
-        each primitive's speed in ``v`` (a candidate query's)."""
+    def _update_bounds(self, x, v=None, sweep: float = 0.0, expand: float = 0.0) -> None:
+        """The trees' boxes at ``x`` (``primitive_bounds_kernel``); with ``sweep`` > 0 [s] (a
+        candidate query's) swept over ``sweep`` at the velocities ``v`` and grown by ``expand``
+        [s] times each primitive's speed."""
         m = self.model
         ne = self._lo_e.shape[0]
         warp().launch(primitive_bounds_kernel, dim=m.tri_count + ne + m.particle_count,
                       inputs=[x, x if v is None else v, m.particle_instance, self.data.reference,
-                              float(expand), m.tri_indices, m.mesh_edge_indices, m.tri_count, ne],
+                              float(sweep), float(expand), m.tri_indices, m.mesh_edge_indices, m.tri_count,
+                              ne],
                       outputs=[self._lo_t, self._hi_t, self._lo_e, self._hi_e, self._lo_p, self._hi_p],
                       device=m.device)
 
@@ -1644,9 +1671,10 @@ class SelfContact:
     def _tree_queries(self, x0, v, h: float, rebuild: bool, data: SelfContactData, margin: float,
                       dmins: tuple) -> None:
         """Fit (``rebuild``: build) the trees to ``x0`` and run the three queries (``_query``); for
-        ``data`` of a candidate query, to the boxes grown by each primitive's own reach over ``h``
-        (``primitive_bounds_kernel``), so that a slow primitive's query meets a fast one coming."""
-        self._update_bounds(x0, v, self.speed_factor * h if data.candidates else 0.0)
+        ``data`` of a candidate query, to the boxes swept over the substep and grown by each
+        primitive's own reach (``primitive_bounds_kernel``), so that a slow primitive's query
+        meets a fast one coming."""
+        self._update_bounds(x0, v, data.candidates * h, self.speed_factor * h)
         # three independent chains (refit a tree, query it), each on its own stream on CUDA:
         # the queries are latency-bound (a few thousand threads), so they overlap almost fully
         for k, bvh in enumerate(self.bvhs):
@@ -1660,10 +1688,12 @@ class SelfContact:
         self._side.join()
 
     def query_candidates(self, x0, v, h: float, rebuild: bool = False, reference=None) -> None:
-        """The lookahead's candidate pairs (``lookahead`` set): a detection at ``x0`` over
-        ``h`` [s] of motion (the solver passes two substeps: this one and the next) with the
-        margin widened by ``lookahead`` [m], into ``candidates``' lists, for ``remeasure`` at
-        this substep's start and the next one's."""
+        """The lookahead's candidate pairs (``lookahead`` set) for ``remeasure`` at this substep's
+        start ``x0`` and the next one's, ``h`` [s] later, into ``candidates``' lists: a detection
+        whose boxes are swept over ``LOOKAHEAD_SWEEP`` substeps at the velocities ``v``, the
+        trees' also grown by each primitive's own reach, with the margin widened by
+        ``lookahead`` [m], keeping every hit closer than the relative-speed radius plus that
+        sweep's relative motion (``list_pair``)."""
         if self.candidates is None:
             raise ValueError("SelfContact.query_candidates needs a lookahead")
         self._set_reference(reference)
@@ -1723,7 +1753,7 @@ def disabled_data(device) -> SelfContactData:
     sc.side_memory = 0
     sc.relative_lists = 0
     sc.ee_interior = 0
-    sc.candidates = 0
+    sc.candidates = 0.0
     sc.radius = 0.0
     sc.stiffness = 0.0
     sc.weight_floor = 0.0

@@ -167,14 +167,17 @@ class VBDConfig:
             default (docs/BENCHMARKS.md, session 21).
         self_contact_lookahead: form each substep's pair lists from candidate pairs found a substep
             ahead (``SelfContact.query_candidates``, ``remeasure``): at a step's first substep a
-            query over two substeps of motion (``2 h``) with the margin widened by
-            ``self_contact_lookahead_margin``, and at substep ``s`` (0 < s < substeps - 1) the
-            same query for ``s + 1`` on a side stream beside the sweeps (CUDA). Each substep then
-            re-measures only its candidates at its own start positions and velocities, with the
-            detection's own tests and radii: no tree refit or traversal on the critical path, and
-            no lists from stale positions (the pipeline's). Needs ``self_contact_interval`` 1, no
-            bounds and no pipeline.
-        self_contact_lookahead_margin: widening [m] of the candidate queries' margin.
+            query for it and the next, its boxes swept over the substep's motion and the margin
+            widened by ``self_contact_lookahead_margin``, and at substep ``s`` (0 < s <
+            substeps - 1) the same query for ``s + 1`` on a side stream beside the sweeps (CUDA).
+            Each substep then re-measures only its candidates at its own start positions and
+            velocities, with the detection's own tests and radii: no tree refit or traversal on
+            the critical path, and no lists from stale positions (the pipeline's). Needs
+            ``self_contact_interval`` 1, no bounds and no pipeline. Not yet measured on a GPU
+            (docs/BENCHMARKS.md, session 36), so off by default.
+        self_contact_lookahead_margin: widening [m] of the candidate queries' margin (2 mm: on
+            a CPU t-shirt run the remeasured lists then missed 0.12 % of a detection's pairs,
+            none within the contact radius; 1 mm missed 0.43 %).
         self_contact_pipeline: detect the pairs of substep ``s + 1`` during substep ``s``, on a
             side stream beside the sweeps (CUDA), from the positions and velocities ``s`` starts
             with and a query that covers two substeps of motion (``2 h``); only the first substep
@@ -268,7 +271,7 @@ class VBDConfig:
     self_contact_ee_interior: bool = False
     self_contact_pipeline: bool = False
     self_contact_lookahead: bool = False
-    self_contact_lookahead_margin: float = 0.001
+    self_contact_lookahead_margin: float = 0.002
     max_colors: int = 0
     strain_limit: float = 0.0
     strain_limit_passes: int = 4
@@ -616,16 +619,16 @@ class SolverVBD:
             sc_data = self._sc_data
             if self.self_contact is not None and cfg.self_contact_lookahead:
                 if s == 0:
-                    # the step's first candidates, over this substep's motion and the next's
-                    self.self_contact.query_candidates(self._x_prev, v, 2.0 * h,
+                    # the step's first candidates, for this substep and the next
+                    self.self_contact.query_candidates(self._x_prev, v, h,
                                                        rebuild=cfg.self_contact_rebuild,
                                                        reference=control.instance_velocity)
                 self.self_contact.remeasure(self._x_prev, v, h)
                 if 0 < s < cfg.substeps - 1:
-                    # the next substep's candidates beside this substep's sweeps, from its start
-                    # over both substeps' motion; joined before x_prev and v change
+                    # the next substep's candidates beside this substep's sweeps, from its start;
+                    # joined before x_prev and v change
                     with self._pipe.on(0):
-                        self.self_contact.query_candidates(self._x_prev, v, 2.0 * h)
+                        self.self_contact.query_candidates(self._x_prev, v, h)
             elif (self.self_contact is not None and s % cfg.self_contact_interval == 0
                   and (s == 0 or not pipe)):
                 # pairs found now serve the next ``interval`` substeps: the query covers that motion
