@@ -618,17 +618,19 @@ class SolverVBD:
                 self._contact_active.zero_()
             sc_data = self._sc_data
             if self.self_contact is not None and cfg.self_contact_lookahead:
+                # the trees are rebuilt once per step, by the first query beside the sweeps
+                # rather than the step's first query, which is on the critical path
+                rebuild = cfg.self_contact_rebuild and s == (1 if cfg.substeps > 2 else 0)
                 if s == 0:
                     # the step's first candidates, for this substep and the next
-                    self.self_contact.query_candidates(self._x_prev, v, h,
-                                                       rebuild=cfg.self_contact_rebuild,
+                    self.self_contact.query_candidates(self._x_prev, v, h, rebuild=rebuild,
                                                        reference=control.instance_velocity)
                 self.self_contact.remeasure(self._x_prev, v, h)
                 if 0 < s < cfg.substeps - 1:
                     # the next substep's candidates beside this substep's sweeps, from its start;
                     # joined before x_prev and v change
                     with self._pipe.on(0):
-                        self.self_contact.query_candidates(self._x_prev, v, h)
+                        self.self_contact.query_candidates(self._x_prev, v, h, rebuild=rebuild)
             elif (self.self_contact is not None and s % cfg.self_contact_interval == 0
                   and (s == 0 or not pipe)):
                 # pairs found now serve the next ``interval`` substeps: the query covers that motion
