@@ -282,11 +282,13 @@ def test_a_moving_frame_searched_in_its_own_frame_gives_the_same_cloth(device):
     assert (held - still)[-1, :, 0].mean() < -0.05
 
 
-def test_instances_do_not_collide_with_each_other(device):
+@pytest.mark.parametrize("lookahead", [False, True])
+def test_instances_do_not_collide_with_each_other(device, lookahead):
     """Two overlapping sheets as separate instances of one model fall through each other
-    exactly as alone (self-contact only acts within an instance)."""
+    exactly as alone (self-contact only acts within an instance), with each substep's pairs
+    detected or re-measured from candidates found a substep ahead."""
     v, f = grid(7, 7, 0.3, 0.3, plane="xz")
-    cfg = VBDConfig(substeps=3, iterations=3, self_contact=True)
+    cfg = VBDConfig(substeps=3, iterations=3, self_contact=True, self_contact_lookahead=lookahead)
 
     def run(parts):
         b = ClothModelBuilder()
