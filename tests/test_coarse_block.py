@@ -56,6 +56,29 @@ def test_block_solve_matches_a_dense_solve(lib, case):
         assert err < 5e-5, (sizes, threads, err)
 
 
+# two more cases for the two-column substitutions: rows whose band reaches 64+ entries past a
+# column (a lane's third entry on), and instances of odd and even node counts down to two
+TWO_COLUMN_SIZES = SIZES + [[(100, 70), (7, 2), (2, 1), (8, 3)]]
+
+
+@pytest.mark.parametrize("case", range(len(TWO_COLUMN_SIZES)))
+def test_two_column_substitutions_give_the_one_column_floats(lib, case):
+    """The substitutions that finish two rows per warp step (session 36) give exactly the floats
+    of the one-column substitutions of sessions 32-35, with half the warp barriers: every entry
+    takes the same products in the same order."""
+    sizes = TWO_COLUMN_SIZES[case]
+    one_column = emu.build({"solve": coarse_block.SOLVE_ONE_COLUMN, "factor": coarse_block._FACTOR,
+                            "substitute": coarse_block._SUBSTITUTE})
+    system = emu.band_system(sizes, seed=20 + case)
+    threads = coarse_block.threads(max(b for _, b in sizes))
+    two, _ = emu.run(lib, "solve", threads, capacity(sizes), system)
+    one, _ = emu.run(one_column, "solve", threads, capacity(sizes), system)
+    assert np.abs(one).max() > 0.0
+    np.testing.assert_array_equal(two, one)
+    err = np.abs(two - dense_solution(system)).max() / np.abs(one).max()
+    assert err < 5e-5, (sizes, err)
+
+
 @pytest.mark.parametrize("case", range(len(SIZES)))
 def test_split_solve_gives_the_whole_solves_floats(lib, case):
     """``coarse_prefactor``'s split (the factor to a global band, then the substitutions with it)

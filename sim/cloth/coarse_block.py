@@ -369,12 +369,169 @@ _FORWARD = r"""
         }
     }
 """.replace("FORWARD_ROW", _row_pair("min(b, n - 1 - j)", "(j + q + 1) * w + q + 1", "3 * (j + q + 1)"))
+# Two columns (rows) per warp step (session 36): half the steps and barriers of ``_FORWARD`` /
+# ``_BACK``, the same floats. Every lane takes the pair's first value as final, forms the second
+# from it as the one-column step before would have (lane 0 stores it), and each entry below
+# takes the first column's product, then the second's, in the order the one-column steps took
+# them. A lane loads its first two entries (rows q and q + 32) before storing either. A column
+# left over at the end takes the one-column step.
+_FORWARD2 = r"""
+    if (lane < 32) {
+        int j = 0;
+        for (; j + 1 <= n - 2; j += 2) {
+            const float x0 = u[3 * j], x1 = u[3 * j + 1], x2 = u[3 * j + 2];
+            float y0 = u[3 * j + 3], y1 = u[3 * j + 4], y2 = u[3 * j + 5];
+            if (b >= 1) {
+                const float l = L[(j + 1) * w + 1];
+                y0 = y0 - l * x0;
+                y1 = y1 - l * x1;
+                y2 = y2 - l * x2;
+            }
+            const int cnt_ = min(b, n - 2 - j);  // rows j + 2 .. j + 1 + cnt_
+            float la_[2], lb_[2], p_[2][3];
+            for (int k_ = 0; k_ < 2; ++k_) {
+                const int q = lane + 32 * k_;
+                if (q < cnt_) {
+                    const int r = j + 2 + q;
+                    la_[k_] = (q + 2 <= b) ? L[r * w + q + 2] : 0.0f;  // row r, column j
+                    lb_[k_] = L[r * w + q + 1];  // row r, column j + 1
+                    p_[k_][0] = u[3 * r];
+                    p_[k_][1] = u[3 * r + 1];
+                    p_[k_][2] = u[3 * r + 2];
+                }
+            }
+            for (int k_ = 0; k_ < 2; ++k_) {
+                const int q = lane + 32 * k_;
+                if (q < cnt_) {
+                    const int r = j + 2 + q;
+                    if (q + 2 <= b) {
+                        p_[k_][0] = p_[k_][0] - la_[k_] * x0;
+                        p_[k_][1] = p_[k_][1] - la_[k_] * x1;
+                        p_[k_][2] = p_[k_][2] - la_[k_] * x2;
+                    }
+                    u[3 * r] = p_[k_][0] - lb_[k_] * y0;
+                    u[3 * r + 1] = p_[k_][1] - lb_[k_] * y1;
+                    u[3 * r + 2] = p_[k_][2] - lb_[k_] * y2;
+                }
+            }
+            for (int q = lane + 64; q < cnt_; q += 32) {
+                const int r = j + 2 + q;
+                float v0 = u[3 * r], v1 = u[3 * r + 1], v2 = u[3 * r + 2];
+                if (q + 2 <= b) {
+                    const float la = L[r * w + q + 2];
+                    v0 = v0 - la * x0;
+                    v1 = v1 - la * x1;
+                    v2 = v2 - la * x2;
+                }
+                const float lb = L[r * w + q + 1];
+                u[3 * r] = v0 - lb * y0;
+                u[3 * r + 1] = v1 - lb * y1;
+                u[3 * r + 2] = v2 - lb * y2;
+            }
+            __syncwarp();
+            // after the barrier: every lane has read row j + 1, and no later step reads it
+            if (lane == 0) {
+                u[3 * j + 3] = y0;
+                u[3 * j + 4] = y1;
+                u[3 * j + 5] = y2;
+            }
+        }
+        for (; j < n - 1; ++j) {
+            const float x0 = u[3 * j], x1 = u[3 * j + 1], x2 = u[3 * j + 2];
+            FORWARD_ROW
+            __syncwarp();
+        }
+        __syncwarp();  // the last pair's second row
+    }
+""".replace("FORWARD_ROW", _row_pair("min(b, n - 1 - j)", "(j + q + 1) * w + q + 1", "3 * (j + q + 1)"))
+_BACK2 = r"""
+    if (lane < 32) {
+        for (int r = lane; r < n; r += 32) {
+            const float ir = 1.0f / fmaxf(L[r * w], 1.0e-30f);
+            u[3 * r] *= ir;
+            u[3 * r + 1] *= ir;
+            u[3 * r + 2] *= ir;
+        }
+        __syncwarp();
+        // rows r and r - 1 final per step, then they leave rows r - 2 .. r - 1 - b
+        int r = n - 1;
+        for (; r >= 2; r -= 2) {
+            const float x0 = u[3 * r], x1 = u[3 * r + 1], x2 = u[3 * r + 2];
+            float y0 = u[3 * r - 3], y1 = u[3 * r - 2], y2 = u[3 * r - 1];
+            if (b >= 1) {
+                const float l = L[r * w + 1];
+                y0 = y0 - l * x0;
+                y1 = y1 - l * x1;
+                y2 = y2 - l * x2;
+            }
+            const int cnt_ = min(b, r - 1);  // rows r - 2 - q, q < cnt_
+            float la_[2], lb_[2], p_[2][3];
+            for (int k_ = 0; k_ < 2; ++k_) {
+                const int q = lane + 32 * k_;
+                if (q < cnt_) {
+                    const int k = r - 2 - q;
+                    la_[k_] = (q + 2 <= b) ? L[r * w + q + 2] : 0.0f;  // column r, row k
+                    lb_[k_] = L[(r - 1) * w + q + 1];  // column r - 1, row k
+                    p_[k_][0] = u[3 * k];
+                    p_[k_][1] = u[3 * k + 1];
+                    p_[k_][2] = u[3 * k + 2];
+                }
+            }
+            for (int k_ = 0; k_ < 2; ++k_) {
+                const int q = lane + 32 * k_;
+                if (q < cnt_) {
+                    const int k = r - 2 - q;
+                    if (q + 2 <= b) {
+                        p_[k_][0] = p_[k_][0] - la_[k_] * x0;
+                        p_[k_][1] = p_[k_][1] - la_[k_] * x1;
+                        p_[k_][2] = p_[k_][2] - la_[k_] * x2;
+                    }
+                    u[3 * k] = p_[k_][0] - lb_[k_] * y0;
+                    u[3 * k + 1] = p_[k_][1] - lb_[k_] * y1;
+                    u[3 * k + 2] = p_[k_][2] - lb_[k_] * y2;
+                }
+            }
+            for (int q = lane + 64; q < cnt_; q += 32) {
+                const int k = r - 2 - q;
+                float v0 = u[3 * k], v1 = u[3 * k + 1], v2 = u[3 * k + 2];
+                if (q + 2 <= b) {
+                    const float la = L[r * w + q + 2];
+                    v0 = v0 - la * x0;
+                    v1 = v1 - la * x1;
+                    v2 = v2 - la * x2;
+                }
+                const float lb = L[(r - 1) * w + q + 1];
+                u[3 * k] = v0 - lb * y0;
+                u[3 * k + 1] = v1 - lb * y1;
+                u[3 * k + 2] = v2 - lb * y2;
+            }
+            __syncwarp();
+            // after the barrier: every lane has read row r - 1, and no later step reads it
+            if (lane == 0) {
+                u[3 * r - 3] = y0;
+                u[3 * r - 2] = y1;
+                u[3 * r - 1] = y2;
+            }
+        }
+        for (; r > 0; --r) {
+            const float x0 = u[3 * r], x1 = u[3 * r + 1], x2 = u[3 * r + 2];
+            BACK_ROW
+            __syncwarp();
+        }
+        __syncwarp();  // the last pair's second row
+        for (int r = lane; r < n; r += 32)
+            dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
+    }
+""".replace("BACK_ROW", _row_pair("min(b, r)", "r * w + q + 1", "3 * (r - q - 1)"))
 # the whole solve: the factor as above, then both substitutions by one warp (session 32: the
 # forward substitution as tasks of the elimination's diagonal entries made each step longer)
-_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE + _FORWARD + _BACK
+# (two columns per step since session 36; ``SOLVE_ONE_COLUMN`` keeps the one-column substitutions
+# for the tests, which check that both give the same floats)
+_SOLVE = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE + _FORWARD2 + _BACK2
+SOLVE_ONE_COLUMN = _HEAD + _LOAD_BAND + _LOAD_RHS + _ELIMINATE + _FORWARD + _BACK
 _SUBSTITUTE = _HEAD + r"""
     for (int q = lane; q < n * w; q += T)
         L[q] = factor[base + q];
 """ + _LOAD_RHS + r"""
     __syncthreads();
-""" + _FORWARD + _BACK
+""" + _FORWARD2 + _BACK2
