@@ -6,8 +6,9 @@ serial factorization costs about 20 ms per correction for the t-shirt's 326 node
 (``n (b + 1)`` floats) and the right-hand side sit in shared memory, the factorization is a
 right-looking ``L D L^T`` that eliminates one column per step with every thread updating a
 share of the ``b (b + 1) / 2`` entries below it (one each where the block has enough threads),
-and one warp does each substitution, a row per step. That is about ``n`` block barriers and
-``2 n`` warp barriers per solve instead of ``n b^2 / 2`` serial multiply-adds. The snippets are
+and one warp does each substitution, two rows per step (session 36; one before). That is about
+``n`` block barriers and ``n`` warp barriers per solve instead of ``n b^2 / 2`` serial
+multiply-adds. The snippets are
 checked on the CPU by an emulation of the block (``tests/block_emulator.py``).
 
 The kernel uses ``__shared__`` memory and ``__syncthreads`` through a native snippet, so it
