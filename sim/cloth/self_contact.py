@@ -670,6 +670,19 @@ def query_radius(margin: float, speed: float, h: float, speed_factor: float) -> 
 
 
 @wp.func
+def triangle_speed(v: wp.array(dtype=wp.vec3), tri: wp.vec3i, vr: wp.vec3) -> float:
+    """The largest speed of a triangle's corners relative to ``vr``."""
+    return wp.max(wp.max(wp.length(load_vec3(v, tri[0]) - vr), wp.length(load_vec3(v, tri[1]) - vr)),
+                  wp.length(load_vec3(v, tri[2]) - vr))
+
+
+@wp.func
+def edge_speed(v: wp.array(dtype=wp.vec3), ea: wp.vec2i, vr: wp.vec3) -> float:
+    """The larger speed of an edge's ends relative to ``vr``."""
+    return wp.max(wp.length(load_vec3(v, ea[0]) - vr), wp.length(load_vec3(v, ea[1]) - vr))
+
+
+@wp.func
 def skip_radius(sc: SelfContactData, r: float) -> float:
     """The distance from which a query's hits are skipped: the query radius ``r``, or for a
     candidate query (``candidates``) none (``list_pair``'s relative radius alone decides)."""
@@ -998,8 +1011,7 @@ def detect_triangle_kernel(
     c = x[tri[2]]
     inst = particle_instance[tri[0]]
     vr = sc.reference[inst]
-    speed = wp.max(wp.max(wp.length(v[tri[0]] - vr), wp.length(v[tri[1]] - vr)), wp.length(v[tri[2]] - vr))
-    r = query_radius(margin, speed, h, speed_factor)
+    r = query_radius(margin, triangle_speed(v, tri, vr), h, speed_factor)
     lo = wp.min(wp.min(a, b), c)
     hi = wp.max(wp.max(a, b), c)
     if sc.candidates > 0.0:
@@ -1043,8 +1055,7 @@ def detect_edge_kernel(
     q1 = x[ea[1]]
     inst = particle_instance[ea[0]]
     vr = sc.reference[inst]
-    speed = wp.max(wp.length(v[ea[0]] - vr), wp.length(v[ea[1]] - vr))
-    r = query_radius(margin, speed, h, speed_factor)
+    r = query_radius(margin, edge_speed(v, ea, vr), h, speed_factor)
     lo = wp.min(p1, q1)
     hi = wp.max(p1, q1)
     if sc.candidates > 0.0:
@@ -1108,10 +1119,8 @@ def remeasure_kernel(
     elif k < particle_count + tri_count:
         t = k - particle_count
         tri = load_vec3i(tri_indices, t)
-        vr = sc.reference[load_int(particle_instance, tri[0])]
-        speed = wp.max(wp.max(wp.length(load_vec3(v, tri[0]) - vr), wp.length(load_vec3(v, tri[1]) - vr)),
-                       wp.length(load_vec3(v, tri[2]) - vr))
-        r = query_radius(margin, speed, h, speed_factor)
+        r = query_radius(margin, triangle_speed(v, tri, sc.reference[load_int(particle_instance, tri[0])]), h,
+                         speed_factor)
         dmin = r
         count = int(0)
         for j in range(cand.tv_count[t]):
@@ -1127,9 +1136,8 @@ def remeasure_kernel(
         ea = load_vec2i(sc.mesh_edges, e)
         p1 = load_vec3(x, ea[0])
         q1 = load_vec3(x, ea[1])
-        vr = sc.reference[load_int(particle_instance, ea[0])]
-        speed = wp.max(wp.length(load_vec3(v, ea[0]) - vr), wp.length(load_vec3(v, ea[1]) - vr))
-        r = query_radius(margin, speed, h, speed_factor)
+        r = query_radius(margin, edge_speed(v, ea, sc.reference[load_int(particle_instance, ea[0])]), h,
+                         speed_factor)
         dmin = r
         count = int(0)
         for j in range(cand.ee_count[e]):
@@ -1418,9 +1426,9 @@ class SelfContact:
             are shared: detections must not overlap each other.
         lookahead: None (default) or the widening [m] of the candidate queries' margin
             (``VBDConfig.self_contact_lookahead``): ``query_candidates`` stores the candidate pairs
-            of a query over two substeps of motion, beside the solve, and ``remeasure`` then
-            forms each substep's lists from them without a tree query. Needs bounds off and one
-            slot.
+            of a query whose boxes are swept over the substep's motion, beside the solve, and
+            ``remeasure`` then forms each substep's lists from them without a tree query. Needs
+            bounds off, relative lists and one slot.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
