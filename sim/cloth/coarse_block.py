@@ -376,66 +376,85 @@ _FORWARD = r"""
 # takes the first column's product, then the second's, in the order the one-column steps took
 # them. A lane loads its first two entries (rows q and q + 32) before storing either. A column
 # left over at the end takes the one-column step.
-_FORWARD2 = r"""
-    if (lane < 32) {
-        int j = 0;
-        for (; j + 1 <= n - 2; j += 2) {
-            const float x0 = u[3 * j], x1 = u[3 * j + 1], x2 = u[3 * j + 2];
-            float y0 = u[3 * j + 3], y1 = u[3 * j + 4], y2 = u[3 * j + 5];
+# one pair step: rows FIRST (final) and SECOND (final once FIRST's product is taken, pair entry
+# L[LPAIR]) leave the COUNT rows ROW (q = 0 ..), whose entries are L[LA] (FIRST's column, where
+# q + 2 <= b) and L[LB] (SECOND's); lane 0 stores SECOND after the barrier, when every lane has
+# read it and no later step reads it
+_PAIR_STEP = r"""
+            const float x0 = u[3 * (FIRST)], x1 = u[3 * (FIRST) + 1], x2 = u[3 * (FIRST) + 2];
+            float y0 = u[3 * (SECOND)], y1 = u[3 * (SECOND) + 1], y2 = u[3 * (SECOND) + 2];
             if (b >= 1) {
-                const float l = L[(j + 1) * w + 1];
+                const float l = L[LPAIR];
                 y0 = y0 - l * x0;
                 y1 = y1 - l * x1;
                 y2 = y2 - l * x2;
             }
-            const int cnt_ = min(b, n - 2 - j);  // rows j + 2 .. j + 1 + cnt_
+            const int cnt_ = COUNT;
             float la_[2], lb_[2], p_[2][3];
             for (int k_ = 0; k_ < 2; ++k_) {
                 const int q = lane + 32 * k_;
                 if (q < cnt_) {
-                    const int r = j + 2 + q;
-                    la_[k_] = (q + 2 <= b) ? L[r * w + q + 2] : 0.0f;  // row r, column j
-                    lb_[k_] = L[r * w + q + 1];  // row r, column j + 1
-                    p_[k_][0] = u[3 * r];
-                    p_[k_][1] = u[3 * r + 1];
-                    p_[k_][2] = u[3 * r + 2];
+                    const int t_ = ROW;
+                    la_[k_] = (q + 2 <= b) ? L[LA] : 0.0f;
+                    lb_[k_] = L[LB];
+                    p_[k_][0] = u[3 * t_];
+                    p_[k_][1] = u[3 * t_ + 1];
+                    p_[k_][2] = u[3 * t_ + 2];
                 }
             }
             for (int k_ = 0; k_ < 2; ++k_) {
                 const int q = lane + 32 * k_;
                 if (q < cnt_) {
-                    const int r = j + 2 + q;
+                    const int t_ = ROW;
                     if (q + 2 <= b) {
                         p_[k_][0] = p_[k_][0] - la_[k_] * x0;
                         p_[k_][1] = p_[k_][1] - la_[k_] * x1;
                         p_[k_][2] = p_[k_][2] - la_[k_] * x2;
                     }
-                    u[3 * r] = p_[k_][0] - lb_[k_] * y0;
-                    u[3 * r + 1] = p_[k_][1] - lb_[k_] * y1;
-                    u[3 * r + 2] = p_[k_][2] - lb_[k_] * y2;
+                    u[3 * t_] = p_[k_][0] - lb_[k_] * y0;
+                    u[3 * t_ + 1] = p_[k_][1] - lb_[k_] * y1;
+                    u[3 * t_ + 2] = p_[k_][2] - lb_[k_] * y2;
                 }
             }
             for (int q = lane + 64; q < cnt_; q += 32) {
-                const int r = j + 2 + q;
-                float v0 = u[3 * r], v1 = u[3 * r + 1], v2 = u[3 * r + 2];
+                const int t_ = ROW;
+                float v0 = u[3 * t_], v1 = u[3 * t_ + 1], v2 = u[3 * t_ + 2];
                 if (q + 2 <= b) {
-                    const float la = L[r * w + q + 2];
+                    const float la = L[LA];
                     v0 = v0 - la * x0;
                     v1 = v1 - la * x1;
                     v2 = v2 - la * x2;
                 }
-                const float lb = L[r * w + q + 1];
-                u[3 * r] = v0 - lb * y0;
-                u[3 * r + 1] = v1 - lb * y1;
-                u[3 * r + 2] = v2 - lb * y2;
+                const float lb = L[LB];
+                u[3 * t_] = v0 - lb * y0;
+                u[3 * t_ + 1] = v1 - lb * y1;
+                u[3 * t_ + 2] = v2 - lb * y2;
             }
             __syncwarp();
-            // after the barrier: every lane has read row j + 1, and no later step reads it
             if (lane == 0) {
-                u[3 * j + 3] = y0;
-                u[3 * j + 4] = y1;
-                u[3 * j + 5] = y2;
+                u[3 * (SECOND)] = y0;
+                u[3 * (SECOND) + 1] = y1;
+                u[3 * (SECOND) + 2] = y2;
             }
+"""
+
+
+def _pair_step(first: str, second: str, lpair: str, count: str, row: str, la: str, lb: str) -> str:
+    """``_PAIR_STEP`` for its placeholders (C expressions; ``q`` the row's place, ``t_`` its
+    index)."""
+    out = _PAIR_STEP
+    for key, value in (("FIRST", first), ("SECOND", second), ("LPAIR", lpair), ("COUNT", count),
+                       ("ROW", row), ("LA", la), ("LB", lb)):
+        out = out.replace(key, value)
+    return out
+
+
+# columns j, j + 1 per step while j + 1 <= n - 2, then a last one-column step if one is left
+_FORWARD2 = r"""
+    if (lane < 32) {
+        int j = 0;
+        for (; j + 1 <= n - 2; j += 2) {
+            PAIR_STEP
         }
         for (; j < n - 1; ++j) {
             const float x0 = u[3 * j], x1 = u[3 * j + 1], x2 = u[3 * j + 2];
@@ -444,7 +463,10 @@ _FORWARD2 = r"""
         }
         __syncwarp();  // the last pair's second row
     }
-""".replace("FORWARD_ROW", _row_pair("min(b, n - 1 - j)", "(j + q + 1) * w + q + 1", "3 * (j + q + 1)"))
+""".replace("PAIR_STEP", _pair_step("j", "j + 1", "(j + 1) * w + 1", "min(b, n - 2 - j)", "j + 2 + q",
+                                    "t_ * w + q + 2", "t_ * w + q + 1")) \
+    .replace("FORWARD_ROW", _row_pair("min(b, n - 1 - j)", "(j + q + 1) * w + q + 1", "3 * (j + q + 1)"))
+# D^-1, then rows r, r - 1 per step while r >= 2, then a last one-row step if one is left
 _BACK2 = r"""
     if (lane < 32) {
         for (int r = lane; r < n; r += 32) {
@@ -454,65 +476,9 @@ _BACK2 = r"""
             u[3 * r + 2] *= ir;
         }
         __syncwarp();
-        // rows r and r - 1 final per step, then they leave rows r - 2 .. r - 1 - b
         int r = n - 1;
         for (; r >= 2; r -= 2) {
-            const float x0 = u[3 * r], x1 = u[3 * r + 1], x2 = u[3 * r + 2];
-            float y0 = u[3 * r - 3], y1 = u[3 * r - 2], y2 = u[3 * r - 1];
-            if (b >= 1) {
-                const float l = L[r * w + 1];
-                y0 = y0 - l * x0;
-                y1 = y1 - l * x1;
-                y2 = y2 - l * x2;
-            }
-            const int cnt_ = min(b, r - 1);  // rows r - 2 - q, q < cnt_
-            float la_[2], lb_[2], p_[2][3];
-            for (int k_ = 0; k_ < 2; ++k_) {
-                const int q = lane + 32 * k_;
-                if (q < cnt_) {
-                    const int k = r - 2 - q;
-                    la_[k_] = (q + 2 <= b) ? L[r * w + q + 2] : 0.0f;  // column r, row k
-                    lb_[k_] = L[(r - 1) * w + q + 1];  // column r - 1, row k
-                    p_[k_][0] = u[3 * k];
-                    p_[k_][1] = u[3 * k + 1];
-                    p_[k_][2] = u[3 * k + 2];
-                }
-            }
-            for (int k_ = 0; k_ < 2; ++k_) {
-                const int q = lane + 32 * k_;
-                if (q < cnt_) {
-                    const int k = r - 2 - q;
-                    if (q + 2 <= b) {
-                        p_[k_][0] = p_[k_][0] - la_[k_] * x0;
-                        p_[k_][1] = p_[k_][1] - la_[k_] * x1;
-                        p_[k_][2] = p_[k_][2] - la_[k_] * x2;
-                    }
-                    u[3 * k] = p_[k_][0] - lb_[k_] * y0;
-                    u[3 * k + 1] = p_[k_][1] - lb_[k_] * y1;
-                    u[3 * k + 2] = p_[k_][2] - lb_[k_] * y2;
-                }
-            }
-            for (int q = lane + 64; q < cnt_; q += 32) {
-                const int k = r - 2 - q;
-                float v0 = u[3 * k], v1 = u[3 * k + 1], v2 = u[3 * k + 2];
-                if (q + 2 <= b) {
-                    const float la = L[r * w + q + 2];
-                    v0 = v0 - la * x0;
-                    v1 = v1 - la * x1;
-                    v2 = v2 - la * x2;
-                }
-                const float lb = L[(r - 1) * w + q + 1];
-                u[3 * k] = v0 - lb * y0;
-                u[3 * k + 1] = v1 - lb * y1;
-                u[3 * k + 2] = v2 - lb * y2;
-            }
-            __syncwarp();
-            // after the barrier: every lane has read row r - 1, and no later step reads it
-            if (lane == 0) {
-                u[3 * r - 3] = y0;
-                u[3 * r - 2] = y1;
-                u[3 * r - 1] = y2;
-            }
+            PAIR_STEP
         }
         for (; r > 0; --r) {
             const float x0 = u[3 * r], x1 = u[3 * r + 1], x2 = u[3 * r + 2];
@@ -523,7 +489,9 @@ _BACK2 = r"""
         for (int r = lane; r < n; r += 32)
             dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
     }
-""".replace("BACK_ROW", _row_pair("min(b, r)", "r * w + q + 1", "3 * (r - q - 1)"))
+""".replace("PAIR_STEP", _pair_step("r", "r - 1", "r * w + 1", "min(b, r - 1)", "r - 2 - q", "r * w + q + 2",
+                                    "(r - 1) * w + q + 1")) \
+    .replace("BACK_ROW", _row_pair("min(b, r)", "r * w + q + 1", "3 * (r - q - 1)"))
 # the whole solve: the factor as above, then both substitutions by one warp (session 32: the
 # forward substitution as tasks of the elimination's diagonal entries made each step longer)
 # (two columns per step since session 36; ``SOLVE_ONE_COLUMN`` keeps the one-column substitutions
