@@ -292,9 +292,9 @@ _ELIMINATE = (_ELIMINATE.replace("ENTRY_FIRST", _entry("s0", "t0"))
               .replace("ENTRY_TABLE", _entry("st >> 16", "st & 0xffff")))
 
 
-# D^-1, then L^T x = D^-1 z: a chain of n short rows for one warp, whose barrier is cheaper
-_BACK = r"""
-    if (lane < 32) {
+# the back substitutions' first part (u scaled by D^-1, rows split among the warp's lanes) and
+# last (the solution out, in node order)
+_SCALE_D = r"""
         for (int r = lane; r < n; r += 32) {
             const float ir = 1.0f / fmaxf(L[r * w], 1.0e-30f);
             u[3 * r] *= ir;
@@ -302,14 +302,22 @@ _BACK = r"""
             u[3 * r + 2] *= ir;
         }
         __syncwarp();
+"""
+_STORE_DX = r"""
+        for (int r = lane; r < n; r += 32)
+            dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
+"""
+# D^-1, then L^T x = D^-1 z: a chain of n short rows for one warp, whose barrier is cheaper
+_BACK = r"""
+    if (lane < 32) {
+SCALE_D
         // last row first: row r is final, then leaves rows r-1 .. r-b
         for (int r = n - 1; r > 0; --r) {
             const float x0 = u[3 * r], x1 = u[3 * r + 1], x2 = u[3 * r + 2];
             BACK_ROW
             __syncwarp();
         }
-        for (int r = lane; r < n; r += 32)
-            dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
+STORE_DX
     }
 """
 # a substitution step's tasks for one warp: u[U(q)] -= L[L(q)] x for the row's entries q < count,
@@ -350,7 +358,8 @@ def _row_pair(count: str, lidx: str, uidx: str) -> str:
     return _ROW_PAIR.replace("COUNT", count).replace("LIDX", lidx).replace("UIDX", f"({uidx})")
 
 
-_BACK = _BACK.replace("BACK_ROW", _row_pair("min(b, r)", "r * w + q + 1", "3 * (r - q - 1)"))
+_BACK = (_BACK.replace("BACK_ROW", _row_pair("min(b, r)", "r * w + q + 1", "3 * (r - q - 1)"))
+         .replace("SCALE_D", _SCALE_D).replace("STORE_DX", _STORE_DX))
 
 
 # the factor: the elimination, then the band to global memory
@@ -469,13 +478,7 @@ _FORWARD2 = r"""
 # D^-1, then rows r, r - 1 per step while r >= 2, then a last one-row step if one is left
 _BACK2 = r"""
     if (lane < 32) {
-        for (int r = lane; r < n; r += 32) {
-            const float ir = 1.0f / fmaxf(L[r * w], 1.0e-30f);
-            u[3 * r] *= ir;
-            u[3 * r + 1] *= ir;
-            u[3 * r + 2] *= ir;
-        }
-        __syncwarp();
+SCALE_D
         int r = n - 1;
         for (; r >= 2; r -= 2) {
             PAIR_STEP
@@ -486,12 +489,12 @@ _BACK2 = r"""
             __syncwarp();
         }
         __syncwarp();  // the last pair's second row
-        for (int r = lane; r < n; r += 32)
-            dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
+STORE_DX
     }
 """.replace("PAIR_STEP", _pair_step("r", "r - 1", "r * w + 1", "min(b, r - 1)", "r - 2 - q", "r * w + q + 2",
                                     "(r - 1) * w + q + 1")) \
-    .replace("BACK_ROW", _row_pair("min(b, r)", "r * w + q + 1", "3 * (r - q - 1)"))
+    .replace("BACK_ROW", _row_pair("min(b, r)", "r * w + q + 1", "3 * (r - q - 1)")) \
+    .replace("SCALE_D", _SCALE_D).replace("STORE_DX", _STORE_DX)
 # the whole solve: the factor as above, then both substitutions by one warp (session 32: the
 # forward substitution as tasks of the elimination's diagonal entries made each step longer)
 # (two columns per step since session 36; ``SOLVE_ONE_COLUMN`` keeps the one-column substitutions
