@@ -1008,14 +1008,11 @@ def test_one_launch_sweeps_take_the_per_colour_steps(device, grid):
     """``one_launch_sweeps`` runs a sweep's colours in one launch, a grid barrier between them
     (``solve_color_kernel(colors=True)``): from a state of two draped sheets in self-contact,
     three frames of 4 substeps end at the positions of the per-colour launches bit for bit, in
-    the single-garment and the batch layout, and with the prefactored coarse correction before
-    sweep 2 (the two sweeps beside its factor are launched per colour). ``grid`` 3: the launch
-    has only 3 blocks, so each solves several of a colour's blocks in turn (the CPU always runs
-    one block)."""
+    the single-garment and the batch layout. ``grid`` 3: the launch has only 3 blocks, so each
+    solves several of a colour's blocks in turn (the CPU always runs one block)."""
     m, x0, v0 = draped_layers_in_contact(device)
     assert m.color_count > 2
-    for layout in ({}, {"lanes": 4, "particles_per_block": 32},
-                   {"coarse_sweeps": (2,), "coarse_prefactor": True}):
+    for layout in ({}, {"lanes": 4, "particles_per_block": 32}):
         out = []
         for one_launch in (False, True):
             solver = SolverVBD(m, VBDConfig(substeps=4, iterations=4, self_contact=True,

@@ -91,9 +91,6 @@ class VBDConfig:
             resident at once: the launch takes as many as the kernel's occupancy allows and
             each does several of a colour's blocks where the colour needs more. On the CPU, one
             block does the whole sweep.
-        one_launch_blocks: the most blocks of a one-launch sweep (0: as many as can be resident,
-            ``resident_blocks``). Fewer leave room on the SMs for the side streams' kernels
-            (body contact, detection, the coarse factor), which otherwise wait for the sweep.
         chebyshev_rho: estimated spectral radius rho of the sweeps for Chebyshev acceleration
             (Chen et al. 2024, Sec. 3.8: ``omega_1 = 1, omega_2 = 2 / (2 - rho^2), omega_k = 4 /
             (4 - rho^2 omega_{k-1})``); 0 turns it off. It converges further per sweep, but
@@ -259,7 +256,6 @@ class VBDConfig:
     max_registers: int = -1
     fast_math: bool = False
     one_launch_sweeps: bool = False
-    one_launch_blocks: int = 0
     chebyshev_rho: float = 0.0
     membrane: str = "corotated"
     self_contact: bool = False
@@ -320,9 +316,6 @@ class VBDConfig:
         if self.self_contact_lookahead_margin < 0.0:
             raise ValueError("VBDConfig.self_contact_lookahead_margin must be >= 0, got "
                              f"{self.self_contact_lookahead_margin}")
-        if self.one_launch_blocks < 0:
-            raise ValueError(f"VBDConfig.one_launch_blocks must be >= 0 (0: auto), got "
-                             f"{self.one_launch_blocks}")
         if self.gather not in ("auto", "fused", "split"):
             raise ValueError(f"VBDConfig.gather must be 'auto', 'fused' or 'split', got {self.gather!r}")
         if self.membrane not in ("stvk", "corotated"):
@@ -493,8 +486,6 @@ class SolverVBD:
             # the CPU runs a launch's blocks one after the other: one block does the whole sweep
             self._resident_blocks = resident_blocks(self._solve_colors, d, self._particles * self._lanes) \
                 if cuda else 1
-            if self.config.one_launch_blocks > 0:
-                self._resident_blocks = min(self._resident_blocks, self.config.one_launch_blocks)
         self._side = SideStreams(d, 1)
         self._pipe = SideStreams(d, 1)
         self._coarse_side = SideStreams(d, 1)
@@ -575,23 +566,19 @@ class SolverVBD:
         self._solve_arrays_cache[id(sc_data)] = (sc_data, key, a)
         return a
 
-    def sweep(self, x, sc_data, eps_u: float, h: float, parity: int = 0, evaluate: bool = False,
-              alone: bool = True) -> None:
+    def sweep(self, x, sc_data, eps_u: float, h: float, parity: int = 0, evaluate: bool = False) -> None:
         """One Gauss-Seidel sweep: the solve kernel over every colour, updating ``x`` in place
         against the substep's current buffers (``sc_data``: the self-contact data to use). Sweep
         ``k`` of a substep has ``parity`` ``k % 2``: the neighbours of a particle's own colour
         (hinge opposites, contact partners) are read from snapshot ``parity``, which must hold
         ``x``, and every solved particle writes its new position to snapshot ``1 - parity``.
         ``evaluate``: write the residual forces at ``x`` to the coarse level's residual buffer
-        instead (``x`` stays). ``alone``: no side stream runs beside this sweep, so a one-launch
-        sweep (``VBDConfig.one_launch_sweeps``) may take every resident block; beside one (the
-        coarse factor's), a kernel of the side stream that holds an SM would keep some of its
-        blocks waiting and hold up every grid barrier, so the sweep is launched per colour."""
+        instead (``x`` stays)."""
         wp = warp()
         m = self.model
         cfg = self.config
         arrays = self._solve_arrays(sc_data)
-        if self._solve_colors is not None and not evaluate and alone:
+        if self._solve_colors is not None and not evaluate:
             heavy = sc_data.heavy_cap if sc_data.enabled else 0
             offsets = m.color_offsets
             blocks = max(-(-(b - a) // self._particles) + min(heavy, b - a)
@@ -722,15 +709,13 @@ class SolverVBD:
                     self.coarse.prepare(h, sc_data)
             if self._omegas:
                 wp.copy(self._cheb_prev1, x)
-            # the sweeps before the first coarse correction run beside the coarse factor
-            beside = min(cfg.coarse_sweeps) if self.coarse is not None and self.coarse.prefactor else 0
             for it in range(cfg.iterations):
                 if it in cfg.coarse_sweeps:
                     # the residual at x (snapshot it % 2 holds x), its coarse-level correction
                     self.sweep(x, sc_data, eps_u, h, it % 2, evaluate=True)
                     self._coarse_side.join()
                     self.coarse.correct(h, x, self._snapshots[it % 2], sc_data, control.instance_body)
-                self.sweep(x, sc_data, eps_u, h, it % 2, alone=it >= beside)
+                self.sweep(x, sc_data, eps_u, h, it % 2)
                 if self._omegas:
                     wp.launch(K.chebyshev_kernel, dim=n,
                               inputs=[self._omegas[it], m.particle_flags],
