@@ -1003,33 +1003,6 @@ def test_fast_math_takes_the_step_to_round_off(device):
             np.testing.assert_array_equal(fast, ref)
 
 
-@pytest.mark.parametrize("grid", [None, 3])
-def test_one_launch_sweeps_take_the_per_colour_steps(device, grid):
-    """``one_launch_sweeps`` runs a sweep's colours in one launch, a grid barrier between them
-    (``solve_color_kernel(colors=True)``): from a state of two draped sheets in self-contact,
-    three frames of 4 substeps end at the positions of the per-colour launches bit for bit, in
-    the single-garment and the batch layout. ``grid`` 3: the launch has only 3 blocks, so each
-    solves several of a colour's blocks in turn (the CPU always runs one block)."""
-    m, x0, v0 = draped_layers_in_contact(device)
-    assert m.color_count > 2
-    for layout in ({}, {"lanes": 4, "particles_per_block": 32}):
-        out = []
-        for one_launch in (False, True):
-            solver = SolverVBD(m, VBDConfig(substeps=4, iterations=4, self_contact=True,
-                                            one_launch_sweeps=one_launch, **layout))
-            assert (solver._solve_colors is not None) == one_launch
-            if one_launch and grid is not None and device == "cuda":
-                solver._resident_blocks = grid
-            s = m.state()
-            s.positions.assign(x0)
-            s.velocities.assign(v0)
-            for _ in range(3):
-                solver.step(s, s, m.control(), 1.0 / 30.0)
-            out.append(s.positions.numpy().copy())
-        assert np.abs(out[0] - x0).max() > 1e-3  # the frames did work
-        np.testing.assert_array_equal(out[1], out[0], err_msg=str(layout))
-
-
 def test_register_cap_takes_the_same_step(device):
     """A register cap changes only where the solve keeps its values (registers or spilled to
     local memory), not its arithmetic: the step from a state with self-contact is the

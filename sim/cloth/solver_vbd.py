@@ -85,12 +85,6 @@ class VBDConfig:
             compiler's choice otherwise. A cap trades spills for resident warps.
         fast_math: compile the CUDA solve kernel with fast math (approximate division, square
             root and transcendentals, denormals flushed); the CPU is unaffected.
-        one_launch_sweeps: on CUDA, each sweep is one launch of the solve kernel over all colours,
-            with a grid barrier between colours, instead of one launch per colour (the same
-            floats: ``vbd_kernels.solve_color_kernel(colors=True)``). Its blocks must all be
-            resident at once: the launch takes as many as the kernel's occupancy allows and
-            each does several of a colour's blocks where the colour needs more. On the CPU, one
-            block does the whole sweep.
         chebyshev_rho: estimated spectral radius rho of the sweeps for Chebyshev acceleration
             (Chen et al. 2024, Sec. 3.8: ``omega_1 = 1, omega_2 = 2 / (2 - rho^2), omega_k = 4 /
             (4 - rho^2 omega_{k-1})``); 0 turns it off. It converges further per sweep, but
@@ -255,7 +249,6 @@ class VBDConfig:
     gather: str = "auto"
     max_registers: int = -1
     fast_math: bool = False
-    one_launch_sweeps: bool = False
     chebyshev_rho: float = 0.0
     membrane: str = "corotated"
     self_contact: bool = False
@@ -392,31 +385,6 @@ def auto_lanes(largest_color: int) -> tuple[int, int]:
     return (4, 32) if largest_color >= AUTO_LANES_PARTICLES else (16, 8)
 
 
-def resident_blocks(kernel, device, block_dim: int) -> int:
-    """How many blocks of ``block_dim`` threads of the CUDA ``kernel`` can be resident on
-    ``device`` at once: the driver's occupancy (``cuOccupancyMaxActiveBlocksPerMultiprocessor``,
-    with the kernel's registers and tile shared memory) times the SMs. Where the driver cannot
-    be asked, one block per SM, which any launchable kernel gets."""
-    import ctypes
-
-    wp = warp()
-    dev = wp.get_device(device)
-    hooks = kernel.module.load(dev, block_dim).get_kernel_hooks(kernel)
-    per_sm = 1
-    try:
-        cuda = ctypes.CDLL("libcuda.so.1")
-        count = ctypes.c_int(0)
-        with wp.ScopedDevice(dev):
-            err = cuda.cuOccupancyMaxActiveBlocksPerMultiprocessor(
-                ctypes.byref(count), ctypes.c_void_p(hooks.forward), ctypes.c_int(block_dim),
-                ctypes.c_size_t(hooks.forward_smem_bytes))
-        if err == 0 and count.value > 0:
-            per_sm = count.value
-    except OSError:
-        pass
-    return per_sm * dev.sm_count
-
-
 def solve_layout(config: VBDConfig, largest_color: int) -> tuple[int, int, int]:
     """(lanes, particles per block, register cap) of the CUDA solve for ``config`` and the
     particle count of the model's largest colour: ``auto_lanes`` where ``config.lanes`` is 0,
@@ -476,16 +444,6 @@ class SolverVBD:
         self._max_registers = regs if cuda else 0
         self._solve = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                            fast_math=self.config.fast_math)
-        self._solve_colors = None
-        if self.config.one_launch_sweeps and model.color_count > 1:
-            self._solve_colors = K.solve_color_kernel(self._particles, self._lanes, fused,
-                                                      self._max_registers, fast_math=self.config.fast_math,
-                                                      colors=True)
-            self._color_offsets = wp.array(offsets, dtype=wp.int32, device=d)
-            self._grid_barrier = wp.zeros(1, dtype=wp.int32, device=d)
-            # the CPU runs a launch's blocks one after the other: one block does the whole sweep
-            self._resident_blocks = resident_blocks(self._solve_colors, d, self._particles * self._lanes) \
-                if cuda else 1
         self._side = SideStreams(d, 1)
         self._pipe = SideStreams(d, 1)
         self._coarse_side = SideStreams(d, 1)
@@ -578,18 +536,6 @@ class SolverVBD:
         m = self.model
         cfg = self.config
         arrays = self._solve_arrays(sc_data)
-        if self._solve_colors is not None and not evaluate:
-            heavy = sc_data.heavy_cap if sc_data.enabled else 0
-            offsets = m.color_offsets
-            blocks = max(-(-(b - a) // self._particles) + min(heavy, b - a)
-                         for a, b in zip(offsets[:-1], offsets[1:], strict=True))
-            grid = min(blocks, self._resident_blocks)
-            wp.launch_tiled(
-                self._solve_colors, dim=[grid], block_dim=self._particles * self._lanes,
-                inputs=[self._color_offsets, m.color_count, heavy, grid, self._membrane,
-                        cfg.contact_stiffness, eps_u, h, cfg.air_damping, arrays, self._snapshots[parity]],
-                outputs=[x, self._snapshots[1 - parity], self._grid_barrier], device=m.device)
-            return
         if evaluate:  # no particle moves: one launch over all colours, no heavy blocks
             kernel, snap_out, heavy = self._evaluate, self.coarse.residual, 0
             spans = [(0, m.particle_count)]

@@ -544,39 +544,12 @@ SOLVE_ARRAYS = (
 )
 
 
-# A barrier of all the blocks of a launch (CUDA only; they must all be resident at once, which
-# the caller checks: ``SolverVBD``'s one-launch sweeps). The scheme of cooperative groups'
-# grid sync: each block's thread 0 adds 1 (block 0 adds 2^31 - (blocks - 1)), so the counter's
-# top bit flips once every block has arrived and its low bits come back to where they were: no
-# reset between barriers or launches. The fences publish the block's writes before it arrives
-# and order its later loads after the others' writes.
-_GRID_BARRIER = """
-#if defined(__CUDA_ARCH__)
-__syncthreads();
-if (threadIdx.x == 0) {
-    unsigned int* counter = (unsigned int*)barrier.data;
-    unsigned int add = blockIdx.x == 0 ? 0x80000000u - (gridDim.x - 1u) : 1u;
-    __threadfence();
-    unsigned int old = atomicAdd(counter, add);
-    while (((old ^ *((volatile unsigned int*)counter)) & 0x80000000u) == 0u) {
-    }
-    __threadfence();
-}
-__syncthreads();
-#endif
-"""
-
-
-@wp.func_native(_GRID_BARRIER)
-def grid_barrier(barrier: wp.array(dtype=wp.int32)): ...
-
-
 _SOLVE_KERNELS: dict = {}
 FUSED_LANES = 8  # lanes per particle from which the solve gathers with the fused loop
 
 
 def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, max_registers: int = 0,
-                       evaluate: bool = False, fast_math: bool = False, colors: bool = False):
+                       evaluate: bool = False, fast_math: bool = False):
     """The per-colour VBD kernel (Chen et al. 2024, Alg. 1) for blocks of ``particles`` x
     ``lanes`` threads: launch it with ``wp.launch_tiled(kernel, dim=[ceil(count / particles)],
     block_dim=particles * lanes)`` (on the CPU, where a block is one thread: 1 x 1).
@@ -609,27 +582,15 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
     one launch over all colours at once (``color_start`` 0, ``count`` all particles, no heavy
     blocks: light blocks take the heavy particles too) evaluates the whole residual at one
     configuration (``snap`` must hold ``x``). The coarse-level correction (``sim.cloth.coarse``)
-    restricts it.
-
-    ``colors`` (CUDA only): one launch does a whole sweep, every colour in turn with a grid
-    barrier (``grid_barrier``) between them, instead of one launch per colour. It is launched
-    with ``grid_blocks`` blocks that must all be resident at once (``SolverVBD`` checks the
-    kernel's occupancy); block ``b`` solves blocks ``b``, ``b + grid_blocks``, ... of each colour's
-    per-colour layout (light blocks, then ``heavy`` heavy-vertex blocks), so every particle
-    takes the same step as with the per-colour launches."""
+    restricts it."""
     if fused is None:
         fused = lanes >= FUSED_LANES
-    if colors and evaluate:
-        raise ValueError("solve_color_kernel: an evaluation is one launch already (colors with evaluate)")
-    key = (int(particles), int(lanes), bool(fused), int(max_registers), bool(evaluate), bool(fast_math),
-           bool(colors))
+    key = (int(particles), int(lanes), bool(fused), int(max_registers), bool(evaluate), bool(fast_math))
     if key in _SOLVE_KERNELS:
         return _SOLVE_KERNELS[key]
-    P, L, FUSED, EVAL, COLORS = int(particles), int(lanes), int(fused), int(evaluate), bool(colors)
+    P, L, FUSED, EVAL = int(particles), int(lanes), int(fused), int(evaluate)
 
-    def solve_block(
-        block: int,
-        thread: int,
+    def solve(
         count: int,
         color: int,
         light_blocks: int,
@@ -675,6 +636,7 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
         instance_thickness = floats(a.instance_thickness)
         instance_friction = floats(a.instance_friction)
         sc = contact_view(a.contact)
+        block, thread = wp.tid()
         local = thread // wp.static(L)
         lane = thread - local * wp.static(L)
         share = lane
@@ -746,61 +708,6 @@ def solve_color_kernel(particles: int, lanes: int, fused: bool | None = None, ma
     regs = f"_r{int(max_registers)}" if max_registers > 0 else ""
     name = f"solve_color_p{P}_l{L}{'_fused' if FUSED else ''}{regs}{'_eval' if EVAL else ''}"
     name += "_fm" if fast_math else ""
-    name += "_colors" if COLORS else ""
-    solve_block.__name__ = solve_block.__qualname__ = f"{name}_block"
-    solve_block = wp.func(solve_block)
-
-    if COLORS:
-        def solve(
-            color_offsets: wp.array(dtype=wp.int32),
-            color_count: int,
-            heavy: int,
-            grid_blocks: int,
-            membrane: int,
-            k_contact: float,
-            eps_u: float,
-            h: float,
-            air_damping: float,
-            a: SolveArrays,
-            snap: wp.array(dtype=wp.vec3),
-            x_inout: wp.array(dtype=wp.vec3),
-            snap_out: wp.array(dtype=wp.vec3),
-            barrier: wp.array(dtype=wp.int32),
-        ):
-            # every colour of one sweep in one launch of ``grid_blocks`` co-resident blocks, each
-            # taking every ``grid_blocks``-th of a colour's blocks, a grid barrier between colours
-            block, thread = wp.tid()
-            for c in range(color_count):
-                start = color_offsets[c]
-                count = color_offsets[c + 1] - start
-                light = (count + wp.static(P - 1)) // wp.static(P)
-                b = block
-                while b < light + wp.min(heavy, count):
-                    solve_block(b, thread, count, c, light, membrane, start, k_contact, eps_u, h, air_damping,
-                                a, snap, x_inout, snap_out)
-                    b += grid_blocks
-                if c + 1 < color_count:
-                    grid_barrier(barrier)
-    else:
-        def solve(
-            count: int,
-            color: int,
-            light_blocks: int,
-            membrane: int,
-            color_start: int,
-            k_contact: float,
-            eps_u: float,
-            h: float,
-            air_damping: float,
-            a: SolveArrays,
-            snap: wp.array(dtype=wp.vec3),
-            x_inout: wp.array(dtype=wp.vec3),
-            snap_out: wp.array(dtype=wp.vec3),
-        ):
-            block, thread = wp.tid()
-            solve_block(block, thread, count, color, light_blocks, membrane, color_start, k_contact, eps_u, h,
-                        air_damping, a, snap, x_inout, snap_out)
-
     solve.__name__ = solve.__qualname__ = name
     options = {"cuda_max_registers": int(max_registers)} if max_registers > 0 else {}
     if fast_math:
