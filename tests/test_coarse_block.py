@@ -141,3 +141,14 @@ def test_a_barrier_some_threads_never_reach_fails_instead_of_hanging(lib):
     # the library still works afterwards
     dx, _ = emu.run(lib, "solve", 64, capacity(sizes), system)
     np.testing.assert_allclose(dx, dense_solution(system), rtol=1e-4, atol=1e-4 * np.abs(dx).max())
+
+
+def test_block_kernels_fit_a_block_of_1024_threads_in_the_registers():
+    """The block solve and factor kernels are launched with up to 1,024 threads (``threads``);
+    an SM has 64k registers, so they are compiled with at most 64 per thread. Session 36's
+    two-row substitutions took the uncapped block solve past that: on CUDA it no longer
+    launched at 992 threads (error 701), which the CPU emulation cannot see."""
+    assert coarse_block.threads(10_000) == 1024
+    for kind in ("solve", "factor"):
+        kernel = coarse_block._kernel(1024, kind)
+        assert kernel.options["cuda_max_registers"] * coarse_block.threads(10_000) <= 65536

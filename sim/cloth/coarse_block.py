@@ -21,6 +21,11 @@ snippet stub's tile annotation, whose size is a closure value.
 import warp as wp
 
 COOP_THREADS = 256  # the least threads of a block solve (``threads``)
+# registers per thread of the block solve and factor kernels: a block of up to 1024 threads
+# (``threads``) must fit in an SM's 64k registers. Without the cap, session 36's two-row
+# substitutions took the block solve past 64 and it no longer launched at 992 threads (CUDA
+# error 701, "too many resources requested", session 37).
+BLOCK_MAX_REGISTERS = 64
 # floats of shared memory are allocated in steps of this many (one kernel per size)
 CAPACITY_STEP = 1024
 
@@ -91,7 +96,8 @@ def _kernel(capacity: int, kind: str):
             native(smem, rhs, diag, inst_start, inst_count, inst_width, inst_band, order, band_k, dx_out, k,
                    lane)
 
-        kernel = wp.kernel(block_solve_kernel, enable_backward=False, module="unique")
+        kernel = wp.kernel(block_solve_kernel, enable_backward=False, module="unique",
+                           cuda_max_registers=BLOCK_MAX_REGISTERS)
     elif kind == "factor":
         @wp.func_native(_FACTOR)
         def native(
@@ -126,7 +132,8 @@ def _kernel(capacity: int, kind: str):
             native(smem, diag, inst_start, inst_count, inst_width, inst_band, order, band_k, factor_out, k,
                    lane)
 
-        kernel = wp.kernel(block_factor_kernel, enable_backward=False, module="unique")
+        kernel = wp.kernel(block_factor_kernel, enable_backward=False, module="unique",
+                           cuda_max_registers=BLOCK_MAX_REGISTERS)
     else:
         @wp.func_native(_SUBSTITUTE)
         def native(
