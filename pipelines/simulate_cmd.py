@@ -255,7 +255,9 @@ def run(args: argparse.Namespace) -> int:
     seq, quality = result.sequence, result.quality
     if result.failed_gates and not args.allow_failed_gates:
         print(f"wrinkles simulate: quality gates failed: {'; '.join(result.failed_gates)} "
-              "(nothing written; --allow-failed-gates writes it anyway)", file=sys.stderr)
+              "(nothing written; --allow-failed-gates writes it anyway; more --substeps than "
+              f"{config.substeps} or --iterations than {config.iterations} lower strain and "
+              "crossings, at their cost in time)", file=sys.stderr)
         return 1
 
     report = {

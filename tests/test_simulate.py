@@ -324,6 +324,7 @@ def test_cli_failed_gates_exit_1_nothing_written(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert rc == 1 and len(err.splitlines()) == 1, err
     assert "max edge strain" in err and "--allow-failed-gates" in err
+    assert "more --substeps than 4 or --iterations than 4" in err  # what to try, from this run's settings
     assert list(tmp_path.iterdir()) == []
 
 
