@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 
 import numpy as np
@@ -34,6 +35,33 @@ def add_scene_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: %(default)s)")
     ap.add_argument("--motions", default="walk,run")
     ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s]")
+    add_material_argument(ap)
+
+
+def add_material_argument(ap: argparse.ArgumentParser) -> None:
+    """``--material-param``: fields of the t-shirt's cotton changed for an experiment."""
+    ap.add_argument("--material-param", action="append", default=[], metavar="KEY=VALUE",
+                    help="a field of the t-shirt's cotton (sim.garments.materials.Material) for this run, "
+                    "e.g. friction=0.2 against skin (repeatable; default: the preset)")
+
+
+def material_changes(args: argparse.Namespace) -> dict:
+    """``--material-param`` as {field: value}; an unknown field or a bad number exits with a
+    one-line error."""
+    from sim.garments.materials import Material
+
+    fields = [f for f in Material.__dataclass_fields__ if f not in ("name", "source")]
+    out = {}
+    for item in args.material_param:
+        key, _, value = item.partition("=")
+        try:
+            if key not in fields:
+                raise ValueError(f"unknown field {key!r} (fields: {', '.join(fields)})")
+            out[key] = float(value)
+        except ValueError as e:
+            print(f"--material-param {item!r}: {e}", file=sys.stderr)
+            raise SystemExit(2) from None
+    return out
 
 
 def load_scene(args: argparse.Namespace):
@@ -44,7 +72,7 @@ def load_scene(args: argparse.Namespace):
     from sim.motions import load_motion
 
     body = load_default_body()
-    garment, edge = build_garment(body, args.vertices)
+    garment, edge = build_garment(body, args.vertices, material_changes(args))
     motions = {n: load_motion(n, fps=30.0, duration=args.seconds) for n in args.motions.split(",")}
     return resolve_device(args.device), body, garment, edge, motions
 
@@ -71,14 +99,17 @@ def load_single_scene(args: argparse.Namespace):
             load_motion(args.motion, fps=30.0, duration=args.seconds))
 
 
-def build_garment(body, vertices: int):
-    """The t-shirt template at the edge length that gives about ``vertices`` vertices."""
+def build_garment(body, vertices: int, material: dict | None = None):
+    """The t-shirt template at the edge length that gives about ``vertices`` vertices, in cotton
+    with the fields ``material`` changed (``material_changes``)."""
     from sim.garments import make_garment
+    from sim.garments.materials import get_material
     from sim.garments.templates import TEMPLATES
 
     t = TEMPLATES["t_shirt"]
     edge = t.coarse * math.sqrt(t.vertices[0] / float(vertices))
-    return make_garment("t_shirt", body, None, resolution=edge), edge
+    return make_garment("t_shirt", body, None, resolution=edge,
+                        material=get_material("cotton").with_(**(material or {}))), edge
 
 
 def add_batch_arguments(ap: argparse.ArgumentParser) -> None:

@@ -78,10 +78,11 @@ def describe(result, g, device: str, n_worst: int) -> dict:
 
 
 def main() -> None:
-    from benchmarks.bench_tshirt import build_garment
+    from benchmarks.bench_tshirt import add_material_argument, build_garment, material_changes
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
     from sim.garments import make_garment
+    from sim.garments.materials import get_material
     from sim.motions import load_motion
     from sim.simulate import SimulationConfig, SimulationJob, simulate_batch
 
@@ -106,8 +107,10 @@ def main() -> None:
                     help="also write each alone run's garment positions per frame (float32) and the "
                     "rest mesh, one file per motion (PATH_walk.npz, ...), for a look at the worst "
                     "frames (default: off)")
+    add_material_argument(ap)
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
+    material = material_changes(args)
     params = {}
     for item in args.param:
         name, _, value = item.partition("=")
@@ -125,7 +128,8 @@ def main() -> None:
     body = load_default_body()
     _, edge = build_garment(body, args.vertices)
     try:
-        g = make_garment("t_shirt", body, None, resolution=edge, **params)
+        g = make_garment("t_shirt", body, None, resolution=edge,
+                         material=get_material("cotton").with_(**material), **params)
     except (TypeError, ValueError) as e:
         ap.error(f"--param: {e}")
     names = args.motion.split(",")
@@ -157,7 +161,7 @@ def main() -> None:
     write_result(f"worst_edges_{device.split(':')[0]}{args.tag}", {
         "machine": machine(device), "vertices": len(g.rest_vertices), "motion": args.motion,
         "seconds": args.seconds, "setting": args.setting or "default", "solver": json.loads(args.solver),
-        "params": params, "copies": args.copies, "wall_s": wall, **first, "runs": runs,
+        "params": params, "material": material, "copies": args.copies, "wall_s": wall, **first, "runs": runs,
     })
 
 
