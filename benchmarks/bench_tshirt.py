@@ -99,9 +99,9 @@ def load_single_scene(args: argparse.Namespace):
             load_motion(args.motion, fps=30.0, duration=args.seconds))
 
 
-def build_garment(body, vertices: int, material: dict | None = None):
+def build_garment(body, vertices: int, material: dict | None = None, **params: float):
     """The t-shirt template at the edge length that gives about ``vertices`` vertices, in cotton
-    with the fields ``material`` changed (``material_changes``)."""
+    with the fields ``material`` changed (``material_changes``), with template ``params``."""
     from sim.garments import make_garment
     from sim.garments.materials import get_material
     from sim.garments.templates import TEMPLATES
@@ -109,7 +109,7 @@ def build_garment(body, vertices: int, material: dict | None = None):
     t = TEMPLATES["t_shirt"]
     edge = t.coarse * math.sqrt(t.vertices[0] / float(vertices))
     return make_garment("t_shirt", body, None, resolution=edge,
-                        material=get_material("cotton").with_(**(material or {}))), edge
+                        material=get_material("cotton").with_(**(material or {})), **params), edge
 
 
 def add_batch_arguments(ap: argparse.ArgumentParser) -> None:

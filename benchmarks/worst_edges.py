@@ -81,8 +81,6 @@ def main() -> None:
     from benchmarks.bench_tshirt import add_material_argument, build_garment, material_changes
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
-    from sim.garments import make_garment
-    from sim.garments.materials import get_material
     from sim.motions import load_motion
     from sim.simulate import SimulationConfig, SimulationJob, simulate_batch
 
@@ -126,10 +124,8 @@ def main() -> None:
         setting = {"substeps": int(m[1]), "iterations": int(m[2])}
     device = resolve_device(args.device)
     body = load_default_body()
-    _, edge = build_garment(body, args.vertices)
     try:
-        g = make_garment("t_shirt", body, None, resolution=edge,
-                         material=get_material("cotton").with_(**material), **params)
+        g, _ = build_garment(body, args.vertices, material, **params)
     except (TypeError, ValueError) as e:
         ap.error(f"--param: {e}")
     names = args.motion.split(",")
