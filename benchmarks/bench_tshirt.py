@@ -46,21 +46,23 @@ def add_material_argument(ap: argparse.ArgumentParser) -> None:
 
 
 def material_changes(args: argparse.Namespace) -> dict:
-    """``--material-param`` as {field: value}; an unknown field or a bad number exits with a
-    one-line error."""
-    from sim.garments.materials import Material
+    """``--material-param`` as {field: value}; an unknown field (``Material.with_`` decides) or a
+    bad number exits with a one-line error."""
+    from sim.errors import WrinklesInputError
+    from sim.garments.materials import get_material
 
-    fields = [f for f in Material.__dataclass_fields__ if f not in ("name", "source")]
     out = {}
-    for item in args.material_param:
-        key, _, value = item.partition("=")
-        try:
-            if key not in fields:
-                raise ValueError(f"unknown field {key!r} (fields: {', '.join(fields)})")
-            out[key] = float(value)
-        except ValueError as e:
-            print(f"--material-param {item!r}: {e}", file=sys.stderr)
-            raise SystemExit(2) from None
+    try:
+        for item in args.material_param:
+            key, _, value = item.partition("=")
+            try:
+                out[key] = float(value)
+            except ValueError:
+                raise WrinklesInputError(f"expected KEY=NUMBER, got {item!r}") from None
+        get_material("cotton").with_(**out)
+    except WrinklesInputError as e:
+        print(f"--material-param: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
     return out
 
 
