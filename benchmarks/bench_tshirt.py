@@ -39,10 +39,34 @@ def add_scene_arguments(ap: argparse.ArgumentParser) -> None:
 
 
 def add_material_argument(ap: argparse.ArgumentParser) -> None:
-    """``--material-param``: fields of the t-shirt's cotton changed for an experiment."""
+    """``--material-param`` and ``--param``: fields of the t-shirt's cotton and parameters of its
+    template changed for an experiment."""
     ap.add_argument("--material-param", action="append", default=[], metavar="KEY=VALUE",
                     help="a field of the t-shirt's cotton (sim.garments.materials.Material) for this run, "
                     "e.g. friction=0.2 against skin (repeatable; default: the preset)")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                    help="a t-shirt template parameter (`wrinkles garments` lists them), e.g. "
+                    "neck_fillet=0 or hem_width=0 (repeatable; default: the template's)")
+
+
+def template_params(args: argparse.Namespace) -> dict:
+    """``--param`` as {name: value}; an unknown name or a value out of range (``make_params``
+    decides) or a bad number exits with a one-line error."""
+    from sim.errors import WrinklesInputError
+    from sim.garments.templates import make_params
+
+    out = {}
+    try:
+        for item in args.param:
+            key, _, value = item.partition("=")
+            try:
+                out[key] = float(value)
+            except ValueError:
+                raise WrinklesInputError(f"expected NAME=NUMBER, got {item!r}") from None
+        make_params("t_shirt", **out)
+    except WrinklesInputError as e:
+        _option_error("--param", e)
+    return out
 
 
 def material_changes(args: argparse.Namespace) -> dict:
@@ -61,9 +85,16 @@ def material_changes(args: argparse.Namespace) -> dict:
                 raise WrinklesInputError(f"expected KEY=NUMBER, got {item!r}") from None
         get_material("cotton").with_(**out)
     except WrinklesInputError as e:
-        print(f"--material-param: {e}", file=sys.stderr)
-        raise SystemExit(2) from None
+        _option_error("--material-param", e)
     return out
+
+
+def _option_error(option: str, e: Exception) -> None:
+    """Exit with status 2 and argparse's one-line form, ``PROG: error: OPTION: message``."""
+    import os
+
+    print(f"{os.path.basename(sys.argv[0])}: error: {option}: {e}", file=sys.stderr)
+    raise SystemExit(2)
 
 
 def load_scene(args: argparse.Namespace):
@@ -74,7 +105,7 @@ def load_scene(args: argparse.Namespace):
     from sim.motions import load_motion
 
     body = load_default_body()
-    garment, edge = build_garment(body, args.vertices, material_changes(args))
+    garment, edge = build_garment(body, args.vertices, material_changes(args), **template_params(args))
     motions = {n: load_motion(n, fps=30.0, duration=args.seconds) for n in args.motions.split(",")}
     return resolve_device(args.device), body, garment, edge, motions
 

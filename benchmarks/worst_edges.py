@@ -78,7 +78,12 @@ def describe(result, g, device: str, n_worst: int) -> dict:
 
 
 def main() -> None:
-    from benchmarks.bench_tshirt import add_material_argument, build_garment, material_changes
+    from benchmarks.bench_tshirt import (
+        add_material_argument,
+        build_garment,
+        material_changes,
+        template_params,
+    )
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
     from sim.motions import load_motion
@@ -93,8 +98,6 @@ def main() -> None:
     ap.add_argument("--setting", default="", metavar="SxI",
                     help="substeps x sweeps, e.g. 20x5 (default: the job default, SimulationConfig)")
     ap.add_argument("--solver", default="{}", help="JSON dict of extra VBDConfig fields")
-    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                    help="a t-shirt template parameter, e.g. neck_fillet=0 (repeatable)")
     ap.add_argument("--copies", type=int, default=0, metavar="K",
                     help="also run every motion K times in one batched model and report each member, "
                     "beside the runs alone (default: %(default)s, off)")
@@ -109,13 +112,7 @@ def main() -> None:
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
     material = material_changes(args)
-    params = {}
-    for item in args.param:
-        name, _, value = item.partition("=")
-        try:
-            params[name] = float(value)
-        except ValueError:
-            ap.error(f"--param: expected NAME=NUMBER, got {item!r}")
+    params = template_params(args)
     setting = {}
     if args.setting:
         m = re.fullmatch(r"(\d+)x(\d+)", args.setting)
@@ -124,10 +121,7 @@ def main() -> None:
         setting = {"substeps": int(m[1]), "iterations": int(m[2])}
     device = resolve_device(args.device)
     body = load_default_body()
-    try:
-        g, _ = build_garment(body, args.vertices, material, **params)
-    except (TypeError, ValueError) as e:
-        ap.error(f"--param: {e}")
+    g, _ = build_garment(body, args.vertices, material, **params)
     names = args.motion.split(",")
     motions = [load_motion(n, fps=30.0, duration=args.seconds) for n in names]
     cfg = SimulationConfig(device=device, solver=json.loads(args.solver), keep_prelude=args.keep_prelude,

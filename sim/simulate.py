@@ -67,12 +67,29 @@ MORPH_FRACTION = 0.6
 the cloth comes to rest on the target shape during the remainder."""
 
 
+FINE_GARMENT_VERTICES = 10_000
+"""Garments with more vertices than this take ``FINE_SUBSTEPS`` substeps by default."""
+DEFAULT_SUBSTEPS, FINE_SUBSTEPS = 12, 14
+"""Default substeps per frame (``SimulationConfig.substeps`` 0) of a garment up to
+``FINE_GARMENT_VERTICES`` vertices, and of a finer one. Session 38 (H100, populations of random
+walks and runs, docs/BENCHMARKS.md): the 5k t-shirt passes 134 of 144 at 12 (133 at 14 before the
+templates' hems); the 19k t-shirt 7 of 16 at 14 and 2 of 16 at 12."""
+
+
+def default_substeps(vertices: int) -> int:
+    """Substeps per frame of the job default for a garment of ``vertices`` vertices."""
+    return FINE_SUBSTEPS if vertices > FINE_GARMENT_VERTICES else DEFAULT_SUBSTEPS
+
+
 @dataclass(frozen=True)
 class SimulationConfig:
     """Settings of a simulation run (saved with every output; ``from_dict`` refuses unknown keys).
 
-    The solver defaults, 14 substeps x 5 sweeps with one coarse-level correction before sweep 2,
-    are the issue benchmark's setting (docs/BENCHMARKS.md, sessions 23-25). On the 5k t-shirt
+    The solver defaults, 12 substeps x 5 sweeps with one coarse-level correction before sweep 2
+    (14 substeps for garments over 10k vertices: ``default_substeps``), are the issue benchmark's
+    setting (docs/BENCHMARKS.md, sessions 23-25; 14 substeps everywhere until session 38, when the
+    templates' hems (``sim.garments.hems``) let the 5k t-shirt pass the population of random
+    walks and runs as often at 12: 134 of 144 against 133 at 14 without hems). On the 5k t-shirt
     (H100): 0.30x Newton's time per frame, max strain 0.20 / 0.27 on the walk / run, and 43 of
     48 random walks and runs passing every gate against 38 at 16 x 10 without corrections; on
     the CPU as cheap per frame as the former default, 10 x 10 without corrections. On CUDA the
@@ -85,7 +102,8 @@ class SimulationConfig:
     Attributes:
         fps: output frame rate [1/s]; the solver takes one step of ``1/fps`` per frame and the
             motion is resampled to it.
-        substeps: implicit-Euler substeps per frame.
+        substeps: implicit-Euler substeps per frame; 0, the default: ``default_substeps`` of
+            the run's largest garment (12, or 14 over 10k vertices).
         iterations: VBD Gauss-Seidel sweeps per substep.
         coarse_sweeps: sweeps (0 .. iterations - 1) before which a coarse-level correction runs
             (``VBDConfig.coarse_sweeps``; empty: none; None, the default: before sweep 2 where
@@ -116,7 +134,7 @@ class SimulationConfig:
     """
 
     fps: float = 30.0
-    substeps: int = 14
+    substeps: int = 0
     iterations: int = 5
     coarse_sweeps: tuple[int, ...] | None = None
     coarse_spacing: int = 0
@@ -154,10 +172,10 @@ class SimulationConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise bad(name, "a positive number")
-        for name in ("substeps", "iterations"):
+        for name, least in (("substeps", 0), ("iterations", 1)):
             v = getattr(self, name)
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
-                raise bad(name, "an integer >= 1")
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= least):
+                raise bad(name, f"an integer >= {least}" + (" (0: automatic)" if least == 0 else ""))
         for name in ("settle_seconds", "blend_seconds"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
@@ -181,9 +199,13 @@ class SimulationConfig:
         return self.settle_frames + self.blend_frames + int(motion_frames) - 1
 
     # --- solver settings -----------------------------------------------------------------
-    def vbd_config(self):
-        """The ``VBDConfig`` of these settings (``substeps``, ``iterations``, ``self_contact``
-        and ``solver`` overrides).
+    def substeps_for(self, vertices: int) -> int:
+        """Substeps per frame for a run whose largest garment has ``vertices`` vertices."""
+        return self.substeps or default_substeps(vertices)
+
+    def vbd_config(self, vertices: int = 0):
+        """The ``VBDConfig`` of these settings (``substeps`` for a largest garment of ``vertices``
+        vertices, ``iterations``, ``self_contact`` and ``solver`` overrides).
 
         Raises:
             WrinklesInputError: an unknown solver field, or self-contact requested from a
@@ -198,7 +220,7 @@ class SimulationConfig:
         # fast math in the CUDA solve kernel (session 33): 8 % faster per 5k t-shirt frame, the
         # population passing as often (docs/BENCHMARKS.md); the CPU is unaffected. The coarse
         # factor beside the first sweeps (session 34): 11 % faster, the population within noise
-        kw: dict[str, Any] = {"substeps": self.substeps, "iterations": self.iterations,
+        kw: dict[str, Any] = {"substeps": self.substeps_for(vertices), "iterations": self.iterations,
                               "coarse_sweeps": sweeps, "coarse_spacing": self.coarse_spacing,
                               "fast_math": True, "coarse_prefactor": True}
         unknown = sorted(set(self.solver) - allowed)
@@ -579,7 +601,7 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
         raise ValueError("simulate_batch: no jobs")
     wp = warp()
     cfg = config or SimulationConfig()
-    vbd = solver if solver is not None else cfg.vbd_config()
+    vbd = solver if solver is not None else cfg.vbd_config(max(j.garment.num_vertices for j in jobs))
     device = resolve_device(cfg.device)
     skinned: dict = {}
     tracks = [_prepare(j, cfg, device, skinned) for j in jobs]
@@ -590,7 +612,8 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
     for tr in tracks:
         g = tr.job.garment
         x0 = place_garment(g.rest_vertices, tr.placement)
-        builder.add_cloth(x0, g.faces, g.material, pinned=tr.pinned, rest_vertices=g.rest_vertices)
+        builder.add_cloth(x0, g.faces, g.material, pinned=tr.pinned, rest_vertices=g.rest_vertices,
+                          face_layers=g.face_layers)
         try:
             bindings.append(bind_to_surface(x0, tr.frames.vertices[0], tr.job.body.faces, vertices=tr.pinned,
                                             device=device))
@@ -745,7 +768,7 @@ def _finish(tr: _Track, cfg: SimulationConfig, vbd, device: str, seed: int, grap
         "cuda_graph": bool(graph),
         "versions": package_versions(),
         "garment": {"name": g.name, "category": g.category, "vertices": g.num_vertices, "faces": g.num_faces,
-                    "material": g.material.name,
+                    "material": g.material.name, "hem_faces": int((g.face_layers > 1.0).sum()),
                     "pinned_sets": [n for n in cfg.pinned if n in g.attachments],
                     "pinned_vertices": int(tr.pinned.size)},
         "body": {"name": getattr(body, "name", "body"), "source": getattr(body, "source", ""),

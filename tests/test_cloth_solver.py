@@ -413,24 +413,30 @@ def test_air_damping_follows_the_implicit_drag_law(device):
     assert 0.5 * G / alpha < vel < G / alpha
 
 
-def hanging_elongation(L: float, rho: float, mu: float, lam: float) -> float:
+def hanging_elongation(L: float, rho: float, mu: float, lam: float, top_layers: float = 1.0) -> float:
     """Analytic elongation [m] of a hanging StVK strip under its own weight (uniaxial, laterally
-    free): nominal stress s * E (s^2 - 1)/2 = rho g (L - Y) at rest height Y,
-    E = 4 mu (mu + lam) / (2 mu + lam) (2D Young's modulus)."""
+    free): nominal stress s * E (s^2 - 1)/2 = rho g (L - Y) at rest depth Y below the pin,
+    E = 4 mu (mu + lam) / (2 mu + lam) (2D Young's modulus). With ``top_layers`` n, the upper
+    half is n layers: n times the mass and stiffness, so there n E (s^3 - s)/2 carries the
+    weight below, rho g (n (L/2 - Y) + L/2)."""
     E = 4 * mu * (mu + lam) / (2 * mu + lam)
     Y = np.linspace(0.0, L, 2001)
     s = np.empty_like(Y)
     for k, y in enumerate(Y):
-        r = np.roots([E / 2, 0.0, -E / 2, -rho * G * (L - y)])
+        n = top_layers if y < L / 2 else 1.0
+        load = rho * G * (L - y if y >= L / 2 else top_layers * (L / 2 - y) + L / 2)
+        r = np.roots([n * E / 2, 0.0, -n * E / 2, -load])
         s[k] = np.max(r[np.abs(r.imag) < 1e-9].real)
     return float(np.trapezoid(s - 1.0, Y))
 
 
-def hanging_strip(device, mat, max_colors: int = 0):
-    """A 0.1 x 1 m strip (3 x 21 vertices) pinned along its top edge: (model, rest vertices)."""
+def hanging_strip(device, mat, max_colors: int = 0, top_layers: float = 1.0):
+    """A 0.1 x 1 m strip (3 x 21 vertices) pinned along its top edge, its upper half of
+    ``top_layers`` layers: (model, rest vertices)."""
     v, f = grid(3, 21, 0.1, 1.0)
     b = ClothModelBuilder(max_colors=max_colors)
-    b.add_cloth(v, f, mat, pinned=np.arange(3))
+    layers = np.where(v[f].mean(axis=1)[:, 1] > -0.5, top_layers, 1.0)
+    b.add_cloth(v, f, mat, pinned=np.arange(3), face_layers=layers)
     return b.finalize(device), v
 
 
@@ -448,6 +454,28 @@ def test_hanging_strip_reaches_analytic_stretch(device):
     assert 0.01 < delta < 0.05
     np.testing.assert_allclose(delta_sim, delta, rtol=0.04)
     # at rest: the last two frames agree
+    np.testing.assert_allclose(x[-1], x[-2], atol=2e-4)
+
+
+def test_a_strip_doubled_in_its_upper_half_hangs_at_the_layered_stretch(device):
+    """Two layers (a hem's) over the upper half: twice the weight there, carried by twice the
+    stiffness. The strip hangs at the analytic elongation of that layering, a quarter less than the
+    plain strip's (``hanging_elongation`` with ``top_layers``)."""
+    L, nx = 1.0, 3
+    mat = ClothMaterialParams(density=0.2, mu=15.0, lam=10.0, bending=1e-7, damping=1e-3, friction=0.0)
+    m, v = hanging_strip(device, mat, top_layers=2.0)
+    cfg = VBDConfig(substeps=5, iterations=10, air_damping=2.0, membrane="stvk")
+    x = simulate(m, SolverVBD(m, cfg), m.control(), 150, 1.0 / 30.0)
+    delta_sim = -(x[-1, -nx:, 1].mean()) - L
+    layered = hanging_elongation(L, mat.density, mat.mu, mat.lam, top_layers=2.0)
+    plain = hanging_elongation(L, mat.density, mat.mu, mat.lam)
+    assert layered < 0.92 * plain
+    np.testing.assert_allclose(delta_sim, layered, rtol=0.04)
+    # the lower half stretches as the plain strip's lower half does: it carries the same weight
+    # (a plain strip of half the length: the same weight below every point)
+    middle = np.flatnonzero(np.abs(v[:, 1] + 0.5) < 1e-6)
+    lower_sim = x[-1, middle, 1].mean() - x[-1, -nx:, 1].mean() - 0.5
+    np.testing.assert_allclose(lower_sim, hanging_elongation(L / 2, mat.density, mat.mu, mat.lam), rtol=0.06)
     np.testing.assert_allclose(x[-1], x[-2], atol=2e-4)
 
 

@@ -85,7 +85,7 @@ def _load(tmp_path, text):
     (("ood_motions = [\"arm_raise\"]", "ood_motions = [\"arm_raise\", \"walk\"]"),
      "nothing is left to train"),
     (("test_fraction = 0.5", "test_fraction = 1.5"), "test_fraction"),
-    (("substeps = 2", "substeps = 0"), "[simulation]"),
+    (("substeps = 2", "substeps = -1"), "[simulation]"),
     (("substeps = 2", "substep = 2"), "unknown key"),
     (("image_resolution = 32", "image_resolution = 7"), "image_resolution"),
     (("sequences = 4", "sequences = 0"), "sequences must be"),

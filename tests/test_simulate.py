@@ -70,15 +70,21 @@ def test_config_round_trips_and_refuses_unknown_keys():
     with pytest.raises(WrinklesInputError, match="warp_speed"):
         SimulationConfig(solver={"warp_speed": 9.0})
     with pytest.raises(WrinklesInputError, match="substeps"):
-        SimulationConfig(substeps=0)
+        SimulationConfig(substeps=-1)
     with pytest.raises(WrinklesInputError, match="blend_seconds"):
         SimulationConfig(blend_seconds=-1.0)
     assert SimulationConfig(fps=30, settle_seconds=0.5, blend_seconds=1.0).solver_steps(60) == 15 + 30 + 59
 
 
 def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
-    vbd = SimulationConfig().vbd_config()
-    assert (vbd.substeps, vbd.iterations, vbd.coarse_sweeps, vbd.coarse_spacing) == (14, 5, (2,), 0)
+    vbd = SimulationConfig().vbd_config(4939)
+    assert (vbd.substeps, vbd.iterations, vbd.coarse_sweeps, vbd.coarse_spacing) == (12, 5, (2,), 0)
+    # automatic substeps (session 38): 12 up to 10k garment vertices, 14 above; a number wins
+    sizes = (1000, 10_000, 10_001, 19_542)
+    assert [SimulationConfig().vbd_config(n).substeps for n in sizes] == [12, 12, 14, 14]
+    assert SimulationConfig(substeps=9).vbd_config(19_542).substeps == 9
+    assert SimulationConfig().substeps_for(30_000) == 14 and SimulationConfig.from_dict(
+        SimulationConfig().to_dict()).substeps == 0
     # the CUDA solve kernel with fast math by default, off on request (the solver-level default)
     assert vbd.fast_math and not SimulationConfig(solver={"fast_math": False}).vbd_config().fast_math
     assert not VBDConfig().fast_math
@@ -156,6 +162,8 @@ def test_pinned_waistband_follows_the_body(prelude_run, body, skirt):
     seq = res.sequence
     band = skirt.attachments["waistband"]
     assert seq.provenance["garment"]["pinned_sets"] == ["waistband"]
+    # the skirt's hems reach the simulation (the waistband and the hem at the knees)
+    assert seq.provenance["garment"]["hem_faces"] == int((skirt.face_layers > 1).sum()) > 0
     bnd = bind_to_surface(seq.vertices[0], seq.body.vertices[0], body.faces, vertices=band, device="cpu")
     for t in range(seq.num_frames):
         np.testing.assert_allclose(seq.vertices[t, band], bnd.targets(seq.body.vertices[t]), atol=2e-5)

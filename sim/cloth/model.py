@@ -155,6 +155,7 @@ class _Instance:
     pinned: np.ndarray
     material: Any
     colors: np.ndarray
+    layers: np.ndarray
 
 
 _TOPOLOGY: collections.OrderedDict = collections.OrderedDict()
@@ -196,7 +197,8 @@ class ClothModelBuilder:
         self._instances: list[_Instance] = []
 
     def add_cloth(self, vertices: np.ndarray, faces: np.ndarray, material: ClothMaterialLike, *,
-                  pinned: np.ndarray | None = None, rest_vertices: np.ndarray | None = None) -> int:
+                  pinned: np.ndarray | None = None, rest_vertices: np.ndarray | None = None,
+                  face_layers: np.ndarray | None = None) -> int:
         """Add one cloth instance.
 
         Args:
@@ -206,6 +208,11 @@ class ClothModelBuilder:
             pinned: optional bool mask (V,) or index array: vertices that follow
                 ``ClothControl.pin_targets`` instead of being simulated (attachments).
             rest_vertices: rest shape [m], (V, 3); defaults to ``vertices``.
+            face_layers: layers of fabric per face, (F,), >= 1 (None: 1 everywhere), e.g. a
+                garment's hems (``Garment.face_layers``). A face of n layers has n times the
+                material's area density, membrane moduli and bending stiffness (layers that bend
+                and stretch side by side, not bonded into one sheet); a hinge takes the mean of
+                its two faces.
 
         Returns:
             The instance index.
@@ -229,8 +236,15 @@ class ClothModelBuilder:
                 mask[:] = p
             else:
                 mask[p.astype(np.int64)] = True
+        if face_layers is None:
+            layers = np.ones(len(f))
+        else:
+            layers = np.asarray(face_layers, dtype=np.float64).reshape(-1)
+            if layers.shape != (len(f),) or not np.isfinite(layers).all() or layers.min() < 1.0:
+                raise ValueError(f"cloth mesh: face_layers must be ({len(f)},) numbers >= 1, got shape "
+                                 f"{layers.shape}" + (f", min {layers.min():g}" if layers.size else ""))
         hinges, colors = mesh_topology(len(v), f, self.max_colors)
-        self._instances.append(_Instance(v, rest, f, hinges, mask, material, colors))
+        self._instances.append(_Instance(v, rest, f, hinges, mask, material, colors, layers))
         return len(self._instances) - 1
 
     def finalize(self, device: str | None = None) -> ClothModel:
@@ -250,7 +264,7 @@ class ClothModelBuilder:
             starts.append(offset)
             dinv, a = triangle_rest_data(ins.rest, ins.faces)
             vm = np.zeros(nv)
-            np.add.at(vm, ins.faces.reshape(-1), np.repeat(a * m.density / 3.0, 3))
+            np.add.at(vm, ins.faces.reshape(-1), np.repeat(a * ins.layers * m.density / 3.0, 3))
             pos.append(ins.vertices)
             rest.append(ins.rest)
             mass.append(vm)
@@ -259,16 +273,17 @@ class ClothModelBuilder:
             faces.append(ins.faces + offset)
             dm_inv.append(dinv)
             area.append(a)
-            mu.append(np.full(len(a), m.mu))
-            lam.append(np.full(len(a), m.lam))
+            mu.append(m.mu * ins.layers)
+            lam.append(m.lam * ins.layers)
             damp.append(np.full(len(a), m.damping))
             if len(ins.hinges):
                 # k_e = k_b 3 |e|^2 / (A_1 + A_2) (rest shape), Grinspun et al. 2003
                 edge_len2 = np.sum((ins.rest[ins.hinges[:, 3]] - ins.rest[ins.hinges[:, 2]]) ** 2, axis=1)
-                tri_of_edge = _hinge_face_areas(ins.faces, ins.hinges, a)
+                t_a, t_b = hinge_faces(ins.faces, ins.hinges)
                 hinges.append(ins.hinges + offset)
                 rest_angle.append(dihedral_angles(ins.rest, ins.hinges))
-                k_edge.append(m.bending * 3.0 * edge_len2 / tri_of_edge)
+                hinge_layers = 0.5 * (ins.layers[t_a] + ins.layers[t_b])
+                k_edge.append(m.bending * hinge_layers * 3.0 * edge_len2 / (a[t_a] + a[t_b]))
                 e_damp.append(np.full(len(ins.hinges), m.damping))
             thickness.append(m.thickness)
             friction.append(m.friction)
@@ -373,8 +388,9 @@ def mesh_edges(faces: np.ndarray) -> np.ndarray:
     return np.unique(e, axis=0).astype(np.int32).reshape(-1, 2)
 
 
-def _hinge_face_areas(faces: np.ndarray, hinges: np.ndarray, areas: np.ndarray) -> np.ndarray:
-    """A_1 + A_2 of the two triangles of each hinge, found by their directed edges."""
+def hinge_faces(faces: np.ndarray, hinges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The two triangles of each hinge (``build_hinges``' layout), found by their directed edges:
+    the one with the directed edge a -> b, then the one with b -> a."""
     n = int(faces.max()) + 1
     keys = {}
     for t, (i, j, k) in enumerate(faces.astype(np.int64)):
@@ -384,7 +400,7 @@ def _hinge_face_areas(faces: np.ndarray, hinges: np.ndarray, areas: np.ndarray) 
     b_idx = hinges[:, 3].astype(np.int64)
     t_a = np.array([keys[a * n + b] for a, b in zip(a_idx, b_idx, strict=True)])
     t_b = np.array([keys[b * n + a] for a, b in zip(a_idx, b_idx, strict=True)])
-    return areas[t_a] + areas[t_b]
+    return t_a, t_b
 
 
 @dataclass

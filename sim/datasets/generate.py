@@ -238,7 +238,8 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
     results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
     failed = {sp.id: r for (sp, *_), r in zip(meta, results, strict=True) if isinstance(r, SimulationError)}
     retried = [sp for sp in group if sp.id in failed and sp.id in wanted] if retry else []
-    failure = {sid: [f"{e} (at {sim_cfg.substeps} substeps, after a retry)"] for sid, e in failed.items()}
+    substeps = sim_cfg.substeps_for(max(j.garment.num_vertices for j in jobs))
+    failure = {sid: [f"{e} (at {substeps} substeps, after a retry)"] for sid, e in failed.items()}
     by_seq: dict[str, dict] = {}
     for k, (sp, garment, motion, betas, kind) in enumerate(meta):
         by_seq.setdefault(sp.id, {"spec": sp, "motion": motion, "betas": betas})[kind] = (garment, results[k])
@@ -309,9 +310,9 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
             f"{entry['bytes'] / 2**20:.1f} MiB")
     if retried:  # after the batch's good results are stored: an interrupted retry loses only itself
         for sp in retried:
-            log(f"{sp.id}: {failed[sp.id]}; retrying at {2 * sim_cfg.substeps} substeps")
+            log(f"{sp.id}: {failed[sp.id]}; retrying at {2 * substeps} substeps")
         _make_group(cfg, body, retried, {sp.id for sp in retried}, root, part,
-                    replace(sim_cfg, substeps=2 * sim_cfg.substeps), device, summary, log, retry=False)
+                    replace(sim_cfg, substeps=2 * substeps), device, summary, log, retry=False)
 
 
 def _stable(prov: dict) -> dict:

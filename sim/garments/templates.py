@@ -17,6 +17,7 @@ import numpy as np
 from scipy.spatial import ConvexHull
 
 from sim.errors import WrinklesInputError
+from sim.garments.hems import HEM_LAYERS, HEM_WIDTH, hem_face_layers
 from sim.garments.materials import Material, get_material
 from sim.garments.panels import Panel, arc_length, resample, sew
 from sim.garments.types import Garment
@@ -753,7 +754,7 @@ def template_parameters(category: str) -> list[tuple[str, float, str, str]]:
         unit = re.search(r"\[([^\]]*)\]", text)
         meaning = re.sub(r"\s*\[[^\]]*\]", "", text, count=1).strip()
         out.append((f.name, getattr(p, f.name), unit.group(1) if unit else "", meaning))
-    return out
+    return out + list(HEM_PARAMETERS)
 
 
 # Accepted range of every template parameter ([m], flare [-]); a template can still refuse a value
@@ -772,7 +773,15 @@ PARAM_RANGES: dict[str, tuple[float, float]] = {
     "neck_fillet": (0.0, 0.08),
     "back_rise": (0.0, 0.3),
     "sleeve_length": (0.0, 1.0),
+    "hem_width": (0.0, 0.1),
+    "hem_layers": (1.0, 4.0),
 }
+
+HEM_PARAMETERS: tuple[tuple[str, float, str, str], ...] = (
+    ("hem_width", HEM_WIDTH, "m", "width of the hems along every opening (0: none; sim.garments.hems)"),
+    ("hem_layers", HEM_LAYERS, "-", "layers of fabric in a hem: its mass, stretch and bending scale"),
+)
+"""Parameters every template takes besides its params class's: the hems."""
 
 
 def make_params(category: str, **params: float):
@@ -782,10 +791,10 @@ def make_params(category: str, **params: float):
                                  f"{', '.join(TEMPLATES)}")
     t = TEMPLATES[category]
     allowed = {f.name for f in fields(t.params)}
-    unknown = set(params) - allowed
+    unknown = set(params) - allowed - {name for name, *_ in HEM_PARAMETERS}
     if unknown:
         raise WrinklesInputError(f"{category}: unknown parameter(s) {sorted(unknown)}; expected "
-                                 f"{', '.join(sorted(allowed))}")
+                                 f"{', '.join(sorted(allowed | {name for name, *_ in HEM_PARAMETERS}))}")
     for k, v in params.items():
         lo, hi = PARAM_RANGES[k]
         number = isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
@@ -794,7 +803,7 @@ def make_params(category: str, **params: float):
         if not lo <= v <= hi:
             raise WrinklesInputError(f"{category}: parameter {k} = {v:g} is outside its range "
                                      f"[{lo:g}, {hi:g}]")
-    return t.params(**{**t.defaults, **params})
+    return t.params(**{**t.defaults, **{k: v for k, v in params.items() if k in allowed}})
 
 
 def _untangle(v: np.ndarray, faces: np.ndarray, panel_ids: np.ndarray, names: list[str],
@@ -861,12 +870,16 @@ def make_garment(category: str, body, betas: np.ndarray | None = None, *,
             edge length [m] (``Template.coarse`` / ``fine`` give each template's edge lengths).
         material: preset name or a ``Material``.
         name: garment name (default: the category).
-        **params: fields of the category's params dataclass (e.g. ``length``, ``ease``).
+        **params: fields of the category's params dataclass (e.g. ``length``, ``ease``), and
+            ``hem_width`` / ``hem_layers`` (``HEM_PARAMETERS``): the bands of ``face_layers``
+            layers along every opening.
 
     Returns:
         The garment; deterministic for equal arguments.
     """
     p = make_params(category, **params)
+    hem_width = float(params.get("hem_width", HEM_WIDTH))
+    hem_layers = float(params.get("hem_layers", HEM_LAYERS))
     h = resolve_resolution(resolution, category)
     mat = get_material(material)
     meas = BodyMeasure.of(body, betas)
@@ -899,4 +912,5 @@ def make_garment(category: str, body, betas: np.ndarray | None = None, *,
                    uvs=pack_uvs(uvs_m, sewn.uv_panel), uv_faces=uv_faces.astype(np.int32),
                    material=mat, attachments=att, category=category, name=name or category,
                    panel_ids=sewn.panel_ids.astype(np.int32),
-                   panel_names=tuple(pn.name for pn in panels))
+                   panel_names=tuple(pn.name for pn in panels),
+                   face_layers=hem_face_layers(v, faces, hem_width, hem_layers))

@@ -26,6 +26,9 @@ class Garment:
         name: garment name (USD prim name).
         panel_ids: sewing-pattern panel of each face, shape (F,), int32.
         panel_names: name of each panel id.
+        face_layers: layers of fabric per face, shape (F,), float32, >= 1: 3 in a template's
+            hems (``sim.garments.hems``), 1 elsewhere and everywhere in an imported garment
+            (None: all 1). The simulator scales a face's mass, membrane and bending by it.
     """
 
     rest_vertices: np.ndarray
@@ -38,6 +41,7 @@ class Garment:
     name: str = "garment"
     panel_ids: np.ndarray | None = None
     panel_names: tuple[str, ...] = ()
+    face_layers: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         v = np.ascontiguousarray(self.rest_vertices, dtype=np.float32)
@@ -54,11 +58,17 @@ class Garment:
         pid = np.zeros(len(f), np.int32) if self.panel_ids is None else np.asarray(self.panel_ids, np.int32)
         if pid.shape != (len(f),):
             raise WrinklesInputError(f"{where}: panel_ids must have shape ({len(f)},), got {pid.shape}")
+        layers = (np.ones(len(f), np.float32) if self.face_layers is None
+                  else np.asarray(self.face_layers, np.float32))
+        if layers.shape != (len(f),) or not np.isfinite(layers).all() or layers.min() < 1.0:
+            raise WrinklesInputError(f"{where}: face_layers must be ({len(f)},) numbers >= 1, got shape "
+                                     f"{layers.shape}")
         att = {str(k): np.asarray(a, dtype=np.int32).reshape(-1) for k, a in self.attachments.items()}
         for k, a in att.items():
             if a.size and (a.min() < 0 or a.max() >= len(v)):
                 raise WrinklesInputError(f"{where}: attachment {k!r} has indices outside [0, {len(v) - 1}]")
-        arrays = (("rest_vertices", v), ("faces", f), ("uvs", uv), ("uv_faces", uf), ("panel_ids", pid))
+        arrays = (("rest_vertices", v), ("faces", f), ("uvs", uv), ("uv_faces", uf), ("panel_ids", pid),
+                  ("face_layers", layers))
         for name, arr in arrays:
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
