@@ -11,9 +11,9 @@ the motion (launch to device synchronisation; host copies and checks excluded). 
 from our dressed state at the motion's first frame and plays the same body frames at the same
 substeps x iterations (``benchmarks/newton_ref.py``). Quality for both: ``sim.quality``.
 
-The solver runs at the job defaults (``sim.simulate.SimulationConfig``: 14 substeps x 5
-iterations, a coarse-level correction before sweep 2); ``--solver '{"coarse_sweeps": []}'``
-turns the correction off.
+The solver runs at the job defaults (``sim.simulate.SimulationConfig``: 12 substeps x 5
+iterations, 14 over 10k garment vertices, a coarse-level correction before sweep 2);
+``--solver '{"coarse_sweeps": []}'`` turns the correction off.
 """
 
 from __future__ import annotations
@@ -233,7 +233,8 @@ def run_newton(r, garment, body, cfg, device: str) -> dict:
         "body_faces": body.faces, "body_vertices": seq.body.vertices, "fps": cfg.fps,
     }
     t0 = time.perf_counter()
-    res = run_newton_vbd(scene, device=device, substeps=cfg.substeps, iterations=cfg.iterations,
+    res = run_newton_vbd(scene, device=device, substeps=cfg.substeps_for(garment.num_vertices),
+                         iterations=cfg.iterations,
                          self_contact=True, use_graph=device.startswith("cuda"))
     x = res["positions"]
     q = evaluate_sequence(x, garment.rest_vertices, garment.faces, seq.body.vertices, body.faces,
@@ -283,7 +284,8 @@ def main() -> None:
         "machine": machine(device),
         "sizes": {"garment_vertices": garment.num_vertices, "garment_faces": garment.num_faces,
                   "edge_m": edge, "body_vertices": int(body.num_vertices) if hasattr(body, "num_vertices")
-                  else None, "fps": 30.0, "seconds": args.seconds, "substeps": args.substeps,
+                  else None, "fps": 30.0, "seconds": args.seconds,
+                  "substeps": cfg.substeps_for(garment.num_vertices),
                   "iterations": args.iterations, "self_contact": not args.no_self_contact},
         "config": cfg.to_dict(),
         "figures": fig,
