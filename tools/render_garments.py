@@ -4,10 +4,10 @@
     python tools/render_garments.py --measure       # + the per-template table (counts, times, UVs)
 
 ``garments.png``: every template on the default body at rest (coarse), each panel in its own
-colour, front and three-quarter views. ``garment_uvs.png``: each template's UV layout (the
-sewing pattern: panels packed in [0, 1]², triangle edges drawn). ``--measure`` prints markdown
-tables: vertex counts at coarse / fine on three bodies with generation times, mesh quality,
-and UV distortion.
+colour and its hems (``sim.garments.hems``) darker, front and three-quarter views.
+``garment_uvs.png``: each template's UV layout (the sewing pattern: panels packed in [0, 1]²,
+triangle edges drawn). ``--measure`` prints markdown tables: vertex counts at coarse / fine on
+three bodies with generation times, mesh quality, and UV distortion.
 """
 
 from __future__ import annotations
@@ -22,17 +22,23 @@ SHAPES = {"mean": "", "tall-heavy": "height=0.7,weight=0.9", "short-slim": "heig
 """Bodies of the measurements (the default body's phenotypes; the same as tests/test_garments.py)."""
 
 
-def panel_meshes(g):
-    """One ``PreviewMesh`` per panel, in the panel colours of the UV pictures."""
+def panel_meshes(g, hem_shade: float = 0.55):
+    """One ``PreviewMesh`` per panel, in the panel colours of the UV pictures, and one per panel's
+    hem (``Garment.face_layers`` > 1) in a darker shade of it (``hem_shade`` times the colour)."""
     from pipelines.garments_cmd import PANEL_COLORS
     from pipelines.preview import PreviewMesh
 
     out = []
     for pid, name in enumerate(g.panel_names):
-        f = g.faces[g.panel_ids == pid]
-        used, local = np.unique(f, return_inverse=True)
-        out.append(PreviewMesh(name, g.rest_vertices[used], local.reshape(-1, 3).astype(np.int32),
-                               color=PANEL_COLORS[pid % len(PANEL_COLORS)], smooth=True))
+        color = PANEL_COLORS[pid % len(PANEL_COLORS)]
+        for part, keep in (("", g.face_layers <= 1.0), ("_hem", g.face_layers > 1.0)):
+            f = g.faces[(g.panel_ids == pid) & keep]
+            if not len(f):
+                continue
+            used, local = np.unique(f, return_inverse=True)
+            shade = hem_shade if part else 1.0
+            out.append(PreviewMesh(name + part, g.rest_vertices[used], local.reshape(-1, 3).astype(np.int32),
+                                   color=tuple(shade * c for c in color), smooth=True))
     return out
 
 
