@@ -69,7 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="template name or alias, or a garment mesh file with UVs (default: %(default)s)")
     g.add_argument("--garment-param", action="append", default=[], metavar="KEY=VALUE",
                    help="a template parameter [m or -], e.g. length=0.5, ease=0.02, sleeve_length=0.5 "
-                        "(repeatable; an unknown key lists the template's parameters)")
+                        "(repeatable; an unknown key lists the template's parameters); every template "
+                        "has hems, hem_width=0.02 hem_layers=3 (hem_width=0: none), and a garment file "
+                        "takes those two only (its default: no hems)")
     g.add_argument("--resolution", default="coarse",
                    help="template mesh resolution: coarse (25 mm edges), fine (9 mm) or an edge "
                         "length in metres (default: %(default)s)")
@@ -210,10 +212,11 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
         material = material.with_(name=f"{material.name}*", **overrides)
     params = parse_numbers(args.garment_param, "--garment-param")
     if is_garment_file(args.garment):
-        if params:
-            raise WrinklesInputError(f"--garment-param applies to templates, not to a garment file "
-                                     f"({args.garment})")
-        return load_garment(args.garment, material=material)
+        other = sorted(set(params) - {"hem_width", "hem_layers"})
+        if other:
+            raise WrinklesInputError(f"--garment-param {other[0]} applies to templates, not to a garment "
+                                     f"file ({args.garment}); a file takes hem_width and hem_layers only")
+        return load_garment(args.garment, material=material, **params)
     category = resolve_template(args.garment)
     return make_garment(category, body, betas, resolution=parse_resolution(args.resolution),
                         material=material, **params)

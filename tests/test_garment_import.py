@@ -225,3 +225,44 @@ def test_refuses_unreadable_missing_and_unknown(tmp_path):
     stage = Usd.Stage.CreateNew(str(body_only))
     stage.GetRootLayer().Save()
     _refused(body_only, "no garment mesh")
+
+
+def test_imported_garment_has_no_hems_unless_asked(tmp_path):
+    """A file does not say how its openings are sewn: no hems by default; ``hem_width`` lines
+    every boundary loop (the grid's border) as a template's openings are, and a width outside
+    its range is refused naming the file."""
+    points, faces, uvs, uv_faces = _seamed_grid(11)
+    path = tmp_path / "grid.obj"
+    _write_obj(path, points, faces, uvs, uv_faces)
+    plain = load_garment(path)
+    assert (plain.face_layers == 1.0).all()
+    hemmed = load_garment(path, hem_width=0.05, hem_layers=2.0)
+    assert set(np.unique(hemmed.face_layers)) == {1.0, 2.0}
+    # the border faces are hem, the middle is not (the grid is 0.4 m tall, edges 4 cm)
+    c = hemmed.rest_vertices[hemmed.faces].mean(axis=1)
+    assert (hemmed.face_layers[(c[:, 1] < 0.02) | (c[:, 1] > 0.38)] == 2.0).all()
+    middle = (np.abs(c[:, 1] - 0.2) < 0.08) & (c[:, 0] > 0.05) & (c[:, 2] > 0.05)
+    assert middle.any() and (hemmed.face_layers[middle] == 1.0).all()
+    np.testing.assert_array_equal(hemmed.faces, plain.faces)
+    with pytest.raises(WrinklesInputError, match="grid.obj.*hem_width"):
+        load_garment(path, hem_width=0.5)
+
+
+def test_simulate_cli_passes_hem_parameters_to_a_garment_file(tmp_path):
+    import argparse
+
+    from pipelines.simulate_cmd import load_garment_arg
+
+    points, faces, uvs, uv_faces = _seamed_grid(11)
+    path = tmp_path / "grid.obj"
+    _write_obj(path, points, faces, uvs, uv_faces)
+
+    def args(*params):
+        return argparse.Namespace(garment=str(path), material="cotton", material_param=[],
+                                  garment_param=list(params), resolution="coarse")
+
+    assert (load_garment_arg(args(), None, None).face_layers == 1.0).all()
+    g = load_garment_arg(args("hem_width=0.05", "hem_layers=2"), None, None)
+    assert set(np.unique(g.face_layers)) == {1.0, 2.0}
+    with pytest.raises(WrinklesInputError, match="--garment-param length.*hem_width and hem_layers only"):
+        load_garment_arg(args("length=0.5"), None, None)

@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from sim.errors import WrinklesInputError
+from sim.garments.hems import HEM_LAYERS, hem_face_layers
 from sim.garments.materials import Material, get_material
+from sim.garments.templates import PARAM_RANGES
 from sim.garments.types import Garment
 
 MERGE_TOL = 1e-6
@@ -82,7 +84,7 @@ def _edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton", name: str | None = None,
-                 require_uvs: bool = True) -> Garment:
+                 require_uvs: bool = True, hem_width: float = 0.0, hem_layers: float = HEM_LAYERS) -> Garment:
     """Read a garment mesh, repair it, and check it is a usable cloth mesh.
 
     Args:
@@ -91,6 +93,9 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
         material: preset name or ``Material``.
         name: garment name (default: the file stem).
         require_uvs: refuse meshes without UVs.
+        hem_width, hem_layers: hems along every boundary loop, as the templates have
+            (``sim.garments.hems``); 0, the default: none (a file does not say how its
+            openings are sewn).
 
     Returns:
         Garment with category "imported", all faces in one panel (``"mesh"``; UV islands are
@@ -101,6 +106,10 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
             degenerate triangles.
     """
     path = Path(path)
+    for key, value in (("hem_width", hem_width), ("hem_layers", hem_layers)):
+        lo, hi = PARAM_RANGES[key]
+        if not (isinstance(value, (int, float)) and lo <= value <= hi):
+            raise WrinklesInputError(f"{key} = {value!r} is outside its range [{lo:g}, {hi:g}]", path=path)
     if not path.is_file():
         raise WrinklesInputError("no such file", path=path)
     points, faces, uvs, uv_faces = _read(path)
@@ -171,7 +180,9 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     used_uv = np.unique(uv_faces)
     remap_uv = np.full(len(uvs), -1, np.int64)
     remap_uv[used_uv] = np.arange(len(used_uv))
-    return Garment(rest_vertices=points[used].astype(np.float32), faces=remap[faces].astype(np.int32),
+    rest, tris = points[used].astype(np.float32), remap[faces].astype(np.int32)
+    return Garment(rest_vertices=rest, faces=tris,
                    uvs=uvs[used_uv].astype(np.float32), uv_faces=remap_uv[uv_faces].astype(np.int32),
                    material=get_material(material), attachments={}, category="imported",
-                   name=name or path.stem, panel_ids=np.zeros(len(faces), np.int32), panel_names=("mesh",))
+                   name=name or path.stem, panel_ids=np.zeros(len(faces), np.int32), panel_names=("mesh",),
+                   face_layers=hem_face_layers(rest, tris, hem_width, hem_layers))
