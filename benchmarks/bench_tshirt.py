@@ -52,40 +52,30 @@ def add_material_argument(ap: argparse.ArgumentParser) -> None:
 def template_params(args: argparse.Namespace) -> dict:
     """``--param`` as {name: value}; an unknown name or a value out of range (``make_params``
     decides) or a bad number exits with a one-line error."""
-    from sim.errors import WrinklesInputError
     from sim.garments.templates import make_params
 
-    out = {}
-    try:
-        for item in args.param:
-            key, _, value = item.partition("=")
-            try:
-                out[key] = float(value)
-            except ValueError:
-                raise WrinklesInputError(f"expected NAME=NUMBER, got {item!r}") from None
-        make_params("t_shirt", **out)
-    except WrinklesInputError as e:
-        _option_error("--param", e)
-    return out
+    return _numbers(args.param, "--param", lambda out: make_params("t_shirt", **out))
 
 
 def material_changes(args: argparse.Namespace) -> dict:
     """``--material-param`` as {field: value}; an unknown field (``Material.with_`` decides) or a
     bad number exits with a one-line error."""
-    from sim.errors import WrinklesInputError
     from sim.garments.materials import get_material
 
-    out = {}
+    return _numbers(args.material_param, "--material-param", lambda out: get_material("cotton").with_(**out))
+
+
+def _numbers(items: list[str], option: str, check) -> dict:
+    """``KEY=NUMBER`` items as {key: value}, accepted by ``check(values)``; else exit 2 with a
+    one-line error (``_option_error``)."""
+    from pipelines.options import parse_numbers
+    from sim.errors import WrinklesInputError
+
     try:
-        for item in args.material_param:
-            key, _, value = item.partition("=")
-            try:
-                out[key] = float(value)
-            except ValueError:
-                raise WrinklesInputError(f"expected KEY=NUMBER, got {item!r}") from None
-        get_material("cotton").with_(**out)
+        out = parse_numbers(items, option)
+        check(out)
     except WrinklesInputError as e:
-        _option_error("--material-param", e)
+        _option_error(option, e)
     return out
 
 
