@@ -782,6 +782,7 @@ HEM_PARAMETERS: tuple[tuple[str, float, str, str], ...] = (
     ("hem_layers", HEM_LAYERS, "-", "layers of fabric in a hem: its mass, stretch and bending scale"),
 )
 """Parameters every template takes besides its params class's: the hems."""
+_HEM_NAMES = frozenset(name for name, *_ in HEM_PARAMETERS)
 
 
 def make_params(category: str, **params: float):
@@ -791,10 +792,10 @@ def make_params(category: str, **params: float):
                                  f"{', '.join(TEMPLATES)}")
     t = TEMPLATES[category]
     allowed = {f.name for f in fields(t.params)}
-    unknown = set(params) - allowed - {name for name, *_ in HEM_PARAMETERS}
+    unknown = set(params) - allowed - _HEM_NAMES
     if unknown:
         raise WrinklesInputError(f"{category}: unknown parameter(s) {sorted(unknown)}; expected "
-                                 f"{', '.join(sorted(allowed | {name for name, *_ in HEM_PARAMETERS}))}")
+                                 f"{', '.join(sorted(allowed | _HEM_NAMES))}")
     for k, v in params.items():
         lo, hi = PARAM_RANGES[k]
         number = isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
