@@ -48,7 +48,8 @@ def main() -> None:
         garment, _ = build_garment(body, size)
         b = ClothModelBuilder()
         for _ in range(args.instances):
-            b.add_cloth(garment.rest_vertices, garment.faces, ClothMaterialParams())
+            b.add_cloth(garment.rest_vertices, garment.faces, ClothMaterialParams(),
+                        face_layers=garment.face_layers)
         m = b.finalize(device)
         solver = SolverVBD(m, VBDConfig(iterations=5, coarse_sweeps=(2,), coarse_spacing=0, coarse_levels=2,
                                         coarse_prefactor=True))

@@ -50,7 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true",
                    help="print everything (templates, parameters, resolutions, materials) as JSON")
     e = p.add_argument_group("export")
-    e.add_argument("--export", metavar="NAME", default=None, help="template to write (needs --out)")
+    e.add_argument("--export", metavar="NAME", default=None,
+                   help="template to write (needs --out); the mesh file does not carry the hems: "
+                   "import it with --garment-param hem_width=0.02 to have them again")
     e.add_argument("--out", default=None, help=f"mesh file to write: {', '.join(EXPORT_SUFFIXES)}")
     e.add_argument("--uv-image", default=None, metavar="PNG", help="also draw the UV layout to this PNG")
     e.add_argument("--uv-image-size", type=int, default=1024,

@@ -81,6 +81,17 @@ def default_substeps(vertices: int) -> int:
     return FINE_SUBSTEPS if vertices > FINE_GARMENT_VERTICES else DEFAULT_SUBSTEPS
 
 
+def simulator_defaults() -> dict:
+    """The defaults that shape a simulation without being written in its config: the automatic
+    substeps and the templates' hems. A dataset records them beside its config, so that it is
+    not continued under other physics (``sim.datasets.generate``)."""
+    from sim.garments.hems import HEM_LAYERS, HEM_WIDTH
+
+    return {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
+                         "fine_over_vertices": FINE_GARMENT_VERTICES},
+            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS}}
+
+
 @dataclass(frozen=True)
 class SimulationConfig:
     """Settings of a simulation run (saved with every output; ``from_dict`` refuses unknown keys).

@@ -312,6 +312,18 @@ def test_shards_combine_into_the_same_dataset(reference, tmp_path):
     other = tiny_config(tmp_path, TINY.replace("seed = 3", "seed = 4"), "other.toml")
     r = _generate(other, out, "--resume", check=False)
     assert r.returncode == 2 and "different config" in r.stderr
+    # the same config from before the simulator defaults were recorded (or with other ones):
+    # refused too, naming why, and nothing is written
+    import json
+
+    old = json.loads((out / "config.json").read_text())
+    assert old["simulator"]["hems"]["layers"] == 3.0 and old["simulator"]["substeps"]["default"] == 12
+    del old["simulator"]
+    (out / "config.json").write_text(json.dumps(old))
+    before = _files(out)
+    r = _generate(cfg, out, "--resume", check=False)
+    assert r.returncode == 2 and "simulator defaults" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert _files(out) == before
 
 
 def test_only_the_test_splits_are_made_again(reference, tmp_path):

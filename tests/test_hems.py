@@ -83,6 +83,20 @@ def test_template_hems_line_every_opening(body, category, shape):
     assert d[g.faces[layers > 1]].mean(axis=1).max() < HEM_WIDTH
 
 
+@pytest.mark.parametrize("category", ["straight_skirt", "t_shirt"])
+def test_a_mesh_coarser_than_the_hem_keeps_one_row_of_it(body, category):
+    """At 7 cm edges no face's corners average under 2 cm from an opening; the faces with an edge
+    on one are hem all the same, and nothing else is."""
+    g = make_garment(category, body, resolution=0.07)
+    edges, uses = unique_edges(g.faces, counts=True)
+    n = len(g.rest_vertices)
+    border = set((edges[uses == 1].astype(np.int64) @ np.array([n, 1])).tolist())
+    sides = np.sort(np.stack([g.faces[:, [0, 1]], g.faces[:, [1, 2]], g.faces[:, [2, 0]]], axis=1), axis=2)
+    on_opening = np.array([any(int(a) * n + int(b) in border for a, b in t) for t in sides])
+    np.testing.assert_array_equal(g.face_layers > 1, on_opening)
+    assert on_opening.sum() > 20
+
+
 def test_hem_parameters_are_template_parameters(body):
     names = [n for n, *_ in template_parameters("straight_skirt")]
     assert names[-2:] == ["hem_width", "hem_layers"]

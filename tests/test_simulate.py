@@ -155,6 +155,29 @@ def test_dressing_starts_collision_free_at_rest(prelude_run):
     np.testing.assert_array_equal(seq.body.vertices[0], seq.body.vertices[p["settle"]])
 
 
+def test_the_hems_reach_the_cloth_model(body, skirt, monkeypatch):
+    """The model simulate builds carries the garment's layers: its total mass is the density
+    times the area weighted by the layers (the hems' extra fabric), not the plain area."""
+    from sim.cloth import ClothModelBuilder
+
+    built = []
+    finalize = ClothModelBuilder.finalize
+
+    def keep(self, device=None):
+        built.append(finalize(self, device))
+        return built[-1]
+
+    monkeypatch.setattr(ClothModelBuilder, "finalize", keep)
+    cfg = SimulationConfig(**{**FAST, "settle_seconds": 0.1, "blend_seconds": 0.0})
+    simulate(skirt, body, walk(body, 0.1), config=cfg)
+    tri = skirt.rest_vertices[skirt.faces].astype(np.float64)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    mass = built[0].particle_mass.numpy().sum()
+    assert (skirt.face_layers > 1).sum() > 0
+    np.testing.assert_allclose(mass, skirt.material.density * (area * skirt.face_layers).sum(), rtol=1e-5)
+    assert mass > 1.05 * skirt.material.density * area.sum()
+
+
 def test_pinned_waistband_follows_the_body(prelude_run, body, skirt):
     from sim.dressing import bind_to_surface
 

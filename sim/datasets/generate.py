@@ -66,6 +66,7 @@ class _Shard:
                                          "continue it, or choose another --out", path=root)
             old = json.loads(self.path.read_text())
             if old.get("config") != cfg_dict:
+                _refuse_other_simulator(old.get("config"), cfg_dict, root)
                 raise WrinklesInputError("--resume with a different config than the one this dataset was "
                                          "started with (see config.json)", path=root)
             self.data = old
@@ -74,11 +75,22 @@ class _Shard:
         S.atomic_write_json(self.path, self.data)
 
 
+def _refuse_other_simulator(old: dict | None, cfg_dict: dict, root: Path) -> None:
+    """The error for a dataset whose config matches but whose simulator defaults do not (or that
+    predates their record): continuing it would mix two physics."""
+    if isinstance(old, dict) and {k: v for k, v in old.items() if k != "simulator"} == \
+            {k: v for k, v in cfg_dict.items() if k != "simulator"}:
+        raise WrinklesInputError("this dataset was made with other simulator defaults (automatic substeps, "
+                                 "garment hems; session 38) than this version's, and continuing it would "
+                                 "mix two physics; choose another --out", path=root)
+
+
 def _check_root(root: Path, cfg_dict: dict, resume: bool) -> None:
     cfg_path = root / "config.json"
     if cfg_path.exists():
         old = json.loads(cfg_path.read_text())
         if old != cfg_dict:
+            _refuse_other_simulator(old, cfg_dict, root)
             raise WrinklesInputError("this directory holds a dataset made with a different config "
                                      "(config.json); choose another --out", path=root)
     elif root.exists() and any(p.name not in (S.PARTS_DIR, S.SEQUENCE_DIR) for p in root.iterdir()):
@@ -118,7 +130,9 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
     mine = select_indices(specs, shard, shards, splits)
     log = log or (lambda s: None)
     root = Path(out)
-    cfg_dict = cfg.to_dict()
+    from sim.simulate import simulator_defaults
+
+    cfg_dict = {**cfg.to_dict(), "simulator": simulator_defaults()}
     _check_root(root, cfg_dict, resume)
     sim_cfg = cfg.simulation_config()
     dev = resolve_device(device if device is not None else sim_cfg.device)

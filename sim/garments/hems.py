@@ -57,11 +57,20 @@ def distance_to_boundary(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def hem_face_layers(vertices: np.ndarray, faces: np.ndarray, width: float = HEM_WIDTH,
                     layers: float = HEM_LAYERS) -> np.ndarray:
     """Layers of fabric per face (F,), float32: ``layers`` on the faces whose corners lie within
-    ``width`` [m] of the mesh's boundary on average, 1 elsewhere (everywhere when ``width`` is 0)."""
+    ``width`` [m] of the mesh's boundary on average and on every face with an edge on the
+    boundary (a mesh coarser than the hem keeps one row of it), 1 elsewhere (everywhere when
+    ``width`` is 0)."""
+    from sim.quality import unique_edges
+
     f = np.asarray(faces)
     out = np.ones(len(f), np.float32)
     if width <= 0.0 or layers == 1.0:
         return out
     d = distance_to_boundary(vertices, f)
-    out[d[f].mean(axis=1) < width] = layers
+    edges, uses = unique_edges(f, counts=True)
+    n = np.int64(len(d))
+    border = edges[uses == 1].astype(np.int64) @ np.array([n, 1])
+    sides = np.sort(np.stack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]], axis=1), axis=2).astype(np.int64)
+    on_opening = np.isin(sides @ np.array([n, 1]), border).any(axis=1)
+    out[(d[f].mean(axis=1) < width) | on_opening] = layers
     return out

@@ -9,6 +9,7 @@ a crack, so the mesh needs fixing in the modelling tool).
 
 from __future__ import annotations
 
+import numbers
 import os
 from pathlib import Path
 
@@ -108,8 +109,8 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     path = Path(path)
     for key, value in (("hem_width", hem_width), ("hem_layers", hem_layers)):
         lo, hi = PARAM_RANGES[key]
-        if not (isinstance(value, (int, float)) and lo <= value <= hi):
-            raise WrinklesInputError(f"{key} = {value!r} is outside its range [{lo:g}, {hi:g}]", path=path)
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not lo <= value <= hi:
+            raise WrinklesInputError(f"{key} = {value!r} must be a number in [{lo:g}, {hi:g}]", path=path)
     if not path.is_file():
         raise WrinklesInputError("no such file", path=path)
     points, faces, uvs, uv_faces = _read(path)
