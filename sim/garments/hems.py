@@ -27,30 +27,37 @@ HEM_LAYERS = 3.0
 pass the 5k t-shirt's population of random walks and runs 134 of 144 times, with 2 131)."""
 
 
-def boundary_vertices(faces: np.ndarray) -> np.ndarray:
-    """Sorted indices of the vertices on an edge with one face."""
+def _edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh's undirected edges (E, 2) and which of them lie on the boundary (one face)."""
     from sim.quality import unique_edges
 
     edges, uses = unique_edges(np.asarray(faces), counts=True)
-    return np.unique(edges[uses == 1])
+    return edges, uses == 1
+
+
+def boundary_vertices(faces: np.ndarray) -> np.ndarray:
+    """Sorted indices of the vertices on an edge with one face."""
+    edges, border = _edges(faces)
+    return np.unique(edges[border])
 
 
 def distance_to_boundary(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Per vertex, the shortest path [m] along mesh edges to a boundary vertex (inf on a closed
     component)."""
+    return _distance(vertices, *_edges(faces))
+
+
+def _distance(vertices: np.ndarray, edges: np.ndarray, border: np.ndarray) -> np.ndarray:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
-    from sim.quality import unique_edges
-
     v = np.asarray(vertices, dtype=np.float64)
-    edges = unique_edges(np.asarray(faces))
     length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
     n = len(v)
-    graph = coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
-    sources = boundary_vertices(faces)
+    sources = np.unique(edges[border])
     if len(sources) == 0:
         return np.full(n, np.inf)
+    graph = coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
     return dijkstra(graph, directed=False, indices=sources, min_only=True)
 
 
@@ -60,17 +67,14 @@ def hem_face_layers(vertices: np.ndarray, faces: np.ndarray, width: float = HEM_
     ``width`` [m] of the mesh's boundary on average and on every face with an edge on the
     boundary (a mesh coarser than the hem keeps one row of it), 1 elsewhere (everywhere when
     ``width`` is 0)."""
-    from sim.quality import unique_edges
-
     f = np.asarray(faces)
     out = np.ones(len(f), np.float32)
     if width <= 0.0 or layers == 1.0:
         return out
-    d = distance_to_boundary(vertices, f)
-    edges, uses = unique_edges(f, counts=True)
-    n = np.int64(len(d))
-    border = edges[uses == 1].astype(np.int64) @ np.array([n, 1])
+    edges, border = _edges(f)
+    d = _distance(vertices, edges, border)
+    key = np.array([len(d), 1], np.int64)
     sides = np.sort(np.stack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]], axis=1), axis=2).astype(np.int64)
-    on_opening = np.isin(sides @ np.array([n, 1]), border).any(axis=1)
+    on_opening = np.isin(sides @ key, edges[border].astype(np.int64) @ key).any(axis=1)
     out[(d[f].mean(axis=1) < width) | on_opening] = layers
     return out

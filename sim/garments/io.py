@@ -9,7 +9,6 @@ a crack, so the mesh needs fixing in the modelling tool).
 
 from __future__ import annotations
 
-import numbers
 import os
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import numpy as np
 from sim.errors import WrinklesInputError
 from sim.garments.hems import HEM_LAYERS, hem_face_layers
 from sim.garments.materials import Material, get_material
-from sim.garments.templates import PARAM_RANGES
+from sim.garments.templates import check_parameter
 from sim.garments.types import Garment
 
 MERGE_TOL = 1e-6
@@ -108,9 +107,7 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     """
     path = Path(path)
     for key, value in (("hem_width", hem_width), ("hem_layers", hem_layers)):
-        lo, hi = PARAM_RANGES[key]
-        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not lo <= value <= hi:
-            raise WrinklesInputError(f"{key} = {value!r} must be a number in [{lo:g}, {hi:g}]", path=path)
+        check_parameter(key, value, "load_garment", path=path)
     if not path.is_file():
         raise WrinklesInputError("no such file", path=path)
     points, faces, uvs, uv_faces = _read(path)

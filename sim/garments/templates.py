@@ -785,6 +785,20 @@ HEM_PARAMETERS: tuple[tuple[str, float, str, str], ...] = (
 _HEM_NAMES = frozenset(name for name, *_ in HEM_PARAMETERS)
 
 
+def check_parameter(name: str, value, where: str, path=None) -> None:
+    """Raise ``WrinklesInputError`` (``where``: ..., or naming ``path``) unless ``value`` is a
+    finite number inside ``PARAM_RANGES[name]``."""
+    lo, hi = PARAM_RANGES[name]
+    number = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
+    prefix = f"{where}: " if path is None else ""
+    if not number or not np.isfinite(value):
+        raise WrinklesInputError(f"{prefix}parameter {name} must be a number [m or -], got {value!r}",
+                                 path=path)
+    if not lo <= value <= hi:
+        raise WrinklesInputError(f"{prefix}parameter {name} = {value:g} is outside its range "
+                                 f"[{lo:g}, {hi:g}]", path=path)
+
+
 def make_params(category: str, **params: float):
     """Frozen params of ``category`` with the template's defaults, overridden by ``params``."""
     if category not in TEMPLATES:
@@ -797,13 +811,7 @@ def make_params(category: str, **params: float):
         raise WrinklesInputError(f"{category}: unknown parameter(s) {sorted(unknown)}; expected "
                                  f"{', '.join(sorted(allowed | _HEM_NAMES))}")
     for k, v in params.items():
-        lo, hi = PARAM_RANGES[k]
-        number = isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
-        if not number or not np.isfinite(v):
-            raise WrinklesInputError(f"{category}: parameter {k} must be a number [m or -], got {v!r}")
-        if not lo <= v <= hi:
-            raise WrinklesInputError(f"{category}: parameter {k} = {v:g} is outside its range "
-                                     f"[{lo:g}, {hi:g}]")
+        check_parameter(k, v, category)
     return t.params(**{**t.defaults, **{k: v for k, v in params.items() if k in allowed}})
 
 
