@@ -53,8 +53,9 @@ def padded(capacity: int) -> int:
 
 
 def _kernel(capacity: int, kind: str):
-    """The block kernel ``kind`` ("solve", "factor" or "substitute") with at least ``capacity``
-    floats of shared memory (one kernel per kind and padded size)."""
+    """The block kernel ``kind`` ("solve", "factor", "substitute", "factor_inv" or
+    "substitute_blocked") with at least ``capacity`` floats of shared memory (one kernel per kind
+    and padded size)."""
     capacity = padded(capacity)
     key = (kind, capacity)
     if key in _KERNELS:
@@ -134,6 +135,86 @@ def _kernel(capacity: int, kind: str):
 
         kernel = wp.kernel(block_factor_kernel, enable_backward=False, module="unique",
                            cuda_max_registers=BLOCK_MAX_REGISTERS)
+    elif kind == "factor_inv":
+        @wp.func_native(_FACTOR_INV)
+        def native(
+            smem: wp.tile[float, capacity],
+            diag: wp.array(dtype=float),
+            inst_start: wp.array(dtype=wp.int32),
+            inst_count: wp.array(dtype=wp.int32),
+            inst_width: wp.array(dtype=wp.int32),
+            inst_band: wp.array(dtype=wp.int64),
+            order: wp.array(dtype=wp.int32),
+            band_k: wp.array(dtype=float),
+            inst_inv: wp.array(dtype=wp.int64),
+            factor_out: wp.array(dtype=float),
+            inverse_out: wp.array(dtype=float),
+            k: int,
+            lane: int,
+        ): ...
+
+        def block_factor_inverse_kernel(
+            diag: wp.array(dtype=float),
+            inst_start: wp.array(dtype=wp.int32),
+            inst_count: wp.array(dtype=wp.int32),
+            inst_width: wp.array(dtype=wp.int32),
+            inst_band: wp.array(dtype=wp.int64),
+            order: wp.array(dtype=wp.int32),
+            band_k: wp.array(dtype=float),
+            inst_inv: wp.array(dtype=wp.int64),
+            factor_out: wp.array(dtype=float),
+            inverse_out: wp.array(dtype=float),
+        ):
+            """``block_factor_kernel``, then the inverse of each diagonal block of the unit ``L``
+            to ``inverse_out`` (at ``inst_inv``, ``inverse_floats`` per instance), for
+            ``block_substitute_blocked_kernel`` (launch with ``block_dim=BLOCKED_THREADS``)."""
+            k, lane = wp.tid()
+            smem = wp.tile_empty(shape=capacity, dtype=float, storage="shared")
+            native(smem, diag, inst_start, inst_count, inst_width, inst_band, order, band_k, inst_inv,
+                   factor_out, inverse_out, k, lane)
+
+        kernel = wp.kernel(block_factor_inverse_kernel, enable_backward=False, module="unique",
+                           cuda_max_registers=BLOCK_MAX_REGISTERS)
+    elif kind == "substitute_blocked":
+        @wp.func_native(_SUBSTITUTE_BLOCKED)
+        def native(
+            smem: wp.tile[float, capacity],
+            rhs: wp.array(dtype=wp.vec3),
+            inst_start: wp.array(dtype=wp.int32),
+            inst_count: wp.array(dtype=wp.int32),
+            inst_width: wp.array(dtype=wp.int32),
+            inst_band: wp.array(dtype=wp.int64),
+            order: wp.array(dtype=wp.int32),
+            factor: wp.array(dtype=float),
+            inst_inv: wp.array(dtype=wp.int64),
+            inverse: wp.array(dtype=float),
+            dx_out: wp.array(dtype=wp.vec3),
+            k: int,
+            lane: int,
+        ): ...
+
+        def block_substitute_blocked_kernel(
+            rhs: wp.array(dtype=wp.vec3),
+            inst_start: wp.array(dtype=wp.int32),
+            inst_count: wp.array(dtype=wp.int32),
+            inst_width: wp.array(dtype=wp.int32),
+            inst_band: wp.array(dtype=wp.int64),
+            order: wp.array(dtype=wp.int32),
+            factor: wp.array(dtype=float),
+            inst_inv: wp.array(dtype=wp.int64),
+            inverse: wp.array(dtype=float),
+            dx_out: wp.array(dtype=wp.vec3),
+        ):
+            """Solve instance ``k``'s coarse system with ``block_factor_inverse_kernel``'s factor
+            and block inverses: block steps of dense products (launch with
+            ``block_dim=BLOCKED_THREADS``)."""
+            k, lane = wp.tid()
+            smem = wp.tile_empty(shape=capacity, dtype=float, storage="shared")
+            native(smem, rhs, inst_start, inst_count, inst_width, inst_band, order, factor, inst_inv, inverse,
+                   dx_out, k, lane)
+
+        kernel = wp.kernel(block_substitute_blocked_kernel, enable_backward=False, module="unique",
+                           cuda_max_registers=BLOCK_MAX_REGISTERS)
     else:
         @wp.func_native(_SUBSTITUTE)
         def native(
@@ -186,6 +267,17 @@ def factor_kernel(capacity: int):
 def substitute_kernel(capacity: int):
     """The substitution kernel (``_kernel``) with a factor from ``factor_kernel``."""
     return _kernel(capacity, "substitute")
+
+
+def factor_inverse_kernel(capacity: int):
+    """The block factor kernel that also inverts the diagonal blocks (``_FACTOR_INV``)."""
+    return _kernel(capacity, "factor_inv")
+
+
+def substitute_blocked_kernel(capacity: int):
+    """The blocked substitution kernel (``_SUBSTITUTE_BLOCKED``) with a factor and block inverses
+    from ``factor_inverse_kernel``."""
+    return _kernel(capacity, "substitute_blocked")
 
 
 # threads of the substitution kernel: they load the factor into shared memory together, then
@@ -514,3 +606,196 @@ _SUBSTITUTE = _HEAD + r"""
 """ + _LOAD_RHS + r"""
     __syncthreads();
 """ + _FORWARD2 + _BACK2
+
+
+# Blocked substitutions (session 39). The one-warp substitutions above take ~2n dependent warp
+# steps: 50 us per correction for the t-shirt's 202 nodes on an H100, on the critical path of
+# every substep (the factor runs beside the sweeps). Here the factor kernel also inverts each
+# diagonal block of the unit L (blocks of m = b + 1 rows, so L is block-bidiagonal: a row's band
+# reaches back at most into the previous block), and a correction's substitutions become about
+# 2 n / m block steps of two short dense products each:
+#     forward  V = u_i - L_{i,i-1} y_{i-1};   y_i = X_i V            (X_i = L_ii^-1)
+#     back     V = D_i^-1 y_i - L_{i+1,i}^T x_{i+1};   x_i = X_i^T V
+# Every row and component is a task of G lanes (``_lanes``), each lane summing every G-th product
+# and the task's first lane adding the G partial sums. The floats differ from the row-by-row
+# substitutions' (other sums), not the solution.
+
+# threads of the blocked kernels (both): the inversion's columns and the substitutions' rows get
+# several lanes each; with at most 64 registers a block of 1,024 threads fits an SM
+BLOCKED_THREADS = 1024
+
+
+def block_rows(width: int) -> int:
+    """Rows of a diagonal block of the blocked substitutions for a band of width ``width``."""
+    return int(width) + 1
+
+
+def inverse_floats(count: int, width: int) -> int:
+    """Floats of one instance's diagonal-block inverses (``count`` nodes, band ``width``):
+    ``ceil(count / m)`` blocks of ``m x m`` (``m = block_rows(width)``), row-major."""
+    m = block_rows(width)
+    return -(-int(count) // m) * m * m
+
+
+def blocked_shared_floats(count: int, width: int) -> int:
+    """Shared floats of the blocked factor and substitution kernels for one instance: the band,
+    then the larger of the elimination's scratch and the block inverses with the right-hand side,
+    the forward solution, a block's scratch and two partial sums per thread."""
+    m = block_rows(width)
+    band = count * (width + 1)
+    return band + max(inverse_floats(count, width) + 6 * count + 3 * m + 2 * BLOCKED_THREADS,
+                      3 * count + width * (width + 1) // 2)
+
+
+def _copy(dst: str, src: str, count: str) -> str:
+    """C: ``dst[q] = src[q]`` for ``q < count`` by the block, four independent loads per thread
+    before their stores (one at a time, each load's latency was paid in turn)."""
+    return f"""
+    for (int q0 = lane; q0 < {count}; q0 += 4 * T) {{
+        float a_[4];
+        for (int k_ = 0; k_ < 4; ++k_)
+            a_[k_] = (q0 + k_ * T < {count}) ? {src}[q0 + k_ * T] : 0.0f;
+        for (int k_ = 0; k_ < 4; ++k_)
+            if (q0 + k_ * T < {count})
+                {dst}[q0 + k_ * T] = a_[k_];
+    }}
+"""
+
+
+# G lanes per task: the largest power of two up to 8 with ``TASKS`` tasks x G lanes <= T
+_LANES = r"""
+        int G = 8;
+        while (G > 1 && (TASKS) * G > T)
+            G >>= 1;
+        const int per = T / G;  // tasks per round
+        const int sub = lane % G;
+"""
+
+
+def _lanes(tasks: str) -> str:
+    return _LANES.replace("TASKS", tasks)
+
+
+# the factor kernel's last part: each diagonal block's inverse X_i, a column per task, row by row
+# (X[r][j] = -sum_{j <= c < r} L[r][c] X[c][j]), in shared memory after the band (the
+# elimination's scratch is free by then), then to global memory. Every lane of a task forms each
+# X[r][j] from the same partial sums in the same order and stores it, so a lane reads only the
+# entries it stored itself; the partial sums alternate between two buffers, one barrier per row.
+_INVERT = r"""
+    {
+        const int m = w;
+        const int nb = (n + m - 1) / m;
+        float* X = L + n * w;
+        float* P = X + nb * m * m + 6 * n + 3 * m;
+        for (int q = lane; q < nb * m * m; q += T)
+            X[q] = 0.0f;
+        __syncthreads();
+""" + _lanes("nb * m") + r"""
+        for (int base0 = 0; base0 < nb * m; base0 += per) {
+            const int q = base0 + lane / G;
+            const bool on = lane < per * G && q < nb * m;
+            const int i = on ? q / m : 0;
+            const int j = on ? q - i * m : 0;
+            const int r0 = i * m;
+            const int mi = on ? min(m, n - r0) : 0;
+            float* Xi = X + i * m * m;
+            if (on && sub == 0 && j < mi)
+                Xi[j * m + j] = 1.0f;
+            for (int r = 1; r < m; ++r) {
+                const bool act = on && j < r && r < mi;
+                float s = 0.0f;
+                if (act) {
+                    const float* Lr = L + (r0 + r) * w;
+                    for (int c = j + sub; c < r; c += G)
+                        s += Lr[r - c] * Xi[c * m + j];
+                }
+                float* Pr = P + (r & 1) * T;
+                Pr[lane] = s;
+                __syncthreads();
+                if (act) {
+                    float tot = 0.0f;
+                    for (int g = 0; g < G; ++g)
+                        tot += Pr[lane - sub + g];
+                    Xi[r * m + j] = -tot;
+                }
+            }
+            __syncthreads();
+        }
+        const long long ibase = inst_inv[k];
+        float* inv_out = inverse_out + ibase;
+""" + _copy("inv_out", "X", "nb * m * m") + r"""
+    }
+"""
+_FACTOR_INV = _HEAD + _LOAD_BAND + _ELIMINATE + r"""
+    for (int q = lane; q < n * w; q += T)
+        factor_out[base + q] = L[q];
+""" + _INVERT
+# one phase of a block step: each task (row p of the block, component c) sums its products
+# (PRODUCTS: ``s += ...`` over its lane's share), the task's first lane adds the partial sums and
+# stores RESULT (``tot``: the sum); a barrier after each half
+_PHASE = r"""
+        for (int base0 = 0; base0 < 3 * mi; base0 += per) {
+            const int q = base0 + lane / G;
+            const bool on = lane < per * G && q < 3 * mi;
+            const int p = on ? q / 3 : 0;
+            const int c = q - 3 * p;
+            const int r = r0 + p;
+            float s = 0.0f;
+            if (on) {
+                PRODUCTS
+            }
+            P[lane] = s;
+            __syncthreads();
+            if (on && sub == 0) {
+                float tot = 0.0f;
+                for (int g = 0; g < G; ++g)
+                    tot += P[lane + g];
+                RESULT
+            }
+            __syncthreads();
+        }
+"""
+
+
+def _phase(products: str, result: str) -> str:
+    return _PHASE.replace("PRODUCTS", products).replace("RESULT", result)
+
+
+_SUBSTITUTE_BLOCKED = _HEAD + r"""
+    const int m = w;
+    const int nb = (n + m - 1) / m;
+    float* X = L + n * w;
+    u = X + nb * m * m;
+    float* Y = u + 3 * n;
+    float* V = Y + 3 * n;
+    float* P = V + 3 * m;
+    const long long ibase = inst_inv[k];
+    const float* fac_in = factor + base;
+    const float* inv_in = inverse + ibase;
+""" + _copy("L", "fac_in", "n * w") + _copy("X", "inv_in", "nb * m * m") + _LOAD_RHS + r"""
+    __syncthreads();
+""" + _lanes("3 * m") + r"""
+    for (int i = 0; i < nb; ++i) {
+        const int r0 = i * m;
+        const int mi = min(m, n - r0);
+        const float* Xi = X + i * m * m;
+""" + _phase(r"""const int tmax = min(b, r);
+                for (int t = p + 1 + sub; t <= tmax; t += G)
+                    s += L[r * w + t] * Y[3 * (r - t) + c];""", "V[q] = u[3 * r + c] - tot;") \
+    + _phase(r"""for (int j = sub; j <= p; j += G)
+                    s += Xi[p * m + j] * V[3 * j + c];""", "Y[3 * r + c] = tot;") + r"""
+    }
+    for (int i = nb - 1; i >= 0; --i) {
+        const int r0 = i * m;
+        const int mi = min(m, n - r0);
+        const float* Xi = X + i * m * m;
+""" + _phase(r"""const int tmax = min(b, n - 1 - r);
+                for (int t = mi - p + sub; t <= tmax; t += G)
+                    s += L[(r + t) * w + t] * u[3 * (r + t) + c];""",
+             "V[q] = Y[3 * r + c] * (1.0f / fmaxf(L[r * w], 1.0e-30f)) - tot;") \
+    + _phase(r"""for (int j = p + sub; j < mi; j += G)
+                    s += Xi[j * m + p] * V[3 * j + c];""", "u[3 * r + c] = tot;") + r"""
+    }
+    for (int r = lane; r < n; r += T)
+        dx_out[start + order[start + r]] = wp::vec3(u[3 * r], u[3 * r + 1], u[3 * r + 2]);
+"""
