@@ -76,27 +76,21 @@ struct Smem { struct { float* ptr; } data; };
 static void body(int kind, Dim blockDim, float* shared, const wp::vec3* rhs, const float* diag,
                  const int* inst_start, const int* inst_count, const int* inst_width,
                  const long long* inst_band, const int* order, const float* band_k, const float* factor,
-                 float* factor_out, const long long* inst_inv, const float* inverse, float* inverse_out,
-                 wp::vec3* dx_out, int k, int lane) {
+                 float* factor_out, wp::vec3* dx_out, int k, int lane) {
     Smem smem{{shared}};
     if (kind == 0) {
-@@SOLVE@@
+SOLVE
     } else if (kind == 1) {
-@@FACTOR@@
-    } else if (kind == 2) {
-@@SUBSTITUTE@@
-    } else if (kind == 3) {
-@@FACTOR_INV@@
+FACTOR
     } else {
-@@SUBSTITUTE_BLOCKED@@
+SUBSTITUTE
     }
 }
 
 extern "C" int run(int kind, int threads, int instances, int capacity, int timeout_ms,
                     const wp::vec3* rhs, const float* diag, const int* inst_start, const int* inst_count,
                     const int* inst_width, const long long* inst_band, const int* order,
-                    const float* band_k, float* factor, const long long* inst_inv, float* inverse,
-                    wp::vec3* dx_out) {
+                    const float* band_k, float* factor, wp::vec3* dx_out) {
     g_failed = false;
     for (int k = 0; k < instances && !g_failed; ++k) {
         std::vector<float> shared(capacity, 0.0f);
@@ -120,8 +114,8 @@ extern "C" int run(int kind, int threads, int instances, int capacity, int timeo
         try {
             for (int lane = 0; lane < threads; ++lane)
                 pool.emplace_back(body, kind, Dim{(unsigned)threads}, shared.data(), rhs, diag, inst_start,
-                                  inst_count, inst_width, inst_band, order, band_k, factor, factor,
-                                  inst_inv, inverse, inverse, dx_out, k, lane);
+                                  inst_count, inst_width, inst_band, order, band_k, factor, factor, dx_out,
+                                  k, lane);
         } catch (...) {
             g_failed = true;
         }
@@ -142,7 +136,7 @@ extern "C" int run(int kind, int threads, int instances, int capacity, int timeo
 }
 """
 
-KINDS = {"solve": 0, "factor": 1, "substitute": 2, "factor_inv": 3, "substitute_blocked": 4}
+KINDS = {"solve": 0, "factor": 1, "substitute": 2}
 
 
 FLAGS = ["-std=c++20", "-O1", "-ffp-contract=off", "-shared", "-fPIC", "-pthread"]
@@ -180,14 +174,14 @@ def compiler() -> str | None:
 
 
 def build(snippets: dict[str, str]) -> ctypes.CDLL:
-    """Compile ``snippets`` (texts by ``KINDS`` name; a kind left out never runs) into one
-    library, cached by source, compiler and flags."""
+    """Compile ``snippets`` (``solve`` / ``factor`` / ``substitute`` texts) into one library,
+    cached by source, compiler and flags."""
     cc = compiler()
     if cc is None:
         raise RuntimeError("no C++20 compiler (g++ or clang++) for the block emulation")
     src = _PRELUDE
-    for name in KINDS:
-        src = src.replace(f"@@{name.upper()}@@", snippets.get(name, ""), 1)
+    for name in ("solve", "factor", "substitute"):
+        src = src.replace(name.upper(), snippets[name], 1)
     digest = hashlib.sha1("\0".join([src, cc, *FLAGS]).encode()).hexdigest()[:16]
     out = _cache() / f"snippets_{digest}.so"
     if not out.exists():
@@ -201,35 +195,20 @@ def _ptr(a: np.ndarray) -> ctypes.c_void_p:
     return ctypes.c_void_p(a.ctypes.data)
 
 
-def inverse_offsets(system: dict) -> np.ndarray:
-    """Each instance's offset in the block-inverse buffer (``coarse_block.inverse_floats``), and
-    the buffer's size last."""
-    from sim.cloth.coarse_block import inverse_floats
-
-    sizes = [inverse_floats(int(n), int(b)) for n, b in zip(system["count"], system["width"], strict=True)]
-    return np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
-
-
 def run(lib: ctypes.CDLL, kind: str, threads: int, capacity: int, system: dict,
-        factor: np.ndarray | None = None, timeout: float = 60.0,
-        inverse: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        factor: np.ndarray | None = None, timeout: float = 60.0) -> tuple[np.ndarray, np.ndarray]:
     """Run snippet ``kind`` over every instance of ``system`` (``band_system``'s arrays) with
     blocks of ``threads``; returns ``(dx, factor)`` (the solution per node, and the factor
-    buffer: written by ``factor``, read by ``substitute``). ``inverse``: the diagonal-block
-    inverses (``inverse_offsets``' size), written in place by ``factor_inv`` and read by
-    ``substitute_blocked``. A block not done in ``timeout`` [s] raises ``RuntimeError``."""
+    buffer: written by ``factor``, read by ``substitute``). A block not done in ``timeout`` [s]
+    raises ``RuntimeError``."""
     nodes = len(system["diag"])
     dx = np.zeros((nodes, 3), np.float32)
     fac = np.zeros_like(system["band"]) if factor is None else np.ascontiguousarray(factor, np.float32)
-    offsets = inverse_offsets(system)
-    if inverse is None:
-        inverse = np.zeros(int(offsets[-1]), np.float32)
-    assert inverse.dtype == np.float32 and inverse.flags.c_contiguous and len(inverse) == offsets[-1]
     arrays = [np.ascontiguousarray(system[k]) for k in
               ("rhs", "diag", "start", "count", "width", "band_start", "order", "band")]
     failed = lib.run(ctypes.c_int(KINDS[kind]), ctypes.c_int(threads), ctypes.c_int(len(system["count"])),
                      ctypes.c_int(capacity), ctypes.c_int(int(timeout * 1000)), *(_ptr(a) for a in arrays),
-                     _ptr(fac), _ptr(offsets), _ptr(inverse), _ptr(dx))
+                     _ptr(fac), _ptr(dx))
     if failed:
         raise RuntimeError(f"block emulation of {kind!r}: a barrier timed out (some threads never reach "
                            "it) or a thread could not start")

@@ -32,13 +32,11 @@ def strip(device, nx: int = 11, ny: int = 41):
     return b.finalize(device), v
 
 
-def coarse_level(model, spacing: int, levels: int = 2, smoothing: int = 2, prefactor: bool = False,
-                 blocked: bool = True):
+def coarse_level(model, spacing: int, levels: int = 2, smoothing: int = 2, prefactor: bool = False):
     """The coarse level a solver with corrections builds for ``model`` (two levels unless told:
     the coarse system solved exactly)."""
     return SolverVBD(model, VBDConfig(coarse_sweeps=(0,), coarse_spacing=spacing, coarse_levels=levels,
-                                      coarse_smoothing=smoothing, coarse_prefactor=prefactor,
-                                      coarse_blocked=blocked)).coarse
+                                      coarse_smoothing=smoothing, coarse_prefactor=prefactor)).coarse
 
 
 def test_aggregates_are_connected_cells_around_spaced_seeds():
@@ -257,8 +255,7 @@ def test_band_solve_matches_a_dense_solve_for_every_instance(device):
 def assert_split_equals_whole_block_solve(level, device):
     """On CUDA with two levels and ``prefactor`` ``solve`` substitutes with ``factor``'s factor
     (two launches); the whole block solve (one launch) must give the same floats
-    (``coarse_block``), or with the blocked substitutions (other sums) the same solution to
-    float rounding."""
+    (``coarse_block``)."""
     if level.block_kernel is None:
         return
     assert level.substitute_kernel is not None and level.factor_kernel is not None
@@ -267,11 +264,7 @@ def assert_split_equals_whole_block_solve(level, device):
     wp.launch_tiled(level.block_kernel, dim=[level.model.instance_count], block_dim=level.block_threads,
                     inputs=[level._rhs, level._diag, *level._inst, level._order, level._band_k],
                     outputs=[whole], device=device)
-    if level.blocked:
-        ref = whole.numpy()
-        np.testing.assert_allclose(level._dx.numpy(), ref, rtol=1e-4, atol=1e-4 * np.abs(ref).max())
-    else:
-        np.testing.assert_array_equal(level._dx.numpy(), whole.numpy())
+    np.testing.assert_array_equal(level._dx.numpy(), whole.numpy())
 
 
 def two_grid_reference(templates, rhs, diag, smoothing):
@@ -414,34 +407,26 @@ def test_coarse_corrections_carry_no_layer_through_another(device, sweeps, bound
     assert gap[-1] < 0.03
 
 
-@pytest.mark.parametrize("blocked", [True, False])
 @pytest.mark.parametrize("side, spacing, task_per_thread", [(71, 3, True), (81, 2, False)])
-def test_block_solve_matches_a_dense_solve_at_garment_size(side, spacing, task_per_thread, blocked):
+def test_block_solve_matches_a_dense_solve_at_garment_size(side, spacing, task_per_thread):
     """CUDA: the block kernel on a 5k-6.5k-vertex sheet's coarse level (hundreds of nodes, a band
     tens wide) against numpy's dense solve, on both of its paths: one task per thread for the
     whole factorization (band 19), and threads looping over the entries (band 47, whose 1,128
-    entries under a column outnumber a block's 1,024 threads); with the blocked substitutions
-    (session 39) and the row-by-row ones."""
+    entries under a column outnumber a block's 1,024 threads)."""
     if "cuda" not in DEVICES:
         pytest.skip("no CUDA device here")
-    from sim.cloth.coarse_block import blocked_shared_floats, padded, threads
+    from sim.cloth.coarse_block import threads
 
     v, f = grid(side, side, 1.0, 1.0)
     b = ClothModelBuilder()
     b.add_cloth(v, f, ClothMaterialParams())
     m = b.finalize("cuda")
-    level = coarse_level(m, spacing=spacing, prefactor=True, blocked=blocked)
+    level = coarse_level(m, spacing=spacing, prefactor=True)
+    assert level.block_kernel is not None
     nc = level.node_count
     assert nc > 250
     width = level.templates[0].band.shape[1] - 1
     assert width > 15
-    # the blocked layout where it fits a block's shared memory (the 756-node level's does not:
-    # the row-by-row substitutions then)
-    room = warp().get_device("cuda").max_shared_memory_per_block - 1024
-    fits = 4 * padded(blocked_shared_floats(nc, width)) <= room
-    assert level.block_kernel is not None and level.blocked == (blocked and fits)
-    if blocked and side == 71:
-        assert level.blocked
     assert (level.block_threads >= width * (width + 1) // 2) == task_per_thread
     assert level.block_threads == threads(width)
     rng = np.random.default_rng(1)

@@ -25,8 +25,7 @@ SIZES = [[(37, 5), (60, 12), (9, 12), (25, 1), (6, 0), (1, 3)], [(200, 44)], [(2
 @pytest.fixture(scope="module")
 def lib():
     return emu.build({"solve": coarse_block._SOLVE, "factor": coarse_block._FACTOR,
-                      "substitute": coarse_block._SUBSTITUTE, "factor_inv": coarse_block._FACTOR_INV,
-                      "substitute_blocked": coarse_block._SUBSTITUTE_BLOCKED})
+                      "substitute": coarse_block._SUBSTITUTE})
 
 
 def dense_solution(system: dict) -> np.ndarray:
@@ -97,64 +96,6 @@ def test_split_solve_gives_the_whole_solves_floats(lib, case):
     np.testing.assert_array_equal(again, whole)
 
 
-def blocked_capacity(sizes) -> int:
-    return max(coarse_block.blocked_shared_floats(n, b) for n, b in sizes)
-
-
-@pytest.mark.parametrize("case", range(len(TWO_COLUMN_SIZES)))
-def test_blocked_substitutions_match_a_dense_solve(lib, case):
-    """The blocked path (session 39): the factor kernel that also inverts the unit L's diagonal
-    blocks writes the plain factor kernel's band to the bit, and the blocked substitutions with
-    it solve every instance (bands wider than their instance, one node, a diagonal band, the
-    t-shirt's coarse level) to float precision against numpy, at the substitution's block size
-    and at 64 threads (fewer than a block's rows x 3: threads loop). Runs repeat to the bit."""
-    sizes = TWO_COLUMN_SIZES[case]
-    system = emu.band_system(sizes, seed=30 + case)
-    threads = coarse_block.threads(max(b for _, b in sizes))
-    cap = max(blocked_capacity(sizes), capacity(sizes))
-    _, plain = emu.run(lib, "factor", threads, cap, system)
-    inverse = np.zeros(int(emu.inverse_offsets(system)[-1]), np.float32)
-    _, factor = emu.run(lib, "factor_inv", coarse_block.BLOCKED_THREADS, cap, system, inverse=inverse)
-    np.testing.assert_array_equal(factor, plain)
-    exact = dense_solution(system)
-    for sub_threads in (coarse_block.BLOCKED_THREADS, 64):
-        dx, _ = emu.run(lib, "substitute_blocked", sub_threads, cap, system, factor=factor,
-                        inverse=inverse.copy())
-        err = np.abs(dx - exact).max() / np.abs(exact).max()
-        assert err < 5e-5, (sizes, sub_threads, err)
-    runs = [emu.run(lib, "substitute_blocked", coarse_block.BLOCKED_THREADS, cap, system, factor=factor,
-                    inverse=inverse)[0] for _ in range(2)]
-    np.testing.assert_array_equal(runs[0], runs[1])
-
-
-def test_block_inverses_invert_the_diagonal_blocks_of_the_unit_l(lib):
-    """``factor_inv``'s inverses: block ``i`` (rows ``i m .. i m + m - 1``, ``m = b + 1``; the last
-    block shorter) times the unit L's diagonal block is the identity (numpy), and the entries
-    above the diagonal and outside a short last block are zero."""
-    sizes = [(95, 9), (12, 3)]
-    system = emu.band_system(sizes, seed=5)
-    inverse = np.zeros(int(emu.inverse_offsets(system)[-1]), np.float32)
-    cap = blocked_capacity(sizes)
-    _, factor = emu.run(lib, "factor_inv", 256, cap, system, inverse=inverse)
-    offsets = emu.inverse_offsets(system)
-    for k, (n, b) in enumerate(sizes):
-        w = b + 1
-        b0 = system["band_start"][k]
-        band = factor[b0: b0 + n * w].reshape(n, w).astype(np.float64)
-        lower = np.eye(n)
-        for t in range(1, b + 1):
-            lower[np.arange(t, n), np.arange(n - t)] = band[t:, t]
-        m = coarse_block.block_rows(b)
-        blocks = inverse[offsets[k]: offsets[k + 1]].reshape(-1, m, m).astype(np.float64)
-        assert len(blocks) == -(-n // m)
-        for i, x in enumerate(blocks):
-            mi = min(m, n - i * m)
-            rows = slice(i * m, i * m + mi)
-            np.testing.assert_allclose(x[:mi, :mi] @ lower[rows, rows], np.eye(mi), atol=1e-5)
-            assert not np.triu(x, 1).any()
-            assert not x[mi:].any() and not x[:, mi:].any()
-
-
 def test_factor_is_the_unit_ldlt_of_the_band(lib):
     """The factor kernel's band holds ``D`` on the diagonal and the unit ``L`` below it, with
     ``L D L^T`` equal to the instance's matrix (rows in band order)."""
@@ -208,6 +149,6 @@ def test_block_kernels_fit_a_block_of_1024_threads_in_the_registers():
     two-row substitutions took the uncapped block solve past that: on CUDA it no longer
     launched at 992 threads (error 701), which the CPU emulation cannot see."""
     assert coarse_block.threads(10_000) == 1024
-    for kind in ("solve", "factor", "factor_inv", "substitute_blocked"):
+    for kind in ("solve", "factor"):
         kernel = coarse_block._kernel(1024, kind)
         assert kernel.options["cuda_max_registers"] * coarse_block.threads(10_000) <= 65536

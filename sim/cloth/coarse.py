@@ -323,14 +323,10 @@ class CoarseLevel:
         smoothing: l1-Jacobi passes before and after the inner solve (three levels).
         prefactor: with two levels, the diagonal and (CUDA) the factor at the substep start
             (``prepare``) instead of at each correction (``VBDConfig.coarse_prefactor``).
-        blocked: with ``prefactor`` on CUDA, the factor also inverts the unit L's diagonal
-            blocks and each correction substitutes block by block (``coarse_block``'s blocked
-            substitutions; ``VBDConfig.coarse_blocked``) where they fit a block's shared memory.
     """
 
     def __init__(self, model, particles: tuple, k_contact: float, contact_margin: float, air_damping: float,
-                 spacing: int = 3, levels: int = 0, smoothing: int = 2, prefactor: bool = False,
-                 blocked: bool = False):
+                 spacing: int = 3, levels: int = 0, smoothing: int = 2, prefactor: bool = False):
         import scipy.sparse as sp
 
         if spacing < 0:
@@ -440,29 +436,15 @@ class CoarseLevel:
         # correction
         self.prefactor = bool(prefactor) and self.levels == 2
         self.factor_kernel = self.substitute_kernel = None
-        self.blocked = False
-        self._inverse = self._inst_inv = None
         device = wp.get_device(d)
         if device.is_cuda:
-            room = device.max_shared_memory_per_block - 1024
             need = max(coarse_block.shared_floats(int(c), int(b))
                        for c, b in zip(counts, widths, strict=True))
-            if 4 * coarse_block.padded(need) <= room:
+            if 4 * coarse_block.padded(need) <= device.max_shared_memory_per_block - 1024:
                 self.block_kernel = coarse_block.cooperative_kernel(need)
                 if self.prefactor:
                     self.factor_kernel = coarse_block.factor_kernel(need)
                     self.substitute_kernel = coarse_block.substitute_kernel(need)
-                need_b = max(coarse_block.blocked_shared_floats(int(c), int(b))
-                             for c, b in zip(counts, widths, strict=True))
-                if self.prefactor and blocked and 4 * coarse_block.padded(need_b) <= room:
-                    self.blocked = True
-                    self.factor_kernel = coarse_block.factor_inverse_kernel(need_b)
-                    self.substitute_kernel = coarse_block.substitute_blocked_kernel(need_b)
-                    inv = np.array([coarse_block.inverse_floats(int(c), int(b))
-                                    for c, b in zip(counts, widths, strict=True)], dtype=np.int64)
-                    inv_off = np.concatenate([[0], np.cumsum(inv)[:-1]]).astype(np.int64)
-                    self._inst_inv = arr(inv_off, wp.int64)
-                    self._inverse = wp.zeros(int(inv.sum()), dtype=float, device=d)
 
     def prepare(self, h: float, sc_data) -> None:
         """With ``prefactor``: what every correction of a substep of length ``h`` [s] shares,
@@ -524,12 +506,6 @@ class CoarseLevel:
         if self.factor_kernel is None:
             return
         m = self.model
-        if self.blocked:
-            wp.launch_tiled(self.factor_kernel, dim=[m.instance_count],
-                            block_dim=coarse_block.BLOCKED_THREADS,
-                            inputs=[self._diag, *self._inst, self._order, self._band_k, self._inst_inv],
-                            outputs=[self._band, self._inverse], device=m.device)
-            return
         wp.launch_tiled(self.factor_kernel, dim=[m.instance_count], block_dim=self.block_threads,
                         inputs=[self._diag, *self._inst, self._order, self._band_k], outputs=[self._band],
                         device=m.device)
@@ -573,12 +549,7 @@ class CoarseLevel:
         the block kernel on CUDA where it fits, else one thread per instance."""
         m = self.model
         rhs, diag, dx = self._exact
-        if self.blocked:
-            wp.launch_tiled(self.substitute_kernel, dim=[m.instance_count],
-                            block_dim=coarse_block.BLOCKED_THREADS,
-                            inputs=[rhs, *self._inst, self._order, self._band, self._inst_inv, self._inverse],
-                            outputs=[dx], device=m.device)
-        elif self.substitute_kernel is not None:
+        if self.substitute_kernel is not None:
             wp.launch_tiled(self.substitute_kernel, dim=[m.instance_count],
                             block_dim=coarse_block.SUBSTITUTE_THREADS,
                             inputs=[rhs, *self._inst, self._order, self._band], outputs=[dx], device=m.device)

@@ -232,13 +232,6 @@ class VBDConfig:
             (both before the raw loads and fast math). With them (session 34), at 14 substeps:
             6.25 / 6.24 ms against 7.05 / 7.06, both singles pass (run 0.250), 133 of 144
             sequences against 134; the skirt passes at 5 x 5.
-        coarse_blocked: with ``coarse_prefactor`` on CUDA, the factor also inverts the diagonal
-            blocks of its unit L (b + 1 rows each, b the band width) and a correction substitutes
-            block by block, each block step two short dense products with a thread per row and
-            component (``coarse_block``'s blocked substitutions, session 39), instead of one warp
-            finishing two rows per step (~2n dependent steps: 50 us of every t-shirt substep's
-            critical path on an H100). The same solution to float rounding. Off, or where the
-            inverses do not fit a block's shared memory: the row-by-row substitutions.
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every
@@ -287,7 +280,6 @@ class VBDConfig:
     coarse_levels: int = 0
     coarse_smoothing: int = 2
     coarse_prefactor: bool = False
-    coarse_blocked: bool = True
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -499,7 +491,7 @@ class SolverVBD:
                          self._contact_body_velocity, self._contact_active)
             self.coarse = CoarseLevel(model, particles, cfg.contact_stiffness, cfg.contact_margin,
                                       cfg.air_damping, cfg.coarse_spacing, cfg.coarse_levels,
-                                      cfg.coarse_smoothing, cfg.coarse_prefactor, cfg.coarse_blocked)
+                                      cfg.coarse_smoothing, cfg.coarse_prefactor)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True, fast_math=cfg.fast_math)
 
