@@ -332,3 +332,52 @@ def test_registry_reductions_and_input_errors(flat):
         CollisionLoss(flat, body_faces=bf, anchor="edge")
     with pytest.raises(ValueError, match="lacks"):
         InertiaLoss(flat, dt=DT).on_batch(PhysicsBatch(x=x))
+
+
+def test_hem_layers_weigh_mass_and_bending_as_the_simulator_does(shirt):
+    """A garment's hems (``face_layers``) reach the losses as the simulator builds them
+    (``ClothModelBuilder.add_cloth``): the lumped vertex masses equal the model's particle masses,
+    the hinge stiffnesses its edge stiffnesses, and both differ from a topology without layers
+    where the hems are."""
+    from learn.losses.physics import cloth_params
+    from sim.bodies import load_body
+    from sim.cloth import ClothModelBuilder
+    from sim.garments import make_garment
+
+    g = make_garment("t_shirt", load_body(), resolution=0.06)
+    assert (g.face_layers > 1.0).any()
+    topo = topology_of(g)
+    np.testing.assert_array_equal(topo.face_layers, g.face_layers)
+    p = cloth_params("cotton")
+    b = ClothModelBuilder()
+    b.add_cloth(g.rest_vertices, g.faces, p, face_layers=g.face_layers)
+    m = b.finalize("cpu")
+    np.testing.assert_allclose(topo.vertex_masses(p.density), m.particle_mass.numpy(), rtol=1e-5)
+    np.testing.assert_array_equal(topo.hinges, m.hinges)
+    np.testing.assert_allclose(p.bending * topo.hinge_factors, m.edge_stiffness.numpy(), rtol=1e-5)
+    plain = garment_topology(g.rest_vertices, g.faces)
+    heavier = topo.vertex_areas > plain.vertex_areas * (1.0 + 1e-6)
+    hem_vertices = np.unique(g.faces[g.face_layers > 1.0])
+    np.testing.assert_array_equal(np.flatnonzero(heavier), hem_vertices)
+
+
+def test_layers_scale_every_material_energy(flat, device):
+    """Two layers everywhere double the membrane, bending, gravity and inertia energies (the
+    same deformation); the geometric GSNet terms do not see layers. Bad layers are refused."""
+    v, f = flat.rest_vertices, flat.faces
+    two = garment_topology(v, f, np.full(len(f), 2.0))
+    x = deformed(flat, scale=0.02).to(device)
+    prev = deformed(flat, scale=0.02, seed=3).to(device)
+    for name, make, args in [
+            ("membrane", MembraneLoss, (x,)), ("bending", BendingLoss, (x,)), ("gravity", GravityLoss, (x,)),
+            ("inertia", lambda t: InertiaLoss(t, dt=DT), (x, prev, prev)),
+            ("gsnet_edge", GSNetEdgeLoss, (x,))]:
+        one_e = make(flat).energy(*args).cpu().numpy()
+        two_e = make(two).energy(*args).cpu().numpy()
+        factor = 1.0 if name.startswith("gsnet") else 2.0
+        assert np.abs(one_e).min() > 0.0, name
+        np.testing.assert_allclose(two_e, factor * one_e, rtol=1e-5, err_msg=name)
+    with pytest.raises(ValueError, match="face_layers"):
+        garment_topology(v, f, np.full(len(f), 0.5))
+    with pytest.raises(ValueError, match="face_layers"):
+        garment_topology(v, f, np.ones(len(f) + 1))

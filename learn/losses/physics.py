@@ -197,7 +197,9 @@ class MembraneLoss(PhysicsLoss):
     def static_arrays(self):
         wp = warp()
         t = self.topology
-        return {"faces": (t.faces, wp.vec3i), "dm_inv": (t.dm_inv, wp.mat22), "areas": (t.areas, wp.float32)}
+        # a face of n fabric layers (hems) has n times the membrane energy
+        return {"faces": (t.faces, wp.vec3i), "dm_inv": (t.dm_inv, wp.mat22),
+                "areas": ((t.areas * t.face_layers).astype(np.float32), wp.float32)}
 
     def energy(self, x: torch.Tensor) -> torch.Tensor:
         x = positions(x, self.topology.num_vertices)

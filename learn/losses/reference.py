@@ -25,8 +25,8 @@ def _real(a: np.ndarray, like: torch.Tensor) -> torch.Tensor:
 
 
 def membrane_energy(x: torch.Tensor, topology: GarmentTopology, mu: float, lam: float) -> torch.Tensor:
-    """StVK membrane energy [J]: ``sum_t A_t (mu |G|_F^2 + lam/2 tr(G)^2)``, ``G = (F^T F - I)/2``,
-    ``F = [x1 - x0, x2 - x0] Dm^-1`` (3x2); Lamé ``mu, lam`` [N/m]."""
+    """StVK membrane energy [J]: ``sum_t n_t A_t (mu |G|_F^2 + lam/2 tr(G)^2)``, ``G = (F^T F - I)/2``,
+    ``F = [x1 - x0, x2 - x0] Dm^-1`` (3x2); Lamé ``mu, lam`` [N/m]; ``n_t`` the face's layers."""
     f = _long(topology.faces, x.device)
     x0, x1, x2 = x[:, f[:, 0]], x[:, f[:, 1]], x[:, f[:, 2]]
     ds = torch.stack([x1 - x0, x2 - x0], dim=-1)  # (B, F, 3, 2)
@@ -35,7 +35,7 @@ def membrane_energy(x: torch.Tensor, topology: GarmentTopology, mu: float, lam: 
     G = 0.5 * (F.transpose(-1, -2) @ F - eye)
     tr = G[..., 0, 0] + G[..., 1, 1]
     psi = mu * (G * G).sum(dim=(-1, -2)) + 0.5 * lam * tr * tr
-    return (psi * _real(topology.areas, x)).sum(dim=-1)
+    return (psi * _real(topology.areas * topology.face_layers, x)).sum(dim=-1)
 
 
 def dihedral_angles(x: torch.Tensor, hinges: torch.Tensor) -> torch.Tensor:

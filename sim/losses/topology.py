@@ -4,7 +4,10 @@ Everything a loss term needs besides the current positions: unique edges with re
 the rest-shape ``Dm^-1`` and area of every triangle, the bending hinges with rest angle and
 stiffness factor, lumped vertex areas (masses per unit density) and the inverse vertex degrees
 of the uniform graph Laplacian. The rest-shape helpers are the
-simulator's (``sim.cloth.model``), so a loss and the solver see the same discretisation.
+simulator's (``sim.cloth.model``), so a loss and the solver see the same discretisation, and so
+are the fabric layers of a garment's hems (``Garment.face_layers``): a face of n layers has n
+times the membrane energy, mass and bending of one (a hinge the mean of its two faces), as
+``ClothModelBuilder.add_cloth`` builds it.
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.cloth.model import build_hinges, dihedral_angles, mesh_edges, triangle_rest_data
+from sim.cloth.model import build_hinges, dihedral_angles, hinge_faces, mesh_edges, triangle_rest_data
 
 
 @dataclass(frozen=True)
@@ -29,13 +32,15 @@ class GarmentTopology:
         areas: rest area of each triangle [m^2], (F,) float32.
         hinges: interior edges ``(o0, o1, a, b)`` (layout of ``sim.cloth.energies``), (H, 4) int32.
         hinge_rest_angles: rest dihedral angle of each hinge [rad], (H,) float32.
-        hinge_factors: ``3 |e|^2 / (A_1 + A_2)`` of each hinge (rest shape) [-], (H,) float32;
-            the hinge stiffness is ``k_e = k_b * factor`` (Grinspun et al. 2003), as in
-            ``sim.cloth.model.ClothModelBuilder``.
-        vertex_areas: lumped area of each vertex, one third of its triangles' rest areas [m^2],
-            (V,) float32; the vertex mass is ``density * vertex_areas``.
+        hinge_factors: ``3 |e|^2 / (A_1 + A_2)`` of each hinge (rest shape) times the mean
+            layers of its two faces [-], (H,) float32; the hinge stiffness is ``k_e = k_b *
+            factor`` (Grinspun et al. 2003), as in ``sim.cloth.model.ClothModelBuilder``.
+        vertex_areas: lumped area of each vertex, one third of its triangles' rest areas times
+            their layers [m^2], (V,) float32; the vertex mass is ``density * vertex_areas``.
         inv_degree: ``1 / (number of edge neighbours)`` of each vertex (0 for isolated vertices),
             (V,) float32: weights of the uniform graph Laplacian.
+        face_layers: fabric layers of each triangle (>= 1; hems), (F,) float32: the weight of its
+            membrane energy (``areas * face_layers``).
     """
 
     rest_vertices: np.ndarray
@@ -49,6 +54,7 @@ class GarmentTopology:
     hinge_factors: np.ndarray
     vertex_areas: np.ndarray
     inv_degree: np.ndarray
+    face_layers: np.ndarray
 
     @property
     def num_vertices(self) -> int:
@@ -63,24 +69,35 @@ class GarmentTopology:
         return (float(density) * self.vertex_areas.astype(np.float64)).astype(np.float32)
 
 
-def garment_topology(rest_vertices: np.ndarray, faces: np.ndarray) -> GarmentTopology:
+def garment_topology(rest_vertices: np.ndarray, faces: np.ndarray,
+                     face_layers: np.ndarray | None = None) -> GarmentTopology:
     """Build the static loss data of a garment from its rest mesh.
 
     Args:
         rest_vertices: rest positions [m], shape (V, 3).
         faces: triangle vertex indices, shape (F, 3), consistently oriented.
+        face_layers: fabric layers per face, shape (F,), >= 1 (None: one everywhere), e.g. a
+            garment's hems (``Garment.face_layers``).
 
     Returns:
         The topology (float32 / int32 arrays).
 
     Raises:
-        ValueError: faces index outside the vertices, or a triangle of zero rest area.
+        ValueError: faces index outside the vertices, a triangle of zero rest area, or layers
+            of the wrong shape or under 1.
     """
     rest = np.ascontiguousarray(rest_vertices, dtype=np.float64).reshape(-1, 3)
     f = np.ascontiguousarray(faces, dtype=np.int32).reshape(-1, 3)
     nv = len(rest)
     if len(f) == 0 or f.min() < 0 or f.max() >= nv:
         raise ValueError(f"garment_topology: faces must index 0..{nv - 1} (got {len(f)} faces)")
+    if face_layers is None:
+        layers = np.ones(len(f))
+    else:
+        layers = np.asarray(face_layers, dtype=np.float64).reshape(-1)
+        if layers.shape != (len(f),) or not np.isfinite(layers).all() or layers.min() < 1.0:
+            raise ValueError(f"garment_topology: face_layers must be ({len(f)},) numbers >= 1, got shape "
+                             f"{layers.shape}" + (f", min {layers.min():g}" if layers.size else ""))
     dm_inv, areas = triangle_rest_data(rest, f)
     edges = mesh_edges(f)
     lengths = np.linalg.norm(rest[edges[:, 1]] - rest[edges[:, 0]], axis=1)
@@ -91,13 +108,14 @@ def garment_topology(rest_vertices: np.ndarray, faces: np.ndarray) -> GarmentTop
         # areas of the hinge's triangles (a, b, o0) and (b, a, o1), from the rest shape
         pair_area = 0.5 * (np.linalg.norm(np.cross(e, o0 - a), axis=1)
                            + np.linalg.norm(np.cross(a - b, o1 - b), axis=1))
-        factors = 3.0 * np.sum(e * e, axis=1) / pair_area
+        t_a, t_b = hinge_faces(f, hinges)
+        factors = 3.0 * np.sum(e * e, axis=1) / pair_area * 0.5 * (layers[t_a] + layers[t_b])
         rest_angles = dihedral_angles(rest, hinges)
     else:
         factors = np.zeros(0)
         rest_angles = np.zeros(0)
     vertex_areas = np.zeros(nv)
-    np.add.at(vertex_areas, f.reshape(-1), np.repeat(areas / 3.0, 3))
+    np.add.at(vertex_areas, f.reshape(-1), np.repeat(areas * layers / 3.0, 3))
     degree = np.bincount(edges.reshape(-1), minlength=nv).astype(np.float64)
     inv_degree = np.divide(1.0, degree, out=np.zeros(nv), where=degree > 0)
     return GarmentTopology(
@@ -112,9 +130,11 @@ def garment_topology(rest_vertices: np.ndarray, faces: np.ndarray) -> GarmentTop
         hinge_factors=factors.astype(np.float32),
         vertex_areas=vertex_areas.astype(np.float32),
         inv_degree=inv_degree.astype(np.float32),
+        face_layers=layers.astype(np.float32),
     )
 
 
 def topology_of(garment) -> GarmentTopology:
-    """``garment_topology`` of a ``sim.garments.Garment`` (its rest vertices and faces)."""
-    return garment_topology(garment.rest_vertices, garment.faces)
+    """``garment_topology`` of a ``sim.garments.Garment`` (its rest vertices, faces and hems'
+    layers)."""
+    return garment_topology(garment.rest_vertices, garment.faces, getattr(garment, "face_layers", None))
