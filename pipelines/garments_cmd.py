@@ -51,8 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="print everything (templates, parameters, resolutions, materials) as JSON")
     e = p.add_argument_group("export")
     e.add_argument("--export", metavar="NAME", default=None,
-                   help="template to write (needs --out); the mesh file does not carry the hems: "
-                   "import it with --garment-param hem_width=0.02 to have them again")
+                   help="template to write (needs --out); a USD file carries the hems' layers as the "
+                   "per-face primvar fabricLayers, an OBJ/PLY/GLB file does not; an import makes hems "
+                   "only with --garment-param hem_width=0.02")
     e.add_argument("--out", default=None, help=f"mesh file to write: {', '.join(EXPORT_SUFFIXES)}")
     e.add_argument("--uv-image", default=None, metavar="PNG", help="also draw the UV layout to this PNG")
     e.add_argument("--uv-image-size", type=int, default=1024,
@@ -140,7 +141,8 @@ def write_garment(garment, path: Path, *, metadata: dict | None = None) -> None:
     from usd_io.write import GarmentTrack
 
     write_stage(path, body=None, fps=30.0, metadata=metadata,
-                garments=[GarmentTrack(garment.name, v[None], f, garment.uvs, garment.uv_faces)])
+                garments=[GarmentTrack(garment.name, v[None], f, garment.uvs, garment.uv_faces,
+                                       face_layers=garment.face_layers)])
 
 
 def draw_uv_layout(garment, size: int = 1024, *, edges: bool = True):

@@ -319,7 +319,7 @@ def write_sequence_usd(path: Path, seq, metadata: dict, *, quiet: bool) -> None:
     g = seq.garment
     normals = np.stack([vertex_normals(v, g.faces) for v in seq.vertices])
     track = GarmentTrack(name=g.name, vertices=seq.vertices, faces=g.faces, uvs=g.uvs, uv_faces=g.uv_faces,
-                         normals=normals)
+                         normals=normals, face_layers=g.face_layers)
     with progress_bar(seq.num_frames, "writing USD", quiet=quiet) as advance:
         write_stage(path, body=seq.body, fps=seq.fps, garments=[track], body_name="Body", metadata=metadata,
                     progress=advance)

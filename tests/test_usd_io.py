@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -72,8 +73,10 @@ def scene() -> tuple[BodyFrames, GarmentTrack]:
                + rng.normal(scale=0.005, size=(T, *gv.shape))).astype(np.float32)
     normals = np.zeros_like(g_verts)
     normals[..., 0], normals[..., 2] = gv[:, 0] / 0.35, gv[:, 2] / 0.35
+    layers = np.ones(len(gf), np.float32)
+    layers[: len(gf) // 5] = 3.0  # a hem band
     garment = GarmentTrack("t-shirt", g_verts, gf, uvs=uvs, uv_faces=uv_faces, normals=normals,
-                           color=(0.1, 0.4, 0.2))
+                           color=(0.1, 0.4, 0.2), face_layers=layers)
     return body, garment
 
 
@@ -108,6 +111,8 @@ def test_round_trip_is_exact(tmp_path: Path, scene, suffix: str) -> None:
     np.testing.assert_array_equal(g.uv_faces, garment.uv_faces)
     assert not np.array_equal(g.uv_faces, g.faces)  # the seam survived
     np.testing.assert_array_equal(g.normals, garment.normals)
+    np.testing.assert_array_equal(g.face_layers, garment.face_layers)
+    assert data.body.face_layers is None
     assert data.metadata == {"command": "wrinkles animate", "config": {"seed": SEED},
                              "versions": {"wrinkles": "0.1.0"}}
 
@@ -137,6 +142,9 @@ def test_stage_layout(tmp_path: Path, scene) -> None:
     st = UsdGeom.PrimvarsAPI(garment).GetPrimvar("st")
     assert st.GetInterpolation() == UsdGeom.Tokens.faceVarying and st.IsIndexed()
     assert garment.GetCustomDataByKey("wrinkles:name") == "t-shirt"
+    layers = UsdGeom.PrimvarsAPI(garment).GetPrimvar("fabricLayers")
+    assert layers.GetInterpolation() == UsdGeom.Tokens.uniform  # one value per face
+    assert layers.GetTypeName() == Sdf.ValueTypeNames.FloatArray
     joints = UsdGeom.Points(stage.GetPrimAtPath("/World/BodyJoints"))
     assert joints.GetPurposeAttr().Get() == UsdGeom.Tokens.guide
     meta = json.loads(stage.GetRootLayer().customLayerData["wrinkles:metadata"])
@@ -201,7 +209,33 @@ def test_bad_inputs_are_rejected(tmp_path: Path, scene) -> None:
         write_stage(tmp_path / "a.usdc", body=body, fps=FPS, metadata={"x": object()})
     with pytest.raises(ValueError, match="unique"):
         write_stage(tmp_path / "a.usdc", body=body, fps=FPS, garments=[garment, garment])
+    thin = dataclasses.replace(garment, face_layers=np.full(len(garment.faces), 0.5, np.float32))
+    with pytest.raises(ValueError, match="face_layers must be"):
+        write_stage(tmp_path / "a.usdc", body=body, fps=FPS, garments=[thin])
     assert list(tmp_path.iterdir()) == []
+
+
+def test_fabric_layers_only_where_there_are_hems(tmp_path: Path, scene) -> None:
+    """A garment without hems (all faces one layer, or none given) gets no ``fabricLayers``
+    primvar; a quad mesh's per-polygon layers come back one per fan triangle."""
+    body, garment = scene
+    plain = dataclasses.replace(garment, face_layers=np.ones(len(garment.faces), np.float32))
+    path = write_stage(tmp_path / "plain.usda", body=None, fps=FPS, garments=[plain])
+    written = Usd.Stage.Open(str(path))  # held: a prim of a released stage is invalid
+    prim = written.GetPrimAtPath("/World/Garments/t_shirt")
+    assert not UsdGeom.PrimvarsAPI(prim).HasPrimvar("fabricLayers")
+    assert read_stage(path, require_body=False).garments["t_shirt"].face_layers is None
+    stage = Usd.Stage.CreateNew(str(tmp_path / "quads.usda"))
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Garments/quads")
+    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (2, 1, 0)])
+    mesh.CreateFaceVertexCountsAttr([4, 4])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3, 1, 4, 5, 2])
+    pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).CreatePrimvar("fabricLayers", Sdf.ValueTypeNames.FloatArray,
+                                                            UsdGeom.Tokens.uniform)
+    pv.Set([1.0, 3.0])
+    stage.GetRootLayer().Save()
+    quads = read_stage(tmp_path / "quads.usda", require_body=False).garments["quads"]
+    np.testing.assert_array_equal(quads.face_layers, [1.0, 1.0, 3.0, 3.0])
 
 
 def test_read_errors_name_the_file(tmp_path: Path) -> None:

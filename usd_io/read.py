@@ -11,7 +11,7 @@ import numpy as np
 from pxr import Tf, Usd, UsdGeom
 
 from sim.errors import WrinklesInputError
-from usd_io.write import BODY_PATH, JOINTS_PATH, METADATA_KEY
+from usd_io.write import BODY_PATH, FABRIC_LAYERS, JOINTS_PATH, METADATA_KEY
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,8 @@ class MeshData:
         uv_faces: per-corner indices into ``uvs``, shape (F, 3), int32, or None (None with
             ``uvs`` means per-vertex UVs).
         normals: authored normals, shape (T, V, 3) float32, or None.
+        face_layers: ``primvars:fabricLayers`` (a garment's hems), one per triangle, shape (F,),
+            float32, or None where the mesh has none (or not one per face).
     """
 
     name: str
@@ -37,6 +39,7 @@ class MeshData:
     uvs: np.ndarray | None = None
     uv_faces: np.ndarray | None = None
     normals: np.ndarray | None = None
+    face_layers: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -155,9 +158,15 @@ def _read_mesh(mesh: UsdGeom.Mesh, times: list[Usd.TimeCode], file: Path) -> Mes
         elif st.IsIndexed():
             uvs = uvs[np.asarray(st.GetIndices(), dtype=np.int64)]
     normals = _samples(mesh.GetNormalsAttr(), times, n)
+    face_layers = None
+    layers = UsdGeom.PrimvarsAPI(prim).GetPrimvar(FABRIC_LAYERS)
+    if layers and layers.HasAuthoredValue() and layers.GetInterpolation() == UsdGeom.Tokens.uniform:
+        per_face = np.asarray(layers.ComputeFlattened(), dtype=np.float32).reshape(-1)
+        if per_face.size == counts.size:  # one per polygon: one per fan triangle
+            face_layers = np.repeat(per_face, counts - 2)
     return MeshData(name=prim.GetName(), path=str(prim.GetPath()),
                     faces=indices[corners].astype(np.int32), points=points, uvs=uvs,
-                    uv_faces=uv_faces, normals=normals)
+                    uv_faces=uv_faces, normals=normals, face_layers=face_layers)
 
 
 def read_stage(path: str | os.PathLike, *, require_body: bool = True) -> StageData:

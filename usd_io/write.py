@@ -5,7 +5,8 @@ Stage layout::
     /World                      Xform, default prim
     /World/Body                 Mesh, time-sampled points + extent, skin material
     /World/BodyJoints           Points (purpose "guide"), time-sampled joint positions
-    /World/Garments/<name>      Mesh, time-sampled points, primvars:st, cloth material
+    /World/Garments/<name>      Mesh, time-sampled points, primvars:st, cloth material,
+                                primvars:fabricLayers (uniform float, per face) where it has hems
     /World/Looks/<name>Material UsdPreviewSurface materials
 
 Joints are a sibling of ``/World/Body`` rather than a child: a gprim nested in a gprim breaks
@@ -47,6 +48,8 @@ SKIN_COLOR: tuple[float, float, float] = (0.80, 0.57, 0.47)
 CLOTH_COLOR: tuple[float, float, float] = (0.20, 0.33, 0.60)
 #: display radius of the joint points [m].
 JOINT_WIDTH = 0.03
+#: primvar of a garment's fabric layers per face (hems): uniform float.
+FABRIC_LAYERS = "fabricLayers"
 
 #: progress(frames_done, frames_total); raising from it aborts the write (nothing is left).
 ProgressFn = Callable[[int, int], None]
@@ -65,6 +68,9 @@ class GarmentTrack:
             per-vertex UVs (then U == V).
         normals: vertex normals, shape (T, V, 3) or (V, 3), or None.
         color: linear RGB diffuse colour of the cloth material, each in [0, 1].
+        face_layers: fabric layers per face (hems, ``Garment.face_layers``), shape (F,), >= 1, or
+            None. Written as ``primvars:fabricLayers`` (``FABRIC_LAYERS``, uniform float: one value
+            per face) when any face has more than one: DCCs import it as a face attribute.
     """
 
     name: str
@@ -74,6 +80,7 @@ class GarmentTrack:
     uv_faces: np.ndarray | None = None
     normals: np.ndarray | None = None
     color: tuple[float, float, float] = CLOTH_COLOR
+    face_layers: np.ndarray | None = None
 
 
 # ----------------------------------------------------------------------------- checks
@@ -128,7 +135,13 @@ def _check_garment(g: GarmentTrack) -> GarmentTrack:
     color = tuple(float(c) for c in g.color)
     if len(color) != 3 or not all(0.0 <= c <= 1.0 for c in color):
         raise ValueError(f"garment {g.name!r} color must be 3 floats in [0, 1], got {g.color}")
-    return GarmentTrack(g.name, verts, faces, uvs, uv_faces, normals, color)
+    layers = g.face_layers
+    if layers is not None:
+        layers = np.ascontiguousarray(layers, dtype=np.float32).reshape(-1)
+        if layers.shape != (faces.shape[0],) or not np.isfinite(layers).all() or layers.min() < 1.0:
+            raise ValueError(f"garment {g.name!r} face_layers must be ({faces.shape[0]},) numbers >= 1, "
+                             f"got shape {layers.shape}")
+    return GarmentTrack(g.name, verts, faces, uvs, uv_faces, normals, color, layers)
 
 
 def _metadata_json(metadata: dict | None) -> str:
@@ -331,6 +344,10 @@ def _author(stage: Usd.Stage, *, body_verts: np.ndarray | None, body_faces: np.n
         if name != g.name:
             mesh.GetPrim().SetCustomDataByKey("wrinkles:name", g.name)
         _author_uvs(mesh, g)
+        if g.face_layers is not None and (g.face_layers > 1.0).any():
+            layers = UsdGeom.PrimvarsAPI(mesh.GetPrim()).CreatePrimvar(
+                FABRIC_LAYERS, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.uniform)
+            layers.Set(Vt.FloatArray.FromNumpy(g.face_layers))
         animated.append((mesh.CreatePointsAttr(), mesh.CreateExtentAttr(), g.vertices,
                          _extents(g.vertices)))
         if g.normals is not None:
