@@ -340,7 +340,7 @@ def test_cli_writes_body_and_garment_with_uvs_and_quality(tmp_path):
     assert g.uv_faces.shape == g.faces.shape and g.uvs.min() >= 0.0 and g.uvs.max() <= 1.0
     # the hems' layers, per face, as the template made them (primvars:fabricLayers)
     assert g.face_layers is not None and g.face_layers.shape == (len(g.faces),)
-    assert set(np.unique(g.face_layers)) == {1.0, 3.0}
+    assert g.face_layers.min() == 1.0 and 1.0 < g.face_layers.max() <= 3.0
     md = st.metadata
     assert md["quality"]["inside_fraction"][0] == 0.0 and md["quality"]["self_intersections"][0] == 0
     assert set(md["gates"]) == {"max_edge_strain", "max_inside_fraction", "max_self_intersections"}

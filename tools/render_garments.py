@@ -24,14 +24,16 @@ SHAPES = {"mean": "", "tall-heavy": "height=0.7,weight=0.9", "short-slim": "heig
 
 def panel_meshes(g, hem_shade: float = 0.55):
     """One ``PreviewMesh`` per panel, in the panel colours of the UV pictures, and one per panel's
-    hem (``Garment.face_layers`` > 1) in a darker shade of it (``hem_shade`` times the colour)."""
+    hem (the faces at least half in it: ``Garment.face_layers`` half-way to its most) in a darker
+    shade of it (``hem_shade`` times the colour)."""
     from pipelines.garments_cmd import PANEL_COLORS
     from pipelines.preview import PreviewMesh
 
     out = []
+    hem = g.face_layers - 1.0 >= 0.5 * max(float(g.face_layers.max()) - 1.0, 1e-6)
     for pid, name in enumerate(g.panel_names):
         color = PANEL_COLORS[pid % len(PANEL_COLORS)]
-        for part, keep in (("", g.face_layers <= 1.0), ("_hem", g.face_layers > 1.0)):
+        for part, keep in (("", ~hem), ("_hem", hem)):
             f = g.faces[(g.panel_ids == pid) & keep]
             if not len(f):
                 continue
