@@ -1033,39 +1033,3 @@ def test_remeasure_finds_only_what_the_candidate_query_saw(device):
     assert all(not pairs for key, pairs in _all_lists(sc, m).items() if key != "records")
     sc.detect(moved, velocities, h)
     assert len(_all_lists(sc, m)["vt"]) > 50
-
-
-@pytest.mark.parametrize("leaf_size", [2, 4])
-def test_bvh_leaf_size_finds_the_same_pairs(device, leaf_size):
-    """``VBDConfig.self_contact_leaf_size`` only changes the trees' shape: the three queries find
-    the same pairs (per primitive, as sets) and the same nearest distances as with one primitive
-    per leaf, on two jittered sheets sliding over each other at 3 m/s."""
-    nx, ny, e, h = 9, 8, 0.012, 1.0 / 300.0
-    v1, f1 = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
-    rng = np.random.default_rng(7)
-    v2 = v1 + np.array([0.4 * e, 0.0, 0.3 * e], np.float32)
-    v2[:, 1] = rng.uniform(0.002, 0.008, len(v2))
-    v = np.concatenate([v1, v2]).astype(np.float32)
-    f = np.concatenate([f1, f1 + len(v1)]).astype(np.int32)
-    vel = np.zeros_like(v)
-    vel[len(v1):] = (3.0, 0.0, 0.0)
-    b = ClothModelBuilder()
-    b.add_cloth(v, f, ClothMaterialParams())
-    m = b.finalize(device)
-    cap = 128
-    out = {}
-    for leaf in (1, leaf_size):
-        sc = SelfContact(m, radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45,
-                         speed_factor=2.5, capacity=cap, leaf_size=leaf)
-        sc.detect(m.particle_q, wp.array(vel, dtype=wp.vec3, device=device), h)
-        d = sc.data
-        sets = []
-        for count, ids in ((d.vt_count, d.vt_tri), (d.tv_count, d.tv_vertex), (d.ee_count, d.ee_edge)):
-            c, i = count.numpy(), ids.numpy().reshape(len(count.numpy()), cap)
-            assert c.max() < cap
-            sets.append({(a, int(o)) for a in range(len(c)) for o in i[a, :c[a]]})
-        out[leaf] = (sets, [x.numpy().copy() for x in sc._dmins])
-    assert all(len(s) > 50 for s in out[1][0])
-    assert out[leaf_size][0] == out[1][0]
-    for a, b_ in zip(out[1][1], out[leaf_size][1], strict=True):
-        np.testing.assert_array_equal(a, b_)

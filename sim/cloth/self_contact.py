@@ -1435,8 +1435,7 @@ class SelfContact:
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
-                 ee_interior: bool = False, slots: int = 1, lookahead: float | None = None,
-                 leaf_size: int = 1):
+                 ee_interior: bool = False, slots: int = 1, lookahead: float | None = None):
         w = warp()
         d = model.device
         self.model = model
@@ -1548,9 +1547,9 @@ class SelfContact:
                                                   model.vertex_mesh_edge_local.numpy(), 2, ne),
                                   dtype=w.int32, device=d)
         self._update_bounds(model.particle_q)
-        self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance, leaf_size=leaf_size)
-        self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance, leaf_size=leaf_size)
-        self.vertex_bvh = w.Bvh(self._lo_p, self._hi_p, groups=model.particle_instance, leaf_size=leaf_size)
+        self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
+        self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
+        self.vertex_bvh = w.Bvh(self._lo_p, self._hi_p, groups=model.particle_instance)
         # each instance's subtree root per tree (triangles, vertices, edges), refound at rebuilds
         self._roots = [w.zeros(model.instance_count, dtype=w.int32, device=d) for _ in range(3)]
         self.find_roots()
