@@ -1435,13 +1435,11 @@ class SelfContact:
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
-                 ee_interior: bool = False, slots: int = 1, lookahead: float | None = None,
-                 query_block: int = 256):
+                 ee_interior: bool = False, slots: int = 1, lookahead: float | None = None):
         w = warp()
         d = model.device
         self.model = model
         self.margin = float(margin)
-        self.query_block = int(query_block)
         self.relaxation = float(relaxation)
         self.speed_factor = float(speed_factor)
         n, nt, ne = model.particle_count, model.tri_count, model.mesh_edge_indices.shape[0]
@@ -1620,8 +1618,7 @@ class SelfContact:
             (detect_triangle_kernel, m.tri_count, [m.tri_indices, self.vertex_bvh.id, self._roots[1]]),
             (detect_edge_kernel, self._lo_e.shape[0], [self.edge_bvh.id, self._roots[2]]))[k]
         warp().launch(kernel, dim=dim, inputs=[x0, v, m.particle_instance, *inputs, margin, self.speed_factor,
-                                               h, data], outputs=[out], device=m.device,
-                      block_dim=self.query_block)
+                                               h, data], outputs=[out], device=m.device)
 
     def query_vertices(self, x0, v, h: float, slot: int = 0) -> None:
         """``detect_vertex_kernel``: each vertex's VT pairs and nearest triangle distance."""

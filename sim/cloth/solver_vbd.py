@@ -189,9 +189,6 @@ class VBDConfig:
             the CPU the same detections run in order. H100, t-shirt 16x10: walk 9.15 against 11.30
             ms, run 9.74 against 10.90 ms, but the population passed 32/48 against 38/48 (more
             crossings), so it is off by default (docs/BENCHMARKS.md, session 21).
-        self_contact_query_block: threads per block of the three detection queries (Warp's
-            default 256). One 5k t-shirt's 14.6k edges then fill 57 blocks, under half an H100's
-            132 SMs; smaller blocks spread the latency-bound walks over more of them.
         max_colors: colours of the model's vertex colouring (``ClothModelBuilder(max_colors=...)``,
             which ``sim.simulate`` builds from this field; the solver itself runs any colouring):
             0 (default) a proper colouring (the t-shirt: 4); 3 leaves ~2 % of the t-shirt's edges
@@ -275,7 +272,6 @@ class VBDConfig:
     self_contact_pipeline: bool = False
     self_contact_lookahead: bool = False
     self_contact_lookahead_margin: float = 0.002
-    self_contact_query_block: int = 256
     max_colors: int = 0
     strain_limit: float = 0.0
     strain_limit_passes: int = 4
@@ -310,9 +306,6 @@ class VBDConfig:
                                             or self.self_contact_pipeline):
             raise ValueError("VBDConfig.self_contact_lookahead needs self_contact_interval 1, "
                              "self_contact_bounds off and self_contact_pipeline off")
-        if self.self_contact_query_block not in (32, 64, 128, 256, 512, 1024):
-            raise ValueError("VBDConfig.self_contact_query_block must be a power of two in 32..1024, got "
-                             f"{self.self_contact_query_block}")
         if self.self_contact_lookahead_margin < 0.0:
             raise ValueError("VBDConfig.self_contact_lookahead_margin must be >= 0, got "
                              f"{self.self_contact_lookahead_margin}")
@@ -480,8 +473,7 @@ class SolverVBD:
                 heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes,
                 weight_floor=cfg.self_contact_weight_floor, ee_interior=cfg.self_contact_ee_interior,
                 slots=2 if cfg.self_contact_pipeline else 1,
-                lookahead=cfg.self_contact_lookahead_margin if cfg.self_contact_lookahead else None,
-                query_block=cfg.self_contact_query_block)
+                lookahead=cfg.self_contact_lookahead_margin if cfg.self_contact_lookahead else None)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
