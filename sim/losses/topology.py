@@ -16,7 +16,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.cloth.model import build_hinges, dihedral_angles, hinge_faces, mesh_edges, triangle_rest_data
+from sim.cloth.model import (
+    build_hinges,
+    dihedral_angles,
+    face_layers_array,
+    hinge_faces,
+    mesh_edges,
+    triangle_rest_data,
+)
 
 
 @dataclass(frozen=True)
@@ -91,13 +98,7 @@ def garment_topology(rest_vertices: np.ndarray, faces: np.ndarray,
     nv = len(rest)
     if len(f) == 0 or f.min() < 0 or f.max() >= nv:
         raise ValueError(f"garment_topology: faces must index 0..{nv - 1} (got {len(f)} faces)")
-    if face_layers is None:
-        layers = np.ones(len(f))
-    else:
-        layers = np.asarray(face_layers, dtype=np.float64).reshape(-1)
-        if layers.shape != (len(f),) or not np.isfinite(layers).all() or layers.min() < 1.0:
-            raise ValueError(f"garment_topology: face_layers must be ({len(f)},) numbers >= 1, got shape "
-                             f"{layers.shape}" + (f", min {layers.min():g}" if layers.size else ""))
+    layers = face_layers_array(face_layers, len(f), "garment_topology")
     dm_inv, areas = triangle_rest_data(rest, f)
     edges = mesh_edges(f)
     lengths = np.linalg.norm(rest[edges[:, 1]] - rest[edges[:, 0]], axis=1)
