@@ -141,3 +141,15 @@ class GarmentSequence:
     @property
     def num_frames(self) -> int:
         return int(self.vertices.shape[0])
+
+
+def face_layers_array(face_layers, face_count: int, where: str) -> np.ndarray:
+    """Fabric layers per face as float64 (F,): ones for None, else ``face_layers`` checked to be
+    ``face_count`` finite numbers >= 1 (``ValueError`` naming ``where`` otherwise)."""
+    if face_layers is None:
+        return np.ones(face_count)
+    layers = np.asarray(face_layers, dtype=np.float64).reshape(-1)
+    if layers.shape != (face_count,) or not np.isfinite(layers).all() or layers.min() < 1.0:
+        raise ValueError(f"{where}: face_layers must be ({face_count},) numbers >= 1, got shape "
+                         f"{layers.shape}" + (f", min {layers.min():g}" if layers.size else ""))
+    return layers

@@ -31,7 +31,7 @@ import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdShade, UsdUtils, Vt
 
 from sim.errors import WrinklesInputError
-from sim.types import BodyFrames
+from sim.types import BodyFrames, face_layers_array
 
 WORLD_PATH = "/World"
 BODY_PATH = "/World/Body"
@@ -137,10 +137,7 @@ def _check_garment(g: GarmentTrack) -> GarmentTrack:
         raise ValueError(f"garment {g.name!r} color must be 3 floats in [0, 1], got {g.color}")
     layers = g.face_layers
     if layers is not None:
-        layers = np.ascontiguousarray(layers, dtype=np.float32).reshape(-1)
-        if layers.shape != (faces.shape[0],) or not np.isfinite(layers).all() or layers.min() < 1.0:
-            raise ValueError(f"garment {g.name!r} face_layers must be ({faces.shape[0]},) numbers >= 1, "
-                             f"got shape {layers.shape}")
+        layers = face_layers_array(layers, faces.shape[0], f"garment {g.name!r}").astype(np.float32)
     return GarmentTrack(g.name, verts, faces, uvs, uv_faces, normals, color, layers)
 
 

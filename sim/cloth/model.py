@@ -29,6 +29,7 @@ import numpy as np
 
 from sim.cloth.coloring import compact_coloring, vertex_adjacency
 from sim.device import resolve_device, warp
+from sim.types import face_layers_array
 
 
 class ClothMaterialLike(Protocol):
@@ -380,18 +381,6 @@ def mesh_edges(faces: np.ndarray) -> np.ndarray:
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e.sort(axis=1)
     return np.unique(e, axis=0).astype(np.int32).reshape(-1, 2)
-
-
-def face_layers_array(face_layers, face_count: int, where: str) -> np.ndarray:
-    """Fabric layers per face as float64 (F,): ones for None, else ``face_layers`` checked to be
-    ``face_count`` finite numbers >= 1 (``ValueError`` naming ``where`` otherwise)."""
-    if face_layers is None:
-        return np.ones(face_count)
-    layers = np.asarray(face_layers, dtype=np.float64).reshape(-1)
-    if layers.shape != (face_count,) or not np.isfinite(layers).all() or layers.min() < 1.0:
-        raise ValueError(f"{where}: face_layers must be ({face_count},) numbers >= 1, got shape "
-                         f"{layers.shape}" + (f", min {layers.min():g}" if layers.size else ""))
-    return layers
 
 
 def hinge_faces(faces: np.ndarray, hinges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -8,6 +8,7 @@ import numpy as np
 
 from sim.errors import WrinklesInputError
 from sim.garments.materials import Material
+from sim.types import face_layers_array
 
 
 @dataclass(frozen=True)
@@ -58,11 +59,10 @@ class Garment:
         pid = np.zeros(len(f), np.int32) if self.panel_ids is None else np.asarray(self.panel_ids, np.int32)
         if pid.shape != (len(f),):
             raise WrinklesInputError(f"{where}: panel_ids must have shape ({len(f)},), got {pid.shape}")
-        layers = (np.ones(len(f), np.float32) if self.face_layers is None
-                  else np.asarray(self.face_layers, np.float32))
-        if layers.shape != (len(f),) or not np.isfinite(layers).all() or layers.min() < 1.0:
-            raise WrinklesInputError(f"{where}: face_layers must be ({len(f)},) numbers >= 1, got shape "
-                                     f"{layers.shape}")
+        try:
+            layers = face_layers_array(self.face_layers, len(f), where).astype(np.float32)
+        except ValueError as e:
+            raise WrinklesInputError(str(e)) from None
         att = {str(k): np.asarray(a, dtype=np.int32).reshape(-1) for k, a in self.attachments.items()}
         for k, a in att.items():
             if a.size and (a.min() < 0 or a.max() >= len(v)):

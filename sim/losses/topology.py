@@ -16,14 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.cloth.model import (
-    build_hinges,
-    dihedral_angles,
-    face_layers_array,
-    hinge_faces,
-    mesh_edges,
-    triangle_rest_data,
-)
+from sim.cloth.model import build_hinges, dihedral_angles, hinge_faces, mesh_edges, triangle_rest_data
+from sim.types import face_layers_array
 
 
 @dataclass(frozen=True)
