@@ -85,11 +85,11 @@ def simulator_defaults() -> dict:
     """The defaults that shape a simulation without being written in its config: the automatic
     substeps and the templates' hems. A dataset records them beside its config, so that it is
     not continued under other physics (``sim.datasets.generate``)."""
-    from sim.garments.hems import HEM_LAYERS, HEM_WIDTH
+    from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
 
     return {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
                          "fine_over_vertices": FINE_GARMENT_VERTICES},
-            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS}}
+            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE}}
 
 
 @dataclass(frozen=True)

@@ -318,12 +318,16 @@ def test_shards_combine_into_the_same_dataset(reference, tmp_path):
 
     old = json.loads((out / "config.json").read_text())
     assert old["simulator"]["hems"]["layers"] == 3.0 and old["simulator"]["substeps"]["default"] == 12
+    assert old["simulator"]["hems"]["rule"] == "area share"
+    session38 = json.loads(json.dumps(old))
+    del session38["simulator"]["hems"]["rule"]  # all-or-nothing hems, before session 39
     del old["simulator"]
-    (out / "config.json").write_text(json.dumps(old))
-    before = _files(out)
-    r = _generate(cfg, out, "--resume", check=False)
-    assert r.returncode == 2 and "simulator defaults" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    assert _files(out) == before
+    for record in (old, session38):
+        (out / "config.json").write_text(json.dumps(record))
+        before = _files(out)
+        r = _generate(cfg, out, "--resume", check=False)
+        assert r.returncode == 2 and "simulator defaults" in r.stderr
+        assert len(r.stderr.strip().splitlines()) == 1 and _files(out) == before
 
 
 def test_only_the_test_splits_are_made_again(reference, tmp_path):

@@ -25,6 +25,10 @@ import numpy as np
 
 HEM_WIDTH = 0.02
 """Default hem width [m] of the templates (a t-shirt's neckband and hems are 1.5-2.5 cm)."""
+HEM_RULE = "area share"
+"""How a face's layers follow from the band (``hem_face_layers``): since session 39 by the share of
+its area inside it (before: all or nothing by the mean of its corners' distances). Datasets record
+it (``sim.simulate.simulator_defaults``), so one made under the other rule is not continued."""
 HEM_LAYERS = 3.0
 """Default layers of fabric in a hem: a double-fold hem's three (session 38: with 3, 12 substeps
 pass the 5k t-shirt's population of random walks and runs 134 of 144 times, with 2 131)."""
