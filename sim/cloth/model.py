@@ -258,11 +258,9 @@ class ClothModelBuilder:
             nv = len(ins.vertices)
             starts.append(offset)
             dinv, a = triangle_rest_data(ins.rest, ins.faces)
-            vm = np.zeros(nv)
-            np.add.at(vm, ins.faces.reshape(-1), np.repeat(a * ins.layers * m.density / 3.0, 3))
             pos.append(ins.vertices)
             rest.append(ins.rest)
-            mass.append(vm)
+            mass.append(m.density * lumped_areas(nv, ins.faces, a, ins.layers))
             flags.append(ins.pinned.astype(np.int32))
             inst_of.append(np.full(nv, k, dtype=np.int32))
             faces.append(ins.faces + offset)
@@ -272,13 +270,9 @@ class ClothModelBuilder:
             lam.append(m.lam * ins.layers)
             damp.append(np.full(len(a), m.damping))
             if len(ins.hinges):
-                # k_e = k_b 3 |e|^2 / (A_1 + A_2) (rest shape), Grinspun et al. 2003
-                edge_len2 = np.sum((ins.rest[ins.hinges[:, 3]] - ins.rest[ins.hinges[:, 2]]) ** 2, axis=1)
-                t_a, t_b = hinge_faces(ins.faces, ins.hinges)
                 hinges.append(ins.hinges + offset)
                 rest_angle.append(dihedral_angles(ins.rest, ins.hinges))
-                hinge_layers = 0.5 * (ins.layers[t_a] + ins.layers[t_b])
-                k_edge.append(m.bending * hinge_layers * 3.0 * edge_len2 / (a[t_a] + a[t_b]))
+                k_edge.append(hinge_factors(ins.rest, ins.faces, ins.hinges, a, ins.layers, m.bending))
                 e_damp.append(np.full(len(ins.hinges), m.damping))
             thickness.append(m.thickness)
             friction.append(m.friction)
@@ -381,6 +375,24 @@ def mesh_edges(faces: np.ndarray) -> np.ndarray:
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e.sort(axis=1)
     return np.unique(e, axis=0).astype(np.int32).reshape(-1, 2)
+
+
+def lumped_areas(vertex_count: int, faces: np.ndarray, areas: np.ndarray, layers: np.ndarray) -> np.ndarray:
+    """Per vertex, one third of its triangles' rest areas times their fabric layers [m^2] (the
+    lumped mass per unit area density), float64 (V,)."""
+    out = np.zeros(vertex_count)
+    np.add.at(out, np.asarray(faces).reshape(-1), np.repeat(areas * layers / 3.0, 3))
+    return out
+
+
+def hinge_factors(rest: np.ndarray, faces: np.ndarray, hinges: np.ndarray, areas: np.ndarray,
+                  layers: np.ndarray, bending: float = 1.0) -> np.ndarray:
+    """Each hinge's stiffness ``k_b n 3 |e|^2 / (A_1 + A_2)`` (rest shape; Grinspun et al. 2003),
+    ``n`` the mean fabric layers of its two faces, for a bending stiffness ``bending`` [N m]
+    (1: the factor of ``k_b``)."""
+    edge_len2 = np.sum((rest[hinges[:, 3]] - rest[hinges[:, 2]]) ** 2, axis=1)
+    t_a, t_b = hinge_faces(faces, hinges)
+    return bending * (0.5 * (layers[t_a] + layers[t_b])) * 3.0 * edge_len2 / (areas[t_a] + areas[t_b])
 
 
 def hinge_faces(faces: np.ndarray, hinges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -4,10 +4,10 @@ A sewn garment's free edges are not raw cloth: a t-shirt's neckline has a neckba
 and bottom a folded hem, trousers a waistband and hems at the legs (typically 1.5-3 cm wide).
 A double-fold hem (the raw edge turned under twice and stitched) is three layers of fabric:
 they carry three times the load, weigh three times as much and bend three times as hard
-(layers stitched side by side, not bonded: bending adds per layer). A template marks every face
-within ``width`` of a boundary loop of its mesh with ``layers`` layers (``Garment.face_layers``);
-the simulator scales the face's mass, membrane moduli and bending by it
-(``ClothModelBuilder.add_cloth``).
+(layers stitched side by side, not bonded: bending adds per layer). A template lays a band
+``width`` wide along every boundary loop of its mesh and gives each face its share of the band's
+``layers`` (``Garment.face_layers``); the simulator scales the face's mass, membrane moduli and
+bending by it (``ClothModelBuilder.add_cloth``).
 
 Distance is measured along the mesh: Dijkstra over the edges from every boundary vertex
 (``scipy.sparse.csgraph``), so a face near an opening in space but far from it on the cloth

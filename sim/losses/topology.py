@@ -16,7 +16,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.cloth.model import build_hinges, dihedral_angles, hinge_faces, mesh_edges, triangle_rest_data
+from sim.cloth.model import (
+    build_hinges,
+    dihedral_angles,
+    hinge_factors,
+    lumped_areas,
+    mesh_edges,
+    triangle_rest_data,
+)
 from sim.types import face_layers_array
 
 
@@ -98,19 +105,12 @@ def garment_topology(rest_vertices: np.ndarray, faces: np.ndarray,
     lengths = np.linalg.norm(rest[edges[:, 1]] - rest[edges[:, 0]], axis=1)
     hinges = build_hinges(f)
     if len(hinges):
-        o0, o1, a, b = (rest[hinges[:, k]] for k in range(4))
-        e = b - a
-        # areas of the hinge's triangles (a, b, o0) and (b, a, o1), from the rest shape
-        pair_area = 0.5 * (np.linalg.norm(np.cross(e, o0 - a), axis=1)
-                           + np.linalg.norm(np.cross(a - b, o1 - b), axis=1))
-        t_a, t_b = hinge_faces(f, hinges)
-        factors = 3.0 * np.sum(e * e, axis=1) / pair_area * 0.5 * (layers[t_a] + layers[t_b])
+        factors = hinge_factors(rest, f, hinges, areas, layers)
         rest_angles = dihedral_angles(rest, hinges)
     else:
         factors = np.zeros(0)
         rest_angles = np.zeros(0)
-    vertex_areas = np.zeros(nv)
-    np.add.at(vertex_areas, f.reshape(-1), np.repeat(areas * layers / 3.0, 3))
+    vertex_areas = lumped_areas(nv, f, areas, layers)
     degree = np.bincount(edges.reshape(-1), minlength=nv).astype(np.float64)
     inv_degree = np.divide(1.0, degree, out=np.zeros(nv), where=degree > 0)
     return GarmentTopology(
@@ -132,4 +132,4 @@ def garment_topology(rest_vertices: np.ndarray, faces: np.ndarray,
 def topology_of(garment) -> GarmentTopology:
     """``garment_topology`` of a ``sim.garments.Garment`` (its rest vertices, faces and hems'
     layers)."""
-    return garment_topology(garment.rest_vertices, garment.faces, getattr(garment, "face_layers", None))
+    return garment_topology(garment.rest_vertices, garment.faces, garment.face_layers)
