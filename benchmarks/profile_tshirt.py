@@ -159,7 +159,11 @@ def main() -> None:
         wp.copy(x, saved[0])
         wp.copy(v, saved[1])
 
+    trees = sc.clusters is None  # the cluster broadphase has no trees and no single queries
+
     def kernels(tag: str) -> dict:
+        if not trees:
+            return {}
         return {
             f"detect_vertex{tag}_ms": timed(lambda: sc.query_vertices(x, v, h), graph=True),
             f"detect_triangle{tag}_ms": timed(lambda: sc.query_triangles(x, v, h), graph=True),
@@ -174,9 +178,10 @@ def main() -> None:
         "step_graph_ms": restore() or timed(lambda: solver.step(state, state, control, dt), graph=True),
         "detect_plain_ms": timed(lambda: sc.detect(x, v, h)),
         "detect_graph_ms": timed(lambda: sc.detect(x, v, h), graph=True),
-        "bounds_boxes_ms": timed(lambda: sc._update_bounds(x), graph=True),
-        "refit_tri_ms": timed(lambda: sc.tri_bvh.refit(), graph=True),
-        "refit_edge_ms": timed(lambda: sc.edge_bvh.refit(), graph=True),
+        **({"bounds_boxes_ms": timed(lambda: sc._update_bounds(x), graph=True),
+            "refit_tri_ms": timed(lambda: sc.tri_bvh.refit(), graph=True),
+            "refit_edge_ms": timed(lambda: sc.edge_bvh.refit(), graph=True)} if trees else
+           {"clusters_marked_per_query": sc.clusters.marked()}),
         **kernels(""),
         "sweep_sc_graph_ms": timed(sweep(sc.data), graph=True),
         "sweep_nosc_graph_ms": timed(sweep(disabled_data(device)), graph=True),
@@ -206,14 +211,15 @@ def main() -> None:
         res[f"{name}_pairs"] = {"mean": float(cnt.mean()), "max": int(cnt.max()),
                                 "full_fraction": float((cnt >= cap).mean())}
     restore()
-    sc._update_bounds(x)
-    res["rebuild_tri_ms"] = timed(lambda: sc.tri_bvh.rebuild(), graph=True)
-    res["rebuild_edge_ms"] = timed(lambda: sc.edge_bvh.rebuild(), graph=True)
-    sc.find_roots()  # the rebuilt trees' instance roots, for the queries below
-    res.update(kernels("_rebuilt"))
-    sc.tri_bvh.refit()  # the same boxes: a refit tree should query as fast as the rebuilt one
-    sc.edge_bvh.refit()
-    res.update(kernels("_rebuilt_refit"))
+    if trees:
+        sc._update_bounds(x)
+        res["rebuild_tri_ms"] = timed(lambda: sc.tri_bvh.rebuild(), graph=True)
+        res["rebuild_edge_ms"] = timed(lambda: sc.edge_bvh.rebuild(), graph=True)
+        sc.find_roots()  # the rebuilt trees' instance roots, for the queries below
+        res.update(kernels("_rebuilt"))
+        sc.tri_bvh.refit()  # the same boxes: a refit tree should query as fast as the rebuilt one
+        sc.edge_bvh.refit()
+        res.update(kernels("_rebuilt_refit"))
     if live:
         res["live_kernels"] = {"frames": args.live_frames, "kernels": live_ms}
     print(json.dumps(res, indent=1), flush=True)

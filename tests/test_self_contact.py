@@ -243,13 +243,14 @@ def test_two_stacked_layers_never_pass_through_each_other(device):
 
 
 @pytest.mark.parametrize("config", [{}, {"self_contact_pipeline": True}, {"self_contact_ee_interior": True},
-                                    {"self_contact_lookahead": True}])
+                                    {"self_contact_lookahead": True}, {"self_contact_broadphase": "clusters"}])
 def test_penalty_self_contact_holds_a_gently_dropped_layer(device, config):
     """Without the bounds (the default) the penalty alone stops a layer dropped at 1 m/s (the
     rims, where the loose layer folds over the pinned one's edge, may cross: no guarantee); so
     does it with each substep's pairs detected during the substep before (``pipeline``), with
-    edge pairs stored only where their closest points are inside both edges, and with each
-    substep's lists re-measured from candidates found a substep ahead (``lookahead``)."""
+    edge pairs stored only where their closest points are inside both edges, with each
+    substep's lists re-measured from candidates found a substep ahead (``lookahead``), and with
+    the pairs found through clusters instead of trees (``broadphase``)."""
     x, faces, nv, n = stacked_layers(device, True, bounds=False, speed=1.0, frames=20, **config)
     gap = _center_gap(x, nv, n)
     assert np.all(gap > 0.0) and gap[-1] < 0.03
@@ -370,6 +371,12 @@ def test_self_contact_config_is_checked():
             VBDConfig(self_contact_lookahead=True, **other)
     with pytest.raises(ValueError, match="lookahead_margin"):
         VBDConfig(self_contact_lookahead=True, self_contact_lookahead_margin=-0.001)
+    with pytest.raises(ValueError, match="broadphase"):
+        VBDConfig(self_contact_broadphase="grid")
+    with pytest.raises(ValueError, match="broadphase 'bvh'"):
+        VBDConfig(self_contact_broadphase="clusters", self_contact_lookahead=True)
+    with pytest.raises(ValueError, match="cluster_size"):
+        VBDConfig(self_contact_cluster_size=0)
 
 
 def folded_sheet(nx: int, ny: int, e: float, mid: int, gap: float):
@@ -1033,3 +1040,93 @@ def test_remeasure_finds_only_what_the_candidate_query_saw(device):
     assert all(not pairs for key, pairs in _all_lists(sc, m).items() if key != "records")
     sc.detect(moved, velocities, h)
     assert len(_all_lists(sc, m)["vt"]) > 50
+
+
+@pytest.mark.parametrize("size,bounds", [(8, True), (32, True), (64, True), (8, False), (32, False)])
+@pytest.mark.parametrize("motion", ["still", "sliding"])
+def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, motion):
+    """The cluster broadphase (``sim.cloth.clusters``) hands each query exactly the primitives
+    whose boxes meet its query box, as the trees do: on the flat and the jittered sheet (two
+    instances, so clusters must keep to their instance), with every vertex at its own random
+    velocity or the upper sheet sliding at 3 m/s, the three kinds of lists hold the same pairs
+    (lists large enough that none fills: a full list's ties depend on the order), and so do
+    the gather records per vertex. With the bounds on, the nearest distances are equal to the
+    bit too; with them off (the default) the clusters cull by relative speed
+    (``clusters.reach_radius``), which leaves the lists alone but not the nearest distances."""
+    nx, ny, e = 9, 8, 0.012
+    v1, f1 = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
+    rng = np.random.default_rng(1)
+    v2 = v1 + np.array([0.4 * e, 0.0, 0.3 * e], np.float32)
+    v2[:, 1] = rng.uniform(0.002, 0.008, len(v2))
+    v = np.concatenate([v1, v2]).astype(np.float32)
+    f = np.concatenate([f1, f1 + len(v1)]).astype(np.int32)
+    b = ClothModelBuilder()
+    for offset in ((0.0, 0.0, 0.0), (0.05, 0.003, 0.0)):  # the second overlaps the first in space
+        b.add_cloth(v + np.array(offset, np.float32), f, ClothMaterialParams())
+    m = b.finalize(device)
+    if motion == "still":
+        vel = rng.normal(0.0, 1.0, (m.particle_count, 3)).astype(np.float32)
+    else:
+        vel = np.zeros((m.particle_count, 3), np.float32)
+        for start in (len(v1), len(v) + len(v1)):
+            vel[start:start + len(v2)] = (3.0, 0.0, 0.0)
+    found, marked = {}, {}
+    for broadphase in ("bvh", "clusters"):
+        sc = SelfContact(m, radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45,
+                         speed_factor=2.5, capacity=200, broadphase=broadphase, cluster_size=size, bounds=bounds)
+        sc.detect(m.particle_q, wp.array(vel, dtype=wp.vec3, device=device), 1.0 / 300.0)
+        lists = _all_lists(sc, m)
+        for name, count in (("vt", sc.data.vt_count), ("tv", sc.data.tv_count), ("ee", sc.data.ee_count)):
+            assert count.numpy().max() < 200
+        if bounds:
+            lists["dmin"] = [d.numpy().tolist() for d in sc._dmins]
+        found[broadphase] = lists
+        if broadphase == "clusters":
+            marked[bounds] = sum(sc.clusters.marked())
+            if motion == "sliding" and not bounds:
+                # each sheet moves as one: within a sheet the clusters are culled at the margin,
+                # not at the 25 mm the upper sheet's speed gives its queries
+                on = SelfContact(m, radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45,
+                                 speed_factor=2.5, capacity=200, broadphase=broadphase, cluster_size=size)
+                on.detect(m.particle_q, wp.array(vel, dtype=wp.vec3, device=device), 1.0 / 300.0)
+                assert sum(on.clusters.marked()) > marked[bounds]
+    assert len(found["bvh"]["vt"]) > 300 and len(found["bvh"]["ee"]) > 1000
+    # pairs between the two instances, which overlap in space, would show up as partners
+    # outside the owner's instance
+    assert found["clusters"] == found["bvh"]
+
+
+def test_cluster_layout_cuts_each_instance_into_compact_clusters():
+    """``cluster_layout`` puts every primitive in exactly one slot, never mixes instances in a
+    cluster, pads only an instance's last cluster, and follows the Morton curve: on a 40 x 40
+    grid, clusters of 16 vertices span a few edge lengths (a random order spans the sheet).
+    Grown over the mesh's edges (``grow_clusters``) the patches span less than the curve's runs."""
+    from sim.cloth.clusters import cluster_layout
+
+    v, f_grid = grid(40, 40, 0.39, 0.39, plane="xz")
+    pts = np.concatenate([v, v[:100]])  # instance 1: 100 points on top of instance 0's
+    groups = np.r_[np.zeros(len(v), np.int64), np.ones(100, np.int64)]
+    order, cluster_group, first = cluster_layout(pts, groups, 2, 16)
+    assert first.tolist() == [0, 100, 107]
+    assert sorted(order[order >= 0].tolist()) == list(range(len(pts)))
+    slots = order.reshape(-1, 16)
+    for c, row in enumerate(slots):
+        members = row[row >= 0]
+        assert np.all(groups[members] == cluster_group[c])
+        if len(members) < 16:  # padding only at the end of an instance
+            assert c + 1 in (first[1], first[2]) and np.all(row[len(members):] < 0)
+    span = [np.ptp(pts[r[r >= 0]], axis=0).max() for r in slots[:100]]
+    assert np.mean(span) < 0.08  # 16 points of a 1 cm grid: a 4 x 4 patch, or a few where the curve jumps
+    # cut along the surface (the grid's edges as adjacency), the patches are rounder still
+    from sim.cloth.model import mesh_edges as edges_of
+
+    nb = edges_of(f_grid)
+    order2, _, first2 = cluster_layout(v, np.zeros(len(v), np.int64), 1, 16, nb)
+    assert sorted(order2[order2 >= 0].tolist()) == list(range(len(v)))
+    patches = order2.reshape(-1, 16)
+    span2 = [np.ptp(v[r[r >= 0]], axis=0).max() for r in patches if (r >= 0).sum() == 16]
+    assert np.mean(span2) < np.mean(span) and np.mean(span2) < 0.05
+    shuffled = np.random.default_rng(0).permutation(len(v))[:1600].reshape(100, 16)
+    assert np.mean([np.ptp(v[r], axis=0).max() for r in shuffled]) > 0.3
+    with pytest.raises(ValueError, match="group ids"):
+        cluster_layout(pts, groups + 1, 2, 16)

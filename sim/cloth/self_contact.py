@@ -65,6 +65,7 @@ from sim.cloth.spans import (
     vec3s,
     vec4is,
 )
+from sim.cloth.clusters import ClusterLayout, meet_mask8, reach_radius
 from sim.device import SideStreams, warp
 
 # closest points with every barycentric weight (VT) or edge parameter (EE) above this are
@@ -1078,6 +1079,224 @@ def detect_edge_kernel(
     dmin_out[e] = dmin
 
 
+@wp.func
+def corner_spread(v: wp.array(dtype=wp.vec3), c0: int, c1: int, c2: int):
+    """The mean of three corner velocities (a vertex: one corner three times, an edge: its ends
+    with one twice) and the largest distance of a corner's from it."""
+    a = load_vec3(v, c0)
+    b = load_vec3(v, c1)
+    c = load_vec3(v, c2)
+    mean = (a + b + c) / 3.0
+    return mean, wp.max(wp.max(wp.length(a - mean), wp.length(b - mean)), wp.length(c - mean))
+
+
+@wp.func
+def slot_corners(k: int, p: int, tri_indices: wp.array(dtype=wp.vec3i), edges: wp.array(dtype=wp.vec2i)):
+    """The corners of primitive ``p`` of kind ``k`` (0 vertex, 1 triangle, 2 edge; ``sim.cloth.clusters``)
+    as three vertex ids (repeated where it has fewer)."""
+    if k == 0:
+        return wp.vec3i(p, p, p)
+    if k == 1:
+        return load_vec3i(tri_indices, p)
+    e = load_vec2i(edges, p)
+    return wp.vec3i(e[0], e[1], e[1])
+
+
+@wp.func
+def slot_kind(c: int, kind_clusters: wp.vec4i) -> int:
+    """The kind of cluster ``c`` (0 vertices, 1 triangles, 2 edges)."""
+    k = int(0)
+    if c >= kind_clusters[1]:
+        k = 1
+    if c >= kind_clusters[2]:
+        k = 2
+    return k
+
+
+@wp.kernel
+def member_bounds_kernel(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    order: wp.array(dtype=wp.int32),
+    size: int,
+    kind_clusters: wp.vec4i,
+    margin: float,
+    speed_factor: float,
+    h: float,
+    sc: SelfContactData,
+    lo_out: wp.array(dtype=wp.vec3),
+    hi_out: wp.array(dtype=wp.vec3),
+    radius_out: wp.array(dtype=float),
+    vel_out: wp.array(dtype=wp.vec3),
+    spread_out: wp.array(dtype=float),
+):
+    """Per cluster slot (``sim.cloth.clusters``): its primitive's box (a vertex's point, a
+    triangle's or an edge's box), the query radius the detection kernels give it (its fastest
+    corner's speed in its instance's frame, ``query_radius``), and its corners' mean velocity
+    and spread (``corner_spread``); a padding slot gets an empty box, radius 0, spread -1."""
+    s = wp.tid()
+    p = order[s]
+    if p < 0:
+        lo_out[s] = wp.vec3(1.0e30)
+        hi_out[s] = wp.vec3(-1.0e30)
+        radius_out[s] = 0.0
+        vel_out[s] = wp.vec3()
+        spread_out[s] = -1.0
+        return
+    k = slot_kind(s / size, kind_clusters)
+    q = slot_corners(k, p, tri_indices, sc.mesh_edges)
+    a = load_vec3(x, q[0])
+    b = load_vec3(x, q[1])
+    c = load_vec3(x, q[2])
+    vr = sc.reference[particle_instance[q[0]]]
+    speed = wp.max(wp.max(wp.length(load_vec3(v, q[0]) - vr), wp.length(load_vec3(v, q[1]) - vr)),
+                   wp.length(load_vec3(v, q[2]) - vr))
+    lo_out[s] = wp.min(wp.min(a, b), c)
+    hi_out[s] = wp.max(wp.max(a, b), c)
+    radius_out[s] = query_radius(margin, speed, h, speed_factor)
+    mean, spread = corner_spread(v, q[0], q[1], q[2])
+    vel_out[s] = mean
+    spread_out[s] = spread
+
+
+@wp.kernel
+def detect_clustered_kernel(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    order: wp.array(dtype=wp.int32),
+    size: int,
+    kind_clusters: wp.vec4i,
+    target_first: wp.vec3i,
+    words: wp.vec3i,
+    thread_first: wp.vec3i,
+    group_first: wp.array(dtype=wp.int32),
+    groups: int,
+    cluster_group: wp.array(dtype=wp.int32),
+    masks: wp.array(dtype=wp.int32),
+    lo: wp.array(dtype=wp.vec3),
+    hi: wp.array(dtype=wp.vec3),
+    radius: wp.array(dtype=float),
+    octet_lo: wp.array(dtype=wp.vec3),
+    octet_hi: wp.array(dtype=wp.vec3),
+    cluster_vel: wp.array(dtype=wp.vec3),
+    cluster_spread: wp.array(dtype=float),
+    relative: int,
+    margin: float,
+    speed_factor: float,
+    h: float,
+    sc: SelfContactData,
+    dmin_vertex: wp.array(dtype=float),
+    dmin_triangle: wp.array(dtype=float),
+    dmin_edge: wp.array(dtype=float),
+):
+    """The three detection queries (``detect_vertex_kernel``, ``detect_triangle_kernel``,
+    ``detect_edge_kernel``) over the clusters (``sim.cloth.clusters``) instead of the trees: one
+    thread per cluster slot, whose primitive meets the members of each target cluster that its
+    cluster's masks mark. The same candidates, tests and lists; the candidates come in cluster
+    order. A thread skips the octets (8 slots) of a marked cluster that its own box misses by
+    its reach: its query radius, or with ``relative`` (``clusters.cluster_masks_kernel``) no
+    more than the radius of the largest relative speed it can have to a member of that cluster
+    (its corners' distance from the cluster's mean velocity plus the cluster's spread). With
+    ``relative`` the pairs stored are still exactly the trees'; the nearest distances, which
+    only the bounds read, may be larger."""
+    s = wp.tid()
+    p = order[s]
+    if p < 0:
+        return
+    a = s / size
+    k = slot_kind(a, kind_clusters)
+    tk = 1 - k
+    if k == 2:
+        tk = 2
+    g = cluster_group[a]
+    t0 = group_first[tk * (groups + 1) + g]
+    r = radius[s]
+    p_lo = lo[s]
+    p_hi = hi[s]
+    corners = slot_corners(k, p, tri_indices, sc.mesh_edges)
+    v0 = load_vec3(v, corners[0])
+    v1 = load_vec3(v, corners[1])
+    v2 = load_vec3(v, corners[2])
+    rs = skip_radius(sc, r)
+    dmin = rs
+    count = int(0)
+    i = int(-1)
+    tri = wp.vec3i()
+    ea = wp.vec2i()
+    p1 = wp.vec3()
+    q1 = wp.vec3()
+    if k == 0:
+        i = p
+    elif k == 1:
+        tri = tri_indices[p]
+    else:
+        ea = sc.mesh_edges[p]
+        p1 = x[ea[0]]
+        q1 = x[ea[1]]
+    w_count = words[k]
+    mask_base = thread_first[k] + (a - kind_clusters[k]) * w_count
+    meets = int(0)
+    n_octets = size / 8
+    octet_bits = (1 << n_octets) - 1
+    for w in range(w_count):
+        bits = masks[mask_base + w]
+        b = int(0)
+        while bits != 0:
+            if (bits & 1) != 0:
+                target = target_first[k] + t0 + w * 32 + b
+                first = target * size
+                u = load_vec3(cluster_vel, target)
+                fastest = wp.max(wp.max(wp.length(v0 - u), wp.length(v1 - u)), wp.length(v2 - u))
+                reach = reach_radius(r, relative, margin, speed_factor, h, fastest + cluster_spread[target])
+                q_lo = p_lo - wp.vec3(reach)
+                q_hi = p_hi + wp.vec3(reach)
+                octets = meet_mask8(q_lo, q_hi, octet_lo, octet_hi, target * n_octets) & octet_bits
+                for j in range(size):
+                    if j % 8 == 0:
+                        meets = int(0)
+                        if ((octets >> (j / 8)) & 1) != 0:
+                            meets = meet_mask8(q_lo, q_hi, lo, hi, first + j)
+                    if ((meets >> (j % 8)) & 1) == 0:
+                        continue
+                    item = load_int(order, first + j)
+                    if k == 0:
+                        t_item = load_vec3i(tri_indices, item)
+                        if t_item[0] == i or t_item[1] == i or t_item[2] == i:
+                            continue
+                        dmin, count = vertex_triangle_candidate(sc, x, v, i, t_item, rs, margin, speed_factor, h,
+                                                                dmin, count, sc.vt_tri, sc.vt_dist, sc.vt_ref,
+                                                                sc.vt_rk, sc.vt_tri_prev, sc.vt_ref_prev,
+                                                                sc.vt_count_prev, i, sc.vt_capacity, item)
+                    elif k == 1:
+                        if item == tri[0] or item == tri[1] or item == tri[2]:
+                            continue
+                        dmin, count = vertex_triangle_candidate(sc, x, v, item, tri, rs, margin, speed_factor,
+                                                                h, dmin, count, sc.tv_vertex, sc.tv_dist,
+                                                                sc.tv_ref, sc.tv_rk, sc.tv_vertex_prev,
+                                                                sc.tv_ref_prev, sc.tv_count_prev, p,
+                                                                sc.tv_capacity, item)
+                    else:
+                        eb = load_vec2i(sc.mesh_edges, item)
+                        if eb[0] == ea[0] or eb[0] == ea[1] or eb[1] == ea[0] or eb[1] == ea[1]:
+                            continue
+                        dmin, count = edge_edge_candidate(sc, x, v, p, ea, p1, q1, item, eb, rs, margin,
+                                                          speed_factor, h, dmin, count)
+            bits = (bits >> 1) & 0x7FFFFFFF
+            b += 1
+    if k == 0:
+        sc.vt_count[p] = count
+        dmin_vertex[p] = dmin
+    elif k == 1:
+        sc.tv_count[p] = count
+        dmin_triangle[p] = dmin
+    else:
+        sc.ee_count[p] = count
+        dmin_edge[p] = dmin
+
+
 @wp.kernel
 def remeasure_kernel(
     x: wp.array(dtype=wp.vec3),
@@ -1429,13 +1648,18 @@ class SelfContact:
             of a query whose boxes are swept over the substep's motion, beside the solve, and
             ``remeasure`` then forms each substep's lists from them without a tree query. Needs
             bounds off, relative lists and one slot.
+        broadphase: ``"bvh"`` (three trees, refitted and queried) or ``"clusters"`` (the flat
+            two-level culling of ``sim.cloth.clusters``: no trees, no lookahead). Both find the
+            same pairs.
+        cluster_size: primitives per cluster of the ``"clusters"`` broadphase.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
-                 ee_interior: bool = False, slots: int = 1, lookahead: float | None = None):
+                 ee_interior: bool = False, slots: int = 1, lookahead: float | None = None,
+                 broadphase: str = "bvh", cluster_size: int = 32):
         w = warp()
         d = model.device
         self.model = model
@@ -1546,19 +1770,30 @@ class SelfContact:
         self._edge_slot = w.array(incidence_slots(model.vertex_mesh_edge_ids.numpy(),
                                                   model.vertex_mesh_edge_local.numpy(), 2, ne),
                                   dtype=w.int32, device=d)
-        self._update_bounds(model.particle_q)
-        self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
-        self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
-        self.vertex_bvh = w.Bvh(self._lo_p, self._hi_p, groups=model.particle_instance)
-        # each instance's subtree root per tree (triangles, vertices, edges), refound at rebuilds
-        self._roots = [w.zeros(model.instance_count, dtype=w.int32, device=d) for _ in range(3)]
-        self.find_roots()
+        if broadphase not in ("bvh", "clusters"):
+            raise ValueError(f"SelfContact: broadphase must be 'bvh' or 'clusters', got {broadphase!r}")
+        if broadphase == "clusters" and lookahead is not None:
+            raise ValueError("SelfContact: the lookahead's swept queries need broadphase 'bvh'")
+        self.clusters = ClusterLayout(model, cluster_size) if broadphase == "clusters" else None
+        self.tri_bvh = self.edge_bvh = self.vertex_bvh = None
+        self._roots = []
+        if self.clusters is None:
+            self._update_bounds(model.particle_q)
+            self.tri_bvh = w.Bvh(self._lo_t, self._hi_t, groups=model.tri_instance)
+            self.edge_bvh = w.Bvh(self._lo_e, self._hi_e, groups=model.mesh_edge_instance)
+            self.vertex_bvh = w.Bvh(self._lo_p, self._hi_p, groups=model.particle_instance)
+            # each instance's subtree root per tree (triangles, vertices, edges), refound at rebuilds
+            self._roots = [w.zeros(model.instance_count, dtype=w.int32, device=d) for _ in range(3)]
+            self.find_roots()
         self._side = SideStreams(d, 3)
 
     @property
     def bvhs(self) -> tuple:
         """The three cloth BVHs in the order of their queries' roots: triangles (the vertex
-        query's), vertices (the triangle query's), edges (the edge query's)."""
+        query's), vertices (the triangle query's), edges (the edge query's); none with the
+        cluster broadphase."""
+        if self.clusters is not None:
+            return ()
         return self.tri_bvh, self.vertex_bvh, self.edge_bvh
 
     def find_roots(self) -> None:
@@ -1612,6 +1847,9 @@ class SelfContact:
         ``detect_triangle_kernel``, ``detect_edge_kernel``) at ``x0`` (the BVHs must be fitted to
         it) with query margin ``margin``: the pairs into ``data``'s lists, the nearest distances
         into ``out``."""
+        if self.clusters is not None:
+            raise ValueError("SelfContact: the single queries need broadphase 'bvh' (the clusters' query "
+                             "runs all three at once: detect)")
         m = self.model
         kernel, dim, inputs = (
             (detect_vertex_kernel, m.particle_count, [m.tri_indices, self.tri_bvh.id, self._roots[0]]),
@@ -1682,6 +1920,9 @@ class SelfContact:
         ``data`` of a candidate query, to the boxes swept over the substep and grown by each
         primitive's own reach (``primitive_bounds_kernel``), so that a slow primitive's query
         meets a fast one coming."""
+        if self.clusters is not None:
+            self._cluster_queries(x0, v, h, data, margin, dmins)
+            return
         self._update_bounds(x0, v, data.candidates * h, self.speed_factor * h)
         # three independent chains (refit a tree, query it), each on its own stream on CUDA:
         # the queries are latency-bound (a few thousand threads), so they overlap almost fully
@@ -1694,6 +1935,31 @@ class SelfContact:
                     bvh.refit()
                 self._query(k, x0, v, h, data, margin, dmins[k])
         self._side.join()
+
+    def _cluster_queries(self, x0, v, h: float, data: SelfContactData, margin: float, dmins: tuple) -> None:
+        """The three queries over the clusters (``sim.cloth.clusters``): the slots' boxes and
+        radii, the clusters' boxes and masks, then one query launch for every primitive."""
+        w = warp()
+        m = self.model
+        cl = self.clusters
+        if cl.slots == 0:
+            return
+        kc = cl.kind_clusters
+        kind_clusters = w.vec4i(int(kc[0]), int(kc[1]), int(kc[2]), int(kc[3]))
+        w.launch(member_bounds_kernel, dim=cl.slots,
+                 inputs=[x0, v, m.particle_instance, m.tri_indices, cl.order, cl.size, kind_clusters, margin,
+                         self.speed_factor, h, data],
+                 outputs=[cl.lo, cl.hi, cl.radius, cl.vel, cl.spread], device=m.device)
+        # with bounds off and relative lists, only the pairs within the radius of their relative
+        # speed matter (the nearest distances feed only the bounds)
+        relative = data.use_bounds == 0 and data.relative_lists != 0 and data.candidates == 0.0
+        cl.update(relative, margin, self.speed_factor, h)
+        w.launch(detect_clustered_kernel, dim=cl.slots,
+                 inputs=[x0, v, m.tri_indices, cl.order, cl.size, kind_clusters, cl.target_kind_first, cl.words_vec,
+                         cl.thread_first_vec, cl.group_first, cl.groups, cl.cluster_group, cl.masks, cl.lo, cl.hi,
+                         cl.radius, cl.octet_lo, cl.octet_hi, cl.cluster_vel, cl.cluster_spread, int(relative),
+                         margin, self.speed_factor, h, data],
+                 outputs=list(dmins), device=m.device)
 
     def query_candidates(self, x0, v, h: float, rebuild: bool = False, reference=None) -> None:
         """The lookahead's candidate pairs (``lookahead`` set) for ``remeasure`` at this substep's

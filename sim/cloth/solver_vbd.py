@@ -232,6 +232,12 @@ class VBDConfig:
             (both before the raw loads and fast math). With them (session 34), at 14 substeps:
             6.25 / 6.24 ms against 7.05 / 7.06, both singles pass (run 0.250), 133 of 144
             sequences against 134; the skirt passes at 5 x 5.
+        self_contact_broadphase: how the self-contact detection finds its candidates: ``"bvh"``
+            (three trees, refitted every detection and rebuilt every step) or ``"clusters"`` (no
+            trees: the primitives in fixed clusters of ``self_contact_cluster_size``, culled
+            cluster by cluster, ``sim.cloth.clusters``). The same pairs either way; the clusters
+            take the trees' chains of dependent loads off every substep's critical path.
+        self_contact_cluster_size: primitives per cluster of the ``"clusters"`` broadphase.
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every
@@ -272,6 +278,8 @@ class VBDConfig:
     self_contact_pipeline: bool = False
     self_contact_lookahead: bool = False
     self_contact_lookahead_margin: float = 0.002
+    self_contact_broadphase: str = "bvh"
+    self_contact_cluster_size: int = 32
     max_colors: int = 0
     strain_limit: float = 0.0
     strain_limit_passes: int = 4
@@ -309,6 +317,15 @@ class VBDConfig:
         if self.self_contact_lookahead_margin < 0.0:
             raise ValueError("VBDConfig.self_contact_lookahead_margin must be >= 0, got "
                              f"{self.self_contact_lookahead_margin}")
+        if self.self_contact_broadphase not in ("bvh", "clusters"):
+            raise ValueError("VBDConfig.self_contact_broadphase must be 'bvh' or 'clusters', got "
+                             f"{self.self_contact_broadphase!r}")
+        if self.self_contact_broadphase == "clusters" and self.self_contact_lookahead:
+            raise ValueError("VBDConfig.self_contact_lookahead needs self_contact_broadphase 'bvh' (its swept "
+                             "candidate queries run on the trees)")
+        if self.self_contact_cluster_size not in (8, 16, 24, 32, 40, 48, 56, 64):
+            raise ValueError("VBDConfig.self_contact_cluster_size must be a multiple of 8 in [8, 64], got "
+                             f"{self.self_contact_cluster_size}")
         if self.gather not in ("auto", "fused", "split"):
             raise ValueError(f"VBDConfig.gather must be 'auto', 'fused' or 'split', got {self.gather!r}")
         if self.membrane not in ("stvk", "corotated"):
@@ -473,7 +490,8 @@ class SolverVBD:
                 heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes,
                 weight_floor=cfg.self_contact_weight_floor, ee_interior=cfg.self_contact_ee_interior,
                 slots=2 if cfg.self_contact_pipeline else 1,
-                lookahead=cfg.self_contact_lookahead_margin if cfg.self_contact_lookahead else None)
+                lookahead=cfg.self_contact_lookahead_margin if cfg.self_contact_lookahead else None,
+                broadphase=cfg.self_contact_broadphase, cluster_size=cfg.self_contact_cluster_size)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
