@@ -1042,9 +1042,10 @@ def test_remeasure_finds_only_what_the_candidate_query_saw(device):
     assert len(_all_lists(sc, m)["vt"]) > 50
 
 
-@pytest.mark.parametrize("size,bounds", [(8, True), (32, True), (64, True), (8, False), (32, False)])
+@pytest.mark.parametrize("size,bounds,split", [(8, True, 1), (32, True, 1), (64, True, 1), (8, False, 1),
+                                               (32, False, 1), (8, True, 3), (32, False, 4)])
 @pytest.mark.parametrize("motion", ["still", "sliding"])
-def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, motion):
+def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, split, motion):
     """The cluster broadphase (``sim.cloth.clusters``) hands each query exactly the primitives
     whose boxes meet its query box, as the trees do: on the flat and the jittered sheet (two
     instances, so clusters must keep to their instance), with every vertex at its own random
@@ -1052,7 +1053,8 @@ def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, m
     (lists large enough that none fills: a full list's ties depend on the order), and so do
     the gather records per vertex. With the bounds on, the nearest distances are equal to the
     bit too; with them off (the default) the clusters cull by relative speed
-    (``clusters.reach_radius``), which leaves the lists alone but not the nearest distances."""
+    (``clusters.reach_radius``), which leaves the lists alone but not the nearest distances.
+    Split over several threads per primitive and merged (``split``), the same again."""
     nx, ny, e = 9, 8, 0.012
     v1, f1 = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
     rng = np.random.default_rng(1)
@@ -1073,7 +1075,8 @@ def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, m
     found, marked = {}, {}
     for broadphase in ("bvh", "clusters"):
         sc = SelfContact(m, radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45,
-                         speed_factor=2.5, capacity=200, broadphase=broadphase, cluster_size=size, bounds=bounds)
+                         speed_factor=2.5, capacity=200, broadphase=broadphase, cluster_size=size, bounds=bounds,
+                         cluster_split=split)
         sc.detect(m.particle_q, wp.array(vel, dtype=wp.vec3, device=device), 1.0 / 300.0)
         lists = _all_lists(sc, m)
         for name, count in (("vt", sc.data.vt_count), ("tv", sc.data.tv_count), ("ee", sc.data.ee_count)):

@@ -325,12 +325,24 @@ def reach_radius(radius: float, relative: int, margin: float, speed_factor: floa
     return wp.min(radius, wp.max(margin, speed_factor * speed * h) * 1.0001 + 1.0e-7)
 
 
+@wp.func
+def cluster_meets(lo_a: wp.vec3, hi_a: wp.vec3, r_a: float, u_a: wp.vec3, s_a: float, j: int,
+                  cluster_lo: wp.array(dtype=wp.vec3), cluster_hi: wp.array(dtype=wp.vec3),
+                  cluster_vel: wp.array(dtype=wp.vec3), cluster_spread: wp.array(dtype=float), relative: int,
+                  margin: float, speed_factor: float, h: float) -> bool:
+    """Whether cluster ``j`` lies within the reach of a query cluster (box ``lo_a``, ``hi_a``,
+    largest query radius ``r_a``, mean velocity ``u_a``, spread ``s_a``; ``cluster_masks_kernel``)."""
+    r = reach_radius(r_a, relative, margin, speed_factor, h,
+                     wp.length(u_a - load_vec3(cluster_vel, j)) + s_a + cluster_spread[j])
+    return boxes_meet(lo_a - wp.vec3(r), hi_a + wp.vec3(r), load_vec3(cluster_lo, j), load_vec3(cluster_hi, j))
+
+
 @wp.kernel
 def cluster_masks_kernel(
     query_kind_first: wp.vec3i,
     target_kind_first: wp.vec3i,
     words: wp.vec3i,
-    thread_first: wp.vec3i,
+    thread_first: wp.vec4i,
     target_kind: wp.vec3i,
     group_first: wp.array(dtype=wp.int32),
     groups: int,
@@ -363,8 +375,10 @@ def cluster_masks_kernel(
         q = 2
     w_count = words[q]
     local = t - thread_first[q]
-    a_local = local / w_count
-    w = local - a_local * w_count
+    # the query clusters fastest: a warp's threads test the same targets (one load for all)
+    n_query = (thread_first[q + 1] - thread_first[q]) / w_count
+    w = local / n_query
+    a_local = local - w * n_query
     tk = target_kind_first[q]
     a = query_kind_first[q] + a_local
     g = cluster_group[a]
@@ -383,12 +397,11 @@ def cluster_masks_kernel(
         for b1 in range(8):
             b = 8 * b0 + b1
             j = tk + t0 + w * WORD + b
-            r = reach_radius(r_a, relative, margin, speed_factor, h,
-                             wp.length(u_a - load_vec3(cluster_vel, j)) + s_a + cluster_spread[j])
-            if boxes_meet(lo_a - wp.vec3(r), hi_a + wp.vec3(r), load_vec3(cluster_lo, j), load_vec3(cluster_hi, j)):
+            if cluster_meets(lo_a, hi_a, r_a, u_a, s_a, j, cluster_lo, cluster_hi, cluster_vel, cluster_spread,
+                             relative, margin, speed_factor, h):
                 if j - tk < t1:
                     bits = bits | (1 << b)
-    masks[t] = bits
+    masks[thread_first[q] + a_local * w_count + w] = bits
 
 
 def topology_keys(particle_group: np.ndarray, tris: np.ndarray, tri_group: np.ndarray, n_groups: int) -> list:
@@ -462,6 +475,7 @@ class ClusterLayout:
         self.target_kind = w.vec3i(*(tk for _, tk in QUERIES))
         self.words_vec = w.vec3i(*self.words)
         self.thread_first_vec = w.vec3i(*(int(t) for t in self.thread_first_np[:3]))
+        self.thread_ends_vec = w.vec4i(*(int(t) for t in self.thread_first_np))
         slots = total * self.size
         octets = total * (self.size // 8)
         self.octets = octets
@@ -487,6 +501,7 @@ class ClusterLayout:
         self.cluster_spread = w.zeros(total + WORD, dtype=float, device=d)
         self.total_clusters = total
         self.device = d
+        self.masks_current = False
 
     @property
     def slots(self) -> int:
@@ -509,17 +524,20 @@ class ClusterLayout:
                   outputs=[self.cluster_lo, self.cluster_hi, self.cluster_radius, self.cluster_vel,
                            self.cluster_spread], device=d)
         n = int(self.thread_first_np[-1])
+        self.masks_current = True
         if n:
             wp.launch(cluster_masks_kernel, dim=n,
-                      inputs=[self.query_kind_first, self.target_kind_first, self.words_vec, self.thread_first_vec,
+                      inputs=[self.query_kind_first, self.target_kind_first, self.words_vec, self.thread_ends_vec,
                               self.target_kind, self.group_first, self.groups, self.cluster_group, self.cluster_lo,
                               self.cluster_hi, self.cluster_radius, self.cluster_vel, self.cluster_spread,
                               int(relative), float(margin), float(speed_factor), float(h)],
                       outputs=[self.masks], device=d)
 
-    def marked(self) -> list[float]:
+    def marked(self) -> list[float] | None:
         """Mean target clusters marked per query cluster, per query (``QUERIES``): how many
-        clusters a query thread searches (diagnostics)."""
+        clusters a query thread searches (diagnostics); None before the first detection."""
+        if not self.masks_current:
+            return None
         m = self.masks.numpy().view(np.uint32)
         bits = np.unpackbits(m.view(np.uint8)).reshape(-1, 32).sum(axis=1) if len(m) else np.zeros(0)
         out = []

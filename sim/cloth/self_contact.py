@@ -73,6 +73,10 @@ from sim.device import SideStreams, warp
 INTERIOR = wp.constant(1.0e-3)
 
 
+# cluster slots up to which ``SelfContact(cluster_split=0)`` splits the cluster query (one
+# garment of up to ~20k vertices; a batch of them fills the GPU without)
+SPLIT_SLOTS = 131072
+
 # a candidate query's sweep [substeps] (``SelfContactData.candidates``): the next substep's
 # start, reached at the velocities this one starts with, with half again for acceleration
 LOOKAHEAD_SWEEP = 1.5
@@ -1188,6 +1192,7 @@ def detect_clustered_kernel(
     speed_factor: float,
     h: float,
     sc: SelfContactData,
+    split: int,
     dmin_vertex: wp.array(dtype=float),
     dmin_triangle: wp.array(dtype=float),
     dmin_edge: wp.array(dtype=float),
@@ -1201,8 +1206,16 @@ def detect_clustered_kernel(
     more than the radius of the largest relative speed it can have to a member of that cluster
     (its corners' distance from the cluster's mean velocity plus the cluster's spread). With
     ``relative`` the pairs stored are still exactly the trees'; the nearest distances, which
-    only the bounds read, may be larger."""
-    s = wp.tid()
+    only the bounds read, may be larger.
+
+    With ``split`` > 1 each slot has ``split`` threads (thread ``f * slots + s``), thread ``f``
+    taking every ``split``-th marked cluster, into its own lists: those of owner ``f * count +
+    p`` in ``sc``'s arrays (``count`` primitives of the kind), which ``merge_split_kernel`` merges.
+    A query's chain of loads is what takes the time (a few warps per SM), and this cuts it."""
+    t = wp.tid()
+    slots = order.shape[0]
+    f = t / slots
+    s = t - f * slots
     p = order[s]
     if p < 0:
         return
@@ -1239,6 +1252,15 @@ def detect_clustered_kernel(
     w_count = words[k]
     mask_base = thread_first[k] + (a - kind_clusters[k]) * w_count
     meets = int(0)
+    owner = p
+    if split > 1:
+        n_kind = sc.vt_count.shape[0] / split
+        if k == 1:
+            n_kind = sc.tv_count.shape[0] / split
+        elif k == 2:
+            n_kind = sc.ee_count.shape[0] / split
+        owner = f * n_kind + p
+    nth = int(-1)
     n_octets = size / 8
     octet_bits = (1 << n_octets) - 1
     for w in range(w_count):
@@ -1246,6 +1268,8 @@ def detect_clustered_kernel(
         b = int(0)
         while bits != 0:
             if (bits & 1) != 0:
+                nth += 1
+            if (bits & 1) != 0 and nth % split == f:
                 target = target_first[k] + t0 + w * 32 + b
                 first = target * size
                 u = load_vec3(cluster_vel, target)
@@ -1269,32 +1293,93 @@ def detect_clustered_kernel(
                         dmin, count = vertex_triangle_candidate(sc, x, v, i, t_item, rs, margin, speed_factor, h,
                                                                 dmin, count, sc.vt_tri, sc.vt_dist, sc.vt_ref,
                                                                 sc.vt_rk, sc.vt_tri_prev, sc.vt_ref_prev,
-                                                                sc.vt_count_prev, i, sc.vt_capacity, item)
+                                                                sc.vt_count_prev, owner, sc.vt_capacity, item)
                     elif k == 1:
                         if item == tri[0] or item == tri[1] or item == tri[2]:
                             continue
                         dmin, count = vertex_triangle_candidate(sc, x, v, item, tri, rs, margin, speed_factor,
                                                                 h, dmin, count, sc.tv_vertex, sc.tv_dist,
                                                                 sc.tv_ref, sc.tv_rk, sc.tv_vertex_prev,
-                                                                sc.tv_ref_prev, sc.tv_count_prev, p,
+                                                                sc.tv_ref_prev, sc.tv_count_prev, owner,
                                                                 sc.tv_capacity, item)
                     else:
                         eb = load_vec2i(sc.mesh_edges, item)
                         if eb[0] == ea[0] or eb[0] == ea[1] or eb[1] == ea[0] or eb[1] == ea[1]:
                             continue
-                        dmin, count = edge_edge_candidate(sc, x, v, p, ea, p1, q1, item, eb, rs, margin,
+                        dmin, count = edge_edge_candidate(sc, x, v, owner, ea, p1, q1, item, eb, rs, margin,
                                                           speed_factor, h, dmin, count)
             bits = (bits >> 1) & 0x7FFFFFFF
             b += 1
     if k == 0:
-        sc.vt_count[p] = count
-        dmin_vertex[p] = dmin
+        sc.vt_count[owner] = count
+        dmin_vertex[owner] = dmin
     elif k == 1:
-        sc.tv_count[p] = count
-        dmin_triangle[p] = dmin
+        sc.tv_count[owner] = count
+        dmin_triangle[owner] = dmin
     else:
-        sc.ee_count[p] = count
-        dmin_edge[p] = dmin
+        sc.ee_count[owner] = count
+        dmin_edge[owner] = dmin
+
+
+@wp.func
+def merge_lists(split: int, n: int, o: int, capacity: int, counts: wp.array(dtype=wp.int32),
+                ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), ref: wp.array(dtype=wp.vec3),
+                rk: wp.array(dtype=wp.int32), dmins: wp.array(dtype=float), out_ids: wp.array(dtype=wp.int32),
+                out_dist: wp.array(dtype=float), out_ref: wp.array(dtype=wp.vec3), out_rk: wp.array(dtype=wp.int32)):
+    """Owner ``o``'s ``split`` partial lists (owners ``f * n + o``) merged in order into one list
+    of ``capacity`` (``keep_closest`` on their keys); returns its count and the smallest of the
+    partial nearest distances."""
+    count = int(0)
+    dmin = float(1.0e30)
+    for f in range(split):
+        src = f * n + o
+        dmin = wp.min(dmin, dmins[src])
+        for j in range(counts[src]):
+            at = src * capacity + j
+            count, slot = keep_closest(out_ids, out_dist, o * capacity, count, capacity, ids[at], dist[at])
+            if slot >= 0:
+                out_ref[o * capacity + slot] = ref[at]
+                out_rk[o * capacity + slot] = rk[at]
+    return count, dmin
+
+
+@wp.kernel
+def merge_split_kernel(
+    split: int,
+    n_vertices: int,
+    n_triangles: int,
+    n_edges: int,
+    part: SelfContactData,
+    part_dmin_vertex: wp.array(dtype=float),
+    part_dmin_triangle: wp.array(dtype=float),
+    part_dmin_edge: wp.array(dtype=float),
+    sc: SelfContactData,
+    dmin_vertex: wp.array(dtype=float),
+    dmin_triangle: wp.array(dtype=float),
+    dmin_edge: wp.array(dtype=float),
+):
+    """Per vertex, triangle and edge: its lists from the ``split`` partial lists of
+    ``detect_clustered_kernel`` (``part``), in order, and its nearest distance. The lists hold
+    what one thread would have kept; with ties at a full list, which of the tied pairs."""
+    t = wp.tid()
+    if t < n_vertices:
+        c, d = merge_lists(split, n_vertices, t, sc.vt_capacity, part.vt_count, part.vt_tri, part.vt_dist,
+                           part.vt_ref, part.vt_rk, part_dmin_vertex, sc.vt_tri, sc.vt_dist, sc.vt_ref, sc.vt_rk)
+        sc.vt_count[t] = c
+        dmin_vertex[t] = d
+    elif t < n_vertices + n_triangles:
+        o = t - n_vertices
+        c, d = merge_lists(split, n_triangles, o, sc.tv_capacity, part.tv_count, part.tv_vertex, part.tv_dist,
+                           part.tv_ref, part.tv_rk, part_dmin_triangle, sc.tv_vertex, sc.tv_dist, sc.tv_ref,
+                           sc.tv_rk)
+        sc.tv_count[o] = c
+        dmin_triangle[o] = d
+    else:
+        o = t - n_vertices - n_triangles
+        c, d = merge_lists(split, n_edges, o, sc.ee_capacity, part.ee_count, part.ee_edge, part.ee_dist,
+                           part.ee_ref, part.ee_rk, part_dmin_edge, sc.ee_edge, sc.ee_dist, sc.ee_ref, sc.ee_rk)
+        sc.ee_count[o] = c
+        dmin_edge[o] = d
 
 
 @wp.kernel
@@ -1652,6 +1737,8 @@ class SelfContact:
             two-level culling of ``sim.cloth.clusters``: no trees, no lookahead). Both find the
             same pairs.
         cluster_size: primitives per cluster of the ``"clusters"`` broadphase.
+        cluster_split: threads per primitive of the ``"clusters"`` query (``detect_clustered_kernel``;
+            0: 2 up to ``SPLIT_SLOTS`` cluster slots, else 1). Needs side memory off.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
@@ -1659,7 +1746,7 @@ class SelfContact:
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
                  ee_interior: bool = False, slots: int = 1, lookahead: float | None = None,
-                 broadphase: str = "bvh", cluster_size: int = 32):
+                 broadphase: str = "bvh", cluster_size: int = 32, cluster_split: int = 1):
         w = warp()
         d = model.device
         self.model = model
@@ -1775,6 +1862,24 @@ class SelfContact:
         if broadphase == "clusters" and lookahead is not None:
             raise ValueError("SelfContact: the lookahead's swept queries need broadphase 'bvh'")
         self.clusters = ClusterLayout(model, cluster_size) if broadphase == "clusters" else None
+        if cluster_split < 0:
+            raise ValueError(f"SelfContact: cluster_split must be >= 0 (0: auto), got {cluster_split}")
+        if cluster_split == 0:
+            # one garment's query has a few warps per SM: split it; a batch fills the GPU anyway
+            cluster_split = 2 if self.clusters is not None and self.clusters.slots <= SPLIT_SLOTS else 1
+        if cluster_split > 1 and side_memory:
+            raise ValueError("SelfContact: cluster_split > 1 needs side_memory off (the partial lists have "
+                             "no previous lists)")
+        self.cluster_split = int(cluster_split) if self.clusters is not None else 1
+        self._split_parts = {}
+        self._split_arrays = {}
+        self._split_dmins = ()
+        if self.cluster_split > 1:
+            f = self.cluster_split
+            for name in LIST_OUTPUTS:
+                a = getattr(sc, name)
+                self._split_arrays[name] = w.zeros(a.shape[0] * f, dtype=a.dtype, device=d)
+            self._split_dmins = tuple(w.zeros(size * f, dtype=float, device=d) for size in (n, nt, ne))
         self.tri_bvh = self.edge_bvh = self.vertex_bvh = None
         self._roots = []
         if self.clusters is None:
@@ -1954,12 +2059,34 @@ class SelfContact:
         # speed matter (the nearest distances feed only the bounds)
         relative = data.use_bounds == 0 and data.relative_lists != 0 and data.candidates == 0.0
         cl.update(relative, margin, self.speed_factor, h)
-        w.launch(detect_clustered_kernel, dim=cl.slots,
+        split = self.cluster_split
+        part, part_dmins = data, dmins
+        if split > 1:
+            part, part_dmins = self._split_lists(data), self._split_dmins
+        w.launch(detect_clustered_kernel, dim=cl.slots * split,
                  inputs=[x0, v, m.tri_indices, cl.order, cl.size, kind_clusters, cl.target_kind_first, cl.words_vec,
                          cl.thread_first_vec, cl.group_first, cl.groups, cl.cluster_group, cl.masks, cl.lo, cl.hi,
                          cl.radius, cl.octet_lo, cl.octet_hi, cl.cluster_vel, cl.cluster_spread, int(relative),
-                         margin, self.speed_factor, h, data],
-                 outputs=list(dmins), device=m.device)
+                         margin, self.speed_factor, h, part, split],
+                 outputs=list(part_dmins), device=m.device)
+        if split > 1:
+            n, nt, ne = (len(dm) for dm in dmins)
+            w.launch(merge_split_kernel, dim=n + nt + ne,
+                     inputs=[split, n, nt, ne, part, *part_dmins, data], outputs=list(dmins), device=m.device)
+
+    def _split_lists(self, data: SelfContactData) -> SelfContactData:
+        """``data`` with the partial lists of a split cluster query in place of its lists (one
+        struct per ``data``, cached)."""
+        key = id(data)
+        part = self._split_parts.get(key)
+        if part is None or part[0] is not data:
+            out = SelfContactData()
+            for name in SelfContactData.vars:
+                value = getattr(data, name)
+                setattr(out, name, self._split_arrays[name] if name in self._split_arrays else value)
+            part = (data, out)
+            self._split_parts[key] = part
+        return part[1]
 
     def query_candidates(self, x0, v, h: float, rebuild: bool = False, reference=None) -> None:
         """The lookahead's candidate pairs (``lookahead`` set) for ``remeasure`` at this substep's

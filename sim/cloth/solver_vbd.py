@@ -238,6 +238,8 @@ class VBDConfig:
             cluster by cluster, ``sim.cloth.clusters``). The same pairs either way; the clusters
             take the trees' chains of dependent loads off every substep's critical path.
         self_contact_cluster_size: primitives per cluster of the ``"clusters"`` broadphase.
+        self_contact_cluster_split: threads per primitive of the cluster query (0: automatic,
+            ``SelfContact``'s ``cluster_split``).
         self_contact_interval: detect self-contact pairs every this many substeps (1: every
             substep). The query radius grows with the motion it must cover (``speed_factor x |v|
             x h x interval``); contact forces, signs and friction are still evaluated every
@@ -280,6 +282,7 @@ class VBDConfig:
     self_contact_lookahead_margin: float = 0.002
     self_contact_broadphase: str = "bvh"
     self_contact_cluster_size: int = 32
+    self_contact_cluster_split: int = 0
     max_colors: int = 0
     strain_limit: float = 0.0
     strain_limit_passes: int = 4
@@ -491,7 +494,8 @@ class SolverVBD:
                 weight_floor=cfg.self_contact_weight_floor, ee_interior=cfg.self_contact_ee_interior,
                 slots=2 if cfg.self_contact_pipeline else 1,
                 lookahead=cfg.self_contact_lookahead_margin if cfg.self_contact_lookahead else None,
-                broadphase=cfg.self_contact_broadphase, cluster_size=cfg.self_contact_cluster_size)
+                broadphase=cfg.self_contact_broadphase, cluster_size=cfg.self_contact_cluster_size,
+                cluster_split=cfg.self_contact_cluster_split if not cfg.self_contact_side_memory else 1)
             self._sc_data = self.self_contact.data
         else:
             self.self_contact = None
