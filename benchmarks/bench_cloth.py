@@ -28,7 +28,7 @@ def sheet(n: int, size: float, y: float):
 
 
 def build(instances: int, n: int, device: str, substeps: int, iterations: int, *, self_contact: bool = False,
-          lanes: int = 16):
+          lanes: int = 16, broadphase: str = "auto"):
     from sim.cloth import BodyCollider, ClothModelBuilder, SolverVBD
     from sim.cloth.solver_vbd import VBDConfig
     from sim.garments.materials import get_material
@@ -47,7 +47,7 @@ def build(instances: int, n: int, device: str, substeps: int, iterations: int, *
     for i in range(instances):
         control.set_body(i, body)
     solver = SolverVBD(model, VBDConfig(substeps=substeps, iterations=iterations, self_contact=self_contact,
-                                        lanes=lanes))
+                                        lanes=lanes, self_contact_broadphase=broadphase))
     return model, solver, control, sf.shape[0]
 
 

@@ -377,6 +377,27 @@ def test_self_contact_config_is_checked():
         VBDConfig(self_contact_broadphase="clusters", self_contact_lookahead=True)
     with pytest.raises(ValueError, match="cluster_size"):
         VBDConfig(self_contact_cluster_size=0)
+    # "auto": the clusters on CUDA for a small model, the trees on the CPU, for large models and
+    # wherever the lookahead runs
+    from sim.cloth import solver_vbd
+
+    v, f = grid(3, 3, 0.1, 0.1, plane="xz")
+    b = ClothModelBuilder()
+    b.add_cloth(v, f, ClothMaterialParams())
+    solver = SolverVBD(b.finalize("cpu"), VBDConfig(self_contact=True))
+    assert solver.broadphase(cuda=True) == "clusters" and solver.broadphase(cuda=False) == "bvh"
+    assert solver.self_contact.clusters is None
+    solver.config = VBDConfig(self_contact=True, self_contact_lookahead=True)
+    assert solver.broadphase(cuda=True) == "bvh"
+    solver.config = VBDConfig(self_contact=True)
+    m = solver.model
+    primitives = m.particle_count + m.tri_count + m.mesh_edge_indices.shape[0]
+    assert primitives == 9 + 8 + 16  # the 3 x 3 grid's vertices, triangles and edges
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(solver_vbd, "CLUSTER_PRIMITIVES", primitives - 1)
+        assert solver.broadphase(cuda=True) == "bvh"
+        mp.setattr(solver_vbd, "CLUSTER_PRIMITIVES", primitives)
+        assert solver.broadphase(cuda=True) == "clusters"
 
 
 def folded_sheet(nx: int, ny: int, e: float, mid: int, gap: float):

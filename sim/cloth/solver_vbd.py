@@ -46,6 +46,11 @@ from sim.cloth.state import ClothControl, ClothState
 from sim.device import SideStreams, warp
 
 
+# the largest model (vertices + triangles + edges) that the "auto" broadphase searches with
+# clusters on CUDA (``SolverVBD.broadphase``): up to four 5k t-shirts or one 30k garment
+CLUSTER_PRIMITIVES = 131072
+
+
 @dataclass(frozen=True)
 class VBDConfig:
     """Solver settings.
@@ -233,10 +238,12 @@ class VBDConfig:
             6.25 / 6.24 ms against 7.05 / 7.06, both singles pass (run 0.250), 133 of 144
             sequences against 134; the skirt passes at 5 x 5.
         self_contact_broadphase: how the self-contact detection finds its candidates: ``"bvh"``
-            (three trees, refitted every detection and rebuilt every step) or ``"clusters"`` (no
+            (three trees, refitted every detection and rebuilt every step), ``"clusters"`` (no
             trees: the primitives in fixed clusters of ``self_contact_cluster_size``, culled
-            cluster by cluster, ``sim.cloth.clusters``). The same pairs either way; the clusters
-            take the trees' chains of dependent loads off every substep's critical path.
+            cluster by cluster, ``sim.cloth.clusters``) or ``"auto"`` (default: the clusters on
+            CUDA, the trees on the CPU and with the lookahead; ``SolverVBD.broadphase``). The same
+            pairs either way; on CUDA the clusters take the trees' chains of dependent loads off
+            every substep's critical path.
         self_contact_cluster_size: primitives per cluster of the ``"clusters"`` broadphase.
         self_contact_cluster_split: threads per primitive of the cluster query (0: automatic,
             ``SelfContact``'s ``cluster_split``).
@@ -280,7 +287,7 @@ class VBDConfig:
     self_contact_pipeline: bool = False
     self_contact_lookahead: bool = False
     self_contact_lookahead_margin: float = 0.002
-    self_contact_broadphase: str = "bvh"
+    self_contact_broadphase: str = "auto"
     self_contact_cluster_size: int = 32
     self_contact_cluster_split: int = 0
     max_colors: int = 0
@@ -320,8 +327,8 @@ class VBDConfig:
         if self.self_contact_lookahead_margin < 0.0:
             raise ValueError("VBDConfig.self_contact_lookahead_margin must be >= 0, got "
                              f"{self.self_contact_lookahead_margin}")
-        if self.self_contact_broadphase not in ("bvh", "clusters"):
-            raise ValueError("VBDConfig.self_contact_broadphase must be 'bvh' or 'clusters', got "
+        if self.self_contact_broadphase not in ("auto", "bvh", "clusters"):
+            raise ValueError("VBDConfig.self_contact_broadphase must be 'auto', 'bvh' or 'clusters', got "
                              f"{self.self_contact_broadphase!r}")
         if self.self_contact_broadphase == "clusters" and self.self_contact_lookahead:
             raise ValueError("VBDConfig.self_contact_lookahead needs self_contact_broadphase 'bvh' (its swept "
@@ -494,7 +501,7 @@ class SolverVBD:
                 weight_floor=cfg.self_contact_weight_floor, ee_interior=cfg.self_contact_ee_interior,
                 slots=2 if cfg.self_contact_pipeline else 1,
                 lookahead=cfg.self_contact_lookahead_margin if cfg.self_contact_lookahead else None,
-                broadphase=cfg.self_contact_broadphase, cluster_size=cfg.self_contact_cluster_size,
+                broadphase=self.broadphase(cuda), cluster_size=cfg.self_contact_cluster_size,
                 cluster_split=cfg.self_contact_cluster_split if not cfg.self_contact_side_memory else 1)
             self._sc_data = self.self_contact.data
         else:
@@ -516,6 +523,23 @@ class SolverVBD:
                                       cfg.coarse_smoothing, cfg.coarse_prefactor)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True, fast_math=cfg.fast_math)
+
+    def broadphase(self, cuda: bool) -> str:
+        """The self-contact broadphase: ``VBDConfig.self_contact_broadphase``, where ``"auto"`` is
+        the clusters on CUDA for a model of at most ``CLUSTER_PRIMITIVES`` vertices, triangles
+        and edges (session 40, H100: one 5k t-shirt 4.54 / 4.55 against 5.33 / 5.44 ms per frame,
+        populations passing as often), and the trees for larger models (64 / 256 t-shirts: 1,236
+        / 1,327 garment-frames/s with clusters against 1,378 / 1,493 with trees: a full GPU pays
+        for the clusters' extra candidates, not for the trees' latency), on the CPU (1k t-shirt
+        112 against 151 ms: one thread walks every marked cluster in turn) and wherever the
+        lookahead needs them."""
+        cfg = self.config
+        if cfg.self_contact_broadphase != "auto":
+            return cfg.self_contact_broadphase
+        m = self.model
+        primitives = m.particle_count + m.tri_count + m.mesh_edge_indices.shape[0]
+        small = primitives <= CLUSTER_PRIMITIVES
+        return "clusters" if cuda and small and not cfg.self_contact_lookahead else "bvh"
 
     def heavy_cap(self, cuda: bool) -> int:
         """Heavy-vertex blocks per colour launch (``VBDConfig.self_contact_heavy_cap``; -1: auto,
