@@ -78,7 +78,8 @@ def main() -> None:
     wp = warp()
     device, body, garment, motion = load_single_scene(args)
     # the census walks the trees (on CUDA the job default searches clusters instead)
-    cfg = SimulationConfig(fps=30.0, self_contact=True, device=device, solver={"self_contact_broadphase": "bvh"})
+    cfg = SimulationConfig(fps=30.0, self_contact=True, device=device,
+                           solver={"self_contact_broadphase": "bvh"})
     seen: dict = {}
     starts: list = []
     base = cloth.SolverVBD

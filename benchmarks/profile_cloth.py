@@ -24,7 +24,8 @@ def main() -> None:
     out = {}
     for nb in [int(s) for s in args.batch.split(",")]:
         # the trees' refits and single queries are timed: the tree broadphase on every device
-        model, solver, control, _ = build(nb, args.n, args.device, 10, 10, self_contact=True, broadphase="bvh")
+        model, solver, control, _ = build(nb, args.n, args.device, 10, 10, self_contact=True,
+                                          broadphase="bvh")
         state = model.state()
         for _ in range(5):
             solver.step(state, state, control, 1.0 / 30.0)

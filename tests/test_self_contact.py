@@ -243,7 +243,8 @@ def test_two_stacked_layers_never_pass_through_each_other(device):
 
 
 @pytest.mark.parametrize("config", [{}, {"self_contact_pipeline": True}, {"self_contact_ee_interior": True},
-                                    {"self_contact_lookahead": True}, {"self_contact_broadphase": "clusters"}])
+                                    {"self_contact_lookahead": True},
+                                    {"self_contact_broadphase": "clusters"}])
 def test_penalty_self_contact_holds_a_gently_dropped_layer(device, config):
     """Without the bounds (the default) the penalty alone stops a layer dropped at 1 m/s (the
     rims, where the loose layer folds over the pinned one's edge, may cross: no guarantee); so
@@ -1096,11 +1097,11 @@ def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, s
     found, marked = {}, {}
     for broadphase in ("bvh", "clusters"):
         sc = SelfContact(m, radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45,
-                         speed_factor=2.5, capacity=200, broadphase=broadphase, cluster_size=size, bounds=bounds,
-                         cluster_split=split)
+                         speed_factor=2.5, capacity=200, broadphase=broadphase, cluster_size=size,
+                         bounds=bounds, cluster_split=split)
         sc.detect(m.particle_q, wp.array(vel, dtype=wp.vec3, device=device), 1.0 / 300.0)
         lists = _all_lists(sc, m)
-        for name, count in (("vt", sc.data.vt_count), ("tv", sc.data.tv_count), ("ee", sc.data.ee_count)):
+        for count in (sc.data.vt_count, sc.data.tv_count, sc.data.ee_count):
             assert count.numpy().max() < 200
         if bounds:
             lists["dmin"] = [d.numpy().tolist() for d in sc._dmins]

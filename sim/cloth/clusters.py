@@ -145,7 +145,8 @@ def cluster_layout(points: np.ndarray, groups: np.ndarray, n_groups: int, size: 
     if n and (groups.min() < 0 or groups.max() >= n_groups):
         raise ValueError(f"cluster_layout: group ids must lie in [0, {n_groups}), got "
                          f"{groups.min()}..{groups.max()}")
-    ids_of = np.split(np.argsort(groups, kind="stable"), np.cumsum(np.bincount(groups, minlength=n_groups))[:-1])
+    ids_of = np.split(np.argsort(groups, kind="stable"),
+                      np.cumsum(np.bincount(groups, minlength=n_groups))[:-1])
     if neighbours is None:
         codes = morton_codes(points, groups, n_groups) if n else np.zeros(0, np.int64)
         cuts = []
@@ -185,7 +186,8 @@ def boxes_meet(lo_a: wp.vec3, hi_a: wp.vec3, lo_b: wp.vec3, hi_b: wp.vec3) -> bo
 
 
 @wp.func
-def meet_mask8(q_lo: wp.vec3, q_hi: wp.vec3, lo: wp.array(dtype=wp.vec3), hi: wp.array(dtype=wp.vec3), s: int) -> int:
+def meet_mask8(q_lo: wp.vec3, q_hi: wp.vec3, lo: wp.array(dtype=wp.vec3), hi: wp.array(dtype=wp.vec3),
+               s: int) -> int:
     """Bit ``j`` set where slot ``s + j``'s box (``lo``, ``hi``; j < 8) meets the box ``q_lo``,
     ``q_hi``. Every load is issued before the first test: the slots' boxes come in one memory
     round trip instead of eight (a query meets hundreds of slots, each a load from L2)."""
@@ -225,20 +227,47 @@ def meet_mask8(q_lo: wp.vec3, q_hi: wp.vec3, lo: wp.array(dtype=wp.vec3), hi: wp
     return m
 
 
+@wp.struct
+class ClusterArrays:
+    """A ``ClusterLayout``'s settings and arrays, one kernel argument (``ClusterLayout.arrays``).
+
+    ``kind_clusters``: each kind's first cluster and the total; per query ``q`` (``QUERIES``,
+    whose query kind is ``q``): ``target_first`` its target kind's first cluster,
+    ``target_kind``, ``words`` mask words per query cluster and ``mask_first`` its first word
+    (and the end); ``group_first[k * (groups + 1) + g]`` kind ``k``'s first cluster of instance
+    ``g`` counted within the kind; then the per-slot, per-octet and per-cluster data."""
+
+    size: int
+    groups: int
+    kind_clusters: wp.vec4i
+    target_first: wp.vec3i
+    target_kind: wp.vec3i
+    words: wp.vec3i
+    mask_first: wp.vec4i
+    order: wp.array(dtype=wp.int32)
+    group_first: wp.array(dtype=wp.int32)
+    cluster_group: wp.array(dtype=wp.int32)
+    masks: wp.array(dtype=wp.int32)
+    lo: wp.array(dtype=wp.vec3)
+    hi: wp.array(dtype=wp.vec3)
+    radius: wp.array(dtype=float)
+    vel: wp.array(dtype=wp.vec3)
+    spread: wp.array(dtype=float)
+    octet_lo: wp.array(dtype=wp.vec3)
+    octet_hi: wp.array(dtype=wp.vec3)
+    octet_radius: wp.array(dtype=float)
+    octet_vel: wp.array(dtype=wp.vec3)
+    octet_count: wp.array(dtype=float)
+    octet_spread: wp.array(dtype=float)
+    cluster_lo: wp.array(dtype=wp.vec3)
+    cluster_hi: wp.array(dtype=wp.vec3)
+    cluster_radius: wp.array(dtype=float)
+    cluster_vel: wp.array(dtype=wp.vec3)
+    cluster_spread: wp.array(dtype=float)
+
+
 @wp.kernel
-def octet_bounds_kernel(
-    lo: wp.array(dtype=wp.vec3),
-    hi: wp.array(dtype=wp.vec3),
-    radius: wp.array(dtype=float),
-    vel: wp.array(dtype=wp.vec3),
-    spread: wp.array(dtype=float),
-    octet_lo: wp.array(dtype=wp.vec3),
-    octet_hi: wp.array(dtype=wp.vec3),
-    octet_radius: wp.array(dtype=float),
-    octet_vel: wp.array(dtype=wp.vec3),
-    octet_count: wp.array(dtype=float),
-    octet_spread: wp.array(dtype=float),
-):
+def octet_bounds_kernel(cl: ClusterArrays):
     """Per octet (8 consecutive slots of a cluster): the union of the slots' boxes, their
     largest query radius, the mean of their velocities (``vel``: each primitive's mean corner
     velocity), the number of slots holding a primitive, and the octet's velocity spread: the
@@ -252,44 +281,32 @@ def octet_bounds_kernel(
     total = wp.vec3()
     count = float(0.0)
     for j in range(8):
-        a = wp.min(a, load_vec3(lo, s + j))
-        b = wp.max(b, load_vec3(hi, s + j))
-        r = wp.max(r, radius[s + j])
-        if spread[s + j] >= 0.0:
-            total += load_vec3(vel, s + j)
+        a = wp.min(a, load_vec3(cl.lo, s + j))
+        b = wp.max(b, load_vec3(cl.hi, s + j))
+        r = wp.max(r, cl.radius[s + j])
+        if cl.spread[s + j] >= 0.0:
+            total += load_vec3(cl.vel, s + j)
             count += 1.0
     mean = total / wp.max(count, 1.0)
     reach = float(0.0)
     for j in range(8):
-        if spread[s + j] >= 0.0:
-            reach = wp.max(reach, wp.length(load_vec3(vel, s + j) - mean) + spread[s + j])
-    octet_lo[o] = a
-    octet_hi[o] = b
-    octet_radius[o] = r
-    octet_vel[o] = mean
-    octet_count[o] = count
-    octet_spread[o] = reach
+        if cl.spread[s + j] >= 0.0:
+            reach = wp.max(reach, wp.length(load_vec3(cl.vel, s + j) - mean) + cl.spread[s + j])
+    cl.octet_lo[o] = a
+    cl.octet_hi[o] = b
+    cl.octet_radius[o] = r
+    cl.octet_vel[o] = mean
+    cl.octet_count[o] = count
+    cl.octet_spread[o] = reach
 
 
 @wp.kernel
-def cluster_bounds_kernel(
-    octets: int,
-    octet_lo: wp.array(dtype=wp.vec3),
-    octet_hi: wp.array(dtype=wp.vec3),
-    octet_radius: wp.array(dtype=float),
-    octet_vel: wp.array(dtype=wp.vec3),
-    octet_count: wp.array(dtype=float),
-    octet_spread: wp.array(dtype=float),
-    cluster_lo: wp.array(dtype=wp.vec3),
-    cluster_hi: wp.array(dtype=wp.vec3),
-    cluster_radius: wp.array(dtype=float),
-    cluster_vel: wp.array(dtype=wp.vec3),
-    cluster_spread: wp.array(dtype=float),
-):
-    """Per cluster, from its ``octets`` octets: the union of their boxes, the largest query
-    radius, the mean velocity and the spread (the largest distance of a member's corner
-    velocity from that mean, bounded through each octet's mean)."""
+def cluster_bounds_kernel(cl: ClusterArrays):
+    """Per cluster, from its octets: the union of their boxes, the largest query radius, the
+    mean velocity and the spread (the largest distance of a member's corner velocity from that
+    mean, bounded through each octet's mean)."""
     c = wp.tid()
+    octets = cl.size / 8
     first = c * octets
     a = wp.vec3(EMPTY)
     b = wp.vec3(-EMPTY)
@@ -297,21 +314,22 @@ def cluster_bounds_kernel(
     total = wp.vec3()
     count = float(0.0)
     for o in range(octets):
-        a = wp.min(a, load_vec3(octet_lo, first + o))
-        b = wp.max(b, load_vec3(octet_hi, first + o))
-        r = wp.max(r, octet_radius[first + o])
-        total += octet_count[first + o] * load_vec3(octet_vel, first + o)
-        count += octet_count[first + o]
+        a = wp.min(a, load_vec3(cl.octet_lo, first + o))
+        b = wp.max(b, load_vec3(cl.octet_hi, first + o))
+        r = wp.max(r, cl.octet_radius[first + o])
+        total += cl.octet_count[first + o] * load_vec3(cl.octet_vel, first + o)
+        count += cl.octet_count[first + o]
     mean = total / wp.max(count, 1.0)
     reach = float(0.0)
     for o in range(octets):
-        if octet_count[first + o] > 0.0:
-            reach = wp.max(reach, wp.length(load_vec3(octet_vel, first + o) - mean) + octet_spread[first + o])
-    cluster_lo[c] = a
-    cluster_hi[c] = b
-    cluster_radius[c] = r
-    cluster_vel[c] = mean
-    cluster_spread[c] = reach
+        if cl.octet_count[first + o] > 0.0:
+            away = wp.length(load_vec3(cl.octet_vel, first + o) - mean)
+            reach = wp.max(reach, away + cl.octet_spread[first + o])
+    cl.cluster_lo[c] = a
+    cl.cluster_hi[c] = b
+    cl.cluster_radius[c] = r
+    cl.cluster_vel[c] = mean
+    cl.cluster_spread[c] = reach
 
 
 @wp.func
@@ -327,69 +345,49 @@ def reach_radius(radius: float, relative: int, margin: float, speed_factor: floa
 
 @wp.func
 def cluster_meets(lo_a: wp.vec3, hi_a: wp.vec3, r_a: float, u_a: wp.vec3, s_a: float, j: int,
-                  cluster_lo: wp.array(dtype=wp.vec3), cluster_hi: wp.array(dtype=wp.vec3),
-                  cluster_vel: wp.array(dtype=wp.vec3), cluster_spread: wp.array(dtype=float), relative: int,
-                  margin: float, speed_factor: float, h: float) -> bool:
+                  cl: ClusterArrays,
+                  relative: int, margin: float, speed_factor: float, h: float) -> bool:
     """Whether cluster ``j`` lies within the reach of a query cluster (box ``lo_a``, ``hi_a``,
     largest query radius ``r_a``, mean velocity ``u_a``, spread ``s_a``; ``cluster_masks_kernel``)."""
     r = reach_radius(r_a, relative, margin, speed_factor, h,
-                     wp.length(u_a - load_vec3(cluster_vel, j)) + s_a + cluster_spread[j])
-    return boxes_meet(lo_a - wp.vec3(r), hi_a + wp.vec3(r), load_vec3(cluster_lo, j), load_vec3(cluster_hi, j))
+                     wp.length(u_a - load_vec3(cl.cluster_vel, j)) + s_a + cl.cluster_spread[j])
+    return boxes_meet(lo_a - wp.vec3(r), hi_a + wp.vec3(r), load_vec3(cl.cluster_lo, j),
+                      load_vec3(cl.cluster_hi, j))
 
 
 @wp.kernel
-def cluster_masks_kernel(
-    query_kind_first: wp.vec3i,
-    target_kind_first: wp.vec3i,
-    words: wp.vec3i,
-    thread_first: wp.vec4i,
-    target_kind: wp.vec3i,
-    group_first: wp.array(dtype=wp.int32),
-    groups: int,
-    cluster_group: wp.array(dtype=wp.int32),
-    cluster_lo: wp.array(dtype=wp.vec3),
-    cluster_hi: wp.array(dtype=wp.vec3),
-    cluster_radius: wp.array(dtype=float),
-    cluster_vel: wp.array(dtype=wp.vec3),
-    cluster_spread: wp.array(dtype=float),
-    relative: int,
-    margin: float,
-    speed_factor: float,
-    h: float,
-    masks: wp.array(dtype=wp.int32),
-):
+def cluster_masks_kernel(cl: ClusterArrays, relative: int, margin: float, speed_factor: float, h: float):
     """One thread per (query, query cluster, word) over the three queries (``QUERIES``; query
-    ``q``'s threads, and its words in ``masks``, start at ``thread_first[q]``): bit ``b`` of the
-    word is set when target cluster ``32 word + b`` of the query cluster's instance lies within
-    the query cluster's reach of its box: its largest query radius, or with ``relative`` (the
-    pair lists keep only pairs within the radius of their own relative speed, and no bounds
-    need every nearest distance) the radius of the largest relative speed two members can
-    have: the clusters' mean velocities apart plus both spreads (``reach_radius``).
-    ``group_first[k * (groups + 1) + g]``: kind ``k``'s first cluster of instance ``g``, counted
-    within the kind; ``*_kind_first``: each kind's first cluster in the cluster arrays."""
+    ``q``'s words in ``masks`` start at ``mask_first[q]``, a query cluster's ``words[q]`` of them
+    in a row): bit ``b`` of the word is set when target cluster ``32 word + b`` of the query
+    cluster's instance lies within the query cluster's reach of its box: its largest query
+    radius, or with ``relative`` (the pair lists keep only pairs within the radius of their own
+    relative speed, and no bounds need every nearest distance) the radius of the largest
+    relative speed two members can have: the clusters' mean velocities apart plus both spreads
+    (``reach_radius``)."""
     t = wp.tid()
     q = int(0)
-    if t >= thread_first[1]:
+    if t >= cl.mask_first[1]:
         q = 1
-    if t >= thread_first[2]:
+    if t >= cl.mask_first[2]:
         q = 2
-    w_count = words[q]
-    local = t - thread_first[q]
+    w_count = cl.words[q]
+    local = t - cl.mask_first[q]
     # the query clusters fastest: a warp's threads test the same targets (one load for all)
-    n_query = (thread_first[q + 1] - thread_first[q]) / w_count
+    n_query = (cl.mask_first[q + 1] - cl.mask_first[q]) / w_count
     w = local / n_query
     a_local = local - w * n_query
-    tk = target_kind_first[q]
-    a = query_kind_first[q] + a_local
-    g = cluster_group[a]
-    kind = target_kind[q]
-    t0 = group_first[kind * (groups + 1) + g]
-    t1 = group_first[kind * (groups + 1) + g + 1]
-    lo_a = load_vec3(cluster_lo, a)
-    hi_a = load_vec3(cluster_hi, a)
-    r_a = cluster_radius[a]
-    u_a = load_vec3(cluster_vel, a)
-    s_a = cluster_spread[a]
+    tk = cl.target_first[q]
+    a = cl.kind_clusters[q] + a_local
+    g = cl.cluster_group[a]
+    kind = cl.target_kind[q]
+    t0 = cl.group_first[kind * (cl.groups + 1) + g]
+    t1 = cl.group_first[kind * (cl.groups + 1) + g + 1]
+    lo_a = load_vec3(cl.cluster_lo, a)
+    hi_a = load_vec3(cl.cluster_hi, a)
+    r_a = cl.cluster_radius[a]
+    u_a = load_vec3(cl.cluster_vel, a)
+    s_a = cl.cluster_spread[a]
     bits = int(0)
     for b0 in range(WORD / 8):
         # eight targets at a time (a loop of constant length is unrolled, and its loads issued
@@ -397,11 +395,10 @@ def cluster_masks_kernel(
         for b1 in range(8):
             b = 8 * b0 + b1
             j = tk + t0 + w * WORD + b
-            if cluster_meets(lo_a, hi_a, r_a, u_a, s_a, j, cluster_lo, cluster_hi, cluster_vel, cluster_spread,
-                             relative, margin, speed_factor, h):
+            if cluster_meets(lo_a, hi_a, r_a, u_a, s_a, j, cl, relative, margin, speed_factor, h):
                 if j - tk < t1:
                     bits = bits | (1 << b)
-    masks[thread_first[q] + a_local * w_count + w] = bits
+    cl.masks[cl.mask_first[q] + a_local * w_count + w] = bits
 
 
 def topology_keys(particle_group: np.ndarray, tris: np.ndarray, tri_group: np.ndarray, n_groups: int) -> list:
@@ -447,7 +444,8 @@ class ClusterLayout:
         n_groups = int(model.instance_count)
         points = (x, x[tris].mean(axis=1) if len(tris) else np.zeros((0, 3)),
                   x[edges].mean(axis=1) if len(edges) else np.zeros((0, 3)))
-        groups = (model.particle_instance.numpy(), model.tri_instance.numpy(), model.mesh_edge_instance.numpy())
+        groups = (model.particle_instance.numpy(), model.tri_instance.numpy(),
+                  model.mesh_edge_instance.numpy())
         neighbours = (edges, shared_vertex_pairs(tris), shared_vertex_pairs(edges))
         keys = topology_keys(groups[0], tris, groups[1], n_groups)
         orders, cluster_groups, firsts = [], [], []
@@ -467,15 +465,12 @@ class ClusterLayout:
         self.per_group = [np.diff(f) for f in firsts]
         # words per query cluster: the most target clusters any instance has, in words of 32
         self.words = [max(1, -(-int(self.per_group[tk].max(initial=0)) // WORD)) for _, tk in QUERIES]
-        masks = [counts[qk] * wc for (qk, _), wc in zip(QUERIES, self.words)]
+        masks = [counts[qk] * wc for (qk, _), wc in zip(QUERIES, self.words, strict=True)]
         self.thread_first_np = np.concatenate([[0], np.cumsum(masks)]).astype(np.int32)
         self.masks = w.zeros(max(int(sum(masks)), 1), dtype=w.int32, device=d)
-        self.query_kind_first = w.vec3i(*(int(self.kind_clusters[qk]) for qk, _ in QUERIES))
         self.target_kind_first = w.vec3i(*(int(self.kind_clusters[tk]) for _, tk in QUERIES))
         self.target_kind = w.vec3i(*(tk for _, tk in QUERIES))
         self.words_vec = w.vec3i(*self.words)
-        self.thread_first_vec = w.vec3i(*(int(t) for t in self.thread_first_np[:3]))
-        self.thread_ends_vec = w.vec4i(*(int(t) for t in self.thread_first_np))
         slots = total * self.size
         octets = total * (self.size // 8)
         self.octets = octets
@@ -502,6 +497,19 @@ class ClusterLayout:
         self.total_clusters = total
         self.device = d
         self.masks_current = False
+        cl = ClusterArrays()
+        cl.size = self.size
+        cl.groups = n_groups
+        cl.kind_clusters = w.vec4i(*(int(k) for k in self.kind_clusters))
+        cl.target_first = self.target_kind_first
+        cl.target_kind = self.target_kind
+        cl.words = self.words_vec
+        cl.mask_first = w.vec4i(*(int(t) for t in self.thread_first_np))
+        for name in ("order", "group_first", "cluster_group", "masks", "lo", "hi", "radius", "vel", "spread",
+                     "octet_lo", "octet_hi", "octet_radius", "octet_vel", "octet_count", "octet_spread",
+                     "cluster_lo", "cluster_hi", "cluster_radius", "cluster_vel", "cluster_spread"):
+            setattr(cl, name, getattr(self, name))
+        self.arrays = cl
 
     @property
     def slots(self) -> int:
@@ -515,23 +523,14 @@ class ClusterLayout:
         if self.total_clusters == 0:
             return
         d = self.device
-        wp.launch(octet_bounds_kernel, dim=self.octets, inputs=[self.lo, self.hi, self.radius, self.vel, self.spread],
-                  outputs=[self.octet_lo, self.octet_hi, self.octet_radius, self.octet_vel, self.octet_count,
-                           self.octet_spread], device=d)
-        wp.launch(cluster_bounds_kernel, dim=self.total_clusters,
-                  inputs=[self.size // 8, self.octet_lo, self.octet_hi, self.octet_radius, self.octet_vel,
-                          self.octet_count, self.octet_spread],
-                  outputs=[self.cluster_lo, self.cluster_hi, self.cluster_radius, self.cluster_vel,
-                           self.cluster_spread], device=d)
+        wp.launch(octet_bounds_kernel, dim=self.octets, inputs=[self.arrays], device=d)
+        wp.launch(cluster_bounds_kernel, dim=self.total_clusters, inputs=[self.arrays], device=d)
         n = int(self.thread_first_np[-1])
         self.masks_current = True
         if n:
             wp.launch(cluster_masks_kernel, dim=n,
-                      inputs=[self.query_kind_first, self.target_kind_first, self.words_vec, self.thread_ends_vec,
-                              self.target_kind, self.group_first, self.groups, self.cluster_group, self.cluster_lo,
-                              self.cluster_hi, self.cluster_radius, self.cluster_vel, self.cluster_spread,
-                              int(relative), float(margin), float(speed_factor), float(h)],
-                      outputs=[self.masks], device=d)
+                      inputs=[self.arrays, int(relative), float(margin), float(speed_factor), float(h)],
+                      device=d)
 
     def marked(self) -> list[float] | None:
         """Mean target clusters marked per query cluster, per query (``QUERIES``): how many

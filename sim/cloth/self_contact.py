@@ -51,6 +51,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from sim.cloth.clusters import ClusterArrays, ClusterLayout, meet_mask8, reach_radius
 from sim.cloth.spans import (
     Span,
     fill_spans,
@@ -65,7 +66,6 @@ from sim.cloth.spans import (
     vec3s,
     vec4is,
 )
-from sim.cloth.clusters import ClusterLayout, meet_mask8, reach_radius
 from sim.device import SideStreams, warp
 
 # closest points with every barycentric weight (VT) or edge parameter (EE) above this are
@@ -1123,33 +1123,26 @@ def member_bounds_kernel(
     v: wp.array(dtype=wp.vec3),
     particle_instance: wp.array(dtype=wp.int32),
     tri_indices: wp.array(dtype=wp.vec3i),
-    order: wp.array(dtype=wp.int32),
-    size: int,
-    kind_clusters: wp.vec4i,
     margin: float,
     speed_factor: float,
     h: float,
     sc: SelfContactData,
-    lo_out: wp.array(dtype=wp.vec3),
-    hi_out: wp.array(dtype=wp.vec3),
-    radius_out: wp.array(dtype=float),
-    vel_out: wp.array(dtype=wp.vec3),
-    spread_out: wp.array(dtype=float),
+    cl: ClusterArrays,
 ):
     """Per cluster slot (``sim.cloth.clusters``): its primitive's box (a vertex's point, a
     triangle's or an edge's box), the query radius the detection kernels give it (its fastest
     corner's speed in its instance's frame, ``query_radius``), and its corners' mean velocity
     and spread (``corner_spread``); a padding slot gets an empty box, radius 0, spread -1."""
     s = wp.tid()
-    p = order[s]
+    p = cl.order[s]
     if p < 0:
-        lo_out[s] = wp.vec3(1.0e30)
-        hi_out[s] = wp.vec3(-1.0e30)
-        radius_out[s] = 0.0
-        vel_out[s] = wp.vec3()
-        spread_out[s] = -1.0
+        cl.lo[s] = wp.vec3(1.0e30)
+        cl.hi[s] = wp.vec3(-1.0e30)
+        cl.radius[s] = 0.0
+        cl.vel[s] = wp.vec3()
+        cl.spread[s] = -1.0
         return
-    k = slot_kind(s / size, kind_clusters)
+    k = slot_kind(s / cl.size, cl.kind_clusters)
     q = slot_corners(k, p, tri_indices, sc.mesh_edges)
     a = load_vec3(x, q[0])
     b = load_vec3(x, q[1])
@@ -1157,12 +1150,12 @@ def member_bounds_kernel(
     vr = sc.reference[particle_instance[q[0]]]
     speed = wp.max(wp.max(wp.length(load_vec3(v, q[0]) - vr), wp.length(load_vec3(v, q[1]) - vr)),
                    wp.length(load_vec3(v, q[2]) - vr))
-    lo_out[s] = wp.min(wp.min(a, b), c)
-    hi_out[s] = wp.max(wp.max(a, b), c)
-    radius_out[s] = query_radius(margin, speed, h, speed_factor)
+    cl.lo[s] = wp.min(wp.min(a, b), c)
+    cl.hi[s] = wp.max(wp.max(a, b), c)
+    cl.radius[s] = query_radius(margin, speed, h, speed_factor)
     mean, spread = corner_spread(v, q[0], q[1], q[2])
-    vel_out[s] = mean
-    spread_out[s] = spread
+    cl.vel[s] = mean
+    cl.spread[s] = spread
 
 
 @wp.kernel
@@ -1170,23 +1163,7 @@ def detect_clustered_kernel(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     tri_indices: wp.array(dtype=wp.vec3i),
-    order: wp.array(dtype=wp.int32),
-    size: int,
-    kind_clusters: wp.vec4i,
-    target_first: wp.vec3i,
-    words: wp.vec3i,
-    thread_first: wp.vec3i,
-    group_first: wp.array(dtype=wp.int32),
-    groups: int,
-    cluster_group: wp.array(dtype=wp.int32),
-    masks: wp.array(dtype=wp.int32),
-    lo: wp.array(dtype=wp.vec3),
-    hi: wp.array(dtype=wp.vec3),
-    radius: wp.array(dtype=float),
-    octet_lo: wp.array(dtype=wp.vec3),
-    octet_hi: wp.array(dtype=wp.vec3),
-    cluster_vel: wp.array(dtype=wp.vec3),
-    cluster_spread: wp.array(dtype=float),
+    cl: ClusterArrays,
     relative: int,
     margin: float,
     speed_factor: float,
@@ -1213,22 +1190,22 @@ def detect_clustered_kernel(
     p`` in ``sc``'s arrays (``count`` primitives of the kind), which ``merge_split_kernel`` merges.
     A query's chain of loads is what takes the time (a few warps per SM), and this cuts it."""
     t = wp.tid()
-    slots = order.shape[0]
+    slots = cl.order.shape[0]
     f = t / slots
     s = t - f * slots
-    p = order[s]
+    p = cl.order[s]
     if p < 0:
         return
-    a = s / size
-    k = slot_kind(a, kind_clusters)
+    a = s / cl.size
+    k = slot_kind(a, cl.kind_clusters)
     tk = 1 - k
     if k == 2:
         tk = 2
-    g = cluster_group[a]
-    t0 = group_first[tk * (groups + 1) + g]
-    r = radius[s]
-    p_lo = lo[s]
-    p_hi = hi[s]
+    g = cl.cluster_group[a]
+    t0 = cl.group_first[tk * (cl.groups + 1) + g]
+    r = cl.radius[s]
+    p_lo = cl.lo[s]
+    p_hi = cl.hi[s]
     corners = slot_corners(k, p, tri_indices, sc.mesh_edges)
     v0 = load_vec3(v, corners[0])
     v1 = load_vec3(v, corners[1])
@@ -1249,8 +1226,8 @@ def detect_clustered_kernel(
         ea = sc.mesh_edges[p]
         p1 = x[ea[0]]
         q1 = x[ea[1]]
-    w_count = words[k]
-    mask_base = thread_first[k] + (a - kind_clusters[k]) * w_count
+    w_count = cl.words[k]
+    mask_base = cl.mask_first[k] + (a - cl.kind_clusters[k]) * w_count
     meets = int(0)
     owner = p
     if split > 1:
@@ -1261,39 +1238,41 @@ def detect_clustered_kernel(
             n_kind = sc.ee_count.shape[0] / split
         owner = f * n_kind + p
     nth = int(-1)
-    n_octets = size / 8
+    n_octets = cl.size / 8
     octet_bits = (1 << n_octets) - 1
     for w in range(w_count):
-        bits = masks[mask_base + w]
+        bits = cl.masks[mask_base + w]
         b = int(0)
         while bits != 0:
             if (bits & 1) != 0:
                 nth += 1
             if (bits & 1) != 0 and nth % split == f:
-                target = target_first[k] + t0 + w * 32 + b
-                first = target * size
-                u = load_vec3(cluster_vel, target)
+                target = cl.target_first[k] + t0 + w * 32 + b
+                first = target * cl.size
+                u = load_vec3(cl.cluster_vel, target)
                 fastest = wp.max(wp.max(wp.length(v0 - u), wp.length(v1 - u)), wp.length(v2 - u))
-                reach = reach_radius(r, relative, margin, speed_factor, h, fastest + cluster_spread[target])
+                spread = cl.cluster_spread[target]
+                reach = reach_radius(r, relative, margin, speed_factor, h, fastest + spread)
                 q_lo = p_lo - wp.vec3(reach)
                 q_hi = p_hi + wp.vec3(reach)
-                octets = meet_mask8(q_lo, q_hi, octet_lo, octet_hi, target * n_octets) & octet_bits
-                for j in range(size):
+                octets = meet_mask8(q_lo, q_hi, cl.octet_lo, cl.octet_hi, target * n_octets) & octet_bits
+                for j in range(cl.size):
                     if j % 8 == 0:
                         meets = int(0)
                         if ((octets >> (j / 8)) & 1) != 0:
-                            meets = meet_mask8(q_lo, q_hi, lo, hi, first + j)
+                            meets = meet_mask8(q_lo, q_hi, cl.lo, cl.hi, first + j)
                     if ((meets >> (j % 8)) & 1) == 0:
                         continue
-                    item = load_int(order, first + j)
+                    item = load_int(cl.order, first + j)
                     if k == 0:
                         t_item = load_vec3i(tri_indices, item)
                         if t_item[0] == i or t_item[1] == i or t_item[2] == i:
                             continue
-                        dmin, count = vertex_triangle_candidate(sc, x, v, i, t_item, rs, margin, speed_factor, h,
-                                                                dmin, count, sc.vt_tri, sc.vt_dist, sc.vt_ref,
-                                                                sc.vt_rk, sc.vt_tri_prev, sc.vt_ref_prev,
-                                                                sc.vt_count_prev, owner, sc.vt_capacity, item)
+                        dmin, count = vertex_triangle_candidate(sc, x, v, i, t_item, rs, margin, speed_factor,
+                                                                h, dmin, count, sc.vt_tri, sc.vt_dist,
+                                                                sc.vt_ref, sc.vt_rk, sc.vt_tri_prev,
+                                                                sc.vt_ref_prev, sc.vt_count_prev, owner,
+                                                                sc.vt_capacity, item)
                     elif k == 1:
                         if item == tri[0] or item == tri[1] or item == tri[2]:
                             continue
@@ -1325,7 +1304,8 @@ def detect_clustered_kernel(
 def merge_lists(split: int, n: int, o: int, capacity: int, counts: wp.array(dtype=wp.int32),
                 ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), ref: wp.array(dtype=wp.vec3),
                 rk: wp.array(dtype=wp.int32), dmins: wp.array(dtype=float), out_ids: wp.array(dtype=wp.int32),
-                out_dist: wp.array(dtype=float), out_ref: wp.array(dtype=wp.vec3), out_rk: wp.array(dtype=wp.int32)):
+                out_dist: wp.array(dtype=float), out_ref: wp.array(dtype=wp.vec3),
+                out_rk: wp.array(dtype=wp.int32)):
     """Owner ``o``'s ``split`` partial lists (owners ``f * n + o``) merged in order into one list
     of ``capacity`` (``keep_closest`` on their keys); returns its count and the smallest of the
     partial nearest distances."""
@@ -1364,7 +1344,8 @@ def merge_split_kernel(
     t = wp.tid()
     if t < n_vertices:
         c, d = merge_lists(split, n_vertices, t, sc.vt_capacity, part.vt_count, part.vt_tri, part.vt_dist,
-                           part.vt_ref, part.vt_rk, part_dmin_vertex, sc.vt_tri, sc.vt_dist, sc.vt_ref, sc.vt_rk)
+                           part.vt_ref, part.vt_rk, part_dmin_vertex, sc.vt_tri, sc.vt_dist, sc.vt_ref,
+                           sc.vt_rk)
         sc.vt_count[t] = c
         dmin_vertex[t] = d
     elif t < n_vertices + n_triangles:
@@ -1377,7 +1358,8 @@ def merge_split_kernel(
     else:
         o = t - n_vertices - n_triangles
         c, d = merge_lists(split, n_edges, o, sc.ee_capacity, part.ee_count, part.ee_edge, part.ee_dist,
-                           part.ee_ref, part.ee_rk, part_dmin_edge, sc.ee_edge, sc.ee_dist, sc.ee_ref, sc.ee_rk)
+                           part.ee_ref, part.ee_rk, part_dmin_edge, sc.ee_edge, sc.ee_dist, sc.ee_ref,
+                           sc.ee_rk)
         sc.ee_count[o] = c
         dmin_edge[o] = d
 
@@ -2049,12 +2031,10 @@ class SelfContact:
         cl = self.clusters
         if cl.slots == 0:
             return
-        kc = cl.kind_clusters
-        kind_clusters = w.vec4i(int(kc[0]), int(kc[1]), int(kc[2]), int(kc[3]))
         w.launch(member_bounds_kernel, dim=cl.slots,
-                 inputs=[x0, v, m.particle_instance, m.tri_indices, cl.order, cl.size, kind_clusters, margin,
-                         self.speed_factor, h, data],
-                 outputs=[cl.lo, cl.hi, cl.radius, cl.vel, cl.spread], device=m.device)
+                 inputs=[x0, v, m.particle_instance, m.tri_indices, margin, self.speed_factor, h, data,
+                         cl.arrays],
+                 device=m.device)
         # with bounds off and relative lists, only the pairs within the radius of their relative
         # speed matter (the nearest distances feed only the bounds)
         relative = data.use_bounds == 0 and data.relative_lists != 0 and data.candidates == 0.0
@@ -2064,10 +2044,8 @@ class SelfContact:
         if split > 1:
             part, part_dmins = self._split_lists(data), self._split_dmins
         w.launch(detect_clustered_kernel, dim=cl.slots * split,
-                 inputs=[x0, v, m.tri_indices, cl.order, cl.size, kind_clusters, cl.target_kind_first, cl.words_vec,
-                         cl.thread_first_vec, cl.group_first, cl.groups, cl.cluster_group, cl.masks, cl.lo, cl.hi,
-                         cl.radius, cl.octet_lo, cl.octet_hi, cl.cluster_vel, cl.cluster_spread, int(relative),
-                         margin, self.speed_factor, h, part, split],
+                 inputs=[x0, v, m.tri_indices, cl.arrays, int(relative), margin, self.speed_factor, h, part,
+                         split],
                  outputs=list(part_dmins), device=m.device)
         if split > 1:
             n, nt, ne = (len(dm) for dm in dmins)

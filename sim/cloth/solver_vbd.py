@@ -39,12 +39,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from sim.cloth import vbd_kernels as K
+from sim.cloth.clusters import CLUSTER_SIZES
 from sim.cloth.model import ClothModel
 from sim.cloth.self_contact import SelfContact, disabled_data, solve_contact_arrays, solve_contact_key
 from sim.cloth.spans import fill_spans
 from sim.cloth.state import ClothControl, ClothState
 from sim.device import SideStreams, warp
-
 
 # the largest model (vertices + triangles + edges) that the "auto" broadphase searches with
 # clusters on CUDA (``SolverVBD.broadphase``): up to four 5k t-shirts or one 30k garment
@@ -331,9 +331,9 @@ class VBDConfig:
             raise ValueError("VBDConfig.self_contact_broadphase must be 'auto', 'bvh' or 'clusters', got "
                              f"{self.self_contact_broadphase!r}")
         if self.self_contact_broadphase == "clusters" and self.self_contact_lookahead:
-            raise ValueError("VBDConfig.self_contact_lookahead needs self_contact_broadphase 'bvh' (its swept "
-                             "candidate queries run on the trees)")
-        if self.self_contact_cluster_size not in (8, 16, 24, 32, 40, 48, 56, 64):
+            raise ValueError("VBDConfig.self_contact_lookahead needs self_contact_broadphase 'bvh' (its "
+                             "swept candidate queries run on the trees)")
+        if self.self_contact_cluster_size not in CLUSTER_SIZES:
             raise ValueError("VBDConfig.self_contact_cluster_size must be a multiple of 8 in [8, 64], got "
                              f"{self.self_contact_cluster_size}")
         if self.gather not in ("auto", "fused", "split"):
