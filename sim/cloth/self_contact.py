@@ -1853,7 +1853,6 @@ class SelfContact:
             raise ValueError("SelfContact: cluster_split > 1 needs side_memory off (the partial lists have "
                              "no previous lists)")
         self.cluster_split = int(cluster_split) if self.clusters is not None else 1
-        self._split_parts = {}
         self._split_arrays = {}
         self._split_dmins = ()
         if self.cluster_split > 1:
@@ -2053,18 +2052,13 @@ class SelfContact:
                      inputs=[split, n, nt, ne, part, *part_dmins, data], outputs=list(dmins), device=m.device)
 
     def _split_lists(self, data: SelfContactData) -> SelfContactData:
-        """``data`` with the partial lists of a split cluster query in place of its lists (one
-        struct per ``data``, cached)."""
-        key = id(data)
-        part = self._split_parts.get(key)
-        if part is None or part[0] is not data:
-            out = SelfContactData()
-            for name in SelfContactData.vars:
-                value = getattr(data, name)
-                setattr(out, name, self._split_arrays[name] if name in self._split_arrays else value)
-            part = (data, out)
-            self._split_parts[key] = part
-        return part[1]
+        """``data`` with the partial lists of a split cluster query in place of its lists. Every
+        other field is taken from ``data`` at each call: ``detect`` may have set new reference
+        velocities on it."""
+        out = SelfContactData()
+        for name in SelfContactData.vars:
+            setattr(out, name, self._split_arrays.get(name, getattr(data, name)))
+        return out
 
     def query_candidates(self, x0, v, h: float, rebuild: bool = False, reference=None) -> None:
         """The lookahead's candidate pairs (``lookahead`` set) for ``remeasure`` at this substep's
