@@ -1071,7 +1071,8 @@ def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, s
     """The cluster broadphase (``sim.cloth.clusters``) hands each query exactly the primitives
     whose boxes meet its query box, as the trees do: on the flat and the jittered sheet (two
     instances, so clusters must keep to their instance), with every vertex at its own random
-    velocity or the upper sheet sliding at 3 m/s, the three kinds of lists hold the same pairs
+    velocity or the upper sheet sliding at 3 m/s, with a smaller piece of another topology as a
+    third instance, the three kinds of lists hold the same pairs
     (lists large enough that none fills: a full list's ties depend on the order), and so do
     the gather records per vertex. With the bounds on, the nearest distances are equal to the
     bit too; with them off (the default) the clusters cull by relative speed
@@ -1087,6 +1088,10 @@ def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, s
     b = ClothModelBuilder()
     for offset in ((0.0, 0.0, 0.0), (0.05, 0.003, 0.0)):  # the second overlaps the first in space
         b.add_cloth(v + np.array(offset, np.float32), f, ClothMaterialParams())
+    # a third, smaller piece of another topology in between: fewer clusters than the others
+    vs, fs = grid(3, 3, 2 * e, 2 * e, plane="xz")
+    b.add_cloth(np.concatenate([vs, vs + np.array([0.3 * e, 0.004, 0.2 * e], np.float32)]),
+                np.concatenate([fs, fs + len(vs)]).astype(np.int32), ClothMaterialParams())
     m = b.finalize(device)
     if motion == "still":
         vel = rng.normal(0.0, 1.0, (m.particle_count, 3)).astype(np.float32)

@@ -390,13 +390,14 @@ def cluster_masks_kernel(cl: ClusterArrays, relative: int, margin: float, speed_
     s_a = cl.cluster_spread[a]
     bits = int(0)
     for b0 in range(WORD / 8):
-        # eight targets at a time (a loop of constant length is unrolled, and its loads issued
-        # together; the arrays run 32 past the last cluster)
+        # eight targets at a time (a loop of constant length is unrolled); only the instance's
+        # own: ``words`` fits the instance with the most clusters, and a smaller instance's
+        # last word would reach past the arrays' end
         for b1 in range(8):
             b = 8 * b0 + b1
             j = tk + t0 + w * WORD + b
-            if cluster_meets(lo_a, hi_a, r_a, u_a, s_a, j, cl, relative, margin, speed_factor, h):
-                if j - tk < t1:
+            if j - tk < t1:
+                if cluster_meets(lo_a, hi_a, r_a, u_a, s_a, j, cl, relative, margin, speed_factor, h):
                     bits = bits | (1 << b)
     cl.masks[cl.mask_first[q] + a_local * w_count + w] = bits
 
@@ -488,7 +489,7 @@ class ClusterLayout:
         self.octet_vel = w.zeros(octets + 8, dtype=w.vec3, device=d)
         self.octet_count = w.zeros(octets + 8, dtype=float, device=d)
         self.octet_spread = w.zeros(octets + 8, dtype=float, device=d)
-        # per cluster, and 32 empty ones past the end (the masks read a word's 32 targets at once)
+        # per cluster, and 32 empty ones past the end
         self.cluster_lo = w.full(total + WORD, w.vec3(EMPTY), dtype=w.vec3, device=d)
         self.cluster_hi = w.full(total + WORD, w.vec3(-EMPTY), dtype=w.vec3, device=d)
         self.cluster_radius = w.zeros(total + WORD, dtype=float, device=d)
