@@ -457,59 +457,43 @@ class ClusterLayout:
             firsts.append(f)
         counts = [len(cg) for cg in cluster_groups]
         self.kind_clusters = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
-        self.kind_counts = tuple(int(len(p)) for p in points)
-        total = int(self.kind_clusters[-1])
-        self.order = w.array(np.concatenate(orders), dtype=w.int32, device=d)
-        self.cluster_group = w.array(np.concatenate(cluster_groups), dtype=w.int32, device=d)
-        self.groups = n_groups
-        self.group_first = w.array(np.concatenate(firsts), dtype=w.int32, device=d)
-        self.per_group = [np.diff(f) for f in firsts]
+        self.total_clusters = total = int(self.kind_clusters[-1])
         # words per query cluster: the most target clusters any instance has, in words of 32
-        self.words = [max(1, -(-int(self.per_group[tk].max(initial=0)) // WORD)) for _, tk in QUERIES]
+        self.words = [max(1, -(-int(np.diff(firsts[tk]).max(initial=0)) // WORD)) for _, tk in QUERIES]
         masks = [counts[qk] * wc for (qk, _), wc in zip(QUERIES, self.words, strict=True)]
-        self.thread_first_np = np.concatenate([[0], np.cumsum(masks)]).astype(np.int32)
-        self.masks = w.zeros(max(int(sum(masks)), 1), dtype=w.int32, device=d)
-        self.target_kind_first = w.vec3i(*(int(self.kind_clusters[tk]) for _, tk in QUERIES))
-        self.target_kind = w.vec3i(*(tk for _, tk in QUERIES))
-        self.words_vec = w.vec3i(*self.words)
-        slots = total * self.size
-        octets = total * (self.size // 8)
-        self.octets = octets
-        # per slot (``member_bounds_kernel``): box, query radius, mean corner velocity, spread
-        self.lo = w.zeros(max(slots, 1), dtype=w.vec3, device=d)
-        self.hi = w.zeros(max(slots, 1), dtype=w.vec3, device=d)
-        self.radius = w.zeros(max(slots, 1), dtype=float, device=d)
-        self.vel = w.zeros(max(slots, 1), dtype=w.vec3, device=d)
-        self.spread = w.zeros(max(slots, 1), dtype=float, device=d)
-        # per octet, and eight empty ones past the end (a cluster's octets are read eight at a
-        # time; the bits of those past its own are masked off)
-        self.octet_lo = w.full(octets + 8, w.vec3(EMPTY), dtype=w.vec3, device=d)
-        self.octet_hi = w.full(octets + 8, w.vec3(-EMPTY), dtype=w.vec3, device=d)
-        self.octet_radius = w.zeros(octets + 8, dtype=float, device=d)
-        self.octet_vel = w.zeros(octets + 8, dtype=w.vec3, device=d)
-        self.octet_count = w.zeros(octets + 8, dtype=float, device=d)
-        self.octet_spread = w.zeros(octets + 8, dtype=float, device=d)
-        # per cluster, and 32 empty ones past the end
-        self.cluster_lo = w.full(total + WORD, w.vec3(EMPTY), dtype=w.vec3, device=d)
-        self.cluster_hi = w.full(total + WORD, w.vec3(-EMPTY), dtype=w.vec3, device=d)
-        self.cluster_radius = w.zeros(total + WORD, dtype=float, device=d)
-        self.cluster_vel = w.zeros(total + WORD, dtype=w.vec3, device=d)
-        self.cluster_spread = w.zeros(total + WORD, dtype=float, device=d)
-        self.total_clusters = total
+        self.mask_first = np.concatenate([[0], np.cumsum(masks)]).astype(np.int32)
         self.device = d
         self.masks_current = False
+        slots = max(total * self.size, 1)
+        octets = total * (self.size // 8)
+
+        def zeros(n: int, dtype):
+            return w.zeros(n, dtype=dtype, device=d)
+
         cl = ClusterArrays()
         cl.size = self.size
         cl.groups = n_groups
         cl.kind_clusters = w.vec4i(*(int(k) for k in self.kind_clusters))
-        cl.target_first = self.target_kind_first
-        cl.target_kind = self.target_kind
-        cl.words = self.words_vec
-        cl.mask_first = w.vec4i(*(int(t) for t in self.thread_first_np))
-        for name in ("order", "group_first", "cluster_group", "masks", "lo", "hi", "radius", "vel", "spread",
-                     "octet_lo", "octet_hi", "octet_radius", "octet_vel", "octet_count", "octet_spread",
-                     "cluster_lo", "cluster_hi", "cluster_radius", "cluster_vel", "cluster_spread"):
-            setattr(cl, name, getattr(self, name))
+        cl.target_first = w.vec3i(*(int(self.kind_clusters[tk]) for _, tk in QUERIES))
+        cl.target_kind = w.vec3i(*(tk for _, tk in QUERIES))
+        cl.words = w.vec3i(*self.words)
+        cl.mask_first = w.vec4i(*(int(t) for t in self.mask_first))
+        cl.order = w.array(np.concatenate(orders), dtype=w.int32, device=d)
+        cl.group_first = w.array(np.concatenate(firsts), dtype=w.int32, device=d)
+        cl.cluster_group = w.array(np.concatenate(cluster_groups), dtype=w.int32, device=d)
+        cl.masks = zeros(max(int(self.mask_first[-1]), 1), w.int32)
+        # per slot (``member_bounds_kernel``): box, query radius, mean corner velocity, spread
+        cl.lo, cl.hi, cl.vel = (zeros(slots, w.vec3) for _ in range(3))
+        cl.radius, cl.spread = (zeros(slots, float) for _ in range(2))
+        # per octet, and eight empty ones past the end (a cluster's octets are read eight at a
+        # time; the bits of those past its own are masked off)
+        cl.octet_lo = w.full(octets + 8, w.vec3(EMPTY), dtype=w.vec3, device=d)
+        cl.octet_hi = w.full(octets + 8, w.vec3(-EMPTY), dtype=w.vec3, device=d)
+        cl.octet_vel = zeros(octets + 8, w.vec3)
+        cl.octet_radius, cl.octet_count, cl.octet_spread = (zeros(octets + 8, float) for _ in range(3))
+        # per cluster
+        cl.cluster_lo, cl.cluster_hi, cl.cluster_vel = (zeros(max(total, 1), w.vec3) for _ in range(3))
+        cl.cluster_radius, cl.cluster_spread = (zeros(max(total, 1), float) for _ in range(2))
         self.arrays = cl
 
     @property
@@ -524,9 +508,10 @@ class ClusterLayout:
         if self.total_clusters == 0:
             return
         d = self.device
-        wp.launch(octet_bounds_kernel, dim=self.octets, inputs=[self.arrays], device=d)
+        octets = self.total_clusters * (self.size // 8)
+        wp.launch(octet_bounds_kernel, dim=octets, inputs=[self.arrays], device=d)
         wp.launch(cluster_bounds_kernel, dim=self.total_clusters, inputs=[self.arrays], device=d)
-        n = int(self.thread_first_np[-1])
+        n = int(self.mask_first[-1])
         self.masks_current = True
         if n:
             wp.launch(cluster_masks_kernel, dim=n,
@@ -538,11 +523,11 @@ class ClusterLayout:
         clusters a query thread searches (diagnostics); None before the first detection."""
         if not self.masks_current:
             return None
-        m = self.masks.numpy().view(np.uint32)
+        m = self.arrays.masks.numpy().view(np.uint32)
         bits = np.unpackbits(m.view(np.uint8)).reshape(-1, 32).sum(axis=1) if len(m) else np.zeros(0)
         out = []
         for q, (qk, _) in enumerate(QUERIES):
             n = int(self.kind_clusters[qk + 1] - self.kind_clusters[qk])
-            a = int(self.thread_first_np[q])
+            a = int(self.mask_first[q])
             out.append(float(bits[a:a + n * self.words[q]].sum() / max(n, 1)))
         return out
