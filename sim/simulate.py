@@ -76,6 +76,16 @@ walks and runs, docs/BENCHMARKS.md): the 5k t-shirt passes 134 of 144 at 12 (133
 templates' hems); the 19k t-shirt 7 of 16 at 14 and 2 of 16 at 12."""
 
 
+CUDA_COLORS = 3
+"""Colours of the vertex colouring (``VBDConfig.max_colors``) of a run on CUDA; the CPU keeps a
+proper colouring (0). Session 41 (H100, docs/BENCHMARKS.md): on the 5k t-shirt with the cluster
+broadphase 4.28 / 4.35 ms per walk / run frame against 4.54 / 4.55 (one launch fewer per sweep;
+~2 % of the edges same-coloured, coupled by a Jacobi step), 135 of 144 random walks and runs
+passing against 134 (session 40), batches of 1-256 t-shirts 2-6 % more garment-frames/s. On the
+CPU it bought nothing (1k t-shirt 125.3 / 123.3 against 118.1 / 126.8 ms, strain 0.16 / 0.18
+against 0.14 / 0.14)."""
+
+
 def default_substeps(vertices: int) -> int:
     """Substeps per frame of the job default for a garment of ``vertices`` vertices."""
     return FINE_SUBSTEPS if vertices > FINE_GARMENT_VERTICES else DEFAULT_SUBSTEPS
@@ -89,6 +99,7 @@ def simulator_defaults() -> dict:
 
     return {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
                          "fine_over_vertices": FINE_GARMENT_VERTICES},
+            "max_colors": {"cuda": CUDA_COLORS, "cpu": 0},
             "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE}}
 
 
@@ -111,7 +122,8 @@ class SimulationConfig:
     passing); ``solver={"fast_math": false, "coarse_prefactor": false}`` turns them off. The
     self-contact detection searches clusters instead of trees on CUDA for up to four 5k garments
     (``VBDConfig.self_contact_broadphase`` "auto"; session 40, 5.33 -> 4.54 ms per 5k t-shirt
-    frame, 134 of 144 sequences passing as before; the same pairs, in another order).
+    frame, 134 of 144 sequences passing as before; the same pairs, in another order), and the
+    vertices are coloured in 3 colours there (``CUDA_COLORS``; session 41).
 
     Attributes:
         fps: output frame rate [1/s]; the solver takes one step of ``1/fps`` per frame and the
@@ -217,9 +229,10 @@ class SimulationConfig:
         """Substeps per frame for a run whose largest garment has ``vertices`` vertices."""
         return self.substeps or default_substeps(vertices)
 
-    def vbd_config(self, vertices: int = 0):
+    def vbd_config(self, vertices: int = 0, cuda: bool = False):
         """The ``VBDConfig`` of these settings (``substeps`` for a largest garment of ``vertices``
-        vertices, ``iterations``, ``self_contact`` and ``solver`` overrides).
+        vertices, ``iterations``, ``self_contact`` and ``solver`` overrides) for a run on CUDA
+        (``cuda``: the colouring of ``CUDA_COLORS``) or on the CPU.
 
         Raises:
             WrinklesInputError: an unknown solver field, or self-contact requested from a
@@ -236,7 +249,8 @@ class SimulationConfig:
         # factor beside the first sweeps (session 34): 11 % faster, the population within noise
         kw: dict[str, Any] = {"substeps": self.substeps_for(vertices), "iterations": self.iterations,
                               "coarse_sweeps": sweeps, "coarse_spacing": self.coarse_spacing,
-                              "fast_math": True, "coarse_prefactor": True}
+                              "fast_math": True, "coarse_prefactor": True,
+                              "max_colors": CUDA_COLORS if cuda else 0}
         unknown = sorted(set(self.solver) - allowed)
         if unknown:
             raise WrinklesInputError(f"simulation config: unknown solver option(s) {unknown}; "
@@ -615,8 +629,9 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
         raise ValueError("simulate_batch: no jobs")
     wp = warp()
     cfg = config or SimulationConfig()
-    vbd = solver if solver is not None else cfg.vbd_config(max(j.garment.num_vertices for j in jobs))
     device = resolve_device(cfg.device)
+    vbd = solver if solver is not None else cfg.vbd_config(max(j.garment.num_vertices for j in jobs),
+                                                           cuda=wp.get_device(device).is_cuda)
     skinned: dict = {}
     tracks = [_prepare(j, cfg, device, skinned) for j in jobs]
     n_prelude = tracks[0].n_settle + tracks[0].n_blend

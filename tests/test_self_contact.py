@@ -1064,20 +1064,11 @@ def test_remeasure_finds_only_what_the_candidate_query_saw(device):
     assert len(_all_lists(sc, m)["vt"]) > 50
 
 
-@pytest.mark.parametrize("size,bounds,split", [(8, True, 1), (32, True, 1), (64, True, 1), (8, False, 1),
-                                               (32, False, 1), (8, True, 3), (32, False, 4)])
-@pytest.mark.parametrize("motion", ["still", "sliding"])
-def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, split, motion):
-    """The cluster broadphase (``sim.cloth.clusters``) hands each query exactly the primitives
-    whose boxes meet its query box, as the trees do: on the flat and the jittered sheet (two
-    instances, so clusters must keep to their instance), with every vertex at its own random
-    velocity or the upper sheet sliding at 3 m/s, with a smaller piece of another topology as a
-    third instance, the three kinds of lists hold the same pairs
-    (lists large enough that none fills: a full list's ties depend on the order), and so do
-    the gather records per vertex. With the bounds on, the nearest distances are equal to the
-    bit too; with them off (the default) the clusters cull by relative speed
-    (``clusters.reach_radius``), which leaves the lists alone but not the nearest distances.
-    Split over several threads per primitive and merged (``split``), the same again."""
+def _three_pieces(device, motion: str):
+    """Two sheets of two layers each (the second overlapping the first in space) and a smaller
+    piece of another topology in between, with every vertex at its own random velocity
+    (``motion`` "still") or the upper layers sliding at 3 m/s ("sliding"): the model and the
+    velocities (numpy)."""
     nx, ny, e = 9, 8, 0.012
     v1, f1 = grid(nx, ny, (nx - 1) * e, (ny - 1) * e, plane="xz")
     rng = np.random.default_rng(1)
@@ -1099,6 +1090,24 @@ def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, s
         vel = np.zeros((m.particle_count, 3), np.float32)
         for start in (len(v1), len(v) + len(v1)):
             vel[start:start + len(v2)] = (3.0, 0.0, 0.0)
+    return m, vel
+
+
+@pytest.mark.parametrize("size,bounds,split", [(8, True, 1), (32, True, 1), (64, True, 1), (8, False, 1),
+                                               (32, False, 1), (8, True, 3), (32, False, 4)])
+@pytest.mark.parametrize("motion", ["still", "sliding"])
+def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, split, motion):
+    """The cluster broadphase (``sim.cloth.clusters``) hands each query exactly the primitives
+    whose boxes meet its query box, as the trees do: on the flat and the jittered sheet (two
+    instances, so clusters must keep to their instance), with every vertex at its own random
+    velocity or the upper sheet sliding at 3 m/s, with a smaller piece of another topology as a
+    third instance, the three kinds of lists hold the same pairs
+    (lists large enough that none fills: a full list's ties depend on the order), and so do
+    the gather records per vertex. With the bounds on, the nearest distances are equal to the
+    bit too; with them off (the default) the clusters cull by relative speed
+    (``clusters.reach_radius``), which leaves the lists alone but not the nearest distances.
+    Split over several threads per primitive and merged (``split``), the same again."""
+    m, vel = _three_pieces(device, motion)
     found, marked = {}, {}
     for broadphase in ("bvh", "clusters"):
         sc = SelfContact(m, radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45,
@@ -1124,6 +1133,50 @@ def test_cluster_broadphase_finds_the_pairs_of_the_trees(device, size, bounds, s
     # pairs between the two instances, which overlap in space, would show up as partners
     # outside the owner's instance
     assert found["clusters"] == found["bvh"]
+
+
+@pytest.mark.parametrize("size", [8, 16, 32])
+@pytest.mark.parametrize("motion", ["still", "sliding"])
+def test_cluster_lanes_bound_the_octets_and_clusters_as_their_own_launches_do(device, size, motion):
+    """On CUDA the octets' and clusters' boxes, radii, velocities and spreads come from lane
+    shuffles in the slots' launch (``cluster_bounds_fused_kernel``): the boxes and the radii
+    are those of the separate launches to the bit, the mean velocities agree to round-off (summed
+    in another order), every spread holds each member's corner velocities within it of its mean
+    (numpy, from the slots), and the query finds the same lists."""
+    if device != "cuda":
+        pytest.skip("lane shuffles are CUDA only (the CPU runs the separate launches)")
+    m, vel = _three_pieces(device, motion)
+    v = wp.array(vel, dtype=wp.vec3, device=device)
+    data, lists = {}, {}
+    for lanes in (False, True):
+        sc = SelfContact(m, radius=0.003, margin=0.006, stiffness=1e4, friction=0.0, relaxation=0.45,
+                         speed_factor=2.5, capacity=200, broadphase="clusters", cluster_size=size,
+                         cluster_lanes=lanes)
+        assert sc.clusters.lanes == lanes
+        sc.detect(m.particle_q, v, 1.0 / 300.0)
+        cl = sc.clusters.arrays
+        data[lanes] = {name: getattr(cl, name).numpy() for name in (
+            "lo", "hi", "radius", "octet_lo", "octet_hi", "octet_radius", "octet_count", "octet_vel",
+            "octet_spread", "cluster_lo", "cluster_hi", "cluster_radius", "cluster_vel", "cluster_spread")}
+        lists[lanes] = _all_lists(sc, m)
+    a, b = data[False], data[True]
+    for name in ("lo", "hi", "radius", "octet_lo", "octet_hi", "octet_radius", "octet_count", "cluster_lo",
+                 "cluster_hi", "cluster_radius"):
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    for name in ("octet_vel", "octet_spread", "cluster_vel", "cluster_spread"):
+        np.testing.assert_allclose(a[name], b[name], rtol=1e-5, atol=1e-5, err_msg=name)
+    # the spreads bound every member's corner velocities, from the shuffled means
+    order = sc.clusters.arrays.order.numpy()
+    kinds = sc.clusters.kind_clusters
+    tris, edges = m.tri_indices.numpy(), m.mesh_edge_indices.numpy()
+    for c in range(len(order) // size):
+        members = order[c * size:(c + 1) * size]
+        members = members[members >= 0]
+        kind = int(np.searchsorted(kinds, c, side="right") - 1)
+        corners = members[:, None] if kind == 0 else (tris[members] if kind == 1 else edges[members])
+        far = np.linalg.norm(vel[corners.ravel()] - b["cluster_vel"][c], axis=1).max()
+        assert far <= b["cluster_spread"][c] * (1 + 1e-5) + 1e-6
+    assert lists[True] == lists[False] and len(lists[True]["ee"]) > 1000
 
 
 def test_cluster_layout_cuts_each_instance_into_compact_clusters():

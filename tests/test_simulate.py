@@ -13,7 +13,7 @@ from pipelines.cli import main
 from sim.cloth import VBDConfig
 from sim.errors import WrinklesInputError
 from sim.quality import SimulationError
-from sim.simulate import SimulationConfig, SimulationJob, simulate, simulate_batch
+from sim.simulate import SimulationConfig, SimulationJob, simulate, simulate_batch, simulator_defaults
 
 RES = 0.05  # template edge length [m]: ~300 (skirt) to ~450 (t-shirt) vertices
 FAST = dict(fps=30.0, substeps=4, iterations=4, settle_seconds=0.6, blend_seconds=0.2, device="cpu")
@@ -88,6 +88,11 @@ def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
     # the CUDA solve kernel with fast math by default, off on request (the solver-level default)
     assert vbd.fast_math and not SimulationConfig(solver={"fast_math": False}).vbd_config().fast_math
     assert not VBDConfig().fast_math
+    # 3 colours on CUDA (session 41), a proper colouring on the CPU; the solver dict wins
+    assert vbd.max_colors == 0 and SimulationConfig().vbd_config(4939, cuda=True).max_colors == 3
+    assert SimulationConfig(solver={"max_colors": 0}).vbd_config(4939, cuda=True).max_colors == 0
+    assert SimulationConfig(solver={"max_colors": 5}).vbd_config(4939).max_colors == 5
+    assert simulator_defaults()["max_colors"] == {"cuda": 3, "cpu": 0}
     # the coarse factor beside the first sweeps likewise (session 34)
     assert vbd.coarse_prefactor and not VBDConfig().coarse_prefactor
     assert not SimulationConfig(solver={"coarse_prefactor": False}).vbd_config().coarse_prefactor

@@ -48,6 +48,40 @@ EMPTY = 1.0e30
 # cluster sizes: whole octets (the loads come eight at a time, ``meet_mask8``), at most eight
 # of them (a cluster's octet boxes are tested eight at a time too)
 CLUSTER_SIZES = (8, 16, 24, 32, 40, 48, 56, 64)
+# sizes whose clusters are whole segments of a CUDA warp: their octet and cluster data come from
+# lane shuffles inside the slots' own launch (``cluster_bounds_fused_kernel`` in
+# ``sim.cloth.self_contact``, session 41) instead of two launches more
+LANE_SIZES = (8, 16, 32)
+
+# Lane shuffles (CUDA only: the kernels that use them are launched on CUDA alone; on the CPU
+# the snippets return their argument so that the module still compiles there). ``mask``: the
+# warp's lanes that take part (``lane_mask``), every lane of a segment being reduced among them.
+_SHUFFLE = """
+#if defined(__CUDA_ARCH__)
+return __shfl_xor_sync((unsigned)mask, x, lanes);
+#else
+return x;
+#endif
+"""
+
+
+@wp.func_native(_SHUFFLE)
+def lane_xor(x: float, lanes: int, mask: int) -> float: ...
+
+
+@wp.func
+def lane_xor_vec3(x: wp.vec3, lanes: int, mask: int) -> wp.vec3:
+    return wp.vec3(lane_xor(x[0], lanes, mask), lane_xor(x[1], lanes, mask), lane_xor(x[2], lanes, mask))
+
+
+@wp.func
+def lane_mask(t: int, n: int) -> int:
+    """The lanes of thread ``t``'s warp (32 consecutive threads from a multiple of 32) that a
+    launch of ``n`` threads runs, as a shuffle mask."""
+    active = n - (t - t % 32)
+    if active >= 32:
+        return -1
+    return (1 << active) - 1
 
 
 def spread_bits(q: np.ndarray) -> np.ndarray:
@@ -431,14 +465,20 @@ class ClusterLayout:
     Args:
         model: the cloth model (``particle_q`` gives the positions the clusters are cut from).
         size: primitives per cluster (``CLUSTER_SIZES``; 32: one warp per query cluster on CUDA).
+        lanes: whether the octet and cluster data come from lane shuffles in the slots' launch
+            (``lanes``: CUDA and a size of ``LANE_SIZES`` only); None: wherever they can.
     """
 
-    def __init__(self, model, size: int = 32):
+    def __init__(self, model, size: int = 32, lanes: bool | None = None):
         w = wp
         d = model.device
         if size not in CLUSTER_SIZES:
             raise ValueError(f"ClusterLayout: size must be one of {CLUSTER_SIZES}, got {size}")
         self.size = int(size)
+        can = w.get_device(d).is_cuda and self.size in LANE_SIZES
+        if lanes and not can:
+            raise ValueError(f"ClusterLayout: lanes need CUDA and a size of {LANE_SIZES}, got {d} and {size}")
+        self.lanes = can if lanes is None else bool(lanes)
         x = model.particle_q.numpy().astype(np.float64)
         tris = model.tri_indices.numpy()
         edges = model.mesh_edge_indices.numpy()
@@ -502,15 +542,17 @@ class ClusterLayout:
 
     def update(self, relative: bool, margin: float, speed_factor: float, h: float) -> None:
         """Octet and cluster data and the masks, from the slots' (``lo``, ``hi``, ``radius``,
-        ``vel``, ``spread``, filled by the caller); ``relative``: masks by the reach of relative
-        speeds (``cluster_masks_kernel``), with the detection's ``margin``, ``speed_factor`` and
+        ``vel``, ``spread``, filled by the caller; with ``lanes`` the caller's launch filled the
+        octets and clusters too); ``relative``: masks by the reach of relative speeds
+        (``cluster_masks_kernel``), with the detection's ``margin``, ``speed_factor`` and
         substep ``h``."""
         if self.total_clusters == 0:
             return
         d = self.device
-        octets = self.total_clusters * (self.size // 8)
-        wp.launch(octet_bounds_kernel, dim=octets, inputs=[self.arrays], device=d)
-        wp.launch(cluster_bounds_kernel, dim=self.total_clusters, inputs=[self.arrays], device=d)
+        if not self.lanes:
+            octets = self.total_clusters * (self.size // 8)
+            wp.launch(octet_bounds_kernel, dim=octets, inputs=[self.arrays], device=d)
+            wp.launch(cluster_bounds_kernel, dim=self.total_clusters, inputs=[self.arrays], device=d)
         n = int(self.mask_first[-1])
         self.masks_current = True
         if n:

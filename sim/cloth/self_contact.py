@@ -51,7 +51,15 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from sim.cloth.clusters import ClusterArrays, ClusterLayout, meet_mask8, reach_radius
+from sim.cloth.clusters import (
+    ClusterArrays,
+    ClusterLayout,
+    lane_mask,
+    lane_xor,
+    lane_xor_vec3,
+    meet_mask8,
+    reach_radius,
+)
 from sim.cloth.spans import (
     Span,
     fill_spans,
@@ -1158,6 +1166,111 @@ def member_bounds_kernel(
     cl.spread[s] = spread
 
 
+@wp.func
+def reduce_lanes(lo: wp.vec3, hi: wp.vec3, r: float, total: wp.vec3, count: float, first: int, last: int,
+                 mask: int):
+    """The union of the boxes, largest radius and sums of ``total`` and ``count`` over the lanes
+    that differ from this one in bits ``first`` to ``last`` (powers of two; shuffles)."""
+    m = first
+    while m <= last:
+        lo = wp.min(lo, lane_xor_vec3(lo, m, mask))
+        hi = wp.max(hi, lane_xor_vec3(hi, m, mask))
+        r = wp.max(r, lane_xor(r, m, mask))
+        total = total + lane_xor_vec3(total, m, mask)
+        count = count + lane_xor(count, m, mask)
+        m = 2 * m
+    return lo, hi, r, total, count
+
+
+@wp.func
+def max_lanes(x: float, first: int, last: int, mask: int) -> float:
+    m = first
+    while m <= last:
+        x = wp.max(x, lane_xor(x, m, mask))
+        m = 2 * m
+    return x
+
+
+@wp.kernel
+def cluster_bounds_fused_kernel(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    margin: float,
+    speed_factor: float,
+    h: float,
+    sc: SelfContactData,
+    cl: ClusterArrays,
+):
+    """``member_bounds_kernel``, ``clusters.octet_bounds_kernel`` and
+    ``clusters.cluster_bounds_kernel`` in one launch, on CUDA, for clusters of up to 32 slots
+    (``clusters.LANE_SIZES``): a cluster is a segment of a warp, so its octets' and its own
+    boxes, radii, mean velocities and spreads come from lane shuffles, not from two more
+    launches (session 41: three chains of ~10 us each on every substep's critical path). The
+    boxes and radii are the same; the means are summed in another order, which the spreads,
+    measured from them, still bound. The slots' own velocities and spreads, which only the
+    octet kernel reads, are not written."""
+    s = wp.tid()
+    n = cl.order.shape[0]
+    mask = lane_mask(s, n)
+    p = cl.order[s]
+    lo = wp.vec3(1.0e30)
+    hi = wp.vec3(-1.0e30)
+    r = float(0.0)
+    mean = wp.vec3()
+    spread = float(-1.0)
+    valid = float(0.0)
+    if p >= 0:
+        k = slot_kind(s / cl.size, cl.kind_clusters)
+        q = slot_corners(k, p, tri_indices, sc.mesh_edges)
+        a = load_vec3(x, q[0])
+        b = load_vec3(x, q[1])
+        c = load_vec3(x, q[2])
+        vr = sc.reference[particle_instance[q[0]]]
+        speed = wp.max(wp.max(wp.length(load_vec3(v, q[0]) - vr), wp.length(load_vec3(v, q[1]) - vr)),
+                       wp.length(load_vec3(v, q[2]) - vr))
+        lo = wp.min(wp.min(a, b), c)
+        hi = wp.max(wp.max(a, b), c)
+        r = query_radius(margin, speed, h, speed_factor)
+        mean, spread = corner_spread(v, q[0], q[1], q[2])
+        valid = 1.0
+    cl.lo[s] = lo
+    cl.hi[s] = hi
+    cl.radius[s] = r
+    # the octet (lanes differing in bits 1, 2, 4)
+    o_lo, o_hi, o_r, o_total, o_count = reduce_lanes(lo, hi, r, valid * mean, valid, 1, 4, mask)
+    o_mean = o_total / wp.max(o_count, 1.0)
+    reach = float(0.0)
+    if valid > 0.0:
+        reach = wp.length(mean - o_mean) + spread
+    o_reach = max_lanes(reach, 1, 4, mask)
+    if s % 8 == 0:
+        o = s / 8
+        cl.octet_lo[o] = o_lo
+        cl.octet_hi[o] = o_hi
+        cl.octet_radius[o] = o_r
+        cl.octet_vel[o] = o_mean
+        cl.octet_count[o] = o_count
+        cl.octet_spread[o] = o_reach
+    # the cluster (lanes differing in bits 8 to size / 2, each holding its octet's data)
+    c_lo, c_hi, c_r, c_total, c_count = reduce_lanes(o_lo, o_hi, o_r, o_count * o_mean, o_count, 8,
+                                                     cl.size / 2, mask)
+    # summed over the octets' lanes: every lane of an octet holds its octet's sums
+    c_mean = c_total / wp.max(c_count, 1.0)
+    c_reach = float(0.0)
+    if o_count > 0.0:
+        c_reach = wp.length(o_mean - c_mean) + o_reach
+    c_reach = max_lanes(c_reach, 8, cl.size / 2, mask)
+    if s % cl.size == 0:
+        at = s / cl.size
+        cl.cluster_lo[at] = c_lo
+        cl.cluster_hi[at] = c_hi
+        cl.cluster_radius[at] = c_r
+        cl.cluster_vel[at] = c_mean
+        cl.cluster_spread[at] = c_reach
+
+
 @wp.kernel
 def detect_clustered_kernel(
     x: wp.array(dtype=wp.vec3),
@@ -1721,6 +1834,9 @@ class SelfContact:
         cluster_size: primitives per cluster of the ``"clusters"`` broadphase.
         cluster_split: threads per primitive of the ``"clusters"`` query (``detect_clustered_kernel``;
             0: 2 up to ``SPLIT_SLOTS`` cluster slots, else 1). Needs side memory off.
+        cluster_lanes: the clusters' octet and cluster data from lane shuffles in the slots' own
+            launch (``cluster_bounds_fused_kernel``; CUDA, sizes ``clusters.LANE_SIZES``); None:
+            wherever they can.
     """
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
@@ -1728,7 +1844,8 @@ class SelfContact:
                  bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
                  ee_interior: bool = False, slots: int = 1, lookahead: float | None = None,
-                 broadphase: str = "bvh", cluster_size: int = 32, cluster_split: int = 1):
+                 broadphase: str = "bvh", cluster_size: int = 32, cluster_split: int = 1,
+                 cluster_lanes: bool | None = None):
         w = warp()
         d = model.device
         self.model = model
@@ -1843,7 +1960,8 @@ class SelfContact:
             raise ValueError(f"SelfContact: broadphase must be 'bvh' or 'clusters', got {broadphase!r}")
         if broadphase == "clusters" and lookahead is not None:
             raise ValueError("SelfContact: the lookahead's swept queries need broadphase 'bvh'")
-        self.clusters = ClusterLayout(model, cluster_size) if broadphase == "clusters" else None
+        self.clusters = (ClusterLayout(model, cluster_size, cluster_lanes) if broadphase == "clusters"
+                         else None)
         if cluster_split < 0:
             raise ValueError(f"SelfContact: cluster_split must be >= 0 (0: auto), got {cluster_split}")
         if cluster_split == 0:
@@ -2030,7 +2148,7 @@ class SelfContact:
         cl = self.clusters
         if cl.slots == 0:
             return
-        w.launch(member_bounds_kernel, dim=cl.slots,
+        w.launch(cluster_bounds_fused_kernel if cl.lanes else member_bounds_kernel, dim=cl.slots,
                  inputs=[x0, v, m.particle_instance, m.tri_indices, margin, self.speed_factor, h, data,
                          cl.arrays],
                  device=m.device)

@@ -197,7 +197,8 @@ class VBDConfig:
         max_colors: colours of the model's vertex colouring (``ClothModelBuilder(max_colors=...)``,
             which ``sim.simulate`` builds from this field; the solver itself runs any colouring):
             0 (default) a proper colouring (the t-shirt: 4); 3 leaves ~2 % of the t-shirt's edges
-            same-coloured, coupled by a Jacobi step, for one launch fewer per sweep.
+            same-coloured, coupled by a Jacobi step, for one launch fewer per sweep (the job
+            default on CUDA, ``sim.simulate.CUDA_COLORS``).
         strain_limit: largest edge stretch ``l / l0 - 1`` [-] the substep ends with (0: off):
             after the sweeps, ``strain_limit_passes`` Jacobi passes shorten every edge stretched
             further (``vbd_kernels.strain_limit_kernel``; Provot 1995). Truncated Gauss-Seidel
@@ -471,7 +472,8 @@ class SolverVBD:
         self._max_registers = regs if cuda else 0
         self._solve = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                            fast_math=self.config.fast_math)
-        self._side = SideStreams(d, 1)
+        # side stream 0: the bodies' placement and contact; 1: the previous deformation (``step``)
+        self._side = SideStreams(d, 2)
         self._pipe = SideStreams(d, 1)
         self._coarse_side = SideStreams(d, 1)
         self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
@@ -648,9 +650,11 @@ class SolverVBD:
                       inputs=[x, v, state_out.accelerations, m.particle_flags, self._x_step_start,
                               control.pin_targets, self._gravity, h, alpha],
                       outputs=[self._x_prev, self._y, x, self._snapshots[0]], device=d)
-            wp.launch(K.previous_deformation_kernel, dim=m.tri_count + m.edge_count,
-                      inputs=[self._x_prev, m.tri_indices, m.tri_dm_inv, m.edge_indices, m.tri_count],
-                      outputs=[self._tri_strain_prev, self._edge_angle_prev], device=d)
+            with self._side.on(1):
+                # only the sweeps read it: beside the self-contact detection (session 41)
+                wp.launch(K.previous_deformation_kernel, dim=m.tri_count + m.edge_count,
+                          inputs=[self._x_prev, m.tri_indices, m.tri_dm_inv, m.edge_indices, m.tri_count],
+                          outputs=[self._tri_strain_prev, self._edge_angle_prev], device=d)
             if control.bodies:
                 # on the same side stream, after the bodies' placement and beside the self-contact
                 # detection: both only read x_prev

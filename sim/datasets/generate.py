@@ -81,8 +81,8 @@ def _refuse_other_simulator(old: dict | None, cfg_dict: dict, root: Path) -> Non
     if isinstance(old, dict) and {k: v for k, v in old.items() if k != "simulator"} == \
             {k: v for k, v in cfg_dict.items() if k != "simulator"}:
         raise WrinklesInputError("this dataset was made with other simulator defaults (automatic substeps, "
-                                 "garment hems and their rule) than this version's, and continuing it "
-                                 "would mix two physics; choose another --out", path=root)
+                                 "garment hems and their rule, colours on CUDA) than this version's, and "
+                                 "continuing it would mix two physics; choose another --out", path=root)
 
 
 def _check_root(root: Path, cfg_dict: dict, resume: bool) -> None:
