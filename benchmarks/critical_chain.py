@@ -1,0 +1,65 @@
+"""Which of a substep's two forked chains sets the live frame: the self-contact detection (main
+stream) or the bodies' placement and contact (side stream), measured on real frames.
+
+    python -m benchmarks.critical_chain --device cuda --motions walk,run --seconds 2
+
+Each chain is run twice per substep in turn (a physics-neutral change: the detection and the
+bodies' placement are deterministic and overwrite their outputs), and the t-shirt's full run
+is timed as in ``bench_tshirt``. A chain that sets the frame adds its whole length per substep;
+one with slack adds only what its double exceeds the other chain by. (Replays of one captured
+step, ``profile_tshirt``'s ``critical_path_graph_ms``, run ~1.8x slower than the live frames and
+do not show this.) The body contact kernel itself is doubled with the placement (``place`` runs
+twice; the contact is launched once): ``bodies x2`` doubles the placement only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from benchmarks.bench_tshirt import add_scene_arguments, load_scene, run_ours
+from benchmarks.common import machine, write_result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_scene_arguments(ap)
+    ap.add_argument("--solver", default="{}", help="JSON dict of extra VBDConfig fields")
+    ap.add_argument("--tag", default="")
+    args = ap.parse_args()
+    from sim.cloth import self_contact as SC
+    from sim.cloth import state as ST
+    from sim.simulate import SimulationConfig
+
+    device, body, garment, _, motions = load_scene(args)
+    cfg = SimulationConfig(fps=30.0, self_contact=True, solver=json.loads(args.solver), device=device)
+    detect, place = SC.SelfContact.detect, ST.BodyCollider.place
+
+    def twice(fn):
+        def run(*a, **k):
+            fn(*a, **k)
+            fn(*a, **k)
+        return run
+
+    variants = {"base": {}, "detection x2": {"detect": twice(detect)},
+                "placement x2": {"place": twice(place)}}
+    fig: dict = {}
+    for name, motion in motions.items():
+        fig[name] = {}
+        for label, patch in variants.items():
+            SC.SelfContact.detect = patch.get("detect", detect)
+            ST.BodyCollider.place = patch.get("place", place)
+            try:
+                ours, _ = run_ours(garment, body, motion, cfg)
+            finally:
+                SC.SelfContact.detect, ST.BodyCollider.place = detect, place
+            fig[name][label] = {"ms_per_frame": ours.get("ms_per_frame"), "error": ours.get("error"),
+                                "failed_gates": ours.get("failed_gates")}
+            print(name, label, json.dumps(fig[name][label]), flush=True)
+    write_result(f"critical_chain_{device.split(':')[0]}{args.tag}", {
+        "machine": machine(device), "sizes": {"garment_vertices": garment.num_vertices, "seconds": args.seconds},
+        "config": cfg.to_dict(), "figures": fig})
+
+
+if __name__ == "__main__":
+    main()
