@@ -57,7 +57,8 @@ def main() -> None:
                                 "failed_gates": ours.get("failed_gates")}
             print(name, label, json.dumps(fig[name][label]), flush=True)
     write_result(f"critical_chain_{device.split(':')[0]}{args.tag}", {
-        "machine": machine(device), "sizes": {"garment_vertices": garment.num_vertices, "seconds": args.seconds},
+        "machine": machine(device),
+        "sizes": {"garment_vertices": garment.num_vertices, "seconds": args.seconds},
         "config": cfg.to_dict(), "figures": fig})
 
 
