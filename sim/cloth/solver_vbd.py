@@ -474,6 +474,7 @@ class SolverVBD:
                                            fast_math=self.config.fast_math)
         # side stream 0: the bodies' placement and contact; 1: the previous deformation (``step``)
         self._side = SideStreams(d, 2)
+        self._placing = SideStreams(d, 1)
         self._pipe = SideStreams(d, 1)
         self._coarse_side = SideStreams(d, 1)
         self._membrane = {"stvk": 0, "corotated": 1}[self.config.membrane]
@@ -639,10 +640,11 @@ class SolverVBD:
         pipe = self.self_contact is not None and cfg.self_contact_pipeline
         for s in range(cfg.substeps):
             alpha = (s + 1) / cfg.substeps
-            if control.bodies:
+            if control.bodies and s == 0:
                 # the bodies moved (and their trees refitted) on a side stream (CUDA), beside the
                 # forward step: only the body contact below reads them (session 31: ~60 us of
-                # small launches per substep off the critical path)
+                # small launches per substep off the critical path); the later substeps' moves
+                # run beside the sweeps before them (below)
                 with self._side.on(0):
                     for body in control.bodies:
                         body.place(alpha, dt)
@@ -659,11 +661,20 @@ class SolverVBD:
                 # on the same side stream, after the bodies' placement and beside the self-contact
                 # detection: both only read x_prev
                 with self._side.on(0):
+                    self._placing.join()
                     wp.launch(K.body_contact_kernel, dim=n,
                               inputs=[self._x_prev, m.particle_instance, control.instance_body,
                                       cfg.contact_margin],
                               outputs=[self._contact_point, self._contact_normal, self._contact_body_velocity,
                                        self._contact_active], device=d)
+                    if s + 1 < cfg.substeps:
+                        # the next substep's placement, once this contact has read the bodies, on a
+                        # stream of its own beside this substep's detection and sweeps (nothing
+                        # else reads the bodies' meshes), joined before the next contact (session
+                        # 41); on the CPU in this order, so the same floats
+                        with self._placing.on(0):
+                            for body in control.bodies:
+                                body.place((s + 2) / cfg.substeps, dt)
             else:
                 self._contact_active.zero_()
             sc_data = self._sc_data
