@@ -1210,9 +1210,15 @@ def cluster_bounds_fused_kernel(
     launches (session 41: three chains of ~10 us each on every substep's critical path). The
     boxes and radii are the same; the means are summed in another order, which the spreads,
     measured from them, still bound. The slots' own velocities and spreads, which only the
-    octet kernel reads, are not written."""
+    octet kernel reads, are not written. Thread 0 also zeroes the counters the detection's
+    gather records count with (``SelfContact._records``: two memset nodes fewer on the critical
+    path)."""
     s = wp.tid()
     n = cl.order.shape[0]
+    if s == 0:
+        sc.pair_cursor[0] = 0
+        for colour in range(sc.heavy_count.shape[0]):
+            sc.heavy_count[colour] = 0
     mask = lane_mask(s, n)
     p = cl.order[s]
     lo = wp.vec3(1.0e30)
@@ -2096,7 +2102,8 @@ class SelfContact:
         the one set last, zeros at first). The outputs go to ``datas[slot]``."""
         sc = self._start_detection(reference, slot)
         self._tree_queries(x0, v, h, rebuild, sc, self.margin, self._dmins)
-        self._records(sc)
+        cl = self.clusters
+        self._records(sc, zeroed=cl is not None and cl.lanes and cl.slots > 0)
 
     def _set_reference(self, reference) -> None:
         """The instances' reference velocities for every detection (None: kept)."""
@@ -2207,15 +2214,17 @@ class SelfContact:
                       outputs=list(self._dmins), device=m.device)
         self._records(sc)
 
-    def _records(self, sc: SelfContactData) -> None:
+    def _records(self, sc: SelfContactData, zeroed: bool = False) -> None:
         """The bounds and gather records of ``sc``'s lists (``vertex_summary_kernel``,
-        ``pair_records_kernel``)."""
+        ``pair_records_kernel``); ``zeroed``: the detection zeroed their counters already
+        (``cluster_bounds_fused_kernel``)."""
         w = warp()
         m = self.model
         d = m.device
-        sc.pair_cursor.zero_()
-        if sc.heavy_cap > 0:
-            sc.heavy_count.zero_()
+        if not zeroed:
+            sc.pair_cursor.zero_()
+            if sc.heavy_cap > 0:
+                sc.heavy_count.zero_()
         w.launch(vertex_summary_kernel, dim=m.particle_count,
                  inputs=[*self._dmins, m.vertex_tri_offsets, m.vertex_tri_ids,
                          self.relaxation, sc], device=d)

@@ -5,9 +5,13 @@
 over the vertex colouring. Per substep:
 
 1. bodies move to the substep's end (linear in time between the step's two body frames) and
-   their BVHs are refit; on CUDA on a side stream, beside 2 and 4 (``sim.device.SideStreams``);
+   their BVHs are refit; on CUDA on a side stream, beside 2 and 4 (``sim.device.SideStreams``),
+   and from the second substep on beside the previous substep's detection and sweeps, once its
+   body contact has read them (session 41);
 2. ``forward_kernel``: inertial target and initial guess; pinned particles placed;
    ``previous_deformation_kernel``: substep-start strains and hinge angles (damping reference);
+   on CUDA on a side stream beside 3 and 4, which read only the substep's start ``x_prev`` (set
+   by the previous substep's velocity kernel; the first substep's forward step sets it, before);
 3. ``body_contact_kernel``: one contact plane per particle against its instance's body,
    found from the particle's substep-start position (outside the body) against the body's
    substep-end placement; on CUDA on the same side stream after 1, beside 4;
@@ -22,7 +26,7 @@ over the vertex colouring. Per substep:
    threads; with ``coarse_sweeps``, a coarse-level correction before the sweeps named there
    (with ``coarse_prefactor`` its diagonal and factor are made from the substep-start state
    beside the first sweeps, on CUDA on a side stream: ``CoarseLevel.prepare``);
-6. ``velocity_kernel``.
+6. ``velocity_kernel`` (and ``x_prev`` for the next substep).
 
 Substep safety: contact is found against the body where it will be at the end of each
 substep, and the sign test classifies a particle the body has overtaken correctly as long as
@@ -617,6 +621,14 @@ class SolverVBD:
         if self.config.strain_limit_passes % 2:
             wp.copy(x, self._limit_buffer)
 
+    def _forward(self, x, v, state_out: ClothState, control: ClothControl, h: float, alpha: float,
+                 remember: int) -> None:
+        m = self.model
+        warp().launch(K.forward_kernel, dim=m.particle_count,
+                      inputs=[x, v, state_out.accelerations, m.particle_flags, self._x_step_start,
+                              control.pin_targets, self._gravity, h, alpha, remember],
+                      outputs=[self._x_prev, self._y, x, self._snapshots[0]], device=m.device)
+
     def step(self, state_in: ClothState, state_out: ClothState, control: ClothControl, dt: float) -> None:
         """Advance by ``dt`` [s]; ``state_out`` may be ``state_in``.
 
@@ -648,12 +660,15 @@ class SolverVBD:
                 with self._side.on(0):
                     for body in control.bodies:
                         body.place(alpha, dt)
-            wp.launch(K.forward_kernel, dim=n,
-                      inputs=[x, v, state_out.accelerations, m.particle_flags, self._x_step_start,
-                              control.pin_targets, self._gravity, h, alpha],
-                      outputs=[self._x_prev, self._y, x, self._snapshots[0]], device=d)
+            if s == 0:
+                # x_prev: the step's start (later substeps have it from the velocity kernel)
+                self._forward(x, v, state_out, control, h, alpha, 1)
             with self._side.on(1):
-                # only the sweeps read it: beside the self-contact detection (session 41)
+                # only the sweeps read them: the forward step (after the first substep's) and the
+                # previous deformation beside the self-contact detection and the body contact,
+                # which read only x_prev and v (session 41)
+                if s > 0:
+                    self._forward(x, v, state_out, control, h, alpha, 0)
                 wp.launch(K.previous_deformation_kernel, dim=m.tri_count + m.edge_count,
                           inputs=[self._x_prev, m.tri_indices, m.tri_dm_inv, m.edge_indices, m.tri_count],
                           outputs=[self._tri_strain_prev, self._edge_angle_prev], device=d)

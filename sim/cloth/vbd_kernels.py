@@ -63,12 +63,14 @@ def forward_kernel(
     gravity: wp.vec3,
     h: float,
     pin_alpha: float,
+    remember: int,
     x_prev_out: wp.array(dtype=wp.vec3),
     y_out: wp.array(dtype=wp.vec3),
     x_out: wp.array(dtype=wp.vec3),
     snap_out: wp.array(dtype=wp.vec3),
 ):
-    """Start a substep: remember ``x``, inertial target ``y = x + h v + h^2 g`` (Eq. 2) and the
+    """Start a substep: remember ``x`` (``remember``; the later substeps of a step have it from
+    ``velocity_kernel``), inertial target ``y = x + h v + h^2 g`` (Eq. 2) and the
     initial guess ``x + h v + h^2 a_g g/|g|`` with ``a_g`` the previous substep's acceleration
     along gravity clamped to [0, |g|] (Chen et al. 2024, Sec. 3.7, adaptive initialisation).
 
@@ -80,7 +82,8 @@ def forward_kernel(
     """
     i = wp.tid()
     xi = x[i]
-    x_prev_out[i] = xi
+    if remember != 0:
+        x_prev_out[i] = xi
     if flags[i] == PINNED:
         s = x_step_start[i]
         p = s + pin_alpha * (pin_targets[i] - s)
@@ -804,8 +807,12 @@ def velocity_kernel(
     a_out: wp.array(dtype=wp.vec3),
 ):
     """Implicit-Euler velocity ``v = (x - x_prev) / h``; acceleration of the substep (for the
-    next initial guess)."""
+    next initial guess); ``x`` becomes ``x_prev``, the next substep's start (``forward_kernel``
+    need not write it, so the next substep's detection and body contact, which read it, can
+    start beside its forward step)."""
     i = wp.tid()
-    v_new = (x[i] - x_prev[i]) * inv_h
+    xi = x[i]
+    v_new = (xi - x_prev[i]) * inv_h
     a_out[i] = (v_new - v_inout[i]) * inv_h
     v_inout[i] = v_new
+    x_prev[i] = xi
