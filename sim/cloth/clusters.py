@@ -52,6 +52,8 @@ CLUSTER_SIZES = (8, 16, 24, 32, 40, 48, 56, 64)
 # lane shuffles inside the slots' own launch (``cluster_bounds_fused_kernel`` in
 # ``sim.cloth.self_contact``, session 41) instead of two launches more
 LANE_SIZES = (8, 16, 32)
+# threads per mask word where the lanes are used (``cluster_masks_kernel``: 1, 2 or 4)
+MASK_PARTS = 4
 
 # Lane shuffles (CUDA only: the kernels that use them are launched on CUDA alone; on the CPU
 # the snippets return their argument so that the module still compiles there). ``mask``: the
@@ -67,6 +69,10 @@ return x;
 
 @wp.func_native(_SHUFFLE)
 def lane_xor(x: float, lanes: int, mask: int) -> float: ...
+
+
+@wp.func_native(_SHUFFLE)
+def lane_xor_int(x: int, lanes: int, mask: int) -> int: ...
 
 
 @wp.func
@@ -390,7 +396,8 @@ def cluster_meets(lo_a: wp.vec3, hi_a: wp.vec3, r_a: float, u_a: wp.vec3, s_a: f
 
 
 @wp.kernel
-def cluster_masks_kernel(cl: ClusterArrays, relative: int, margin: float, speed_factor: float, h: float):
+def cluster_masks_kernel(cl: ClusterArrays, relative: int, margin: float, speed_factor: float, h: float,
+                         parts: int):
     """One thread per (query, query cluster, word) over the three queries (``QUERIES``; query
     ``q``'s words in ``masks`` start at ``mask_first[q]``, a query cluster's ``words[q]`` of them
     in a row): bit ``b`` of the word is set when target cluster ``32 word + b`` of the query
@@ -398,8 +405,14 @@ def cluster_masks_kernel(cl: ClusterArrays, relative: int, margin: float, speed_
     radius, or with ``relative`` (the pair lists keep only pairs within the radius of their own
     relative speed, and no bounds need every nearest distance) the radius of the largest
     relative speed two members can have: the clusters' mean velocities apart plus both spreads
-    (``reach_radius``)."""
-    t = wp.tid()
+    (``reach_radius``).
+
+    With ``parts`` (1, 2 or 4; more than 1 on CUDA only, ``ClusterLayout.lanes``) each word has
+    that many neighbouring threads, each testing ``32 / parts`` of its targets, whose bits are
+    joined by lane shuffles: a shorter chain of loads per thread (session 41)."""
+    t_all = wp.tid()
+    t = t_all / parts
+    part = t_all - t * parts
     q = int(0)
     if t >= cl.mask_first[1]:
         q = 1
@@ -423,17 +436,26 @@ def cluster_masks_kernel(cl: ClusterArrays, relative: int, margin: float, speed_
     u_a = load_vec3(cl.cluster_vel, a)
     s_a = cl.cluster_spread[a]
     bits = int(0)
-    for b0 in range(WORD / 8):
+    rounds = WORD / 8 / parts
+    for r in range(rounds):
         # eight targets at a time (a loop of constant length is unrolled); only the instance's
         # own: ``words`` fits the instance with the most clusters, and a smaller instance's
         # last word would reach past the arrays' end
+        b0 = part * rounds + r
         for b1 in range(8):
             b = 8 * b0 + b1
             j = tk + t0 + w * WORD + b
             if j - tk < t1:
                 if cluster_meets(lo_a, hi_a, r_a, u_a, s_a, j, cl, relative, margin, speed_factor, h):
                     bits = bits | (1 << b)
-    cl.masks[cl.mask_first[q] + a_local * w_count + w] = bits
+    if parts > 1:
+        mask = lane_mask(t_all, parts * cl.mask_first[3])
+        m = int(1)
+        while m < parts:
+            bits = bits | lane_xor_int(bits, m, mask)
+            m = 2 * m
+    if part == 0:
+        cl.masks[cl.mask_first[q] + a_local * w_count + w] = bits
 
 
 def topology_keys(particle_group: np.ndarray, tris: np.ndarray, tri_group: np.ndarray, n_groups: int) -> list:
@@ -479,6 +501,8 @@ class ClusterLayout:
         if lanes and not can:
             raise ValueError(f"ClusterLayout: lanes need CUDA and a size of {LANE_SIZES}, got {d} and {size}")
         self.lanes = can if lanes is None else bool(lanes)
+        # threads per mask word with lanes (``cluster_masks_kernel``)
+        self.mask_parts = MASK_PARTS
         x = model.particle_q.numpy().astype(np.float64)
         tris = model.tri_indices.numpy()
         edges = model.mesh_edge_indices.numpy()
@@ -556,8 +580,10 @@ class ClusterLayout:
         n = int(self.mask_first[-1])
         self.masks_current = True
         if n:
-            wp.launch(cluster_masks_kernel, dim=n,
-                      inputs=[self.arrays, int(relative), float(margin), float(speed_factor), float(h)],
+            parts = self.mask_parts if self.lanes else 1
+            wp.launch(cluster_masks_kernel, dim=n * parts,
+                      inputs=[self.arrays, int(relative), float(margin), float(speed_factor), float(h),
+                              parts],
                       device=d)
 
     def marked(self) -> list[float] | None:
