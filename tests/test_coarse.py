@@ -167,6 +167,23 @@ def test_restriction_matches_its_sparse_matrix_form(device):
     assert (p.T @ k).max() > 0.0 and (p.T @ k).min() == 0.0
     np.testing.assert_allclose(level._rhs.numpy(), p.T @ r, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(level._diag.numpy(), diag, rtol=1e-5)
+    # CUDA sums a node's lanes by shuffles in the same launch (session 41): the same floats as
+    # the separate sum launch, for each part alone too
+    assert level.restrict_lanes == (device == "cuda")
+    if device == "cuda":
+        from sim.cloth.coarse import RESTRICT_DIAGONAL, RESTRICT_RHS
+
+        for parts in (RESTRICT_RHS | RESTRICT_DIAGONAL, RESTRICT_RHS, RESTRICT_DIAGONAL):
+            out = {}
+            for lanes in (True, False):
+                level.restrict_lanes = lanes
+                level._rhs.zero_()
+                level._diag.zero_()
+                level.restrict(h, xw, disabled_data(device), int(parts))
+                out[lanes] = (level._rhs.numpy(), level._diag.numpy())
+            np.testing.assert_array_equal(out[True][0], out[False][0])
+            np.testing.assert_array_equal(out[True][1], out[False][1])
+            assert np.abs(out[True][0]).max() > 0 or not parts & RESTRICT_RHS
 
 
 def test_prefactor_takes_the_contact_stiffness_at_the_inertial_targets(device):

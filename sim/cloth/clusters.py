@@ -34,6 +34,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from sim.cloth.lanes import lane_mask, lane_xor_int
 from sim.cloth.spans import load_vec3
 
 # the primitive kinds, in the order of the layout's arrays: vertices (query of the vertex-triangle
@@ -54,41 +55,6 @@ CLUSTER_SIZES = (8, 16, 24, 32, 40, 48, 56, 64)
 LANE_SIZES = (8, 16, 32)
 # threads per mask word where the lanes are used (``cluster_masks_kernel``: 1, 2 or 4)
 MASK_PARTS = 4
-
-# Lane shuffles (CUDA only: the kernels that use them are launched on CUDA alone; on the CPU
-# the snippets return their argument so that the module still compiles there). ``mask``: the
-# warp's lanes that take part (``lane_mask``), every lane of a segment being reduced among them.
-_SHUFFLE = """
-#if defined(__CUDA_ARCH__)
-return __shfl_xor_sync((unsigned)mask, x, lanes);
-#else
-return x;
-#endif
-"""
-
-
-@wp.func_native(_SHUFFLE)
-def lane_xor(x: float, lanes: int, mask: int) -> float: ...
-
-
-@wp.func_native(_SHUFFLE)
-def lane_xor_int(x: int, lanes: int, mask: int) -> int: ...
-
-
-@wp.func
-def lane_xor_vec3(x: wp.vec3, lanes: int, mask: int) -> wp.vec3:
-    return wp.vec3(lane_xor(x[0], lanes, mask), lane_xor(x[1], lanes, mask), lane_xor(x[2], lanes, mask))
-
-
-@wp.func
-def lane_mask(t: int, n: int) -> int:
-    """The lanes of thread ``t``'s warp (32 consecutive threads from a multiple of 32) that a
-    launch of ``n`` threads runs, as a shuffle mask."""
-    active = n - (t - t % 32)
-    if active >= 32:
-        return -1
-    return (1 << active) - 1
-
 
 def spread_bits(q: np.ndarray) -> np.ndarray:
     """10-bit integers with two zero bits inserted after each bit (one axis of a Morton code)."""

@@ -68,6 +68,7 @@ import numpy as np
 import warp as wp
 
 from sim.cloth import coarse_block
+from sim.cloth.lanes import lane_mask, lane_read, lane_read_vec3
 from sim.cloth.model import mesh_edges
 from sim.cloth.self_contact import SelfContactData
 from sim.cloth.vbd_kernels import PINNED, bound_step, load_particle_step
@@ -437,6 +438,9 @@ class CoarseLevel:
         self.prefactor = bool(prefactor) and self.levels == 2
         self.factor_kernel = self.substitute_kernel = None
         device = wp.get_device(d)
+        # CUDA: a node's lanes summed by shuffles in the restriction's own launch
+        # (``restrict_lanes_kernel``; session 41); the CPU adds them in a second launch
+        self.restrict_lanes = device.is_cuda
         if device.is_cuda:
             need = max(coarse_block.shared_floats(int(c), int(b))
                        for c, b in zip(counts, widths, strict=True))
@@ -491,6 +495,14 @@ class CoarseLevel:
         m = self.model
         _, _, point, normal, _, active = self._particles
         inertia = 1.0 / (h * h) + self._air_damping / h
+        if self.restrict_lanes:
+            threads = self.node_count * RESTRICT_LANES
+            wp.launch(restrict_lanes_kernel, dim=threads,
+                      inputs=[parts, self.residual, *self._r, x, m.particle_instance, point, normal, active,
+                              m.instance_thickness, self._k_contact, sc_data, self._mass, self._kdiag,
+                              inertia, threads],
+                      outputs=[self._rhs, self._diag], device=m.device)
+            return
         wp.launch(restrict_kernel, dim=self.node_count * RESTRICT_LANES,
                   inputs=[parts, self.residual, *self._r, x, m.particle_instance, point, normal, active,
                           m.instance_thickness, self._k_contact, sc_data],
@@ -700,6 +712,89 @@ RESTRICT_RHS = wp.constant(1)
 RESTRICT_DIAGONAL = wp.constant(2)
 
 
+@wp.func
+def restrict_lane(
+    parts: int,
+    tid: int,
+    c: int,
+    r: wp.array(dtype=wp.vec3),
+    offsets: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=float),
+    x: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    contact_point: wp.array(dtype=wp.vec3),
+    contact_normal: wp.array(dtype=wp.vec3),
+    contact_active: wp.array(dtype=wp.int32),
+    instance_thickness: wp.array(dtype=float),
+    k_contact: float,
+    sc: SelfContactData,
+):
+    """Lane ``tid % RESTRICT_LANES``'s shares of node ``c``'s ``P^T r`` and ``P^T k``
+    (``restrict_kernel``)."""
+    s = wp.vec3(0.0)
+    kc = float(0.0)
+    rhs = (parts & RESTRICT_RHS) != 0
+    diagonal = (parts & RESTRICT_DIAGONAL) != 0
+    for k in range(offsets[c] + tid % RESTRICT_LANES, offsets[c + 1], RESTRICT_LANES):
+        i = ids[k]
+        w = weights[k]
+        if rhs:
+            s = s + w * r[i]
+        if diagonal:
+            if contact_active[i] != 0:
+                th = instance_thickness[particle_instance[i]]
+                if wp.dot(contact_normal[i], x[i] - contact_point[i]) < th:
+                    kc = kc + w * k_contact
+            if has_pairs(sc, i):
+                kc = kc + w * sc.stiffness
+    return s, kc
+
+
+@wp.kernel
+def restrict_lanes_kernel(
+    parts: int,
+    r: wp.array(dtype=wp.vec3),
+    offsets: wp.array(dtype=wp.int32),
+    ids: wp.array(dtype=wp.int32),
+    weights: wp.array(dtype=float),
+    x: wp.array(dtype=wp.vec3),
+    particle_instance: wp.array(dtype=wp.int32),
+    contact_point: wp.array(dtype=wp.vec3),
+    contact_normal: wp.array(dtype=wp.vec3),
+    contact_active: wp.array(dtype=wp.int32),
+    instance_thickness: wp.array(dtype=float),
+    k_contact: float,
+    sc: SelfContactData,
+    node_mass: wp.array(dtype=float),
+    node_stiffness: wp.array(dtype=float),
+    inertia: float,
+    threads: int,
+    rhs_out: wp.array(dtype=wp.vec3),
+    diag_out: wp.array(dtype=float),
+):
+    """``restrict_kernel`` and ``restrict_sum_kernel`` in one launch (of ``threads``), on CUDA (``lanes``): a
+    node's ``RESTRICT_LANES`` consecutive threads are a segment of a warp, and its first lane
+    reads the others' shares by shuffles and adds them in lane order, as the sum kernel does
+    (the same floats, one launch fewer on the correction's critical path)."""
+    tid = wp.tid()
+    c = tid // RESTRICT_LANES
+    s, kc = restrict_lane(parts, tid, c, r, offsets, ids, weights, x, particle_instance, contact_point,
+                          contact_normal, contact_active, instance_thickness, k_contact, sc)
+    mask = lane_mask(tid, threads)
+    first = (tid % 32) - tid % RESTRICT_LANES
+    total = wp.vec3(0.0)
+    k_total = float(0.0)
+    for lane in range(RESTRICT_LANES):
+        total = total + lane_read_vec3(s, first + lane, mask)
+        k_total = k_total + lane_read(kc, first + lane, mask)
+    if tid % RESTRICT_LANES == 0:
+        if (parts & RESTRICT_RHS) != 0:
+            rhs_out[c] = total
+        if (parts & RESTRICT_DIAGONAL) != 0:
+            diag_out[c] = node_mass[c] * inertia + node_stiffness[c] + k_total
+
+
 @wp.kernel
 def restrict_kernel(
     parts: int,
@@ -725,25 +820,11 @@ def restrict_kernel(
     ``restrict_sum_kernel`` adds the lanes)."""
     tid = wp.tid()
     c = tid // RESTRICT_LANES
-    s = wp.vec3(0.0)
-    kc = float(0.0)
-    rhs = (parts & RESTRICT_RHS) != 0
-    diagonal = (parts & RESTRICT_DIAGONAL) != 0
-    for k in range(offsets[c] + tid % RESTRICT_LANES, offsets[c + 1], RESTRICT_LANES):
-        i = ids[k]
-        w = weights[k]
-        if rhs:
-            s = s + w * r[i]
-        if diagonal:
-            if contact_active[i] != 0:
-                th = instance_thickness[particle_instance[i]]
-                if wp.dot(contact_normal[i], x[i] - contact_point[i]) < th:
-                    kc = kc + w * k_contact
-            if has_pairs(sc, i):
-                kc = kc + w * sc.stiffness
-    if rhs:
+    s, kc = restrict_lane(parts, tid, c, r, offsets, ids, weights, x, particle_instance, contact_point,
+                          contact_normal, contact_active, instance_thickness, k_contact, sc)
+    if (parts & RESTRICT_RHS) != 0:
         rhs_part[tid] = s
-    if diagonal:
+    if (parts & RESTRICT_DIAGONAL) != 0:
         k_part[tid] = kc
 
 

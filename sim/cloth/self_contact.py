@@ -51,15 +51,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from sim.cloth.clusters import (
-    ClusterArrays,
-    ClusterLayout,
-    lane_mask,
-    lane_xor,
-    lane_xor_vec3,
-    meet_mask8,
-    reach_radius,
-)
+from sim.cloth.clusters import ClusterArrays, ClusterLayout, meet_mask8, reach_radius
+from sim.cloth.lanes import lane_mask, lane_xor, lane_xor_vec3
 from sim.cloth.spans import (
     Span,
     fill_spans,
