@@ -646,7 +646,6 @@ class SolverVBD:
             wp.copy(x, state_in.positions)
             wp.copy(v, state_in.velocities)
             wp.copy(state_out.accelerations, state_in.accelerations)
-        wp.copy(self._x_step_start, x)
         h = dt / cfg.substeps
         eps_u = cfg.friction_epsilon * h
         pipe = self.self_contact is not None and cfg.self_contact_pipeline

@@ -69,7 +69,8 @@ def forward_kernel(
     x_out: wp.array(dtype=wp.vec3),
     snap_out: wp.array(dtype=wp.vec3),
 ):
-    """Start a substep: remember ``x`` (``remember``; the later substeps of a step have it from
+    """Start a substep: remember ``x`` (``remember``, the step's first substep: as ``x_prev`` and
+    as the step's start ``x_step_start``; the later substeps have ``x_prev`` from
     ``velocity_kernel``), inertial target ``y = x + h v + h^2 g`` (Eq. 2) and the
     initial guess ``x + h v + h^2 a_g g/|g|`` with ``a_g`` the previous substep's acceleration
     along gravity clamped to [0, |g|] (Chen et al. 2024, Sec. 3.7, adaptive initialisation).
@@ -84,8 +85,11 @@ def forward_kernel(
     xi = x[i]
     if remember != 0:
         x_prev_out[i] = xi
+        x_step_start[i] = xi
     if flags[i] == PINNED:
-        s = x_step_start[i]
+        s = xi
+        if remember == 0:
+            s = x_step_start[i]
         p = s + pin_alpha * (pin_targets[i] - s)
         y_out[i] = p
         x_out[i] = p
