@@ -6,10 +6,11 @@ stream) or the bodies' placement and contact (side stream), measured on real fra
 Each chain is run twice per substep in turn (a physics-neutral change: the detection and the
 bodies' placement are deterministic and overwrite their outputs), and the t-shirt's full run
 is timed as in ``bench_tshirt``. A chain that sets the frame adds its whole length per substep;
-one with slack adds only what its double exceeds the other chain by. (Replays of one captured
-step, ``profile_tshirt``'s ``critical_path_graph_ms``, run ~1.8x slower than the live frames and
-do not show this.) The body contact kernel itself is doubled with the placement (``place`` runs
-twice; the contact is launched once): ``bodies x2`` doubles the placement only.
+one with slack adds only what its double exceeds the other chain by. (Session 41 tried this with
+replays of one captured step, the end state restored before each: they ran ~1.8x slower than the
+live frames, with or without either chain, and said nothing about the live frame.) The body
+contact kernel is not doubled (it is launched once): ``placement x2`` doubles the bodies'
+placement only.
 """
 
 from __future__ import annotations

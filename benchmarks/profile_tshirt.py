@@ -65,42 +65,6 @@ def kernel_timings(wp, device: str, fn) -> dict:
     return {k: {"ms": round(ms, 4), "launches": c} for k, (ms, c) in ranked}
 
 
-def critical_path(wp, device: str, solver, sc, control, restore, step, repeats: int) -> dict:
-    """Graphed steps without the self-contact detection (the lists of the last one kept),
-    without the bodies (their placement and contact on the side stream), and without both: which
-    of the two chains forked at each substep's start sets the step's length. Each replay starts
-    from the same state (``restore``; a replay after a replay would step a cloth the body has
-    already carried, from the body's start again)."""
-    bodies = control.bodies
-    out = {}
-    for name, detect, keep_bodies in (("full", True, True), ("no_detection", False, True),
-                                      ("no_bodies", True, False), ("neither", False, False)):
-        if not detect:
-            sc.detect = lambda *a, **k: None
-        if not keep_bodies:
-            control.bodies = []
-        try:
-            restore()
-            step()
-            restore()
-            with wp.ScopedCapture(device=device) as cap:
-                step()
-            total = 0.0
-            for _ in range(repeats):
-                restore()
-                wp.synchronize_device(device)
-                t = time.perf_counter()
-                wp.capture_launch(cap.graph)
-                wp.synchronize_device(device)
-                total += time.perf_counter() - t
-            out[name] = 1000.0 * total / repeats
-        finally:
-            sc.__dict__.pop("detect", None)
-            control.bodies = bodies
-    print("critical path (graphed step ms, each from the same state):", json.dumps(out), flush=True)
-    return out
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_single_scene_arguments(ap)
@@ -226,10 +190,6 @@ def main() -> None:
            timed(sweep(keep_lists(sc.data, keep)), graph=True) for keep in ((), ("vt",), ("tv",), ("ee",))},
         "sweep_sc_lists_graph_ms": timed(sweep(keep_lists(sc.data, ("vt", "tv", "ee"))), graph=True),
     }
-    if wp.get_device(device).is_cuda:
-        res["critical_path_graph_ms"] = critical_path(wp, device, solver, sc, control, restore,
-                                                       lambda: solver.step(state, state, control, dt),
-                                                       args.repeats)
     totals = (sc.data.vt_count.numpy() + sc.data.tv_total.numpy() + sc.data.ee_total.numpy())
     res["vertex_pair_totals"] = {"mean": float(totals.mean()), "max": int(totals.max()),
                                  "nonzero": int((totals > 0).sum()),
