@@ -78,12 +78,12 @@ templates' hems); the 19k t-shirt 7 of 16 at 14 and 2 of 16 at 12."""
 
 CUDA_COLORS = 3
 """Colours of the vertex colouring (``VBDConfig.max_colors``) of a run on CUDA; the CPU keeps a
-proper colouring (0). Session 41 (H100, docs/BENCHMARKS.md): on the 5k t-shirt with the cluster
-broadphase 4.28 / 4.35 ms per walk / run frame against 4.54 / 4.55 (one launch fewer per sweep;
-~2 % of the edges same-coloured, coupled by a Jacobi step), 135 of 144 random walks and runs
-passing against 134 (session 40), batches of 1-256 t-shirts 2-6 % more garment-frames/s. On the
-CPU it bought nothing (1k t-shirt 125.3 / 123.3 against 118.1 / 126.8 ms, strain 0.16 / 0.18
-against 0.14 / 0.14)."""
+proper colouring (0). H100, docs/BENCHMARKS.md: on the 5k t-shirt with the cluster broadphase
+4.24 / 4.30 ms per walk / run frame against 4.46 / 4.52 with a proper colouring (session 41, the
+same code; one launch fewer per sweep, ~2 % of the edges same-coloured and coupled by a Jacobi
+step); 135 of 144 random walks and runs passing against 134 (sessions 40 and 41); batches of
+1-256 t-shirts 2-6 % more garment-frames/s. On the CPU it bought nothing (1k t-shirt 125.3 /
+123.3 against 118.1 / 126.8 ms, strain 0.16 / 0.18 against 0.14 / 0.14; session 40)."""
 
 
 def default_substeps(vertices: int) -> int:
