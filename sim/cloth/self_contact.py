@@ -1118,6 +1118,28 @@ def slot_kind(c: int, kind_clusters: wp.vec4i) -> int:
     return k
 
 
+@wp.func
+def slot_bounds(s: int, x: wp.array(dtype=wp.vec3), v: wp.array(dtype=wp.vec3),
+                particle_instance: wp.array(dtype=wp.int32), tri_indices: wp.array(dtype=wp.vec3i),
+                margin: float, speed_factor: float, h: float, sc: SelfContactData, cl: ClusterArrays):
+    """Cluster slot ``s``'s box, query radius, corners' mean velocity and spread
+    (``member_bounds_kernel``); a padding slot's: an empty box, radius 0, spread -1."""
+    p = cl.order[s]
+    if p < 0:
+        return wp.vec3(1.0e30), wp.vec3(-1.0e30), 0.0, wp.vec3(), -1.0
+    k = slot_kind(s / cl.size, cl.kind_clusters)
+    q = slot_corners(k, p, tri_indices, sc.mesh_edges)
+    a = load_vec3(x, q[0])
+    b = load_vec3(x, q[1])
+    c = load_vec3(x, q[2])
+    vr = sc.reference[particle_instance[q[0]]]
+    speed = wp.max(wp.max(wp.length(load_vec3(v, q[0]) - vr), wp.length(load_vec3(v, q[1]) - vr)),
+                   wp.length(load_vec3(v, q[2]) - vr))
+    mean, spread = corner_spread(v, q[0], q[1], q[2])
+    r = query_radius(margin, speed, h, speed_factor)
+    return wp.min(wp.min(a, b), c), wp.max(wp.max(a, b), c), r, mean, spread
+
+
 @wp.kernel
 def member_bounds_kernel(
     x: wp.array(dtype=wp.vec3),
@@ -1135,26 +1157,11 @@ def member_bounds_kernel(
     corner's speed in its instance's frame, ``query_radius``), and its corners' mean velocity
     and spread (``corner_spread``); a padding slot gets an empty box, radius 0, spread -1."""
     s = wp.tid()
-    p = cl.order[s]
-    if p < 0:
-        cl.lo[s] = wp.vec3(1.0e30)
-        cl.hi[s] = wp.vec3(-1.0e30)
-        cl.radius[s] = 0.0
-        cl.vel[s] = wp.vec3()
-        cl.spread[s] = -1.0
-        return
-    k = slot_kind(s / cl.size, cl.kind_clusters)
-    q = slot_corners(k, p, tri_indices, sc.mesh_edges)
-    a = load_vec3(x, q[0])
-    b = load_vec3(x, q[1])
-    c = load_vec3(x, q[2])
-    vr = sc.reference[particle_instance[q[0]]]
-    speed = wp.max(wp.max(wp.length(load_vec3(v, q[0]) - vr), wp.length(load_vec3(v, q[1]) - vr)),
-                   wp.length(load_vec3(v, q[2]) - vr))
-    cl.lo[s] = wp.min(wp.min(a, b), c)
-    cl.hi[s] = wp.max(wp.max(a, b), c)
-    cl.radius[s] = query_radius(margin, speed, h, speed_factor)
-    mean, spread = corner_spread(v, q[0], q[1], q[2])
+    lo, hi, r, mean, spread = slot_bounds(s, x, v, particle_instance, tri_indices, margin, speed_factor, h,
+                                          sc, cl)
+    cl.lo[s] = lo
+    cl.hi[s] = hi
+    cl.radius[s] = r
     cl.vel[s] = mean
     cl.spread[s] = spread
 
@@ -1213,26 +1220,10 @@ def cluster_bounds_fused_kernel(
         for colour in range(sc.heavy_count.shape[0]):
             sc.heavy_count[colour] = 0
     mask = lane_mask(s, n)
-    p = cl.order[s]
-    lo = wp.vec3(1.0e30)
-    hi = wp.vec3(-1.0e30)
-    r = float(0.0)
-    mean = wp.vec3()
-    spread = float(-1.0)
+    lo, hi, r, mean, spread = slot_bounds(s, x, v, particle_instance, tri_indices, margin, speed_factor, h,
+                                          sc, cl)
     valid = float(0.0)
-    if p >= 0:
-        k = slot_kind(s / cl.size, cl.kind_clusters)
-        q = slot_corners(k, p, tri_indices, sc.mesh_edges)
-        a = load_vec3(x, q[0])
-        b = load_vec3(x, q[1])
-        c = load_vec3(x, q[2])
-        vr = sc.reference[particle_instance[q[0]]]
-        speed = wp.max(wp.max(wp.length(load_vec3(v, q[0]) - vr), wp.length(load_vec3(v, q[1]) - vr)),
-                       wp.length(load_vec3(v, q[2]) - vr))
-        lo = wp.min(wp.min(a, b), c)
-        hi = wp.max(wp.max(a, b), c)
-        r = query_radius(margin, speed, h, speed_factor)
-        mean, spread = corner_spread(v, q[0], q[1], q[2])
+    if spread >= 0.0:
         valid = 1.0
     cl.lo[s] = lo
     cl.hi[s] = hi
