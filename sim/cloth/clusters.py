@@ -386,7 +386,8 @@ def cluster_masks_kernel(cl: ClusterArrays, relative: int, margin: float, speed_
         q = 2
     w_count = cl.words[q]
     local = t - cl.mask_first[q]
-    # the query clusters fastest: a warp's threads test the same targets (one load for all)
+    # the query clusters fastest: a warp's threads (or with ``parts``, its threads of the same
+    # part) test the same targets (one load for all)
     n_query = (cl.mask_first[q + 1] - cl.mask_first[q]) / w_count
     w = local / n_query
     a_local = local - w * n_query

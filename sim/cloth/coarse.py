@@ -496,6 +496,9 @@ class CoarseLevel:
         _, _, point, normal, _, active = self._particles
         inertia = 1.0 / (h * h) + self._air_damping / h
         if self.restrict_lanes:
+            if not wp.get_device(m.device).is_cuda:
+                raise ValueError("CoarseLevel.restrict_lanes needs CUDA (lane shuffles; the CPU adds "
+                                 "the lanes in a second launch)")
             threads = self.node_count * RESTRICT_LANES
             wp.launch(restrict_lanes_kernel, dim=threads,
                       inputs=[parts, self.residual, *self._r, x, m.particle_instance, point, normal, active,
