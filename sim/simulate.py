@@ -91,16 +91,21 @@ def default_substeps(vertices: int) -> int:
     return FINE_SUBSTEPS if vertices > FINE_GARMENT_VERTICES else DEFAULT_SUBSTEPS
 
 
-def simulator_defaults() -> dict:
+def simulator_defaults(cuda: bool = False) -> dict:
     """The defaults that shape a simulation without being written in its config: the automatic
-    substeps and the templates' hems. A dataset records them beside its config, so that it is
-    not continued under other physics (``sim.datasets.generate``)."""
+    substeps, the templates' hems and, on CUDA (``cuda``), the colouring (``CUDA_COLORS``; the
+    CPU's proper colouring is recorded by its absence, as before session 41). A dataset records
+    them beside its config, so that it is not continued under other physics
+    (``sim.datasets.generate``): neither one begun on the other kind of device nor one begun on
+    CUDA before the colouring changed."""
     from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
 
-    return {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
-                         "fine_over_vertices": FINE_GARMENT_VERTICES},
-            "max_colors": {"cuda": CUDA_COLORS, "cpu": 0},
-            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE}}
+    out = {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
+                        "fine_over_vertices": FINE_GARMENT_VERTICES},
+           "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE}}
+    if cuda:
+        out["max_colors"] = CUDA_COLORS
+    return out
 
 
 @dataclass(frozen=True)

@@ -81,7 +81,8 @@ def _refuse_other_simulator(old: dict | None, cfg_dict: dict, root: Path) -> Non
     if isinstance(old, dict) and {k: v for k, v in old.items() if k != "simulator"} == \
             {k: v for k, v in cfg_dict.items() if k != "simulator"}:
         raise WrinklesInputError("this dataset was made with other simulator defaults (automatic substeps, "
-                                 "garment hems and their rule, colours on CUDA) than this version's, and "
+                                 "garment hems and their rule, the colouring of the device kind) than this "
+                                 "version's on this device, and "
                                  "continuing it would mix two physics; choose another --out", path=root)
 
 
@@ -130,12 +131,13 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
     mine = select_indices(specs, shard, shards, splits)
     log = log or (lambda s: None)
     root = Path(out)
+    from sim.device import warp
     from sim.simulate import simulator_defaults
 
-    cfg_dict = {**cfg.to_dict(), "simulator": simulator_defaults()}
-    _check_root(root, cfg_dict, resume)
     sim_cfg = cfg.simulation_config()
     dev = resolve_device(device if device is not None else sim_cfg.device)
+    cfg_dict = {**cfg.to_dict(), "simulator": simulator_defaults(cuda=warp().get_device(dev).is_cuda)}
+    _check_root(root, cfg_dict, resume)
     (root / S.SEQUENCE_DIR).mkdir(parents=True, exist_ok=True)
     (root / S.PARTS_DIR).mkdir(parents=True, exist_ok=True)
     if not (root / "config.json").exists():
