@@ -961,27 +961,39 @@ def test_heavy_vertices_solved_by_whole_blocks_take_the_same_step(device):
 
 
 def test_a_step_captured_in_a_cuda_graph_takes_the_plain_step(device):
-    """On CUDA the step forks body contact and the three self-contact tree/query chains onto side
-    streams (``sim.device.SideStreams``) and joins them before the sweeps: captured in a CUDA
-    graph (as ``sim.simulate`` runs it), the step must be the plain launches' step, a body in
-    contact and the layers in self-contact (a fork left unjoined fails the capture; a join in
-    the wrong place lets the sweeps read half-written contacts). CUDA only: the CPU has no
-    graphs and one stream."""
+    """On CUDA the step forks the bodies' placement and contact, the forward step and the
+    previous deformation, and the self-contact detection's chains onto side streams
+    (``sim.device.SideStreams``; since session 41 the next substep's placement beside the
+    sweeps, and the forward step beside the detection) and joins them before the sweeps:
+    captured in a CUDA graph (as ``sim.simulate`` runs it), and in plain launches, the step must
+    be the one every launch run in order on one stream gives, a moving body in contact and the
+    layers in self-contact (a fork left unjoined fails the capture; a join in the wrong place
+    lets the sweeps read half-written contacts, or the placement move the body under a contact
+    query). CUDA only: the CPU has no graphs and one stream."""
+    from sim.device import SideStreams
+
     if device != "cuda":
         pytest.skip("CUDA graphs and streams only")
     wp = warp()
     m, *start = draped_layers_in_contact(device)
-    sphere_v, sphere_f = uv_sphere(start[0].mean(axis=0) - np.array([0.0, 0.012, 0.0], np.float32), 0.01)
+    centre = start[0].mean(axis=0) - np.array([0.0, 0.012, 0.0], np.float32)
+    sphere_v, sphere_f = uv_sphere(centre, 0.01)
     out = []
-    for graph in (False, True):
-        solver = SolverVBD(m, VBDConfig(substeps=2, iterations=4, self_contact=True))
+    for mode in ("in order", "plain", "graph"):
+        solver = SolverVBD(m, VBDConfig(substeps=3, iterations=4, self_contact=True))
+        if mode == "in order":  # every launch on the one stream, where it is issued
+            for name in ("_side", "_placing", "_pipe", "_coarse_side"):
+                setattr(solver, name, SideStreams("cpu", len(getattr(solver, name).streams)))
+            if getattr(solver.self_contact, "_side", None) is not None:
+                solver.self_contact._side = SideStreams("cpu", 3)
         body = BodyCollider(sphere_v, sphere_f, device=device)
+        body.set_frame(sphere_v, sphere_v + np.array([0.0, 0.003, 0.0], np.float32))  # rising 3 mm
         control = m.control()
         control.set_body(0, body)
         s = m.state()
         s.positions.assign(start[0])
         s.velocities.assign(start[1])
-        if graph:
+        if mode == "graph":
             with wp.ScopedCapture(device=device) as cap:  # records the launches, runs none
                 solver.step(s, s, control, 1.0 / 120.0)
             wp.capture_launch(cap.graph)
@@ -992,7 +1004,8 @@ def test_a_step_captured_in_a_cuda_graph_takes_the_plain_step(device):
         out.append(s.positions.numpy().copy())
     moved = np.abs(out[0] - start[0]).max()
     assert moved > 1e-4
-    np.testing.assert_allclose(out[1], out[0], atol=1e-4 * moved)
+    for k in (1, 2):
+        np.testing.assert_allclose(out[k], out[0], atol=1e-4 * moved)
 
 
 def test_solve_layout_caps_registers_only_in_the_automatic_batch_layout():
