@@ -476,7 +476,8 @@ class SolverVBD:
         self._max_registers = regs if cuda else 0
         self._solve = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                            fast_math=self.config.fast_math)
-        # side stream 0: the bodies' placement and contact; 1: the previous deformation (``step``)
+        # side stream 0: the bodies' placement and contact; 1: the forward step (after the first
+        # substep's) and the previous deformation; ``_placing``: the next substep's placement (``step``)
         self._side = SideStreams(d, 2)
         self._placing = SideStreams(d, 1)
         self._pipe = SideStreams(d, 1)
