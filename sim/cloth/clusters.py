@@ -272,6 +272,29 @@ class ClusterArrays:
     cluster_spread: wp.array(dtype=float)
 
 
+@wp.func
+def store_octet(cl: ClusterArrays, o: int, lo: wp.vec3, hi: wp.vec3, radius: float, vel: wp.vec3,
+                count: float, spread: float):
+    """Octet ``o``'s box, largest query radius, mean velocity, members and spread."""
+    cl.octet_lo[o] = lo
+    cl.octet_hi[o] = hi
+    cl.octet_radius[o] = radius
+    cl.octet_vel[o] = vel
+    cl.octet_count[o] = count
+    cl.octet_spread[o] = spread
+
+
+@wp.func
+def store_cluster(cl: ClusterArrays, c: int, lo: wp.vec3, hi: wp.vec3, radius: float, vel: wp.vec3,
+                  spread: float):
+    """Cluster ``c``'s box, largest query radius, mean velocity and spread."""
+    cl.cluster_lo[c] = lo
+    cl.cluster_hi[c] = hi
+    cl.cluster_radius[c] = radius
+    cl.cluster_vel[c] = vel
+    cl.cluster_spread[c] = spread
+
+
 @wp.kernel
 def octet_bounds_kernel(cl: ClusterArrays):
     """Per octet (8 consecutive slots of a cluster): the union of the slots' boxes, their
@@ -298,12 +321,7 @@ def octet_bounds_kernel(cl: ClusterArrays):
     for j in range(8):
         if cl.spread[s + j] >= 0.0:
             reach = wp.max(reach, wp.length(load_vec3(cl.vel, s + j) - mean) + cl.spread[s + j])
-    cl.octet_lo[o] = a
-    cl.octet_hi[o] = b
-    cl.octet_radius[o] = r
-    cl.octet_vel[o] = mean
-    cl.octet_count[o] = count
-    cl.octet_spread[o] = reach
+    store_octet(cl, o, a, b, r, mean, count, reach)
 
 
 @wp.kernel
@@ -331,11 +349,7 @@ def cluster_bounds_kernel(cl: ClusterArrays):
         if cl.octet_count[first + o] > 0.0:
             away = wp.length(load_vec3(cl.octet_vel, first + o) - mean)
             reach = wp.max(reach, away + cl.octet_spread[first + o])
-    cl.cluster_lo[c] = a
-    cl.cluster_hi[c] = b
-    cl.cluster_radius[c] = r
-    cl.cluster_vel[c] = mean
-    cl.cluster_spread[c] = reach
+    store_cluster(cl, c, a, b, r, mean, reach)
 
 
 @wp.func

@@ -51,7 +51,14 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from sim.cloth.clusters import ClusterArrays, ClusterLayout, meet_mask8, reach_radius
+from sim.cloth.clusters import (
+    ClusterArrays,
+    ClusterLayout,
+    meet_mask8,
+    reach_radius,
+    store_cluster,
+    store_octet,
+)
 from sim.cloth.lanes import lane_mask, lane_xor, lane_xor_vec3
 from sim.cloth.spans import (
     Span,
@@ -1236,13 +1243,7 @@ def cluster_bounds_fused_kernel(
         reach = wp.length(mean - o_mean) + spread
     o_reach = max_lanes(reach, 1, 4, mask)
     if s % 8 == 0:
-        o = s / 8
-        cl.octet_lo[o] = o_lo
-        cl.octet_hi[o] = o_hi
-        cl.octet_radius[o] = o_r
-        cl.octet_vel[o] = o_mean
-        cl.octet_count[o] = o_count
-        cl.octet_spread[o] = o_reach
+        store_octet(cl, s / 8, o_lo, o_hi, o_r, o_mean, o_count, o_reach)
     # the cluster (lanes differing in bits 8 to size / 2, each holding its octet's data)
     c_lo, c_hi, c_r, c_total, c_count = reduce_lanes(o_lo, o_hi, o_r, o_count * o_mean, o_count, 8,
                                                      cl.size / 2, mask)
@@ -1253,12 +1254,7 @@ def cluster_bounds_fused_kernel(
         c_reach = wp.length(o_mean - c_mean) + o_reach
     c_reach = max_lanes(c_reach, 8, cl.size / 2, mask)
     if s % cl.size == 0:
-        at = s / cl.size
-        cl.cluster_lo[at] = c_lo
-        cl.cluster_hi[at] = c_hi
-        cl.cluster_radius[at] = c_r
-        cl.cluster_vel[at] = c_mean
-        cl.cluster_spread[at] = c_reach
+        store_cluster(cl, s / cl.size, c_lo, c_hi, c_r, c_mean, c_reach)
 
 
 @wp.kernel
@@ -2085,9 +2081,8 @@ class SelfContact:
         instance's reference velocity (vec3 (I,), ``ClothControl.instance_velocity``; None:
         the one set last, zeros at first). The outputs go to ``datas[slot]``."""
         sc = self._start_detection(reference, slot)
-        self._tree_queries(x0, v, h, rebuild, sc, self.margin, self._dmins)
-        cl = self.clusters
-        self._records(sc, zeroed=cl is not None and cl.lanes and cl.slots > 0)
+        zeroed = self._tree_queries(x0, v, h, rebuild, sc, self.margin, self._dmins)
+        self._records(sc, zeroed=zeroed)
 
     def _set_reference(self, reference) -> None:
         """The instances' reference velocities for every detection (None: kept)."""
@@ -2110,14 +2105,14 @@ class SelfContact:
         return sc
 
     def _tree_queries(self, x0, v, h: float, rebuild: bool, data: SelfContactData, margin: float,
-                      dmins: tuple) -> None:
+                      dmins: tuple) -> bool:
         """Fit (``rebuild``: build) the trees to ``x0`` and run the three queries (``_query``); for
         ``data`` of a candidate query, to the boxes swept over the substep and grown by each
         primitive's own reach (``primitive_bounds_kernel``), so that a slow primitive's query
-        meets a fast one coming."""
+        meets a fast one coming. Returns whether ``data``'s record counters were zeroed on the
+        way (``_cluster_queries``)."""
         if self.clusters is not None:
-            self._cluster_queries(x0, v, h, data, margin, dmins)
-            return
+            return self._cluster_queries(x0, v, h, data, margin, dmins)
         self._update_bounds(x0, v, data.candidates * h, self.speed_factor * h)
         # three independent chains (refit a tree, query it), each on its own stream on CUDA:
         # the queries are latency-bound (a few thousand threads), so they overlap almost fully
@@ -2130,15 +2125,17 @@ class SelfContact:
                     bvh.refit()
                 self._query(k, x0, v, h, data, margin, dmins[k])
         self._side.join()
+        return False
 
-    def _cluster_queries(self, x0, v, h: float, data: SelfContactData, margin: float, dmins: tuple) -> None:
+    def _cluster_queries(self, x0, v, h: float, data: SelfContactData, margin: float, dmins: tuple) -> bool:
         """The three queries over the clusters (``sim.cloth.clusters``): the slots' boxes and
-        radii, the clusters' boxes and masks, then one query launch for every primitive."""
+        radii, the clusters' boxes and masks, then one query launch for every primitive. Returns
+        whether ``data``'s record counters were zeroed (by ``cluster_bounds_fused_kernel``)."""
         w = warp()
         m = self.model
         cl = self.clusters
         if cl.slots == 0:
-            return
+            return False
         w.launch(cluster_bounds_fused_kernel if cl.lanes else member_bounds_kernel, dim=cl.slots,
                  inputs=[x0, v, m.particle_instance, m.tri_indices, margin, self.speed_factor, h, data,
                          cl.arrays],
@@ -2159,6 +2156,7 @@ class SelfContact:
             n, nt, ne = (len(dm) for dm in dmins)
             w.launch(merge_split_kernel, dim=n + nt + ne,
                      inputs=[split, n, nt, ne, part, *part_dmins, data], outputs=list(dmins), device=m.device)
+        return cl.lanes
 
     def _split_lists(self, data: SelfContactData) -> SelfContactData:
         """``data`` with the partial lists of a split cluster query in place of its lists. Every
