@@ -216,7 +216,7 @@ def run_newton(r, garment, body, cfg, device: str) -> dict:
     mat = as_cloth_params(garment.material)
     scene = {
         "garment_positions": seq.vertices[0], "garment_rest_positions": garment.rest_vertices,
-        "garment_faces": garment.faces, "pinned": np.zeros(0, np.int64),
+        "garment_faces": garment.faces, "face_layers": garment.face_layers, "pinned": np.zeros(0, np.int64),
         "pin_targets": np.zeros((0, 0, 3), np.float32),
         "density": mat.density, "mu": mat.mu, "lam": mat.lam, "bending": mat.bending, "damping": mat.damping,
         "friction": mat.friction, "thickness": mat.thickness,

@@ -26,6 +26,8 @@ key                         shape        meaning
 ``body_vertices``           (T, Vb, 3)   body vertices per frame [m]
 ``fps``                     float        frame rate of ``body_vertices`` and of the output [1/s]
 ``gravity`` (optional)      (3,)         [m/s²], default (0, -9.81, 0) (Y up)
+``face_layers`` (optional)  (F,)         fabric layers per face, >= 1 (default 1): a garment's
+                                         hems (``Garment.face_layers``), as in our solver
 ==========================  ===========  ==========================================================
 
 Output frame k (k = 0 .. frames-1) is the garment at body frame k; frame 0 is
@@ -78,6 +80,13 @@ Parameter mapping (ours → Newton)
 ---------------------------------
 * Mass: ``add_cloth_mesh(density=density)`` lumps ``density * area / 3`` per vertex (rest
   areas), identical to ours.
+* Fabric layers (``face_layers``, session 42): a face of n layers has n times the density, the
+  membrane moduli and damping, and a hinge the mean of its two faces' layers times the bending,
+  as in ``sim.cloth.model.ClothModelBuilder.add_cloth``. After ``finalize`` the runner writes
+  the lumped masses (``particle_mass``, ``particle_inv_mass``), each triangle's
+  ``tri_materials`` k_mu, k_lambda, k_damp and each hinge's bending properties scaled so
+  (``layered_masses``, ``hinge_layers``); until session 41 Newton ran the t-shirt without its
+  hems.
 * Membrane: ``tri_ke = mu``, ``tri_ka = lam``. **Mismatch:** Newton 1.8's VBD membrane is the
   stable Neo-Hookean membrane of Smith et al. 2018 (``evaluate_neo_hookean_membrane_force_
   hessian``: ψ = μ/2 (I_c − 2) + λ'/2 (J − α)², λ' = λ + μ, α = 1 + μ/λ'), ours is StVK. Both
@@ -210,9 +219,47 @@ def validate_scene(scene: dict) -> dict:
         raise ValueError("newton_ref scene: non-finite input")
     if s["fps"] <= 0.0 or s["thickness"] <= 0.0 or s["density"] <= 0.0:
         raise ValueError("newton_ref scene: fps, thickness and density must be > 0")
+    raw = scene.get("face_layers")
+    layers = np.ascontiguousarray(np.ones(len(f)) if raw is None else raw, np.float32).reshape(-1)
+    if layers.shape != (len(f),):
+        raise ValueError(f"newton_ref scene: face_layers must have one value per face ({len(f)}), "
+                         f"got {layers.shape[0]}")
+    if not (np.isfinite(layers).all() and layers.min() >= 1.0):
+        raise ValueError("newton_ref scene: face_layers must be finite and >= 1")
     s.update(garment_positions=x, garment_rest_positions=rest, garment_faces=f, body_faces=bf,
-             body_vertices=bv, pinned=pinned, pin_targets=targets, gravity=tuple(float(v) for v in g))
+             body_vertices=bv, pinned=pinned, pin_targets=targets, gravity=tuple(float(v) for v in g),
+             face_layers=layers)
     return s
+
+
+def layered_masses(rest: np.ndarray, faces: np.ndarray, layers: np.ndarray, density: float) -> np.ndarray:
+    """Lumped vertex masses [kg]: a third of each face's rest area times its layers times
+    ``density``, float64 (V,) (``sim.cloth.model.lumped_areas`` times the density)."""
+    r = np.asarray(rest, np.float64)
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    area = 0.5 * np.linalg.norm(np.cross(r[f[:, 1]] - r[f[:, 0]], r[f[:, 2]] - r[f[:, 0]]), axis=1)
+    out = np.zeros(len(r))
+    np.add.at(out, f.reshape(-1), np.repeat(density * area * np.asarray(layers, np.float64) / 3.0, 3))
+    return out
+
+
+def hinge_layers(faces: np.ndarray, layers: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Per Newton edge ``(o0, o1, a, b)``: the mean layers of the faces that hold the edge
+    ``a``-``b`` (one face on a boundary edge), float64 (E,)."""
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    e = np.asarray(edges, np.int64).reshape(-1, 4)
+    n = int(max(f.max(), e[:, 2:].max())) + 1
+    ends = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    keys = np.minimum(ends[:, 0], ends[:, 1]) * n + np.maximum(ends[:, 0], ends[:, 1])
+    face_layer = np.tile(np.asarray(layers, np.float64), 3)
+    order = np.argsort(keys, kind="stable")
+    uniq, start, count = np.unique(keys[order], return_index=True, return_counts=True)
+    sums = np.add.reduceat(face_layer[order], start)
+    want = np.minimum(e[:, 2], e[:, 3]) * n + np.maximum(e[:, 2], e[:, 3])
+    at = np.searchsorted(uniq, want)
+    if (at >= len(uniq)).any() or (uniq[np.minimum(at, len(uniq) - 1)] != want).any():
+        raise ValueError("newton_ref: an edge of Newton's model is no edge of the garment's faces")
+    return sums[at] / count[at]
 
 
 def bending_edge_stiffness(rest: np.ndarray, edges: np.ndarray, k_b: float) -> np.ndarray:
@@ -317,10 +364,22 @@ def run_newton_vbd(
         # per-edge bending stiffness and damping (module docstring)
         edges = model.edge_indices.numpy()
         edge_ke = bending_edge_stiffness(rest, edges, k_b)
+        layers = sc["face_layers"]
+        edge_ke = edge_ke * hinge_layers(faces, layers, edges)
         props = model.edge_bending_properties.numpy()
         props[:, 0] = edge_ke
         props[:, 1] = beta * edge_ke
         model.edge_bending_properties.assign(props.astype(np.float32))
+        # fabric layers (hems): masses and membrane moduli per face (module docstring)
+        if model.particle_count != nv or model.tri_count != len(faces):
+            raise RuntimeError(f"newton_ref: Newton's model has {model.particle_count} particles and "
+                               f"{model.tri_count} triangles, the scene {nv} and {len(faces)}")
+        mass = layered_masses(rest, faces, layers, sc["density"])
+        model.particle_mass.assign(mass.astype(np.float32))
+        model.particle_inv_mass.assign((1.0 / np.maximum(mass, 1e-30)).astype(np.float32))
+        mats = model.tri_materials.numpy()
+        mats[:, :3] = np.array([mu, lam, beta * mu / 2.0], np.float32) * layers[:, None]
+        model.tri_materials.assign(mats)
         # pins: inactive particles, moved by us
         pinned = sc["pinned"]
         if len(pinned):
@@ -438,6 +497,8 @@ def run_newton_vbd(
         "soft_contact_mu": sc["friction"], "soft_contact_gap": body_contact_gap,
         "friction_epsilon": friction_epsilon, "dt_substep": h,
         "membrane": "stable Neo-Hookean (Newton) vs StVK (ours)",
+        "face_layers": {"min": float(layers.min()), "max": float(layers.max()), "mean": float(layers.mean())},
+        "mass_kg": float(mass.sum()),
     }
     if self_contact:
         query = self_contact_margin + self_contact_gap

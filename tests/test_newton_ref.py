@@ -11,7 +11,13 @@ import pytest
 
 pytest.importorskip("newton")
 
-from benchmarks.newton_ref import bending_edge_stiffness, run_newton_vbd  # noqa: E402
+from benchmarks.newton_ref import (  # noqa: E402
+    bending_edge_stiffness,
+    hinge_layers,
+    layered_masses,
+    run_newton_vbd,
+    validate_scene,
+)
 
 G = 9.81
 FPS = 30.0
@@ -149,3 +155,59 @@ def test_bending_edge_stiffness_matches_hinge_stiffness():
     ke = bending_edge_stiffness(rest, edges, 2.0)
     assert ke[0] * 1.0 == pytest.approx(3 * 2.0 * 1.0 / (0.5 + 0.5))
     assert ke[1] == 0.0
+
+
+def test_layered_masses_match_the_cloth_model():
+    # the runner's lumped masses are our model's: a third of each face's area times its layers
+    from sim.cloth.model import lumped_areas
+
+    v, f = sheet(n=6)
+    rng = np.random.default_rng(3)
+    layers = rng.choice([1.0, 1.5, 3.0], size=len(f))
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    np.testing.assert_allclose(layered_masses(v, f, layers, 0.2), 0.2 * lumped_areas(len(v), f, area, layers),
+                               rtol=1e-6)
+    # total: density x sum of area x layers
+    total = layered_masses(v, f, layers, 0.2).sum()
+    assert total == pytest.approx(0.2 * float((area * layers).sum()), rel=1e-6)
+
+
+def test_hinge_layers_take_the_mean_of_the_edge_faces():
+    # two triangles (0,1,2) at 1 layer and (1,0,3) at 3: the shared edge 0-1 has mean 2, the
+    # boundary edges their one face's layers
+    faces = np.array([[0, 1, 2], [1, 0, 3]])
+    edges = np.array([[2, 3, 0, 1], [-1, 0, 1, 2], [-1, 1, 0, 3], [-1, 0, 3, 0]])
+    np.testing.assert_allclose(hinge_layers(faces, np.array([1.0, 3.0]), edges), [2.0, 1.0, 3.0, 3.0])
+    with pytest.raises(ValueError, match="no edge"):
+        hinge_layers(faces, np.array([1.0, 3.0]), np.array([[0, 1, 2, 3]]))
+
+
+def test_face_layers_are_validated():
+    sc = scene(2)
+    sc["face_layers"] = np.ones(5)
+    with pytest.raises(ValueError, match="one value per face"):
+        validate_scene(sc)
+    sc["face_layers"] = np.full(len(sc["garment_faces"]), 0.5)
+    with pytest.raises(ValueError, match=">= 1"):
+        validate_scene(sc)
+    sc["face_layers"] = None  # a garment without hems
+    assert (validate_scene(sc)["face_layers"] == 1.0).all()
+
+
+def test_two_layers_everywhere_are_the_material_doubled():
+    # n layers scale the density, membrane moduli and bending alike: a sheet of 2 layers moves
+    # as the sheet of the doubled material (same contact stiffness), and unlike the single layer
+    # while it drapes (its mass doubles but the contact stiffness does not)
+    frames = 12
+    layered = scene(frames)
+    layered["face_layers"] = np.full(len(layered["garment_faces"]), 2.0)
+    doubled = scene(frames)
+    for k in ("density", "mu", "lam", "bending"):
+        doubled[k] = 2.0 * doubled[k]
+    runs = [run_newton_vbd(s, device="cpu", substeps=5, iterations=5, self_contact=False, use_graph=False)
+            for s in (layered, doubled, scene(frames))]
+    x2, xd, x1 = (r["positions"] for r in runs)
+    np.testing.assert_allclose(x2, xd, atol=2e-5)
+    masses = [r["newton_params"]["mass_kg"] for r in runs]
+    assert masses[0] == pytest.approx(2 * masses[2], rel=1e-5)
+    assert np.abs(x2[-1] - x1[-1]).max() > 1e-4  # the contact sees twice the weight
