@@ -92,6 +92,14 @@ class SideStreams:
         self._used.add(k)
         return warp().ScopedStream(self.streams[k], sync_enter=True)
 
+    def wait_here(self) -> None:
+        """The current stream waits for the side streams used since the last join, which stay
+        to be joined (another side stream's block that reads what they write)."""
+        if self.cuda:
+            current = warp().get_stream(self.device)
+            for k in sorted(self._used):
+                current.wait_stream(self.streams[k])
+
     def join(self) -> None:
         if self.cuda:
             main = warp().get_stream(self.device)

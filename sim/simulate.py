@@ -86,6 +86,16 @@ step); 135 of 144 random walks and runs passing against 134 (sessions 40 and 41)
 123.3 against 118.1 / 126.8 ms, strain 0.16 / 0.18 against 0.14 / 0.14; session 40)."""
 
 
+CUDA_COARSE_EARLY = True
+"""Whether a run on CUDA prepares the coarse system beside the self-contact detection
+(``VBDConfig.coarse_early``: its diagonal's self-contact stiffness at the particles with pairs at
+the previous substep's end). H100, docs/BENCHMARKS.md (session 42): the 5k t-shirt 3.76 / 3.82 ms
+per walk / run frame against 3.95 / 4.00 (the coarse factor was on the critical path: doubling it
+added 0.75 ms per frame), populations of random walks and runs 46 / 46 / 47 = 139 of 144 passing
+against 135 (session 41). The CPU runs in order on one stream: nothing to gain there, so its
+floats stay as before."""
+
+
 def default_substeps(vertices: int) -> int:
     """Substeps per frame of the job default for a garment of ``vertices`` vertices."""
     return FINE_SUBSTEPS if vertices > FINE_GARMENT_VERTICES else DEFAULT_SUBSTEPS
@@ -97,7 +107,8 @@ def simulator_defaults(cuda: bool = False) -> dict:
     CPU's proper colouring is recorded by its absence, as before session 41). A dataset records
     them beside its config, so that it is not continued under other physics
     (``sim.datasets.generate``): neither one begun on the other kind of device nor one begun on
-    CUDA before the colouring changed."""
+    CUDA before the colouring changed, or before the early coarse diagonal (``coarse_early``,
+    session 42)."""
     from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
 
     out = {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
@@ -105,6 +116,7 @@ def simulator_defaults(cuda: bool = False) -> dict:
            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE}}
     if cuda:
         out["max_colors"] = CUDA_COLORS
+        out["coarse_early"] = CUDA_COARSE_EARLY
     return out
 
 
@@ -128,7 +140,8 @@ class SimulationConfig:
     self-contact detection searches clusters instead of trees on CUDA for up to four 5k garments
     (``VBDConfig.self_contact_broadphase`` "auto"; session 40, 5.33 -> 4.54 ms per 5k t-shirt
     frame, 134 of 144 sequences passing as before; the same pairs, in another order), and the
-    vertices are coloured in 3 colours there (``CUDA_COLORS``; session 41).
+    vertices are coloured in 3 colours there (``CUDA_COLORS``; session 41), and the coarse system
+    is prepared beside the detection (``CUDA_COARSE_EARLY``; session 42).
 
     Attributes:
         fps: output frame rate [1/s]; the solver takes one step of ``1/fps`` per frame and the
@@ -255,7 +268,8 @@ class SimulationConfig:
         kw: dict[str, Any] = {"substeps": self.substeps_for(vertices), "iterations": self.iterations,
                               "coarse_sweeps": sweeps, "coarse_spacing": self.coarse_spacing,
                               "fast_math": True, "coarse_prefactor": True,
-                              "max_colors": CUDA_COLORS if cuda else 0}
+                              "max_colors": CUDA_COLORS if cuda else 0,
+                              "coarse_early": CUDA_COARSE_EARLY and cuda}
         unknown = sorted(set(self.solver) - allowed)
         if unknown:
             raise WrinklesInputError(f"simulation config: unknown solver option(s) {unknown}; "

@@ -960,7 +960,11 @@ def test_heavy_vertices_solved_by_whole_blocks_take_the_same_step(device):
         np.testing.assert_allclose(x, ref, atol=1e-4 * moved if device == "cuda" else 0.0, err_msg=str(cap))
 
 
-def test_a_step_captured_in_a_cuda_graph_takes_the_plain_step(device):
+EARLY_COARSE = {"coarse_sweeps": (1,), "coarse_prefactor": True, "coarse_early": True}
+
+
+@pytest.mark.parametrize("config", [{}, EARLY_COARSE], ids=["plain", "coarse_early"])
+def test_a_step_captured_in_a_cuda_graph_takes_the_plain_step(device, config):
     """On CUDA the step forks the bodies' placement and contact, the forward step and the
     previous deformation, and the self-contact detection's chains onto side streams
     (``sim.device.SideStreams``; since session 41 the next substep's placement beside the
@@ -969,7 +973,9 @@ def test_a_step_captured_in_a_cuda_graph_takes_the_plain_step(device):
     be the one every launch run in order on one stream gives, a moving body in contact and the
     layers in self-contact (a fork left unjoined fails the capture; a join in the wrong place
     lets the sweeps read half-written contacts, or the placement move the body under a contact
-    query). CUDA only: the CPU has no graphs and one stream."""
+    query). With ``coarse_early`` (session 42) the coarse system's preparation forks beside the
+    detection, after the forward step and the body contact on their side streams. CUDA only:
+    the CPU has no graphs and one stream."""
     from sim.device import SideStreams
 
     if device != "cuda":
@@ -980,7 +986,7 @@ def test_a_step_captured_in_a_cuda_graph_takes_the_plain_step(device):
     sphere_v, sphere_f = uv_sphere(centre, 0.01)
     out = []
     for mode in ("in order", "plain", "graph"):
-        solver = SolverVBD(m, VBDConfig(substeps=3, iterations=4, self_contact=True))
+        solver = SolverVBD(m, VBDConfig(substeps=3, iterations=4, self_contact=True, **config))
         if mode == "in order":  # every launch on the one stream, where it is issued
             for name in ("_side", "_placing", "_pipe", "_coarse_side"):
                 setattr(solver, name, SideStreams("cpu", len(getattr(solver, name).streams)))

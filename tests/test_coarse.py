@@ -458,3 +458,48 @@ def test_block_solve_matches_a_dense_solve_at_garment_size(side, spacing, task_p
     exact = np.linalg.solve(dense, rhs)
     np.testing.assert_allclose(level._dx.numpy(), exact, rtol=2e-3, atol=2e-3 * np.abs(exact).max())
     assert_split_equals_whole_block_solve(level, "cuda")
+
+
+def test_early_diagonal_takes_the_previous_substeps_pairs(device):
+    """``coarse_early``: the velocity kernel flags the particles with pairs at a substep's end,
+    and the next substep's ``prepare`` (beside the detection) gives those the self-contact
+    stiffness: the same diagonal as from the pair lists they came from, bit for bit; without
+    the flags, smaller by ``P^T`` of the stiffness at exactly the flagged particles."""
+    from tests.test_cloth_solver import draped_layers_in_contact, one_step_from
+
+    wp = warp()
+    m, *start = draped_layers_in_contact(device)
+    _, solver = one_step_from(m, start, coarse_sweeps=(1,), coarse_prefactor=True, coarse_early=True)
+    sc = solver.self_contact.data
+    counts = sc.vt_count.numpy() + sc.tv_total.numpy() + sc.ee_total.numpy()
+    flags = solver._pair_flags.numpy()
+    assert flags.shape == (m.particle_count,) and set(np.unique(flags)) == {0, 1}
+    np.testing.assert_array_equal(flags, (counts > 0).astype(np.int32))
+    level = solver.coarse
+    h = 1.0 / 120.0
+    diags = {}
+    for name, pair_flags in (("lists", None), ("flags", solver._pair_flags),
+                             ("none", wp.zeros_like(solver._pair_flags))):
+        level.prepare(h, sc, pair_flags)
+        diags[name] = level._diag.numpy().copy()
+    np.testing.assert_array_equal(diags["flags"], diags["lists"])
+    added = level.prolongation.T @ (flags * sc.stiffness)
+    assert added.max() > 0.0
+    np.testing.assert_allclose(diags["lists"] - diags["none"], added, rtol=1e-4, atol=1e-6 * added.max())
+    # off (the solver default): no flags written, the diagonal from the lists
+    _, plain = one_step_from(m, start, coarse_sweeps=(1,), coarse_prefactor=True)
+    assert plain._pair_flags.shape[0] == 0
+
+
+def test_early_coarse_corrections_carry_no_layer_through_another(device):
+    """The stacked layers of ``test_coarse_corrections_carry_no_layer_through_another`` with the
+    coarse system prepared beside the detection (``coarse_early``, the CUDA job default since
+    session 42): the diagonal lags the pairs by a substep, and still the sheets never cross
+    and the top one lands on the other."""
+    x, faces, nv, n = stacked_layers(device, True, frames=12, coarse_sweeps=(0, 2, 4), coarse_prefactor=True,
+                                     coarse_early=True)
+    assert np.all(np.isfinite(x))
+    assert np.all(self_intersections(x, faces, device=device) == 0)
+    gap = _center_gap(x, nv, n)
+    assert np.all(gap > 0.0)
+    assert gap[-1] < 0.03

@@ -325,6 +325,13 @@ def test_shards_combine_into_the_same_dataset(reference, tmp_path):
     cuda_made = json.loads(json.dumps(old))
     assert "max_colors" not in cuda_made["simulator"]
     cuda_made["simulator"]["max_colors"] = 3
+    # begun on CUDA in session 41 (3 colours, the coarse diagonal after the detection) and
+    # continued on CUDA now: refused by the CUDA run's record (its "coarse_early"); a CUDA run
+    # cannot be made here, so the record is compared as generate.py compares it
+    from sim.simulate import simulator_defaults
+
+    assert {**cuda_made["simulator"]} != simulator_defaults(cuda=True)
+    assert {**cuda_made["simulator"], "coarse_early": True} == simulator_defaults(cuda=True)
     del old["simulator"]
     for record in (old, session38, cuda_made):
         (out / "config.json").write_text(json.dumps(record))

@@ -96,7 +96,12 @@ def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
     # record is as before session 41, so CPU datasets begun then still continue)
     assert simulator_defaults(cuda=True)["max_colors"] == 3 and "max_colors" not in simulator_defaults()
     on_cuda = simulator_defaults(cuda=True)
-    assert {k: v for k, v in on_cuda.items() if k != "max_colors"} == simulator_defaults()
+    assert on_cuda["coarse_early"] is True and "coarse_early" not in simulator_defaults()
+    cuda_only = ("max_colors", "coarse_early")
+    assert {k: v for k, v in on_cuda.items() if k not in cuda_only} == simulator_defaults()
+    # the coarse system beside the detection on CUDA (session 42), in order on the CPU
+    assert SimulationConfig().vbd_config(4939, cuda=True).coarse_early and not vbd.coarse_early
+    assert not SimulationConfig(solver={"coarse_early": False}).vbd_config(4939, cuda=True).coarse_early
     # the coarse factor beside the first sweeps likewise (session 34)
     assert vbd.coarse_prefactor and not VBDConfig().coarse_prefactor
     assert not SimulationConfig(solver={"coarse_prefactor": False}).vbd_config().coarse_prefactor

@@ -70,7 +70,7 @@ import warp as wp
 from sim.cloth import coarse_block
 from sim.cloth.lanes import lane_mask, lane_read, lane_read_vec3
 from sim.cloth.model import mesh_edges
-from sim.cloth.self_contact import SelfContactData
+from sim.cloth.self_contact import SelfContactData, has_pairs
 from sim.cloth.vbd_kernels import PINNED, bound_step, load_particle_step
 
 
@@ -441,6 +441,7 @@ class CoarseLevel:
         # CUDA: a node's lanes summed by shuffles in the restriction's own launch
         # (``restrict_lanes_kernel``; session 41); the CPU adds them in a second launch
         self.restrict_lanes = device.is_cuda
+        self._no_flags = wp.zeros(0, dtype=wp.int32, device=d)  # ``restrict``: the pairs of ``sc_data``
         if device.is_cuda:
             need = max(coarse_block.shared_floats(int(c), int(b))
                        for c, b in zip(counts, widths, strict=True))
@@ -450,7 +451,7 @@ class CoarseLevel:
                     self.factor_kernel = coarse_block.factor_kernel(need)
                     self.substitute_kernel = coarse_block.substitute_kernel(need)
 
-    def prepare(self, h: float, sc_data) -> None:
+    def prepare(self, h: float, sc_data, pair_flags=None) -> None:
         """With ``prefactor``: what every correction of a substep of length ``h`` [s] shares,
         made from the substep's start: the coarse diagonal (``diagonal``) with the body contacts
         pressed at the inertial targets ``y`` (where the cloth goes if nothing holds it; the
@@ -462,10 +463,15 @@ class CoarseLevel:
         per substep threw cloth dropped on a sphere off it (``tests/test_coarse.py``). Three
         levels always take the diagonal at each correction (their inner band is assembled per
         correction anyway; from ``y`` the cycle let that cloth come within 0.9 mm of the
-        sphere)."""
+        sphere).
+
+        ``pair_flags`` (the solver's ``coarse_early``): the self-contact stiffness at the
+        particles flagged there (the pairs of the previous substep's end) instead of at those
+        with pairs in ``sc_data``, so that ``prepare`` need not wait for this substep's
+        detection."""
         if not self.prefactor:
             return
-        self.restrict(h, self._particles[1], sc_data, RESTRICT_DIAGONAL)
+        self.restrict(h, self._particles[1], sc_data, RESTRICT_DIAGONAL, pair_flags)
         self.factor()
 
     def correct(self, h: float, x, snap_out, sc_data, instance_body) -> None:
@@ -486,13 +492,15 @@ class CoarseLevel:
                           self._contact_margin, sc_data],
                   outputs=[x, snap_out], device=m.device)
 
-    def restrict(self, h: float, x, sc_data, parts: int = 3) -> None:
+    def restrict(self, h: float, x, sc_data, parts: int = 3, pair_flags=None) -> None:
         """The coarse right-hand side ``P^T residual`` (``parts`` bit ``RESTRICT_RHS``) and
         diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` (bit ``RESTRICT_DIAGONAL``; ``k``: body
         contact penalty at particles of ``x`` pressed onto the body by the solver's contacts,
-        self-contact penalty at particles with pairs in ``sc_data``) of a substep of length ``h``
-        [s]; both in one pass by default."""
+        self-contact penalty at particles with pairs in ``sc_data``, or flagged in ``pair_flags``
+        where given) of a substep of length ``h`` [s]; both in one pass by default."""
         m = self.model
+        if pair_flags is None:
+            pair_flags = self._no_flags
         _, _, point, normal, _, active = self._particles
         inertia = 1.0 / (h * h) + self._air_damping / h
         if self.restrict_lanes:
@@ -502,13 +510,13 @@ class CoarseLevel:
             threads = self.node_count * RESTRICT_LANES
             wp.launch(restrict_lanes_kernel, dim=threads,
                       inputs=[parts, self.residual, *self._r, x, m.particle_instance, point, normal, active,
-                              m.instance_thickness, self._k_contact, sc_data, self._mass, self._kdiag,
-                              inertia, threads],
+                              m.instance_thickness, self._k_contact, sc_data, pair_flags, self._mass,
+                              self._kdiag, inertia, threads],
                       outputs=[self._rhs, self._diag], device=m.device)
             return
         wp.launch(restrict_kernel, dim=self.node_count * RESTRICT_LANES,
                   inputs=[parts, self.residual, *self._r, x, m.particle_instance, point, normal, active,
-                          m.instance_thickness, self._k_contact, sc_data],
+                          m.instance_thickness, self._k_contact, sc_data, pair_flags],
                   outputs=[self._rhs_part, self._k_part], device=m.device)
         wp.launch(restrict_sum_kernel, dim=self.node_count,
                   inputs=[parts, self._rhs_part, self._k_part, self._mass, self._kdiag, inertia],
@@ -688,15 +696,6 @@ def prolong_level_kernel(
 
 
 @wp.func
-def has_pairs(sc: SelfContactData, i: int) -> bool:
-    """Whether particle ``i`` takes part in a stored self-contact pair (VT, TV or EE); the pair
-    arrays are read only when self-contact is on."""
-    if sc.enabled != 0:
-        return sc.vt_count[i] + sc.tv_total[i] + sc.ee_total[i] > 0
-    return False
-
-
-@wp.func
 def clamp_length(v: wp.vec3, cap: float) -> wp.vec3:
     """``v`` shortened to length ``cap`` where longer."""
     vl = wp.length(v)
@@ -732,9 +731,12 @@ def restrict_lane(
     instance_thickness: wp.array(dtype=float),
     k_contact: float,
     sc: SelfContactData,
+    pair_flags: wp.array(dtype=wp.int32),
 ):
     """Lane ``tid % RESTRICT_LANES``'s shares of node ``c``'s ``P^T r`` and ``P^T k``
-    (``restrict_kernel``)."""
+    (``restrict_kernel``). The self-contact stiffness goes to the particles with pairs in
+    ``sc``, or where ``pair_flags`` is not empty to those it flags (``CoarseLevel.prepare``'s
+    early diagonal: the pairs at the previous substep's end)."""
     s = wp.vec3(0.0)
     kc = float(0.0)
     rhs = (parts & RESTRICT_RHS) != 0
@@ -749,7 +751,12 @@ def restrict_lane(
                 th = instance_thickness[particle_instance[i]]
                 if wp.dot(contact_normal[i], x[i] - contact_point[i]) < th:
                     kc = kc + w * k_contact
-            if has_pairs(sc, i):
+            flagged = False
+            if pair_flags.shape[0] > 0:
+                flagged = pair_flags[i] != 0
+            else:
+                flagged = has_pairs(sc, i)
+            if flagged:
                 kc = kc + w * sc.stiffness
     return s, kc
 
@@ -769,6 +776,7 @@ def restrict_lanes_kernel(
     instance_thickness: wp.array(dtype=float),
     k_contact: float,
     sc: SelfContactData,
+    pair_flags: wp.array(dtype=wp.int32),
     node_mass: wp.array(dtype=float),
     node_stiffness: wp.array(dtype=float),
     inertia: float,
@@ -783,7 +791,7 @@ def restrict_lanes_kernel(
     tid = wp.tid()
     c = tid // RESTRICT_LANES
     s, kc = restrict_lane(parts, tid, c, r, offsets, ids, weights, x, particle_instance, contact_point,
-                          contact_normal, contact_active, instance_thickness, k_contact, sc)
+                          contact_normal, contact_active, instance_thickness, k_contact, sc, pair_flags)
     mask = lane_mask(tid, threads)
     first = (tid % 32) - tid % RESTRICT_LANES
     total = wp.vec3(0.0)
@@ -813,6 +821,7 @@ def restrict_kernel(
     instance_thickness: wp.array(dtype=float),
     k_contact: float,
     sc: SelfContactData,
+    pair_flags: wp.array(dtype=wp.int32),
     rhs_part: wp.array(dtype=wp.vec3),
     k_part: wp.array(dtype=float),
 ):
@@ -824,7 +833,7 @@ def restrict_kernel(
     tid = wp.tid()
     c = tid // RESTRICT_LANES
     s, kc = restrict_lane(parts, tid, c, r, offsets, ids, weights, x, particle_instance, contact_point,
-                          contact_normal, contact_active, instance_thickness, k_contact, sc)
+                          contact_normal, contact_active, instance_thickness, k_contact, sc, pair_flags)
     if (parts & RESTRICT_RHS) != 0:
         rhs_part[tid] = s
     if (parts & RESTRICT_DIAGONAL) != 0:

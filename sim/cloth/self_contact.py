@@ -291,6 +291,15 @@ def contact_view(a: SolveContactArrays) -> SelfContactData:
 
 
 @wp.func
+def has_pairs(sc: SelfContactData, i: int) -> bool:
+    """Whether particle ``i`` takes part in a stored self-contact pair (VT, TV or EE); the pair
+    arrays are read only when self-contact is on."""
+    if sc.enabled != 0:
+        return sc.vt_count[i] + sc.tv_total[i] + sc.ee_total[i] > 0
+    return False
+
+
+@wp.func
 def triangle_closest_bary(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> wp.vec3:
     """Barycentric weights (of a, b, c) of the point of triangle abc closest to ``p``
     (Ericson, Real-Time Collision Detection, 5.1.5)."""

@@ -242,6 +242,13 @@ class VBDConfig:
             (both before the raw loads and fast math). With them (session 34), at 14 substeps:
             6.25 / 6.24 ms against 7.05 / 7.06, both singles pass (run 0.250), 133 of 144
             sequences against 134; the skirt passes at 5 x 5.
+        coarse_early: with ``coarse_prefactor``, prepare the coarse system at the substep start
+            beside the self-contact detection instead of after it, beside the first sweeps:
+            the self-contact stiffness of its diagonal then goes to the particles that had pairs
+            at the previous substep's end (the velocity kernel flags them) instead of those with
+            pairs now. Off (default here; ``SimulationConfig`` turns it on for CUDA since
+            session 42, where the factor was on the critical path: doubling it added its whole
+            63 us per substep to the 5k t-shirt's frame).
         self_contact_broadphase: how the self-contact detection finds its candidates: ``"bvh"``
             (three trees, refitted every detection and rebuilt every step), ``"clusters"`` (no
             trees: the primitives in fixed clusters of ``self_contact_cluster_size``, culled
@@ -303,6 +310,7 @@ class VBDConfig:
     coarse_levels: int = 0
     coarse_smoothing: int = 2
     coarse_prefactor: bool = False
+    coarse_early: bool = False
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -531,6 +539,10 @@ class SolverVBD:
                                       cfg.coarse_smoothing, cfg.coarse_prefactor)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True, fast_math=cfg.fast_math)
+        # ``coarse_early``: the particles with pairs at the previous substep's end (the velocity
+        # kernel writes them; empty: not written)
+        early = self.coarse is not None and self.coarse.prefactor and cfg.coarse_early
+        self._pair_flags = wp.zeros(n if early and cfg.self_contact else 0, dtype=wp.int32, device=d)
 
     def broadphase(self, cuda: bool) -> str:
         """The self-contact broadphase: ``VBDConfig.self_contact_broadphase``, where ``"auto"`` is
@@ -692,6 +704,14 @@ class SolverVBD:
                                 body.place((s + 2) / cfg.substeps, dt)
             else:
                 self._contact_active.zero_()
+            early = self.coarse is not None and self.coarse.prefactor and cfg.coarse_early
+            if early:
+                # the coarse diagonal and factor beside the detection (``coarse_early``): from the
+                # inertial targets and the body contacts (side streams 1 and 0) and the previous
+                # substep's pairs, so only the sweeps wait for the detection (session 42)
+                with self._coarse_side.on(0):
+                    self._side.wait_here()
+                    self.coarse.prepare(h, self._sc_data, self._pair_flags if cfg.self_contact else None)
             sc_data = self._sc_data
             if self.self_contact is not None and cfg.self_contact_lookahead:
                 # the trees are rebuilt once per step, by the first query beside the sweeps
@@ -725,7 +745,7 @@ class SolverVBD:
                         self.self_contact.detect(self._x_prev, v, 2.0 * h,
                                                  reference=control.instance_velocity, slot=(s + 1) % 2)
             self._side.join()
-            if self.coarse is not None and self.coarse.prefactor:
+            if self.coarse is not None and self.coarse.prefactor and not early:
                 # the coarse diagonal and factor from the substep start, beside the first sweeps
                 with self._coarse_side.on(0):
                     self.coarse.prepare(h, sc_data)
@@ -746,5 +766,5 @@ class SolverVBD:
             if self._limit_buffer is not None:
                 self.limit_strain(x)
             self._pipe.join()
-            wp.launch(K.velocity_kernel, dim=n, inputs=[x, self._x_prev, 1.0 / h],
-                      outputs=[v, state_out.accelerations], device=d)
+            wp.launch(K.velocity_kernel, dim=n, inputs=[x, self._x_prev, 1.0 / h, sc_data],
+                      outputs=[v, state_out.accelerations, self._pair_flags], device=d)

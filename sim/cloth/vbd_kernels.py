@@ -25,6 +25,7 @@ from sim.cloth.self_contact import (
     SolveContactArrays,
     apply_bound,
     contact_view,
+    has_pairs,
     read_positions,
     read_triangle,
     record_force_hessian,
@@ -807,14 +808,20 @@ def velocity_kernel(
     x: wp.array(dtype=wp.vec3),
     x_prev: wp.array(dtype=wp.vec3),
     inv_h: float,
+    sc: SelfContactData,
     v_inout: wp.array(dtype=wp.vec3),
     a_out: wp.array(dtype=wp.vec3),
+    pair_flags_out: wp.array(dtype=wp.int32),
 ):
     """Implicit-Euler velocity ``v = (x - x_prev) / h``; acceleration of the substep (for the
     next initial guess); ``x`` becomes ``x_prev``, the next substep's start (``forward_kernel``
     need not write it, so the next substep's detection and body contact, which read it, can
-    start beside its forward step)."""
+    start beside its forward step). Where ``pair_flags_out`` is not empty: whether each
+    particle has pairs in ``sc`` (the substep's pairs, for the next substep's early coarse
+    diagonal, ``VBDConfig.coarse_early``)."""
     i = wp.tid()
+    if pair_flags_out.shape[0] > 0:
+        pair_flags_out[i] = wp.where(has_pairs(sc, i), 1, 0)
     xi = x[i]
     v_new = (xi - x_prev[i]) * inv_h
     a_out[i] = (v_new - v_inout[i]) * inv_h
