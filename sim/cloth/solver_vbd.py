@@ -25,8 +25,10 @@ over the vertex colouring. Per substep:
    read from the sweep-start snapshot, so the step does not depend on the order of the GPU's
    threads; with ``coarse_sweeps``, a coarse-level correction before the sweeps named there
    (with ``coarse_prefactor`` its diagonal and factor are made from the substep-start state
-   beside the first sweeps, on CUDA on a side stream: ``CoarseLevel.prepare``);
-6. ``velocity_kernel`` (and ``x_prev`` for the next substep).
+   beside the first sweeps, on CUDA on a side stream: ``CoarseLevel.prepare``; with
+   ``coarse_early`` already beside 4, after 2 and 3, from the previous substep's pairs);
+6. ``velocity_kernel`` (and ``x_prev`` for the next substep; with ``coarse_early`` the flags of
+   the particles with pairs, for the next substep's 5).
 
 Substep safety: contact is found against the body where it will be at the end of each
 substep, and the sign test classifies a particle the body has overtaken correctly as long as
