@@ -456,10 +456,11 @@ class CoarseLevel:
         made from the substep's start: the coarse diagonal (``diagonal``) with the body contacts
         pressed at the inertial targets ``y`` (where the cloth goes if nothing holds it; the
         solver's substep-start contact planes) and ``sc_data``'s pairs (``restrict``), and on the
-        split block path each instance's factor (``factor``). It reads nothing a sweep writes, so the solver
-        runs it beside the first sweeps (on a side stream on CUDA) and joins it before the first
-        correction: the factorization, most of a correction's time, leaves the chain of dependent
-        launches (session 30). Pressed at the substep-start positions instead, two corrections
+        split block path each instance's factor (``factor``). It reads nothing a sweep writes, so
+        the solver runs it beside the first sweeps (on a side stream on CUDA; with
+        ``coarse_early`` beside the self-contact detection already) and joins it before the first
+        correction: the factorization, most of a correction's time, leaves the chain of
+        dependent launches (session 30). Pressed at the substep-start positions instead, two corrections
         per substep threw cloth dropped on a sphere off it (``tests/test_coarse.py``). Three
         levels always take the diagonal at each correction (their inner band is assembled per
         correction anyway; from ``y`` the cycle let that cloth come within 0.9 mm of the

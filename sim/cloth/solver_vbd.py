@@ -248,9 +248,10 @@ class VBDConfig:
             beside the self-contact detection instead of after it, beside the first sweeps:
             the self-contact stiffness of its diagonal then goes to the particles that had pairs
             at the previous substep's end (the velocity kernel flags them) instead of those with
-            pairs now. Off (default here; ``SimulationConfig`` turns it on for CUDA since
-            session 42, where the factor was on the critical path: doubling it added its whole
-            63 us per substep to the 5k t-shirt's frame).
+            pairs now (none in a solver's first substep). Needs ``coarse_prefactor`` and two
+            coarse levels (else nothing changes). Off (default here; ``SimulationConfig`` turns
+            it on for CUDA since session 42, where the factor was on the critical path: doubling
+            it added its whole 63 us per substep to the 5k t-shirt's frame).
         self_contact_broadphase: how the self-contact detection finds its candidates: ``"bvh"``
             (three trees, refitted every detection and rebuilt every step), ``"clusters"`` (no
             trees: the primitives in fixed clusters of ``self_contact_cluster_size``, culled
