@@ -366,6 +366,10 @@ def pants_panels(m: BodyMeasure, p: PantsParams, h: float, thickness: float) -> 
             r_l = _polar(hull, c, theta)[0]
             r = np.maximum((1 - s) * r_d + s * r_l, r_l)
             row = np.stack([c[0] + r * np.cos(theta), yk, c[1] + r * np.sin(theta)], axis=1)
+            # off the mid-plane, where the other leg's rows are: the blend from the loop's bridge
+            # (x = 0) left both legs' first inner rows in the plane, the two legs' faces one on
+            # the other (session 42)
+            row[:, 0] = sign * np.maximum(sign * row[:, 0], LEG_CLIP)
             row[-1] = row[0]
             rows.append(resample(row, h, min_segments=3))
         panels.append(Panel(f"{side}_leg", tuple(rows), top=None, local_spacing=True))
