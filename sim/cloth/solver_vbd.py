@@ -544,8 +544,8 @@ class SolverVBD:
                                                   evaluate=True, fast_math=cfg.fast_math)
         # ``coarse_early``: the particles with pairs at the previous substep's end (the velocity
         # kernel writes them; empty: not written)
-        early = self.coarse is not None and self.coarse.prefactor and cfg.coarse_early
-        self._pair_flags = wp.zeros(n if early and cfg.self_contact else 0, dtype=wp.int32, device=d)
+        self._early = self.coarse is not None and self.coarse.prefactor and cfg.coarse_early
+        self._pair_flags = wp.zeros(n if self._early and cfg.self_contact else 0, dtype=wp.int32, device=d)
 
     def broadphase(self, cuda: bool) -> str:
         """The self-contact broadphase: ``VBDConfig.self_contact_broadphase``, where ``"auto"`` is
@@ -707,14 +707,14 @@ class SolverVBD:
                                 body.place((s + 2) / cfg.substeps, dt)
             else:
                 self._contact_active.zero_()
-            early = self.coarse is not None and self.coarse.prefactor and cfg.coarse_early
-            if early:
+            if self._early:
                 # the coarse diagonal and factor beside the detection (``coarse_early``): from the
                 # inertial targets and the body contacts (side streams 1 and 0) and the previous
                 # substep's pairs, so only the sweeps wait for the detection (session 42)
                 with self._coarse_side.on(0):
                     self._side.wait_here()
-                    self.coarse.prepare(h, self._sc_data, self._pair_flags if cfg.self_contact else None)
+                    # (without self-contact the flags are empty: the disabled lists flag nothing)
+                    self.coarse.prepare(h, self._sc_data, self._pair_flags)
             sc_data = self._sc_data
             if self.self_contact is not None and cfg.self_contact_lookahead:
                 # the trees are rebuilt once per step, by the first query beside the sweeps
@@ -748,7 +748,7 @@ class SolverVBD:
                         self.self_contact.detect(self._x_prev, v, 2.0 * h,
                                                  reference=control.instance_velocity, slot=(s + 1) % 2)
             self._side.join()
-            if self.coarse is not None and self.coarse.prefactor and not early:
+            if self.coarse is not None and self.coarse.prefactor and not self._early:
                 # the coarse diagonal and factor from the substep start, beside the first sweeps
                 with self._coarse_side.on(0):
                     self.coarse.prepare(h, sc_data)
