@@ -683,7 +683,7 @@ TEMPLATES: dict[str, Template] = {
                              ("waistband", "hem"), "A-line skirt widening below the hips", 0.018, 0.007,
                              (3009, 19668)),
     "shorts": Template(PantsParams, {"length": 0.45, "ease": 0.02}, pants_panels, ("waistband", "hem"),
-                       "shorts: hip tube split into two legs at the crotch", 0.0145, 0.0055, (3146, 21274)),
+                       "shorts: hip tube split into two legs at the crotch", 0.0145, 0.0055, (3146, 21272)),
     "trousers": Template(PantsParams, {}, pants_panels, ("waistband", "hem"),
                          "full-length trousers, hem above the ankle", 0.02, 0.0075, (3099, 21558)),
     "tank_top": Template(TopParams, {}, tank_top_panels, ("shoulders", "hem"),
