@@ -45,7 +45,8 @@ def add_material_argument(ap: argparse.ArgumentParser) -> None:
                     help="a field of the t-shirt's cotton (sim.garments.materials.Material) for this run, "
                     "e.g. friction=0.2 against skin (repeatable; default: the preset)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                    help="a t-shirt template parameter (`wrinkles garments` lists them), e.g. "
+                    help="a template parameter of the t-shirt (or of --garment where there is one; "
+                    "`wrinkles garments` lists them), e.g. "
                     "neck_fillet=0 or hem_width=0 (repeatable; default: the template's)")
 
 
@@ -54,7 +55,8 @@ def template_params(args: argparse.Namespace) -> dict:
     decides) or a bad number exits with a one-line error."""
     from sim.garments.templates import make_params
 
-    return _numbers(args.param, "--param", lambda out: make_params("t_shirt", **out))
+    category = getattr(args, "garment", "t_shirt")
+    return _numbers(args.param, "--param", lambda out: make_params(category, **out))
 
 
 def material_changes(args: argparse.Namespace) -> dict:
@@ -122,16 +124,18 @@ def load_single_scene(args: argparse.Namespace):
             load_motion(args.motion, fps=30.0, duration=args.seconds))
 
 
-def build_garment(body, vertices: int, material: dict | None = None, **params: float):
-    """The t-shirt template at the edge length that gives about ``vertices`` vertices, in cotton
-    with the fields ``material`` changed (``material_changes``), with template ``params``."""
+def build_garment(body, vertices: int, material: dict | None = None, category: str = "t_shirt",
+                  **params: float):
+    """The t-shirt template (or the template ``category``) at the edge length that gives about
+    ``vertices`` vertices, in cotton with the fields ``material`` changed (``material_changes``),
+    with template ``params``."""
     from sim.garments import make_garment
     from sim.garments.materials import get_material
     from sim.garments.templates import TEMPLATES
 
-    t = TEMPLATES["t_shirt"]
+    t = TEMPLATES[category]
     edge = t.coarse * math.sqrt(t.vertices[0] / float(vertices))
-    return make_garment("t_shirt", body, None, resolution=edge,
+    return make_garment(category, body, None, resolution=edge,
                         material=get_material("cotton").with_(**(material or {})), **params), edge
 
 

@@ -1,17 +1,20 @@
 """Where a t-shirt run's edge strain sits: its most stretched edges, with place and shape.
 
-One run of the benchmark t-shirt (``bench_tshirt.build_garment``) on the default body at the
+One run of the benchmark t-shirt (``bench_tshirt.build_garment``; ``--garment`` another template,
+session 42) on the default body at the
 job defaults (``SimulationConfig``; ``--solver`` adds ``VBDConfig`` fields), then per mesh edge
 the largest strain ``l / l0 - 1`` over the motion's frames. Written: the run's maximum and mean
 strain, how many edges exceed 0.2 and the 0.35 gate, and the worst edges with their frame, rest
 length, triangles per end vertex, panel and rest position. The max-strain gate is set by a few
 edges; this shows whether they sit at a feature of the pattern (session 26: the neckline's
 square corners) or spread over the garment. It also lists, per sequence, the frames with
-self-intersections and the edges that cross at the first of them; ``--copies K`` runs the same
+self-intersections and the edges that cross at the first of them, and where the body holds the
+most garment vertices inside it (per panel, with their mean rest position); ``--copies K`` runs the same
 motions K times in one batched model beside the runs alone, to tell a batch's result from a
 single garment's.
 
     python -m benchmarks.worst_edges --device cuda --vertices 20000 --motion run --tag _19k_run
+    python -m benchmarks.worst_edges --device cpu --garment trousers --vertices 3000 --motion run
     python -m benchmarks.worst_edges --device cpu --vertices 1000 --seconds 0.5 --param neck_fillet=0
     python -m benchmarks.worst_edges --vertices 20000 --setting 20x5 --motion walk,run --copies 8
     python -m benchmarks.worst_edges --device cuda --vertices 20000 --motion walk --save f19.npz  # then
@@ -46,6 +49,23 @@ def _edge_rows(keys, worst, strain, rest, e, tris, panel, names) -> list[dict]:
     return rows
 
 
+def _inside_rows(result, g, t: int, panel: np.ndarray, device: str) -> dict:
+    """The garment vertices inside the body at frame ``t`` (the worst): their count, and per
+    panel how many, how deep at most [mm] and their mean rest position."""
+    from sim.cloth.state import BodyCollider
+
+    seq = result.sequence
+    body = BodyCollider(seq.body.vertices[t], seq.body.faces, device=device)
+    d = body.signed_distance(np.asarray(seq.vertices[t], np.float32), max_dist=0.1)
+    ins = np.flatnonzero(d < 0.0)
+    rows = {}
+    for p in np.unique(panel[ins]):
+        k = ins[panel[ins] == p]
+        rows[g.panel_names[p]] = {"vertices": int(len(k)), "deepest_mm": float(-1000.0 * d[k].min()),
+                                  "mean_rest_position": np.round(g.rest_vertices[k].mean(axis=0), 3).tolist()}
+    return {"frame": t, "vertices": int(len(ins)), "by_panel": rows}
+
+
 def describe(result, g, device: str, n_worst: int) -> dict:
     """One sequence's strain and crossing figures: the worst edges, and the edges that cross a
     face at the first frame with crossings (panel and rest position of each)."""
@@ -69,6 +89,9 @@ def describe(result, g, device: str, n_worst: int) -> dict:
            "worst": _edge_rows(np.argsort(-worst)[:n_worst], worst, strain, rest, e, tris, panel,
                                g.panel_names),
            "crossings_per_frame": {int(t): int(c) for t, c in enumerate(crossings) if c}}
+    inside = np.asarray(result.quality.inside_fraction)
+    if inside.any():
+        out["inside"] = _inside_rows(result, g, int(inside.argmax()), panel, device)
     if crossings.any():
         t = int(np.flatnonzero(crossings)[0])
         hit = np.flatnonzero(crossing_edges(x[t], g.faces, device=device))
@@ -91,7 +114,8 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default="auto")
-    ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: %(default)s)")
+    ap.add_argument("--garment", default="t_shirt", help="template (default: %(default)s)")
+    ap.add_argument("--vertices", type=int, default=5000, help="garment size (default: %(default)s)")
     ap.add_argument("--motion", default="walk",
                     help="motion, or a comma list of motions (default: %(default)s)")
     ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s]")
@@ -121,7 +145,7 @@ def main() -> None:
         setting = {"substeps": int(m[1]), "iterations": int(m[2])}
     device = resolve_device(args.device)
     body = load_default_body()
-    g, _ = build_garment(body, args.vertices, material, **params)
+    g, _ = build_garment(body, args.vertices, material, args.garment, **params)
     names = args.motion.split(",")
     motions = [load_motion(n, fps=30.0, duration=args.seconds) for n in names]
     cfg = SimulationConfig(device=device, solver=json.loads(args.solver), keep_prelude=args.keep_prelude,
@@ -149,7 +173,8 @@ def main() -> None:
                             x=x)
     first = runs[f"alone {names[0]}"]
     write_result(f"worst_edges_{device.split(':')[0]}{args.tag}", {
-        "machine": machine(device), "vertices": len(g.rest_vertices), "motion": args.motion,
+        "machine": machine(device), "garment": args.garment, "vertices": len(g.rest_vertices),
+        "motion": args.motion,
         "seconds": args.seconds, "setting": args.setting or "default", "solver": json.loads(args.solver),
         "params": params, "material": material, "copies": args.copies, "wall_s": wall, **first, "runs": runs,
     })
