@@ -12,9 +12,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 
-from benchmarks.bench_tshirt import quality_dict, run_ours
+from benchmarks.bench_tshirt import build_garment, quality_dict, run_ours
 from benchmarks.common import machine, write_result
 
 
@@ -34,8 +33,6 @@ def main() -> None:
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
     from sim.errors import WrinklesInputError
-    from sim.garments import make_garment
-    from sim.garments.materials import get_material
     from sim.garments.templates import TEMPLATES
     from sim.motions import load_motion
     from sim.simulate import SimulationConfig
@@ -55,9 +52,7 @@ def main() -> None:
     motions = {n: load_motion(n, fps=30.0, duration=args.seconds) for n in args.motions.split(",")}
     figures: dict = {}
     for name in names:
-        t = TEMPLATES[name]
-        edge = t.coarse * (math.sqrt(t.vertices[0] / args.vertices) if args.vertices else 1.0)
-        garment = make_garment(name, body, None, resolution=edge, material=get_material("cotton"))
+        garment, _ = build_garment(body, args.vertices or TEMPLATES[name].vertices[0], category=name)
         figures[name] = {"vertices": garment.num_vertices, "runs": {}}
         for motion_name, motion in motions.items():
             for k, solver in enumerate(variants):
