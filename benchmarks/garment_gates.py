@@ -51,6 +51,13 @@ def main() -> None:
     body = load_default_body()
     motions = {n: load_motion(n, fps=30.0, duration=args.seconds) for n in args.motions.split(",")}
     figures: dict = {}
+
+    def write() -> None:  # after every garment: a run cut short by a time limit keeps what it measured
+        write_result(f"garment_gates_{device.split(':')[0]}{args.tag}", {
+            "machine": machine(device),
+            "sizes": {"seconds": args.seconds, "vertices": args.vertices or "template coarse"},
+            "variants": variants, "figures": figures, "complete": len(figures) == len(names)})
+
     for name in names:
         garment, _ = build_garment(body, args.vertices or TEMPLATES[name].vertices[0], category=name)
         figures[name] = {"vertices": garment.num_vertices, "runs": {}}
@@ -72,10 +79,7 @@ def main() -> None:
                 print(f"{name:15s} {garment.num_vertices:6d} {motion_name:5s} variant {k} {ms:7.2f} ms  "
                       f"strain {strain:.3f}  crossings {q.get('self_intersections_max')}  {verdict}",
                       flush=True)
-    write_result(f"garment_gates_{device.split(':')[0]}{args.tag}", {
-        "machine": machine(device),
-        "sizes": {"seconds": args.seconds, "vertices": args.vertices or "template coarse"},
-        "variants": variants, "figures": figures})
+        write()
 
 
 if __name__ == "__main__":

@@ -5,7 +5,8 @@ session 42) on the default body at the
 job defaults (``SimulationConfig``; ``--solver`` adds ``VBDConfig`` fields), then per mesh edge
 the largest strain ``l / l0 - 1`` over the motion's frames. Written: the run's maximum and mean
 strain, how many edges exceed 0.2 and the 0.35 gate, and the worst edges with their frame, rest
-length, triangles per end vertex, panel and rest position. The max-strain gate is set by a few
+length, triangles per end vertex, panel and rest position, and how far the body's own skin within
+5 cm of the worst edge is stretched at its frame (``skin_under_worst``). The max-strain gate is set by a few
 edges; this shows whether they sit at a feature of the pattern (session 26: the neckline's
 square corners) or spread over the garment. It also lists, per sequence, the frames with
 self-intersections and the edges that cross at the first of them, and where the body holds the
@@ -66,7 +67,27 @@ def _inside_rows(result, g, t: int, panel: np.ndarray, device: str) -> dict:
     return {"frame": t, "vertices": int(len(ins)), "by_panel": rows}
 
 
-def describe(result, g, device: str, n_worst: int) -> dict:
+def _skin_under(result, body_rest: np.ndarray, point: np.ndarray, t: int, reach: float = 0.05) -> dict:
+    """How far the body's own skin is stretched at frame ``t`` near ``point`` [m]: the strain
+    (``l / l0 - 1`` against the body's rest mesh) of the body edges whose midpoints lie within
+    ``reach`` of it. Skinning alone (no pose correctives) stretches the skin at the crotch and the
+    knees; cloth held there by friction and pressure follows it (session 43)."""
+    from sim.quality import unique_edges
+
+    seq = result.sequence
+    e = unique_edges(seq.body.faces)
+    bx = np.asarray(seq.body.vertices[t], np.float64)
+    near = np.linalg.norm(0.5 * (bx[e[:, 0]] + bx[e[:, 1]]) - point, axis=1) < reach
+    if not near.any():
+        return {"edges": 0}
+    rest = np.asarray(body_rest, np.float64)
+    s = (np.linalg.norm(bx[e[near, 0]] - bx[e[near, 1]], axis=1)
+         / np.linalg.norm(rest[e[near, 0]] - rest[e[near, 1]], axis=1) - 1.0)
+    return {"reach_m": reach, "edges": int(near.sum()), "max": float(s.max()),
+            "p90": float(np.percentile(s, 90)), "mean": float(s.mean())}
+
+
+def describe(result, g, device: str, n_worst: int, body_rest: np.ndarray | None = None) -> dict:
     """One sequence's strain and crossing figures: the worst edges, and the edges that cross a
     face at the first frame with crossings (panel and rest position of each)."""
     from sim.quality import SimulationError, crossing_edges, edge_strain, unique_edges
@@ -89,6 +110,10 @@ def describe(result, g, device: str, n_worst: int) -> dict:
            "worst": _edge_rows(np.argsort(-worst)[:n_worst], worst, strain, rest, e, tris, panel,
                                g.panel_names),
            "crossings_per_frame": {int(t): int(c) for t, c in enumerate(crossings) if c}}
+    if body_rest is not None:  # the skin under the worst edge, at its worst frame
+        k = int(worst.argmax())
+        t = int(strain[:, k].argmax())
+        out["skin_under_worst"] = _skin_under(result, body_rest, 0.5 * (x[t][e[k, 0]] + x[t][e[k, 1]]), t)
     inside = np.asarray(result.quality.inside_fraction)
     if inside.any():
         out["inside"] = _inside_rows(result, g, int(inside.argmax()), panel, device)
@@ -129,9 +154,9 @@ def main() -> None:
                     help="count the settle and blend frames too (frame 0 is then the settle's first)")
     ap.add_argument("--worst", type=int, default=15, help="edges to list (default: %(default)s)")
     ap.add_argument("--save", default="", metavar="PATH.npz",
-                    help="also write each alone run's garment positions per frame (float32) and the "
-                    "rest mesh, one file per motion (PATH_walk.npz, ...), for a look at the worst "
-                    "frames (default: off)")
+                    help="also write each alone run's garment positions per frame (float32), the rest "
+                    "mesh and the body's positions and faces, one file per motion (PATH_walk.npz, ...), "
+                    "for a look at the worst frames (default: off)")
     add_material_argument(ap)
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
@@ -154,9 +179,11 @@ def main() -> None:
     t0 = time.perf_counter()
     for n, mot in zip(names, motions, strict=True):
         r = simulate_batch([SimulationJob(g, body, mot, None)], config=cfg, failures="return")[0]
-        runs[f"alone {n}"] = describe(r, g, device, args.worst)
+        betas = None if mot.betas is None else np.asarray(mot.betas).reshape(-1)[: body.num_betas]
+        runs[f"alone {n}"] = describe(r, g, device, args.worst, body.rest_mesh(betas))
         if args.save and not isinstance(r, Exception):
-            frames[n] = np.asarray(r.sequence.vertices, dtype=np.float32)
+            frames[n] = (np.asarray(r.sequence.vertices, dtype=np.float32),
+                         np.asarray(r.sequence.body.vertices, dtype=np.float32), r.sequence.body.faces)
     if args.copies > 0:
         jobs = [SimulationJob(g, body, mot, None) for _ in range(args.copies) for mot in motions]
         results = simulate_batch(jobs, config=cfg, failures="return")
@@ -167,10 +194,10 @@ def main() -> None:
     for label, d in runs.items():
         print(f"{label}: max strain {d.get('max_strain', float('nan')):.3f}, crossings by frame "
               f"{d.get('crossings_per_frame', d.get('error'))}", flush=True)
-    for n, x in frames.items():  # one file per motion: PATH_walk.npz, ...
+    for n, (x, bx, bf) in frames.items():  # one file per motion: PATH_walk.npz, ...
         np.savez_compressed(re.sub(r"(\.npz)?$", f"_{n}.npz", args.save, count=1), rest=g.rest_vertices,
                             faces=g.faces, panel_ids=g.panel_ids, panel_names=np.asarray(g.panel_names),
-                            x=x)
+                            x=x, body=bx, body_faces=bf)
     first = runs[f"alone {names[0]}"]
     write_result(f"worst_edges_{device.split(':')[0]}{args.tag}", {
         "machine": machine(device), "garment": args.garment, "vertices": len(g.rest_vertices),

@@ -28,11 +28,14 @@ That prelude is dropped from the output: the sequence starts at the motion's fir
 the garment at rest on the body (--keep-prelude keeps it). Attachment sets named by --pin
 (default: waistband) follow the skin; everything else is free cloth.
 
-Every frame is checked for NaN/explosion: a run that blows up stops with one line naming the
-frame and the cause, exit status 1, and writes nothing. Every sequence gets a quality report
+Every frame is checked for NaN/explosion: a run that blows up stops at that frame, naming it
+and the cause; when its last retry (below) stops too, that is one line, exit status 1, and
+nothing is written. Every sequence gets a quality report
 (edge strain, fraction of garment vertices inside the body, self-intersections) judged against
-quality gates (--gate); a sequence that fails them is an error (exit 1, nothing written)
-unless --allow-failed-gates. The report is stored in the stage's metadata and in a sidecar
+quality gates (--gate). A sequence that fails them, or stops, is simulated again at more
+substeps (--retry: 5/3 and then 2 times, 20 and 24 of the automatic 12: fast motions need
+more solve than the default gives); one that fails at the last is an error (exit 1, nothing
+written) unless --allow-failed-gates. The report is stored in the stage's metadata and in a sidecar
 <out stem>.quality.json with the gates, the resolved config and the seed.
 
 --garment is a template (straight_skirt, flared_skirt, shorts, trousers, tank_top, t_shirt,
@@ -118,6 +121,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "max_self_intersections (0) (repeatable)")
     s.add_argument("--allow-failed-gates", action="store_true",
                    help="write the outputs of a sequence that fails the quality gates (exit 0)")
+    s.add_argument("--retry", action=argparse.BooleanOptionalAction, default=True,
+                   help="a sequence that fails a quality gate or stops (NaN, explosion) is simulated again "
+                        "at "
+                        "5/3 and then 2 times the substeps (20 and 24 of the automatic 12) until it passes; "
+                        "the written one's substeps and the runs before it are in the quality report "
+                        "(default: on)")
     o = p.add_argument_group("outputs")
     o.add_argument("--out", default=None,
                    help="USD stage to write: .usda, .usdc or .usd (default: out/GARMENT_MOTION.usda); "
@@ -249,25 +258,47 @@ def run(args: argparse.Namespace) -> int:
     garment = load_garment_arg(args, bm.body, bm.betas)
 
     total = config.solver_steps(bm.motion.num_frames)
-    try:
-        with progress_bar(total, f"simulating {garment.name}", quiet=args.quiet) as advance:
-            result = simulate(garment, bm.body, bm.motion, betas=bm.betas, config=config, seed=args.seed,
-                              progress=advance)
-    except SimulationError as e:
-        print(f"wrinkles simulate: {e}", file=sys.stderr)
+    counts = [config.substeps_for(garment.num_vertices)]
+    if args.retry:
+        counts += config.retry_substeps(garment.num_vertices)
+    attempts: list[dict] = []  # the runs before the one written, and why each was not enough
+    for k, n in enumerate(counts):
+        if k:
+            config = dataclasses.replace(config, substeps=n)
+        label = f"simulating {garment.name}" + (f" at {n} substeps" if k else "")
+        try:
+            with progress_bar(total, label, quiet=args.quiet) as advance:
+                result = simulate(garment, bm.body, bm.motion, betas=bm.betas, config=config, seed=args.seed,
+                                  progress=advance)
+        except SimulationError as e:
+            result, why = None, str(e)
+            attempts.append({"substeps": n, "error": why})
+        else:
+            if result.passed or k + 1 == len(counts):
+                break
+            why = "quality gates failed: " + "; ".join(result.failed_gates)
+            attempts.append({"substeps": n, "failed_gates": list(result.failed_gates)})
+        if k + 1 < len(counts) and not args.quiet:
+            print(f"wrinkles simulate: {why} (at {n} substeps); retrying at {counts[k + 1]} substeps",
+                  file=sys.stderr)
+    tried = ""
+    if len(counts) > 1:
+        tried = f" (at {counts[-1]} substeps, after {', '.join(str(n) for n in counts[:-1])})"
+    if result is None:
+        print(f"wrinkles simulate: {why}{tried}", file=sys.stderr)
         return 1
     seq, quality = result.sequence, result.quality
     if result.failed_gates and not args.allow_failed_gates:
-        print(f"wrinkles simulate: quality gates failed: {'; '.join(result.failed_gates)} "
+        print(f"wrinkles simulate: quality gates failed: {'; '.join(result.failed_gates)}{tried} "
               "(nothing written; --allow-failed-gates writes it anyway; more --substeps than "
-              f"{config.substeps_for(garment.num_vertices)} or --iterations than {config.iterations} lower "
-              "strain and "
-              "crossings, at their cost in time)", file=sys.stderr)
+              f"{counts[-1]} or --iterations than {config.iterations} lower strain and crossings, at "
+              "their cost in time)", file=sys.stderr)
         return 1
 
     report = {
         "passed": result.passed,
         "failed_gates": list(result.failed_gates),
+        "attempts": attempts,
         "gates": config.to_dict()["gates"],
         "quality": quality.to_json(),
         "config": config.to_dict(),

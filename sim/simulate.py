@@ -96,6 +96,19 @@ against 135 (session 41). The CPU runs in order on one stream: nothing to gain t
 floats stay as before."""
 
 
+RETRY_FACTORS = (5.0 / 3.0, 2.0)
+"""Substeps of the retries of a sequence that fails its quality gates or stops (NaN, explosion),
+as multiples of its run's substeps (``SimulationConfig.retry_factors``): 12 -> 20 -> 24, and 14 ->
+23 -> 28 for a fine garment. Under-converged sweeps, not the physics, fail most fast sequences
+(session 29: the fine t-shirt's strain falls towards the skin's with more solve), so more
+substeps pass many of them. H100, docs/BENCHMARKS.md (session 43), the templates' runs: at the
+coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (another 5), so 6 of 8
+pass within the ladder; at the fine size (~20k) none at 14, 1 at 23 and 2 at 28. Walks pass at
+the default (8 of 8, coarse). The trousers' and the straight skirt's runs pass at no count: the
+skinned body's own skin stretches up to 60 % under the trousers' worst edge (linear blend
+skinning at the crotch), and a straight skirt's hem cannot span a running stride."""
+
+
 def default_substeps(vertices: int) -> int:
     """Substeps per frame of the job default for a garment of ``vertices`` vertices."""
     return FINE_SUBSTEPS if vertices > FINE_GARMENT_VERTICES else DEFAULT_SUBSTEPS
@@ -108,12 +121,15 @@ def simulator_defaults(cuda: bool = False) -> dict:
     them beside its config, so that it is not continued under other physics
     (``sim.datasets.generate``): neither one begun on the other kind of device nor one begun on
     CUDA before the colouring changed, or before the early coarse diagonal (``coarse_early``,
-    session 42)."""
+    session 42), nor one begun before sequences that fail their gates were retried
+    (``RETRY_FACTORS``, session 43; a dataset's own ``[simulation] retry_factors`` is in its
+    config)."""
     from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
 
     out = {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
                         "fine_over_vertices": FINE_GARMENT_VERTICES},
-           "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE}}
+           "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
+           "retry_factors": list(RETRY_FACTORS)}
     if cuda:
         out["max_colors"] = CUDA_COLORS
         out["coarse_early"] = CUDA_COARSE_EARLY
@@ -174,6 +190,10 @@ class SimulationConfig:
         max_stretch: explosion test: an edge longer than this many times its rest length [-].
         max_distance: explosion test: a garment vertex farther than this from the body's root
             joint [m].
+        retry_factors: a sequence that fails its gates or stops is simulated again at these
+            multiples of its substeps (``retry_substeps``), in turn, until it passes
+            (``RETRY_FACTORS``; empty: no retries). ``wrinkles simulate`` and the dataset
+            generator retry; ``simulate`` and ``simulate_batch`` run once.
         device: Warp device ("auto": cuda when present, else cpu).
     """
 
@@ -194,10 +214,18 @@ class SimulationConfig:
     max_speed: float = 50.0
     max_stretch: float = 3.0
     max_distance: float = 3.0
+    retry_factors: tuple[float, ...] = RETRY_FACTORS
     device: str = "auto"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "pinned", tuple(str(p) for p in self.pinned))
+        f = self.retry_factors
+        if not (isinstance(f, (list, tuple)) and all(
+                isinstance(k, (int, float)) and not isinstance(k, bool) and np.isfinite(k) for k in f)
+                and all(b > a for a, b in zip((1.0, *f), f, strict=False))):
+            raise WrinklesInputError("simulation config: retry_factors must be a list of increasing numbers "
+                                     f"above 1 (empty: no retries), got {f!r}")
+        object.__setattr__(self, "retry_factors", tuple(float(k) for k in f))
         if self.coarse_sweeps is not None:
             if not isinstance(self.coarse_sweeps, (list, tuple)) or not all(
                     isinstance(k, int) and not isinstance(k, bool) for k in self.coarse_sweeps):
@@ -247,6 +275,18 @@ class SimulationConfig:
         """Substeps per frame for a run whose largest garment has ``vertices`` vertices."""
         return self.substeps or default_substeps(vertices)
 
+    def retry_substeps(self, vertices: int) -> tuple[int, ...]:
+        """Substeps of the retries (``retry_factors``) of a run whose largest garment has
+        ``vertices`` vertices, in order: each factor times ``substeps_for``, rounded, counts not
+        above the one before dropped."""
+        base = self.substeps_for(vertices)
+        out: list[int] = []
+        for f in self.retry_factors:
+            n = int(round(f * base))
+            if n > (out[-1] if out else base):
+                out.append(n)
+        return tuple(out)
+
     def vbd_config(self, vertices: int = 0, cuda: bool = False):
         """The ``VBDConfig`` of these settings (``substeps`` for a largest garment of ``vertices``
         vertices, ``iterations``, ``self_contact`` and ``solver`` overrides) for a run on CUDA
@@ -291,6 +331,7 @@ class SimulationConfig:
         """JSON-ready dict (``from_dict`` inverts it)."""
         d = dataclasses.asdict(self)
         d["pinned"] = list(self.pinned)
+        d["retry_factors"] = list(self.retry_factors)
         if self.coarse_sweeps is not None:
             d["coarse_sweeps"] = list(self.coarse_sweeps)
         return d

@@ -378,10 +378,13 @@ def test_user_motion_folders_are_sampled(tmp_path):
         _load(tmp_path, text.replace("seconds = 0.2", "seconds = 1.0"))
 
 
-def test_a_failed_simulation_is_retried_at_twice_the_substeps(tmp_path, monkeypatch):
-    """A sequence whose simulation stops (explosion) is simulated again at 2x the substeps; if that
-    fails too it is rejected with the reason. In a batch only the failed sequences are redone
-    (batched together), not the whole batch."""
+def test_failed_sequences_are_retried_at_more_substeps(tmp_path, monkeypatch):
+    """A sequence whose simulation stops (explosion) or that fails a quality gate is simulated
+    again at the config's retry substeps (2 -> 3 -> 4 here: 5/3 and 2 times) until it passes;
+    if it fails at the last it is rejected with its reasons and the substeps tried. In a batch
+    only the failing sequences are redone (batched together), not the whole batch."""
+    import dataclasses
+
     import sim.simulate as simulate_mod
     from sim.datasets.config import load_config
     from sim.datasets.generate import generate
@@ -392,34 +395,46 @@ def test_a_failed_simulation_is_retried_at_twice_the_substeps(tmp_path, monkeypa
     calls = []
 
     def flaky(jobs, *, config=None, failures="raise", **kw):
-        # the jobs of sequence "bad" "explode" at the config's 2 substeps, not at 4
+        # the jobs of the "bad" sequences fail below ``limit`` substeps: explode, or fail a gate
         calls.append((len(jobs), config.substeps))
         out = real(jobs, config=config, failures=failures, **kw)
         if config.substeps < limit[0]:
             for k, j in enumerate(jobs):
                 if j.name.split()[0] in bad:
                     assert failures == "return"
-                    out[k] = SimulationError(7, "explosion: test")
+                    out[k] = (SimulationError(7, "explosion: test") if mode[0] == "explode" else
+                              dataclasses.replace(out[k], failed_gates=("max edge strain 0.9 > 0.35",)))
         return out
 
     monkeypatch.setattr(simulate_mod, "simulate_batch", flaky)
     cfg = load_config(tiny_config(tmp_path, TINY.replace("sequences = 4", "sequences = 2")))
     ids = [sp.id for sp in sample_sequences(cfg)]
-    bad, limit = {ids[1]}, [4]
-    s = generate(cfg, tmp_path / "a", batch=2, device="cpu")
-    m = S.read_manifest(tmp_path / "a")
-    assert s.accepted + s.rejected == 2 and not any("explosion" in str(r) for r in m["rejected"].values())
-    # the batch of 2 (coarse + fine jobs: 4), then only the failed sequence at 4 substeps
-    assert calls == [(4, 2), (2, 4)]
-    subs = {sid: S.SequenceFile(tmp_path / "a" / e["file"]).json("provenance")["config"]["substeps"]
-            for sid, e in m["sequences"].items()}
-    assert all(subs[sid] == (4 if sid in bad else 2) for sid in subs)
-    bad = set(ids)
+    for mode in (["explode"], ["gates"]):
+        out = tmp_path / mode[0]
+        bad, limit = {ids[1]}, [4]
+        calls.clear()
+        s = generate(cfg, out / "a", batch=2, device="cpu")
+        m = S.read_manifest(out / "a")
+        assert s.accepted + s.rejected == 2 and not m["rejected"]
+        # the batch of 2 (coarse + fine jobs: 4), then only the failing sequence at 3 and at 4
+        assert calls == [(4, 2), (2, 3), (2, 4)]
+        subs = {sid: S.SequenceFile(out / "a" / e["file"]).json("provenance")["config"]["substeps"]
+                for sid, e in m["sequences"].items()}
+        assert subs == {ids[0]: 2, ids[1]: 4}
+        bad = set(ids)
+        calls.clear()
+        limit[0] = 100  # fails at every substep count
+        s = generate(cfg, out / "b", batch=1, device="cpu")
+        m = S.read_manifest(out / "b")
+        assert s.accepted == 0 and s.rejected == 2 and calls == [(2, 2), (2, 3), (2, 4)] * 2
+        for r in m["rejected"].values():
+            assert r["substeps"] == [2, 3, 4]
+            gate = "max edge strain 0.9 > 0.35"
+            assert r["reasons"] == (["simulation failed at frame 7: explosion: test (at 4 substeps)"]
+                                    if mode[0] == "explode" else [f"fine: {gate}", f"coarse: {gate}"])
+    # no retries: rejected at the first failure
     calls.clear()
-    limit[0] = 100  # fails at every substep count
-    s = generate(cfg, tmp_path / "b", batch=1, device="cpu")
-    m = S.read_manifest(tmp_path / "b")
-    assert s.accepted == 0 and s.rejected == 2 and calls == [(2, 2), (2, 4)] * 2
-    for r in m["rejected"].values():
-        assert r["reasons"] == ["simulation failed at frame 7: explosion: test (at 4 substeps, after a "
-                                "retry)"]
+    cfg = load_config(tiny_config(tmp_path, TINY.replace("sequences = 4", "sequences = 2").replace(
+        "substeps = 2", "substeps = 2\nretry_factors = []"), "no_retry.toml"))
+    s = generate(cfg, tmp_path / "c", batch=1, device="cpu")
+    assert s.rejected == 2 and calls == [(2, 2)] * 2

@@ -345,7 +345,7 @@ def test_cli_writes_body_and_garment_with_uvs_and_quality(tmp_path):
 
     out = tmp_path / "tee_walk.usda"
     rc = main(["simulate", "--garment", "tshirt", "--motion", "walk", "--material", "cotton",
-               "--shape", "height=0.6", "--out", str(out), "--allow-failed-gates", *CLI_FAST])
+               "--shape", "height=0.6", "--out", str(out), "--allow-failed-gates", "--no-retry", *CLI_FAST])
     assert rc == 0
     st = read_stage(out)
     assert st.fps == 30 and st.body.points.shape[0] == 6
@@ -368,23 +368,72 @@ def test_cli_writes_body_and_garment_with_uvs_and_quality(tmp_path):
 def test_cli_failed_gates_exit_1_nothing_written(tmp_path, capsys):
     out = tmp_path / "s.usda"
     rc = main(["simulate", "--garment", "skirt", "--out", str(out), "--gate", "max_edge_strain=1e-9",
-               "--preview", str(tmp_path / "s.gif"), *CLI_FAST])
+               "--preview", str(tmp_path / "s.gif"), "--no-retry", *CLI_FAST])
     err = capsys.readouterr().err.strip()
     assert rc == 1 and len(err.splitlines()) == 1, err
-    assert "max edge strain" in err and "--allow-failed-gates" in err
+    assert "max edge strain" in err and "--allow-failed-gates" in err and "after" not in err
     assert "more --substeps than 4 or --iterations than 4" in err  # what to try, from this run's settings
     assert list(tmp_path.iterdir()) == []
+
+
+def _simulate_calls(monkeypatch, passes_from: int) -> list[int]:
+    """Record the substeps of every ``sim.simulate.simulate`` call; runs below ``passes_from``
+    substeps are made to fail the strain gate."""
+    import dataclasses
+
+    import sim.simulate as sm
+
+    real, calls = sm.simulate, []
+
+    def recorded(*a, config, **kw):
+        calls.append(config.substeps)
+        r = real(*a, config=config, **kw)
+        return r if config.substeps >= passes_from else dataclasses.replace(
+            r, failed_gates=("max edge strain 0.500 > 0.35",))
+
+    monkeypatch.setattr(sm, "simulate", recorded)
+    return calls
+
+
+def test_cli_retries_a_failing_sequence_at_more_substeps(tmp_path, capsys, monkeypatch):
+    """A sequence that fails its gates is simulated again at 5/3 and then 2 times the substeps
+    (4 -> 7 -> 8); the first run that passes is written, with its substeps in the config and the
+    runs before it in the report. One that fails at every count is one line naming them."""
+    calls = _simulate_calls(monkeypatch, passes_from=7)
+    out = tmp_path / "s.usda"
+    rc = main(["simulate", "--garment", "skirt", "--out", str(out), *CLI_FAST])
+    assert rc == 0 and calls == [4, 7]
+    side = json.loads((tmp_path / "s.quality.json").read_text())
+    assert side["config"]["substeps"] == 7 and side["passed"]
+    assert side["attempts"] == [{"substeps": 4, "failed_gates": ["max edge strain 0.500 > 0.35"]}]
+    out2 = tmp_path / "t.usda"
+    calls = _simulate_calls(monkeypatch, passes_from=100)  # fails at every count
+    rc = main(["simulate", "--garment", "skirt", "--out", str(out2), *CLI_FAST])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and calls == [4, 7, 8] and len(err.splitlines()) == 1, err
+    assert "max edge strain 0.500" in err and "(at 8 substeps, after 4, 7)" in err
+    assert "more --substeps than 8" in err and not out2.exists()
 
 
 def test_cli_explosion_is_one_line_nothing_written(tmp_path, capsys, monkeypatch):
     import sim.cloth
 
     monkeypatch.setattr(sim.cloth, "SolverVBD", _NaNAtStep(18).cls)  # prelude 12 + 3 frames: output frame 3
-    rc = main(["simulate", "--garment", "skirt", "--out", str(tmp_path / "s.usda"), *CLI_FAST])
+    rc = main(["simulate", "--garment", "skirt", "--out", str(tmp_path / "s.usda"), "--no-retry", *CLI_FAST])
     err = capsys.readouterr().err.strip()
     assert rc == 1 and err == ("wrinkles simulate: simulation failed at frame 3: 1 vertices became NaN/inf "
                                "(first: vertex 3)")
     assert list(tmp_path.iterdir()) == []
+    # with retries (the default) the run at 7 substeps follows; the NaN came at the 18th step of
+    # all solvers, so it passes and is written, the stopped run named in the report
+    monkeypatch.setattr(sim.cloth, "SolverVBD", _NaNAtStep(18).cls)
+    lax = ["--gate", "max_edge_strain=10", "--gate", "max_inside_fraction=1", "--gate",
+           "max_self_intersections=100000"]
+    rc = main(["simulate", "--garment", "skirt", "--out", str(tmp_path / "s.usda"), *lax, *CLI_FAST])
+    side = json.loads((tmp_path / "s.quality.json").read_text())
+    assert rc == 0 and side["config"]["substeps"] == 7
+    assert side["attempts"] == [{"substeps": 4, "error": "simulation failed at frame 3: 1 vertices became "
+                                 "NaN/inf (first: vertex 3)"}]
 
 
 @pytest.mark.parametrize("case", ["unknown_garment", "unknown_material", "unknown_garment_param",

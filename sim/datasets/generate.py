@@ -211,12 +211,16 @@ def garment_betas(cfg: DatasetConfig, body, betas: np.ndarray) -> np.ndarray:
 
 def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set[str], root: Path,
                 part: _Shard, sim_cfg, device: str, summary: GenerateSummary, log: Log,
-                retry: bool = True) -> None:
+                retries: tuple[int, ...] | None = None, tried: tuple[int, ...] = ()) -> None:
     """Simulate, judge, derive and write one batch of sequences. A sequence whose simulation
-    fails (NaN / explosion) is frozen inside the batch while the others run on; the failed
-    ones are then tried once more, batched together, at twice the substeps (an explosion is
-    usually a step too large for a fast motion or a soft fabric); the provenance records the
-    substeps a sequence used."""
+    fails (NaN / explosion) is frozen inside the batch while the others run on. The failed ones
+    and those that fail a quality gate are then simulated again, batched together, at the
+    substeps of the config's retries (``SimulationConfig.retry_substeps``: 20 and then 24
+    instead of 12 by default; under-converged sweeps fail most fast sequences, and an explosion
+    is usually a step too large for a fast motion or a soft fabric) until they pass; a sequence
+    that fails at the last is rejected with its reasons and the substeps tried. The provenance
+    records the substeps a sequence used. ``retries``: the substeps still to try (None: the
+    config's); ``tried``: those tried before."""
     from dataclasses import replace
 
     from sim.datasets.derive import Deriver, coarse_arrays
@@ -252,28 +256,33 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
                                       garment_betas=None if cfg.garments.fit == "body" else gbetas))
             meta.append((sp, garment, motion, betas, kind))
     results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
-    failed = {sp.id: r for (sp, *_), r in zip(meta, results, strict=True) if isinstance(r, SimulationError)}
-    retried = [sp for sp in group if sp.id in failed and sp.id in wanted] if retry else []
     substeps = sim_cfg.substeps_for(max(j.garment.num_vertices for j in jobs))
-    failure = {sid: [f"{e} (at {substeps} substeps, after a retry)"] for sid, e in failed.items()}
+    if retries is None:
+        retries = sim_cfg.retry_substeps(max(j.garment.num_vertices for j in jobs))
+    failed = {sp.id: r for (sp, *_), r in zip(meta, results, strict=True) if isinstance(r, SimulationError)}
     by_seq: dict[str, dict] = {}
     for k, (sp, garment, motion, betas, kind) in enumerate(meta):
         by_seq.setdefault(sp.id, {"spec": sp, "motion": motion, "betas": betas})[kind] = (garment, results[k])
+    reasons_of: dict[str, list[str]] = {}
     for sp in group:
-        if sp.id not in wanted or (sp.id in failed and retry):
-            continue  # a failed one is written by its retry, below
+        item = by_seq[sp.id]
+        if sp.id in failed:
+            reasons_of[sp.id] = [f"{failed[sp.id]} (at {substeps} substeps)"]
+        else:
+            reasons_of[sp.id] = [f"fine: {r}" for r in item["fine"][1].failed_gates]
+            if "coarse" in item:
+                reasons_of[sp.id] += [f"coarse: {r}" for r in item["coarse"][1].failed_gates]
+    retried = [sp for sp in group if reasons_of[sp.id] and sp.id in wanted] if retries else []
+    for sp in group:
+        if sp.id not in wanted or (reasons_of[sp.id] and retries):
+            continue  # a failing one is written by its retry, below
         item = by_seq[sp.id]
         fine_g, fine_r = item["fine"]
-        if sp.id in failed:
-            reasons = failure[sp.id]
-        else:
-            reasons = [f"fine: {r}" for r in fine_r.failed_gates]
-            if "coarse" in item:
-                reasons += [f"coarse: {r}" for r in item["coarse"][1].failed_gates]
+        reasons = reasons_of[sp.id]
         if reasons:
             part.data["rejected"][sp.id] = {"index": sp.index, "garment": sp.category,
                                             "motion": sp.motion_label, "material": sp.material,
-                                            "reasons": reasons}
+                                            "reasons": reasons, "substeps": [*tried, substeps]}
             part.save()
             summary.rejected += 1
             log(f"{sp.id} rejected ({sp.category}, {sp.motion_label}): {'; '.join(reasons)}")
@@ -326,9 +335,10 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
             f"{entry['bytes'] / 2**20:.1f} MiB")
     if retried:  # after the batch's good results are stored: an interrupted retry loses only itself
         for sp in retried:
-            log(f"{sp.id}: {failed[sp.id]}; retrying at {2 * substeps} substeps")
+            log(f"{sp.id}: {'; '.join(reasons_of[sp.id])}; retrying at {retries[0]} substeps")
         _make_group(cfg, body, retried, {sp.id for sp in retried}, root, part,
-                    replace(sim_cfg, substeps=2 * substeps), device, summary, log, retry=False)
+                    replace(sim_cfg, substeps=retries[0]), device, summary, log, retries=retries[1:],
+                    tried=(*tried, substeps))
 
 
 def _stable(prov: dict) -> dict:
