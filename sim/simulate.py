@@ -105,8 +105,8 @@ substeps pass many of them. H100, docs/BENCHMARKS.md (session 43), the templates
 coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (another 5), so 6 of 8
 pass within the ladder; at the fine size (~20k) none at 14, 1 at 23 and 2 at 28. Walks pass at
 the default (8 of 8, coarse). The trousers' and the straight skirt's runs pass at no count: the
-skinned body's own skin stretches up to 60 % under the trousers' worst edge (linear blend
-skinning at the crotch), and a straight skirt's hem cannot span a running stride."""
+skinned body's own skin within 5 cm of the trousers' worst edge is stretched by 48 % (90th
+percentile) and up to 78 % (linear blend skinning at the crotch), and a straight skirt's hem cannot span a running stride."""
 
 
 def default_substeps(vertices: int) -> int:

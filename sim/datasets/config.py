@@ -42,6 +42,7 @@ shipped one)::
 
     [simulation]             # sim.simulate.SimulationConfig fields
     substeps = 10
+    retry_factors = [1.6667, 2.0]  # a sequence failing a gate: again at these x substeps ([]: never)
 
     [derive]
     smoothing_length = 0.04  # base surface: wrinkles shorter than ~this [m] are removed
