@@ -52,6 +52,29 @@ coarse = {coarse}
 """
 
 
+def generate_in_temp(text: str, source: str, batch: int, device: str, inspect=None):
+    """Generate a dataset from the config TOML ``text`` in a temporary folder, removed after:
+    (``GenerateSummary``, wall time [s] of the whole job, manifest, ``inspect(root)`` or None),
+    each generated line printed."""
+    from sim.datasets import storage as S
+    from sim.datasets.config import parse_config
+    from sim.datasets.generate import generate
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover
+        import tomli as tomllib
+    cfg = parse_config(tomllib.loads(text), source=source)
+    root = tempfile.mkdtemp(prefix="wrinkles-bench-")
+    try:
+        t0 = time.perf_counter()
+        s = generate(cfg, root, batch=batch, device=device, log=lambda m: print(m, flush=True))
+        wall = time.perf_counter() - t0
+        return s, wall, S.read_manifest(root), inspect(root) if inspect else None
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default="auto")
@@ -61,30 +84,16 @@ def main() -> None:
     ap.add_argument("--cases", default="coarse,fine,fine+coarse")
     args = ap.parse_args()
 
-    from sim.datasets.config import parse_config
-    from sim.datasets.generate import generate
     from sim.device import resolve_device
     from sim.garments.templates import TEMPLATES
 
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # pragma: no cover
-        import tomli as tomllib
     device = resolve_device(args.device)
     cases = {"coarse": ("coarse", "false"), "fine": ("fine", "false"), "fine+coarse": ("fine", "true")}
     fig = {}
     for name in args.cases.split(","):
         fine, coarse = cases[name]
         text = CONFIG.format(sequences=args.sequences, seconds=args.seconds, fine=fine, coarse=coarse)
-        cfg = parse_config(tomllib.loads(text), source=f"bench_dataset:{name}")
-        root = tempfile.mkdtemp(prefix="wrinkles-bench-")
-        try:
-            t0 = time.perf_counter()
-            s = generate(cfg, root, batch=args.batch, device=device, log=lambda m: print(m, flush=True))
-            wall = time.perf_counter() - t0
-            manifest = json.load(open(f"{root}/manifest.json"))
-        finally:
-            shutil.rmtree(root, ignore_errors=True)
+        s, wall, manifest, _ = generate_in_temp(text, f"bench_dataset:{name}", args.batch, device)
         seqs = list(manifest["sequences"].values())
         frames = sum(e["frames"] for e in seqs)
         made = s.accepted + s.rejected

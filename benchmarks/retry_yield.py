@@ -16,9 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
-import tempfile
-import time
 from collections import Counter
 
 from benchmarks.common import machine, write_result
@@ -70,17 +67,12 @@ def main() -> None:
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
 
+    from benchmarks.bench_dataset import generate_in_temp
     from sim.datasets import storage as S
-    from sim.datasets.config import parse_config
-    from sim.datasets.generate import generate
     from sim.device import resolve_device
     from sim.garments.templates import TEMPLATES
-    from sim.simulate import RETRY_FACTORS
+    from sim.simulate import RETRY_FACTORS, default_substeps
 
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # pragma: no cover
-        import tomli as tomllib
     garments = list(TEMPLATES) if args.garments == "all" else args.garments.split(",")
     try:
         cases = json.loads(args.cases)
@@ -94,17 +86,18 @@ def main() -> None:
         text = CONFIG.format(seed=args.seed, sequences=args.sequences, seconds=args.seconds,
                              garments=json.dumps(garments), resolution=args.resolution,
                              factors=json.dumps(factors))
-        cfg = parse_config(tomllib.loads(text), source=f"retry_yield:{name}")
-        root = tempfile.mkdtemp(prefix="wrinkles-retry-")
-        try:
-            t0 = time.perf_counter()
-            s = generate(cfg, root, batch=args.batch, device=device, log=lambda m: print(m, flush=True))
-            wall = time.perf_counter() - t0
-            manifest = S.read_manifest(root)
-            used = {sid: S.SequenceFile(f"{root}/{e['file']}").json("provenance")["config"]["substeps"]
-                    for sid, e in manifest["sequences"].items()}
-        finally:
-            shutil.rmtree(root, ignore_errors=True)
+
+        def substeps_used(root: str) -> dict:
+            """Per accepted sequence, the substeps it was simulated at (its provenance's config; 0,
+            automatic, is the default for its size)."""
+            out = {}
+            for sid, e in S.read_manifest(root)["sequences"].items():
+                n = S.SequenceFile(f"{root}/{e['file']}").json("provenance")["config"]["substeps"]
+                out[sid] = n or default_substeps(e["vertices"])
+            return out
+
+        s, wall, manifest, used = generate_in_temp(text, f"retry_yield:{name}", args.batch, device,
+                                                   substeps_used)
         by = {}
         for sid, e in manifest["sequences"].items():
             row = by.setdefault(f"{e['garment']} {e['motion']}", {"accepted": Counter(), "rejected": 0})

@@ -34,7 +34,7 @@ nothing is written. Every sequence gets a quality report
 (edge strain, fraction of garment vertices inside the body, self-intersections) judged against
 quality gates (--gate). A sequence that fails them, or stops, is simulated again at more
 substeps (--retry: 5/3 and then 2 times, 20 and 24 of the automatic 12: fast motions need
-more solve than the default gives); one that fails at the last is an error (exit 1, nothing
+shorter steps than the default's); one that fails at the last is an error (exit 1, nothing
 written) unless --allow-failed-gates. The report is stored in the stage's metadata and in a sidecar
 <out stem>.quality.json with the gates, the resolved config and the seed.
 

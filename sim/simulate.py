@@ -99,14 +99,15 @@ floats stay as before."""
 RETRY_FACTORS = (5.0 / 3.0, 2.0)
 """Substeps of the retries of a sequence that fails its quality gates or stops (NaN, explosion),
 as multiples of its run's substeps (``SimulationConfig.retry_factors``): 12 -> 20 -> 24, and 14 ->
-23 -> 28 for a fine garment. Under-converged sweeps, not the physics, fail most fast sequences
-(session 29: the fine t-shirt's strain falls towards the skin's with more solve), so more
-substeps pass many of them. H100, docs/BENCHMARKS.md (session 43), the templates' runs: at the
+23 -> 28 for a fine garment. A step too long for a fast motion, not the physics, fails most fast
+sequences that fail (session 43: at the fine size more sweeps or coarse corrections per substep
+did not pass the runs, more substeps did). H100, docs/BENCHMARKS.md (session 43), the templates' runs: at the
 coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (another 5), so 6 of 8
 pass within the ladder; at the fine size (~20k) none at 14, 1 at 23 and 2 at 28. Walks pass at
 the default (8 of 8, coarse). The trousers' and the straight skirt's runs pass at no count: the
 skinned body's own skin within 5 cm of the trousers' worst edge is stretched by 48 % (90th
-percentile) and up to 78 % (linear blend skinning at the crotch), and a straight skirt's hem cannot span a running stride."""
+percentile) and up to 78 % (linear blend skinning at the crotch), and a straight skirt's hem
+cannot span a running stride."""
 
 
 def default_substeps(vertices: int) -> int:
