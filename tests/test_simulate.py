@@ -411,8 +411,40 @@ def test_cli_retries_a_failing_sequence_at_more_substeps(tmp_path, capsys, monke
     rc = main(["simulate", "--garment", "skirt", "--out", str(out2), *CLI_FAST])
     err = capsys.readouterr().err.strip()
     assert rc == 1 and calls == [4, 7, 8] and len(err.splitlines()) == 1, err
-    assert "max edge strain 0.500" in err and "(at 8 substeps, after 4, 7)" in err
+    assert "max edge strain 0.500" in err and "(at 4, 7, 8 substeps)" in err
     assert "more --substeps than 8" in err and not out2.exists()
+
+
+def test_cli_writes_the_last_finished_run_when_the_retries_stop(tmp_path, monkeypatch):
+    """With --allow-failed-gates, a run that fails its gates is written when both retries stop
+    (NaN): the report names it and the stopped runs. --no-retry records no retry factors."""
+    import sim.simulate as sm
+    from sim.quality import SimulationError
+
+    calls = _simulate_calls(monkeypatch, passes_from=100)
+    failing = sm.simulate
+
+    def stops_when_retried(*a, config, **kw):
+        r = failing(*a, config=config, **kw)
+        if config.substeps > 4:
+            raise SimulationError(5, "explosion: test")
+        return r
+
+    monkeypatch.setattr(sm, "simulate", stops_when_retried)
+    out = tmp_path / "s.usda"
+    rc = main(["simulate", "--garment", "skirt", "--out", str(out), "--allow-failed-gates", *CLI_FAST])
+    side = json.loads((tmp_path / "s.quality.json").read_text())
+    assert rc == 0 and calls == [4, 7, 8] and out.exists()
+    assert side["config"]["substeps"] == 4 and not side["passed"]
+    assert side["failed_gates"] == ["max edge strain 0.500 > 0.35"]
+    assert side["attempts"] == [{"substeps": 7, "error": "simulation failed at frame 5: explosion: test"},
+                                {"substeps": 8, "error": "simulation failed at frame 5: explosion: test"}]
+    assert side["config"]["retry_factors"] == [5.0 / 3.0, 2.0]
+    calls[:] = []
+    rc = main(["simulate", "--garment", "skirt", "--out", str(out), "--allow-failed-gates", "--no-retry",
+               *CLI_FAST])
+    side = json.loads((tmp_path / "s.quality.json").read_text())
+    assert rc == 0 and calls == [4] and side["config"]["retry_factors"] == [] and side["attempts"] == []
 
 
 def test_cli_explosion_is_one_line_nothing_written(tmp_path, capsys, monkeypatch):

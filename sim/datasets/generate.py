@@ -81,7 +81,8 @@ def _refuse_other_simulator(old: dict | None, cfg_dict: dict, root: Path) -> Non
     if isinstance(old, dict) and {k: v for k, v in old.items() if k != "simulator"} == \
             {k: v for k, v in cfg_dict.items() if k != "simulator"}:
         raise WrinklesInputError("this dataset was made with other simulator defaults (automatic substeps, "
-                                 "garment hems and their rule, the colouring of the device kind) than this "
+                                 "garment hems and their rule, the colouring of the device kind, the retries "
+                                 "at more substeps) than this "
                                  "version's on this device, and "
                                  "continuing it would mix two physics; choose another --out", path=root)
 
@@ -272,7 +273,11 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
             reasons_of[sp.id] = [f"fine: {r}" for r in item["fine"][1].failed_gates]
             if "coarse" in item:
                 reasons_of[sp.id] += [f"coarse: {r}" for r in item["coarse"][1].failed_gates]
-    retried = [sp for sp in group if reasons_of[sp.id] and sp.id in wanted] if retries else []
+    # every failing sequence of the group is retried, wanted or not (one that is done, or not in
+    # --splits): a retry batch is then the same on a resumed or split run, and so are its floats
+    retried = [sp for sp in group if reasons_of[sp.id]] if retries else []
+    if not any(sp.id in wanted for sp in retried):
+        retried = []
     for sp in group:
         if sp.id not in wanted or (reasons_of[sp.id] and retries):
             continue  # a failing one is written by its retry, below
@@ -335,8 +340,9 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
             f"{entry['bytes'] / 2**20:.1f} MiB")
     if retried:  # after the batch's good results are stored: an interrupted retry loses only itself
         for sp in retried:
-            log(f"{sp.id}: {'; '.join(reasons_of[sp.id])}; retrying at {retries[0]} substeps")
-        _make_group(cfg, body, retried, {sp.id for sp in retried}, root, part,
+            if sp.id in wanted:
+                log(f"{sp.id}: {'; '.join(reasons_of[sp.id])}; retrying at {retries[0]} substeps")
+        _make_group(cfg, body, retried, {sp.id for sp in retried if sp.id in wanted}, root, part,
                     replace(sim_cfg, substeps=retries[0]), device, summary, log, retries=retries[1:],
                     tried=(*tried, substeps))
 
