@@ -80,22 +80,22 @@ def main() -> None:
     except (ValueError, AssertionError):
         raise SystemExit(f"retry_yield: --cases must be a JSON object, got {args.cases!r}") from None
     device = resolve_device(args.device)
+
+    def substeps_used(root: str) -> dict:
+        """Per accepted sequence, the substeps it was simulated at (its provenance's config; 0,
+        automatic, is the default for its size)."""
+        out = {}
+        for sid, e in S.read_manifest(root)["sequences"].items():
+            n = S.SequenceFile(f"{root}/{e['file']}").json("provenance")["config"]["substeps"]
+            out[sid] = n or default_substeps(e["vertices"])
+        return out
+
     fig = {}
     for name, factors in cases.items():
         factors = list(RETRY_FACTORS) if factors is None else factors
         text = CONFIG.format(seed=args.seed, sequences=args.sequences, seconds=args.seconds,
                              garments=json.dumps(garments), resolution=args.resolution,
                              factors=json.dumps(factors))
-
-        def substeps_used(root: str) -> dict:
-            """Per accepted sequence, the substeps it was simulated at (its provenance's config; 0,
-            automatic, is the default for its size)."""
-            out = {}
-            for sid, e in S.read_manifest(root)["sequences"].items():
-                n = S.SequenceFile(f"{root}/{e['file']}").json("provenance")["config"]["substeps"]
-                out[sid] = n or default_substeps(e["vertices"])
-            return out
-
         s, wall, manifest, used = generate_in_temp(text, f"retry_yield:{name}", args.batch, device,
                                                    substeps_used)
         by = {}

@@ -67,22 +67,21 @@ def _inside_rows(result, g, t: int, panel: np.ndarray, device: str) -> dict:
     return {"frame": t, "vertices": int(len(ins)), "by_panel": rows}
 
 
-def _skin_under(result, body_rest: np.ndarray, point: np.ndarray, t: int, reach: float = 0.05) -> dict:
+def _skin_under(result, body_rest: np.ndarray, point: np.ndarray, t: int, device: str,
+                reach: float = 0.05) -> dict:
     """How far the body's own skin is stretched at frame ``t`` near ``point`` [m]: the strain
     (``l / l0 - 1`` against the body's rest mesh) of the body edges whose midpoints lie within
     ``reach`` of it. Skinning alone (no pose correctives) stretches the skin at the crotch and the
     knees; cloth held there by friction and pressure follows it (session 43)."""
-    from sim.quality import unique_edges
+    from sim.quality import edge_strain, unique_edges
 
     seq = result.sequence
     e = unique_edges(seq.body.faces)
-    bx = np.asarray(seq.body.vertices[t], np.float64)
+    bx = np.asarray(seq.body.vertices[t], np.float32)
     near = np.linalg.norm(0.5 * (bx[e[:, 0]] + bx[e[:, 1]]) - point, axis=1) < reach
     if not near.any():
         return {"edges": 0}
-    rest = np.asarray(body_rest, np.float64)
-    s = (np.linalg.norm(bx[e[near, 0]] - bx[e[near, 1]], axis=1)
-         / np.linalg.norm(rest[e[near, 0]] - rest[e[near, 1]], axis=1) - 1.0)
+    s = edge_strain(bx[None], body_rest, seq.body.faces, device=device)[0][near]
     return {"reach_m": reach, "edges": int(near.sum()), "max": float(s.max()),
             "p90": float(np.percentile(s, 90)), "mean": float(s.mean())}
 
@@ -113,7 +112,8 @@ def describe(result, g, device: str, n_worst: int, body_rest: np.ndarray | None 
     if body_rest is not None:  # the skin under the worst edge, at its worst frame
         k = int(worst.argmax())
         t = int(strain[:, k].argmax())
-        out["skin_under_worst"] = _skin_under(result, body_rest, 0.5 * (x[t][e[k, 0]] + x[t][e[k, 1]]), t)
+        out["skin_under_worst"] = _skin_under(result, body_rest, 0.5 * (x[t][e[k, 0]] + x[t][e[k, 1]]), t,
+                                              device)
     inside = np.asarray(result.quality.inside_fraction)
     if inside.any():
         out["inside"] = _inside_rows(result, g, int(inside.argmax()), panel, device)

@@ -208,7 +208,7 @@ def build_config(args: argparse.Namespace, device: str):
         settle_seconds=args.settle, blend_seconds=args.blend, keep_prelude=args.keep_prelude,
         pinned=parse_pins(args.pin), ground=not args.no_ground, self_contact=args.self_collision,
         solver=parse_numbers(args.solver_param, "--solver-param"), gates=QualityGates(**gates),
-        **({} if getattr(args, "retry", True) else {"retry_factors": ()}), device=device)
+        **({} if args.retry else {"retry_factors": ()}), device=device)
 
 
 def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):

@@ -102,8 +102,8 @@ as multiples of its run's substeps (``SimulationConfig.retry_factors``): 12 -> 2
 23 -> 28 for a fine garment. A step too long for a fast motion, not the physics, fails most fast
 sequences that fail (session 43: at the fine size more sweeps or coarse corrections per substep
 did not pass the runs, more substeps did). H100, docs/BENCHMARKS.md (session 43), the templates' runs: at the
-coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (another 5), so 6 of 8
-pass within the ladder; at the fine size (~20k) none at 14, 1 at 23 and 2 at 28. Walks pass at
+coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (not the same 5), so 6
+of 8 pass within the ladder; at the fine size (~20k) none at 14, 1 at 23 and 2 at 28. Walks pass at
 the default (8 of 8, coarse). The trousers' and the straight skirt's runs pass at no count: the
 skinned body's own skin within 5 cm of the trousers' worst edge is stretched by 48 % (90th
 percentile) and up to 78 % (linear blend skinning at the crotch), and a straight skirt's hem

@@ -257,9 +257,10 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
                                       garment_betas=None if cfg.garments.fit == "body" else gbetas))
             meta.append((sp, garment, motion, betas, kind))
     results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
-    substeps = sim_cfg.substeps_for(max(j.garment.num_vertices for j in jobs))
+    largest = max(j.garment.num_vertices for j in jobs)
+    substeps = sim_cfg.substeps_for(largest)
     if retries is None:
-        retries = sim_cfg.retry_substeps(max(j.garment.num_vertices for j in jobs))
+        retries = sim_cfg.retry_substeps(largest)
     failed = {sp.id: r for (sp, *_), r in zip(meta, results, strict=True) if isinstance(r, SimulationError)}
     by_seq: dict[str, dict] = {}
     for k, (sp, garment, motion, betas, kind) in enumerate(meta):
