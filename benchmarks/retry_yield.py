@@ -6,9 +6,13 @@ template (or ``--garments``), the walk and the run at the sampled bodies (4 beta
 contact on, the job default's substeps, no UV images and no coarse twin (the garments at
 ``--resolution``). It reports accepted and rejected sequences per template and motion, the
 substeps each accepted sequence was simulated at (from its provenance) and those a rejection tried,
-and the job's wall time. The cases differ only in ``[simulation] retry_factors``.
+and the job's wall time. A case is the ``[simulation] retry_factors`` (a list; null: the
+default) or a JSON object of ``[simulation]`` fields (e.g. ``{"iterations": 5, "retry_factors":
+[]}``: session 44's sweeps against the former 5 at the fine size).
 
     python -m benchmarks.retry_yield --device cuda --sequences 32 --batch 8
+    python -m benchmarks.retry_yield --device cuda --resolution fine --sequences 8 \
+        --cases '{"14x5": {"iterations": 5, "retry_factors": []}, "default, no retries": []}'
     python -m benchmarks.retry_yield --device cpu --sequences 4 --batch 2 --garments t_shirt --seconds 0.3
 """
 
@@ -45,7 +49,7 @@ test_fraction = 0.0
 
 [simulation]
 self_contact = true
-retry_factors = {factors}
+{simulation}
 
 [derive]
 image_resolution = 0
@@ -63,7 +67,8 @@ def main() -> None:
     ap.add_argument("--garments", default="all", help="template names, comma-separated (default: all)")
     ap.add_argument("--resolution", default="coarse", help="coarse or fine (default: %(default)s)")
     ap.add_argument("--cases", default='{"no retries": [], "default": null}',
-                    help="JSON object: case name -> retry_factors (null: the default, RETRY_FACTORS)")
+                    help="JSON object: case name -> retry_factors (null: the default, RETRY_FACTORS), or "
+                    "case name -> object of [simulation] fields")
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
 
@@ -71,7 +76,7 @@ def main() -> None:
     from sim.datasets import storage as S
     from sim.device import resolve_device
     from sim.garments.templates import TEMPLATES
-    from sim.simulate import RETRY_FACTORS, default_substeps
+    from sim.simulate import RETRY_FACTORS, default_iterations, default_substeps
 
     garments = list(TEMPLATES) if args.garments == "all" else args.garments.split(",")
     try:
@@ -83,19 +88,24 @@ def main() -> None:
 
     def substeps_used(root: str) -> dict:
         """Per accepted sequence, the substeps it was simulated at (its provenance's config; 0,
-        automatic, is the default for its size)."""
+        automatic, is the default for its size), with ``xI`` where its sweeps were not 5."""
         out = {}
         for sid, e in S.read_manifest(root)["sequences"].items():
-            n = S.SequenceFile(f"{root}/{e['file']}").json("provenance")["config"]["substeps"]
-            out[sid] = n or default_substeps(e["vertices"])
+            c = S.SequenceFile(f"{root}/{e['file']}").json("provenance")["config"]
+            n = c["substeps"] or default_substeps(e["vertices"])
+            i = c["iterations"] or default_iterations(e["vertices"])
+            out[sid] = f"{n}" if i == 5 else f"{n}x{i}"
         return out
 
     fig = {}
-    for name, factors in cases.items():
-        factors = list(RETRY_FACTORS) if factors is None else factors
+    for name, case in cases.items():
+        fields = dict(case) if isinstance(case, dict) else {"retry_factors": case}
+        if fields.get("retry_factors") is None:
+            fields["retry_factors"] = list(RETRY_FACTORS)
+        factors = fields["retry_factors"]
         text = CONFIG.format(seed=args.seed, sequences=args.sequences, seconds=args.seconds,
                              garments=json.dumps(garments), resolution=args.resolution,
-                             factors=json.dumps(factors))
+                             simulation="\n".join(f"{k} = {json.dumps(v)}" for k, v in fields.items()))
         s, wall, manifest, used = generate_in_temp(text, f"retry_yield:{name}", args.batch, device,
                                                    substeps_used)
         by = {}
@@ -106,8 +116,8 @@ def main() -> None:
             row = by.setdefault(f"{r['garment']} {r['motion']}", {"accepted": Counter(), "rejected": 0})
             row["rejected"] += 1
             row.setdefault("reasons", []).append({"substeps": r.get("substeps"), "reasons": r["reasons"]})
-        fig[name] = {"retry_factors": factors, "sequences": s.accepted + s.rejected, "accepted": s.accepted,
-                     "rejected": s.rejected, "wall_s": wall,
+        fig[name] = {"retry_factors": factors, "simulation": fields, "sequences": s.accepted + s.rejected,
+                     "accepted": s.accepted, "rejected": s.rejected, "wall_s": wall,
                      "by_garment_motion": {k: {**v, "accepted": dict(v["accepted"])}
                                            for k, v in sorted(by.items())}}
         print(name, json.dumps({k: v for k, v in fig[name].items() if k != "by_garment_motion"}), flush=True)

@@ -96,7 +96,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="solver substeps per frame (default: 0, automatic: 12, or 14 for a garment of "
                    "more than 10k vertices)")
     s.add_argument("--iterations", type=int, default=SimulationConfig.iterations,
-                   help="VBD iterations (Gauss-Seidel sweeps) per substep (default: %(default)s)")
+                   help="VBD iterations (Gauss-Seidel sweeps) per substep (default: 0, automatic: 5, or 8 "
+                   "for a garment of more than 10k vertices)")
     s.add_argument("--coarse-sweeps", default="auto",
                    help="comma-separated sweeps (0 .. iterations-1) before which a coarse-level correction "
                         "carries forces across the garment, 'none', or 'auto': before sweep 2 where there "
@@ -297,8 +298,8 @@ def run(args: argparse.Namespace) -> int:
     if result.failed_gates and not args.allow_failed_gates:
         print(f"wrinkles simulate: quality gates failed: {'; '.join(result.failed_gates)}{tried} "
               "(nothing written; --allow-failed-gates writes it anyway; more --substeps than "
-              f"{counts[-1]} or --iterations than {config.iterations} lower strain and crossings, at "
-              "their cost in time)", file=sys.stderr)
+              f"{counts[-1]} or --iterations than {config.iterations_for(garment.num_vertices)} lower strain "
+              "and crossings, at their cost in time)", file=sys.stderr)
         return 1
 
     report = {

@@ -110,9 +110,25 @@ percentile) and up to 78 % (linear blend skinning at the crotch), and a straight
 cannot span a running stride."""
 
 
+DEFAULT_ITERATIONS, FINE_ITERATIONS = 5, 8
+"""Default sweeps per substep (``SimulationConfig.iterations`` 0) of a garment up to
+``FINE_GARMENT_VERTICES`` vertices, and of a finer one. A finer mesh at the same substeps needs
+more sweeps: its particles are lighter against the same membrane stiffness, so a sweep carries
+less of a substep's correction. H100, docs/BENCHMARKS.md (session 44), every template at ~20k
+vertices on the default body: the walks pass 4 of 8 at 14x5, 6 of 8 at 14x8 (18 % more time per
+frame: 15.2-20.6 ms against 12.7-17.2) and 6 of 8 at 23x5 (60 % more); the runs 0 of 8 at both
+14x5 and 14x8 (max strain lower at 14x8: tank top 0.84 -> 0.60, dress 0.76 -> 0.60, long sleeve
+one failed run -> 1.21). Until session 44 every garment ran 5 sweeps."""
+
+
 def default_substeps(vertices: int) -> int:
     """Substeps per frame of the job default for a garment of ``vertices`` vertices."""
     return FINE_SUBSTEPS if vertices > FINE_GARMENT_VERTICES else DEFAULT_SUBSTEPS
+
+
+def default_iterations(vertices: int) -> int:
+    """Sweeps per substep of the job default for a garment of ``vertices`` vertices."""
+    return FINE_ITERATIONS if vertices > FINE_GARMENT_VERTICES else DEFAULT_ITERATIONS
 
 
 def simulator_defaults(cuda: bool = False) -> dict:
@@ -124,11 +140,12 @@ def simulator_defaults(cuda: bool = False) -> dict:
     CUDA before the colouring changed, or before the early coarse diagonal (``coarse_early``,
     session 42), nor one begun before sequences that fail their gates were retried
     (``RETRY_FACTORS``, session 43; a dataset's own ``[simulation] retry_factors`` is in its
-    config)."""
+    config), nor one begun before fine garments took 8 sweeps (``FINE_ITERATIONS``, session 44)."""
     from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
 
     out = {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
                         "fine_over_vertices": FINE_GARMENT_VERTICES},
+           "iterations": {"default": DEFAULT_ITERATIONS, "fine": FINE_ITERATIONS},
            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
            "retry_factors": list(RETRY_FACTORS)}
     if cuda:
@@ -165,7 +182,9 @@ class SimulationConfig:
             motion is resampled to it.
         substeps: implicit-Euler substeps per frame; 0, the default: ``default_substeps`` of
             the run's largest garment (12, or 14 over 10k vertices).
-        iterations: VBD Gauss-Seidel sweeps per substep.
+        iterations: VBD Gauss-Seidel sweeps per substep; 0, the default:
+            ``default_iterations`` of the run's largest garment (5, or 8 over 10k vertices;
+            5 everywhere until session 44).
         coarse_sweeps: sweeps (0 .. iterations - 1) before which a coarse-level correction runs
             (``VBDConfig.coarse_sweeps``; empty: none; None, the default: before sweep 2 where
             there are 3 or more sweeps, else none).
@@ -200,7 +219,7 @@ class SimulationConfig:
 
     fps: float = 30.0
     substeps: int = 0
-    iterations: int = 5
+    iterations: int = 0
     coarse_sweeps: tuple[int, ...] | None = None
     coarse_spacing: int = 0
     settle_seconds: float = 1.0
@@ -245,10 +264,10 @@ class SimulationConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise bad(name, "a positive number")
-        for name, least in (("substeps", 0), ("iterations", 1)):
+        for name in ("substeps", "iterations"):
             v = getattr(self, name)
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= least):
-                raise bad(name, f"an integer >= {least}" + (" (0: automatic)" if least == 0 else ""))
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+                raise bad(name, "an integer >= 0 (0: automatic)")
         for name in ("settle_seconds", "blend_seconds"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
@@ -276,6 +295,10 @@ class SimulationConfig:
         """Substeps per frame for a run whose largest garment has ``vertices`` vertices."""
         return self.substeps or default_substeps(vertices)
 
+    def iterations_for(self, vertices: int) -> int:
+        """Sweeps per substep for a run whose largest garment has ``vertices`` vertices."""
+        return self.iterations or default_iterations(vertices)
+
     def retry_substeps(self, vertices: int) -> tuple[int, ...]:
         """Substeps of the retries (``retry_factors``) of a run whose largest garment has
         ``vertices`` vertices, in order: each factor times ``substeps_for``, rounded, counts not
@@ -289,8 +312,8 @@ class SimulationConfig:
         return tuple(out)
 
     def vbd_config(self, vertices: int = 0, cuda: bool = False):
-        """The ``VBDConfig`` of these settings (``substeps`` for a largest garment of ``vertices``
-        vertices, ``iterations``, ``self_contact`` and ``solver`` overrides) for a run on CUDA
+        """The ``VBDConfig`` of these settings (``substeps`` and ``iterations`` for a largest
+        garment of ``vertices`` vertices, ``self_contact`` and ``solver`` overrides) for a run on CUDA
         (``cuda``: the colouring of ``CUDA_COLORS``) or on the CPU.
 
         Raises:
@@ -300,13 +323,14 @@ class SimulationConfig:
         from sim.cloth import VBDConfig
 
         allowed = {f.name for f in dataclasses.fields(VBDConfig)}
+        iterations = self.iterations_for(vertices)
         sweeps = self.coarse_sweeps
         if sweeps is None:
-            sweeps = (2,) if self.iterations > 2 else ()
+            sweeps = (2,) if iterations > 2 else ()
         # fast math in the CUDA solve kernel (session 33): 8 % faster per 5k t-shirt frame, the
         # population passing as often (docs/BENCHMARKS.md); the CPU is unaffected. The coarse
         # factor beside the first sweeps (session 34): 11 % faster, the population within noise
-        kw: dict[str, Any] = {"substeps": self.substeps_for(vertices), "iterations": self.iterations,
+        kw: dict[str, Any] = {"substeps": self.substeps_for(vertices), "iterations": iterations,
                               "coarse_sweeps": sweeps, "coarse_spacing": self.coarse_spacing,
                               "fast_math": True, "coarse_prefactor": True,
                               "max_colors": CUDA_COLORS if cuda else 0,

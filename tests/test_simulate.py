@@ -4,6 +4,7 @@ second of motion, few substeps."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 
 import numpy as np
@@ -16,6 +17,8 @@ from sim.quality import SimulationError
 from sim.simulate import SimulationConfig, SimulationJob, simulate, simulate_batch, simulator_defaults
 
 RES = 0.05  # template edge length [m]: ~300 (skirt) to ~450 (t-shirt) vertices
+# The CLI writes USD: usd-core (pxr) is a project dependency, absent only on a bare GPU machine.
+needs_usd = pytest.mark.skipif(importlib.util.find_spec("pxr") is None, reason="usd-core (pxr) not installed")
 FAST = dict(fps=30.0, substeps=4, iterations=4, settle_seconds=0.6, blend_seconds=0.2, device="cpu")
 
 
@@ -85,6 +88,19 @@ def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
     assert SimulationConfig(substeps=9).vbd_config(19_542).substeps == 9
     assert SimulationConfig().substeps_for(30_000) == 14 and SimulationConfig.from_dict(
         SimulationConfig().to_dict()).substeps == 0
+    # automatic sweeps (session 44): 5 up to 10k garment vertices, 8 above; a number wins; the
+    # automatic correction before sweep 2 either way, the retries keep the sweeps
+    assert [SimulationConfig().vbd_config(n).iterations for n in sizes] == [5, 5, 8, 8]
+    assert SimulationConfig().vbd_config(19_542).coarse_sweeps == (2,)
+    assert SimulationConfig(iterations=6).vbd_config(19_542).iterations == 6
+    assert SimulationConfig(iterations=6).iterations_for(1000) == 6
+    assert SimulationConfig.from_dict(SimulationConfig().to_dict()).iterations == 0
+    import dataclasses
+    retry = dataclasses.replace(SimulationConfig(), substeps=SimulationConfig().retry_substeps(19_542)[0])
+    assert (retry.vbd_config(19_542).substeps, retry.vbd_config(19_542).iterations) == (23, 8)
+    assert simulator_defaults()["iterations"] == {"default": 5, "fine": 8}
+    with pytest.raises(WrinklesInputError, match="iterations must be an integer >= 0"):
+        SimulationConfig(iterations=-1)
     # the CUDA solve kernel with fast math by default, off on request (the solver-level default)
     assert vbd.fast_math and not SimulationConfig(solver={"fast_math": False}).vbd_config().fast_math
     assert not VBDConfig().fast_math
@@ -340,6 +356,7 @@ def test_simulate_help_explains_itself(capsys):
         assert flag in out
 
 
+@needs_usd
 def test_cli_writes_body_and_garment_with_uvs_and_quality(tmp_path):
     from usd_io import read_stage, validate_stage
 
@@ -365,6 +382,7 @@ def test_cli_writes_body_and_garment_with_uvs_and_quality(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tee_walk.quality.json", "tee_walk.usda"]
 
 
+@needs_usd
 def test_cli_failed_gates_exit_1_nothing_written(tmp_path, capsys):
     out = tmp_path / "s.usda"
     rc = main(["simulate", "--garment", "skirt", "--out", str(out), "--gate", "max_edge_strain=1e-9",
@@ -395,6 +413,7 @@ def _simulate_calls(monkeypatch, passes_from: int) -> list[int]:
     return calls
 
 
+@needs_usd
 def test_cli_retries_a_failing_sequence_at_more_substeps(tmp_path, capsys, monkeypatch):
     """A sequence that fails its gates is simulated again at 5/3 and then 2 times the substeps
     (4 -> 7 -> 8); the first run that passes is written, with its substeps in the config and the
@@ -415,6 +434,7 @@ def test_cli_retries_a_failing_sequence_at_more_substeps(tmp_path, capsys, monke
     assert "more --substeps than 8" in err and not out2.exists()
 
 
+@needs_usd
 def test_cli_writes_the_last_finished_run_when_the_retries_stop(tmp_path, monkeypatch):
     """With --allow-failed-gates, a run that fails its gates is written when both retries stop
     (NaN): the report names it and the stopped runs. --no-retry records no retry factors."""
@@ -447,6 +467,7 @@ def test_cli_writes_the_last_finished_run_when_the_retries_stop(tmp_path, monkey
     assert rc == 0 and calls == [4] and side["config"]["retry_factors"] == [] and side["attempts"] == []
 
 
+@needs_usd
 def test_cli_explosion_is_one_line_nothing_written(tmp_path, capsys, monkeypatch):
     import sim.cloth
 
