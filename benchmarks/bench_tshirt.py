@@ -125,17 +125,17 @@ def load_single_scene(args: argparse.Namespace):
 
 
 def build_garment(body, vertices: int, material: dict | None = None, category: str = "t_shirt",
-                  **params: float):
+                  betas=None, **params: float):
     """The t-shirt template (or the template ``category``) at the edge length that gives about
     ``vertices`` vertices, in cotton with the fields ``material`` changed (``material_changes``),
-    with template ``params``."""
+    with template ``params``, fitted to the body of shape ``betas`` (None: the mean shape)."""
     from sim.garments import make_garment
     from sim.garments.materials import get_material
     from sim.garments.templates import TEMPLATES
 
     t = TEMPLATES[category]
     edge = t.coarse * math.sqrt(t.vertices[0] / float(vertices))
-    return make_garment(category, body, None, resolution=edge,
+    return make_garment(category, body, betas, resolution=edge,
                         material=get_material("cotton").with_(**(material or {})), **params), edge
 
 

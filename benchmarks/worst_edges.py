@@ -20,6 +20,13 @@ single garment's.
     python -m benchmarks.worst_edges --vertices 20000 --setting 20x5 --motion walk,run --copies 8
     python -m benchmarks.worst_edges --device cuda --vertices 20000 --motion walk --save f19.npz  # then
     python -m benchmarks.neckline_stretch f19_walk.npz --motion walk
+
+A dataset's rejected sequence (``rejections.jsonl``: ``betas``, ``garment_params``,
+``motion_params``, ``vertices``) runs again with ``--shape`` (the garment fitted to that body, as a
+dataset's ``fit = "body"``), ``--param`` and ``--motion-param``:
+
+    python -m benchmarks.worst_edges --device cuda --garment tank_top --vertices 19000 --motion walk \
+        --shape 0.8,-1.2,0.3,0.5 --motion-param speed=1.62 --motion-param arm_swing=1.1
 """
 
 from __future__ import annotations
@@ -127,6 +134,8 @@ def describe(result, g, device: str, n_worst: int, body_rest: np.ndarray | None 
 
 def main() -> None:
     from benchmarks.bench_tshirt import (
+        _numbers,
+        _option_error,
         add_material_argument,
         build_garment,
         material_changes,
@@ -134,7 +143,8 @@ def main() -> None:
     )
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
-    from sim.motions import load_motion
+    from sim.errors import WrinklesInputError
+    from sim.motions import MotionSkeleton, load_motion
     from sim.simulate import SimulationConfig, SimulationJob, simulate_batch
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -157,11 +167,22 @@ def main() -> None:
                     help="also write each alone run's garment positions per frame (float32), the rest "
                     "mesh and the body's positions and faces, one file per motion (PATH_walk.npz, ...), "
                     "for a look at the worst frames (default: off)")
+    ap.add_argument("--shape", default="", metavar="B1,B2,...",
+                    help="body shape (betas, comma-separated; the rest 0), the garment fitted to it "
+                    "(default: the mean shape)")
+    ap.add_argument("--motion-param", action="append", default=[], metavar="KEY=VALUE",
+                    help="a parameter of the procedural motion, e.g. speed=1.6 (repeatable; `wrinkles "
+                    "motions` lists them)")
     add_material_argument(ap)
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
     material = material_changes(args)
     params = template_params(args)
+    motion_params = _numbers(args.motion_param, "--motion-param", lambda out: None)
+    try:
+        shape = [float(b) for b in args.shape.split(",")] if args.shape else []
+    except ValueError:
+        ap.error(f"--shape: expected comma-separated numbers, got {args.shape!r}")
     setting = {}
     if args.setting:
         m = re.fullmatch(r"(\d+)x(\d+)", args.setting)
@@ -170,22 +191,32 @@ def main() -> None:
         setting = {"substeps": int(m[1]), "iterations": int(m[2])}
     device = resolve_device(args.device)
     body = load_default_body()
-    g, _ = build_garment(body, args.vertices, material, args.garment, **params)
+    try:
+        betas = body.full_betas(np.asarray(shape, np.float32)) if shape else None
+    except WrinklesInputError as e:
+        _option_error("--shape", e)
     names = args.motion.split(",")
-    motions = [load_motion(n, fps=30.0, duration=args.seconds) for n in names]
+    skeleton = {} if betas is None else {"skeleton": MotionSkeleton.from_body(body, betas)}
+    try:
+        motions = [load_motion(n, fps=30.0, duration=args.seconds, **skeleton, **motion_params)
+                   for n in names]
+    except WrinklesInputError as e:
+        _option_error("--motion-param", e)
+    g, _ = build_garment(body, args.vertices, material, args.garment, betas=betas, **params)
     cfg = SimulationConfig(device=device, solver=json.loads(args.solver), keep_prelude=args.keep_prelude,
                            **setting)
     runs, frames = {}, {}
     t0 = time.perf_counter()
     for n, mot in zip(names, motions, strict=True):
-        r = simulate_batch([SimulationJob(g, body, mot, None)], config=cfg, failures="return")[0]
-        betas = None if mot.betas is None else np.asarray(mot.betas).reshape(-1)[: body.num_betas]
-        runs[f"alone {n}"] = describe(r, g, device, args.worst, body.rest_mesh(betas))
+        r = simulate_batch([SimulationJob(g, body, mot, betas)], config=cfg, failures="return")[0]
+        b = betas if betas is not None else (
+            None if mot.betas is None else np.asarray(mot.betas).reshape(-1)[: body.num_betas])
+        runs[f"alone {n}"] = describe(r, g, device, args.worst, body.rest_mesh(b))
         if args.save and not isinstance(r, Exception):
             frames[n] = (np.asarray(r.sequence.vertices, dtype=np.float32),
                          np.asarray(r.sequence.body.vertices, dtype=np.float32), r.sequence.body.faces)
     if args.copies > 0:
-        jobs = [SimulationJob(g, body, mot, None) for _ in range(args.copies) for mot in motions]
+        jobs = [SimulationJob(g, body, mot, betas) for _ in range(args.copies) for mot in motions]
         results = simulate_batch(jobs, config=cfg, failures="return")
         for k, r in enumerate(results):
             label = f"batch of {len(jobs)}, member {k} {names[k % len(names)]}"
@@ -203,7 +234,8 @@ def main() -> None:
         "machine": machine(device), "garment": args.garment, "vertices": len(g.rest_vertices),
         "motion": args.motion,
         "seconds": args.seconds, "setting": args.setting or "default", "solver": json.loads(args.solver),
-        "params": params, "material": material, "copies": args.copies, "wall_s": wall, **first, "runs": runs,
+        "params": params, "material": material, "shape": shape, "motion_params": motion_params,
+        "copies": args.copies, "wall_s": wall, **first, "runs": runs,
     })
 
 

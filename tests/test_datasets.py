@@ -427,8 +427,14 @@ def test_failed_sequences_are_retried_at_more_substeps(tmp_path, monkeypatch):
         s = generate(cfg, out / "b", batch=1, device="cpu")
         m = S.read_manifest(out / "b")
         assert s.accepted == 0 and s.rejected == 2 and calls == [(2, 2), (2, 3), (2, 4)] * 2
-        for r in m["rejected"].values():
+        specs = {sp.id: sp for sp in sample_sequences(cfg)}
+        for sid, r in m["rejected"].items():
             assert r["substeps"] == [2, 3, 4]
+            # the record holds what it takes to simulate the sequence again
+            sp = specs[sid]
+            assert (r["seed"], r["betas"], r["garment_params"], r["motion_source"], r["motion_params"]) == (
+                sp.seed, list(sp.betas), sp.garment_params, sp.motion, sp.motion_params)
+            assert r["fit"] == cfg.garments.fit and r["vertices"] > 0 and r["split"] == sp.split
             gate = "max edge strain 0.9 > 0.35"
             assert r["reasons"] == (["simulation failed at frame 7: explosion: test (at 4 substeps)"]
                                     if mode[0] == "explode" else [f"fine: {gate}", f"coarse: {gate}"])

@@ -163,11 +163,13 @@ def test_check_frame_names_frame_and_cause():
 
 
 @pytest.mark.parametrize("bad", [["--param", "neck_fillet=x"], ["--setting", "20by5"],
-                                 ["--param", "no_such_param=1"]])
+                                 ["--param", "no_such_param=1"], ["--shape", "0.5,x"],
+                                 ["--shape", ",".join(["0.1"] * 17)], ["--motion-param", "speed=fast"],
+                                 ["--motion-param", "no_such_param=1"]])
 def test_worst_edges_refuses_bad_options_with_status_2(bad, monkeypatch, capsys):
-    """``benchmarks.worst_edges`` with a malformed ``--param`` / ``--setting`` or an unknown
-    template parameter: a one-line error naming the option, exit status 2, before any
-    simulation."""
+    """``benchmarks.worst_edges`` with a malformed ``--param`` / ``--setting`` / ``--shape`` /
+    ``--motion-param``, an unknown template or motion parameter or more betas than the body has:
+    a one-line error naming the option, exit status 2, before any simulation."""
     from benchmarks import worst_edges
 
     monkeypatch.setattr("sys.argv", ["worst_edges", "--device", "cpu", "--seconds", "0.1", *bad])

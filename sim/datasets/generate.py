@@ -286,9 +286,15 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
         fine_g, fine_r = item["fine"]
         reasons = reasons_of[sp.id]
         if reasons:
+            # everything needed to simulate it again (``wrinkles simulate``, ``benchmarks.worst_edges
+            # --shape --motion-param``): its body, garment and motion parameters and its seed
             part.data["rejected"][sp.id] = {"index": sp.index, "garment": sp.category,
                                             "motion": sp.motion_label, "material": sp.material,
-                                            "reasons": reasons, "substeps": [*tried, substeps]}
+                                            "reasons": reasons, "substeps": [*tried, substeps],
+                                            "seed": sp.seed, "split": sp.split, "betas": list(sp.betas),
+                                            "fit": cfg.garments.fit, "garment_params": sp.garment_params,
+                                            "motion_source": sp.motion, "motion_params": sp.motion_params,
+                                            "vertices": int(fine_g.num_vertices)}
             part.save()
             summary.rejected += 1
             log(f"{sp.id} rejected ({sp.category}, {sp.motion_label}): {'; '.join(reasons)}")
