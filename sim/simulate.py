@@ -117,8 +117,10 @@ more sweeps: its particles are lighter against the same membrane stiffness, so a
 less of a substep's correction. H100, docs/BENCHMARKS.md (session 44), every template at ~20k
 vertices on the default body: the walks pass 4 of 8 at 14x5, 6 of 8 at 14x8 (18 % more time per
 frame: 15.2-20.6 ms against 12.7-17.2) and 6 of 8 at 23x5 (60 % more); the runs 0 of 8 at both
-14x5 and 14x8 (max strain lower at 14x8: tank top 0.84 -> 0.60, dress 0.76 -> 0.60, long sleeve
-one failed run -> 1.21). Until session 44 every garment ran 5 sweeps."""
+14x5 and 14x8 (max strain lower at 14x8 for 6 of 8: tank top 0.84 -> 0.60, dress 0.76 -> 0.60);
+the 19k t-shirt's population of random walks and runs 8 of 16 against 7; a fine dataset of 16
+sampled walks and runs accepts 5 without retries against 2. Until session 44 every garment ran
+5 sweeps."""
 
 
 def default_substeps(vertices: int) -> int:
@@ -159,7 +161,8 @@ class SimulationConfig:
     """Settings of a simulation run (saved with every output; ``from_dict`` refuses unknown keys).
 
     The solver defaults, 12 substeps x 5 sweeps with one coarse-level correction before sweep 2
-    (14 substeps for garments over 10k vertices: ``default_substeps``), are the issue benchmark's
+    (14 substeps x 8 sweeps for garments over 10k vertices: ``default_substeps``,
+    ``default_iterations``; 14 x 5 until session 44), are the issue benchmark's
     setting (docs/BENCHMARKS.md, sessions 23-25; 14 substeps everywhere until session 38, when the
     templates' hems (``sim.garments.hems``) let the 5k t-shirt pass the population of random
     walks and runs as often at 12: 134 of 144 against 133 at 14 without hems). On the 5k t-shirt
