@@ -6,6 +6,7 @@ on the t-shirt does not fail the other templates (session 42: ``coarse_early`` a
 coarse system prepared after the detection).
 
     python -m benchmarks.garment_gates --device cuda --variants '[{}, {"coarse_early": false}]'
+    python -m benchmarks.garment_gates --device cuda --garments tank_top,dress --param armhole_depth=0.06
 """
 
 from __future__ import annotations
@@ -28,8 +29,12 @@ def main() -> None:
     ap.add_argument("--variants", default="[{}]",
                     help="JSON list of solver overrides (VBDConfig fields) run per garment and motion; "
                     "{} is the job default (default: %(default)s)")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                    help="a template parameter for every garment run (each must have it; repeatable; "
+                    "default: the templates' own)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
+    from benchmarks.bench_tshirt import _numbers
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
     from sim.errors import WrinklesInputError
@@ -41,6 +46,13 @@ def main() -> None:
     unknown = [n for n in names if n not in TEMPLATES]
     if unknown:
         raise SystemExit(f"garment_gates: unknown template(s) {unknown}; expected {sorted(TEMPLATES)}")
+    from sim.garments.templates import make_params
+
+    def check(params: dict) -> None:
+        for n in names:
+            make_params(n, **params)
+
+    params = _numbers(args.param, "--param", check)
     try:
         variants = json.loads(args.variants)
         assert isinstance(variants, list) and all(isinstance(v, dict) for v in variants)
@@ -56,10 +68,12 @@ def main() -> None:
         write_result(f"garment_gates_{device.split(':')[0]}{args.tag}", {
             "machine": machine(device),
             "sizes": {"seconds": args.seconds, "vertices": args.vertices or "template coarse"},
-            "variants": variants, "figures": figures, "complete": len(figures) == len(names)})
+            "variants": variants, "params": params, "figures": figures,
+            "complete": len(figures) == len(names)})
 
     for name in names:
-        garment, _ = build_garment(body, args.vertices or TEMPLATES[name].vertices[0], category=name)
+        garment, _ = build_garment(body, args.vertices or TEMPLATES[name].vertices[0], category=name,
+                                   **params)
         figures[name] = {"vertices": garment.num_vertices, "runs": {}}
         for motion_name, motion in motions.items():
             for k, solver in enumerate(variants):
