@@ -427,6 +427,52 @@ def test_neckline_corners_are_rounded(body, category, shape):
     assert rounded.num_vertices == pytest.approx(square.num_vertices, rel=0.01)
 
 
+def _armhole_corner_angle(g) -> float:
+    """Largest angle of cloth [deg] around a boundary vertex of the bibs below the straps (where
+    a bib's side meets the tube's top row: about 270° at a square armhole corner)."""
+    total = np.bincount(g.faces.ravel(), weights=corner_angles(g.rest_vertices, g.faces).ravel(),
+                        minlength=g.num_vertices)
+    e, count = _edges(g.faces)
+    boundary = np.zeros(g.num_vertices, bool)
+    boundary[e[count == 1].ravel()] = True
+    bib = np.zeros(g.num_vertices, bool)
+    for name in ("front_bib", "back_bib"):
+        bib[g.faces[g.panel_ids == g.panel_names.index(name)].ravel()] = True
+    strap = np.zeros(g.num_vertices, bool)
+    for name in ("left_strap", "right_strap"):
+        strap[g.faces[g.panel_ids == g.panel_names.index(name)].ravel()] = True
+    return float(total[boundary & bib & ~strap].max())
+
+
+@pytest.mark.parametrize("shape", ["mean", "short_slim"])
+def test_armhole_fillet_rounds_the_armholes_bottom_corners(body, shape):
+    """``armhole_fillet`` (session 44; off by default): the bibs' sides curve into the tube's
+    top row, so no bib boundary vertex below the straps has more than 240° of cloth around it
+    where the square corner has about 270°; the bibs' bottom rows reach out by the radius. The
+    mesh stays manifold with its vertex count within 2 %, and a radius is capped at 3/4 of the
+    lower rise and at what leaves the armhole's bottom two edges before the tube's side (the
+    slim body's corners are smaller)."""
+    betas = parse_shape(SHAPES[shape])
+    square = make_garment("tank_top", body, betas, resolution=0.01)
+    rounded = make_garment("tank_top", body, betas, resolution=0.01, armhole_fillet=0.04)
+    assert _armhole_corner_angle(square) > 260.0
+    assert _armhole_corner_angle(rounded) < 240.0
+    e, count = _edges(rounded.faces)
+    assert count.max() == 2
+    assert rounded.num_vertices == pytest.approx(square.num_vertices, rel=0.02)
+
+    def bib_half_width(g) -> float:
+        bib = g.faces[g.panel_ids == g.panel_names.index("front_bib")].ravel()
+        return float(np.abs(g.rest_vertices[bib, 0]).max())
+
+    side = float(np.abs(square.rest_vertices[:, 0]).max())  # about the tube's side (at the armpit)
+    wide = min(0.04, side - bib_half_width(square) - 0.02)
+    assert wide > 0.01
+    assert bib_half_width(rounded) == pytest.approx(bib_half_width(square) + wide, abs=0.012)
+    capped = make_garment("tank_top", body, betas, resolution=0.01, armhole_fillet=0.1, front_rise=0.03)
+    assert bib_half_width(capped) == pytest.approx(bib_half_width(square) + 0.75 * 0.03, abs=0.012)
+
+
 def test_fillet_inset_is_a_quarter_circle_tangent_at_both_ends():
     """``fillet_inset``: the strap's inner edge at (x_in - inset(s), s) lies on the circle of
     radius r about (x_in - r, r), from the neckline (s = 0, inset r) to the straight edge (s = r,

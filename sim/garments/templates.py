@@ -391,6 +391,11 @@ class TopParams:
             most what leaves a neckline four edges wide; 0: square corners, where stress
             concentrates in the cloth (a re-entrant corner) and the largest edge strain grows as
             the mesh is refined.
+        armhole_fillet: radius of the rounded corners where a bib's side meets the body tube's
+            top row (the armhole's bottom) [m], at most 3/4 of the lower rise and what leaves
+            the armhole's bottom two edges before the tube's side; 0, the default:
+            square corners (about 270 degrees of cloth; session 44 found every worst edge of the
+            fine tank top's walks there, docs/BENCHMARKS.md).
         flare: extra radius at the hem relative to the hips [-] (dresses).
         sleeve_length: sleeve length from the shoulder joint along the arm [m]; 0 = none
             (the armholes stay open); sleeves stop 3 cm before the wrist.
@@ -404,6 +409,7 @@ class TopParams:
     front_rise: float = 0.08
     back_rise: float = 0.10
     neck_fillet: float = 0.02
+    armhole_fillet: float = 0.0
     flare: float = 0.0
     sleeve_length: float = 0.0
 
@@ -480,6 +486,8 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
     # four edges wide (a coarse mesh gets smaller corners)
     fillet = min(p.neck_fillet, max(x_in - 2 * h, 0.0))
     x_neck = x_in - fillet
+    # the armholes' rounded bottom corners: the bibs' sides curve out into the tube's top row
+    arm_r = min(p.armhole_fillet, 0.75 * min(p.front_rise, p.back_rise))
     hn = _RING_SAMPLES // 2
     n_rows = max(3, int(round(length / hv)) + 1)
     y_hip, y_hem = j[1, 1], y_top - length
@@ -498,15 +506,19 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
             front.append(resample(ring[: hn + 1], h, min_segments=2))
             back.append(resample(ring[hn:], h, min_segments=2))
             continue
-        fp = _pieces(ring[: hn + 1], _cut_indices(ring[: hn + 1], [x_out, -x_out]), h)
-        bp = _pieces(ring[hn:], _cut_indices(ring[hn:], [-x_out, x_out]), h)
+        # the fillet leaves the armhole's bottom at least two edges before the tube's side (a
+        # slim body gets smaller corners)
+        arm_r = max(0.0, min(arm_r, float(np.abs(ring[:, 0]).max()) - x_out - 2 * h))
+        x_arm = x_out + arm_r
+        fp = _pieces(ring[: hn + 1], _cut_indices(ring[: hn + 1], [x_arm, -x_arm]), h)
+        bp = _pieces(ring[hn:], _cut_indices(ring[hn:], [-x_arm, x_arm]), h)
         front.append(_join(fp))
         back.append(_join(bp))
         bib_bottom = {"front": fp[1], "back": bp[1]}
         tube_top = (fp, bp)
     panels = [Panel("front", tuple(front), top=None), Panel("back", tuple(back), top=None)]
     # bibs between the armholes, from the necklines down to the tube
-    bib_mask = np.abs(v[:, 0]) <= x_out + 0.03
+    bib_mask = np.abs(v[:, 0]) <= x_out + arm_r + 0.03
     ends, cores, bibs, strap_rows = {}, {}, {}, {}
     for name, rise, xs in (("front", p.front_rise, [x_out, x_neck, -x_neck, -x_out]),
                            ("back", p.back_rise, [-x_out, -x_neck, x_neck, x_out])):
@@ -516,7 +528,10 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
             hull = offset_hull(m.band(float(y) - half, float(y) + half, bib_mask), margin + p.ease)
             ring = polar_ring(hull, _ring_center(hull), float(y))
             hr = ring[: hn + 1] if name == "front" else ring[hn:]
-            cuts = _cut_indices(hr, xs)
+            # below the fillet's top the row reaches out along its quarter circle
+            wide = float(fillet_inset(float(y) - y_top, arm_r)) if arm_r > 0.0 else 0.0
+            cuts = _cut_indices(hr, [xs[0] + np.sign(xs[0]) * wide, xs[1], xs[2],
+                                     xs[3] + np.sign(xs[3]) * wide])
             if not rows:  # the neckline row: strap ends as exact pieces
                 tp = _pieces(hr[cuts[0]: cuts[3] + 1], [c - cuts[0] for c in cuts[1:3]], h)
                 rows.append(_join(tp))
@@ -775,6 +790,7 @@ PARAM_RANGES: dict[str, tuple[float, float]] = {
     "neck_ease": (0.0, 0.1),
     "front_rise": (0.0, 0.3),
     "neck_fillet": (0.0, 0.08),
+    "armhole_fillet": (0.0, 0.1),
     "back_rise": (0.0, 0.3),
     "sleeve_length": (0.0, 1.0),
     "hem_width": (0.0, 0.1),
