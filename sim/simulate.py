@@ -142,14 +142,18 @@ def simulator_defaults(cuda: bool = False) -> dict:
     CUDA before the colouring changed, or before the early coarse diagonal (``coarse_early``,
     session 42), nor one begun before sequences that fail their gates were retried
     (``RETRY_FACTORS``, session 43; a dataset's own ``[simulation] retry_factors`` is in its
-    config), nor one begun before fine garments took 8 sweeps (``FINE_ITERATIONS``, session 44)."""
+    config), nor one begun before fine garments took 8 sweeps (``FINE_ITERATIONS``, session 44),
+    nor one begun under other template defaults (every template's default parameters, recorded
+    since session 44, when the tank top's armholes were rounded)."""
     from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
+    from sim.garments.templates import TEMPLATES, make_params
 
     out = {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
                         "fine_over_vertices": FINE_GARMENT_VERTICES},
            "iterations": {"default": DEFAULT_ITERATIONS, "fine": FINE_ITERATIONS},
            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
-           "retry_factors": list(RETRY_FACTORS)}
+           "retry_factors": list(RETRY_FACTORS),
+           "templates": {name: dataclasses.asdict(make_params(name)) for name in TEMPLATES}}
     if cuda:
         out["max_colors"] = CUDA_COLORS
         out["coarse_early"] = CUDA_COARSE_EARLY

@@ -16,7 +16,13 @@ from sim.bodies.default import parse_shape
 from sim.errors import WrinklesInputError
 from sim.garments import TEMPLATES, make_garment
 from sim.garments.panels import corner_angles, stitch
-from sim.garments.templates import PARAM_RANGES, fillet_inset, resolve_resolution
+from sim.garments.templates import (
+    ARMHOLE_FILLET_ANGLE,
+    PARAM_RANGES,
+    armhole_inset,
+    fillet_inset,
+    resolve_resolution,
+)
 from sim.garments.uv import UV_MARGIN, uv_stats
 
 SHAPES = {"mean": "", "tall_heavy": "height=0.7,weight=0.9", "short_slim": "height=0.1,weight=0.1"}
@@ -446,31 +452,61 @@ def _armhole_corner_angle(g) -> float:
 
 @pytest.mark.parametrize("shape", ["mean", "short_slim"])
 def test_armhole_fillet_rounds_the_armholes_bottom_corners(body, shape):
-    """``armhole_fillet`` (session 44; off by default): the bibs' sides curve into the tube's
-    top row, so no bib boundary vertex below the straps has more than 240° of cloth around it
-    where the square corner has about 270°; the bibs' bottom rows reach out by the radius. The
-    mesh stays manifold with its vertex count within 2 %, and a radius is capped at 3/4 of the
-    lower rise and at what leaves the armhole's bottom two edges before the tube's side (the
-    slim body's corners are smaller)."""
+    """``armhole_fillet`` (session 44): the bibs' sides curve into the tube's top row along an arc
+    that leaves the side tangentially and meets the row at 45° (``armhole_inset``), so no bib
+    boundary vertex below the straps has more than 235° of cloth around it where the square
+    corner (``armhole_fillet=0``) has about 270°. The bibs' bottom rows reach out by the arc's
+    reach, capped where it would leave the armhole's bottom less than two edges before the tube's
+    side (the slim body) and by 3/4 of the lower rise; the mesh stays manifold, without slivers,
+    its vertex count within 2 %, and the straps are untouched."""
     betas = parse_shape(SHAPES[shape])
-    square = make_garment("tank_top", body, betas, resolution=0.01)
-    rounded = make_garment("tank_top", body, betas, resolution=0.01, armhole_fillet=0.04)
+    h, radius = 0.01, 0.06
+    square = make_garment("tank_top", body, betas, resolution=h, armhole_fillet=0.0)
+    rounded = make_garment("tank_top", body, betas, resolution=h, armhole_fillet=radius)
     assert _armhole_corner_angle(square) > 260.0
-    assert _armhole_corner_angle(rounded) < 240.0
+    assert _armhole_corner_angle(rounded) < 235.0
     e, count = _edges(rounded.faces)
     assert count.max() == 2
+    assert corner_angles(rounded.rest_vertices, rounded.faces).min() > 15.0
     assert rounded.num_vertices == pytest.approx(square.num_vertices, rel=0.02)
+    def panel(g, name: str) -> np.ndarray:
+        return g.rest_vertices[np.unique(g.faces[g.panel_ids == g.panel_names.index(name)])]
+
+    for name in ("left_strap", "right_strap"):
+        np.testing.assert_array_equal(panel(rounded, name), panel(square, name))
 
     def bib_half_width(g) -> float:
-        bib = g.faces[g.panel_ids == g.panel_names.index("front_bib")].ravel()
-        return float(np.abs(g.rest_vertices[bib, 0]).max())
+        return float(np.abs(panel(g, "front_bib")[:, 0]).max())
 
-    side = float(np.abs(square.rest_vertices[:, 0]).max())  # about the tube's side (at the armpit)
-    wide = min(0.04, side - bib_half_width(square) - 0.02)
-    assert wide > 0.01
-    assert bib_half_width(rounded) == pytest.approx(bib_half_width(square) + wide, abs=0.012)
-    capped = make_garment("tank_top", body, betas, resolution=0.01, armhole_fillet=0.1, front_rise=0.03)
-    assert bib_half_width(capped) == pytest.approx(bib_half_width(square) + 0.75 * 0.03, abs=0.012)
+    front = panel(square, "front")
+    side = float(np.abs(front[front[:, 1] > front[:, 1].max() - 1e-4, 0]).max())  # the tube's top row
+    x_out = bib_half_width(square)
+    reach = min(float(armhole_inset(0.0, radius)), side - x_out - 2 * h)
+    assert reach > 0.008
+    assert bib_half_width(rounded) - x_out == pytest.approx(reach, abs=0.003)
+    capped = make_garment("tank_top", body, betas, resolution=h, armhole_fillet=0.1, front_rise=0.03)
+    cap = 0.75 * 0.03 / np.sin(ARMHOLE_FILLET_ANGLE)
+    assert bib_half_width(capped) - x_out == pytest.approx(min(float(armhole_inset(0.0, cap)), reach),
+                                                            abs=0.003)
+
+
+def test_armhole_inset_is_an_arc_tangent_to_the_side_meeting_the_row_at_its_angle():
+    """``armhole_inset``: the bib's side at (x - inset(dy), dy) lies on the circle of ``radius``
+    about (x + radius, radius sin(angle)) from the row (dy = 0, inset radius (1 - cos(angle))) up
+    to the tangent point (dy = radius sin(angle), inset 0), meeting the row at ``angle`` from the
+    horizontal; above it the straight side; the inset falls monotonically."""
+    r, a = 0.06, ARMHOLE_FILLET_ANGLE
+    top = r * np.sin(a)
+    dy = np.linspace(0.0, top, 201)
+    w = armhole_inset(dy, r)
+    np.testing.assert_allclose((r - w) ** 2 + (top - dy) ** 2, r * r, rtol=1e-12)
+    assert w[0] == pytest.approx(r * (1.0 - np.cos(a))) and w[-1] == pytest.approx(0.0, abs=1e-15)
+    assert np.all(np.diff(w) <= 0.0)
+    np.testing.assert_array_equal(armhole_inset(np.array([top + 1e-4, 0.2]), r), 0.0)
+    # slope at the row: d(inset)/d(dy) = -1/tan(angle); at the tangent point vertical (slope 0)
+    eps = 1e-7
+    assert (armhole_inset(0.0, r) - armhole_inset(eps, r)) / eps == pytest.approx(1.0 / np.tan(a), rel=1e-4)
+    assert abs(armhole_inset(top - 1e-6, r)) < 1e-9
 
 
 def test_fillet_inset_is_a_quarter_circle_tangent_at_both_ends():

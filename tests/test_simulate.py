@@ -99,6 +99,10 @@ def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
     retry = dataclasses.replace(SimulationConfig(), substeps=SimulationConfig().retry_substeps(19_542)[0])
     assert (retry.vbd_config(19_542).substeps, retry.vbd_config(19_542).iterations) == (23, 8)
     assert simulator_defaults()["iterations"] == {"default": 5, "fine": 8}
+    # every template's default parameters (session 44: the tank top's armholes rounded)
+    templates = simulator_defaults()["templates"]
+    assert templates["tank_top"]["armhole_fillet"] == 0.08 and templates["t_shirt"]["armhole_fillet"] == 0.0
+    assert templates["t_shirt"]["sleeve_length"] == 0.2 and len(templates) == 8
     with pytest.raises(WrinklesInputError, match="iterations must be an integer >= 0"):
         SimulationConfig(iterations=-1)
     # the CUDA solve kernel with fast math by default, off on request (the solver-level default)

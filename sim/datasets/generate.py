@@ -82,7 +82,8 @@ def _refuse_other_simulator(old: dict | None, cfg_dict: dict, root: Path) -> Non
             {k: v for k, v in cfg_dict.items() if k != "simulator"}:
         raise WrinklesInputError("this dataset was made with other simulator defaults (automatic substeps, "
                                  "garment hems and their rule, the colouring of the device kind, the retries "
-                                 "at more substeps, the automatic sweeps) than this "
+                                 "at more substeps, the automatic sweeps, the templates' default "
+                                 "parameters) than this "
                                  "version's on this device, and "
                                  "continuing it would mix two physics; choose another --out", path=root)
 

@@ -391,11 +391,13 @@ class TopParams:
             most what leaves a neckline four edges wide; 0: square corners, where stress
             concentrates in the cloth (a re-entrant corner) and the largest edge strain grows as
             the mesh is refined.
-        armhole_fillet: radius of the rounded corners where a bib's side meets the body tube's
-            top row (the armhole's bottom) [m], at most 3/4 of the lower rise and what leaves
-            the armhole's bottom two edges before the tube's side; 0, the default:
-            square corners (about 270 degrees of cloth; session 44 found every worst edge of the
-            fine tank top's walks there, docs/BENCHMARKS.md).
+        armhole_fillet: radius [m] of the arcs that round the corners where a bib's side meets
+            the body tube's top row (the armhole's bottom): tangent to the side, meeting the row
+            at 45° (``armhole_inset``; they reach 0.29 x the radius out from the side and 0.71 x
+            up it), capped at 3/4 of the lower rise up the side and where the armhole's bottom
+            would keep less than two edges; 0: square corners (about 270 degrees of cloth), the
+            default of the shirts and the dress. The tank top's is 8 cm (session 44: every worst
+            edge of its fine walks sat at the square corners, docs/BENCHMARKS.md).
         flare: extra radius at the hem relative to the hips [-] (dresses).
         sleeve_length: sleeve length from the shoulder joint along the arm [m]; 0 = none
             (the armholes stay open); sleeves stop 3 cm before the wrist.
@@ -439,6 +441,24 @@ def fillet_inset(s: np.ndarray | float, radius: float) -> np.ndarray:
     strap's edge tangentially)."""
     d = np.clip(radius - np.asarray(s, dtype=float), 0.0, radius)
     return radius - np.sqrt(np.maximum(radius * radius - d * d, 0.0))
+
+
+ARMHOLE_FILLET_ANGLE = np.pi / 4
+"""Angle [rad] from the horizontal at which an armhole fillet meets the tube's top row (a square
+corner meets it at 90°). A quarter circle tangent to the row would cross the bib's last rows at
+a glancing angle and leave slivers (2.9° at the fine size with 4 cm, session 44); at 45° the
+cloth around the corner is 225° instead of 270°."""
+
+
+def armhole_inset(dy: np.ndarray | float, radius: float,
+                  angle: float = ARMHOLE_FILLET_ANGLE) -> np.ndarray:
+    """How far [m] an armhole fillet of ``radius`` [m] reaches beyond a bib's straight side at
+    height ``dy`` [m] above the tube's top row: an arc of the circle of ``radius`` tangent to the
+    side at ``radius * sin(angle)`` above the row, meeting the row at ``angle`` from the
+    horizontal (``radius * (1 - cos(angle))`` out from the side there), 0 above its top."""
+    top = radius * np.sin(angle)
+    t = np.clip((top - np.asarray(dy, dtype=float)) / max(radius, 1e-12), 0.0, np.sin(angle))
+    return radius * (1.0 - np.sqrt(1.0 - t * t))
 
 
 def _extend_inner(row: np.ndarray, inner: int, inset: float, h: float) -> np.ndarray:
@@ -487,7 +507,7 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
     fillet = min(p.neck_fillet, max(x_in - 2 * h, 0.0))
     x_neck = x_in - fillet
     # the armholes' rounded bottom corners: the bibs' sides curve out into the tube's top row
-    arm_r = min(p.armhole_fillet, 0.75 * min(p.front_rise, p.back_rise))
+    arm_r = min(p.armhole_fillet, 0.75 * min(p.front_rise, p.back_rise) / np.sin(ARMHOLE_FILLET_ANGLE))
     hn = _RING_SAMPLES // 2
     n_rows = max(3, int(round(length / hv)) + 1)
     y_hip, y_hem = j[1, 1], y_top - length
@@ -508,8 +528,9 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
             continue
         # the fillet leaves the armhole's bottom at least two edges before the tube's side (a
         # slim body gets smaller corners)
-        arm_r = max(0.0, min(arm_r, float(np.abs(ring[:, 0]).max()) - x_out - 2 * h))
-        x_arm = x_out + arm_r
+        reach = 1.0 - np.cos(ARMHOLE_FILLET_ANGLE)
+        arm_r = max(0.0, min(arm_r, (float(np.abs(ring[:, 0]).max()) - x_out - 2 * h) / reach))
+        x_arm = x_out + float(armhole_inset(0.0, arm_r))
         fp = _pieces(ring[: hn + 1], _cut_indices(ring[: hn + 1], [x_arm, -x_arm]), h)
         bp = _pieces(ring[hn:], _cut_indices(ring[hn:], [-x_arm, x_arm]), h)
         front.append(_join(fp))
@@ -518,18 +539,19 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
         tube_top = (fp, bp)
     panels = [Panel("front", tuple(front), top=None), Panel("back", tuple(back), top=None)]
     # bibs between the armholes, from the necklines down to the tube
-    bib_mask = np.abs(v[:, 0]) <= x_out + arm_r + 0.03
+    bib_mask = np.abs(v[:, 0]) <= x_out + 0.03
     ends, cores, bibs, strap_rows = {}, {}, {}, {}
     for name, rise, xs in (("front", p.front_rise, [x_out, x_neck, -x_neck, -x_out]),
                            ("back", p.back_rise, [-x_out, -x_neck, x_neck, x_out])):
         n_bib = max(1, int(round(rise / hv)))
         rows = []
         for y in y_top + rise * np.linspace(1.0, 0.0, n_bib + 1)[:-1]:
-            hull = offset_hull(m.band(float(y) - half, float(y) + half, bib_mask), margin + p.ease)
+            # below the fillet's top the row reaches out along its arc (``armhole_inset``)
+            wide = float(armhole_inset(float(y) - y_top, arm_r)) if arm_r > 0.0 else 0.0
+            mask = bib_mask if wide <= 0.0 else np.abs(v[:, 0]) <= x_out + wide + 0.03
+            hull = offset_hull(m.band(float(y) - half, float(y) + half, mask), margin + p.ease)
             ring = polar_ring(hull, _ring_center(hull), float(y))
             hr = ring[: hn + 1] if name == "front" else ring[hn:]
-            # below the fillet's top the row reaches out along its quarter circle
-            wide = float(fillet_inset(float(y) - y_top, arm_r)) if arm_r > 0.0 else 0.0
             cuts = _cut_indices(hr, [xs[0] + np.sign(xs[0]) * wide, xs[1], xs[2],
                                      xs[3] + np.sign(xs[3]) * wide])
             if not rows:  # the neckline row: strap ends as exact pieces
@@ -701,8 +723,8 @@ TEMPLATES: dict[str, Template] = {
                        "shorts: hip tube split into two legs at the crotch", 0.0145, 0.0055, (3146, 21272)),
     "trousers": Template(PantsParams, {}, pants_panels, ("waistband", "hem"),
                          "full-length trousers, hem above the ankle", 0.02, 0.0075, (3099, 21558)),
-    "tank_top": Template(TopParams, {}, tank_top_panels, ("shoulders", "hem"),
-                         "sleeveless top with shoulder straps", 0.015, 0.006, (3218, 19209)),
+    "tank_top": Template(TopParams, {"armhole_fillet": 0.08}, tank_top_panels, ("shoulders", "hem"),
+                         "sleeveless top with shoulder straps", 0.015, 0.006, (3225, 19261)),
     "t_shirt": Template(TopParams, {**_SLEEVED, "sleeve_length": 0.2}, tank_top_panels,
                         ("shoulders", "hem", "cuffs"), "short-sleeved shirt", 0.018, 0.007, (3061, 19542)),
     "long_sleeve": Template(TopParams, {**_SLEEVED, "sleeve_length": 1.0}, tank_top_panels,
