@@ -402,18 +402,28 @@ def test_fine_resolution_vertex_count(fine, category):
     assert abs(e.mean() / resolve_resolution("fine", category) - 1.0) < 0.15
 
 
-def _strap_corner_angle(g) -> float:
-    """Largest angle of cloth [deg] around a boundary vertex of a strap (the sum of its
-    triangles' corner angles there): 270° at a square neckline corner."""
+def _boundary_cloth_angle(g, panels: tuple[str, ...], exclude: tuple[str, ...] = ()) -> float:
+    """Largest angle of cloth [deg] around a boundary vertex of ``panels`` that is on none of
+    ``exclude`` (the sum of its triangles' corner angles there; 180° on a straight edge)."""
     total = np.bincount(g.faces.ravel(), weights=corner_angles(g.rest_vertices, g.faces).ravel(),
                         minlength=g.num_vertices)
     e, count = _edges(g.faces)
-    boundary = np.zeros(g.num_vertices, bool)
-    boundary[e[count == 1].ravel()] = True
-    strap = np.zeros(g.num_vertices, bool)
-    for name in ("left_strap", "right_strap"):
-        strap[g.faces[g.panel_ids == g.panel_names.index(name)].ravel()] = True
-    return float(total[boundary & strap].max())
+    keep = np.zeros(g.num_vertices, bool)
+    keep[e[count == 1].ravel()] = True
+
+    def on(names: tuple[str, ...]) -> np.ndarray:
+        mask = np.zeros(g.num_vertices, bool)
+        for name in names:
+            mask[g.faces[g.panel_ids == g.panel_names.index(name)].ravel()] = True
+        return mask
+
+    keep &= on(panels) & ~on(exclude)
+    return float(total[keep].max())
+
+
+def _strap_corner_angle(g) -> float:
+    """Largest angle of cloth around a strap's boundary vertex: 270° at a square neckline corner."""
+    return _boundary_cloth_angle(g, ("left_strap", "right_strap"))
 
 
 @pytest.mark.parametrize("category", ["tank_top", "t_shirt"])
@@ -434,20 +444,9 @@ def test_neckline_corners_are_rounded(body, category, shape):
 
 
 def _armhole_corner_angle(g) -> float:
-    """Largest angle of cloth [deg] around a boundary vertex of the bibs below the straps (where
-    a bib's side meets the tube's top row: about 270° at a square armhole corner)."""
-    total = np.bincount(g.faces.ravel(), weights=corner_angles(g.rest_vertices, g.faces).ravel(),
-                        minlength=g.num_vertices)
-    e, count = _edges(g.faces)
-    boundary = np.zeros(g.num_vertices, bool)
-    boundary[e[count == 1].ravel()] = True
-    bib = np.zeros(g.num_vertices, bool)
-    for name in ("front_bib", "back_bib"):
-        bib[g.faces[g.panel_ids == g.panel_names.index(name)].ravel()] = True
-    strap = np.zeros(g.num_vertices, bool)
-    for name in ("left_strap", "right_strap"):
-        strap[g.faces[g.panel_ids == g.panel_names.index(name)].ravel()] = True
-    return float(total[boundary & bib & ~strap].max())
+    """Largest angle of cloth around a bib's boundary vertex below the straps (where a bib's side
+    meets the tube's top row): about 270° at a square armhole corner."""
+    return _boundary_cloth_angle(g, ("front_bib", "back_bib"), exclude=("left_strap", "right_strap"))
 
 
 @pytest.mark.parametrize("shape", ["mean", "short_slim"])
