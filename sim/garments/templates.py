@@ -528,8 +528,8 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
             continue
         # the fillet leaves the armhole's bottom at least two edges before the tube's side (a
         # slim body gets smaller corners)
-        reach = 1.0 - np.cos(ARMHOLE_FILLET_ANGLE)
-        arm_r = max(0.0, min(arm_r, (float(np.abs(ring[:, 0]).max()) - x_out - 2 * h) / reach))
+        room = float(np.abs(ring[:, 0]).max()) - x_out - 2 * h
+        arm_r = max(0.0, min(arm_r, room / float(armhole_inset(0.0, 1.0))))
         x_arm = x_out + float(armhole_inset(0.0, arm_r))
         fp = _pieces(ring[: hn + 1], _cut_indices(ring[: hn + 1], [x_arm, -x_arm]), h)
         bp = _pieces(ring[hn:], _cut_indices(ring[hn:], [-x_arm, x_arm]), h)
