@@ -38,7 +38,7 @@ def main() -> None:
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
     from sim.errors import WrinklesInputError
-    from sim.garments.templates import TEMPLATES
+    from sim.garments.templates import TEMPLATES, make_params
     from sim.motions import load_motion
     from sim.simulate import SimulationConfig
 
@@ -46,13 +46,7 @@ def main() -> None:
     unknown = [n for n in names if n not in TEMPLATES]
     if unknown:
         raise SystemExit(f"garment_gates: unknown template(s) {unknown}; expected {sorted(TEMPLATES)}")
-    from sim.garments.templates import make_params
-
-    def check(params: dict) -> None:
-        for n in names:
-            make_params(n, **params)
-
-    params = _numbers(args.param, "--param", check)
+    params = _numbers(args.param, "--param", lambda out: [make_params(n, **out) for n in names])
     try:
         variants = json.loads(args.variants)
         assert isinstance(variants, list) and all(isinstance(v, dict) for v in variants)

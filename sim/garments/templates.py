@@ -539,7 +539,6 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
         tube_top = (fp, bp)
     panels = [Panel("front", tuple(front), top=None), Panel("back", tuple(back), top=None)]
     # bibs between the armholes, from the necklines down to the tube
-    bib_mask = np.abs(v[:, 0]) <= x_out + 0.03
     ends, cores, bibs, strap_rows = {}, {}, {}, {}
     for name, rise, xs in (("front", p.front_rise, [x_out, x_neck, -x_neck, -x_out]),
                            ("back", p.back_rise, [-x_out, -x_neck, x_neck, x_out])):
@@ -548,7 +547,7 @@ def tank_top_panels(m: BodyMeasure, p: TopParams, h: float, thickness: float) ->
         for y in y_top + rise * np.linspace(1.0, 0.0, n_bib + 1)[:-1]:
             # below the fillet's top the row reaches out along its arc (``armhole_inset``)
             wide = float(armhole_inset(float(y) - y_top, arm_r)) if arm_r > 0.0 else 0.0
-            mask = bib_mask if wide <= 0.0 else np.abs(v[:, 0]) <= x_out + wide + 0.03
+            mask = np.abs(v[:, 0]) <= x_out + wide + 0.03  # the body within 3 cm of the row's ends
             hull = offset_hull(m.band(float(y) - half, float(y) + half, mask), margin + p.ease)
             ring = polar_ring(hull, _ring_center(hull), float(y))
             hr = ring[: hn + 1] if name == "front" else ring[hn:]
