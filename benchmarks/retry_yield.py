@@ -67,7 +67,8 @@ def main() -> None:
     ap.add_argument("--garments", default="all", help="template names, comma-separated (default: all)")
     ap.add_argument("--resolution", default="coarse", help="coarse or fine (default: %(default)s)")
     ap.add_argument("--cases", default='{"no retries": [], "default": null}',
-                    help="JSON object: case name -> retry_factors (null: the default, RETRY_FACTORS), or "
+                    help="JSON object: case name -> retry_factors (null: the default for the resolution, "
+                    "default_retry_factors), or "
                     "case name -> object of [simulation] fields")
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
@@ -76,7 +77,8 @@ def main() -> None:
     from sim.datasets import storage as S
     from sim.device import resolve_device
     from sim.garments.templates import TEMPLATES
-    from sim.simulate import RETRY_FACTORS, default_iterations, default_substeps
+    from sim.simulate import FINE_GARMENT_VERTICES as FINE
+    from sim.simulate import default_iterations, default_retry_factors, default_substeps
 
     garments = list(TEMPLATES) if args.garments == "all" else args.garments.split(",")
     try:
@@ -100,9 +102,12 @@ def main() -> None:
     fig = {}
     for name, case in cases.items():
         fields = dict(case) if isinstance(case, dict) else {"retry_factors": case}
-        if fields.get("retry_factors") is None:
-            fields["retry_factors"] = list(RETRY_FACTORS)
-        factors = fields["retry_factors"]
+        if fields.get("retry_factors") is None:  # automatic: the resolution's default
+            fields.pop("retry_factors", None)
+            fine = args.resolution == "fine"
+            factors = list(default_retry_factors(FINE + 1 if fine else 0))
+        else:
+            factors = fields["retry_factors"]
         text = CONFIG.format(seed=args.seed, sequences=args.sequences, seconds=args.seconds,
                              garments=json.dumps(garments), resolution=args.resolution,
                              simulation="\n".join(f"{k} = {json.dumps(v)}" for k, v in fields.items()))

@@ -97,17 +97,29 @@ floats stay as before."""
 
 
 RETRY_FACTORS = (5.0 / 3.0, 2.0)
-"""Substeps of the retries of a sequence that fails its quality gates or stops (NaN, explosion),
-as multiples of its run's substeps (``SimulationConfig.retry_factors``): 12 -> 20 -> 24, and 14 ->
-23 -> 28 for a fine garment. A step too long for a fast motion, not the physics, fails most fast
-sequences that fail (session 43: at the fine size more sweeps or coarse corrections per substep
-did not pass the runs, more substeps did). H100, docs/BENCHMARKS.md (session 43), the templates' runs: at the
-coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (not the same 5), so 6
-of 8 pass within the ladder; at the fine size (~20k) none at 14, 1 at 23 and 2 at 28. Walks pass at
-the default (8 of 8, coarse). The trousers' and the straight skirt's runs pass at no count: the
-skinned body's own skin within 5 cm of the trousers' worst edge is stretched by 48 % (90th
-percentile) and up to 78 % (linear blend skinning at the crotch), and a straight skirt's hem
-cannot span a running stride."""
+"""Substeps of the retries of a sequence that fails its quality gates or stops (NaN, explosion), as
+multiples of its run's substeps (``SimulationConfig.retry_factors``): 12 -> 20 -> 24 (a fine
+garment: 14 -> 23 -> 28 and a third rung, ``FINE_RETRY_FACTORS``). A step too long for a fast
+motion, not the physics, fails most fast sequences that fail (session 43: at the fine size more
+sweeps or coarse corrections per substep did not pass the runs, more substeps did). H100,
+docs/BENCHMARKS.md (session 43), the templates' runs: at the coarse size 2 of 8 pass at 12
+substeps, 3 at 16, 5 at 20 and 5 at 24 (not the same 5), so 6 of 8 pass within the ladder; at the
+fine size (~20k) none at 14, 1 at 23 and 2 at 28. Walks pass at the default (8 of 8, coarse). The
+trousers' and the straight skirt's runs pass at no count: the skinned body's own skin within 5 cm
+of the trousers' worst edge is stretched by 48 % (90th percentile) and up to 78 % (linear blend
+skinning at the crotch), and a straight skirt's hem cannot span a running stride."""
+
+
+FINE_RETRY_FACTORS = (5.0 / 3.0, 2.0, 3.0)
+"""The retries of a garment over ``FINE_GARMENT_VERTICES`` vertices (``SimulationConfig.retry_factors``
+None, automatic): ``RETRY_FACTORS`` and a third rung at 3x, 14 -> 23 -> 28 -> 42. H100,
+docs/BENCHMARKS.md (session 45): a fine dataset of 8 sampled walks and runs (every template)
+accepts 6 with the rung against 4 without, in 160 s against session 44's 113 s (27 s per accepted
+sequence against 28): the dress's and the straight skirt's runs pass at 42; the trousers' runs
+fail at every count. On the default body (session 44) 42 substeps pass the fine tank-top and
+long-sleeve runs. At the coarse size the rung adds nothing: session 43's dataset of 32 accepts
+28 either way, in 16 % more time (the trousers' runs and a straight skirt's fail at 36 too), so
+coarse garments keep ``RETRY_FACTORS``."""
 
 
 DEFAULT_ITERATIONS, FINE_ITERATIONS = 5, 8
@@ -133,6 +145,11 @@ def default_iterations(vertices: int) -> int:
     return FINE_ITERATIONS if vertices > FINE_GARMENT_VERTICES else DEFAULT_ITERATIONS
 
 
+def default_retry_factors(vertices: int) -> tuple[float, ...]:
+    """Retry factors of the job default for a garment of ``vertices`` vertices."""
+    return FINE_RETRY_FACTORS if vertices > FINE_GARMENT_VERTICES else RETRY_FACTORS
+
+
 def simulator_defaults(cuda: bool = False) -> dict:
     """The defaults that shape a simulation without being written in its config: the automatic
     substeps, the templates' hems and, on CUDA (``cuda``), the colouring (``CUDA_COLORS``; the
@@ -142,7 +159,8 @@ def simulator_defaults(cuda: bool = False) -> dict:
     CUDA before the colouring changed, or before the early coarse diagonal (``coarse_early``,
     session 42), nor one begun before sequences that fail their gates were retried
     (``RETRY_FACTORS``, session 43; a dataset's own ``[simulation] retry_factors`` is in its
-    config), nor one begun before fine garments took 8 sweeps (``FINE_ITERATIONS``, session 44),
+    config), nor one begun before fine garments took 8 sweeps (``FINE_ITERATIONS``, session 44)
+    or a third retry rung (``FINE_RETRY_FACTORS``, session 45),
     nor one begun under other template defaults (every template's default parameters, recorded
     since session 44, when the tank top's armholes were rounded)."""
     from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
@@ -152,7 +170,7 @@ def simulator_defaults(cuda: bool = False) -> dict:
                         "fine_over_vertices": FINE_GARMENT_VERTICES},
            "iterations": {"default": DEFAULT_ITERATIONS, "fine": FINE_ITERATIONS},
            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
-           "retry_factors": list(RETRY_FACTORS),
+           "retry_factors": {"default": list(RETRY_FACTORS), "fine": list(FINE_RETRY_FACTORS)},
            "templates": {name: dataclasses.asdict(make_params(name)) for name in TEMPLATES}}
     if cuda:
         out["max_colors"] = CUDA_COLORS
@@ -218,9 +236,10 @@ class SimulationConfig:
         max_distance: explosion test: a garment vertex farther than this from the body's root
             joint [m].
         retry_factors: a sequence that fails its gates or stops is simulated again at these
-            multiples of its substeps (``retry_substeps``), in turn, until it passes
-            (``RETRY_FACTORS``; empty: no retries). ``wrinkles simulate`` and the dataset
-            generator retry; ``simulate`` and ``simulate_batch`` run once.
+            multiples of its substeps (``retry_substeps``), in turn, until it passes (None:
+            automatic, ``RETRY_FACTORS`` up to ``FINE_GARMENT_VERTICES`` garment vertices,
+            ``FINE_RETRY_FACTORS`` above; empty: no retries). ``wrinkles simulate`` and the
+            dataset generator retry; ``simulate`` and ``simulate_batch`` run once.
         device: Warp device ("auto": cuda when present, else cpu).
     """
 
@@ -241,18 +260,19 @@ class SimulationConfig:
     max_speed: float = 50.0
     max_stretch: float = 3.0
     max_distance: float = 3.0
-    retry_factors: tuple[float, ...] = RETRY_FACTORS
+    retry_factors: tuple[float, ...] | None = None
     device: str = "auto"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "pinned", tuple(str(p) for p in self.pinned))
         f = self.retry_factors
-        if not (isinstance(f, (list, tuple)) and all(
+        if f is not None and not (isinstance(f, (list, tuple)) and all(
                 isinstance(k, (int, float)) and not isinstance(k, bool) and np.isfinite(k) for k in f)
                 and all(b > a for a, b in zip((1.0, *f), f, strict=False))):
             raise WrinklesInputError("simulation config: retry_factors must be a list of increasing numbers "
                                      f"above 1 (empty: no retries), got {f!r}")
-        object.__setattr__(self, "retry_factors", tuple(float(k) for k in f))
+        if f is not None:
+            object.__setattr__(self, "retry_factors", tuple(float(k) for k in f))
         if self.coarse_sweeps is not None:
             if not isinstance(self.coarse_sweeps, (list, tuple)) or not all(
                     isinstance(k, int) and not isinstance(k, bool) for k in self.coarse_sweeps):
@@ -306,13 +326,17 @@ class SimulationConfig:
         """Sweeps per substep for a run whose largest garment has ``vertices`` vertices."""
         return self.iterations or default_iterations(vertices)
 
+    def retry_factors_for(self, vertices: int) -> tuple[float, ...]:
+        """Retry factors for a run whose largest garment has ``vertices`` vertices."""
+        return self.retry_factors if self.retry_factors is not None else default_retry_factors(vertices)
+
     def retry_substeps(self, vertices: int) -> tuple[int, ...]:
-        """Substeps of the retries (``retry_factors``) of a run whose largest garment has
+        """Substeps of the retries (``retry_factors_for``) of a run whose largest garment has
         ``vertices`` vertices, in order: each factor times ``substeps_for``, rounded, counts not
         above the one before dropped."""
         base = self.substeps_for(vertices)
         out: list[int] = []
-        for f in self.retry_factors:
+        for f in self.retry_factors_for(vertices):
             n = int(round(f * base))
             if n > (out[-1] if out else base):
                 out.append(n)
@@ -363,7 +387,7 @@ class SimulationConfig:
         """JSON-ready dict (``from_dict`` inverts it)."""
         d = dataclasses.asdict(self)
         d["pinned"] = list(self.pinned)
-        d["retry_factors"] = list(self.retry_factors)
+        d["retry_factors"] = None if self.retry_factors is None else list(self.retry_factors)
         if self.coarse_sweeps is not None:
             d["coarse_sweeps"] = list(self.coarse_sweeps)
         return d

@@ -99,6 +99,19 @@ def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
     retry = dataclasses.replace(SimulationConfig(), substeps=SimulationConfig().retry_substeps(19_542)[0])
     assert (retry.vbd_config(19_542).substeps, retry.vbd_config(19_542).iterations) == (23, 8)
     assert simulator_defaults()["iterations"] == {"default": 5, "fine": 8}
+    # automatic retries (session 45): two rungs up to 10k garment vertices, a third (3x) above;
+    # a list wins, [] means none; automatic survives the round trip
+    assert [SimulationConfig().retry_substeps(n) for n in sizes] == [(20, 24), (20, 24), (23, 28, 42),
+                                                                     (23, 28, 42)]
+    assert SimulationConfig(retry_factors=[2.0]).retry_substeps(19_542) == (28,)
+    assert SimulationConfig(retry_factors=[]).retry_substeps(19_542) == ()
+    assert SimulationConfig(substeps=10).retry_substeps(19_542) == (17, 20, 30)
+    assert SimulationConfig.from_dict(SimulationConfig().to_dict()).retry_factors is None
+    assert SimulationConfig.from_dict(SimulationConfig(retry_factors=[1.5]).to_dict()).retry_factors == (1.5,)
+    assert simulator_defaults()["retry_factors"] == {"default": [5.0 / 3.0, 2.0],
+                                                     "fine": [5.0 / 3.0, 2.0, 3.0]}
+    with pytest.raises(WrinklesInputError, match="retry_factors"):
+        SimulationConfig(retry_factors=[2.0, 1.5])
     # every template's default parameters (session 44: the tank top's armholes rounded)
     templates = simulator_defaults()["templates"]
     assert templates["tank_top"]["armhole_fillet"] == 0.08 and templates["t_shirt"]["armhole_fillet"] == 0.0
@@ -463,7 +476,7 @@ def test_cli_writes_the_last_finished_run_when_the_retries_stop(tmp_path, monkey
     assert side["failed_gates"] == ["max edge strain 0.500 > 0.35"]
     assert side["attempts"] == [{"substeps": 7, "error": "simulation failed at frame 5: explosion: test"},
                                 {"substeps": 8, "error": "simulation failed at frame 5: explosion: test"}]
-    assert side["config"]["retry_factors"] == [5.0 / 3.0, 2.0]
+    assert side["config"]["retry_factors"] is None  # automatic: two rungs for this small skirt
     calls[:] = []
     rc = main(["simulate", "--garment", "skirt", "--out", str(out), "--allow-failed-gates", "--no-retry",
                *CLI_FAST])
