@@ -1,18 +1,20 @@
 """Where a t-shirt run's edge strain sits: its most stretched edges, with place and shape.
 
 One run of the benchmark t-shirt (``bench_tshirt.build_garment``; ``--garment`` another template,
-session 42) on the default body at the
-job defaults (``SimulationConfig``; ``--solver`` adds ``VBDConfig`` fields), then per mesh edge
-the largest strain ``l / l0 - 1`` over the motion's frames. Written: the run's maximum and mean
+session 42) on the default body at the job defaults (``SimulationConfig``; ``--solver`` adds
+``VBDConfig`` fields, ``--sim`` ``SimulationConfig`` fields), then per mesh edge the
+largest ``|l / l0 - 1|`` over the motion's frames, as the max-strain gate takes it (an edge crumpled to half
+its length fails it as one stretched by half; each listed edge's strain is signed: negative is
+compression; before session 46 only stretch was ranked). Written: the run's maximum and mean
 strain, how many edges exceed 0.2 and the 0.35 gate, and the worst edges with their frame, rest
 length, triangles per end vertex, panel and rest position, and how far the body's own skin within
-5 cm of the worst edge is stretched at its frame (``skin_under_worst``). The max-strain gate is set by a few
-edges; this shows whether they sit at a feature of the pattern (session 26: the neckline's
-square corners) or spread over the garment. It also lists, per sequence, the frames with
-self-intersections and the edges that cross at the first of them, and where the body holds the
-most garment vertices inside it (per panel, with their mean rest position); ``--copies K`` runs the same
-motions K times in one batched model beside the runs alone, to tell a batch's result from a
-single garment's.
+5 cm of the worst edge is stretched at its frame (``skin_under_worst``). The max-strain gate is
+set by a few edges; this shows whether they sit at a feature of the pattern (session 26: the
+neckline's square corners) or spread over the garment. It also lists, per sequence, the frames
+with self-intersections and the edges that cross at the first of them, and where the body holds
+the most garment vertices inside it (per panel, with their mean rest position); ``--copies K``
+runs the same motions K times in one batched model beside the runs alone, to tell a batch's result
+from a single garment's.
 
     python -m benchmarks.worst_edges --device cuda --vertices 20000 --motion run --tag _19k_run
     python -m benchmarks.worst_edges --device cpu --garment trousers --vertices 3000 --motion run
@@ -48,8 +50,9 @@ def _edge_rows(keys, worst, strain, rest, e, tris, panel, names) -> list[dict]:
     for k in keys:
         a, b = (int(i) for i in e[k])
         row = {"edge": [a, b]}
-        if worst is not None:
-            row.update(strain=float(worst[k]), frame=int(strain[:, k].argmax()))
+        if worst is not None:  # signed: a negative strain is a compressed (crumpled) edge
+            t = int(np.abs(strain[:, k]).argmax())
+            row.update(strain=float(strain[t, k]), frame=t)
         row.update({"rest_length_mm": float(1000.0 * np.linalg.norm(rest[a] - rest[b])),
                     "triangles": [int(tris[a]), int(tris[b])], "panel": names[panel[a]],
                     "rest_position": np.round(rest[a], 4).tolist()})
@@ -103,9 +106,10 @@ def describe(result, g, device: str, n_worst: int, body_rest: np.ndarray | None 
     rest = g.rest_vertices
     e = unique_edges(g.faces)
     x = result.sequence.vertices
-    # the quality gates' own strain (l / l0 - 1 per edge and frame), so the worst edge is the gate's
+    # the quality gates' own strain (l / l0 - 1 per edge and frame) ranked as the gate ranks it, by
+    # |l / l0 - 1| (a crumpled edge fails it too), so the worst edge is the gate's
     strain = edge_strain(x, rest, g.faces, device=device)
-    worst = strain.max(axis=0)
+    worst = np.abs(strain).max(axis=0)
     tris = np.bincount(g.faces.ravel(), minlength=len(rest))
     panel = np.full(len(rest), -1)
     panel[g.faces.ravel()] = np.repeat(g.panel_ids, 3)
@@ -115,10 +119,14 @@ def describe(result, g, device: str, n_worst: int, body_rest: np.ndarray | None 
            "edges_over_0.2": int((worst > 0.2).sum()), "edges_over_0.35": int((worst > 0.35).sum()),
            "worst": _edge_rows(np.argsort(-worst)[:n_worst], worst, strain, rest, e, tris, panel,
                                g.panel_names),
-           "crossings_per_frame": {int(t): int(c) for t, c in enumerate(crossings) if c}}
+           "crossings_per_frame": {int(t): int(c) for t, c in enumerate(crossings) if c},
+           # when it happens: per frame the largest |strain| and the edges over the 0.35 gate (session 46:
+           # the fine pants' runs stretch a thousand edges at once, at each stride)
+           "strain_per_frame": np.round(np.abs(strain).max(axis=1), 4).tolist(),
+           "edges_over_0.35_per_frame": (np.abs(strain) > 0.35).sum(axis=1).tolist()}
     if body_rest is not None:  # the skin under the worst edge, at its worst frame
         k = int(worst.argmax())
-        t = int(strain[:, k].argmax())
+        t = int(np.abs(strain[:, k]).argmax())
         out["skin_under_worst"] = _skin_under(result, body_rest, 0.5 * (x[t][e[k, 0]] + x[t][e[k, 1]]), t,
                                               device)
     inside = np.asarray(result.quality.inside_fraction)
@@ -157,6 +165,9 @@ def main() -> None:
     ap.add_argument("--setting", default="", metavar="SxI",
                     help="substeps x sweeps, e.g. 20x5 (default: the job default, SimulationConfig)")
     ap.add_argument("--solver", default="{}", help="JSON dict of extra VBDConfig fields")
+    ap.add_argument("--sim", default="{}", metavar="JSON",
+                    help='JSON dict of SimulationConfig fields, e.g. \'{"pinned": []}\' (no waistband pin) '
+                    "or '{\"self_contact\": false}' (default: none)")
     ap.add_argument("--copies", type=int, default=0, metavar="K",
                     help="also run every motion K times in one batched model and report each member, "
                     "beside the runs alone (default: %(default)s, off)")
@@ -189,6 +200,17 @@ def main() -> None:
         if m is None:
             ap.error(f"--setting: expected SUBSTEPSxSWEEPS such as 20x5, got {args.setting!r}")
         setting = {"substeps": int(m[1]), "iterations": int(m[2])}
+    sim_fields = {}
+    for option in ("--solver", "--sim"):
+        try:
+            fields = json.loads(getattr(args, option[2:]))
+            if not isinstance(fields, dict):
+                raise ValueError("expected a JSON object")
+            if option == "--sim":
+                SimulationConfig(**fields)  # unknown or bad fields fail here, before any simulation
+                sim_fields = fields
+        except (ValueError, TypeError) as e:
+            _option_error(option, e)
     device = resolve_device(args.device)
     body = load_default_body()
     try:
@@ -203,8 +225,8 @@ def main() -> None:
     except WrinklesInputError as e:
         _option_error("--motion-param", e)
     g, _ = build_garment(body, args.vertices, material, args.garment, betas=betas, **params)
-    cfg = SimulationConfig(device=device, solver=json.loads(args.solver), keep_prelude=args.keep_prelude,
-                           **setting)
+    cfg = SimulationConfig(**{"device": device, "solver": json.loads(args.solver),
+                              "keep_prelude": args.keep_prelude, **setting, **sim_fields})
     runs, frames = {}, {}
     t0 = time.perf_counter()
     for n, mot in zip(names, motions, strict=True):
@@ -234,6 +256,7 @@ def main() -> None:
         "machine": machine(device), "garment": args.garment, "vertices": len(g.rest_vertices),
         "motion": args.motion,
         "seconds": args.seconds, "setting": args.setting or "default", "solver": json.loads(args.solver),
+        "sim": sim_fields,
         "params": params, "material": material, "shape": shape, "motion_params": motion_params,
         "copies": args.copies, "wall_s": wall, **first, "runs": runs,
     })

@@ -165,11 +165,13 @@ def test_check_frame_names_frame_and_cause():
 @pytest.mark.parametrize("bad", [["--param", "neck_fillet=x"], ["--setting", "20by5"],
                                  ["--param", "no_such_param=1"], ["--shape", "0.5,x"],
                                  ["--shape", ",".join(["0.1"] * 17)], ["--motion-param", "speed=fast"],
-                                 ["--motion-param", "no_such_param=1"]])
+                                 ["--motion-param", "no_such_param=1"], ["--sim", "{pinned"],
+                                 ["--sim", '{"no_such_field": 1}'], ["--solver", "[1]"]])
 def test_worst_edges_refuses_bad_options_with_status_2(bad, monkeypatch, capsys):
     """``benchmarks.worst_edges`` with a malformed ``--param`` / ``--setting`` / ``--shape`` /
-    ``--motion-param``, an unknown template or motion parameter or more betas than the body has:
-    a one-line error naming the option, exit status 2, before any simulation."""
+    ``--motion-param`` / ``--sim`` / ``--solver``, a ``--sim`` field SimulationConfig lacks, an
+    unknown template or motion parameter or more betas than the body has: a one-line error naming
+    the option, exit status 2, before any simulation."""
     from benchmarks import worst_edges
 
     monkeypatch.setattr("sys.argv", ["worst_edges", "--device", "cpu", "--seconds", "0.1", *bad])
@@ -178,3 +180,70 @@ def test_worst_edges_refuses_bad_options_with_status_2(bad, monkeypatch, capsys)
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.startswith("worst_edges: error: --") and bad[0] in err
+
+
+def test_worst_edges_ranks_edges_as_the_strain_gate_does(device):
+    """``benchmarks.worst_edges.describe`` ranks edges by ``|l / l0 - 1|``, the max-strain gate's
+    measure: a sheet whose x edges stretch 10 % in frame 0 and whose z edges are crumpled to 55 %
+    in frame 1 reports 0.45 (the gate's figure, not the stretch's 0.1), lists a z edge first with
+    its signed strain -0.45 at frame 1, and counts the 0.35 gate's edges among the crumpled ones."""
+    from types import SimpleNamespace
+
+    from benchmarks.worst_edges import describe
+
+    v, f = grid(5)
+    frames = np.stack([v * [1.1, 1.0, 1.0], v * [1.0, 1.0, 0.55]]).astype(np.float32)
+    rep = evaluate_sequence(frames, v, f, device=device)
+    g = SimpleNamespace(rest_vertices=v, faces=f, panel_ids=np.zeros(len(f), np.int64), panel_names=["sheet"])
+    result = SimpleNamespace(sequence=SimpleNamespace(vertices=frames), quality=rep, step_ms=[1.0, 1.0],
+                             failed_gates=rep.failures(QualityGates()))
+    out = describe(result, g, device, n_worst=3)
+    assert out["max_strain"] == pytest.approx(rep.max_edge_strain, abs=1e-6)
+    assert out["max_strain"] == pytest.approx(0.45, abs=1e-5) and "0.450" in out["failed_gates"][0]
+    top = out["worst"][0]
+    a, b = top["edge"]
+    assert abs(v[a, 0] - v[b, 0]) < 1e-6  # an edge along z: the crumpled direction
+    assert top["strain"] == pytest.approx(-0.45, abs=1e-5) and top["frame"] == 1
+    z_edges = sum(1 for e in unique_edges(f) if abs(v[e[0], 0] - v[e[1], 0]) < 1e-6)
+    assert out["edges_over_0.35"] == z_edges
+    assert out["strain_per_frame"] == pytest.approx([0.1, 0.45], abs=1e-4)
+    assert out["edges_over_0.35_per_frame"] == [0, z_edges]
+
+
+def test_body_crossings_summary_names_joints_frames_and_heights():
+    """``benchmarks.body_crossings.summarize``: edges crossing at rest (the default mesh's toes)
+    are not counted; the others are counted per frame and grouped by the joint that skins their
+    first vertex most, with the frames they cross in and their rest-pose height range."""
+    from benchmarks.body_crossings import summarize
+
+    rest = np.array([[0, 0.0, 0], [0, -0.65, 0], [0, -0.66, 0], [0, -0.35, 0], [0, -1.19, 0]], np.float32)
+    edges = np.array([[1, 2], [3, 0], [4, 0]])
+    weights = np.zeros((5, 3))
+    weights[[1, 2], 1] = 1.0  # the knee
+    weights[[0, 3], 2] = 1.0  # the hip
+    weights[4, 0] = 1.0       # the foot
+    hit = np.zeros((4, 3), bool)
+    hit[:, 2] = True          # the foot's edge crosses in every frame, as at rest
+    hit[1, 0] = hit[2, 0] = True
+    hit[2, 1] = True
+    out = summarize(hit, np.array([False, False, True]), edges, rest, weights, ("foot", "knee", "hip"))
+    assert out["per_frame"] == [0, 1, 2, 0]
+    assert out["frames_with_crossings"] == 2 and out["max_edges"] == 2
+    assert set(out["by_joint"]) == {"knee", "hip"}
+    assert out["by_joint"]["knee"] == {"frames": [1, 2], "most_edges": 1, "rest_y_m": [-0.655, -0.655]}
+    assert out["by_joint"]["hip"]["frames"] == [2] and out["by_joint"]["hip"]["rest_y_m"] == [-0.175, -0.175]
+
+
+@pytest.mark.parametrize("bad", [["--motion-param", "speed=fast"], ["--motion-param", "no_such_param=1"],
+                                 ["--shape", "0.5,x"], ["--motion", "no_such_motion"]])
+def test_body_crossings_refuses_bad_options_with_status_2(bad, monkeypatch, capsys):
+    """``benchmarks.body_crossings`` with a malformed or unknown motion parameter, a malformed
+    shape or an unknown motion: a one-line error naming the option, exit status 2."""
+    from benchmarks import body_crossings
+
+    monkeypatch.setattr("sys.argv", ["body_crossings", "--seconds", "0.1", *bad])
+    with pytest.raises(SystemExit) as e:
+        body_crossings.main()
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("body_crossings: error: --") and bad[0] in err
