@@ -90,13 +90,15 @@ def main() -> None:
 
     def substeps_used(root: str) -> dict:
         """Per accepted sequence, the substeps it was simulated at (its provenance's config; 0,
-        automatic, is the default for its size), with ``xI`` where its sweeps were not 5."""
+        automatic, is the default for its size), with ``xI`` where its sweeps were not 5, and the
+        rungs it failed before (``failed_attempts``: substeps and reasons)."""
         out = {}
         for sid, e in S.read_manifest(root)["sequences"].items():
-            c = S.SequenceFile(f"{root}/{e['file']}").json("provenance")["config"]
+            prov = S.SequenceFile(f"{root}/{e['file']}").json("provenance")
+            c = prov["config"]
             n = c["substeps"] or default_substeps(e["vertices"])
             i = c["iterations"] or default_iterations(e["vertices"])
-            out[sid] = f"{n}" if i == 5 else f"{n}x{i}"
+            out[sid] = (f"{n}" if i == 5 else f"{n}x{i}", prov.get("failed_attempts", []))
         return out
 
     fig = {}
@@ -116,11 +118,14 @@ def main() -> None:
         by = {}
         for sid, e in manifest["sequences"].items():
             row = by.setdefault(f"{e['garment']} {e['motion']}", {"accepted": Counter(), "rejected": 0})
-            row["accepted"][str(used[sid])] += 1
+            row["accepted"][str(used[sid][0])] += 1
+            if used[sid][1]:  # the rungs an accepted sequence failed first (session 46)
+                row.setdefault("retried", []).append({"accepted_at": used[sid][0], "attempts": used[sid][1]})
         for r in manifest["rejected"].values():
             row = by.setdefault(f"{r['garment']} {r['motion']}", {"accepted": Counter(), "rejected": 0})
             row["rejected"] += 1
-            row.setdefault("reasons", []).append({"substeps": r.get("substeps"), "reasons": r["reasons"]})
+            row.setdefault("reasons", []).append({"substeps": r.get("substeps"), "reasons": r["reasons"],
+                                                  "attempts": r.get("attempts", [])})
         fig[name] = {"retry_factors": factors, "simulation": fields, "sequences": s.accepted + s.rejected,
                      "accepted": s.accepted, "rejected": s.rejected, "wall_s": wall,
                      "by_garment_motion": {k: {**v, "accepted": dict(v["accepted"])}

@@ -421,6 +421,12 @@ def test_failed_sequences_are_retried_at_more_substeps(tmp_path, monkeypatch):
         subs = {sid: S.SequenceFile(out / "a" / e["file"]).json("provenance")["config"]["substeps"]
                 for sid, e in m["sequences"].items()}
         assert subs == {ids[0]: 2, ids[1]: 4}
+        # the rungs it failed are in the provenance of the one that passed (session 46)
+        prov = {sid: S.SequenceFile(out / "a" / e["file"]).json("provenance")
+                for sid, e in m["sequences"].items()}
+        assert "failed_attempts" not in prov[ids[0]]
+        assert [a["substeps"] for a in prov[ids[1]]["failed_attempts"]] == [2, 3]
+        assert all(a["reasons"] for a in prov[ids[1]]["failed_attempts"])
         bad = set(ids)
         calls.clear()
         limit[0] = 100  # fails at every substep count
@@ -438,6 +444,15 @@ def test_failed_sequences_are_retried_at_more_substeps(tmp_path, monkeypatch):
             gate = "max edge strain 0.9 > 0.35"
             assert r["reasons"] == (["simulation failed at frame 7: explosion: test (at 4 substeps)"]
                                     if mode[0] == "explode" else [f"fine: {gate}", f"coarse: {gate}"])
+            # every rung's reasons, the last one's the record's own
+            assert [a["substeps"] for a in r["attempts"]] == [2, 3, 4]
+            assert r["attempts"][-1]["reasons"] == r["reasons"]
+            if mode[0] == "explode":
+                assert [a["reasons"] for a in r["attempts"]] == [
+                    [f"simulation failed at frame 7: explosion: test (at {n} substeps)"] for n in (2, 3, 4)]
+        lines = [json.loads(line) for line in (out / "b" / S.REJECTIONS).read_text().splitlines()]
+        assert sorted(r["id"] for r in lines) == sorted(m["rejected"])
+        assert all(len(r["attempts"]) == 3 for r in lines)
     # no retries: rejected at the first failure
     calls.clear()
     cfg = load_config(tiny_config(tmp_path, TINY.replace("sequences = 4", "sequences = 2").replace(

@@ -213,7 +213,8 @@ def garment_betas(cfg: DatasetConfig, body, betas: np.ndarray) -> np.ndarray:
 
 def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set[str], root: Path,
                 part: _Shard, sim_cfg, device: str, summary: GenerateSummary, log: Log,
-                retries: tuple[int, ...] | None = None, tried: tuple[int, ...] = ()) -> None:
+                retries: tuple[int, ...] | None = None, tried: tuple[int, ...] = (),
+                attempts: dict[str, list[dict]] | None = None) -> None:
     """Simulate, judge, derive and write one batch of sequences. A sequence whose simulation
     fails (NaN / explosion) is frozen inside the batch while the others run on. The failed ones
     and those that fail a quality gate are then simulated again, batched together, at the
@@ -222,7 +223,11 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
     fails most fast sequences that fail, and an explosion is usually a step too large for a fast
     motion or a soft fabric) until they pass; a sequence that fails at the last is rejected with
     its reasons and the substeps tried. The provenance records the substeps a sequence used.
-    ``retries``: the substeps still to try (None: the config's); ``tried``: those tried before."""
+    ``retries``: the substeps still to try (None: the config's); ``tried``: those tried before;
+    ``attempts``: per sequence id, the earlier rungs' substeps and reasons, kept with a rejection
+    (``attempts``) and in an accepted sequence's provenance (``failed_attempts``), so what each rung
+    of the ladder did is on record (session 46)."""
+    attempts = attempts or {}
     from dataclasses import replace
 
     from sim.datasets.derive import Deriver, coarse_arrays
@@ -292,6 +297,8 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
             part.data["rejected"][sp.id] = {"index": sp.index, "garment": sp.category,
                                             "motion": sp.motion_label, "material": sp.material,
                                             "reasons": reasons, "substeps": [*tried, substeps],
+                                            "attempts": [*attempts.get(sp.id, []),
+                                                         {"substeps": substeps, "reasons": reasons}],
                                             "seed": sp.seed, "split": sp.split, "betas": list(sp.betas),
                                             "fit": cfg.garments.fit, "garment_params": sp.garment_params,
                                             "motion_source": sp.motion, "motion_params": sp.motion_params,
@@ -332,6 +339,8 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
                  "quality": _entry_quality(fine_r.quality, arrays["fine/wrinkle"],
                                            arrays["fine/strain_norm"])}
         prov = {**seq.provenance, "seed": sp.seed}
+        if attempts.get(sp.id):  # the rungs it failed before the one it passed at
+            prov["failed_attempts"] = attempts[sp.id]
         meta_json = {"entry": json.dumps(entry, sort_keys=True),
                      "sequence": json.dumps(sp.to_json(), sort_keys=True),
                      "provenance": json.dumps(_stable(prov), sort_keys=True, default=str),
@@ -352,7 +361,10 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
                 log(f"{sp.id}: {'; '.join(reasons_of[sp.id])}; retrying at {retries[0]} substeps")
         _make_group(cfg, body, retried, {sp.id for sp in retried if sp.id in wanted}, root, part,
                     replace(sim_cfg, substeps=retries[0]), device, summary, log, retries=retries[1:],
-                    tried=(*tried, substeps))
+                    tried=(*tried, substeps),
+                    attempts={sp.id: [*attempts.get(sp.id, []),
+                                      {"substeps": substeps, "reasons": reasons_of[sp.id]}]
+                              for sp in retried})
 
 
 def _stable(prov: dict) -> dict:
