@@ -26,6 +26,7 @@ examples:
   wrinkles body --motion run --param speed=3.5 --shape height=0.9,weight=0.3 --out run.usdc
   wrinkles body --body SMPL_NEUTRAL.npz --motion CMU_01_01.npz --fps 30 --out clip.usda
   wrinkles body --motion capture.bvh --shape 1.0,-0.5 --out capture.usda --sheet capture.png
+  wrinkles body --motion squat --self-crossings --out squat.usda
 """
 
 USD_SUFFIXES = (".usda", ".usdc", ".usd")
@@ -47,6 +48,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="preview camera, fitted once to the whole motion (default: %(default)s)")
     p.add_argument("--no-ground", action="store_true",
                    help="keep the motion's own height instead of standing frame 0 on the floor")
+    p.add_argument("--self-crossings", action="store_true",
+                   help="also count the frames where the posed body passes through itself (linear "
+                        "blend skinning folds the skin through itself at deep flexion: knee pits, "
+                        "groin, armpits; a garment caught there may fail the quality gates for the "
+                        "body's sake), by joint; printed and kept in the stage's metadata")
     add_common_arguments(p)
 
 
@@ -71,6 +77,13 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_ground:
         frames, dy = ground(frames)
 
+    crossings = None
+    if args.self_crossings:
+        from sim.quality import body_self_crossings
+
+        with progress_bar(frames.num_frames, "self-crossings", quiet=args.quiet) as advance:
+            crossings = body_self_crossings(frames.vertices, body.faces, body.rest_mesh(betas), body.weights,
+                                            body.joint_names, device=device, progress=advance)
     metadata = {
         "command": "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
         "config": {"motion": motion.name, "motion_source": motion.source, "fps": motion.fps,
@@ -79,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
                    "seed": args.seed, "device": device, "ground_offset_m": dy},
         "versions": package_versions("usd-core"),
     }
+    if crossings is not None:
+        metadata["self_crossings"] = crossings
     with OutputSet() as outputs:
         write_body_usd(outputs.temp(out_usd), frames, motion.fps, body.name, metadata, quiet=args.quiet)
         if out_preview or out_sheet:
@@ -96,9 +111,23 @@ def run(args: argparse.Namespace) -> int:
         print(f"{motion.name}: {motion.num_frames} frames at {motion.fps:g} fps, body "
               f"{body.name} ({body.num_vertices} vertices), {device}, "
               f"{time.perf_counter() - t0:.1f} s")
+        if crossings is not None:
+            print("  " + describe_self_crossings(crossings))
         for p in written:
             print(f"  wrote {p}")
     return 0
+
+
+def describe_self_crossings(c: dict) -> str:
+    """One line for ``sim.quality.body_self_crossings``' summary."""
+    n = len(c["per_frame"])
+    if not c["frames_with_crossings"]:
+        return f"self-crossings: none in {n} frames"
+    where = ", ".join(f"{k} {len(v['frames'])}" for k, v in
+                      sorted(c["by_joint"].items(), key=lambda kv: -len(kv[1]["frames"])))
+    return (f"self-crossings: the body passes through itself in {c['frames_with_crossings']} of {n} frames "
+            f"(at most {c['max_edges']} edges; frames by joint: {where}); a garment caught there may fail "
+            "the quality gates for the body's sake")
 
 
 def write_body_usd(path: Path, frames, fps: float, name: str, metadata: dict, *, quiet: bool) -> None:

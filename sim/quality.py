@@ -263,6 +263,63 @@ def crossing_edges(vertices: np.ndarray, faces: np.ndarray, *, device: str | Non
     return next(_edge_crossings(np.asarray(vertices)[None], faces, device)) > 0
 
 
+def summarize_self_crossings(hit: np.ndarray, rest_hit: np.ndarray, edges: np.ndarray, rest: np.ndarray,
+                             weights: np.ndarray, joint_names: tuple[str, ...]) -> dict:
+    """Where a body's crossing edges ``hit`` (bool (T, E)) are: per frame those that do not cross
+    at rest (``rest_hit``, (E,)), and per skinning joint (the joint with the largest weight at the
+    edge's first vertex) the frames with such edges, the most of them in one frame and their
+    rest-pose height range [m]."""
+    new = hit & ~rest_hit[None]
+    per_frame = new.sum(axis=1)
+    owner = np.argmax(weights[edges[:, 0]], axis=1)
+    by_joint = {}
+    for j in np.unique(owner[new.any(axis=0)]):
+        mine = new[:, owner == j]
+        frames = np.flatnonzero(mine.any(axis=1))
+        cols = np.flatnonzero(owner == j)[mine.any(axis=0)]
+        y = 0.5 * (rest[edges[cols, 0], 1] + rest[edges[cols, 1], 1])
+        by_joint[joint_names[j]] = {"frames": frames.tolist(), "most_edges": int(mine.sum(axis=1).max()),
+                                    "rest_y_m": [round(float(y.min()), 3), round(float(y.max()), 3)]}
+    return {"frames_with_crossings": int((per_frame > 0).sum()),
+            "max_edges": int(per_frame.max()) if len(per_frame) else 0,
+            "per_frame": per_frame.tolist(), "by_joint": by_joint,
+            "rest_pose_crossing_edges": int(rest_hit.sum())}
+
+
+def body_self_crossings(vertices: np.ndarray, faces: np.ndarray, rest_vertices: np.ndarray,
+                        weights: np.ndarray, joint_names, *, device: str | None = None,
+                        progress=None) -> dict:
+    """Where a skinned body passes through itself over a motion (session 46).
+
+    Linear blend skinning without pose correctives folds the skin through itself at deep joint
+    flexion: the calf into the thigh behind a bent knee, the thigh into the belly at the groin,
+    the upper arm into the chest. Cloth caught there has no place outside the body, so a garment
+    may fail its gates there for the body's sake. Counts the body's edges that cross one of its own
+    faces in each frame, beyond those that cross in the rest pose (the default mesh has 50 at the
+    toes), grouped by the joint that skins them most (:func:`summarize_self_crossings`).
+
+    Args:
+        vertices: posed body [m], (T, V, 3); faces: (F, 3); rest_vertices: the shaped rest pose
+            (V, 3); weights: skinning weights (V, J); joint_names: J names.
+        progress: optional callable ``progress(frames_done, frames_total)``.
+
+    Returns:
+        dict: ``frames_with_crossings``, ``max_edges``, ``per_frame`` (T,), ``by_joint`` (name ->
+        frames, most_edges, rest_y_m) and ``rest_pose_crossing_edges``.
+    """
+    vertices = np.asarray(vertices, np.float32)
+    faces = np.asarray(faces, np.int32)
+    rest = np.asarray(rest_vertices, np.float32)
+    rest_hit = next(_edge_crossings(rest[None], faces, device)) > 0
+    hit = np.zeros((vertices.shape[0], len(rest_hit)), bool)
+    for t, h in enumerate(_edge_crossings(vertices, faces, device)):
+        hit[t] = h > 0
+        if progress is not None:
+            progress(t + 1, vertices.shape[0])
+    return summarize_self_crossings(hit, rest_hit, unique_edges(faces), rest, np.asarray(weights),
+                                    tuple(joint_names))
+
+
 def evaluate_sequence(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,
                       body_vertices: np.ndarray | None = None, body_faces: np.ndarray | None = None,
                       *, device: str | None = None) -> QualityReport:

@@ -76,6 +76,31 @@ def test_body_writes_usd_and_preview(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.mp4", "walk.usda"]
 
 
+def test_body_self_crossings_are_counted_by_joint(tmp_path, capsys):
+    """``wrinkles body --self-crossings``: the default body never passes through itself in the walk;
+    in the run its knee pits fold through themselves (the calf into the thigh, skinned by the knee
+    and hip joints), counted by frame and joint, printed and kept in the stage's metadata."""
+    from usd_io import read_stage
+
+    found = {}
+    for motion, seconds in (("walk", 1.0), ("run", 1.5)):
+        usd = tmp_path / f"{motion}.usda"
+        assert main(["body", "--motion", motion, "--duration", str(seconds), "--out", str(usd),
+                     "--device", "cpu", "--self-crossings"]) == 0
+        out = capsys.readouterr().out
+        c = read_stage(usd).metadata["self_crossings"]
+        assert len(c["per_frame"]) == int(round(seconds * 30))
+        assert c["rest_pose_crossing_edges"] > 0  # the default mesh's toes, not counted per frame
+        found[motion] = c
+        assert ("self-crossings: none" in out) == (motion == "walk")
+    assert found["walk"]["frames_with_crossings"] == 0 and found["walk"]["by_joint"] == {}
+    run = found["run"]
+    assert run["frames_with_crossings"] > 0 and run["max_edges"] > 0
+    assert {"left_knee", "right_knee"} & set(run["by_joint"])
+    for v in run["by_joint"].values():
+        assert all(run["per_frame"][t] > 0 for t in v["frames"])
+
+
 def test_same_seed_same_output(tmp_path):
     outs = []
     for k in range(2):

@@ -211,10 +211,10 @@ def test_worst_edges_ranks_edges_as_the_strain_gate_does(device):
 
 
 def test_body_crossings_summary_names_joints_frames_and_heights():
-    """``benchmarks.body_crossings.summarize``: edges crossing at rest (the default mesh's toes)
+    """``sim.quality.summarize_self_crossings``: edges crossing at rest (the default mesh's toes)
     are not counted; the others are counted per frame and grouped by the joint that skins their
     first vertex most, with the frames they cross in and their rest-pose height range."""
-    from benchmarks.body_crossings import summarize
+    from sim.quality import summarize_self_crossings as summarize
 
     rest = np.array([[0, 0.0, 0], [0, -0.65, 0], [0, -0.66, 0], [0, -0.35, 0], [0, -1.19, 0]], np.float32)
     edges = np.array([[1, 2], [3, 0], [4, 0]])
