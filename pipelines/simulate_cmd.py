@@ -297,11 +297,23 @@ def run(args: argparse.Namespace) -> int:
     result, config = runs[-1]
     attempts = [a for a in attempts if a["substeps"] != config.substeps_for(garment.num_vertices)]
     seq, quality = result.sequence, result.quality
+    crossings = body_note = None
+    if result.failed_gates:  # is the body to blame? (session 46)
+        from pipelines.body_cmd import describe_self_crossings
+        from sim.quality import body_self_crossings
+
+        body = bm.body
+        with progress_bar(seq.num_frames, "body self-crossings", quiet=args.quiet) as advance:
+            crossings = body_self_crossings(seq.body.vertices, body.faces, body.rest_mesh(bm.betas),
+                                            body.weights, body.joint_names, device=device, progress=advance)
+        if crossings["frames_with_crossings"]:
+            body_note = describe_self_crossings(crossings).replace("self-crossings: the body", "the body")
     if result.failed_gates and not args.allow_failed_gates:
         print(f"wrinkles simulate: quality gates failed: {'; '.join(result.failed_gates)}{tried} "
               "(nothing written; --allow-failed-gates writes it anyway; more --substeps than "
               f"{counts[-1]} or --iterations than {config.iterations_for(garment.num_vertices)} lower strain "
-              "and crossings, at their cost in time)", file=sys.stderr)
+              "and crossings, at their cost in time)" + (f"; {body_note}" if body_note else ""),
+              file=sys.stderr)
         return 1
 
     report = {
@@ -313,6 +325,10 @@ def run(args: argparse.Namespace) -> int:
         "config": config.to_dict(),
         "seed": args.seed,
     }
+    if crossings is not None:  # where the body passes through itself, when the gates failed
+        report["body_self_crossings"] = {
+            "frames_with_crossings": crossings["frames_with_crossings"], "max_edges": crossings["max_edges"],
+            "frames_by_joint": {k: len(v["frames"]) for k, v in crossings["by_joint"].items()}}
     metadata = {
         "command": "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
         **report,
@@ -345,6 +361,8 @@ def run(args: argparse.Namespace) -> int:
               f"inside the body max {inside:.2f}%, self-intersections max "
               f"{int(quality.self_intersections.max())}: "
               + ("gates passed" if result.passed else "GATES FAILED: " + "; ".join(result.failed_gates)))
+        if body_note:
+            print(f"  {body_note}")
         for p in (out_usd, out_json, out_preview, out_sheet):
             if p:
                 print(f"  wrote {p}")

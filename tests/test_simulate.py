@@ -411,6 +411,26 @@ def test_cli_failed_gates_exit_1_nothing_written(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+@needs_usd
+def test_cli_failed_gates_name_where_the_body_passes_through_itself(tmp_path, capsys):
+    """A run whose gates fail is checked for the body passing through itself (session 46): the run
+    folds the default body's knee pits through themselves, so the one-line error names it, and
+    with --allow-failed-gates the report keeps the frames by joint. The walk has none: its error
+    says nothing of the body (``test_cli_failed_gates_exit_1_nothing_written``)."""
+    fast = [a for a in CLI_FAST if a not in ("--duration", "0.2")]
+    run = ["simulate", "--garment", "skirt", "--motion", "run", "--duration", "1.5", "--gate",
+           "max_edge_strain=1e-9", "--no-retry", *fast]
+    out = tmp_path / "s.usda"
+    assert main([*run, "--out", str(out)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "the body passes through itself in" in err and "knee" in err, err
+    assert not out.exists()
+    assert main([*run, "--out", str(out), "--allow-failed-gates"]) == 0
+    side = json.loads((tmp_path / "s.quality.json").read_text())
+    c = side["body_self_crossings"]
+    assert c["frames_with_crossings"] > 0 and {"left_knee", "right_knee"} & set(c["frames_by_joint"])
+
+
 def _simulate_calls(monkeypatch, passes_from: int) -> list[int]:
     """Record the substeps of every ``sim.simulate.simulate`` call; runs below ``passes_from``
     substeps are made to fail the strain gate."""
