@@ -112,20 +112,20 @@ def run(args: argparse.Namespace) -> int:
               f"{body.name} ({body.num_vertices} vertices), {device}, "
               f"{time.perf_counter() - t0:.1f} s")
         if crossings is not None:
-            print("  " + describe_self_crossings(crossings))
+            print("  self-crossings: " + describe_self_crossings(crossings))
         for p in written:
             print(f"  wrote {p}")
     return 0
 
 
 def describe_self_crossings(c: dict) -> str:
-    """One line for ``sim.quality.body_self_crossings``' summary."""
+    """``sim.quality.body_self_crossings``' summary in words (one clause, no line break)."""
     n = len(c["per_frame"])
     if not c["frames_with_crossings"]:
-        return f"self-crossings: none in {n} frames"
+        return f"the body does not pass through itself in its {n} frames"
     where = ", ".join(f"{k} {len(v['frames'])}" for k, v in
                       sorted(c["by_joint"].items(), key=lambda kv: -len(kv[1]["frames"])))
-    return (f"self-crossings: the body passes through itself in {c['frames_with_crossings']} of {n} frames "
+    return (f"the body passes through itself in {c['frames_with_crossings']} of {n} frames "
             f"(at most {c['max_edges']} edges; frames by joint: {where}); a garment caught there may fail "
             "the quality gates for the body's sake")
 

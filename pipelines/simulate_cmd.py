@@ -35,9 +35,11 @@ vertices inside the body, self-intersections) judged against quality gates (--ga
 that fails them, or stops, is simulated again at more substeps (--retry: 5/3 and then 2 times,
 20 and 24 of the automatic 12; a garment over 10k vertices also 3 times, 14 -> 23 -> 28 -> 42:
 fast motions need shorter steps than the default's); one that fails at the last is an error
-(exit 1, nothing written) unless --allow-failed-gates. The report is stored in the stage's
-metadata and in a sidecar <out stem>.quality.json with the gates, the resolved config and the
-seed.
+(exit 1, nothing written) unless --allow-failed-gates. When the gates fail, the skinned body is
+checked for passing through itself (knee pits, groin, armpits at deep flexion; 'wrinkles body
+--self-crossings'): cloth caught there may fail the gates for the body's sake, and the error
+says where. The report is stored in the stage's metadata and in a sidecar <out stem>.quality.json
+with the gates, the resolved config and the seed.
 
 --garment is a template (straight_skirt, flared_skirt, shorts, trousers, tank_top, t_shirt,
 long_sleeve, dress; aliases such as tshirt, tee, skirt, pants, tank) fitted to the body's
@@ -307,7 +309,7 @@ def run(args: argparse.Namespace) -> int:
             crossings = body_self_crossings(seq.body.vertices, body.faces, body.rest_mesh(bm.betas),
                                             body.weights, body.joint_names, device=device, progress=advance)
         if crossings["frames_with_crossings"]:
-            body_note = describe_self_crossings(crossings).replace("self-crossings: the body", "the body")
+            body_note = describe_self_crossings(crossings)
     if result.failed_gates and not args.allow_failed_gates:
         print(f"wrinkles simulate: quality gates failed: {'; '.join(result.failed_gates)}{tried} "
               "(nothing written; --allow-failed-gates writes it anyway; more --substeps than "

@@ -92,7 +92,8 @@ def test_body_self_crossings_are_counted_by_joint(tmp_path, capsys):
         assert len(c["per_frame"]) == int(round(seconds * 30))
         assert c["rest_pose_crossing_edges"] > 0  # the default mesh's toes, not counted per frame
         found[motion] = c
-        assert ("self-crossings: none" in out) == (motion == "walk")
+        assert ("self-crossings: the body does not pass through itself in its" in out) == (motion == "walk")
+        assert ("self-crossings: the body passes through itself in" in out) == (motion == "run")
     assert found["walk"]["frames_with_crossings"] == 0 and found["walk"]["by_joint"] == {}
     run = found["run"]
     assert run["frames_with_crossings"] > 0 and run["max_edges"] > 0

@@ -227,7 +227,6 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
     ``attempts``: per sequence id, the earlier rungs' substeps and reasons, kept with a rejection
     (``attempts``) and in an accepted sequence's provenance (``failed_attempts``), so what each rung
     of the ladder did is on record (session 46)."""
-    attempts = attempts or {}
     from dataclasses import replace
 
     from sim.datasets.derive import Deriver, coarse_arrays
@@ -236,6 +235,7 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
     from sim.simulate import SimulationJob, simulate_batch
 
     sim_cfg = replace(sim_cfg, device=device)
+    attempts = attempts or {}
     kinds = {"fine": cfg.garments.fine_resolution}
     if cfg.derive.coarse:
         kinds["coarse"] = cfg.garments.coarse_resolution
