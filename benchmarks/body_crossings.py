@@ -30,8 +30,9 @@ def main() -> None:
     from benchmarks.common import machine, write_result
     from sim.bodies.default import load_default_body
     from sim.errors import WrinklesInputError
-    from sim.motions import load_motion
+    from sim.motions import MotionSkeleton, load_motion
     from sim.quality import body_self_crossings
+    from sim.simulate import resolve_betas
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -53,12 +54,14 @@ def main() -> None:
             _option_error("--shape", e)
         if betas.size > body.num_betas:
             _option_error("--shape", f"{betas.size} betas for a body of {body.num_betas}")
-    try:
-        mot = load_motion(args.motion, fps=30.0, duration=args.seconds, **params)
+    try:  # as `wrinkles body` builds it: the feet placed with this body's own joints and soles
+        mot = load_motion(args.motion, fps=30.0, duration=args.seconds,
+                          skeleton=MotionSkeleton.from_body(body, betas), **params)
     except WrinklesInputError as e:
         _option_error("--motion-param" if params else "--motion", e)
+    betas = resolve_betas(body, mot, betas)  # a motion file's own shape where --shape is not given
     t0 = time.perf_counter()
-    frames = body.pose_motion(mot, betas, device=args.device)
+    frames = body.pose(betas, mot.poses, mot.trans, device=args.device)
     out = body_self_crossings(frames.vertices, body.faces, body.rest_mesh(betas), body.weights,
                               body.joint_names, device=args.device)
     wall = time.perf_counter() - t0
@@ -67,7 +70,7 @@ def main() -> None:
           + ", ".join(f"{k} {len(v['frames'])} frames" for k, v in out["by_joint"].items()))
     write_result(f"body_crossings_{args.device.split(':')[0]}{args.tag}", {
         "machine": machine(args.device), "motion": args.motion, "motion_params": params,
-        "seconds": args.seconds, "shape": [] if betas is None else betas.tolist(), "wall_s": wall, **out})
+        "seconds": args.seconds, "shape": np.asarray(betas).tolist(), "wall_s": wall, **out})
 
 
 if __name__ == "__main__":

@@ -207,6 +207,12 @@ def main() -> None:
             if not isinstance(fields, dict):
                 raise ValueError("expected a JSON object")
             if option == "--sim":
+                taken = sorted(set(fields) & {"device", "solver", "keep_prelude", "substeps", "iterations"})
+                if taken:  # those have their own options, and the result file records those
+                    raise ValueError(f"{', '.join(taken)}: use --device / --solver / --keep-prelude / "
+                                     "--setting")
+                if not isinstance(fields.get("pinned", []), list):
+                    raise ValueError("pinned: expected a list of attachment set names, e.g. [\"waistband\"]")
                 SimulationConfig(**fields)  # unknown or bad fields fail here, before any simulation
                 sim_fields = fields
         except (ValueError, TypeError) as e:

@@ -36,10 +36,10 @@ that fails them, or stops, is simulated again at more substeps (--retry: 5/3 and
 20 and 24 of the automatic 12; a garment over 10k vertices also 3 times, 14 -> 23 -> 28 -> 42:
 fast motions need shorter steps than the default's); one that fails at the last is an error
 (exit 1, nothing written) unless --allow-failed-gates. When the gates fail, the skinned body is
-checked for passing through itself (knee pits, groin, armpits at deep flexion; 'wrinkles body
---self-crossings'): cloth caught there may fail the gates for the body's sake, and the error
-says where. The report is stored in the stage's metadata and in a sidecar <out stem>.quality.json
-with the gates, the resolved config and the seed.
+checked for passing through itself within 5 cm of the garment (knee pits, groin, armpits at
+deep flexion; 'wrinkles body --self-crossings'): cloth caught there may fail the gates for the
+body's sake, and the error says where. The report is stored in the stage's metadata and in a
+sidecar <out stem>.quality.json with the gates, the resolved config and the seed.
 
 --garment is a template (straight_skirt, flared_skirt, shorts, trousers, tank_top, t_shirt,
 long_sleeve, dress; aliases such as tshirt, tee, skirt, pants, tank) fitted to the body's
@@ -61,6 +61,8 @@ examples:
 USD_SUFFIXES = (".usda", ".usdc", ".usd")
 PREVIEW_SUFFIXES = (".mp4", ".gif")
 CLOTH_PREVIEW_COLOR: tuple[float, float, float] = (0.22, 0.38, 0.72)
+GARMENT_REACH = 0.05
+"""How near the garment (rest pose) a body self-crossing must lie to be named when the gates fail [m]."""
 PREVIEW_CLOTH_LIFT = 0.003
 """Previews draw the garment this far out along its normals [m] so skin a fraction of a
 millimetre below the cloth does not show through it (display only; USD holds the true points)."""
@@ -302,12 +304,19 @@ def run(args: argparse.Namespace) -> int:
     crossings = body_note = None
     if result.failed_gates:  # is the body to blame? (session 46)
         from pipelines.body_cmd import describe_self_crossings
-        from sim.quality import body_self_crossings
+        from sim.cloth.state import BodyCollider
+        from sim.quality import body_self_crossings, unique_edges
 
         body = bm.body
+        rest = body.rest_mesh(bm.betas)
+        e = unique_edges(body.faces)
+        # only the body's edges within GARMENT_REACH of the garment (both in the rest pose)
+        reach = BodyCollider(garment.rest_vertices, garment.faces, device=device).signed_distance(
+            0.5 * (rest[e[:, 0]] + rest[e[:, 1]]), max_dist=2 * GARMENT_REACH)
         with progress_bar(seq.num_frames, "body self-crossings", quiet=args.quiet) as advance:
-            crossings = body_self_crossings(seq.body.vertices, body.faces, body.rest_mesh(bm.betas),
-                                            body.weights, body.joint_names, device=device, progress=advance)
+            crossings = body_self_crossings(seq.body.vertices, body.faces, rest, body.weights,
+                                            body.joint_names, edge_mask=np.abs(reach) < GARMENT_REACH,
+                                            device=device, progress=advance)
         if crossings["frames_with_crossings"]:
             body_note = describe_self_crossings(crossings)
     if result.failed_gates and not args.allow_failed_gates:

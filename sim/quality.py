@@ -263,32 +263,62 @@ def crossing_edges(vertices: np.ndarray, faces: np.ndarray, *, device: str | Non
     return next(_edge_crossings(np.asarray(vertices)[None], faces, device)) > 0
 
 
+class _SelfCrossingTally:
+    """Per-frame accumulation of a body's crossing edges (bool (E,) per frame): the crossings that
+    do not cross at rest, per frame and per skinning joint (the joint with the largest weight at
+    the edge's first vertex), and which edges ever crossed; memory independent of the frame count
+    (a (T, E) mask of the 40k-edge default body over thousands of frames is hundreds of MB)."""
+
+    def __init__(self, rest_hit: np.ndarray, edges: np.ndarray, rest: np.ndarray, weights: np.ndarray,
+                 joint_names: tuple[str, ...], edge_mask: np.ndarray | None = None):
+        self.keep = ~np.asarray(rest_hit, bool)
+        if edge_mask is not None:
+            self.keep &= np.asarray(edge_mask, bool)
+        self.rest_hit, self.edges, self.rest, self.names = rest_hit, edges, rest, joint_names
+        self.owner = np.argmax(weights[edges[:, 0]], axis=1)
+        self.per_frame: list[int] = []
+        self.per_joint: list[np.ndarray] = []
+        self.ever = np.zeros(len(edges), bool)
+
+    def add(self, hit: np.ndarray) -> None:
+        new = np.asarray(hit, bool) & self.keep
+        self.per_frame.append(int(new.sum()))
+        self.per_joint.append(np.bincount(self.owner[new], minlength=len(self.names)))
+        self.ever |= new
+
+    def result(self) -> dict:
+        per_frame = np.asarray(self.per_frame, np.int64)
+        by_joint = {}
+        if len(per_frame):
+            counts = np.stack(self.per_joint)  # (T, J)
+            for j in np.flatnonzero(counts.sum(axis=0)):
+                cols = np.flatnonzero(self.ever & (self.owner == j))
+                y = 0.5 * (self.rest[self.edges[cols, 0], 1] + self.rest[self.edges[cols, 1], 1])
+                by_joint[self.names[j]] = {"frames": np.flatnonzero(counts[:, j]).tolist(),
+                                           "most_edges": int(counts[:, j].max()),
+                                           "rest_y_m": [round(float(y.min()), 3), round(float(y.max()), 3)]}
+        return {"frames_with_crossings": int((per_frame > 0).sum()),
+                "max_edges": int(per_frame.max()) if len(per_frame) else 0,
+                "per_frame": per_frame.tolist(), "by_joint": by_joint,
+                "rest_pose_crossing_edges": int(np.asarray(self.rest_hit, bool).sum())}
+
+
 def summarize_self_crossings(hit: np.ndarray, rest_hit: np.ndarray, edges: np.ndarray, rest: np.ndarray,
-                             weights: np.ndarray, joint_names: tuple[str, ...]) -> dict:
+                             weights: np.ndarray, joint_names: tuple[str, ...],
+                             edge_mask: np.ndarray | None = None) -> dict:
     """Where a body's crossing edges ``hit`` (bool (T, E)) are: per frame those that do not cross
-    at rest (``rest_hit``, (E,)), and per skinning joint (the joint with the largest weight at the
-    edge's first vertex) the frames with such edges, the most of them in one frame and their
-    rest-pose height range [m]."""
-    new = hit & ~rest_hit[None]
-    per_frame = new.sum(axis=1)
-    owner = np.argmax(weights[edges[:, 0]], axis=1)
-    by_joint = {}
-    for j in np.unique(owner[new.any(axis=0)]):
-        mine = new[:, owner == j]
-        frames = np.flatnonzero(mine.any(axis=1))
-        cols = np.flatnonzero(owner == j)[mine.any(axis=0)]
-        y = 0.5 * (rest[edges[cols, 0], 1] + rest[edges[cols, 1], 1])
-        by_joint[joint_names[j]] = {"frames": frames.tolist(), "most_edges": int(mine.sum(axis=1).max()),
-                                    "rest_y_m": [round(float(y.min()), 3), round(float(y.max()), 3)]}
-    return {"frames_with_crossings": int((per_frame > 0).sum()),
-            "max_edges": int(per_frame.max()) if len(per_frame) else 0,
-            "per_frame": per_frame.tolist(), "by_joint": by_joint,
-            "rest_pose_crossing_edges": int(rest_hit.sum())}
+    at rest (``rest_hit``, (E,)) and are in ``edge_mask`` (None: all), and per skinning joint (the
+    joint with the largest weight at the edge's first vertex) the frames with such edges, the most
+    of them in one frame and their rest-pose height range [m]."""
+    tally = _SelfCrossingTally(rest_hit, edges, rest, weights, joint_names, edge_mask)
+    for h in hit:
+        tally.add(h)
+    return tally.result()
 
 
 def body_self_crossings(vertices: np.ndarray, faces: np.ndarray, rest_vertices: np.ndarray,
-                        weights: np.ndarray, joint_names, *, device: str | None = None,
-                        progress=None) -> dict:
+                        weights: np.ndarray, joint_names, *, edge_mask: np.ndarray | None = None,
+                        device: str | None = None, progress=None) -> dict:
     """Where a skinned body passes through itself over a motion (session 46).
 
     Linear blend skinning without pose correctives folds the skin through itself at deep joint
@@ -296,11 +326,14 @@ def body_self_crossings(vertices: np.ndarray, faces: np.ndarray, rest_vertices: 
     the upper arm into the chest. Cloth caught there has no place outside the body, so a garment
     may fail its gates there for the body's sake. Counts the body's edges that cross one of its own
     faces in each frame, beyond those that cross in the rest pose (the default mesh has 50 at the
-    toes), grouped by the joint that skins them most (:func:`summarize_self_crossings`).
+    toes), grouped by the joint that skins them most (:func:`summarize_self_crossings`), frame by
+    frame (memory does not grow with the motion's length).
 
     Args:
         vertices: posed body [m], (T, V, 3); faces: (F, 3); rest_vertices: the shaped rest pose
             (V, 3); weights: skinning weights (V, J); joint_names: J names.
+        edge_mask: count only these edges, bool (E,) over :func:`unique_edges` ``(faces)`` (e.g.
+            those near a garment); None: every edge.
         progress: optional callable ``progress(frames_done, frames_total)``.
 
     Returns:
@@ -311,13 +344,15 @@ def body_self_crossings(vertices: np.ndarray, faces: np.ndarray, rest_vertices: 
     faces = np.asarray(faces, np.int32)
     rest = np.asarray(rest_vertices, np.float32)
     rest_hit = next(_edge_crossings(rest[None], faces, device)) > 0
-    hit = np.zeros((vertices.shape[0], len(rest_hit)), bool)
+    tally = _SelfCrossingTally(rest_hit, unique_edges(faces), rest, np.asarray(weights), tuple(joint_names),
+                               edge_mask)
+    if vertices.shape[0] == 0:
+        return tally.result()
     for t, h in enumerate(_edge_crossings(vertices, faces, device)):
-        hit[t] = h > 0
+        tally.add(h > 0)
         if progress is not None:
             progress(t + 1, vertices.shape[0])
-    return summarize_self_crossings(hit, rest_hit, unique_edges(faces), rest, np.asarray(weights),
-                                    tuple(joint_names))
+    return tally.result()
 
 
 def evaluate_sequence(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,

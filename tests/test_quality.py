@@ -166,7 +166,8 @@ def test_check_frame_names_frame_and_cause():
                                  ["--param", "no_such_param=1"], ["--shape", "0.5,x"],
                                  ["--shape", ",".join(["0.1"] * 17)], ["--motion-param", "speed=fast"],
                                  ["--motion-param", "no_such_param=1"], ["--sim", "{pinned"],
-                                 ["--sim", '{"no_such_field": 1}'], ["--solver", "[1]"]])
+                                 ["--sim", '{"no_such_field": 1}'], ["--solver", "[1]"],
+                                 ["--sim", '{"substeps": 20}'], ["--sim", '{"pinned": "waistband"}']])
 def test_worst_edges_refuses_bad_options_with_status_2(bad, monkeypatch, capsys):
     """``benchmarks.worst_edges`` with a malformed ``--param`` / ``--setting`` / ``--shape`` /
     ``--motion-param`` / ``--sim`` / ``--solver``, a ``--sim`` field SimulationConfig lacks, an
@@ -232,6 +233,12 @@ def test_body_crossings_summary_names_joints_frames_and_heights():
     assert set(out["by_joint"]) == {"knee", "hip"}
     assert out["by_joint"]["knee"] == {"frames": [1, 2], "most_edges": 1, "rest_y_m": [-0.655, -0.655]}
     assert out["by_joint"]["hip"]["frames"] == [2] and out["by_joint"]["hip"]["rest_y_m"] == [-0.175, -0.175]
+    # only the edges near a garment (here: the hip's): the knee's crossings are not counted
+    near = summarize(hit, np.array([False, False, True]), edges, rest, weights, ("foot", "knee", "hip"),
+                     edge_mask=np.array([False, True, True]))
+    assert near["per_frame"] == [0, 0, 1, 0] and set(near["by_joint"]) == {"hip"}
+    empty = summarize(hit[:0], np.array([False, False, True]), edges, rest, weights, ("foot", "knee", "hip"))
+    assert empty["per_frame"] == [] and empty["frames_with_crossings"] == 0 and empty["by_joint"] == {}
 
 
 @pytest.mark.parametrize("bad", [["--motion-param", "speed=fast"], ["--motion-param", "no_such_param=1"],
