@@ -109,21 +109,22 @@ def describe(result, g, device: str, n_worst: int, body_rest: np.ndarray | None 
     # the quality gates' own strain (l / l0 - 1 per edge and frame) ranked as the gate ranks it, by
     # |l / l0 - 1| (a crumpled edge fails it too), so the worst edge is the gate's
     strain = edge_strain(x, rest, g.faces, device=device)
-    worst = np.abs(strain).max(axis=0)
+    size = np.abs(strain)
+    worst = size.max(axis=0)
     tris = np.bincount(g.faces.ravel(), minlength=len(rest))
     panel = np.full(len(rest), -1)
     panel[g.faces.ravel()] = np.repeat(g.panel_ids, 3)
     crossings = np.asarray(result.quality.self_intersections)
     out = {"ms_per_frame": float(np.mean(result.step_ms)), "failed_gates": list(result.failed_gates),
-           "max_strain": float(worst.max()), "mean_strain": float(np.abs(strain).mean()),
+           "max_strain": float(worst.max()), "mean_strain": float(size.mean()),
            "edges_over_0.2": int((worst > 0.2).sum()), "edges_over_0.35": int((worst > 0.35).sum()),
            "worst": _edge_rows(np.argsort(-worst)[:n_worst], worst, strain, rest, e, tris, panel,
                                g.panel_names),
            "crossings_per_frame": {int(t): int(c) for t, c in enumerate(crossings) if c},
            # when it happens: per frame the largest |strain| and the edges over the 0.35 gate (session 46:
            # the fine pants' runs stretch a thousand edges at once, at each stride)
-           "strain_per_frame": np.round(np.abs(strain).max(axis=1), 4).tolist(),
-           "edges_over_0.35_per_frame": (np.abs(strain) > 0.35).sum(axis=1).tolist()}
+           "strain_per_frame": np.round(size.max(axis=1), 4).tolist(),
+           "edges_over_0.35_per_frame": (size > 0.35).sum(axis=1).tolist()}
     if body_rest is not None:  # the skin under the worst edge, at its worst frame
         k = int(worst.argmax())
         t = int(np.abs(strain[:, k]).argmax())
