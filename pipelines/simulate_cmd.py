@@ -61,8 +61,6 @@ examples:
 USD_SUFFIXES = (".usda", ".usdc", ".usd")
 PREVIEW_SUFFIXES = (".mp4", ".gif")
 CLOTH_PREVIEW_COLOR: tuple[float, float, float] = (0.22, 0.38, 0.72)
-GARMENT_REACH = 0.05
-"""How near the garment (rest pose) a body self-crossing must lie to be named when the gates fail [m]."""
 PREVIEW_CLOTH_LIFT = 0.003
 """Previews draw the garment this far out along its normals [m] so skin a fraction of a
 millimetre below the cloth does not show through it (display only; USD holds the true points)."""
@@ -304,19 +302,15 @@ def run(args: argparse.Namespace) -> int:
     crossings = body_note = None
     if result.failed_gates:  # is the body to blame? (session 46)
         from pipelines.body_cmd import describe_self_crossings
-        from sim.cloth.state import BodyCollider
-        from sim.quality import body_self_crossings, unique_edges
+        from sim.quality import GARMENT_REACH, body_edges_near, body_self_crossings
 
         body = bm.body
         rest = body.rest_mesh(bm.betas)
-        e = unique_edges(body.faces)
-        # only the body's edges within GARMENT_REACH of the garment (both in the rest pose)
-        reach = BodyCollider(garment.rest_vertices, garment.faces, device=device).signed_distance(
-            0.5 * (rest[e[:, 0]] + rest[e[:, 1]]), max_dist=2 * GARMENT_REACH)
+        near = body_edges_near(rest, body.faces, garment.rest_vertices, garment.faces, GARMENT_REACH,
+                               device=device)
         with progress_bar(seq.num_frames, "body self-crossings", quiet=args.quiet) as advance:
             crossings = body_self_crossings(seq.body.vertices, body.faces, rest, body.weights,
-                                            body.joint_names, edge_mask=np.abs(reach) < GARMENT_REACH,
-                                            device=device, progress=advance)
+                                            body.joint_names, edge_mask=near, device=device, progress=advance)
         if crossings["frames_with_crossings"]:
             body_note = describe_self_crossings(crossings)
     if result.failed_gates and not args.allow_failed_gates:

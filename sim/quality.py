@@ -355,6 +355,25 @@ def body_self_crossings(vertices: np.ndarray, faces: np.ndarray, rest_vertices: 
     return tally.result()
 
 
+GARMENT_REACH = 0.05
+"""How near a garment's rest surface a body self-crossing must lie to be named for it [m]
+(``wrinkles simulate`` when the gates fail, a dataset's rejection records)."""
+
+
+def body_edges_near(body_rest: np.ndarray, body_faces: np.ndarray, garment_rest: np.ndarray,
+                    garment_faces: np.ndarray, reach: float, *, device: str | None = None) -> np.ndarray:
+    """The body's edges (:func:`unique_edges` order) whose midpoints lie within ``reach`` [m] of a
+    garment's surface, both in the rest pose: the body edges whose self-crossings can catch that
+    garment (``body_self_crossings(edge_mask=...)``), bool (E,)."""
+    from sim.cloth.state import BodyCollider
+
+    rest = np.asarray(body_rest, np.float32)
+    e = unique_edges(body_faces)
+    d = BodyCollider(garment_rest, garment_faces, device=resolve_device(device)).signed_distance(
+        0.5 * (rest[e[:, 0]] + rest[e[:, 1]]), max_dist=2.0 * reach)
+    return np.abs(d) < reach
+
+
 def evaluate_sequence(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,
                       body_vertices: np.ndarray | None = None, body_faces: np.ndarray | None = None,
                       *, device: str | None = None) -> QualityReport:

@@ -444,6 +444,12 @@ def test_failed_sequences_are_retried_at_more_substeps(tmp_path, monkeypatch):
             gate = "max edge strain 0.9 > 0.35"
             assert r["reasons"] == (["simulation failed at frame 7: explosion: test (at 4 substeps)"]
                                     if mode[0] == "explode" else [f"fine: {gate}", f"coarse: {gate}"])
+            # where the body passes through itself near the garment (a walk: nowhere), when it ran
+            if mode[0] == "explode":
+                assert "body_self_crossings" not in r
+            else:
+                bc = r["body_self_crossings"]
+                assert bc["frames"] > 0 and bc["frames_with_crossings"] == 0 and bc["frames_by_joint"] == {}
             # every rung's reasons, the last one's the record's own
             assert [a["substeps"] for a in r["attempts"]] == [2, 3, 4]
             assert r["attempts"][-1]["reasons"] == r["reasons"]

@@ -5,7 +5,8 @@ A dataset is a directory::
     DIR/manifest.json               schema version, generator config, one entry per sequence
     DIR/sequences/<id>.safetensors  one file per accepted sequence, written atomically
     DIR/parts/shard-<i>-of-<n>.json what one shard has done (accepted and rejected), for resume
-    DIR/rejections.jsonl            one line per rejected sequence: id and why (``attempts``: each rung)
+    DIR/rejections.jsonl            one line per rejected sequence: id and why (``attempts``: each rung;
+                                    ``body_self_crossings``: the body through itself near the garment)
 
 Sequence files use the safetensors layout (8-byte little-endian header length, a JSON header
 of ``name -> {dtype, shape, data_offsets}`` plus ``__metadata__`` (str -> str), then the raw
