@@ -302,15 +302,11 @@ def run(args: argparse.Namespace) -> int:
     crossings = body_note = None
     if result.failed_gates:  # is the body to blame? (session 46)
         from pipelines.body_cmd import describe_self_crossings
-        from sim.quality import GARMENT_REACH, body_edges_near, body_self_crossings
+        from sim.quality import garment_body_crossings
 
-        body = bm.body
-        rest = body.rest_mesh(bm.betas)
-        near = body_edges_near(rest, body.faces, garment.rest_vertices, garment.faces, GARMENT_REACH,
-                               device=device)
         with progress_bar(seq.num_frames, "body self-crossings", quiet=args.quiet) as advance:
-            crossings = body_self_crossings(seq.body.vertices, body.faces, rest, body.weights,
-                                            body.joint_names, edge_mask=near, device=device, progress=advance)
+            crossings = garment_body_crossings(bm.body, bm.betas, garment, seq.body.vertices, device=device,
+                                               progress=advance)
         if crossings["frames_with_crossings"]:
             body_note = describe_self_crossings(crossings)
     if result.failed_gates and not args.allow_failed_gates:
@@ -331,9 +327,9 @@ def run(args: argparse.Namespace) -> int:
         "seed": args.seed,
     }
     if crossings is not None:  # where the body passes through itself, when the gates failed
-        report["body_self_crossings"] = {
-            "frames_with_crossings": crossings["frames_with_crossings"], "max_edges": crossings["max_edges"],
-            "frames_by_joint": {k: len(v["frames"]) for k, v in crossings["by_joint"].items()}}
+        from sim.quality import short_crossings
+
+        report["body_self_crossings"] = short_crossings(crossings)
     metadata = {
         "command": "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
         **report,

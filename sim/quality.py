@@ -263,57 +263,39 @@ def crossing_edges(vertices: np.ndarray, faces: np.ndarray, *, device: str | Non
     return next(_edge_crossings(np.asarray(vertices)[None], faces, device)) > 0
 
 
-class _SelfCrossingTally:
-    """Per-frame accumulation of a body's crossing edges (bool (E,) per frame): the crossings that
-    do not cross at rest, per frame and per skinning joint (the joint with the largest weight at
-    the edge's first vertex), and which edges ever crossed; memory independent of the frame count
-    (a (T, E) mask of the 40k-edge default body over thousands of frames is hundreds of MB)."""
-
-    def __init__(self, rest_hit: np.ndarray, edges: np.ndarray, rest: np.ndarray, weights: np.ndarray,
-                 joint_names: tuple[str, ...], edge_mask: np.ndarray | None = None):
-        self.keep = ~np.asarray(rest_hit, bool)
-        if edge_mask is not None:
-            self.keep &= np.asarray(edge_mask, bool)
-        self.rest_hit, self.edges, self.rest, self.names = rest_hit, edges, rest, joint_names
-        self.owner = np.argmax(weights[edges[:, 0]], axis=1)
-        self.per_frame: list[int] = []
-        self.per_joint: list[np.ndarray] = []
-        self.ever = np.zeros(len(edges), bool)
-
-    def add(self, hit: np.ndarray) -> None:
-        new = np.asarray(hit, bool) & self.keep
-        self.per_frame.append(int(new.sum()))
-        self.per_joint.append(np.bincount(self.owner[new], minlength=len(self.names)))
-        self.ever |= new
-
-    def result(self) -> dict:
-        per_frame = np.asarray(self.per_frame, np.int64)
-        by_joint = {}
-        if len(per_frame):
-            counts = np.stack(self.per_joint)  # (T, J)
-            for j in np.flatnonzero(counts.sum(axis=0)):
-                cols = np.flatnonzero(self.ever & (self.owner == j))
-                y = 0.5 * (self.rest[self.edges[cols, 0], 1] + self.rest[self.edges[cols, 1], 1])
-                by_joint[self.names[j]] = {"frames": np.flatnonzero(counts[:, j]).tolist(),
-                                           "most_edges": int(counts[:, j].max()),
-                                           "rest_y_m": [round(float(y.min()), 3), round(float(y.max()), 3)]}
-        return {"frames_with_crossings": int((per_frame > 0).sum()),
-                "max_edges": int(per_frame.max()) if len(per_frame) else 0,
-                "per_frame": per_frame.tolist(), "by_joint": by_joint,
-                "rest_pose_crossing_edges": int(np.asarray(self.rest_hit, bool).sum())}
-
-
-def summarize_self_crossings(hit: np.ndarray, rest_hit: np.ndarray, edges: np.ndarray, rest: np.ndarray,
+def summarize_self_crossings(hits, rest_hit: np.ndarray, edges: np.ndarray, rest: np.ndarray,
                              weights: np.ndarray, joint_names: tuple[str, ...],
                              edge_mask: np.ndarray | None = None) -> dict:
-    """Where a body's crossing edges ``hit`` (bool (T, E)) are: per frame those that do not cross
-    at rest (``rest_hit``, (E,)) and are in ``edge_mask`` (None: all), and per skinning joint (the
+    """Where a body's crossing edges are: ``hits`` yields one bool (E,) per frame (a (T, E) array
+    or a generator: memory does not grow with the frame count; the default body's 40k edges over
+    thousands of frames would be hundreds of MB). Counts per frame the edges that do not cross at
+    rest (``rest_hit``, (E,)) and are in ``edge_mask`` (None: all), and per skinning joint (the
     joint with the largest weight at the edge's first vertex) the frames with such edges, the most
     of them in one frame and their rest-pose height range [m]."""
-    tally = _SelfCrossingTally(rest_hit, edges, rest, weights, joint_names, edge_mask)
-    for h in hit:
-        tally.add(h)
-    return tally.result()
+    keep = ~np.asarray(rest_hit, bool)
+    if edge_mask is not None:
+        keep &= np.asarray(edge_mask, bool)
+    owner = np.argmax(weights[edges[:, 0]], axis=1)
+    per_frame, per_joint, ever = [], [], np.zeros(len(edges), bool)
+    for hit in hits:
+        new = np.asarray(hit, bool) & keep
+        per_frame.append(int(new.sum()))
+        per_joint.append(np.bincount(owner[new], minlength=len(joint_names)))
+        ever |= new
+    per_frame = np.asarray(per_frame, np.int64)
+    by_joint = {}
+    if len(per_frame):
+        counts = np.stack(per_joint)  # (T, J)
+        for j in np.flatnonzero(counts.sum(axis=0)):
+            cols = np.flatnonzero(ever & (owner == j))
+            y = 0.5 * (rest[edges[cols, 0], 1] + rest[edges[cols, 1], 1])
+            by_joint[joint_names[j]] = {"frames": np.flatnonzero(counts[:, j]).tolist(),
+                                        "most_edges": int(counts[:, j].max()),
+                                        "rest_y_m": [round(float(y.min()), 3), round(float(y.max()), 3)]}
+    return {"frames_with_crossings": int((per_frame > 0).sum()),
+            "max_edges": int(per_frame.max()) if len(per_frame) else 0,
+            "per_frame": per_frame.tolist(), "by_joint": by_joint,
+            "rest_pose_crossing_edges": int(np.asarray(rest_hit, bool).sum())}
 
 
 def body_self_crossings(vertices: np.ndarray, faces: np.ndarray, rest_vertices: np.ndarray,
@@ -326,14 +308,14 @@ def body_self_crossings(vertices: np.ndarray, faces: np.ndarray, rest_vertices: 
     the upper arm into the chest. Cloth caught there has no place outside the body, so a garment
     may fail its gates there for the body's sake. Counts the body's edges that cross one of its own
     faces in each frame, beyond those that cross in the rest pose (the default mesh has 50 at the
-    toes), grouped by the joint that skins them most (:func:`summarize_self_crossings`), frame by
-    frame (memory does not grow with the motion's length).
+    toes), grouped by the joint that skins them most (:func:`summarize_self_crossings`, frame by
+    frame).
 
     Args:
         vertices: posed body [m], (T, V, 3); faces: (F, 3); rest_vertices: the shaped rest pose
             (V, 3); weights: skinning weights (V, J); joint_names: J names.
         edge_mask: count only these edges, bool (E,) over :func:`unique_edges` ``(faces)`` (e.g.
-            those near a garment); None: every edge.
+            those near a garment, :func:`body_edges_near`); None: every edge.
         progress: optional callable ``progress(frames_done, frames_total)``.
 
     Returns:
@@ -344,15 +326,17 @@ def body_self_crossings(vertices: np.ndarray, faces: np.ndarray, rest_vertices: 
     faces = np.asarray(faces, np.int32)
     rest = np.asarray(rest_vertices, np.float32)
     rest_hit = next(_edge_crossings(rest[None], faces, device)) > 0
-    tally = _SelfCrossingTally(rest_hit, unique_edges(faces), rest, np.asarray(weights), tuple(joint_names),
-                               edge_mask)
-    if vertices.shape[0] == 0:
-        return tally.result()
-    for t, h in enumerate(_edge_crossings(vertices, faces, device)):
-        tally.add(h > 0)
-        if progress is not None:
-            progress(t + 1, vertices.shape[0])
-    return tally.result()
+
+    def hits():
+        if vertices.shape[0] == 0:
+            return
+        for t, h in enumerate(_edge_crossings(vertices, faces, device)):
+            yield h > 0
+            if progress is not None:
+                progress(t + 1, vertices.shape[0])
+
+    return summarize_self_crossings(hits(), rest_hit, unique_edges(faces), rest, np.asarray(weights),
+                                    tuple(joint_names), edge_mask)
 
 
 GARMENT_REACH = 0.05
@@ -372,6 +356,26 @@ def body_edges_near(body_rest: np.ndarray, body_faces: np.ndarray, garment_rest:
     d = BodyCollider(garment_rest, garment_faces, device=resolve_device(device)).signed_distance(
         0.5 * (rest[e[:, 0]] + rest[e[:, 1]]), max_dist=2.0 * reach)
     return np.abs(d) < reach
+
+
+def garment_body_crossings(body, betas: np.ndarray | None, garment, body_vertices: np.ndarray, *,
+                           device: str | None = None, progress=None) -> dict:
+    """:func:`body_self_crossings` of a body model (``sim.bodies.BodyModel``) of shape ``betas``
+    posed at ``body_vertices`` (T, V, 3), counting only the edges within ``GARMENT_REACH`` of
+    ``garment``'s rest surface; with ``frames`` (T) and ``frames_by_joint`` (name -> frame count)
+    added, the short form the quality reports keep (``wrinkles simulate``, dataset rejections)."""
+    rest = body.rest_mesh(betas)
+    near = body_edges_near(rest, body.faces, garment.rest_vertices, garment.faces, GARMENT_REACH,
+                           device=device)
+    c = body_self_crossings(body_vertices, body.faces, rest, body.weights, body.joint_names,
+                            edge_mask=near, device=device, progress=progress)
+    return {**c, "frames": len(c["per_frame"]),
+            "frames_by_joint": {k: len(v["frames"]) for k, v in c["by_joint"].items()}}
+
+
+def short_crossings(c: dict) -> dict:
+    """The part of :func:`garment_body_crossings` a quality report keeps."""
+    return {k: c[k] for k in ("frames_with_crossings", "frames", "max_edges", "frames_by_joint")}
 
 
 def evaluate_sequence(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,

@@ -231,7 +231,7 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
 
     from sim.datasets.derive import Deriver, coarse_arrays
     from sim.garments import make_garment
-    from sim.quality import SimulationError, edge_strain
+    from sim.quality import SimulationError, edge_strain, garment_body_crossings, short_crossings
     from sim.simulate import SimulationJob, simulate_batch
 
     sim_cfg = replace(sim_cfg, device=device)
@@ -304,8 +304,8 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
                                             "motion_source": sp.motion, "motion_params": sp.motion_params,
                                             "vertices": int(fine_g.num_vertices)}
             if not isinstance(fine_r, SimulationError):  # is the body to blame? (session 46)
-                part.data["rejected"][sp.id]["body_self_crossings"] = _body_crossings_near(
-                    body, item["betas"], fine_g, fine_r.sequence, device)
+                part.data["rejected"][sp.id]["body_self_crossings"] = short_crossings(garment_body_crossings(
+                    body, item["betas"], fine_g, fine_r.sequence.body.vertices, device=device))
             part.save()
             summary.rejected += 1
             log(f"{sp.id} rejected ({sp.category}, {sp.motion_label}): {'; '.join(reasons)}")
@@ -368,21 +368,6 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
                     attempts={sp.id: [*attempts.get(sp.id, []),
                                       {"substeps": substeps, "reasons": reasons_of[sp.id]}]
                               for sp in retried})
-
-
-def _body_crossings_near(body, betas: np.ndarray, garment, seq, device: str) -> dict:
-    """Where the skinned body passes through itself within ``GARMENT_REACH`` of the garment over a
-    rejected sequence's frames (``sim.quality.body_self_crossings``): frames with such crossings,
-    of how many, and per skinning joint."""
-    from sim.quality import GARMENT_REACH, body_edges_near, body_self_crossings
-
-    rest = body.rest_mesh(betas)
-    near = body_edges_near(rest, body.faces, garment.rest_vertices, garment.faces, GARMENT_REACH,
-                           device=device)
-    c = body_self_crossings(seq.body.vertices, body.faces, rest, body.weights, body.joint_names,
-                            edge_mask=near, device=device)
-    return {"frames_with_crossings": c["frames_with_crossings"], "frames": len(c["per_frame"]),
-            "frames_by_joint": {k: len(v["frames"]) for k, v in c["by_joint"].items()}}
 
 
 def _stable(prov: dict) -> dict:
