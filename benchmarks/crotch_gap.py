@@ -23,6 +23,8 @@ import sys
 
 import numpy as np
 
+from sim.garments.templates import midplane_crossings
+
 MID_PLANE = 1e-6
 """Rest vertices with |x| below this [m] lie in the mid-sagittal plane (the bridge is built at x = 0)."""
 
@@ -33,16 +35,6 @@ def crotch_point(rest: np.ndarray) -> int:
     if on.size == 0:
         raise ValueError("no garment vertex lies in the mid-plane x = 0 (not a pants template)")
     return int(on[np.argmin(rest[on, 1])])
-
-
-def midplane_crossings(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Points (K, 3) where the mesh's edges cross the plane x = 0."""
-    e = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    a, b = vertices[e[:, 0]], vertices[e[:, 1]]
-    cross = a[:, 0] * b[:, 0] < 0
-    a, b = a[cross], b[cross]
-    t = a[:, 0] / (a[:, 0] - b[:, 0])
-    return a + t[:, None] * (b - a)
 
 
 def crotch_gap(x: np.ndarray, rest: np.ndarray, body: np.ndarray, body_faces: np.ndarray,

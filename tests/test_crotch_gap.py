@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from benchmarks.crotch_gap import crotch_gap, crotch_point, main, midplane_crossings
+from benchmarks.crotch_gap import crotch_gap, crotch_point, main
+from sim.garments.templates import midplane_crossings
 
 
 def _plate(y: float, z0: float, z1: float):

@@ -263,21 +263,29 @@ def _clip_half_plane(poly: np.ndarray, sign: float, x0: float) -> np.ndarray:
     return np.asarray(out)
 
 
+def midplane_crossings(vertices: np.ndarray, faces: np.ndarray,
+                       y_range: tuple[float, float] | None = None) -> np.ndarray:
+    """Points (K, 3) where the mesh's edges cross the mid-sagittal plane x = 0, interpolated
+    along the edge; with ``y_range`` (lo, hi) only edges whose both ends lie strictly within it."""
+    e = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    a, b = vertices[e[:, 0]], vertices[e[:, 1]]
+    cross = a[:, 0] * b[:, 0] < 0
+    if y_range is not None:
+        cross &= (np.minimum(a[:, 1], b[:, 1]) > y_range[0]) & (np.maximum(a[:, 1], b[:, 1]) < y_range[1])
+    a, b = a[cross], b[cross]
+    t = a[:, 0] / (a[:, 0] - b[:, 0])
+    return a + t[:, None] * (b - a)
+
+
 def _crotch_height(m: BodyMeasure) -> float:
     """Lowest point where the body surface crosses the mid-sagittal plane x = 0 between the
     hips and the knees [m] (edges crossing the plane, interpolated)."""
-    v = m.vertices
     j = m.joints
-    e = m.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    a, b = v[e[:, 0]], v[e[:, 1]]
-    cross = (a[:, 0] * b[:, 0] < 0) & (np.minimum(a[:, 1], b[:, 1]) > j[4, 1]) \
-        & (np.maximum(a[:, 1], b[:, 1]) < j[1, 1] + 0.05)
-    if not cross.any():
+    p = midplane_crossings(m.vertices, m.faces, (j[4, 1], j[1, 1] + 0.05))
+    if not len(p):
         raise WrinklesInputError("cannot find the crotch of this body (no surface crosses the "
                                  "mid-plane between hips and knees)")
-    a, b = a[cross], b[cross]
-    t = a[:, 0] / (a[:, 0] - b[:, 0])
-    return float((a[:, 1] + t * (b[:, 1] - a[:, 1])).min())
+    return float(p[:, 1].min())
 
 
 def pants_panels(m: BodyMeasure, p: PantsParams, h: float, thickness: float) -> list[Panel]:
