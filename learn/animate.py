@@ -94,6 +94,8 @@ class WrinklePipeline:
                 "this coarse model has no UV layout (trained before UVs were stored)", path=coarse
             )
         self.uvs, self.uv_faces = uvs.numpy(), uv_faces.numpy().astype(np.int32)
+        layers = st.get("face_layers")  # absent in models trained before session 48: one layer
+        self.face_layers = None if layers is None else layers.numpy().astype(np.float32)
         self._maps = None
 
     def maps(self):

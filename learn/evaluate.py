@@ -94,6 +94,7 @@ def _garment_for(sf, entry: dict):
         material = get_material("cotton")
     return Garment(rest_vertices=np.asarray(sf["fine/rest_vertices"]), faces=np.asarray(sf["fine/faces"]),
                    uvs=np.asarray(sf["fine/uvs"]), uv_faces=np.asarray(sf["fine/uv_faces"]),
+                   face_layers=np.asarray(sf["fine/face_layers"]) if "fine/face_layers" in sf else None,
                    material=material,
                    category=entry.get("garment", "imported"))
 

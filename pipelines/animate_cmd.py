@@ -176,6 +176,7 @@ def run(args: argparse.Namespace) -> int:
         faces=pipe.faces,
         uvs=pipe.uvs,
         uv_faces=pipe.uv_faces,
+        face_layers=pipe.face_layers,
         material=get_material(material),
         attachments={},
         category=pipe.category,

@@ -226,6 +226,9 @@ def test_generated_dataset_holds_the_schema(reference):
             assert k in f, (sid, k)
         T, V = e["frames"], e["vertices"]
         assert f.shape("fine/vertices") == (T, V, 3) and f.shape("images/wrinkle") == (T, 32, 32, 3)
+        layers = np.asarray(f["fine/face_layers"])  # the template's hems (up to 3 layers), the rest 1
+        assert layers.shape == (f.shape("fine/faces")[0],)
+        assert layers.min() == 1.0 and 1.0 < layers.max() <= 3.0
         assert f.shape("coarse/vertices")[0] == T and f.shape("body/poses") == (T, 24, 3)
         fine, base = np.asarray(f["fine/vertices"]), np.asarray(f["fine/base"])
         # the wrinkle field decodes back to the fine mesh (Guo et al. Eq. 2)

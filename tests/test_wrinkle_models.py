@@ -312,7 +312,7 @@ def test_export_round_trip(runs, tmp_path):
     torch.testing.assert_close(c.rest, load_trained(runs["coarse"])[1].rest)  # buffers stay float32
 
 
-def test_animate_writes_usd_and_preview(runs, tmp_path, capsys):
+def test_animate_writes_usd_and_preview(runs, sample_dataset, tmp_path, capsys):
     pytest.importorskip("pxr")
     out = tmp_path / "anim" / "t.usda"
     assert (
@@ -344,6 +344,16 @@ def test_animate_writes_usd_and_preview(runs, tmp_path, capsys):
     meshes = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
     names = {p.GetName() for p in meshes}
     assert "t_shirt" in names and "Body" in names
+    # the hems the dataset stored (up to 3 layers) reach the animated stage as fabricLayers, face by face
+    from learn.data import GarmentSequenceDataset
+
+    ds = GarmentSequenceDataset(sample_dataset, "train",
+                                keys=["fine/faces"], garments=["t_shirt"])
+    layers = np.asarray(ds.open_sequence(ds.sequence_ids[0])["fine/face_layers"])
+    assert layers.min() == 1.0 and 1.0 < layers.max() <= 3.0
+    shirt = next(p for p in meshes if p.GetName() == "t_shirt")
+    written = np.asarray(UsdGeom.PrimvarsAPI(shirt).GetPrimvar("fabricLayers").Get())
+    np.testing.assert_array_equal(written, layers)
     meta = json.loads((tmp_path / "anim" / "t.animate.json").read_text())
     assert meta["ddim_steps"] == 2 and meta["betas"][:2] == [1.0, -0.5]
     assert (tmp_path / "anim" / "t.png").stat().st_size > 1000

@@ -56,7 +56,7 @@ class Deriver:
         g = self.garment
         out = {k: np.concatenate(v, axis=0) for k, v in parts.items()}
         out.update({"fine/rest_vertices": g.rest_vertices, "fine/faces": g.faces, "fine/uvs": g.uvs,
-                    "fine/uv_faces": g.uv_faces})
+                    "fine/uv_faces": g.uv_faces, "fine/face_layers": g.face_layers})
         if self.raster is not None:
             out["images/mask"] = self.raster.mask.astype(np.uint8)
         return out

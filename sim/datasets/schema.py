@@ -23,6 +23,9 @@ fine/rest_vertices         (V, 3)             f32    rest garment on the rest bo
 fine/faces                 (F, 3)             i32
 fine/uvs                   (U, 2)             f32    in [0, 1]^2, split along seams
 fine/uv_faces              (F, 3)             i32
+fine/face_layers           (F,)               f32    layers of fabric per face, >= 1 (a template's
+                                                     hems: 3; ``Garment.face_layers``); files
+                                                     written before session 48 lack it (read: 1)
 =========================  =================  =====  ==============================================
 
 UV images of the fine garment (pixel (row, col) centred at u = (col + .5) / W,
@@ -71,7 +74,7 @@ from __future__ import annotations
 SPLITS = ("train", "test_id", "test_ood")
 
 FINE_KEYS = ("fine/vertices", "fine/base", "fine/wrinkle", "fine/strain", "fine/strain_norm", "fine/normals",
-             "fine/rest_vertices", "fine/faces", "fine/uvs", "fine/uv_faces")
+             "fine/rest_vertices", "fine/faces", "fine/uvs", "fine/uv_faces", "fine/face_layers")
 IMAGE_KEYS = ("images/strain_norm", "images/wrinkle", "images/normal_world", "images/normal_tangent",
               "images/mask")
 COARSE_KEYS = ("coarse/vertices", "coarse/strain_norm", "coarse/rest_vertices", "coarse/faces", "coarse/uvs",
