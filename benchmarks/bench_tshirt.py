@@ -36,6 +36,26 @@ def add_scene_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--motions", default="walk,run")
     ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s]")
     add_material_argument(ap)
+    add_skeleton_argument(ap)
+
+
+def add_skeleton_argument(ap: argparse.ArgumentParser) -> None:
+    """``--motion-skeleton``: which skeleton a procedural motion is built on (``benchmark_motion``)."""
+    ap.add_argument("--motion-skeleton", choices=("body", "default"), default="body",
+                    help="build procedural motions on the body's own skeleton and soles, as `wrinkles "
+                    "simulate` and dataset generation do ('body', default since session 48), or on "
+                    "SMPL's approximate skeleton ('default', every benchmark figure before session 48: "
+                    "7 %% longer strides, the root 3 cm off the body's floor)")
+
+
+def benchmark_motion(name: str, body, seconds: float, skeleton: str = "body", betas=None, **params):
+    """The procedural motion (or motion file) ``name`` at 30 fps for ``seconds``, built on the
+    skeleton ``skeleton`` names: ``"body"`` the body's own at ``betas`` (``MotionSkeleton.from_body``,
+    what the CLI and dataset generation use), ``"default"`` SMPL's approximate one."""
+    from sim.motions import MotionSkeleton, load_motion
+
+    sk = {"skeleton": MotionSkeleton.from_body(body, betas)} if skeleton == "body" else {}
+    return load_motion(name, fps=30.0, duration=seconds, **sk, **params)
 
 
 def add_material_argument(ap: argparse.ArgumentParser) -> None:
@@ -94,11 +114,11 @@ def load_scene(args: argparse.Namespace):
     {motion name: motion})."""
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
-    from sim.motions import load_motion
 
     body = load_default_body()
     garment, edge = build_garment(body, args.vertices, material_changes(args), **template_params(args))
-    motions = {n: load_motion(n, fps=30.0, duration=args.seconds) for n in args.motions.split(",")}
+    motions = {n: benchmark_motion(n, body, args.seconds, args.motion_skeleton)
+               for n in args.motions.split(",")}
     return resolve_device(args.device), body, garment, edge, motions
 
 
@@ -110,18 +130,18 @@ def add_single_scene_arguments(ap: argparse.ArgumentParser, device: str = "auto"
     ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: %(default)s)")
     ap.add_argument("--motion", default=motion, help="(default: %(default)s)")
     ap.add_argument("--seconds", type=float, default=seconds, help="motion length [s] (default: %(default)s)")
+    add_skeleton_argument(ap)
 
 
 def load_single_scene(args: argparse.Namespace):
     """The scene of ``add_single_scene_arguments``: (device, default body, t-shirt, motion)."""
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
-    from sim.motions import load_motion
 
     body = load_default_body()
     garment, _ = build_garment(body, args.vertices)
     return (resolve_device(args.device), body, garment,
-            load_motion(args.motion, fps=30.0, duration=args.seconds))
+            benchmark_motion(args.motion, body, args.seconds, args.motion_skeleton))
 
 
 def build_garment(body, vertices: int, material: dict | None = None, category: str = "t_shirt",
@@ -270,10 +290,8 @@ def main() -> None:
             print(name, "newton", json.dumps(entry["newton"], indent=1, default=str), flush=True)
         fig[name] = entry
     if args.batch:
-        from sim.motions import load_motion
-
         motion = (next(iter(motions.values())) if args.batch_motion is None
-                  else load_motion(args.batch_motion, fps=30.0, duration=args.seconds))
+                  else benchmark_motion(args.batch_motion, body, args.seconds, args.motion_skeleton))
         fig["batched"] = run_batches(garment, body, motion, cfg, args)
     write_result(f"tshirt_{device.split(':')[0]}{args.tag}", {
         "machine": machine(device),
@@ -282,7 +300,7 @@ def main() -> None:
                   else None, "fps": 30.0, "seconds": args.seconds,
                   "substeps": cfg.substeps_for(garment.num_vertices),
                   "iterations": cfg.iterations_for(garment.num_vertices),
-                  "self_contact": not args.no_self_contact},
+                  "self_contact": not args.no_self_contact, "motion_skeleton": args.motion_skeleton},
         "config": cfg.to_dict(),
         "figures": fig,
     })

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from benchmarks.bench_tshirt import build_garment, quality_dict, run_ours
+from benchmarks.bench_tshirt import add_skeleton_argument, build_garment, quality_dict, run_ours
 from benchmarks.common import machine, write_result
 
 
@@ -32,14 +32,14 @@ def main() -> None:
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                     help="a template parameter for every garment run (each must have it; repeatable; "
                     "default: the templates' own)")
+    add_skeleton_argument(ap)
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
-    from benchmarks.bench_tshirt import _numbers
+    from benchmarks.bench_tshirt import _numbers, benchmark_motion
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
     from sim.errors import WrinklesInputError
     from sim.garments.templates import TEMPLATES, make_params
-    from sim.motions import load_motion
     from sim.simulate import SimulationConfig
 
     names = list(TEMPLATES) if args.garments == "all" else args.garments.split(",")
@@ -55,13 +55,15 @@ def main() -> None:
                          f"{args.variants!r}") from None
     device = resolve_device(args.device)
     body = load_default_body()
-    motions = {n: load_motion(n, fps=30.0, duration=args.seconds) for n in args.motions.split(",")}
+    motions = {n: benchmark_motion(n, body, args.seconds, args.motion_skeleton)
+               for n in args.motions.split(",")}
     figures: dict = {}
 
     def write() -> None:  # after every garment: a run cut short by a time limit keeps what it measured
         write_result(f"garment_gates_{device.split(':')[0]}{args.tag}", {
             "machine": machine(device),
-            "sizes": {"seconds": args.seconds, "vertices": args.vertices or "template coarse"},
+            "sizes": {"seconds": args.seconds, "vertices": args.vertices or "template coarse",
+                      "motion_skeleton": args.motion_skeleton},
             "variants": variants, "params": params, "figures": figures,
             "complete": len(figures) == len(names)})
 

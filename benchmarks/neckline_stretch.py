@@ -76,15 +76,16 @@ def stretch_report(x: np.ndarray, rest: np.ndarray, faces: np.ndarray, body_rest
 
 
 def main() -> None:
+    from benchmarks.bench_tshirt import add_skeleton_argument, benchmark_motion
     from sim.bodies.default import load_default_body
     from sim.bodies.placement import floor_offset, translate_frames
-    from sim.motions import load_motion
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("npz", help="a file written by worst_edges --save (one motion)")
     ap.add_argument("--motion", required=True, help="the motion that file holds (walk, run, ...)")
     ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s] of that run")
     ap.add_argument("--front-z", type=float, default=0.1, help="rest z [m] above which the loop is front")
+    add_skeleton_argument(ap)
     args = ap.parse_args()
     try:
         d = np.load(args.npz)
@@ -92,7 +93,7 @@ def main() -> None:
     except (OSError, KeyError, ValueError) as e:
         ap.exit(2, f"{args.npz}: not a worst_edges --save file ({e})\n")
     body = load_default_body()
-    motion = load_motion(args.motion, fps=30.0, duration=args.seconds)
+    motion = benchmark_motion(args.motion, body, args.seconds, args.motion_skeleton)
     frames = body.pose_motion(motion, device="cpu")
     if len(frames.vertices) != len(x):
         ap.exit(2, f"{args.npz}: {len(x)} frames, but {args.motion} at {args.seconds:g} s has "

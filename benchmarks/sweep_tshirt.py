@@ -67,12 +67,14 @@ def parse_setting(s: str) -> dict:
     return out
 
 
-def population_motions(n: int, seconds: float, seed: int = 0) -> list:
+def population_motions(n: int, seconds: float, seed: int = 0, body=None, skeleton: str = "body") -> list:
     """``n`` motions of ``seconds`` at 30 fps: the benchmark's walk and run (default parameters)
     first, then walks and runs alternating with speeds drawn uniformly from 1.0-1.8 m/s (walk)
     and 2.8-4.5 m/s (run), arm swing from 0.7-1.4 (``seed``: the draw)."""
-    from sim.motions import load_motion
+    from benchmarks.bench_tshirt import benchmark_motion
+    from sim.bodies.default import load_default_body
 
+    body = load_default_body() if body is None else body
     rng = np.random.default_rng(seed)
     out = []
     for k in range(n):
@@ -82,7 +84,7 @@ def population_motions(n: int, seconds: float, seed: int = 0) -> list:
             lo, hi = (1.0, 1.8) if name == "walk" else (2.8, 4.5)
             params = {"speed": round(float(rng.uniform(lo, hi)), 3),
                       "arm_swing": round(float(rng.uniform(0.7, 1.4)), 3)}
-        m = load_motion(name, fps=30.0, duration=seconds, **params)
+        m = benchmark_motion(name, body, seconds, skeleton, **params)
         out.append((name + "".join(f" {k}={v}" for k, v in params.items()), m))
     return out
 
@@ -132,7 +134,8 @@ def main() -> None:
     device, body, garment, edge, motions = load_scene(args)
     rows = []
     shared = json.loads(args.solver)
-    population = (population_motions(args.population, args.seconds, args.population_seed)
+    population = (population_motions(args.population, args.seconds, args.population_seed, body,
+                                    args.motion_skeleton)
                   if args.population > 0 else [])
     for s in args.settings.split(","):
         p = parse_setting(s)

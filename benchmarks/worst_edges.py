@@ -146,6 +146,8 @@ def main() -> None:
         _numbers,
         _option_error,
         add_material_argument,
+        add_skeleton_argument,
+        benchmark_motion,
         build_garment,
         material_changes,
         template_params,
@@ -153,7 +155,6 @@ def main() -> None:
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
     from sim.errors import WrinklesInputError
-    from sim.motions import MotionSkeleton, load_motion
     from sim.simulate import SimulationConfig, SimulationJob, simulate_batch
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -186,6 +187,7 @@ def main() -> None:
                     help="a parameter of the procedural motion, e.g. speed=1.6 (repeatable; `wrinkles "
                     "motions` lists them)")
     add_material_argument(ap)
+    add_skeleton_argument(ap)
     ap.add_argument("--tag", default="")
     args = ap.parse_args()
     material = material_changes(args)
@@ -225,9 +227,8 @@ def main() -> None:
     except WrinklesInputError as e:
         _option_error("--shape", e)
     names = args.motion.split(",")
-    skeleton = {} if betas is None else {"skeleton": MotionSkeleton.from_body(body, betas)}
     try:
-        motions = [load_motion(n, fps=30.0, duration=args.seconds, **skeleton, **motion_params)
+        motions = [benchmark_motion(n, body, args.seconds, args.motion_skeleton, betas, **motion_params)
                    for n in names]
     except WrinklesInputError as e:
         _option_error("--motion-param", e)
@@ -265,6 +266,7 @@ def main() -> None:
         "seconds": args.seconds, "setting": args.setting or "default", "solver": json.loads(args.solver),
         "sim": sim_fields,
         "params": params, "material": material, "shape": shape, "motion_params": motion_params,
+        "motion_skeleton": args.motion_skeleton,
         "copies": args.copies, "wall_s": wall, **first, "runs": runs,
     })
 

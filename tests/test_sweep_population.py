@@ -41,3 +41,21 @@ def test_a_setting_is_read_or_refused():
     with pytest.raises(SystemExit, match="cannot read"):
         parse_setting("10by5")
 
+
+
+def test_benchmark_motions_are_built_on_the_bodys_skeleton_as_the_cli_builds_them():
+    """Session 48: the benchmarks play the motion `wrinkles simulate` makes for the body (its own
+    skeleton and soles), not the one built on SMPL's approximate skeleton (longer strides)."""
+    from benchmarks.bench_tshirt import benchmark_motion
+    from sim.bodies.default import load_default_body
+    from sim.motions import MotionSkeleton, load_motion
+
+    body = load_default_body()
+    cli = load_motion("run", fps=30.0, duration=0.5, skeleton=MotionSkeleton.from_body(body), speed=3.0)
+    ours = benchmark_motion("run", body, 0.5, speed=3.0)
+    np.testing.assert_array_equal(ours.poses, cli.poses)
+    np.testing.assert_array_equal(ours.trans, cli.trans)
+    old = benchmark_motion("run", body, 0.5, "default", speed=3.0)
+    assert old.extra["hip_scale"] > 1.03 * ours.extra["hip_scale"]  # SMPL's legs stride longer
+    pop = population_motions(4, 0.5, seed=3, body=body)
+    np.testing.assert_array_equal(pop[1][1].poses, benchmark_motion("run", body, 0.5).poses)
