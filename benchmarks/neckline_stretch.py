@@ -1,16 +1,17 @@
 """How far a run stretches a garment's neckline, against the skin under it.
 
 Reads the per-motion file that ``benchmarks.worst_edges --save PATH`` writes (``PATH_walk.npz``:
-the garment's rest mesh and its positions per output frame). The neckline is the garment's
-boundary loop that sits highest at rest. Per frame it reports the strain (length / rest length
-- 1) of the whole loop and of its front segment (rest z above ``--front-z``), and the same for
-the skin under it: the polyline through the body vertices nearest to the loop's vertices at
-rest, skinned through the same motion (default body, floor offset of the motion's first frame,
-as ``sim.simulate`` places it). It also reports the chord between the front segment's two ends,
+the garment's rest mesh and its positions per output frame, the body's positions). The neckline
+is the garment's boundary loop that sits highest at rest. Per frame it reports the strain
+(length / rest length - 1) of the whole loop and of its front segment (rest z above
+``--front-z``), and the same for the skin under it: the polyline through the body vertices
+nearest to the loop's vertices at rest, in the body positions the file holds (for a file without
+them, the default body posed again through ``--motion``, floor offset of its first frame, as
+``sim.simulate`` places it). It also reports the chord between the front segment's two ends,
 cloth against skin. Session 29 used it to tell whether the 19k t-shirt's neckline strain comes
 from the body (the skin under it stretching) or from the solve (it falls with more sweeps).
 
-    python -m benchmarks.neckline_stretch runs/f19_walk.npz --motion walk
+    python -m benchmarks.neckline_stretch runs/f19_walk.npz
 """
 
 from __future__ import annotations
@@ -82,7 +83,9 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("npz", help="a file written by worst_edges --save (one motion)")
-    ap.add_argument("--motion", required=True, help="the motion that file holds (walk, run, ...)")
+    ap.add_argument("--motion", default="",
+                    help="the motion that file holds (walk, run, ...), to pose the body again where the "
+                    "file has no body positions (files written before session 43); otherwise unused")
     ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s] of that run")
     ap.add_argument("--front-z", type=float, default=0.1, help="rest z [m] above which the loop is front")
     add_skeleton_argument(ap)
@@ -90,16 +93,21 @@ def main() -> None:
     try:
         d = np.load(args.npz)
         x, rest, faces = d["x"], d["rest"], d["faces"]
+        skin = d["body"] if "body" in d.files else None
     except (OSError, KeyError, ValueError) as e:
         ap.exit(2, f"{args.npz}: not a worst_edges --save file ({e})\n")
     body = load_default_body()
-    motion = benchmark_motion(args.motion, body, args.seconds, args.motion_skeleton)
-    frames = body.pose_motion(motion, device="cpu")
-    if len(frames.vertices) != len(x):
-        ap.exit(2, f"{args.npz}: {len(x)} frames, but {args.motion} at {args.seconds:g} s has "
-                   f"{len(frames.vertices)}\n")
-    frames = translate_frames(frames, np.array([0.0, floor_offset(frames), 0.0]))  # as sim.simulate
-    r = stretch_report(x, rest, faces, body.rest_mesh(), frames.vertices, args.front_z)
+    if skin is None:  # pose the body again, as sim.simulate placed it (floor offset of frame 0)
+        if not args.motion:
+            ap.exit(2, f"{args.npz}: holds no body positions; give --motion (and --seconds) to pose it\n")
+        motion = benchmark_motion(args.motion, body, args.seconds, args.motion_skeleton)
+        frames = body.pose_motion(motion, device="cpu")
+        frames = translate_frames(frames, np.array([0.0, floor_offset(frames), 0.0]))
+        skin = frames.vertices
+    if len(skin) != len(x) or skin.shape[1] != body.num_vertices:
+        ap.exit(2, f"{args.npz}: {len(x)} garment frames against body positions of shape {skin.shape} "
+                   f"(the default body has {body.num_vertices} vertices)\n")
+    r = stretch_report(x, rest, faces, body.rest_mesh(), skin, args.front_z)
     print(json.dumps({k: v for k, v in r.items() if k != "per_frame"}, indent=1))
 
 

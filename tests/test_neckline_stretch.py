@@ -49,3 +49,35 @@ def test_report_separates_cloth_stretch_from_the_skin_under_it():
     np.testing.assert_allclose([r["front_chord_ratio"], r["front_chord_skin_ratio"]], [1.2, 1.1], atol=1e-9)
     assert abs(r["skin_distance_at_rest_mm"] - 10.0) < 0.5  # 1 cm between the tubes at rest
     assert r["per_frame"]["front"][0] == 0.0
+
+
+def test_the_command_reads_the_body_the_file_holds(tmp_path, monkeypatch, capsys):
+    """A worst_edges --save file carries the body as simulated: the skin is read from it (no motion
+    to rebuild, so no skeleton to get wrong); a file without it and without --motion is refused."""
+    import json
+    import sys
+
+    import pytest
+
+    from benchmarks import neckline_stretch
+    from sim.bodies.default import load_default_body
+
+    body = load_default_body().rest_mesh()
+    v, f = _tube(36, 4, 0.08, 0.06)
+    v = v + [0.0, 0.2, 0.03]  # a collar around the default body's neck (its front: rest z above 0.1)
+    x = np.stack([v, v + (v - [0.0, 0.0, 0.03]) * [0.2, 0.0, 0.2]])  # 20 % wider about its axis
+    skin = np.stack([body, body + (body - [0.0, 0.0, 0.03]) * [0.1, 0.0, 0.1]])  # the skin 10 % wider
+    path = tmp_path / "t_walk.npz"
+    np.savez(path, x=x, rest=v, faces=f, body=skin)
+    monkeypatch.setattr(sys, "argv", ["neckline_stretch", str(path)])
+    neckline_stretch.main()
+    r = json.loads(capsys.readouterr().out)
+    assert r["worst_frame"] == 1 and abs(r["loop_strain"] - 0.2) < 1e-6
+    # the body the file holds (its horizontal spans 10 % wider), not one posed again (unstretched)
+    assert 0.05 < r["loop_skin_strain"] <= 0.1 + 1e-6
+    bare = tmp_path / "bare.npz"
+    np.savez(bare, x=x, rest=v, faces=f)
+    monkeypatch.setattr(sys, "argv", ["neckline_stretch", str(bare)])
+    with pytest.raises(SystemExit) as e:
+        neckline_stretch.main()
+    assert e.value.code == 2 and "give --motion" in capsys.readouterr().err
