@@ -70,7 +70,9 @@ def parse_setting(s: str) -> dict:
 def population_motions(n: int, seconds: float, seed: int = 0, body=None, skeleton: str = "body") -> list:
     """``n`` motions of ``seconds`` at 30 fps: the benchmark's walk and run (default parameters)
     first, then walks and runs alternating with speeds drawn uniformly from 1.0-1.8 m/s (walk)
-    and 2.8-4.5 m/s (run), arm swing from 0.7-1.4 (``seed``: the draw)."""
+    and 2.8-4.5 m/s (run), arm swing from 0.7-1.4 (``seed``: the draw); built on ``body``'s own
+    skeleton (None: the default body) or, with ``skeleton="default"``, on SMPL's approximate one
+    (``bench_tshirt.benchmark_motion``)."""
     from benchmarks.bench_tshirt import benchmark_motion
     from sim.bodies.default import load_default_body
 
