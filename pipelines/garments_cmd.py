@@ -170,16 +170,6 @@ def draw_uv_layout(garment, size: int = 1024, *, edges: bool = True):
     return img
 
 
-def parse_resolution(spec: str) -> str | float:
-    if spec in ("coarse", "fine"):
-        return spec
-    try:
-        return float(spec)
-    except ValueError:
-        raise WrinklesInputError(f"--resolution {spec!r}: expected coarse, fine or an edge length in "
-                                 "metres") from None
-
-
 def template_name(name: str) -> str:
     """A template from its name (case, '-' and ' ' ignored)."""
     from sim.garments import TEMPLATES
@@ -192,7 +182,7 @@ def template_name(name: str) -> str:
 
 
 def export(args: argparse.Namespace) -> int:
-    from pipelines.options import package_versions, parse_body_shape, parse_numbers
+    from pipelines.options import package_versions, parse_body_shape, parse_numbers, parse_resolution
     from pipelines.outputs import OutputSet, check_output_path
     from sim.bodies import load_body
     from sim.garments import make_garment

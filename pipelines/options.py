@@ -58,6 +58,17 @@ def parse_numbers(items: list[str], flag: str) -> dict[str, float]:
     return out
 
 
+def parse_resolution(spec: str) -> str | float:
+    """``--resolution``: ``coarse``, ``fine`` or an edge length in metres (one-line error otherwise)."""
+    if spec in ("coarse", "fine"):
+        return spec
+    try:
+        return float(spec)
+    except ValueError:
+        raise WrinklesInputError(f"--resolution {spec!r}: expected coarse, fine or an edge length in "
+                                 "metres") from None
+
+
 def parse_body_shape(body, spec: str | None) -> np.ndarray | None:
     """Betas from ``--shape`` for this body (phenotype names only for the default body)."""
     if spec is None:

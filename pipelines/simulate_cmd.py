@@ -165,16 +165,6 @@ def is_garment_file(spec: str) -> bool:
     return Path(spec).suffix.lower() in MESH_SUFFIXES + USD_SUFFIXES or os.sep in spec or "/" in spec
 
 
-def parse_resolution(spec: str) -> str | float:
-    if spec in ("coarse", "fine"):
-        return spec
-    try:
-        return float(spec)
-    except ValueError:
-        raise WrinklesInputError(f"--resolution {spec!r}: expected coarse, fine or an edge length in "
-                                 "metres") from None
-
-
 def parse_pins(spec: str) -> tuple[str, ...]:
     names = tuple(s.strip() for s in spec.split(",") if s.strip())
     return () if names in ((), ("none",)) else names
@@ -218,7 +208,7 @@ def build_config(args: argparse.Namespace, device: str):
 
 def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
     """The garment ``--garment`` names, with ``--material`` (+ overrides) and its parameters."""
-    from pipelines.options import parse_numbers
+    from pipelines.options import parse_numbers, parse_resolution
     from sim.garments import get_material, load_garment, make_garment
 
     material = get_material(args.material)
@@ -241,7 +231,13 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.options import check_fps, load_body_and_motion, package_versions, parse_numbers
+    from pipelines.options import (
+        check_fps,
+        load_body_and_motion,
+        package_versions,
+        parse_numbers,
+        parse_resolution,
+    )
     from sim.device import resolve_device
     from sim.quality import SimulationError
     from sim.simulate import simulate
