@@ -45,8 +45,6 @@ def crotch_gap(x: np.ndarray, rest: np.ndarray, body: np.ndarray, body_faces: np
     Args:
         x: garment positions (T, V, 3); rest: (V, 3); body: body positions (T, B, 3); body_faces (F, 3).
     """
-    from scipy.spatial import cKDTree
-
     c = crotch_point(rest)
     drop, dist = [], []
     for f in range(len(x)):
@@ -54,7 +52,7 @@ def crotch_gap(x: np.ndarray, rest: np.ndarray, body: np.ndarray, body_faces: np
         cy, cz = float(x[f, c, 1]), float(x[f, c, 2])
         above = p[(np.abs(p[:, 2] - cz) < window) & (p[:, 1] > cy - 0.01)]
         drop.append(float(above[:, 1].min() - cy) * 1000.0 if len(above) else float("nan"))
-        dist.append(float(cKDTree(body[f]).query(x[f, c])[0]) * 1000.0)
+        dist.append(float(np.linalg.norm(body[f] - x[f, c], axis=1).min()) * 1000.0)
     d = np.asarray(drop)
     return {"crotch_vertex": c, "rest_position": rest[c].tolist(), "drop_mm": d.round(1).tolist(),
             "nearest_body_mm": np.round(dist, 1).tolist(),

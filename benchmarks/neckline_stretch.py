@@ -77,7 +77,7 @@ def stretch_report(x: np.ndarray, rest: np.ndarray, faces: np.ndarray, body_rest
 
 
 def main() -> None:
-    from benchmarks.bench_tshirt import add_skeleton_argument, benchmark_motion
+    from benchmarks.bench_tshirt import benchmark_motion
     from sim.bodies.default import load_default_body
     from sim.bodies.placement import floor_offset, translate_frames
 
@@ -85,10 +85,10 @@ def main() -> None:
     ap.add_argument("npz", help="a file written by worst_edges --save (one motion)")
     ap.add_argument("--motion", default="",
                     help="the motion that file holds (walk, run, ...), to pose the body again where the "
-                    "file has no body positions (files written before session 43); otherwise unused")
+                    "file has no body positions (files written before session 43, so on SMPL's approximate "
+                    "skeleton, as every benchmark then built its motions); otherwise unused")
     ap.add_argument("--seconds", type=float, default=2.0, help="motion length [s] of that run")
     ap.add_argument("--front-z", type=float, default=0.1, help="rest z [m] above which the loop is front")
-    add_skeleton_argument(ap)
     args = ap.parse_args()
     try:
         d = np.load(args.npz)
@@ -100,7 +100,7 @@ def main() -> None:
     if skin is None:  # pose the body again, as sim.simulate placed it (floor offset of frame 0)
         if not args.motion:
             ap.exit(2, f"{args.npz}: holds no body positions; give --motion (and --seconds) to pose it\n")
-        motion = benchmark_motion(args.motion, body, args.seconds, args.motion_skeleton)
+        motion = benchmark_motion(args.motion, body, args.seconds, "default")
         frames = body.pose_motion(motion, device="cpu")
         frames = translate_frames(frames, np.array([0.0, floor_offset(frames), 0.0]))
         skin = frames.vertices
