@@ -112,9 +112,11 @@ def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
                                                      "fine": [5.0 / 3.0, 2.0, 3.0]}
     with pytest.raises(WrinklesInputError, match="retry_factors"):
         SimulationConfig(retry_factors=[2.0, 1.5])
-    # every template's default parameters (session 44: the tank top's armholes rounded)
+    # every template's default parameters (session 44: the tank top's armholes rounded; session 49:
+    # lowered to 5 cm below the armpit, the shirts keep 3 cm)
     templates = simulator_defaults()["templates"]
     assert templates["tank_top"]["armhole_fillet"] == 0.08 and templates["t_shirt"]["armhole_fillet"] == 0.0
+    assert templates["tank_top"]["armhole_depth"] == 0.05 and templates["t_shirt"]["armhole_depth"] == 0.03
     assert templates["t_shirt"]["sleeve_length"] == 0.2 and len(templates) == 8
     with pytest.raises(WrinklesInputError, match="iterations must be an integer >= 0"):
         SimulationConfig(iterations=-1)
