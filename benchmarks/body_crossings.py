@@ -20,9 +20,12 @@ crossing edges and per skinning joint the frames and counts, plus the totals
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import numpy as np
+
+from pipelines.options import join_negative_values
 
 
 def main() -> None:
@@ -43,7 +46,7 @@ def main() -> None:
                     help="a parameter of the procedural motion, e.g. speed=2.5 (repeatable)")
     ap.add_argument("--shape", default="", metavar="B1,B2,...", help="body shape (betas; default: mean)")
     ap.add_argument("--tag", default="")
-    args = ap.parse_args()
+    args = ap.parse_args(join_negative_values(sys.argv[1:]))
     params = _numbers(args.motion_param, "--motion-param", lambda out: None)
     body = load_default_body()
     betas = None

@@ -36,11 +36,13 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import sys
 import time
 
 import numpy as np
 
 from benchmarks.common import machine, write_result
+from pipelines.options import join_negative_values
 
 
 def _edge_rows(keys, worst, strain, rest, e, tris, panel, names) -> list[dict]:
@@ -189,7 +191,7 @@ def main() -> None:
     add_material_argument(ap)
     add_skeleton_argument(ap)
     ap.add_argument("--tag", default="")
-    args = ap.parse_args()
+    args = ap.parse_args(join_negative_values(sys.argv[1:]))
     material = material_changes(args)
     params = template_params(args)
     motion_params = _numbers(args.motion_param, "--motion-param", lambda out: None)

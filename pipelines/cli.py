@@ -75,8 +75,10 @@ def add_common_arguments(p: argparse.ArgumentParser, *, seed: bool = True, devic
 
 
 def main(argv: list[str] | None = None) -> int:
+    from pipelines.options import join_negative_values
+
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
     if not getattr(args, "command", None):
         parser.print_help()
         return EXIT_USAGE

@@ -34,6 +34,43 @@ def add_body_arguments(p: argparse.ArgumentParser) -> None:
                         "named phenotype values ('height=0.8,weight=0.3')")
 
 
+NUMBER_LIST_OPTIONS = ("--shape",)
+"""Options whose value may be a comma list of numbers starting with a minus sign (betas)."""
+
+
+def _is_number_list(token: str) -> bool:
+    parts = token.split(",")
+    try:
+        [float(x) for x in parts]
+    except ValueError:
+        return False
+    return all(x.strip() for x in parts)
+
+
+def join_negative_values(argv: list[str], options: tuple[str, ...] = NUMBER_LIST_OPTIONS) -> list[str]:
+    """``["--shape", "-1.2,0.5"]`` -> ``["--shape=-1.2,0.5"]``.
+
+    argparse takes a value that starts with ``-`` for an option unless it is one plain negative
+    number, so betas whose first value is negative stopped with "expected one argument". A
+    value of one of ``options`` that is a comma list of numbers is joined to its option; every
+    other token, and everything after ``--``, is left as it was.
+    """
+    out: list[str] = []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--":
+            return out + list(argv[i:])
+        value = argv[i + 1] if i + 1 < len(argv) else ""
+        if a in options and value.startswith("-") and _is_number_list(value):
+            out.append(f"{a}={value}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
 def parse_params(items: list[str], flag: str = "--param") -> dict[str, float | str]:
     """``["speed=1.5", "side=left"]`` -> ``{"speed": 1.5, "side": "left"}`` (numbers where they parse)."""
     out: dict[str, float | str] = {}

@@ -120,7 +120,7 @@ def write(path: Path, data: bytes | str) -> Path:
 
 
 @pytest.mark.parametrize("case", ["unknown_motion", "bad_bvh", "corrupt_model", "missing_model",
-                                  "nan_amass", "bad_suffix", "bad_shape", "bad_param"])
+                                  "nan_amass", "bad_suffix", "bad_shape", "negative_shape", "bad_param"])
 def test_bad_input_is_one_line_exit_2_no_output(tmp_path, case):
     out = tmp_path / "o.usda"
     args = ["body", "--out", str(out), "--device", "cpu", "--quiet", "--duration", "0.2"]
@@ -152,6 +152,11 @@ def test_bad_input_is_one_line_exit_2_no_output(tmp_path, case):
     elif case == "bad_shape":
         args += ["--shape", "height=abc"]
         needles = ("height",)
+    elif case == "negative_shape":
+        # betas starting with a minus sign reach the shape parser (argparse alone stops at "--shape
+        # expected one argument"), which names the count
+        args += ["--shape", ",".join(["-0.5"] * 21)]
+        needles = ("--shape", "21 betas", "16")
     else:
         args += ["--param", "wings=2"]
         needles = ("wings",)
@@ -159,6 +164,21 @@ def test_bad_input_is_one_line_exit_2_no_output(tmp_path, case):
     assert_user_error(proc, *needles)
     assert list(tmp_path.glob("o.*")) == []
     assert not any(p.name.startswith(".o.") for p in tmp_path.iterdir())
+
+
+def test_negative_betas_are_joined_to_their_option():
+    from pipelines.cli import build_parser
+    from pipelines.options import join_negative_values
+
+    argv = ["body", "--shape", "-1.2,0.5", "--out", "a.usda", "--seed", "-1"]
+    joined = join_negative_values(argv)
+    assert joined == ["body", "--shape=-1.2,0.5", "--out", "a.usda", "--seed", "-1"]
+    assert build_parser().parse_args(joined).shape == "-1.2,0.5"
+    assert join_negative_values(["--shape", "-2"]) == ["--shape=-2"]
+    # not number lists, other options, a missing value and everything after "--" stay as they are
+    for same in (["--shape", "height=0.5"], ["--shape", "-h"], ["--shape", "-1,,2"], ["--shape"],
+                 ["--shape=-1,2"], ["--body", "-1,2"], ["--", "--shape", "-1,2"]):
+        assert join_negative_values(same) == same
 
 
 def test_interrupted_preview_leaves_nothing(tmp_path, monkeypatch):
