@@ -234,7 +234,10 @@ def main() -> None:
                    for n in names]
     except WrinklesInputError as e:
         _option_error("--motion-param", e)
-    g, _ = build_garment(body, args.vertices, material, args.garment, betas=betas, **params)
+    try:
+        g, _ = build_garment(body, args.vertices, material, args.garment, betas=betas, **params)
+    except WrinklesInputError as e:  # a size the template refuses (its edge length's range)
+        _option_error("--vertices", e)
     cfg = SimulationConfig(**{"device": device, "solver": json.loads(args.solver),
                               "keep_prelude": args.keep_prelude, **setting, **sim_fields})
     runs, frames = {}, {}

@@ -167,12 +167,14 @@ def test_check_frame_names_frame_and_cause():
                                  ["--shape", ",".join(["0.1"] * 17)], ["--motion-param", "speed=fast"],
                                  ["--motion-param", "no_such_param=1"], ["--sim", "{pinned"],
                                  ["--sim", '{"no_such_field": 1}'], ["--solver", "[1]"],
-                                 ["--sim", '{"substeps": 20}'], ["--sim", '{"pinned": "waistband"}']])
+                                 ["--sim", '{"substeps": 20}'], ["--sim", '{"pinned": "waistband"}'],
+                                 ["--shape", ",".join(["-0.1"] * 17)], ["--vertices", "10"]])
 def test_worst_edges_refuses_bad_options_with_status_2(bad, monkeypatch, capsys):
     """``benchmarks.worst_edges`` with a malformed ``--param`` / ``--setting`` / ``--shape`` /
     ``--motion-param`` / ``--sim`` / ``--solver``, a ``--sim`` field SimulationConfig lacks, an
-    unknown template or motion parameter or more betas than the body has: a one-line error naming
-    the option, exit status 2, before any simulation."""
+    unknown template or motion parameter, more betas than the body has (also with a leading minus
+    sign) or a size the template refuses: a one-line error naming the option, exit status 2, before
+    any simulation."""
     from benchmarks import worst_edges
 
     monkeypatch.setattr("sys.argv", ["worst_edges", "--device", "cpu", "--seconds", "0.1", *bad])
