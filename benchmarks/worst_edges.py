@@ -236,8 +236,8 @@ def main() -> None:
         _option_error("--motion-param", e)
     try:
         g, _ = build_garment(body, args.vertices, material, args.garment, betas=betas, **params)
-    except WrinklesInputError as e:  # a size the template refuses (its edge length's range)
-        _option_error("--vertices", e)
+    except WrinklesInputError as e:  # a size (edge length) or a parameter the template refuses on this body
+        _option_error("--vertices / --param" if params else "--vertices", e)
     cfg = SimulationConfig(**{"device": device, "solver": json.loads(args.solver),
                               "keep_prelude": args.keep_prelude, **setting, **sim_fields})
     runs, frames = {}, {}
