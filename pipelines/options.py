@@ -39,12 +39,11 @@ NUMBER_LIST_OPTIONS = ("--shape",)
 
 
 def _is_number_list(token: str) -> bool:
-    parts = token.split(",")
-    try:
-        [float(x) for x in parts]
+    try:  # an empty item ("-1,,2") fails float() too
+        [float(x) for x in token.split(",")]
     except ValueError:
         return False
-    return all(x.strip() for x in parts)
+    return True
 
 
 def join_negative_values(argv: list[str], options: tuple[str, ...] = NUMBER_LIST_OPTIONS) -> list[str]:
