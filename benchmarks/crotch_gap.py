@@ -25,6 +25,9 @@ import numpy as np
 
 from sim.garments.templates import midplane_crossings
 
+BELOW = (0.01, 0.03, 0.05, 0.08)
+"""Depths below the body's crotch [m] at which ``thigh_gap`` measures the room between the thighs."""
+
 MID_PLANE = 1e-6
 """Rest vertices with |x| below this [m] lie in the mid-sagittal plane (the bridge is built at x = 0)."""
 
@@ -37,25 +40,53 @@ def crotch_point(rest: np.ndarray) -> int:
     return int(on[np.argmin(rest[on, 1])])
 
 
+def thigh_gap(body: np.ndarray, faces: np.ndarray, y: float, z: float) -> float:
+    """Room between the thighs [m] along the line (y, z) parallel to x: the distance between the
+    nearest points where that line crosses the body's surface on either side of the plane x = 0
+    (inf where it misses a side). Crossings are found in the (y, z) projection of every triangle."""
+    t = body[faces]  # (F, 3, 3)
+    p = np.array([y, z])
+    a, b, c = t[:, 0, 1:], t[:, 1, 1:], t[:, 2, 1:]
+    d = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    ok = np.abs(d) > 1e-14
+    ds = np.where(ok, d, 1.0)
+    u = ((b[:, 0] - p[0]) * (c[:, 1] - p[1]) - (c[:, 0] - p[0]) * (b[:, 1] - p[1])) / ds
+    v = ((c[:, 0] - p[0]) * (a[:, 1] - p[1]) - (a[:, 0] - p[0]) * (c[:, 1] - p[1])) / ds
+    w = 1.0 - u - v
+    hit = ok & (u >= 0) & (v >= 0) & (w >= 0)
+    xs = (u[:, None] * t[:, 0, :1] + v[:, None] * t[:, 1, :1] + w[:, None] * t[:, 2, :1])[hit, 0]
+    pos, neg = xs[xs > 0], xs[xs < 0]
+    if not len(pos) or not len(neg):
+        return float("inf")
+    return float(pos.min() - neg.max())
+
+
 def crotch_gap(x: np.ndarray, rest: np.ndarray, body: np.ndarray, body_faces: np.ndarray,
                window: float = 0.02) -> dict:
     """Per frame: C's drop below the body's crotch [mm] (NaN where no body crossing lies within
-    ``window`` in z of C and above C - 1 cm) and C's distance to the nearest body vertex [mm].
+    ``window`` in z of C and above C - 1 cm), C's distance to the nearest body vertex [mm] and the
+    room between the thighs ``BELOW`` the body's crotch at C's z (``thigh_gap``) [mm].
 
     Args:
         x: garment positions (T, V, 3); rest: (V, 3); body: body positions (T, B, 3); body_faces (F, 3).
     """
     c = crotch_point(rest)
-    drop, dist = [], []
+    drop, dist, gaps = [], [], []
     for f in range(len(x)):
         p = midplane_crossings(body[f], body_faces)
         cy, cz = float(x[f, c, 1]), float(x[f, c, 2])
         above = p[(np.abs(p[:, 2] - cz) < window) & (p[:, 1] > cy - 0.01)]
-        drop.append(float(above[:, 1].min() - cy) * 1000.0 if len(above) else float("nan"))
+        crotch = float(above[:, 1].min()) if len(above) else float("nan")
+        drop.append((crotch - cy) * 1000.0)
         dist.append(float(np.linalg.norm(body[f] - x[f, c], axis=1).min()) * 1000.0)
+        gaps.append([thigh_gap(body[f], body_faces, crotch - b, cz) * 1000.0 for b in BELOW])
     d = np.asarray(drop)
+    g = np.asarray(gaps).reshape(-1, len(BELOW))
     return {"crotch_vertex": c, "rest_position": rest[c].tolist(), "drop_mm": d.round(1).tolist(),
-            "nearest_body_mm": np.round(dist, 1).tolist(),
+            "nearest_body_mm": np.round(dist, 1).tolist(), "thigh_gap_below_m": list(BELOW),
+            "thigh_gap_mm": g.round(1).tolist(),
+            "least_thigh_gap_mm": [round(float(col[np.isfinite(col)].min()), 1) if np.isfinite(col).any()
+                                   else float("nan") for col in g.T],
             "first_frame_drop_mm": float(d[0]), "max_drop_mm": float(np.nanmax(d)) if np.isfinite(d).any()
             else float("nan")}
 
@@ -77,8 +108,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"crotch_gap: {args.npz}: {e}", file=sys.stderr)
         return 2
     for f in range(0, len(r["drop_mm"]), max(args.every, 1)):
+        gap = " / ".join(f"{v:.0f}" for v in r["thigh_gap_mm"][f])
         print(f"frame {f}: C {r['drop_mm'][f]:.0f} mm below the body's crotch, "
-              f"{r['nearest_body_mm'][f]:.0f} mm from the nearest body vertex")
+              f"{r['nearest_body_mm'][f]:.0f} mm from the nearest body vertex; thighs {gap} mm apart "
+              f"{' / '.join(f'{b * 100:g}' for b in BELOW)} cm below the crotch")
+    print(f"C's largest drop {r['max_drop_mm']:.0f} mm; the thighs' least gaps "
+          f"{' / '.join(f'{v:.0f}' for v in r['least_thigh_gap_mm'])} mm")
     if args.tag:
         from benchmarks.common import write_result
         write_result(f"crotch_gap{args.tag}", {"file": args.npz, "window": args.window, **r})

@@ -55,3 +55,38 @@ def test_bad_file_exits_2_with_one_line(tmp_path, capsys):
     assert main([str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and str(bad) in err
+
+
+def _wall(x: float, y0: float, y1: float, z0: float, z1: float):
+    """A vertical quad in the plane x = const (a thigh's inner face), y in [y0, y1], z in [z0, z1]."""
+    v = np.array([[x, y0, z0], [x, y1, z0], [x, y1, z1], [x, y0, z1]])
+    return v, np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def test_thigh_gap_is_the_distance_between_the_nearest_faces_either_side():
+    """Walls at x = -0.012 and x = +0.009, with farther ones (x = -0.05, +0.07) behind them on the
+    same line: 21 mm. Off the walls' extent in y a side is missed: inf."""
+    from benchmarks.crotch_gap import thigh_gap
+
+    parts = [_wall(-0.012, -0.5, -0.3, -0.1, 0.1), _wall(0.009, -0.5, -0.3, -0.1, 0.1),
+             _wall(-0.05, -0.5, -0.3, -0.1, 0.1), _wall(0.07, -0.6, -0.3, -0.1, 0.1)]
+    v = np.concatenate([p[0] for p in parts])
+    f = np.concatenate([p[1] + 4 * k for k, p in enumerate(parts)])
+    assert thigh_gap(v, f, -0.4, 0.02) == pytest.approx(0.021, abs=1e-12)
+    assert thigh_gap(v, f, -0.55, 0.0) == float("inf")  # only the x = +0.07 wall reaches y = -0.55
+
+
+def test_room_between_the_thighs_is_reported_per_frame_below_the_crotch():
+    """The crotch plate at y = -0.37 over walls 20 mm apart that move to 12 mm in frame 1 from 3 cm
+    below it (y < -0.40): the gaps 1 / 3 / 5 / 8 cm below the crotch follow, and the least per depth."""
+    plate, fp = _plate(-0.37, 0.0, 0.06)
+    rest = _garment()
+    frames = []
+    for near in (0.010, 0.006):
+        parts = [(plate, fp), _wall(-0.010, -0.395, -0.36, -0.1, 0.1), _wall(0.010, -0.395, -0.36, -0.1, 0.1),
+                 _wall(-near, -0.6, -0.395, -0.1, 0.1), _wall(near, -0.6, -0.395, -0.1, 0.1)]
+        frames.append(np.concatenate([p[0] for p in parts]))
+    faces = np.concatenate([p[1] + 4 * k for k, p in enumerate(parts)])
+    r = crotch_gap(np.stack([rest, rest]), rest, np.stack(frames), faces)
+    np.testing.assert_allclose(r["thigh_gap_mm"], [[20, 20, 20, 20], [20, 12, 12, 12]], atol=1e-6)
+    np.testing.assert_allclose(r["least_thigh_gap_mm"], [20, 12, 12, 12], atol=1e-6)

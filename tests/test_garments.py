@@ -364,11 +364,11 @@ def test_trousers_split_into_two_legs(garments):
 @pytest.mark.parametrize("category", ["shorts", "trousers"])
 def test_legs_leave_the_mid_plane_below_the_bridge(garments, category, shape):
     """The two legs' inner rows do not lie on the mid-sagittal plane, where the other leg's lie:
-    off the seams, no leg vertex is within half ``LEG_CLIP`` of it (before session 42 the rows
+    off the seams, no leg vertex is within a quarter of ``leg_gap`` of it (before session 42 the rows
     blending from the crotch bridge, at x = 0, left 54 of the shorts' and 21 of the trousers'
     there, faces of one leg on the other's: the shorts crossed themselves within four frames of
     the settle on the default body; one vertex is allowed, the back end of the bridge's row)."""
-    from sim.garments.templates import LEG_CLIP
+    from sim.garments.templates import PantsParams
 
     g = garments[(category, shape)]
     names = list(g.panel_names)
@@ -377,8 +377,31 @@ def test_legs_leave_the_mid_plane_below_the_bridge(garments, category, shape):
         panels_of[np.unique(g.faces[g.panel_ids == k]), k] = True
     leg = panels_of[:, [names.index("left_leg"), names.index("right_leg")]].any(axis=1)
     seam = panels_of.sum(axis=1) > 1
-    mid = leg & ~seam & (np.abs(g.rest_vertices[:, 0]) < 0.5 * LEG_CLIP)
+    mid = leg & ~seam & (np.abs(g.rest_vertices[:, 0]) < 0.25 * PantsParams().leg_gap)
     assert mid.sum() <= 1, np.round(g.rest_vertices[mid], 4)
+
+
+@pytest.mark.parametrize("gap", [0.003, 0.01])
+def test_leg_gap_is_the_least_distance_between_the_legs_inner_walls(body, gap):
+    """``leg_gap``: off the seams, the shorts' leg vertices lie at least half the gap from the
+    mid-sagittal plane (all but 3 % exactly; the rows' resampling leaves a few up to 0.8 mm
+    nearer), and the inner walls between the thighs lie at exactly that distance (the cut is
+    where the legs' ease would have crossed the plane): the walls face each other ``leg_gap``
+    apart. The legs' rows start at the bridge (x = 0), so the seam is excluded."""
+    g = make_garment("shorts", body, leg_gap=gap)
+    names = list(g.panel_names)
+    panels_of = np.zeros((len(g.rest_vertices), len(names)), bool)
+    for k in range(len(names)):
+        panels_of[np.unique(g.faces[g.panel_ids == k]), k] = True
+    leg = panels_of[:, [names.index("left_leg"), names.index("right_leg")]].any(axis=1)
+    off_seam = leg & (panels_of.sum(axis=1) == 1)
+    ax = np.abs(g.rest_vertices[off_seam, 0])
+    assert ax.min() >= 0.5 * gap - 8e-4
+    assert (ax >= 0.5 * gap - 1e-6).mean() > 0.97
+    on_wall = np.abs(ax - 0.5 * gap) < 1e-6
+    assert on_wall.sum() >= 20, on_wall.sum()  # a wall of vertices, both legs
+    walls = g.rest_vertices[off_seam][on_wall]
+    assert (walls[:, 0] > 0).any() and (walls[:, 0] < 0).any()
 
 
 @pytest.mark.parametrize("category", list(TEMPLATES))

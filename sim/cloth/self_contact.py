@@ -164,6 +164,7 @@ class SelfContactData:
     rest: wp.array(dtype=wp.vec3)
     component: wp.array(dtype=wp.int32)
     exclusion: float
+    ring_exclusion: int
     reference: wp.array(dtype=wp.vec3)
 
 
@@ -663,16 +664,49 @@ def rest_distance_edges(sc: SelfContactData, ea: wp.vec2i, eb: wp.vec2i) -> floa
 
 
 @wp.func
-def rest_class(sc: SelfContactData, rest_distance: float) -> int:
-    """How a non-incident pair found by detection is treated by its rest distance: -1 left to
-    the elastic forces (closer than ``rest_exclusion``, 0 by default); 0 a contact with the full
-    radius; ``reduced_radius_code`` for a pair of one piece closer than the radius at rest (it
-    does not lower the displacement bounds' ``d_min`` either: at rest it is already that
-    close)."""
+def adjacent(sc: SelfContactData, u: int, c: int) -> bool:
+    """Whether a mesh edge joins vertices ``u`` and ``c``."""
+    for k in range(sc.vertex_edge_offsets[u], sc.vertex_edge_offsets[u + 1]):
+        e = sc.mesh_edges[sc.vertex_edge_ids[k]]
+        if e[0] == c or e[1] == c:
+            return True
+    return False
+
+
+@wp.func
+def ring_triangle(sc: SelfContactData, u: int, tri: wp.vec3i) -> bool:
+    """Whether the non-incident triangle ``tri`` has a corner joined to vertex ``u`` by an edge
+    (it lies in ``u``'s second ring: about 0.87 edge lengths away on a flat regular mesh), with
+    the ring exclusion on."""
+    if sc.ring_exclusion == 0:
+        return False
+    return adjacent(sc, u, tri[0]) or adjacent(sc, u, tri[1]) or adjacent(sc, u, tri[2])
+
+
+@wp.func
+def ring_edges(sc: SelfContactData, ea: wp.vec2i, eb: wp.vec2i) -> bool:
+    """Whether edges ``ea`` and ``eb`` (sharing no end) have ends joined by an edge, with the
+    ring exclusion on."""
+    if sc.ring_exclusion == 0:
+        return False
+    return (adjacent(sc, ea[0], eb[0]) or adjacent(sc, ea[0], eb[1]) or adjacent(sc, ea[1], eb[0])
+            or adjacent(sc, ea[1], eb[1]))
+
+
+@wp.func
+def rest_class(sc: SelfContactData, rest_distance: float, ring: bool) -> int:
+    """How a non-incident pair found by detection is treated by its rest distance and whether
+    its primitives are joined by an edge (``ring``, ``ring_triangle`` / ``ring_edges``): -1 left
+    to the elastic forces (closer than ``rest_exclusion``, 0 by default, or a ring pair at least
+    the radius apart at rest); 0 a contact with the full radius; ``reduced_radius_code`` for a
+    pair of one piece closer than the radius at rest, ring or not (it does not lower the
+    displacement bounds' ``d_min`` either: at rest it is already that close)."""
     if rest_distance < sc.exclusion:
         return -1
     if rest_distance < sc.radius:
         return reduced_radius_code(rest_distance, sc.radius)
+    if ring:
+        return -1
     return 0
 
 
@@ -846,7 +880,7 @@ def vertex_triangle_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v
     stored = list_pair(sc, d, v_rel, margin, speed_factor, h)
     if not stored and d >= dmin:
         return dmin, count
-    code = rest_class(sc, rest_distance_triangle(sc, u, tri))
+    code = rest_class(sc, rest_distance_triangle(sc, u, tri), ring_triangle(sc, u, tri))
     if code < 0:
         return dmin, count
     if stored:
@@ -880,7 +914,7 @@ def edge_edge_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v: wp.a
         stored = st[0] > 0.0 and st[0] < 1.0 and st[1] > 0.0 and st[1] < 1.0
     if not stored and d >= dmin:
         return dmin, count
-    code = rest_class(sc, rest_distance_edges(sc, ea, eb))
+    code = rest_class(sc, rest_distance_edges(sc, ea, eb), ring_edges(sc, ea, eb))
     if code < 0:
         return dmin, count
     if code == 0:
@@ -1790,6 +1824,13 @@ class SelfContact:
             session 18 such pairs were excluded, and a fine t-shirt's sleeve caps and trousers'
             crotch seams had no self-contact). Pairs farther apart at rest, even a ring or two
             away, are in contact at ``radius`` when a fold brings them together.
+        ring_exclusion: leave to the elastic forces the pairs at least ``radius`` apart at rest
+            whose primitives an edge joins (a triangle with a corner next to the vertex, edges
+            with neighbouring ends: about 0.87 edge lengths apart on a flat regular mesh). Off by
+            default: those pairs keep tight folds of coarse meshes from passing through
+            themselves. On fine meshes (5.5 mm edges) they lie within the 4 mm query margin as
+            soon as the cloth moves, and mark most particles as in contact, where the coarse
+            correction is capped (``VBDConfig.self_contact_ring_exclusion``, session 50).
         speed_factor: the query radius is at least ``speed_factor |v| h``.
         bounds: apply the displacement bounds (intersection-free guarantee); off: penalty only.
         capacity: pairs kept per vertex / triangle / edge.
@@ -1836,7 +1877,8 @@ class SelfContact:
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
-                 bounds: bool = True, side_memory: bool = False, relative_lists: bool = True,
+                 ring_exclusion: bool = False, bounds: bool = True, side_memory: bool = False,
+                 relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
                  ee_interior: bool = False, slots: int = 1, lookahead: float | None = None,
                  broadphase: str = "bvh", cluster_size: int = 32, cluster_split: int = 1,
@@ -1915,6 +1957,7 @@ class SelfContact:
         if rest_exclusion < 0.0:
             raise ValueError(f"SelfContact: rest_exclusion must be >= 0, got {rest_exclusion}")
         sc.exclusion = float(rest_exclusion)
+        sc.ring_exclusion = 1 if ring_exclusion else 0
         sc.reference = w.zeros(model.instance_count, dtype=w.vec3, device=d)
         if slots < 1 or (slots > 1 and side_memory):
             raise ValueError(f"SelfContact: slots must be >= 1, and 1 with side_memory (a detection's "
@@ -2273,5 +2316,6 @@ def disabled_data(device) -> SelfContactData:
     sc.pair_ref = sc.rest
     sc.component = w.zeros(1, dtype=w.int32, device=device)
     sc.exclusion = 0.0
+    sc.ring_exclusion = 0
     sc.reference = sc.rest
     return sc

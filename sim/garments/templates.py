@@ -191,6 +191,9 @@ class PantsParams:
         waist_ease: looseness at the waistband [m].
         crotch_ease: extra gap below the body's crotch [m].
         waist_offset: waistband height above SMPL's spine1 joint [m].
+        leg_gap: least distance between the two legs' inner walls [m]: where the thighs are
+            closer than twice the legs' ease, each leg's inner wall is cut flat at half of it
+            from the mid-sagittal plane.
     """
 
     length: float = 1.0
@@ -198,10 +201,9 @@ class PantsParams:
     waist_ease: float = 0.004
     crotch_ease: float = 0.02
     waist_offset: float = 0.0
+    leg_gap: float = 0.003
 
 
-LEG_CLIP = 0.0015
-"""Leg tubes stay at |x| >= 1.5 mm so the two legs never cross between the thighs [m]."""
 BLEND = 0.06
 """Height over which a leg's rows blend from the crotch loop to the leg's own hull [m]."""
 
@@ -347,6 +349,7 @@ def pants_panels(m: BodyMeasure, p: PantsParams, h: float, thickness: float) -> 
     panels = [Panel("front", tuple(front), bottom=None, local_spacing=True),
               Panel("back", tuple(back), bottom=None, local_spacing=True)]
     n_blend = max(2, int(round(BLEND / hv)))
+    clip = 0.5 * p.leg_gap  # leg tubes stay at |x| >= clip so the two legs never cross
     n_fade = max(1, min(n_leg, max(n_blend, int(np.ceil(depth / (0.4 * hv))))))
     for side, sign in (("left", 1.0), ("right", -1.0)):
         if sign > 0:  # counter-clockwise seen from above, starting at the inseam point C
@@ -358,7 +361,7 @@ def pants_panels(m: BodyMeasure, p: PantsParams, h: float, thickness: float) -> 
         leg_mask = m.torso_mask & (sign * v[:, 0] > 0)
 
         def leg_hull(y0: float, y1: float, off: float, leg_mask=leg_mask, sign=sign) -> np.ndarray:
-            return _clip_half_plane(offset_hull(m.band(y0 - half, y1 + half, leg_mask), off), sign, LEG_CLIP)
+            return _clip_half_plane(offset_hull(m.band(y0 - half, y1 + half, leg_mask), off), sign, clip)
 
         h0 = leg_hull(y_c - hv, y_c - hv, ease_at(y_c - hv))
         c0 = h0.mean(axis=0)
@@ -377,7 +380,7 @@ def pants_panels(m: BodyMeasure, p: PantsParams, h: float, thickness: float) -> 
             # off the mid-plane, where the other leg's rows are: the blend from the loop's bridge
             # (x = 0) left both legs' first inner rows in the plane, the two legs' faces one on
             # the other (session 42)
-            row[:, 0] = sign * np.maximum(sign * row[:, 0], LEG_CLIP)
+            row[:, 0] = sign * np.maximum(sign * row[:, 0], clip)
             row[-1] = row[0]
             rows.append(resample(row, h, min_segments=3))
         panels.append(Panel(f"{side}_leg", tuple(rows), top=None, local_spacing=True))
@@ -819,6 +822,7 @@ PARAM_RANGES: dict[str, tuple[float, float]] = {
     "flare": (0.0, 2.0),
     "waist_offset": (-0.15, 0.15),
     "crotch_ease": (0.0, 0.1),
+    "leg_gap": (0.001, 0.05),
     "armhole_depth": (0.0, 0.15),
     "strap_width": (0.02, 0.2),
     "neck_ease": (0.0, 0.1),
