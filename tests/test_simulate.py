@@ -99,6 +99,13 @@ def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
     retry = dataclasses.replace(SimulationConfig(), substeps=SimulationConfig().retry_substeps(19_542)[0])
     assert (retry.vbd_config(19_542).substeps, retry.vbd_config(19_542).iterations) == (23, 8)
     assert simulator_defaults()["iterations"] == {"default": 5, "fine": 8}
+    # self-contact pairs near at rest leave the coarse correction alone on fine garments only
+    # (session 50); a solver override wins; recorded with a dataset
+    exclusion = [SimulationConfig().vbd_config(n).self_contact_coarse_exclusion for n in sizes]
+    assert exclusion == [0.0, 0.0, 0.006, 0.006]
+    assert SimulationConfig(solver={"self_contact_coarse_exclusion": 0.0}).vbd_config(
+        19_542).self_contact_coarse_exclusion == 0.0
+    assert simulator_defaults()["coarse_exclusion"] == {"default": 0.0, "fine": 0.006}
     # automatic retries (session 45): two rungs up to 10k garment vertices, a third (3x) above;
     # a list wins, [] means none; automatic survives the round trip
     assert [SimulationConfig().retry_substeps(n) for n in sizes] == [(20, 24), (20, 24), (23, 28, 42),

@@ -22,7 +22,8 @@ Setup (numpy/scipy, once per distinct garment template, shared by its instances)
 - **coarse system** ``A_c = (1/h^2 + alpha/h) M_c + K_c + C_c`` with ``K_c = P^T K P``
   (Galerkin, sparse), ``M_c = P^T m`` (lumped) and ``C_c = P^T c``, ``c`` the body contact's
   penalty stiffness at particles pressed onto the body plus the self-contact penalty stiffness
-    at particles with cloth-cloth pairs, pressed at the correction (with ``prefactor``: at the
+    at particles with cloth-cloth pairs (``has_pairs``: not those only in pairs closer than
+    ``coarse_exclusion`` at rest, session 50), pressed at the correction (with ``prefactor``: at the
   substep's inertial targets, ``CoarseLevel.prepare``). The residual holds both contacts'
   forces; without their stiffness in ``A_c`` the correction answers them with the membrane
   alone: it pulled supported cloth into the body and blew the t-shirt up (session 22), and it
@@ -43,7 +44,7 @@ the prepared factor),
 on the CPU one thread per instance (``band_solve_kernel``, banded Cholesky);
 ``prolong_kernel`` adds ``P dx_c`` to ``x`` and to the next sweep's snapshot. The prolongated
 move is limited where a move could cross something, since the coarse system is linear and
-blind to geometry: at a particle with self-contact pairs to a quarter of the contact radius
+blind to geometry: at a particle with self-contact pairs (``has_pairs``) to a quarter of the contact radius
 (``SELF_CONTACT_CAP``) and to the sweeps' displacement bound when bounds are on; at a particle
 on the body not deeper than it is or than its thickness shell; at a particle of an instance
 with a body but outside the contact margin to half the margin's room. Every kernel is a gather

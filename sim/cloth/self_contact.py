@@ -165,6 +165,8 @@ class SelfContactData:
     component: wp.array(dtype=wp.int32)
     exclusion: float
     ring_exclusion: int
+    coarse_exclusion: float
+    coarse_pairs: wp.array(dtype=wp.int32)
     reference: wp.array(dtype=wp.vec3)
 
 
@@ -215,6 +217,7 @@ class SolveContactArrays:
     vertex_edge_offsets: Span
     vertex_edge_ids: Span
     vertex_edge_local: Span
+    coarse_pairs: Span
 
 
 SOLVE_CONTACT_SCALARS = (
@@ -226,7 +229,7 @@ SOLVE_CONTACT_ARRAYS = (
     "heavy_count", "bound", "reference", "vt_count", "vt_tri", "vt_ref", "tv_total", "tv_first",
     "tv_vertex", "tv_ref", "ee_total", "ee_first", "ee_edge", "ee_ref", "vt_rk", "tv_rk", "ee_rk",
     "mesh_edges", "particle_color",
-    "vertex_edge_offsets", "vertex_edge_ids", "vertex_edge_local"
+    "vertex_edge_offsets", "vertex_edge_ids", "vertex_edge_local", "coarse_pairs"
 )
 
 
@@ -288,15 +291,17 @@ def contact_view(a: SolveContactArrays) -> SelfContactData:
     sc.vertex_edge_offsets = ints(a.vertex_edge_offsets)
     sc.vertex_edge_ids = ints(a.vertex_edge_ids)
     sc.vertex_edge_local = ints(a.vertex_edge_local)
+    sc.coarse_pairs = ints(a.coarse_pairs)
     return sc
 
 
 @wp.func
 def has_pairs(sc: SelfContactData, i: int) -> bool:
-    """Whether particle ``i`` takes part in a stored self-contact pair (VT, TV or EE); the pair
-    arrays are read only when self-contact is on."""
+    """Whether particle ``i`` takes part in a stored self-contact pair (VT, TV or EE) that holds
+    back the coarse correction (``coarse_pairs``, ``vertex_summary_kernel``: one at least
+    ``coarse_exclusion`` apart at rest); the pair arrays are read only when self-contact is on."""
     if sc.enabled != 0:
-        return sc.vt_count[i] + sc.tv_total[i] + sc.ee_total[i] > 0
+        return sc.coarse_pairs[i] > 0
     return False
 
 
@@ -642,6 +647,10 @@ def point_triangle_distance(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> f
 
 
 FAR = wp.constant(1.0e30)
+NEAR_REST = wp.constant(256)
+"""Bit of a stored pair's ``rk`` (above its radius code, bits 0-7) marking a pair closer than
+``coarse_exclusion`` at rest, which leaves the coarse correction alone (``has_pairs``); masked
+off wherever the code is read."""
 
 
 @wp.func
@@ -677,7 +686,7 @@ def adjacent(sc: SelfContactData, u: int, c: int) -> bool:
 def ring_triangle(sc: SelfContactData, u: int, tri: wp.vec3i) -> bool:
     """Whether the non-incident triangle ``tri`` has a corner joined to vertex ``u`` by an edge
     (it lies in ``u``'s second ring: about 0.87 edge lengths away on a flat regular mesh), with
-    the ring exclusion on."""
+    the ring exclusion on (the test's loads cost the 5k t-shirt 0.5 ms per frame)."""
     if sc.ring_exclusion == 0:
         return False
     return adjacent(sc, u, tri[0]) or adjacent(sc, u, tri[1]) or adjacent(sc, u, tri[2])
@@ -697,10 +706,11 @@ def ring_edges(sc: SelfContactData, ea: wp.vec2i, eb: wp.vec2i) -> bool:
 def rest_class(sc: SelfContactData, rest_distance: float, ring: bool) -> int:
     """How a non-incident pair found by detection is treated by its rest distance and whether
     its primitives are joined by an edge (``ring``, ``ring_triangle`` / ``ring_edges``): -1 left
-    to the elastic forces (closer than ``rest_exclusion``, 0 by default, or a ring pair at least
-    the radius apart at rest); 0 a contact with the full radius; ``reduced_radius_code`` for a
-    pair of one piece closer than the radius at rest, ring or not (it does not lower the
-    displacement bounds' ``d_min`` either: at rest it is already that close)."""
+    to the elastic forces (closer than ``rest_exclusion``, 0 by default, or with
+    ``ring_exclusion`` a ring pair at least the radius apart at rest); 0 a contact with the full
+    radius; ``reduced_radius_code`` for a pair of one piece closer than the radius at rest, ring
+    or not (it does not lower the displacement bounds' ``d_min`` either: at rest it is already
+    that close)."""
     if rest_distance < sc.exclusion:
         return -1
     if rest_distance < sc.radius:
@@ -833,10 +843,12 @@ def store_pair(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), ref: 
                rk: wp.array(dtype=wp.int32), prev_ids: wp.array(dtype=wp.int32),
                prev_ref: wp.array(dtype=wp.vec3),
                prev_counts: wp.array(dtype=wp.int32), side_memory: int, owner: int, capacity: int, count: int,
-               item: int, d: float, diff: wp.vec3, interior: bool, code: int, radius: float) -> int:
+               item: int, d: float, diff: wp.vec3, interior: bool, code: int, radius: float,
+               flags: int) -> int:
     """Put pair ``item`` (distance ``d``, separation ``diff``, closest points ``interior`` or
     not, radius code ``code`` of ``rest_class``) in the list of ``owner`` (``keep_closest``)
-    with its side reference (``track_side``); returns the list's new count. The list keeps the
+    with its side reference (``track_side``) and ``code | flags`` as its ``rk`` (``NEAR_REST``);
+    returns the list's new count. The list keeps the
     pairs nearest their own contact distance: a pair with a reduced radius ranks by ``d`` plus
     the reduction, so seam neighbours resting inside the radius do not crowd out layers that
     met."""
@@ -848,7 +860,7 @@ def store_pair(ids: wp.array(dtype=wp.int32), dist: wp.array(dtype=float), ref: 
     if slot >= 0:
         ref[base + slot] = track_side(prev_ids, prev_ref, prev_counts, owner, side_memory, base, item, diff,
                                       interior)
-        rk[base + slot] = code
+        rk[base + slot] = code | flags
     return count
 
 
@@ -880,13 +892,15 @@ def vertex_triangle_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v
     stored = list_pair(sc, d, v_rel, margin, speed_factor, h)
     if not stored and d >= dmin:
         return dmin, count
-    code = rest_class(sc, rest_distance_triangle(sc, u, tri), ring_triangle(sc, u, tri))
+    rest = rest_distance_triangle(sc, u, tri)
+    code = rest_class(sc, rest, ring_triangle(sc, u, tri))
     if code < 0:
         return dmin, count
     if stored:
         interior = wp.min(wp.min(w[0], w[1]), w[2]) > INTERIOR
         count = store_pair(ids, dist, ref, rk, prev_ids, prev_ref, prev_counts, sc.side_memory, owner,
-                           capacity, count, item, d, diff, interior, code, sc.radius)
+                           capacity, count, item, d, diff, interior, code, sc.radius,
+                           wp.where(rest < sc.coarse_exclusion, NEAR_REST, 0))
     if code > 0:
         return dmin, count
     return wp.min(dmin, d), count
@@ -914,7 +928,8 @@ def edge_edge_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v: wp.a
         stored = st[0] > 0.0 and st[0] < 1.0 and st[1] > 0.0 and st[1] < 1.0
     if not stored and d >= dmin:
         return dmin, count
-    code = rest_class(sc, rest_distance_edges(sc, ea, eb), ring_edges(sc, ea, eb))
+    rest = rest_distance_edges(sc, ea, eb)
+    code = rest_class(sc, rest, ring_edges(sc, ea, eb))
     if code < 0:
         return dmin, count
     if code == 0:
@@ -924,7 +939,7 @@ def edge_edge_candidate(sc: SelfContactData, x: wp.array(dtype=wp.vec3), v: wp.a
         interior = wp.min(wp.min(st[0], 1.0 - st[0]), wp.min(st[1], 1.0 - st[1])) > INTERIOR
         count = store_pair(sc.ee_edge, sc.ee_dist, sc.ee_ref, sc.ee_rk, sc.ee_edge_prev, sc.ee_ref_prev,
                            sc.ee_count_prev, sc.side_memory, e, sc.ee_capacity, count, e2, d, diff,
-                           interior, code, sc.radius)
+                           interior, code, sc.radius, wp.where(rest < sc.coarse_exclusion, NEAR_REST, 0))
     return dmin, count
 
 
@@ -1659,7 +1674,9 @@ def vertex_summary_kernel(
 ):
     """Per vertex, once per detection: the bound ``b_i = gamma min(d_min(i), d_min(incident
     triangles), d_min(incident edges))``; the number of stored pairs of its triangles (TV) and
-    of its edges (EE), and for each incident triangle / edge the number of pairs before it (the
+    of its edges (EE); how many of all its pairs hold back the coarse correction
+    (``coarse_pairs``: those not marked ``NEAR_REST``), and for each
+    incident triangle / edge the number of pairs before it (the
     offsets of the vertex's flattened pair lists, for the list fallback of the solve); and the
     place of the vertex's gather records in the shared pool, a block of ``pair_count`` records
     from ``pair_first`` (-1 where the pool is full; the solve then reads the lists), which
@@ -1680,22 +1697,37 @@ def vertex_summary_kernel(
     wherever it sits."""
     i = wp.tid()
     b = dmin_vertex[i]
+    # pairs that hold back the coarse correction (``has_pairs``): all but those near at rest
+    skip = int(NEAR_REST)
+    vt = sc.vt_count[i]
+    held = int(0)
+    for s in range(vt):
+        if (sc.vt_rk[i * sc.vt_capacity + s] & skip) == 0:
+            held += 1
     tv = int(0)
     for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
         t = vertex_tri_ids[k]
         b = wp.min(b, dmin_tri[t])
         sc.tv_first[k] = tv
-        tv += sc.tv_count[t]
+        n = sc.tv_count[t]
+        tv += n
+        for s in range(n):
+            if (sc.tv_rk[t * sc.tv_capacity + s] & skip) == 0:
+                held += 1
     ee = int(0)
     for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
         e = sc.vertex_edge_ids[k]
         b = wp.min(b, dmin_edge[e])
         sc.ee_first[k] = ee
-        ee += sc.ee_count[e]
+        n = sc.ee_count[e]
+        ee += n
+        for s in range(n):
+            if (sc.ee_rk[e * sc.ee_capacity + s] & skip) == 0:
+                held += 1
     sc.bound[i] = relaxation * b
     sc.tv_total[i] = tv
     sc.ee_total[i] = ee
-    vt = sc.vt_count[i]
+    sc.coarse_pairs[i] = held
     total = vt + tv + ee
     sc.pair_count[i] = total
     first = int(0)
@@ -1831,6 +1863,13 @@ class SelfContact:
             themselves. On fine meshes (5.5 mm edges) they lie within the 4 mm query margin as
             soon as the cloth moves, and mark most particles as in contact, where the coarse
             correction is capped (``VBDConfig.self_contact_ring_exclusion``, session 50).
+        coarse_exclusion: pairs of one piece closer than this [m] at rest leave the coarse
+            correction alone (``has_pairs``: no capped move, no self-contact stiffness in the
+            coarse diagonal for them); they are in contact as ever. 0 (default here): every
+            stored pair holds it back, as until session 50. On fine meshes the neighbours an edge
+            or two apart (4-6 mm at 5.5 mm edges) lie within the 4 mm query margin as soon as
+            the cloth moves, and nearly every particle had pairs: the correction was left out of
+            most of the garment (``VBDConfig.self_contact_coarse_exclusion``).
         speed_factor: the query radius is at least ``speed_factor |v| h``.
         bounds: apply the displacement bounds (intersection-free guarantee); off: penalty only.
         capacity: pairs kept per vertex / triangle / edge.
@@ -1877,7 +1916,8 @@ class SelfContact:
 
     def __init__(self, model, *, radius: float, margin: float, stiffness: float, friction: float,
                  relaxation: float, speed_factor: float, capacity: int, rest_exclusion: float = 0.0,
-                 ring_exclusion: bool = False, bounds: bool = True, side_memory: bool = False,
+                 ring_exclusion: bool = False, coarse_exclusion: float = 0.0, bounds: bool = True,
+                 side_memory: bool = False,
                  relative_lists: bool = True,
                  pool: int = 16, heavy_cap: int = 0, heavy_threshold: int = 16, weight_floor: float = 0.5,
                  ee_interior: bool = False, slots: int = 1, lookahead: float | None = None,
@@ -1958,6 +1998,10 @@ class SelfContact:
             raise ValueError(f"SelfContact: rest_exclusion must be >= 0, got {rest_exclusion}")
         sc.exclusion = float(rest_exclusion)
         sc.ring_exclusion = 1 if ring_exclusion else 0
+        if coarse_exclusion < 0.0:
+            raise ValueError(f"SelfContact: coarse_exclusion must be >= 0, got {coarse_exclusion}")
+        sc.coarse_exclusion = float(coarse_exclusion)
+        sc.coarse_pairs = w.zeros(n, dtype=w.int32, device=d)
         sc.reference = w.zeros(model.instance_count, dtype=w.vec3, device=d)
         if slots < 1 or (slots > 1 and side_memory):
             raise ValueError(f"SelfContact: slots must be >= 1, and 1 with side_memory (a detection's "
@@ -2272,7 +2316,7 @@ DETECTION_OUTPUTS = frozenset((
     "vt_count", "vt_tri", "tv_count", "tv_vertex", "ee_count", "ee_edge", "vt_dist", "tv_dist", "ee_dist",
     "vt_ref", "tv_ref", "ee_ref", "vt_rk", "tv_rk", "ee_rk", "tv_total", "ee_total", "tv_first", "ee_first",
     "pair_first", "pair_count", "pair_verts", "pair_role", "pair_ref", "pair_cursor", "heavy", "heavy_list",
-    "heavy_count", "bound"))
+    "heavy_count", "bound", "coarse_pairs"))
 # the pair lists (``SelfContact.candidates`` has its own)
 LIST_OUTPUTS = frozenset(f"{kind}_{name}" for kind, ids in (("vt", "tri"), ("tv", "vertex"), ("ee", "edge"))
                          for name in ("count", ids, "dist", "ref", "rk"))
@@ -2317,5 +2361,7 @@ def disabled_data(device) -> SelfContactData:
     sc.component = w.zeros(1, dtype=w.int32, device=device)
     sc.exclusion = 0.0
     sc.ring_exclusion = 0
+    sc.coarse_exclusion = 0.0
+    sc.coarse_pairs = empty_i
     sc.reference = sc.rest
     return sc

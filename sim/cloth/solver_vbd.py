@@ -150,6 +150,19 @@ class VBDConfig:
             too (35 / 64) at 4.29 / 4.45 ms per frame, and the fine shorts' crotch still sank
             (46 mm in the settle): the pairs an edge apart keep tight folds of coarse meshes
             from passing through themselves.
+        self_contact_coarse_exclusion: self-contact pairs of one piece closer than this [m] at
+            rest leave the coarse correction alone (``SelfContact``'s ``coarse_exclusion``): they
+            stay in contact, but no longer cap their particles' prolongated moves nor add the
+            self-contact stiffness to the coarse diagonal. 0 (default): every stored pair holds
+            the correction back. The job sets 6 mm for fine garments
+            (``sim.simulate.FINE_COARSE_EXCLUSION``, session 50): at 5.5 mm edges the neighbours
+            an edge or two apart, 4-6 mm at rest, come within the 4 mm query margin as soon as
+            the cloth moves, nearly every particle had pairs, and the correction, which carries
+            a load across the garment, was left out of most of it: a flat fine sheet hanging in
+            denim bounced by 1-2 cm (tests/test_self_contact.py), the fine shorts sank 12 mm in
+            their settle and their crotch 10 cm in the blend. On coarse garments (14-20 mm
+            edges) it only frees the pairs that rest close across a gap (the pants' inner walls
+            3 mm apart), and the coarse trousers' walk then crossed itself (H100, 8 crossings).
         self_contact_side_memory: keep the side each self-contact pair was found on across
             detections and push pairs that crossed back (``sim.cloth.self_contact``). Off by
             default: it clears the t-shirt run's persistent sleeve crossing but makes the walk
@@ -304,6 +317,7 @@ class VBDConfig:
     self_contact_capacity: int = 16
     self_contact_rest_exclusion: float = 0.0
     self_contact_ring_exclusion: bool = False
+    self_contact_coarse_exclusion: float = 0.0
     self_contact_bounds: bool = False
     self_contact_interval: int = 1
     self_contact_rebuild: bool = True
@@ -411,6 +425,9 @@ class VBDConfig:
         if self.self_contact_friction < 0.0:
             raise ValueError(f"VBDConfig.self_contact_friction must be >= 0, got "
                              f"{self.self_contact_friction}")
+        if self.self_contact_coarse_exclusion < 0.0:
+            raise ValueError(f"VBDConfig.self_contact_coarse_exclusion must be >= 0, got "
+                             f"{self.self_contact_coarse_exclusion}")
         if self.self_contact_rest_exclusion < 0.0:
             raise ValueError(f"VBDConfig.self_contact_rest_exclusion must be >= 0, got "
                              f"{self.self_contact_rest_exclusion}")
@@ -529,6 +546,7 @@ class SolverVBD:
                 relaxation=cfg.self_contact_relaxation, speed_factor=cfg.self_contact_speed_factor,
                 capacity=cfg.self_contact_capacity, rest_exclusion=cfg.self_contact_rest_exclusion,
                 ring_exclusion=cfg.self_contact_ring_exclusion,
+                coarse_exclusion=cfg.self_contact_coarse_exclusion,
                 bounds=cfg.self_contact_bounds, side_memory=cfg.self_contact_side_memory,
                 relative_lists=cfg.self_contact_relative_lists, pool=cfg.self_contact_pool,
                 heavy_cap=self.heavy_cap(cuda), heavy_threshold=self._lanes,
