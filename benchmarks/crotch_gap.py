@@ -43,7 +43,9 @@ def crotch_point(rest: np.ndarray) -> int:
 def thigh_gap(body: np.ndarray, faces: np.ndarray, y: float, z: float) -> float:
     """Room between the thighs [m] along the line (y, z) parallel to x: the distance between the
     nearest points where that line crosses the body's surface on either side of the plane x = 0
-    (inf where it misses a side). Crossings are found in the (y, z) projection of every triangle."""
+    (inf where it misses a side). Crossings are found in the (y, z) projection of every triangle.
+    It assumes the plane x = 0 runs between the thighs (the body not turned or swayed far from it)
+    and cannot go negative: thighs pressed into each other read as the width of their overlap."""
     t = body[faces]  # (F, 3, 3)
     p = np.array([y, z])
     a, b, c = t[:, 0, 1:], t[:, 1, 1:], t[:, 2, 1:]

@@ -217,7 +217,6 @@ class SolveContactArrays:
     vertex_edge_offsets: Span
     vertex_edge_ids: Span
     vertex_edge_local: Span
-    coarse_pairs: Span
 
 
 SOLVE_CONTACT_SCALARS = (
@@ -229,7 +228,7 @@ SOLVE_CONTACT_ARRAYS = (
     "heavy_count", "bound", "reference", "vt_count", "vt_tri", "vt_ref", "tv_total", "tv_first",
     "tv_vertex", "tv_ref", "ee_total", "ee_first", "ee_edge", "ee_ref", "vt_rk", "tv_rk", "ee_rk",
     "mesh_edges", "particle_color",
-    "vertex_edge_offsets", "vertex_edge_ids", "vertex_edge_local", "coarse_pairs"
+    "vertex_edge_offsets", "vertex_edge_ids", "vertex_edge_local"
 )
 
 
@@ -291,7 +290,6 @@ def contact_view(a: SolveContactArrays) -> SelfContactData:
     sc.vertex_edge_offsets = ints(a.vertex_edge_offsets)
     sc.vertex_edge_ids = ints(a.vertex_edge_ids)
     sc.vertex_edge_local = ints(a.vertex_edge_local)
-    sc.coarse_pairs = ints(a.coarse_pairs)
     return sc
 
 
@@ -299,7 +297,8 @@ def contact_view(a: SolveContactArrays) -> SelfContactData:
 def has_pairs(sc: SelfContactData, i: int) -> bool:
     """Whether particle ``i`` takes part in a stored self-contact pair (VT, TV or EE) that holds
     back the coarse correction (``coarse_pairs``, ``vertex_summary_kernel``: one at least
-    ``coarse_exclusion`` apart at rest); the pair arrays are read only when self-contact is on."""
+    ``coarse_exclusion`` apart at rest); the pair arrays are read only when self-contact is on.
+    Not on a ``contact_view`` (the solve's part of the data has no ``coarse_pairs``)."""
     if sc.enabled != 0:
         return sc.coarse_pairs[i] > 0
     return False
@@ -1698,12 +1697,14 @@ def vertex_summary_kernel(
     i = wp.tid()
     b = dmin_vertex[i]
     # pairs that hold back the coarse correction (``has_pairs``): all but those near at rest
-    skip = int(NEAR_REST)
+    # (read only with an exclusion: without one every pair holds it, and the loads are saved)
+    near = sc.coarse_exclusion > 0.0
     vt = sc.vt_count[i]
     held = int(0)
-    for s in range(vt):
-        if (sc.vt_rk[i * sc.vt_capacity + s] & skip) == 0:
-            held += 1
+    if near:
+        for s in range(vt):
+            if (sc.vt_rk[i * sc.vt_capacity + s] & NEAR_REST) == 0:
+                held += 1
     tv = int(0)
     for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
         t = vertex_tri_ids[k]
@@ -1711,9 +1712,10 @@ def vertex_summary_kernel(
         sc.tv_first[k] = tv
         n = sc.tv_count[t]
         tv += n
-        for s in range(n):
-            if (sc.tv_rk[t * sc.tv_capacity + s] & skip) == 0:
-                held += 1
+        if near:
+            for s in range(n):
+                if (sc.tv_rk[t * sc.tv_capacity + s] & NEAR_REST) == 0:
+                    held += 1
     ee = int(0)
     for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
         e = sc.vertex_edge_ids[k]
@@ -1721,14 +1723,17 @@ def vertex_summary_kernel(
         sc.ee_first[k] = ee
         n = sc.ee_count[e]
         ee += n
-        for s in range(n):
-            if (sc.ee_rk[e * sc.ee_capacity + s] & skip) == 0:
-                held += 1
+        if near:
+            for s in range(n):
+                if (sc.ee_rk[e * sc.ee_capacity + s] & NEAR_REST) == 0:
+                    held += 1
     sc.bound[i] = relaxation * b
     sc.tv_total[i] = tv
     sc.ee_total[i] = ee
-    sc.coarse_pairs[i] = held
     total = vt + tv + ee
+    if not near:
+        held = total
+    sc.coarse_pairs[i] = held
     sc.pair_count[i] = total
     first = int(0)
     sc.heavy[i] = 0

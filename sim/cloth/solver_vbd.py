@@ -160,9 +160,11 @@ class VBDConfig:
             the cloth moves, nearly every particle had pairs, and the correction, which carries
             a load across the garment, was left out of most of it: a flat fine sheet hanging in
             denim bounced by 1-2 cm (tests/test_self_contact.py), the fine shorts sank 12 mm in
-            their settle and their crotch 10 cm in the blend. On coarse garments (14-20 mm
-            edges) it only frees the pairs that rest close across a gap (the pants' inner walls
-            3 mm apart), and the coarse trousers' walk then crossed itself (H100, 8 crossings).
+            their settle and their crotch 10 cm in the blend. It also frees the pairs that rest
+            close across a gap (the pants' inner walls, 3 mm apart): the fine shorts' and
+            trousers' walks did not cross, but on coarse garments (14-20 mm edges), where those
+            are the only pairs it frees, the coarse trousers' walk crossed itself (H100, 8
+            crossings), so the job leaves coarse garments at 0.
         self_contact_side_memory: keep the side each self-contact pair was found on across
             detections and push pairs that crossed back (``sim.cloth.self_contact``). Off by
             default: it clears the t-shirt run's persistent sleeve crossing but makes the walk

@@ -191,9 +191,9 @@ class PantsParams:
         waist_ease: looseness at the waistband [m].
         crotch_ease: extra gap below the body's crotch [m].
         waist_offset: waistband height above SMPL's spine1 joint [m].
-        leg_gap: least distance between the two legs' inner walls [m]: where the thighs are
-            closer than twice the legs' ease, each leg's inner wall is cut flat at half of it
-            from the mid-sagittal plane.
+        leg_gap: least distance between the two legs' inner walls [m]: where a leg's hull with
+            its ease would reach within half of it of the mid-sagittal plane (between the thighs),
+            its inner wall is cut flat there.
     """
 
     length: float = 1.0
