@@ -1661,6 +1661,17 @@ def refresh_sides_kernel(
             sc.ee_ref[j] = refreshed_side(x, wp.vec4i(ea[0], ea[1], eb[0], eb[1]), 4, sc.ee_ref[j])
 
 
+@wp.func
+def held_pairs(rk: wp.array(dtype=wp.int32), base: int, n: int) -> int:
+    """How many of the ``n`` stored pairs of a list from ``base`` hold back the coarse correction
+    (no ``NEAR_REST`` bit in their ``rk``)."""
+    held = int(0)
+    for s in range(n):
+        if (rk[base + s] & NEAR_REST) == 0:
+            held += 1
+    return held
+
+
 @wp.kernel
 def vertex_summary_kernel(
     dmin_vertex: wp.array(dtype=float),
@@ -1702,31 +1713,23 @@ def vertex_summary_kernel(
     vt = sc.vt_count[i]
     held = int(0)
     if near:
-        for s in range(vt):
-            if (sc.vt_rk[i * sc.vt_capacity + s] & NEAR_REST) == 0:
-                held += 1
+        held += held_pairs(sc.vt_rk, i * sc.vt_capacity, vt)
     tv = int(0)
     for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
         t = vertex_tri_ids[k]
         b = wp.min(b, dmin_tri[t])
         sc.tv_first[k] = tv
-        n = sc.tv_count[t]
-        tv += n
+        tv += sc.tv_count[t]
         if near:
-            for s in range(n):
-                if (sc.tv_rk[t * sc.tv_capacity + s] & NEAR_REST) == 0:
-                    held += 1
+            held += held_pairs(sc.tv_rk, t * sc.tv_capacity, sc.tv_count[t])
     ee = int(0)
     for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
         e = sc.vertex_edge_ids[k]
         b = wp.min(b, dmin_edge[e])
         sc.ee_first[k] = ee
-        n = sc.ee_count[e]
-        ee += n
+        ee += sc.ee_count[e]
         if near:
-            for s in range(n):
-                if (sc.ee_rk[e * sc.ee_capacity + s] & NEAR_REST) == 0:
-                    held += 1
+            held += held_pairs(sc.ee_rk, e * sc.ee_capacity, sc.ee_count[e])
     sc.bound[i] = relaxation * b
     sc.tv_total[i] = tv
     sc.ee_total[i] = ee
