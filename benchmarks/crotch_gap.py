@@ -40,27 +40,28 @@ def crotch_point(rest: np.ndarray) -> int:
     return int(on[np.argmin(rest[on, 1])])
 
 
-def thigh_gap(body: np.ndarray, faces: np.ndarray, y: float, z: float) -> float:
+def thigh_gap(body: np.ndarray, faces: np.ndarray, y, z: float):
     """Room between the thighs [m] along the line (y, z) parallel to x: the distance between the
     nearest points where that line crosses the body's surface on either side of the plane x = 0
-    (inf where it misses a side). Crossings are found in the (y, z) projection of every triangle.
+    (inf where it misses a side); ``y`` a height or an array of them (one triangle setup for
+    all). Crossings are found in the (y, z) projection of every triangle.
     It assumes the plane x = 0 runs between the thighs (the body not turned or swayed far from it)
     and cannot go negative: thighs pressed into each other read as the width of their overlap."""
     t = body[faces]  # (F, 3, 3)
-    p = np.array([y, z])
     a, b, c = t[:, 0, 1:], t[:, 1, 1:], t[:, 2, 1:]
     d = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
     ok = np.abs(d) > 1e-14
     ds = np.where(ok, d, 1.0)
-    u = ((b[:, 0] - p[0]) * (c[:, 1] - p[1]) - (c[:, 0] - p[0]) * (b[:, 1] - p[1])) / ds
-    v = ((c[:, 0] - p[0]) * (a[:, 1] - p[1]) - (a[:, 0] - p[0]) * (c[:, 1] - p[1])) / ds
-    w = 1.0 - u - v
-    hit = ok & (u >= 0) & (v >= 0) & (w >= 0)
-    xs = (u[:, None] * t[:, 0, :1] + v[:, None] * t[:, 1, :1] + w[:, None] * t[:, 2, :1])[hit, 0]
-    pos, neg = xs[xs > 0], xs[xs < 0]
-    if not len(pos) or not len(neg):
-        return float("inf")
-    return float(pos.min() - neg.max())
+    gaps = []
+    for yk in np.atleast_1d(y):
+        u = ((b[:, 0] - yk) * (c[:, 1] - z) - (c[:, 0] - yk) * (b[:, 1] - z)) / ds
+        v = ((c[:, 0] - yk) * (a[:, 1] - z) - (a[:, 0] - yk) * (c[:, 1] - z)) / ds
+        w = 1.0 - u - v
+        hit = ok & (u >= 0) & (v >= 0) & (w >= 0)
+        xs = (u[:, None] * t[:, 0, :1] + v[:, None] * t[:, 1, :1] + w[:, None] * t[:, 2, :1])[hit, 0]
+        pos, neg = xs[xs > 0], xs[xs < 0]
+        gaps.append(float(pos.min() - neg.max()) if len(pos) and len(neg) else float("inf"))
+    return gaps[0] if np.ndim(y) == 0 else np.asarray(gaps)
 
 
 def crotch_gap(x: np.ndarray, rest: np.ndarray, body: np.ndarray, body_faces: np.ndarray,
@@ -81,7 +82,7 @@ def crotch_gap(x: np.ndarray, rest: np.ndarray, body: np.ndarray, body_faces: np
         crotch = float(above[:, 1].min()) if len(above) else float("nan")
         drop.append((crotch - cy) * 1000.0)
         dist.append(float(np.linalg.norm(body[f] - x[f, c], axis=1).min()) * 1000.0)
-        gaps.append([thigh_gap(body[f], body_faces, crotch - b, cz) * 1000.0 for b in BELOW])
+        gaps.append(thigh_gap(body[f], body_faces, crotch - np.asarray(BELOW), cz) * 1000.0)
     d = np.asarray(drop)
     g = np.asarray(gaps).reshape(-1, len(BELOW))
     return {"crotch_vertex": c, "rest_position": rest[c].tolist(), "drop_mm": d.round(1).tolist(),

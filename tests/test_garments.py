@@ -360,6 +360,15 @@ def test_trousers_split_into_two_legs(garments):
     assert np.all(np.abs(v[legs][below, 0]) > 0.001)
 
 
+def _leg_vertices(g):
+    """Which panels each vertex of a pants garment belongs to (V, panels) and which are the legs'."""
+    names = list(g.panel_names)
+    panels_of = np.zeros((len(g.rest_vertices), len(names)), bool)
+    for k in range(len(names)):
+        panels_of[np.unique(g.faces[g.panel_ids == k]), k] = True
+    return panels_of, panels_of[:, [names.index("left_leg"), names.index("right_leg")]].any(axis=1)
+
+
 @pytest.mark.parametrize("shape", list(SHAPES))
 @pytest.mark.parametrize("category", ["shorts", "trousers"])
 def test_legs_leave_the_mid_plane_below_the_bridge(garments, category, shape):
@@ -371,11 +380,7 @@ def test_legs_leave_the_mid_plane_below_the_bridge(garments, category, shape):
     from sim.garments.templates import PantsParams
 
     g = garments[(category, shape)]
-    names = list(g.panel_names)
-    panels_of = np.zeros((len(g.rest_vertices), len(names)), bool)
-    for k in range(len(names)):
-        panels_of[np.unique(g.faces[g.panel_ids == k]), k] = True
-    leg = panels_of[:, [names.index("left_leg"), names.index("right_leg")]].any(axis=1)
+    panels_of, leg = _leg_vertices(g)
     seam = panels_of.sum(axis=1) > 1
     mid = leg & ~seam & (np.abs(g.rest_vertices[:, 0]) < 0.25 * PantsParams().leg_gap)
     assert mid.sum() <= 1, np.round(g.rest_vertices[mid], 4)
@@ -389,11 +394,7 @@ def test_leg_gap_is_the_least_distance_between_the_legs_inner_walls(body, gap):
     where the legs' ease would have crossed the plane): the walls face each other ``leg_gap``
     apart. The legs' rows start at the bridge (x = 0), so the seam is excluded."""
     g = make_garment("shorts", body, leg_gap=gap)
-    names = list(g.panel_names)
-    panels_of = np.zeros((len(g.rest_vertices), len(names)), bool)
-    for k in range(len(names)):
-        panels_of[np.unique(g.faces[g.panel_ids == k]), k] = True
-    leg = panels_of[:, [names.index("left_leg"), names.index("right_leg")]].any(axis=1)
+    panels_of, leg = _leg_vertices(g)
     off_seam = leg & (panels_of.sum(axis=1) == 1)
     ax = np.abs(g.rest_vertices[off_seam, 0])
     assert ax.min() >= 0.5 * gap - 8e-4
