@@ -133,14 +133,15 @@ def test_prolongation_rows_sum_to_one_and_pins_do_not_move():
 
 
 def test_restriction_matches_its_sparse_matrix_form(device):
-    """``restrict`` (8 lanes per coarse node, summed in lane order) against scipy: ``P^T r`` and
-    the diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` with ``k`` the contact penalty at
-    particles pressed onto the body closer than the thickness, none elsewhere."""
+    """``restrict`` (8 lanes per coarse node, summed in lane order) against scipy: ``P^T r / s``
+    and the diagonal ``(m_c (1/h^2 + alpha/h) + P^T k) / s + K_c,JJ`` with ``k`` the contact
+    penalty at particles pressed onto the body closer than the thickness, none elsewhere, and
+    ``s = 1 + k_d/h`` (the coarse system divided by the membrane's damped stiffness factor)."""
     from sim.cloth.self_contact import disabled_data
 
     v, f = grid(21, 31, 0.4, 0.6)
     b = ClothModelBuilder()
-    b.add_cloth(v, f, ClothMaterialParams(), pinned=np.arange(21))
+    b.add_cloth(v, f, ClothMaterialParams(damping=0.004), pinned=np.arange(21))
     m = b.finalize(device)
     level = coarse_level(m, spacing=2)
     n = m.particle_count
@@ -163,9 +164,11 @@ def test_restriction_matches_its_sparse_matrix_form(device):
     p = level.prolongation
     k = np.where((active != 0) & (gap < thickness), level._k_contact, 0.0)
     inertia = 1.0 / h**2 + level._air_damping / h
-    diag = level._mass.numpy() * inertia + level.templates[0].stiffness.diagonal() + p.T @ k
+    s = 1.0 + 0.004 / h
+    np.testing.assert_allclose(level.node_damping, 0.004, rtol=1e-6)
+    diag = (level._mass.numpy() * inertia + p.T @ k) / s + level.templates[0].stiffness.diagonal()
     assert (p.T @ k).max() > 0.0 and (p.T @ k).min() == 0.0
-    np.testing.assert_allclose(level._rhs.numpy(), p.T @ r, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(level._rhs.numpy(), p.T @ r / s, rtol=1e-5, atol=1e-5 / s)
     np.testing.assert_allclose(level._diag.numpy(), diag, rtol=1e-5)
     # CUDA sums a node's lanes by shuffles in the same launch (session 41): the same floats as
     # the separate sum launch, for each part alone too
@@ -223,9 +226,10 @@ def test_prefactor_takes_the_contact_stiffness_at_the_inertial_targets(device):
         diags[prefactor] = level._diag.numpy()
     p = level.prolongation
     inertia = 1.0 / h**2 + level._air_damping / h
-    base = level._mass.numpy() * inertia + level.templates[0].stiffness.diagonal()
+    scale = 1.0 + level.node_damping / h  # the damped membrane's factor (1e-3 s: 1.42)
+    base = level._mass.numpy() * inertia / scale + level.templates[0].stiffness.diagonal()
     np.testing.assert_allclose(diags[False], base, rtol=1e-5)
-    pressed = p.T @ (active * level._k_contact)
+    pressed = p.T @ (active * level._k_contact) / scale
     assert pressed.max() > 0.0
     np.testing.assert_allclose(diags[True], base + pressed, rtol=1e-5)
     np.testing.assert_array_equal(xw.numpy(), x.astype(np.float32))  # no residual: nothing moved
@@ -373,6 +377,43 @@ def test_coarse_correction_converges_far_further_per_sweep(device, levels):
     np.testing.assert_allclose(step(3000), ref, atol=0.15 * plain)
 
 
+def _denim_sheet_frames(device, gravity: float, frames: int, **config) -> np.ndarray:
+    """Positions per frame of a 21 x 41 denim sheet of 5.5 mm edges (a fine garment's) hanging
+    from its pinned top row, at rest to start, under ``gravity`` [m/s^2], stepped at 30 fps with
+    a coarse correction before the second of 5 sweeps and ``config``."""
+    from sim.cloth.model import as_cloth_params
+    from sim.garments.materials import get_material
+
+    v, f = grid(21, 41, 0.11, 0.22)
+    b = ClothModelBuilder(gravity=(0.0, -gravity, 0.0))
+    b.add_cloth(v, f, as_cloth_params(get_material("denim")), pinned=np.arange(21))
+    m = b.finalize(device)
+    solver = SolverVBD(m, VBDConfig(iterations=5, coarse_sweeps=(1,), **config))
+    control = m.control()
+    control.pin_targets.assign(v)
+    return simulate(m, solver, control, frames, 1.0 / 30.0)
+
+
+@pytest.mark.parametrize("spacing, levels", [(2, 2), (3, 2), (2, 3)])
+def test_a_damped_sheet_with_no_load_stays_at_rest(device, spacing, levels):
+    """Nothing acts on a flat sheet at rest without gravity, so it must stay at rest: the coarse
+    correction may only remove error, never amplify round-off. Denim's strain-rate damping makes
+    the sweeps' membrane Hessian ``1 + k_d/h`` = 2.1 times the elastic one at 12 substeps; with
+    the coarse system holding the elastic stiffness alone (``coarse_damped`` off, until session
+    51) each correction overshot by that factor in the stiff modes of small aggregates, and the
+    sheet left rest by itself within 15 frames, at metres per second. With the factor it stays
+    within round-off, and at 24 substeps under gravity (the old coarse system gave NaN) it
+    hangs as it rests."""
+    still = _denim_sheet_frames(device, 0.0, 15, substeps=12, coarse_spacing=spacing, coarse_levels=levels)
+    rest = grid(21, 41, 0.11, 0.22)[0]
+    assert np.abs(still - rest).max() < 1e-5
+    old = _denim_sheet_frames(device, 0.0, 15, substeps=12, coarse_spacing=spacing, coarse_levels=levels,
+                              coarse_damped=False)
+    assert not np.all(np.isfinite(old)) or np.abs(old - rest).max() > 1e-3
+    hanging = _denim_sheet_frames(device, 9.81, 15, substeps=24, coarse_spacing=spacing, coarse_levels=levels)
+    assert np.all(np.isfinite(hanging)) and np.abs(hanging[-5:] - rest).max() < 1e-3
+
+
 @pytest.mark.parametrize("levels, prefactor", [(2, False), (3, False), (2, True)])
 def test_coarse_correction_keeps_cloth_on_a_sphere_outside(device, levels, prefactor):
     """The contact penalty is part of the coarse system: corrections do not pull cloth resting
@@ -471,7 +512,8 @@ def test_early_diagonal_takes_the_previous_substeps_pairs(device):
     and the next substep's ``prepare`` (beside the detection) gives exactly those the
     self-contact stiffness: the step's diagonal is ``prepare``'s from the flags it found, the
     flags give the same diagonal as the pair lists they came from, bit for bit, and without
-    them the diagonal is smaller by ``P^T`` of the stiffness at exactly the flagged particles."""
+    them the diagonal is smaller by ``P^T`` of the stiffness at exactly the flagged particles (over
+    the damped membrane's factor ``1 + k_d/h``, as the whole system)."""
     from tests.test_cloth_solver import draped_layers_in_contact
 
     wp = warp()
@@ -508,8 +550,8 @@ def test_early_diagonal_takes_the_previous_substeps_pairs(device):
         diags[name] = level._diag.numpy().copy()
     np.testing.assert_array_equal(diags["flags"], diags["lists"])
     assert not np.array_equal(stepped, diags["flags"])  # the planted flags are not the pairs
-    added = level.prolongation.T @ (flags * sc.stiffness)
-    assert added.max() > 0.0
+    added = level.prolongation.T @ (flags * sc.stiffness) / (1.0 + level.node_damping / h)
+    assert added.max() > 0.0 and level.node_damping.min() > 0.0
     np.testing.assert_allclose(diags["lists"] - diags["none"], added, rtol=1e-4, atol=1e-6 * added.max())
     # off (the solver default): no flags written, the diagonal from the lists
     _, plain = one_step_from(m, start, coarse_sweeps=(1,), coarse_prefactor=True)

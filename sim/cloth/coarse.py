@@ -19,8 +19,11 @@ Setup (numpy/scipy, once per distinct garment template, shared by its instances)
   triangle. Along a stretch it is the membrane's true stiffness; in shear and out of plane it is
   stiffer than the cloth, so the correction errs on the short side there (bending, contact and
   self-contact are left to the sweeps that follow);
-- **coarse system** ``A_c = (1/h^2 + alpha/h) M_c + K_c + C_c`` with ``K_c = P^T K P``
-  (Galerkin, sparse), ``M_c = P^T m`` (lumped) and ``C_c = P^T c``, ``c`` the body contact's
+- **coarse system** ``A_c = (1/h^2 + alpha/h) M_c + s K_c + C_c`` with ``K_c = P^T K P``
+  (Galerkin, sparse), ``s = 1 + k_d/h`` (the membrane's strain-rate damping ``k_d`` [s], the
+  instance's largest: the sweeps' Hessian holds the elastic one ``1 + k_d/h`` times, see
+  ``energies.stvk_damped_vertex_force_hessian``), ``M_c = P^T m`` (lumped) and ``C_c = P^T c``,
+  ``c`` the body contact's
   penalty stiffness at particles pressed onto the body plus the self-contact penalty stiffness
     at particles with cloth-cloth pairs (``has_pairs``: not those only in pairs closer than
     ``coarse_exclusion`` at rest, session 50), pressed at the correction (with ``prefactor``: at the
@@ -30,7 +33,14 @@ Setup (numpy/scipy, once per distinct garment template, shared by its instances)
   threw stacked layers metres apart within 4 frames (session 23). Contact pins cloth as firmly
   as a pin does, so the coarse level must know where it holds.
   Its sparsity pattern is fixed, so its rows are put in reverse Cuthill-McKee order once (the
-  t-shirt's 326 nodes: bandwidth 60) and each correction factors the band exactly.
+  t-shirt's 326 nodes: bandwidth 60) and each correction factors the band exactly. The system
+  solved is ``A_c / s`` for ``P^T r / s`` (the same solution): its off-diagonal part is then
+  ``K_c``'s, fixed, and only the diagonal and the right-hand side change with ``h``.
+  Without ``s`` (until session 51, ``damped`` off) a correction overshoots wherever the
+  membrane's stiffness outweighs the inertia: by ``1 + k_d/h``, 1.7-2.3 for cotton and denim at
+  12-14 substeps and 3-5 at the retries' 42, and an exact correction that overshoots more than
+  twice amplifies the error it removes. A denim sheet at rest, no gravity, aggregates 2-3 edges
+  apart then left rest by round-off alone (``tests/test_coarse.py``).
 
 Per correction (``CoarseLevel.correct``): the solve kernel's evaluate variant writes the residual
 ``r = -dG/dx`` at ``x`` (inertia, membrane, bending, damping, body and self-contact);
@@ -325,10 +335,14 @@ class CoarseLevel:
         smoothing: l1-Jacobi passes before and after the inner solve (three levels).
         prefactor: with two levels, the diagonal and (CUDA) the factor at the substep start
             (``prepare``) instead of at each correction (``VBDConfig.coarse_prefactor``).
+        damped: the stiffness of the strain-rate damping in the coarse system, ``(1 + k_d/h)
+            K_c`` (``VBDConfig.coarse_damped``; module docstring); off: ``K_c`` alone, as before
+            session 51.
     """
 
     def __init__(self, model, particles: tuple, k_contact: float, contact_margin: float, air_damping: float,
-                 spacing: int = 3, levels: int = 0, smoothing: int = 2, prefactor: bool = False):
+                 spacing: int = 3, levels: int = 0, smoothing: int = 2, prefactor: bool = False,
+                 damped: bool = True):
         import scipy.sparse as sp
 
         if spacing < 0:
@@ -373,6 +387,12 @@ class CoarseLevel:
         self._p, self._r = csr(p), csr(p.T.tocsr())
         self._mass = arr(mc.astype(np.float32), float)
         self._kdiag = arr(kc.diagonal().astype(np.float32), float)
+        # each node's instance's largest strain-rate damping [s] (0: ``damped`` off)
+        tri_damping = model.tri_damping.numpy().astype(np.float64)
+        inst_damping = np.array([tri_damping[tri_starts[k]:tri_starts[k + 1]].max(initial=0.0) if damped
+                                 else 0.0 for k in range(model.instance_count)])
+        self.node_damping = np.repeat(inst_damping, [len(b.mass) for b in blocks])
+        self._node_damping = arr(self.node_damping.astype(np.float32), float)
         nc = self.node_count
         self._rhs = wp.zeros(nc, dtype=wp.vec3, device=d)
         self._rhs_part = wp.zeros(nc * RESTRICT_LANES, dtype=wp.vec3, device=d)
@@ -495,8 +515,9 @@ class CoarseLevel:
                   outputs=[x, snap_out], device=m.device)
 
     def restrict(self, h: float, x, sc_data, parts: int = 3, pair_flags=None) -> None:
-        """The coarse right-hand side ``P^T residual`` (``parts`` bit ``RESTRICT_RHS``) and
-        diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` (bit ``RESTRICT_DIAGONAL``; ``k``: body
+        """The coarse right-hand side ``P^T residual / s`` (``parts`` bit ``RESTRICT_RHS``) and
+        diagonal ``(m_c (1/h^2 + alpha/h) + P^T k) / s + K_c,JJ`` (bit ``RESTRICT_DIAGONAL``; ``s =
+        1 + k_d/h`` per instance, 1 without ``damped``, module docstring; ``k``: body
         contact penalty at particles of ``x`` pressed onto the body by the solver's contacts,
         self-contact penalty at particles with pairs in ``sc_data``, or flagged in ``pair_flags``
         where given) of a substep of length ``h`` [s]; both in one pass by default."""
@@ -513,7 +534,7 @@ class CoarseLevel:
             wp.launch(restrict_lanes_kernel, dim=threads,
                       inputs=[parts, self.residual, *self._r, x, m.particle_instance, point, normal, active,
                               m.instance_thickness, self._k_contact, sc_data, pair_flags, self._mass,
-                              self._kdiag, inertia, threads],
+                              self._kdiag, self._node_damping, inertia, 1.0 / h, threads],
                       outputs=[self._rhs, self._diag], device=m.device)
             return
         wp.launch(restrict_kernel, dim=self.node_count * RESTRICT_LANES,
@@ -521,7 +542,8 @@ class CoarseLevel:
                           m.instance_thickness, self._k_contact, sc_data, pair_flags],
                   outputs=[self._rhs_part, self._k_part], device=m.device)
         wp.launch(restrict_sum_kernel, dim=self.node_count,
-                  inputs=[parts, self._rhs_part, self._k_part, self._mass, self._kdiag, inertia],
+                  inputs=[parts, self._rhs_part, self._k_part, self._mass, self._kdiag, self._node_damping,
+                          inertia, 1.0 / h],
                   outputs=[self._rhs, self._diag], device=m.device)
 
     def factor(self) -> None:
@@ -763,6 +785,14 @@ def restrict_lane(
     return s, kc
 
 
+@wp.func
+def node_scale(node_damping: wp.array(dtype=float), c: int, inv_h: float) -> float:
+    """``1/s`` of coarse node ``c``: its instance's coarse system is ``s`` times the one solved,
+    ``s = 1 + k_d/h`` with ``k_d`` [s] the instance's strain-rate damping (module docstring); 1
+    exactly without damping, so those systems are the same floats as before (session 51)."""
+    return 1.0 / (1.0 + node_damping[c] * inv_h)
+
+
 @wp.kernel
 def restrict_lanes_kernel(
     parts: int,
@@ -781,7 +811,9 @@ def restrict_lanes_kernel(
     pair_flags: wp.array(dtype=wp.int32),
     node_mass: wp.array(dtype=float),
     node_stiffness: wp.array(dtype=float),
+    node_damping: wp.array(dtype=float),
     inertia: float,
+    inv_h: float,
     threads: int,
     rhs_out: wp.array(dtype=wp.vec3),
     diag_out: wp.array(dtype=float),
@@ -802,10 +834,11 @@ def restrict_lanes_kernel(
         total = total + lane_read_vec3(s, first + lane, mask)
         k_total = k_total + lane_read(kc, first + lane, mask)
     if tid % RESTRICT_LANES == 0:
+        inv_s = node_scale(node_damping, c, inv_h)
         if (parts & RESTRICT_RHS) != 0:
-            rhs_out[c] = total
+            rhs_out[c] = total * inv_s
         if (parts & RESTRICT_DIAGONAL) != 0:
-            diag_out[c] = node_mass[c] * inertia + node_stiffness[c] + k_total
+            diag_out[c] = node_mass[c] * inertia * inv_s + node_stiffness[c] + k_total * inv_s
 
 
 @wp.kernel
@@ -849,24 +882,27 @@ def restrict_sum_kernel(
     k_part: wp.array(dtype=float),
     node_mass: wp.array(dtype=float),
     node_stiffness: wp.array(dtype=float),
+    node_damping: wp.array(dtype=float),
     inertia: float,
+    inv_h: float,
     rhs_out: wp.array(dtype=wp.vec3),
     diag_out: wp.array(dtype=float),
 ):
-    """``rhs = P^T r`` and the coarse diagonal ``m_c (1/h^2 + alpha/h) + K_c,JJ + P^T k`` of node
-    ``c`` (the ``parts`` of ``restrict_kernel``) from its lanes, summed in lane order (one node
-    per thread)."""
+    """``rhs = P^T r / s`` and the coarse diagonal ``(m_c (1/h^2 + alpha/h) + P^T k) / s + K_c,JJ``
+    of node ``c`` (the ``parts`` of ``restrict_kernel``) from its lanes, summed in lane order (one
+    node per thread); ``s = 1 + k_d/h`` (``node_scale``)."""
     c = wp.tid()
+    inv_s = node_scale(node_damping, c, inv_h)
     if (parts & RESTRICT_RHS) != 0:
         s = wp.vec3(0.0)
         for lane in range(RESTRICT_LANES):
             s = s + rhs_part[c * RESTRICT_LANES + lane]
-        rhs_out[c] = s
+        rhs_out[c] = s * inv_s
     if (parts & RESTRICT_DIAGONAL) != 0:
         kc = float(0.0)
         for lane in range(RESTRICT_LANES):
             kc = kc + k_part[c * RESTRICT_LANES + lane]
-        diag_out[c] = node_mass[c] * inertia + node_stiffness[c] + kc
+        diag_out[c] = node_mass[c] * inertia * inv_s + node_stiffness[c] + kc * inv_s
 
 
 @wp.kernel

@@ -280,6 +280,11 @@ class VBDConfig:
             coarse levels (else nothing changes). Off (default here; ``SimulationConfig`` turns
             it on for CUDA since session 42, where the factor was on the critical path: doubling
             it added its whole 63 us per substep to the 5k t-shirt's frame).
+        coarse_damped: the coarse system holds the membrane's strain-rate damping stiffness as the
+            sweeps do, ``(1 + k_d/h)`` times the elastic one (``coarse`` module docstring). On by
+            default since session 51; off, the coarse correction overshoots by that factor where
+            stiffness outweighs inertia and can amplify round-off instead of removing error (a
+            denim sheet at rest with aggregates 2-3 edges apart crumpled by itself).
         self_contact_broadphase: how the self-contact detection finds its candidates: ``"bvh"``
             (three trees, refitted every detection and rebuilt every step), ``"clusters"`` (no
             trees: the primitives in fixed clusters of ``self_contact_cluster_size``, culled
@@ -344,6 +349,7 @@ class VBDConfig:
     coarse_smoothing: int = 2
     coarse_prefactor: bool = False
     coarse_early: bool = False
+    coarse_damped: bool = True
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -574,7 +580,7 @@ class SolverVBD:
                          self._contact_body_velocity, self._contact_active)
             self.coarse = CoarseLevel(model, particles, cfg.contact_stiffness, cfg.contact_margin,
                                       cfg.air_damping, cfg.coarse_spacing, cfg.coarse_levels,
-                                      cfg.coarse_smoothing, cfg.coarse_prefactor)
+                                      cfg.coarse_smoothing, cfg.coarse_prefactor, cfg.coarse_damped)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True, fast_math=cfg.fast_math)
         # ``coarse_early``: the particles with pairs at the previous substep's end (the velocity
