@@ -169,9 +169,12 @@ def simulator_defaults(cuda: bool = False) -> dict:
     session 42), nor one begun before sequences that fail their gates were retried
     (``RETRY_FACTORS``, session 43; a dataset's own ``[simulation] retry_factors`` is in its
     config), nor one begun before fine garments took 8 sweeps (``FINE_ITERATIONS``, session 44)
-    or a third retry rung (``FINE_RETRY_FACTORS``, session 45),
+    or a third retry rung (``FINE_RETRY_FACTORS``, session 45), before fine garments' near-rest
+    pairs left the coarse correction alone (``FINE_COARSE_EXCLUSION``, session 50) or before the
+    coarse system held the damping's stiffness (``VBDConfig.coarse_damped``, session 51),
     nor one begun under other template defaults (every template's default parameters, recorded
     since session 44, when the tank top's armholes were rounded)."""
+    from sim.cloth import VBDConfig
     from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
     from sim.garments.templates import TEMPLATES, make_params
 
@@ -179,6 +182,7 @@ def simulator_defaults(cuda: bool = False) -> dict:
                         "fine_over_vertices": FINE_GARMENT_VERTICES},
            "iterations": {"default": DEFAULT_ITERATIONS, "fine": FINE_ITERATIONS},
            "coarse_exclusion": {"default": 0.0, "fine": FINE_COARSE_EXCLUSION},
+           "coarse_damped": VBDConfig.coarse_damped,
            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
            "retry_factors": {"default": list(RETRY_FACTORS), "fine": list(FINE_RETRY_FACTORS)},
            "templates": {name: dataclasses.asdict(make_params(name)) for name in TEMPLATES}}
