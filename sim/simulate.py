@@ -171,7 +171,7 @@ def simulator_defaults(cuda: bool = False) -> dict:
     config), nor one begun before fine garments took 8 sweeps (``FINE_ITERATIONS``, session 44)
     or a third retry rung (``FINE_RETRY_FACTORS``, session 45), before fine garments' near-rest
     pairs left the coarse correction alone (``FINE_COARSE_EXCLUSION``, session 50) or before the
-    coarse system held the damping's stiffness (``VBDConfig.coarse_damped``, session 51),
+    coarse system's overshoot guard (``VBDConfig.coarse_damped``, session 51),
     nor one begun under other template defaults (every template's default parameters, recorded
     since session 44, when the tank top's armholes were rounded)."""
     from sim.cloth import VBDConfig

@@ -20,10 +20,8 @@ Setup (numpy/scipy, once per distinct garment template, shared by its instances)
   stiffer than the cloth, so the correction errs on the short side there (bending, contact and
   self-contact are left to the sweeps that follow);
 - **coarse system** ``A_c = (1/h^2 + alpha/h) M_c + s K_c + C_c`` with ``K_c = P^T K P``
-  (Galerkin, sparse), ``s = 1 + k_d/h`` (the membrane's strain-rate damping ``k_d`` [s], the
-  instance's largest: the sweeps' Hessian holds the elastic one ``1 + k_d/h`` times, see
-  ``energies.stvk_damped_vertex_force_hessian``), ``M_c = P^T m`` (lumped) and ``C_c = P^T c``,
-  ``c`` the body contact's
+  (Galerkin, sparse), ``s`` the overshoot guard below, ``M_c = P^T m`` (lumped) and
+  ``C_c = P^T c``, ``c`` the body contact's
   penalty stiffness at particles pressed onto the body plus the self-contact penalty stiffness
     at particles with cloth-cloth pairs (``has_pairs``: not those only in pairs closer than
     ``coarse_exclusion`` at rest, session 50), pressed at the correction (with ``prefactor``: at the
@@ -33,14 +31,22 @@ Setup (numpy/scipy, once per distinct garment template, shared by its instances)
   threw stacked layers metres apart within 4 frames (session 23). Contact pins cloth as firmly
   as a pin does, so the coarse level must know where it holds.
   Its sparsity pattern is fixed, so its rows are put in reverse Cuthill-McKee order once (the
-  t-shirt's 326 nodes: bandwidth 60) and each correction factors the band exactly. The system
-  solved is ``A_c / s`` for ``P^T r / s`` (the same solution): its off-diagonal part is then
-  ``K_c``'s, fixed, and only the diagonal and the right-hand side change with ``h``.
-  Without ``s`` (until session 51, ``damped`` off) a correction overshoots wherever the
-  membrane's stiffness outweighs the inertia: by ``1 + k_d/h``, 1.7-2.3 for cotton and denim at
-  12-14 substeps and 3-5 at the retries' 42, and an exact correction that overshoots more than
-  twice amplifies the error it removes. A denim sheet at rest, no gravity, aggregates 2-3 edges
-  apart then left rest by round-off alone (``tests/test_coarse.py``).
+  t-shirt's 326 nodes: bandwidth 60) and each correction factors the band exactly.
+- **overshoot guard** ``s = max(1, (1 + k_d/h) r / COARSE_OVERSHOOT)`` per instance (session 51,
+  ``damped``): the proxy is softer than the sweeps' Hessian in two ways. The strain-rate damping
+  (``k_d`` [s]) makes that Hessian ``1 + k_d/h`` times the elastic one
+  (``energies.stvk_damped_vertex_force_hessian``): 1.7-1.8 for cotton at 12-14 substeps, 2.2-3.5
+  at the retries' 20-42. And in a pure dilation the membrane is ``r = 2 (lambda + mu) / (lambda +
+  2 mu)`` times stiffer than ``lambda + 2 mu`` (1.30 for cotton). Where stiffness outweighs
+  inertia (small aggregates, short substeps) an exact correction overshoots by their product,
+  and one that overshoots more than twice amplifies the error it should remove: without the
+  guard a denim sheet at rest, no gravity, aggregates 2-3 edges apart, left rest by round-off
+  alone (``tests/test_coarse.py``). The guard stiffens the proxy just enough to hold the
+  overshoot at ``COARSE_OVERSHOOT``, no more: the proxy is already far stiffer than the cloth in
+  shear, bending and rigid rotation (a scalar Laplacian is not rotation-invariant), and the
+  full factor ``1 + k_d/h`` left the fine long sleeve's swinging sleeves crumpled (session 51).
+  The system solved is ``A_c / s`` for ``P^T r / s`` (the same solution): its off-diagonal part
+  stays ``K_c``'s, and only the diagonal and the right-hand side change with ``h``.
 
 Per correction (``CoarseLevel.correct``): the solve kernel's evaluate variant writes the residual
 ``r = -dG/dx`` at ``x`` (inertia, membrane, bending, damping, body and self-contact);
@@ -302,6 +308,12 @@ def galerkin_slots(exact: list) -> Any:
     return m
 
 
+COARSE_OVERSHOOT = 1.8
+"""The most a coarse correction may overshoot the sweeps' own Hessian in its stiffest mode, as a
+factor (``CoarseLevel`` ``damped``; session 51). An exact correction that overshoots by ``w``
+leaves ``1 - w`` of the error it removes, so ``w`` must stay under 2; 1.8 leaves room for the
+membrane's stiffening under stretch."""
+
 # largest move of a correction at a particle with self-contact pairs, in self-contact radii
 # (bounds off, the default, nothing else keeps a correction from carrying a layer through another)
 SELF_CONTACT_CAP = wp.constant(0.25)
@@ -335,9 +347,8 @@ class CoarseLevel:
         smoothing: l1-Jacobi passes before and after the inner solve (three levels).
         prefactor: with two levels, the diagonal and (CUDA) the factor at the substep start
             (``prepare``) instead of at each correction (``VBDConfig.coarse_prefactor``).
-        damped: the stiffness of the strain-rate damping in the coarse system, ``(1 + k_d/h)
-            K_c`` (``VBDConfig.coarse_damped``; module docstring); off: ``K_c`` alone, as before
-            session 51.
+        damped: the overshoot guard (module docstring; ``VBDConfig.coarse_damped``); off:
+            ``K_c`` alone, as before session 51.
     """
 
     def __init__(self, model, particles: tuple, k_contact: float, contact_margin: float, air_damping: float,
@@ -387,12 +398,16 @@ class CoarseLevel:
         self._p, self._r = csr(p), csr(p.T.tocsr())
         self._mass = arr(mc.astype(np.float32), float)
         self._kdiag = arr(kc.diagonal().astype(np.float32), float)
-        # each node's instance's largest strain-rate damping [s] (0: ``damped`` off)
+        # each node's instance's largest strain-rate damping k_d [s] and largest dilation ratio
+        # 2 (lambda + mu) / (lambda + 2 mu) over ``COARSE_OVERSHOOT`` (both 0: ``damped`` off)
         tri_damping = model.tri_damping.numpy().astype(np.float64)
-        inst_damping = np.array([tri_damping[tri_starts[k]:tri_starts[k + 1]].max(initial=0.0) if damped
-                                 else 0.0 for k in range(model.instance_count)])
-        self.node_damping = np.repeat(inst_damping, [len(b.mass) for b in blocks])
-        self._node_damping = arr(self.node_damping.astype(np.float32), float)
+        lam, mu = model.tri_lam.numpy().astype(np.float64), model.tri_mu.numpy().astype(np.float64)
+        dilation = 2.0 * (lam + mu) / np.maximum(lam + 2.0 * mu, 1e-30)
+        per_inst = np.array([[tri_damping[tri_starts[k]:tri_starts[k + 1]].max(initial=0.0),
+                              dilation[tri_starts[k]:tri_starts[k + 1]].max(initial=0.0) / COARSE_OVERSHOOT]
+                             if damped else [0.0, 0.0] for k in range(model.instance_count)]).reshape(-1, 2)
+        self.node_overshoot = np.repeat(per_inst, [len(b.mass) for b in blocks], axis=0)
+        self._node_overshoot = arr(self.node_overshoot.astype(np.float32), wp.vec2)
         nc = self.node_count
         self._rhs = wp.zeros(nc, dtype=wp.vec3, device=d)
         self._rhs_part = wp.zeros(nc * RESTRICT_LANES, dtype=wp.vec3, device=d)
@@ -516,8 +531,8 @@ class CoarseLevel:
 
     def restrict(self, h: float, x, sc_data, parts: int = 3, pair_flags=None) -> None:
         """The coarse right-hand side ``P^T residual / s`` (``parts`` bit ``RESTRICT_RHS``) and
-        diagonal ``(m_c (1/h^2 + alpha/h) + P^T k) / s + K_c,JJ`` (bit ``RESTRICT_DIAGONAL``; ``s =
-        1 + k_d/h`` per instance, 1 without ``damped``, module docstring; ``k``: body
+        diagonal ``(m_c (1/h^2 + alpha/h) + P^T k) / s + K_c,JJ`` (bit ``RESTRICT_DIAGONAL``; ``s``
+        the overshoot guard per instance, 1 without ``damped``, module docstring; ``k``: body
         contact penalty at particles of ``x`` pressed onto the body by the solver's contacts,
         self-contact penalty at particles with pairs in ``sc_data``, or flagged in ``pair_flags``
         where given) of a substep of length ``h`` [s]; both in one pass by default."""
@@ -534,7 +549,7 @@ class CoarseLevel:
             wp.launch(restrict_lanes_kernel, dim=threads,
                       inputs=[parts, self.residual, *self._r, x, m.particle_instance, point, normal, active,
                               m.instance_thickness, self._k_contact, sc_data, pair_flags, self._mass,
-                              self._kdiag, self._node_damping, inertia, 1.0 / h, threads],
+                              self._kdiag, self._node_overshoot, inertia, 1.0 / h, threads],
                       outputs=[self._rhs, self._diag], device=m.device)
             return
         wp.launch(restrict_kernel, dim=self.node_count * RESTRICT_LANES,
@@ -542,7 +557,7 @@ class CoarseLevel:
                           m.instance_thickness, self._k_contact, sc_data, pair_flags],
                   outputs=[self._rhs_part, self._k_part], device=m.device)
         wp.launch(restrict_sum_kernel, dim=self.node_count,
-                  inputs=[parts, self._rhs_part, self._k_part, self._mass, self._kdiag, self._node_damping,
+                  inputs=[parts, self._rhs_part, self._k_part, self._mass, self._kdiag, self._node_overshoot,
                           inertia, 1.0 / h],
                   outputs=[self._rhs, self._diag], device=m.device)
 
@@ -786,11 +801,14 @@ def restrict_lane(
 
 
 @wp.func
-def node_scale(node_damping: wp.array(dtype=float), c: int, inv_h: float) -> float:
+def node_scale(node_overshoot: wp.array(dtype=wp.vec2), c: int, inv_h: float) -> float:
     """``1/s`` of coarse node ``c``: its instance's coarse system is ``s`` times the one solved,
-    ``s = 1 + k_d/h`` with ``k_d`` [s] the instance's strain-rate damping (module docstring); 1
-    exactly without damping, so those systems are the same floats as before (session 51)."""
-    return 1.0 / (1.0 + node_damping[c] * inv_h)
+    ``s = max(1, (1 + k_d/h) r / COARSE_OVERSHOOT)`` with ``node_overshoot[c]`` = (``k_d`` [s],
+    ``r / COARSE_OVERSHOOT``) of its instance (module docstring); 1 exactly where the overshoot
+    stays within ``COARSE_OVERSHOOT`` (and with ``damped`` off), so those systems are the same
+    floats as before session 51."""
+    o = node_overshoot[c]
+    return 1.0 / wp.max(1.0, (1.0 + o[0] * inv_h) * o[1])
 
 
 @wp.kernel
@@ -811,7 +829,7 @@ def restrict_lanes_kernel(
     pair_flags: wp.array(dtype=wp.int32),
     node_mass: wp.array(dtype=float),
     node_stiffness: wp.array(dtype=float),
-    node_damping: wp.array(dtype=float),
+    node_overshoot: wp.array(dtype=wp.vec2),
     inertia: float,
     inv_h: float,
     threads: int,
@@ -834,7 +852,7 @@ def restrict_lanes_kernel(
         total = total + lane_read_vec3(s, first + lane, mask)
         k_total = k_total + lane_read(kc, first + lane, mask)
     if tid % RESTRICT_LANES == 0:
-        inv_s = node_scale(node_damping, c, inv_h)
+        inv_s = node_scale(node_overshoot, c, inv_h)
         if (parts & RESTRICT_RHS) != 0:
             rhs_out[c] = total * inv_s
         if (parts & RESTRICT_DIAGONAL) != 0:
@@ -882,7 +900,7 @@ def restrict_sum_kernel(
     k_part: wp.array(dtype=float),
     node_mass: wp.array(dtype=float),
     node_stiffness: wp.array(dtype=float),
-    node_damping: wp.array(dtype=float),
+    node_overshoot: wp.array(dtype=wp.vec2),
     inertia: float,
     inv_h: float,
     rhs_out: wp.array(dtype=wp.vec3),
@@ -890,9 +908,9 @@ def restrict_sum_kernel(
 ):
     """``rhs = P^T r / s`` and the coarse diagonal ``(m_c (1/h^2 + alpha/h) + P^T k) / s + K_c,JJ``
     of node ``c`` (the ``parts`` of ``restrict_kernel``) from its lanes, summed in lane order (one
-    node per thread); ``s = 1 + k_d/h`` (``node_scale``)."""
+    node per thread); ``s`` the overshoot guard (``node_scale``)."""
     c = wp.tid()
-    inv_s = node_scale(node_damping, c, inv_h)
+    inv_s = node_scale(node_overshoot, c, inv_h)
     if (parts & RESTRICT_RHS) != 0:
         s = wp.vec3(0.0)
         for lane in range(RESTRICT_LANES):

@@ -280,11 +280,13 @@ class VBDConfig:
             coarse levels (else nothing changes). Off (default here; ``SimulationConfig`` turns
             it on for CUDA since session 42, where the factor was on the critical path: doubling
             it added its whole 63 us per substep to the 5k t-shirt's frame).
-        coarse_damped: the coarse system holds the membrane's strain-rate damping stiffness as the
-            sweeps do, ``(1 + k_d/h)`` times the elastic one (``coarse`` module docstring). On by
-            default since session 51; off, the coarse correction overshoots by that factor where
-            stiffness outweighs inertia and can amplify round-off instead of removing error (a
-            denim sheet at rest with aggregates 2-3 edges apart crumpled by itself).
+        coarse_damped: the coarse system's overshoot guard (``coarse`` module docstring): its
+            membrane proxy stiffened per garment just enough that a correction overshoots the
+            sweeps' Hessian, which holds the strain-rate damping (``1 + k_d/h`` times the elastic
+            one), by at most ``coarse.COARSE_OVERSHOOT`` (1.8). On by default since session 51;
+            off, a correction overshoots by up to ``1 + k_d/h`` times 1.3 where stiffness
+            outweighs inertia, and beyond 2 it amplifies error instead of removing it (a denim
+            sheet at rest with aggregates 2-3 edges apart crumpled by itself).
         self_contact_broadphase: how the self-contact detection finds its candidates: ``"bvh"``
             (three trees, refitted every detection and rebuilt every step), ``"clusters"`` (no
             trees: the primitives in fixed clusters of ``self_contact_cluster_size``, culled
