@@ -45,6 +45,8 @@ Setup (numpy/scipy, once per distinct garment template, shared by its instances)
   overshoot at ``COARSE_OVERSHOOT``, no more: the proxy is already far stiffer than the cloth in
   shear, bending and rigid rotation (a scalar Laplacian is not rotation-invariant), and the
   full factor ``1 + k_d/h`` left the fine long sleeve's swinging sleeves crumpled (session 51).
+  Even the guard raised the fine walks' strain on the CPU, so the job keeps it off
+  (``sim.simulate.JOB_COARSE_GUARD``); a bare ``VBDConfig`` has it on.
   The system solved is ``A_c / s`` for ``P^T r / s`` (the same solution): its off-diagonal part
   stays ``K_c``'s, and only the diagonal and the right-hand side change with ``h``.
 

@@ -283,10 +283,12 @@ class VBDConfig:
         coarse_damped: the coarse system's overshoot guard (``coarse`` module docstring): its
             membrane proxy stiffened per garment just enough that a correction overshoots the
             sweeps' Hessian, which holds the strain-rate damping (``1 + k_d/h`` times the elastic
-            one), by at most ``coarse.COARSE_OVERSHOOT`` (1.8). On by default since session 51;
-            off, a correction overshoots by up to ``1 + k_d/h`` times 1.3 where stiffness
-            outweighs inertia, and beyond 2 it amplifies error instead of removing it (a denim
-            sheet at rest with aggregates 2-3 edges apart crumpled by itself).
+            one), by at most ``coarse.COARSE_OVERSHOOT`` (1.8). On by default since session 51
+            (``SimulationConfig`` turns it off, ``sim.simulate.JOB_COARSE_GUARD``: it raised the
+            fine walks' strain on the CPU); off, a correction overshoots by up to ``1 + k_d/h``
+            times 1.3 where stiffness outweighs inertia, and beyond 2 it amplifies error instead
+            of removing it (a denim sheet at rest with aggregates 2-3 edges apart crumpled by
+            itself).
         self_contact_broadphase: how the self-contact detection finds its candidates: ``"bvh"``
             (three trees, refitted every detection and rebuilt every step), ``"clusters"`` (no
             trees: the primitives in fixed clusters of ``self_contact_cluster_size``, culled
