@@ -160,7 +160,7 @@ def default_retry_factors(vertices: int) -> tuple[float, ...]:
 
 
 JOB_COARSE_GUARD = False
-"""``VBDConfig.coarse_damped`` of the job (the CLI, datasets): off, though a bare ``VBDConfig``
+"""``VBDConfig.coarse_guard`` of the job (the CLI, datasets): off, though a bare ``VBDConfig``
 has the coarse system's overshoot guard on since session 51. On the GPU the guard was even with
 the old coarse system (fine gates: walks 7 of 8 against 6, runs 2 and 2; the fine dataset 13 of
 16 against 14, 10 at the first rung against 7; the 5k t-shirt 3.76 / 3.84 ms); on the CPU it
@@ -192,7 +192,7 @@ def simulator_defaults(cuda: bool = False) -> dict:
                         "fine_over_vertices": FINE_GARMENT_VERTICES},
            "iterations": {"default": DEFAULT_ITERATIONS, "fine": FINE_ITERATIONS},
            "coarse_exclusion": {"default": 0.0, "fine": FINE_COARSE_EXCLUSION},
-           "coarse_damped": JOB_COARSE_GUARD,
+           "coarse_guard": JOB_COARSE_GUARD,
            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
            "retry_factors": {"default": list(RETRY_FACTORS), "fine": list(FINE_RETRY_FACTORS)},
            "templates": {name: dataclasses.asdict(make_params(name)) for name in TEMPLATES}}
@@ -392,7 +392,7 @@ class SimulationConfig:
                               "coarse_early": CUDA_COARSE_EARLY and cuda,
                               "self_contact_coarse_exclusion":
                                   FINE_COARSE_EXCLUSION if vertices > FINE_GARMENT_VERTICES else 0.0,
-                              "coarse_damped": JOB_COARSE_GUARD}
+                              "coarse_guard": JOB_COARSE_GUARD}
         unknown = sorted(set(self.solver) - allowed)
         if unknown:
             raise WrinklesInputError(f"simulation config: unknown solver option(s) {unknown}; "

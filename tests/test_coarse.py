@@ -409,7 +409,7 @@ def test_a_damped_sheet_with_no_load_stays_at_rest(device, spacing, levels):
     """Nothing acts on a flat sheet at rest without gravity, so it must stay at rest: the coarse
     correction may only remove error, never amplify round-off. Denim's strain-rate damping makes
     the sweeps' membrane Hessian ``1 + k_d/h`` = 2.1 times the elastic one at 12 substeps; with
-    the coarse system holding the elastic stiffness alone (``coarse_damped`` off, until session
+    the coarse system holding the elastic stiffness alone (``coarse_guard`` off, until session
     51) each correction overshot by that factor (times up to 1.25 more in a dilation) in the
     stiff modes of small aggregates, and the sheet left rest by itself within 15 frames, at
     metres per second. With the overshoot guard (at most 1.8) it stays within round-off, and at
@@ -418,7 +418,7 @@ def test_a_damped_sheet_with_no_load_stays_at_rest(device, spacing, levels):
     rest = grid(21, 41, 0.11, 0.22)[0]
     assert np.abs(still - rest).max() < 1e-5
     old = _denim_sheet_frames(device, 0.0, 15, substeps=12, coarse_spacing=spacing, coarse_levels=levels,
-                              coarse_damped=False)
+                              coarse_guard=False)
     assert not np.all(np.isfinite(old)) or np.abs(old - rest).max() > 1e-3
     hanging = _denim_sheet_frames(device, 9.81, 15, substeps=24, coarse_spacing=spacing, coarse_levels=levels)
     assert np.all(np.isfinite(hanging)) and np.abs(hanging[-5:] - rest).max() < 1e-3

@@ -108,9 +108,9 @@ def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
     assert simulator_defaults()["coarse_exclusion"] == {"default": 0.0, "fine": 0.006}
     # session 51: a bare VBDConfig has the coarse overshoot guard, the job keeps the old coarse
     # system unless its solver table asks; a dataset records which
-    assert VBDConfig().coarse_damped and simulator_defaults()["coarse_damped"] is False
-    assert not SimulationConfig().vbd_config(3_000).coarse_damped
-    assert SimulationConfig(solver={"coarse_damped": True}).vbd_config(19_542).coarse_damped
+    assert VBDConfig().coarse_guard and simulator_defaults()["coarse_guard"] is False
+    assert not SimulationConfig().vbd_config(3_000).coarse_guard
+    assert SimulationConfig(solver={"coarse_guard": True}).vbd_config(19_542).coarse_guard
     # automatic retries (session 45): two rungs up to 10k garment vertices, a third (3x) above;
     # a list wins, [] means none; automatic survives the round trip
     assert [SimulationConfig().retry_substeps(n) for n in sizes] == [(20, 24), (20, 24), (23, 28, 42),

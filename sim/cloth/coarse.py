@@ -33,7 +33,7 @@ Setup (numpy/scipy, once per distinct garment template, shared by its instances)
   Its sparsity pattern is fixed, so its rows are put in reverse Cuthill-McKee order once (the
   t-shirt's 326 nodes: bandwidth 60) and each correction factors the band exactly.
 - **overshoot guard** ``s = max(1, (1 + k_d/h) r / COARSE_OVERSHOOT)`` per instance (session 51,
-  ``damped``): the proxy is softer than the sweeps' Hessian in two ways. The strain-rate damping
+  ``guard``): the proxy is softer than the sweeps' Hessian in two ways. The strain-rate damping
   (``k_d`` [s]) makes that Hessian ``1 + k_d/h`` times the elastic one
   (``energies.stvk_damped_vertex_force_hessian``): 1.7-1.8 for cotton at 12-14 substeps, 2.2-3.5
   at the retries' 20-42. And in a pure dilation the membrane is ``r = 2 (lambda + mu) / (lambda +
@@ -312,7 +312,7 @@ def galerkin_slots(exact: list) -> Any:
 
 COARSE_OVERSHOOT = 1.8
 """The most a coarse correction may overshoot the sweeps' own Hessian in its stiffest mode, as a
-factor (``CoarseLevel`` ``damped``; session 51). An exact correction that overshoots by ``w``
+factor (``CoarseLevel`` ``guard``; session 51). An exact correction that overshoots by ``w``
 leaves ``1 - w`` of the error it removes, so ``w`` must stay under 2; 1.8 leaves room for the
 membrane's stiffening under stretch."""
 
@@ -349,13 +349,13 @@ class CoarseLevel:
         smoothing: l1-Jacobi passes before and after the inner solve (three levels).
         prefactor: with two levels, the diagonal and (CUDA) the factor at the substep start
             (``prepare``) instead of at each correction (``VBDConfig.coarse_prefactor``).
-        damped: the overshoot guard (module docstring; ``VBDConfig.coarse_damped``); off:
+        guard: the overshoot guard (module docstring; ``VBDConfig.coarse_guard``); off:
             ``K_c`` alone, as before session 51.
     """
 
     def __init__(self, model, particles: tuple, k_contact: float, contact_margin: float, air_damping: float,
                  spacing: int = 3, levels: int = 0, smoothing: int = 2, prefactor: bool = False,
-                 damped: bool = True):
+                 guard: bool = True):
         import scipy.sparse as sp
 
         if spacing < 0:
@@ -401,13 +401,13 @@ class CoarseLevel:
         self._mass = arr(mc.astype(np.float32), float)
         self._kdiag = arr(kc.diagonal().astype(np.float32), float)
         # each node's instance's largest strain-rate damping k_d [s] and largest dilation ratio
-        # 2 (lambda + mu) / (lambda + 2 mu) over ``COARSE_OVERSHOOT`` (both 0: ``damped`` off)
+        # 2 (lambda + mu) / (lambda + 2 mu) over ``COARSE_OVERSHOOT`` (both 0: ``guard`` off)
         tri_damping = model.tri_damping.numpy().astype(np.float64)
         lam, mu = model.tri_lam.numpy().astype(np.float64), model.tri_mu.numpy().astype(np.float64)
         dilation = 2.0 * (lam + mu) / np.maximum(lam + 2.0 * mu, 1e-30)
         per_inst = np.array([[tri_damping[tri_starts[k]:tri_starts[k + 1]].max(initial=0.0),
                               dilation[tri_starts[k]:tri_starts[k + 1]].max(initial=0.0) / COARSE_OVERSHOOT]
-                             if damped else [0.0, 0.0] for k in range(model.instance_count)]).reshape(-1, 2)
+                             if guard else [0.0, 0.0] for k in range(model.instance_count)]).reshape(-1, 2)
         self.node_overshoot = np.repeat(per_inst, [len(b.mass) for b in blocks], axis=0)
         self._node_overshoot = arr(self.node_overshoot.astype(np.float32), wp.vec2)
         nc = self.node_count
@@ -534,7 +534,7 @@ class CoarseLevel:
     def restrict(self, h: float, x, sc_data, parts: int = 3, pair_flags=None) -> None:
         """The coarse right-hand side ``P^T residual / s`` (``parts`` bit ``RESTRICT_RHS``) and
         diagonal ``(m_c (1/h^2 + alpha/h) + P^T k) / s + K_c,JJ`` (bit ``RESTRICT_DIAGONAL``; ``s``
-        the overshoot guard per instance, 1 without ``damped``, module docstring; ``k``: body
+        the overshoot guard per instance, 1 without ``guard``, module docstring; ``k``: body
         contact penalty at particles of ``x`` pressed onto the body by the solver's contacts,
         self-contact penalty at particles with pairs in ``sc_data``, or flagged in ``pair_flags``
         where given) of a substep of length ``h`` [s]; both in one pass by default."""
@@ -807,7 +807,7 @@ def node_scale(node_overshoot: wp.array(dtype=wp.vec2), c: int, inv_h: float) ->
     """``1/s`` of coarse node ``c``: its instance's coarse system is ``s`` times the one solved,
     ``s = max(1, (1 + k_d/h) r / COARSE_OVERSHOOT)`` with ``node_overshoot[c]`` = (``k_d`` [s],
     ``r / COARSE_OVERSHOOT``) of its instance (module docstring); 1 exactly where the overshoot
-    stays within ``COARSE_OVERSHOOT`` (and with ``damped`` off), so those systems are the same
+    stays within ``COARSE_OVERSHOOT`` (and with ``guard`` off), so those systems are the same
     floats as before session 51."""
     o = node_overshoot[c]
     return 1.0 / wp.max(1.0, (1.0 + o[0] * inv_h) * o[1])

@@ -280,7 +280,7 @@ class VBDConfig:
             coarse levels (else nothing changes). Off (default here; ``SimulationConfig`` turns
             it on for CUDA since session 42, where the factor was on the critical path: doubling
             it added its whole 63 us per substep to the 5k t-shirt's frame).
-        coarse_damped: the coarse system's overshoot guard (``coarse`` module docstring): its
+        coarse_guard: the coarse system's overshoot guard (``coarse`` module docstring): its
             membrane proxy stiffened per garment just enough that a correction overshoots the
             sweeps' Hessian, which holds the strain-rate damping (``1 + k_d/h`` times the elastic
             one), by at most ``coarse.COARSE_OVERSHOOT`` (1.8). On by default since session 51
@@ -353,7 +353,7 @@ class VBDConfig:
     coarse_smoothing: int = 2
     coarse_prefactor: bool = False
     coarse_early: bool = False
-    coarse_damped: bool = True
+    coarse_guard: bool = True
 
     def __post_init__(self):
         if self.self_contact_heavy_cap < -1:
@@ -584,7 +584,7 @@ class SolverVBD:
                          self._contact_body_velocity, self._contact_active)
             self.coarse = CoarseLevel(model, particles, cfg.contact_stiffness, cfg.contact_margin,
                                       cfg.air_damping, cfg.coarse_spacing, cfg.coarse_levels,
-                                      cfg.coarse_smoothing, cfg.coarse_prefactor, cfg.coarse_damped)
+                                      cfg.coarse_smoothing, cfg.coarse_prefactor, cfg.coarse_guard)
             self._evaluate = K.solve_color_kernel(self._particles, self._lanes, fused, self._max_registers,
                                                   evaluate=True, fast_math=cfg.fast_math)
         # ``coarse_early``: the particles with pairs at the previous substep's end (the velocity
