@@ -20,7 +20,7 @@ from sim.device import warp
 from sim.quality import self_intersections
 from tests.conftest import DEVICES
 from tests.test_cloth_solver import drop_on_sphere, grid, one_step_from, simulate
-from tests.test_self_contact import _center_gap, stacked_layers
+from tests.test_self_contact import _center_gap, fine_denim_sheet, stacked_layers
 
 STIFF = ClothMaterialParams(density=0.2, mu=200.0, lam=100.0, bending=1e-7, damping=0.0, friction=0.0)
 
@@ -387,21 +387,16 @@ def test_coarse_correction_converges_far_further_per_sweep(device, levels):
     np.testing.assert_allclose(step(3000), ref, atol=0.15 * plain)
 
 
-def _denim_sheet_frames(device, gravity: float, frames: int, **config) -> np.ndarray:
-    """Positions per frame of a 21 x 41 denim sheet of 5.5 mm edges (a fine garment's) hanging
-    from its pinned top row, at rest to start, under ``gravity`` [m/s^2], stepped at 30 fps with
-    a coarse correction before the second of 5 sweeps and ``config``."""
-    from sim.cloth.model import as_cloth_params
-    from sim.garments.materials import get_material
-
-    v, f = grid(21, 41, 0.11, 0.22)
-    b = ClothModelBuilder(gravity=(0.0, -gravity, 0.0))
-    b.add_cloth(v, f, as_cloth_params(get_material("denim")), pinned=np.arange(21))
-    m = b.finalize(device)
+def _denim_sheet_frames(device, gravity: float, frames: int, **config) -> tuple[np.ndarray, np.ndarray]:
+    """Positions per frame of a 21 x 41 denim sheet of 5.5 mm edges (a fine garment's,
+    ``fine_denim_sheet``) hanging from its pinned top row, at rest to start, under ``gravity``
+    [m/s^2], stepped at 30 fps with a coarse correction before the second of 5 sweeps and
+    ``config``; and its rest positions."""
+    m, v = fine_denim_sheet(device, gravity)
     solver = SolverVBD(m, VBDConfig(iterations=5, coarse_sweeps=(1,), **config))
     control = m.control()
     control.pin_targets.assign(v)
-    return simulate(m, solver, control, frames, 1.0 / 30.0)
+    return simulate(m, solver, control, frames, 1.0 / 30.0), v
 
 
 @pytest.mark.parametrize("spacing, levels", [(2, 2), (3, 2), (2, 3)])
@@ -414,13 +409,12 @@ def test_a_damped_sheet_with_no_load_stays_at_rest(device, spacing, levels):
     stiff modes of small aggregates, and the sheet left rest by itself within 15 frames, at
     metres per second. With the overshoot guard (at most 1.8) it stays within round-off, and at
     24 substeps under gravity (the old coarse system gave NaN) it hangs as it rests."""
-    still = _denim_sheet_frames(device, 0.0, 15, substeps=12, coarse_spacing=spacing, coarse_levels=levels)
-    rest = grid(21, 41, 0.11, 0.22)[0]
+    layout = {"coarse_spacing": spacing, "coarse_levels": levels}
+    still, rest = _denim_sheet_frames(device, 0.0, 15, substeps=12, **layout)
     assert np.abs(still - rest).max() < 1e-5
-    old = _denim_sheet_frames(device, 0.0, 15, substeps=12, coarse_spacing=spacing, coarse_levels=levels,
-                              coarse_guard=False)
+    old, _ = _denim_sheet_frames(device, 0.0, 15, substeps=12, coarse_guard=False, **layout)
     assert not np.all(np.isfinite(old)) or np.abs(old - rest).max() > 1e-3
-    hanging = _denim_sheet_frames(device, 9.81, 15, substeps=24, coarse_spacing=spacing, coarse_levels=levels)
+    hanging, _ = _denim_sheet_frames(device, 9.81, 15, substeps=24, **layout)
     assert np.all(np.isfinite(hanging)) and np.abs(hanging[-5:] - rest).max() < 1e-3
 
 

@@ -1238,6 +1238,22 @@ def test_cluster_layout_cuts_each_instance_into_compact_clusters():
         cluster_layout(pts, groups + 1, 2, 16)
 
 
+FINE_SHEET = (21, 41, 0.0055)  # columns, rows, edge [m]: a fine garment's edges
+
+
+def fine_denim_sheet(device, gravity: float = 9.81):
+    """A ``FINE_SHEET`` of denim in the plane z = 0 pinned along its top row, under ``gravity``
+    [m/s^2]: the model and its rest positions."""
+    from sim.cloth.model import as_cloth_params
+    from sim.garments.materials import get_material
+
+    nx, ny, e = FINE_SHEET
+    v, f = grid(nx, ny, (nx - 1) * e, (ny - 1) * e)
+    b = ClothModelBuilder(gravity=(0.0, -gravity, 0.0))
+    b.add_cloth(v, f, as_cloth_params(get_material("denim")), pinned=np.arange(nx))
+    return b.finalize(device), v
+
+
 def _hanging_fine_sheet(device, frames: int, **changes):
     """A 21 x 41 sheet of 5.5 mm edges (a fine garment's) in denim hanging from its pinned top row
     for ``frames`` frames at the job's solver default for fine garments (``SimulationConfig.vbd_config``
@@ -1246,19 +1262,14 @@ def _hanging_fine_sheet(device, frames: int, **changes):
     vertex-triangle pairs at the end."""
     import dataclasses
 
-    from sim.cloth.model import as_cloth_params
-    from sim.garments.materials import get_material
     from sim.simulate import SimulationConfig
 
-    nx, ny, e = 21, 41, 0.0055
-    v, f = grid(nx, ny, (nx - 1) * e, (ny - 1) * e)
-    b = ClothModelBuilder()
-    b.add_cloth(v.astype(np.float32), f, as_cloth_params(get_material("denim")), pinned=np.arange(nx))
-    m = b.finalize(device)
+    m, v = fine_denim_sheet(device)
+    nx = FINE_SHEET[0]
     cfg = dataclasses.replace(SimulationConfig(self_contact=True).vbd_config(20_000), **changes)
     solver = SolverVBD(m, cfg)
     state, control = m.state(), m.control()
-    control.pin_targets.assign(v.astype(np.float32))
+    control.pin_targets.assign(v)
     bottom = []
     for _ in range(frames):
         solver.step(state, state, control, 1.0 / 30.0)

@@ -402,12 +402,15 @@ class CoarseLevel:
         self._kdiag = arr(kc.diagonal().astype(np.float32), float)
         # each node's instance's largest strain-rate damping k_d [s] and largest dilation ratio
         # 2 (lambda + mu) / (lambda + 2 mu) over ``COARSE_OVERSHOOT`` (both 0: ``guard`` off)
-        tri_damping = model.tri_damping.numpy().astype(np.float64)
-        lam, mu = model.tri_lam.numpy().astype(np.float64), model.tri_mu.numpy().astype(np.float64)
-        dilation = 2.0 * (lam + mu) / np.maximum(lam + 2.0 * mu, 1e-30)
-        per_inst = np.array([[tri_damping[tri_starts[k]:tri_starts[k + 1]].max(initial=0.0),
-                              dilation[tri_starts[k]:tri_starts[k + 1]].max(initial=0.0) / COARSE_OVERSHOOT]
-                             if guard else [0.0, 0.0] for k in range(model.instance_count)]).reshape(-1, 2)
+        per_inst = np.zeros((model.instance_count, 2))
+        if guard:
+            tri_damping = model.tri_damping.numpy().astype(np.float64)
+            lam, mu = model.tri_lam.numpy().astype(np.float64), model.tri_mu.numpy().astype(np.float64)
+            dilation = 2.0 * (lam + mu) / np.maximum(lam + 2.0 * mu, 1e-30)
+            for k in range(model.instance_count):
+                tris = slice(tri_starts[k], tri_starts[k + 1])
+                per_inst[k] = (tri_damping[tris].max(initial=0.0),
+                               dilation[tris].max(initial=0.0) / COARSE_OVERSHOOT)
         self.node_overshoot = np.repeat(per_inst, [len(b.mass) for b in blocks], axis=0)
         self._node_overshoot = arr(self.node_overshoot.astype(np.float32), wp.vec2)
         nc = self.node_count
