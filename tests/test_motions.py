@@ -688,6 +688,53 @@ def test_body_aware_taller_shape(default_body):
     assert load_motion(str(CMU), skeleton=s2).num_frames == load_motion(str(CMU)).num_frames
 
 
+def test_gaits_keep_the_hips_inside_their_limits_by_quicker_steps(default_body):
+    """Session 52: at the automatic cadence the run at 3.5 m/s needed 35 deg of hip extension on
+    the default body and 49 on a short one (the table allows 30). Where the calibrated hip swing
+    would pass the limit, the cadence rises instead: every gait of every shape stays inside the
+    table, the stance foot still does not slide, and a body that needs no more keeps its
+    cadence."""
+    from sim.motions.gait import (
+        _RUN,
+        hip_scale_cap,
+        peak_hip_extension,
+        run_stride_frequency,
+        stride_calibration,
+    )
+
+    limit = JOINT_LIMITS[JOINT["left_hip"], 0, 1]
+    fps = 240.0
+    for b0, b1 in ((0.0, 0.0), (-2.0, 0.0), (-1.0, 0.5), (2.0, 0.0)):
+        betas = np.zeros(default_body.num_betas, np.float32)
+        betas[:2] = b0, b1
+        sk = MotionSkeleton.from_body(default_body, betas)
+        for name in ("walk", "run"):
+            m = procedural_motion(name, duration=2.5, fps=fps, skeleton=sk)
+            assert within_limits(m.poses, tol=1e-6), (b0, b1, name)
+        # the run: the stance foot moves with the floor (the root moves at 3.5 m/s)
+        _, P = sk.forward_kinematics(m.poses, m.trans)
+        ph = np.mod(m.extra["phase"], 1.0)
+        duty = m.extra["duty"]
+        mid = np.nonzero((np.arange(m.num_frames) > 1.2 * fps) & (ph > 0.15 * duty) & (ph < 0.75 * duty))[0]
+        z = P[:, JOINT["right_ankle"], 2]
+        windows = [w for w in np.split(mid, np.nonzero(np.diff(mid) > 1)[0] + 1)
+                   if np.ptp(ph[w]) > 0.55 * duty]  # whole mid-stances only
+        assert windows
+        for w in windows:  # the ankle's mean speed over mid-stance [m/s]
+            assert abs(z[w[-1]] - z[w[0]]) / ((w[-1] - w[0]) / fps) < 0.05, (b0, b1)
+        cap = hip_scale_cap(_RUN, duty)
+        free = stride_calibration(_RUN, duty, run_stride_frequency(3.5), 3.5, sk)
+        if b0 == 2.0:  # long legs reach the stride inside the limits: cadence and swing unchanged
+            assert free < cap and m.extra["cadence_raised"] == 1.0 and m.extra["hip_scale"] == free
+        else:  # the swing held at the cap, more strides per second
+            assert free > cap and m.extra["hip_scale"] == cap and m.extra["cadence_raised"] > 1.1
+            assert np.degrees(peak_hip_extension(_RUN, duty, free)) > 30.0
+    assert np.degrees(peak_hip_extension(_RUN, 0.35, cap)) == pytest.approx(np.degrees(limit) - 1.0, abs=0.01)
+    # a stride asked for is kept, at whatever swing it takes
+    m = procedural_motion("run", duration=1.0, fps=30.0, stride=2.5)
+    assert m.extra["cadence_raised"] == 1.0 and m.extra["stride_frequency"] == pytest.approx(3.5 / 2.5)
+
+
 @pytest.mark.parametrize("name", ["walk", "run"])
 def test_gait_arms_do_not_cut_into_the_body(default_body, name):
     """The default body is skinned without pose correctives: an arm lowered past ~25 degrees

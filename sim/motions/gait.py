@@ -24,7 +24,11 @@ tilt is subtracted to keep the thigh's angle to the vertical right.
 Cadence: walking stride length ``L = 1.41 (v / 1.3)^0.5`` m, the square-root growth of stride
 with speed (cf. Grieve 1968, "Gait patterns and the speed of walking"), giving 110 steps/min at
 1.3 m/s; running stride frequency ``f = 1.25 + 0.04 v`` Hz (runners speed up mostly by longer
-strides; Cavanagh & Kram 1989, ~1.35-1.45 Hz at 3-5 m/s).
+strides; Cavanagh & Kram 1989, ~1.35-1.45 Hz at 3-5 m/s). Where a body's legs would need a hip
+extension past the joint-limit table (30 deg, ``sim.motions.limits``) to reach that stride, the
+cadence rises instead (:func:`limited_cadence`, session 52): on the default body the run takes
+1.62 strides/s (194 steps/min) at 29 deg of hip extension instead of 1.39 at 35 deg, a short
+body (betas[0] = -2) 2.09 instead of 1.39 at 49 deg. A stride given explicitly is kept.
 
 Stride calibration: the normative curves belong to one stride length; at another speed /
 stride the hip curve is scaled about its mean so that the stance foot, carried back by the
@@ -42,13 +46,16 @@ sink (the flight phase, where the feet are above the floor, stays ballistic).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from sim.motions.limits import JOINT_LIMITS
 from sim.motions.procedural import (
     D2R,
     GRAVITY,
+    JOINT,
     PoseBuilder,
     check_params,
     ground_trans_y,
@@ -70,7 +77,7 @@ WALK_TOE_OFF = 0.62
 RUN_HIP = ((0, 35), (12, 27), (28, 5), (42, -12), (55, 0), (70, 30), (85, 45), (94, 40))
 RUN_KNEE = ((0, 18), (14, 40), (28, 25), (39, 15), (48, 35), (60, 75), (70, 95), (80, 80),
             (90, 40), (96, 22))
-RUN_ANKLE = ((0, 5), (14, 20), (28, 10), (39, -20), (46, -24), (56, -8), (70, 5), (85, 10),
+RUN_ANKLE = ((0, 5), (14, 19.5), (28, 10), (39, -20), (46, -24), (56, -8), (70, 5), (85, 10),
              (94, 7))
 RUN_TOE_OFF = 0.39
 
@@ -210,6 +217,54 @@ def stride_calibration(style: _GaitStyle, duty: float, f: float, speed: float,
     return s
 
 
+HIP_EXTENSION_MARGIN = 1.0 * D2R
+"""How far [rad] below the joint-limit table's hip extension (``sim.motions.limits``, 30 deg)
+the automatic cadence keeps a gait's peak hip extension (``limited_cadence``)."""
+
+
+def peak_hip_extension(style: _GaitStyle, duty: float, hip_scale: float) -> float:
+    """Largest hip extension [rad] (the hips' axis-angle X component, extension positive) over a
+    stride of the gait at ``hip_scale``, either hip."""
+    poses = gait_pose(style, np.linspace(0.0, 1.0, 400, endpoint=False), duty=duty, hip_scale=hip_scale)
+    return float(poses[:, [JOINT["left_hip"], JOINT["right_hip"]], 0].max())
+
+
+@functools.lru_cache(maxsize=64)
+def hip_scale_cap(style: _GaitStyle, duty: float) -> float:
+    """The largest hip-curve scale whose peak extension stays ``HIP_EXTENSION_MARGIN`` inside the
+    joint-limit table (bisection; the extension grows with the scale)."""
+    limit = min(JOINT_LIMITS[JOINT["left_hip"], 0, 1], JOINT_LIMITS[JOINT["right_hip"], 0, 1])
+    target = limit - HIP_EXTENSION_MARGIN
+    lo, hi = 0.5, 2.0
+    if peak_hip_extension(style, duty, hi) <= target:
+        return hi
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if peak_hip_extension(style, duty, mid) <= target else (lo, mid)
+    return lo
+
+
+def limited_cadence(style: _GaitStyle, duty: float, f: float, speed: float,
+                    skeleton: MotionSkeleton | None = None) -> tuple[float, float]:
+    """Stride frequency [Hz] and hip-curve scale of a gait at ``speed`` [m/s] whose stance foot
+    does not slide and whose hips stay inside the joint limits.
+
+    At the automatic cadence ``f`` a short-legged body needs a larger hip excursion for the
+    same speed (``stride_calibration``): the run at 3.5 m/s reached 35 deg of hip extension on the
+    default body and 49 deg on a short one (betas[0] = -2), past the 30 deg of the joint-limit
+    table and far past the 10-20 deg runners use. Where the calibrated scale would pass
+    ``hip_scale_cap``, the cadence rises instead, as shorter runners' does: the scale is held at
+    the cap and the frequency is the one at which the stance foot, swept at that scale, moves at
+    ``speed`` (the stance speed is proportional to the frequency), so the foot still does not
+    slide."""
+    k = stride_calibration(style, duty, f, speed, skeleton)
+    cap = hip_scale_cap(style, duty)
+    if k <= cap:
+        return f, k
+    per_hz = _stance_speed(style, duty, 1.0, cap, skeleton)
+    return (speed / per_hz, cap) if per_hz > 1e-6 else (f, k)
+
+
 def _ramped_phase(t: np.ndarray, w: np.ndarray, rate: float, fps: float) -> np.ndarray:
     """Integral of ``rate * w(t)`` from 0 (trapezoid-free: exact rate per frame once w = 1)."""
     return np.concatenate([[0.0], np.cumsum(rate * w[:-1] / fps)])
@@ -238,16 +293,22 @@ def walk(p: WalkParams, skeleton: MotionSkeleton | None = None) -> Motion:
     t = time_axis(p.duration, p.fps)
     w = smoothstep(t / p.ramp)
     stride = p.stride if p.stride > 0 else walk_stride_length(p.speed)
-    f = p.speed / stride
+    f = f_auto = p.speed / stride
+    if p.speed <= 0:
+        k = 1.0
+    elif p.stride > 0:  # the stride asked for, at whatever hip swing it takes
+        k = stride_calibration(_WALK, WALK_TOE_OFF, f, p.speed, skeleton)
+    else:
+        f, k = limited_cadence(_WALK, WALK_TOE_OFF, f, p.speed, skeleton)
+        stride = p.speed / f
     phase = _ramped_phase(t, w, f, p.fps)
-    k = stride_calibration(_WALK, WALK_TOE_OFF, f, p.speed, skeleton) if p.speed > 0 else 1.0
     poses = w[:, None, None] * gait_pose(_WALK, phase, arm_swing=p.arm_swing, hip_scale=k)
     trans = np.zeros((t.size, 3))
     trans[:, 2] = _ramped_phase(t, w, p.speed, p.fps)
     trans[:, 1] = ground_trans_y(poses, skeleton)
     return make_motion("walk", p, poses, trans, phase=phase.astype(np.float32),
                        stride_frequency=f, stride_length=stride, toe_off=WALK_TOE_OFF,
-                       hip_scale=k)
+                       hip_scale=k, cadence_raised=f / f_auto if f_auto > 0 else 1.0)
 
 
 @dataclass(frozen=True)
@@ -289,9 +350,12 @@ def run(p: RunParams, skeleton: MotionSkeleton | None = None) -> Motion:
     vertical motion with a ballistic flight phase, forward trunk lean, bent-elbow arm swing."""
     t = time_axis(p.duration, p.fps)
     w = smoothstep(t / p.ramp)
-    f = p.speed / p.stride if p.stride > 0 else run_stride_frequency(p.speed)
+    f = f_auto = p.speed / p.stride if p.stride > 0 else run_stride_frequency(p.speed)
+    if p.stride > 0:  # the stride asked for, at whatever hip swing it takes
+        k = stride_calibration(_RUN, p.duty, f, p.speed, skeleton)
+    else:
+        f, k = limited_cadence(_RUN, p.duty, f, p.speed, skeleton)
     phase = _ramped_phase(t, w, f, p.fps)
-    k = stride_calibration(_RUN, p.duty, f, p.speed, skeleton)
     poses = w[:, None, None] * gait_pose(_RUN, phase, duty=p.duty, arm_swing=p.arm_swing,
                                          hip_scale=k)
     t_stance, t_flight = p.duty / f, (0.5 - p.duty) / f
@@ -307,4 +371,4 @@ def run(p: RunParams, skeleton: MotionSkeleton | None = None) -> Motion:
     trans[:, 1] = np.maximum((1.0 - w) * ground + w * y_run, ground)
     return make_motion("run", p, poses, trans, phase=phase.astype(np.float32),
                        stride_frequency=f, stride_length=p.speed / f, duty=p.duty,
-                       t_stance=t_stance, t_flight=t_flight, hip_scale=k)
+                       t_stance=t_stance, t_flight=t_flight, hip_scale=k, cadence_raised=f / f_auto)

@@ -1,0 +1,285 @@
+"""How fast could a batch of t-shirts go at the job's setting, if contact cost nothing?
+(issue 3's batched target: >= 20,000 garment-frames/s at 5k vertices.)
+
+Three floors for N copies of the 5k t-shirt in one ``ClothModel`` (the job's CUDA colouring,
+``CUDA_COLORS``), each timed as a CUDA graph of one 30 fps frame, replayed:
+
+- ``sweeps``: the VBD sweeps of a frame (``substeps`` x ``iterations`` x colours launches) with
+  the job's own energies and nothing else: one thread per particle gathers the damped
+  co-rotated membrane (``vbd_kernels.membrane_force_hessian``) and the damped hinge bending
+  (``energies.bending_damped_vertex_force_hessian``) of its triangles and hinges, adds inertia
+  and takes the 3x3 Newton step. No body contact, no self-contact (no detection, no pair
+  terms, no bounds), no coarse correction, no forward / velocity kernels, no snapshot (a
+  hinge's same-coloured opposite vertex is read live: a benign race, timing only). It is the
+  cheapest a sweep of this design's physics can be written; the job's sweep does all of it and
+  more.
+- ``stream``: the bandwidth roofline of those sweeps: the bytes of every array the sweep
+  kernel reads (each once) plus the positions it writes, per sweep, at the copy bandwidth
+  measured in the same run (a device-to-device copy of a 1 GiB array). A sweep cannot take
+  less than this on this GPU unless the model's data shrinks.
+- ``launch``: the frame's launches with empty kernels (the graph's per-launch floor).
+
+It prints and writes ``batch_floor<tag>.json``: per batch size the three floors in ms per
+batched frame, their garment-frames/s ceilings, and ns per particle per sweep.
+
+    python -m benchmarks.batch_floor --device cuda --batch 1,16,128,1024 --tag _s52
+    python -m benchmarks.batch_floor --device cpu --batch 1 --vertices 1000 --rounds 2   # CPU check
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import warp as wp
+
+from benchmarks.common import machine, write_result
+from sim.cloth.energies import bending_damped_vertex_force_hessian
+from sim.cloth.vbd_kernels import MEMBRANE_COROTATED, membrane_force_hessian
+
+TARGET = 20_000.0
+"""Issue 3's batched target [garment-frames/s]."""
+
+
+@wp.kernel(enable_backward=False)
+def floor_sweep_kernel(
+    color_vertices: wp.array(dtype=wp.int32),
+    begin: int,
+    x: wp.array(dtype=wp.vec3),
+    y: wp.array(dtype=wp.vec3),
+    mass: wp.array(dtype=float),
+    tri_indices: wp.array(dtype=wp.vec3i),
+    tri_dm_inv: wp.array(dtype=wp.mat22),
+    tri_area: wp.array(dtype=float),
+    tri_mu: wp.array(dtype=float),
+    tri_lam: wp.array(dtype=float),
+    tri_damping: wp.array(dtype=float),
+    tri_strain_prev: wp.array(dtype=wp.vec3),
+    edge_indices: wp.array(dtype=wp.vec4i),
+    edge_rest_angle: wp.array(dtype=float),
+    edge_stiffness: wp.array(dtype=float),
+    edge_damping: wp.array(dtype=float),
+    edge_angle_prev: wp.array(dtype=float),
+    vertex_tri_offsets: wp.array(dtype=wp.int32),
+    vertex_tri_ids: wp.array(dtype=wp.int32),
+    vertex_tri_local: wp.array(dtype=wp.int32),
+    vertex_edge_offsets: wp.array(dtype=wp.int32),
+    vertex_edge_ids: wp.array(dtype=wp.int32),
+    vertex_edge_local: wp.array(dtype=wp.int32),
+    h: float,
+):
+    """One colour of a contact-free VBD sweep: particle ``color_vertices[begin + tid]`` takes the
+    Newton step ``x += H^-1 f`` of the substep's incremental potential (inertia, damped
+    co-rotated membrane, damped bending) in place."""
+    i = color_vertices[begin + wp.tid()]
+    inv_h = 1.0 / h
+    xi = x[i]
+    f = wp.vec3(0.0)
+    H = wp.mat33(0.0)
+    for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
+        t = vertex_tri_ids[k]
+        tri = tri_indices[t]
+        fe, he = membrane_force_hessian(MEMBRANE_COROTATED, x[tri[0]], x[tri[1]], x[tri[2]], tri_dm_inv[t],
+                                        tri_area[t], tri_mu[t], tri_lam[t], tri_strain_prev[t],
+                                        tri_damping[t] * inv_h, vertex_tri_local[k] & 3)
+        f = f + fe
+        H = H + he
+    for k in range(vertex_edge_offsets[i], vertex_edge_offsets[i + 1]):
+        e = vertex_edge_ids[k]
+        q = edge_indices[e]
+        fb, hb = bending_damped_vertex_force_hessian(x[q[0]], x[q[1]], x[q[2]], x[q[3]], edge_rest_angle[e],
+                                                     edge_stiffness[e], edge_angle_prev[e],
+                                                     edge_damping[e] * inv_h, vertex_edge_local[k] & 3)
+        f = f + fb
+        H = H + hb
+    mh = mass[i] * inv_h * inv_h
+    f = f + mh * (y[i] - xi)
+    H = H + mh * wp.identity(n=3, dtype=float)
+    if wp.abs(wp.determinant(H)) > 1.0e-20:
+        x[i] = xi + wp.inverse(H) * f
+
+
+@wp.kernel(enable_backward=False)
+def empty_kernel(x: wp.array(dtype=wp.vec3)):
+    wp.tid()
+
+
+class FloorScene:
+    """The arrays of one substep of ``model`` (a ``ClothModel``) of length ``h`` [s] from a
+    fresh state, as ``SolverVBD.step`` sets them up: the substep starts at ``model.particle_q``
+    at zero velocity; the inertial target is ``y = x + h^2 g``, which is also the sweeps' first
+    guess (a fresh ``ClothState`` is falling: the adaptive guess is ``y``); the strain-rate
+    damping's reference (strain and hinge angles) is taken at the substep's start."""
+
+    def __init__(self, model, h: float):
+        from sim.cloth.vbd_kernels import previous_deformation_kernel
+
+        m = model
+        d = m.device
+        self.model = m
+        self.h = float(h)
+        x0 = m.particle_q.numpy()
+        start = wp.array(x0, dtype=wp.vec3, device=d)
+        g = np.asarray(m.gravity, np.float32)
+        self.y = wp.array(x0 + (self.h * self.h) * g[None, :], dtype=wp.vec3, device=d)
+        self.x = wp.clone(self.y)
+        self.strain_prev = wp.zeros(m.tri_count, dtype=wp.vec3, device=d)
+        self.angle_prev = wp.zeros(m.edge_count, dtype=float, device=d)
+        wp.launch(previous_deformation_kernel, dim=m.tri_count + m.edge_count,
+                  inputs=[start, m.tri_indices, m.tri_dm_inv, m.edge_indices, m.tri_count],
+                  outputs=[self.strain_prev, self.angle_prev], device=d)
+        self.colors = [(m.color_offsets[c], m.color_offsets[c + 1] - m.color_offsets[c])
+                       for c in range(m.color_count)]
+
+    @classmethod
+    def tshirts(cls, garment, copies: int, device: str, substeps: int, max_colors: int) -> FloorScene:
+        """``copies`` of ``garment`` at its rest shape in one model, as ``simulate_batch`` adds
+        them (hems included), for a substep of a 30 fps frame of ``substeps``."""
+        from sim.cloth.model import ClothModelBuilder
+
+        b = ClothModelBuilder(max_colors=max_colors)
+        for _ in range(copies):
+            b.add_cloth(garment.rest_vertices, garment.faces, garment.material,
+                        face_layers=garment.face_layers)
+        return cls(b.finalize(device), 1.0 / (30.0 * substeps))
+
+    def sweep_inputs(self, begin: int) -> list:
+        m = self.model
+        return [m.color_vertices, begin, self.x, self.y, m.particle_mass, m.tri_indices, m.tri_dm_inv,
+                m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping, self.strain_prev, m.edge_indices,
+                m.edge_rest_angle, m.edge_stiffness, m.edge_damping, self.angle_prev, m.vertex_tri_offsets,
+                m.vertex_tri_ids, m.vertex_tri_local, m.vertex_edge_offsets, m.vertex_edge_ids,
+                m.vertex_edge_local, self.h]
+
+    def sweep(self) -> None:
+        """One sweep: every colour in turn."""
+        for begin, count in self.colors:
+            wp.launch(floor_sweep_kernel, dim=count, inputs=self.sweep_inputs(begin),
+                      device=self.model.device)
+
+    def sweep_bytes(self) -> int:
+        """Bytes one sweep moves at the least: every array it reads once (the colour lists and
+        offsets included) and the positions written once."""
+        read = sum(a.capacity for a in self.sweep_inputs(0) if isinstance(a, wp.array))
+        return int(read + self.x.capacity)
+
+
+def timed_frames(fn, device: str, rounds: int, graph: bool) -> float:
+    """Seconds per call of ``fn`` (one frame's launches): captured in a CUDA graph and replayed
+    ``rounds`` times on CUDA (best of 3 batches of rounds), called ``rounds`` times on the CPU."""
+    fn()  # compiles, warms caches
+    wp.synchronize_device(device)
+    if graph:
+        with wp.ScopedCapture(device=device) as cap:
+            fn()
+        wp.capture_launch(cap.graph)
+        wp.synchronize_device(device)
+        best = float("inf")
+        for _ in range(3):
+            t0 = time.perf_counter()
+            for _ in range(rounds):
+                wp.capture_launch(cap.graph)
+            wp.synchronize_device(device)
+            best = min(best, (time.perf_counter() - t0) / rounds)
+        return best
+    t0 = time.perf_counter()
+    for _ in range(rounds):
+        fn()
+    wp.synchronize_device(device)
+    return (time.perf_counter() - t0) / rounds
+
+
+def copy_bandwidth(device: str, nbytes: int, rounds: int) -> float:
+    """Device-to-device copy bandwidth [bytes/s] (read + write counted) of an ``nbytes`` array."""
+    n = nbytes // 16
+    a = wp.zeros(n, dtype=wp.vec4, device=device)
+    b = wp.zeros(n, dtype=wp.vec4, device=device)
+    s = timed_frames(lambda: wp.copy(b, a), device, rounds, graph=device.startswith("cuda"))
+    return 2.0 * n * 16 / s
+
+
+def floors(scene: FloorScene, device: str, substeps: int, iterations: int, rounds: int,
+           bandwidth: float) -> dict:
+    """The three floors of one scene, JSON-ready (module docstring)."""
+    m = scene.model
+    graph = device.startswith("cuda")
+
+    def frame():
+        for _ in range(substeps * iterations):
+            scene.sweep()
+
+    def launches():
+        for _ in range(substeps * iterations):
+            for _begin, count in scene.colors:
+                wp.launch(empty_kernel, dim=count, inputs=[scene.x], device=device)
+
+    sweeps_s = timed_frames(frame, device, rounds, graph)
+    launch_s = timed_frames(launches, device, rounds, graph)
+    sweeps = substeps * iterations
+    stream_s = sweeps * scene.sweep_bytes() / bandwidth
+    x = scene.x.numpy()
+    out = {"particles": m.particle_count, "triangles": m.tri_count, "hinges": m.edge_count,
+           "colors": m.color_count, "sweeps_per_frame": sweeps,
+           "launches_per_frame": sweeps * m.color_count, "bytes_per_sweep": scene.sweep_bytes(),
+           "finite": bool(np.isfinite(x).all())}
+    for name, s in (("sweeps", sweeps_s), ("stream", stream_s), ("launch", launch_s)):
+        out[name] = {"ms_per_frame": 1e3 * s, "garment_frames_per_s": m.instance_count / s,
+                     "ns_per_particle_sweep": 1e9 * s / (sweeps * m.particle_count)}
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="cuda", help="cuda or cpu")
+    ap.add_argument("--batch", default="1,16,128,1024", help="t-shirts per model, e.g. 1,16,128,1024")
+    ap.add_argument("--vertices", type=int, default=5000, help="t-shirt size (default: the issue's 5k)")
+    ap.add_argument("--substeps", type=int, default=0, help="substeps per frame (0: the job's default)")
+    ap.add_argument("--iterations", type=int, default=0, help="sweeps per substep (0: the job's default)")
+    ap.add_argument("--rounds", type=int, default=20, help="frames per timed batch (3 batches, best)")
+    ap.add_argument("--tag", default="")
+    args = ap.parse_args(argv)
+    from benchmarks.bench_tshirt import build_garment
+    from sim.bodies.default import load_default_body
+    from sim.device import resolve_device
+    from sim.simulate import CUDA_COLORS, default_iterations, default_substeps
+
+    try:
+        batches = [int(s) for s in args.batch.split(",")]
+        if min(batches) < 1:
+            raise ValueError
+    except ValueError:
+        ap.error(f"--batch: a comma-separated list of positive integers, got {args.batch!r}")
+    wp.init()
+    device = resolve_device(args.device)
+    body = load_default_body()
+    garment, edge = build_garment(body, args.vertices)
+    nv = len(garment.rest_vertices)
+    substeps = args.substeps or default_substeps(nv)
+    iterations = args.iterations or default_iterations(nv)
+    colors = CUDA_COLORS if device.startswith("cuda") else 0
+    bandwidth = copy_bandwidth(device, 1 << 30 if device.startswith("cuda") else 1 << 26, args.rounds)
+    print(f"{garment.name}: {nv} vertices, {substeps} x {iterations}, "
+          f"copy bandwidth {bandwidth / 1e9:.0f} GB/s", flush=True)
+    res = {"machine": machine(device), "garment": garment.name, "vertices": nv, "edge_length": edge,
+           "substeps": substeps, "iterations": iterations, "max_colors": colors,
+           "copy_bandwidth_gb_s": bandwidth / 1e9, "target_garment_frames_per_s": TARGET, "batches": {}}
+    for n in batches:
+        t0 = time.perf_counter()
+        scene = FloorScene.tshirts(garment, n, device, substeps, colors)
+        build_s = time.perf_counter() - t0
+        fig = floors(scene, device, substeps, iterations, args.rounds, bandwidth)
+        fig["build_s"] = build_s
+        res["batches"][str(n)] = fig
+        sw, st = fig["sweeps"], fig["stream"]
+        print(f"batch {n}: sweeps {sw['ms_per_frame']:.3f} ms ({sw['garment_frames_per_s']:.0f} gf/s, "
+              f"{sw['ns_per_particle_sweep']:.3f} ns), stream {st['ms_per_frame']:.3f} ms "
+              f"({st['garment_frames_per_s']:.0f} gf/s), launch {fig['launch']['ms_per_frame']:.3f} ms",
+              flush=True)
+        del scene
+    write_result(f"batch_floor_{device.split(':')[0]}{args.tag}", res)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
