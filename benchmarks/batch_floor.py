@@ -42,62 +42,119 @@ TARGET = 20_000.0
 """Issue 3's batched target [garment-frames/s]."""
 
 
-@wp.kernel(enable_backward=False)
-def floor_sweep_kernel(
-    color_vertices: wp.array(dtype=wp.int32),
-    begin: int,
-    x: wp.array(dtype=wp.vec3),
-    y: wp.array(dtype=wp.vec3),
-    mass: wp.array(dtype=float),
-    tri_indices: wp.array(dtype=wp.vec3i),
-    tri_dm_inv: wp.array(dtype=wp.mat22),
-    tri_area: wp.array(dtype=float),
-    tri_mu: wp.array(dtype=float),
-    tri_lam: wp.array(dtype=float),
-    tri_damping: wp.array(dtype=float),
-    tri_strain_prev: wp.array(dtype=wp.vec3),
-    edge_indices: wp.array(dtype=wp.vec4i),
-    edge_rest_angle: wp.array(dtype=float),
-    edge_stiffness: wp.array(dtype=float),
-    edge_damping: wp.array(dtype=float),
-    edge_angle_prev: wp.array(dtype=float),
-    vertex_tri_offsets: wp.array(dtype=wp.int32),
-    vertex_tri_ids: wp.array(dtype=wp.int32),
-    vertex_tri_local: wp.array(dtype=wp.int32),
-    vertex_edge_offsets: wp.array(dtype=wp.int32),
-    vertex_edge_ids: wp.array(dtype=wp.int32),
-    vertex_edge_local: wp.array(dtype=wp.int32),
-    h: float,
-):
-    """One colour of a contact-free VBD sweep: particle ``color_vertices[begin + tid]`` takes the
-    Newton step ``x += H^-1 f`` of the substep's incremental potential (inertia, damped
-    co-rotated membrane, damped bending) in place."""
-    i = color_vertices[begin + wp.tid()]
-    inv_h = 1.0 / h
-    xi = x[i]
+@wp.struct
+class FloorArrays:
+    """What a contact-free sweep reads besides ``x``: the substep's inertial target, the
+    model's per-particle, per-triangle and per-hinge data and the vertex adjacencies."""
+
+    color_vertices: wp.array(dtype=wp.int32)
+    y: wp.array(dtype=wp.vec3)
+    mass: wp.array(dtype=float)
+    tri_indices: wp.array(dtype=wp.vec3i)
+    tri_dm_inv: wp.array(dtype=wp.mat22)
+    tri_area: wp.array(dtype=float)
+    tri_mu: wp.array(dtype=float)
+    tri_lam: wp.array(dtype=float)
+    tri_damping: wp.array(dtype=float)
+    tri_strain_prev: wp.array(dtype=wp.vec3)
+    edge_indices: wp.array(dtype=wp.vec4i)
+    edge_rest_angle: wp.array(dtype=float)
+    edge_stiffness: wp.array(dtype=float)
+    edge_damping: wp.array(dtype=float)
+    edge_angle_prev: wp.array(dtype=float)
+    vertex_tri_offsets: wp.array(dtype=wp.int32)
+    vertex_tri_ids: wp.array(dtype=wp.int32)
+    vertex_tri_local: wp.array(dtype=wp.int32)
+    vertex_edge_offsets: wp.array(dtype=wp.int32)
+    vertex_edge_ids: wp.array(dtype=wp.int32)
+    vertex_edge_local: wp.array(dtype=wp.int32)
+
+
+FLOOR_ARRAYS = tuple(FloorArrays.vars)
+
+
+@wp.func
+def floor_gather(i: int, share: int, stride: int, a: FloorArrays, x: wp.array(dtype=wp.vec3), inv_h: float):
+    """Items ``share, share + stride, ...`` of particle ``i``'s triangles and hinges: their damped
+    co-rotated membrane and damped bending force on it and Hessian blocks (the job's energies)."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
-    for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
-        t = vertex_tri_ids[k]
-        tri = tri_indices[t]
-        fe, he = membrane_force_hessian(MEMBRANE_COROTATED, x[tri[0]], x[tri[1]], x[tri[2]], tri_dm_inv[t],
-                                        tri_area[t], tri_mu[t], tri_lam[t], tri_strain_prev[t],
-                                        tri_damping[t] * inv_h, vertex_tri_local[k] & 3)
+    for k in range(a.vertex_tri_offsets[i] + share, a.vertex_tri_offsets[i + 1], stride):
+        t = a.vertex_tri_ids[k]
+        tri = a.tri_indices[t]
+        fe, he = membrane_force_hessian(MEMBRANE_COROTATED, x[tri[0]], x[tri[1]], x[tri[2]], a.tri_dm_inv[t],
+                                        a.tri_area[t], a.tri_mu[t], a.tri_lam[t], a.tri_strain_prev[t],
+                                        a.tri_damping[t] * inv_h, a.vertex_tri_local[k] & 3)
         f = f + fe
         H = H + he
-    for k in range(vertex_edge_offsets[i], vertex_edge_offsets[i + 1]):
-        e = vertex_edge_ids[k]
-        q = edge_indices[e]
-        fb, hb = bending_damped_vertex_force_hessian(x[q[0]], x[q[1]], x[q[2]], x[q[3]], edge_rest_angle[e],
-                                                     edge_stiffness[e], edge_angle_prev[e],
-                                                     edge_damping[e] * inv_h, vertex_edge_local[k] & 3)
+    for k in range(a.vertex_edge_offsets[i] + share, a.vertex_edge_offsets[i + 1], stride):
+        e = a.vertex_edge_ids[k]
+        q = a.edge_indices[e]
+        fb, hb = bending_damped_vertex_force_hessian(x[q[0]], x[q[1]], x[q[2]], x[q[3]], a.edge_rest_angle[e],
+                                                     a.edge_stiffness[e], a.edge_angle_prev[e],
+                                                     a.edge_damping[e] * inv_h, a.vertex_edge_local[k] & 3)
         f = f + fb
         H = H + hb
-    mh = mass[i] * inv_h * inv_h
-    f = f + mh * (y[i] - xi)
+    return f, H
+
+
+@wp.func
+def floor_newton_step(i: int, f: wp.vec3, H: wp.mat33, a: FloorArrays, x: wp.array(dtype=wp.vec3),
+                      inv_h: float):
+    """Add inertia to particle ``i``'s gathered system and take its Newton step in place."""
+    xi = x[i]
+    mh = a.mass[i] * inv_h * inv_h
+    f = f + mh * (a.y[i] - xi)
     H = H + mh * wp.identity(n=3, dtype=float)
     if wp.abs(wp.determinant(H)) > 1.0e-20:
         x[i] = xi + wp.inverse(H) * f
+
+
+@wp.kernel(enable_backward=False)
+def floor_sweep_kernel(begin: int, a: FloorArrays, x: wp.array(dtype=wp.vec3), h: float):
+    """One colour of a contact-free VBD sweep, one thread per particle: particle
+    ``color_vertices[begin + tid]`` takes the Newton step ``x += H^-1 f`` of the substep's
+    incremental potential (inertia, damped co-rotated membrane, damped bending) in place."""
+    i = a.color_vertices[begin + wp.tid()]
+    f, H = floor_gather(i, 0, 1, a, x, 1.0 / h)
+    floor_newton_step(i, f, H, a, x, 1.0 / h)
+
+
+_LANE_KERNELS: dict = {}
+
+
+def floor_lanes_kernel(particles: int, lanes: int):
+    """The same colour sweep as ``floor_sweep_kernel`` in the solver's batched layout: blocks of
+    ``particles`` x ``lanes`` threads, each lane a share of its particle's triangles and hinges,
+    summed over the lanes by a tile reduction, lane 0 taking the step. Launch with
+    ``wp.launch_tiled(kernel, dim=[ceil(count / particles)], block_dim=particles * lanes)``
+    (on the CPU 1 x 1)."""
+    key = (int(particles), int(lanes))
+    if key in _LANE_KERNELS:
+        return _LANE_KERNELS[key]
+    P, L = key
+
+    def sweep(count: int, begin: int, a: FloorArrays, x: wp.array(dtype=wp.vec3), h: float):
+        block, thread = wp.tid()
+        local = thread // wp.static(L)
+        lane = thread - local * wp.static(L)
+        slot = block * wp.static(P) + local
+        i = int(-1)
+        f = wp.vec3(0.0)
+        H = wp.mat33(0.0)
+        if slot < count:
+            i = a.color_vertices[begin + slot]
+            f, H = floor_gather(i, lane, wp.static(L), a, x, 1.0 / h)
+        shape = (wp.static(P), wp.static(L))
+        f_sum = wp.tile_sum(wp.tile_reshape(wp.tile(f, preserve_type=True), shape=shape), axis=1)
+        H_sum = wp.tile_sum(wp.tile_reshape(wp.tile(H, preserve_type=True), shape=shape), axis=1)
+        if lane == 0 and i >= 0:
+            floor_newton_step(i, wp.tile_extract(f_sum, local), wp.tile_extract(H_sum, local), a, x, 1.0 / h)
+
+    sweep.__name__ = sweep.__qualname__ = f"floor_sweep_p{P}_l{L}"
+    kernel = wp.kernel(sweep, enable_backward=False, module="unique")
+    _LANE_KERNELS[key] = kernel
+    return kernel
 
 
 @wp.kernel(enable_backward=False)
@@ -144,24 +201,36 @@ class FloorScene:
                         face_layers=garment.face_layers)
         return cls(b.finalize(device), 1.0 / (30.0 * substeps))
 
-    def sweep_inputs(self, begin: int) -> list:
-        m = self.model
-        return [m.color_vertices, begin, self.x, self.y, m.particle_mass, m.tri_indices, m.tri_dm_inv,
-                m.tri_area, m.tri_mu, m.tri_lam, m.tri_damping, self.strain_prev, m.edge_indices,
-                m.edge_rest_angle, m.edge_stiffness, m.edge_damping, self.angle_prev, m.vertex_tri_offsets,
-                m.vertex_tri_ids, m.vertex_tri_local, m.vertex_edge_offsets, m.vertex_edge_ids,
-                m.vertex_edge_local, self.h]
+    def arrays(self) -> FloorArrays:
+        """The sweep's ``FloorArrays`` (built once)."""
+        if getattr(self, "_arrays", None) is None:
+            m = self.model
+            own = {"y": self.y, "mass": m.particle_mass, "tri_strain_prev": self.strain_prev,
+                   "edge_angle_prev": self.angle_prev}
+            a = FloorArrays()
+            for name in FLOOR_ARRAYS:
+                setattr(a, name, own[name] if name in own else getattr(m, name))
+            self._arrays = a
+        return self._arrays
 
-    def sweep(self) -> None:
-        """One sweep: every colour in turn."""
+    def sweep(self, layout: tuple[int, int] | None = None) -> None:
+        """One sweep: every colour in turn, one thread per particle (``layout`` None) or in
+        blocks of ``layout`` = (particles, lanes) (``floor_lanes_kernel``)."""
+        d = self.model.device
         for begin, count in self.colors:
-            wp.launch(floor_sweep_kernel, dim=count, inputs=self.sweep_inputs(begin),
-                      device=self.model.device)
+            if layout is None:
+                wp.launch(floor_sweep_kernel, dim=count, inputs=[begin, self.arrays(), self.x, self.h],
+                          device=d)
+            else:
+                P, L = layout
+                wp.launch_tiled(floor_lanes_kernel(P, L), dim=[-(-count // P)], block_dim=P * L,
+                                inputs=[count, begin, self.arrays(), self.x, self.h], device=d)
 
     def sweep_bytes(self) -> int:
         """Bytes one sweep moves at the least: every array it reads once (the colour lists and
         offsets included) and the positions written once."""
-        read = sum(a.capacity for a in self.sweep_inputs(0) if isinstance(a, wp.array))
+        a = self.arrays()
+        read = sum(getattr(a, name).capacity for name in FLOOR_ARRAYS) + self.x.capacity
         return int(read + self.x.capacity)
 
 
@@ -199,33 +268,58 @@ def copy_bandwidth(device: str, nbytes: int, rounds: int) -> float:
     return 2.0 * n * 16 / s
 
 
-def floors(scene: FloorScene, device: str, substeps: int, iterations: int, rounds: int,
-           bandwidth: float) -> dict:
-    """The three floors of one scene, JSON-ready (module docstring)."""
+def parse_layouts(text: str) -> list[tuple[int, int] | None]:
+    """``threads,32x4,16x8`` -> [None, (32, 4), (16, 8)]: one thread per particle, or blocks of
+    particles x lanes (``floor_lanes_kernel``)."""
+    out: list[tuple[int, int] | None] = []
+    for item in text.split(","):
+        item = item.strip()
+        if item == "threads":
+            out.append(None)
+            continue
+        p, sep, lanes = item.partition("x")
+        if not sep or not p.isdigit() or not lanes.isdigit() or int(p) < 1 or int(lanes) < 1:
+            raise ValueError(f"layout {item!r}: 'threads' or PARTICLESxLANES, e.g. 32x4")
+        out.append((int(p), int(lanes)))
+    return out
+
+
+def layout_name(layout: tuple[int, int] | None) -> str:
+    return "threads" if layout is None else f"{layout[0]}x{layout[1]}"
+
+
+def floors(scene: FloorScene, device: str, substeps: int, iterations: int, rounds: int, bandwidth: float,
+           layouts: list[tuple[int, int] | None]) -> dict:
+    """The floors of one scene, JSON-ready (module docstring): ``sweeps`` is the fastest of the
+    ``layouts``, each of which is also in ``layouts``."""
     m = scene.model
     graph = device.startswith("cuda")
+    sweeps = substeps * iterations
 
-    def frame():
-        for _ in range(substeps * iterations):
-            scene.sweep()
+    def figures(s: float) -> dict:
+        return {"ms_per_frame": 1e3 * s, "garment_frames_per_s": m.instance_count / s,
+                "ns_per_particle_sweep": 1e9 * s / (sweeps * m.particle_count)}
 
     def launches():
-        for _ in range(substeps * iterations):
+        for _ in range(sweeps):
             for _begin, count in scene.colors:
                 wp.launch(empty_kernel, dim=count, inputs=[scene.x], device=device)
 
-    sweeps_s = timed_frames(frame, device, rounds, graph)
-    launch_s = timed_frames(launches, device, rounds, graph)
-    sweeps = substeps * iterations
-    stream_s = sweeps * scene.sweep_bytes() / bandwidth
-    x = scene.x.numpy()
     out = {"particles": m.particle_count, "triangles": m.tri_count, "hinges": m.edge_count,
            "colors": m.color_count, "sweeps_per_frame": sweeps,
            "launches_per_frame": sweeps * m.color_count, "bytes_per_sweep": scene.sweep_bytes(),
-           "finite": bool(np.isfinite(x).all())}
-    for name, s in (("sweeps", sweeps_s), ("stream", stream_s), ("launch", launch_s)):
-        out[name] = {"ms_per_frame": 1e3 * s, "garment_frames_per_s": m.instance_count / s,
-                     "ns_per_particle_sweep": 1e9 * s / (sweeps * m.particle_count)}
+           "layouts": {}}
+    for layout in layouts:
+        def frame(layout=layout):
+            for _ in range(sweeps):
+                scene.sweep(layout)
+
+        out["layouts"][layout_name(layout)] = figures(timed_frames(frame, device, rounds, graph))
+    best = min(out["layouts"], key=lambda k: out["layouts"][k]["ms_per_frame"])
+    out["sweeps"] = {**out["layouts"][best], "layout": best}
+    out["stream"] = figures(sweeps * scene.sweep_bytes() / bandwidth)
+    out["launch"] = figures(timed_frames(launches, device, rounds, graph))
+    out["finite"] = bool(np.isfinite(scene.x.numpy()).all())
     return out
 
 
@@ -237,6 +331,9 @@ def main(argv=None) -> int:
     ap.add_argument("--substeps", type=int, default=0, help="substeps per frame (0: the job's default)")
     ap.add_argument("--iterations", type=int, default=0, help="sweeps per substep (0: the job's default)")
     ap.add_argument("--rounds", type=int, default=20, help="frames per timed batch (3 batches, best)")
+    ap.add_argument("--layouts", default="threads,32x4,16x8",
+                    help="sweep layouts to time: 'threads' (one per particle) and PARTICLESxLANES blocks "
+                         "(CUDA; the CPU runs 'threads' and 1x1)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     from benchmarks.bench_tshirt import build_garment
@@ -250,6 +347,10 @@ def main(argv=None) -> int:
             raise ValueError
     except ValueError:
         ap.error(f"--batch: a comma-separated list of positive integers, got {args.batch!r}")
+    try:
+        layouts = parse_layouts(args.layouts)
+    except ValueError as e:
+        ap.error(f"--layouts: {e}")
     wp.init()
     device = resolve_device(args.device)
     body = load_default_body()
@@ -258,21 +359,25 @@ def main(argv=None) -> int:
     substeps = args.substeps or default_substeps(nv)
     iterations = args.iterations or default_iterations(nv)
     colors = CUDA_COLORS if device.startswith("cuda") else 0
+    if not device.startswith("cuda"):  # a CPU block is one thread
+        layouts = sorted({None if k is None else (1, 1) for k in layouts}, key=layout_name)
     bandwidth = copy_bandwidth(device, 1 << 30 if device.startswith("cuda") else 1 << 26, args.rounds)
     print(f"{garment.name}: {nv} vertices, {substeps} x {iterations}, "
           f"copy bandwidth {bandwidth / 1e9:.0f} GB/s", flush=True)
     res = {"machine": machine(device), "garment": garment.name, "vertices": nv, "edge_length": edge,
            "substeps": substeps, "iterations": iterations, "max_colors": colors,
-           "copy_bandwidth_gb_s": bandwidth / 1e9, "target_garment_frames_per_s": TARGET, "batches": {}}
+           "copy_bandwidth_gb_s": bandwidth / 1e9,
+           "layouts": [layout_name(k) for k in layouts], "target_garment_frames_per_s": TARGET, "batches": {}}
     for n in batches:
         t0 = time.perf_counter()
         scene = FloorScene.tshirts(garment, n, device, substeps, colors)
         build_s = time.perf_counter() - t0
-        fig = floors(scene, device, substeps, iterations, args.rounds, bandwidth)
+        fig = floors(scene, device, substeps, iterations, args.rounds, bandwidth, layouts)
         fig["build_s"] = build_s
         res["batches"][str(n)] = fig
         sw, st = fig["sweeps"], fig["stream"]
-        print(f"batch {n}: sweeps {sw['ms_per_frame']:.3f} ms ({sw['garment_frames_per_s']:.0f} gf/s, "
+        print(f"batch {n}: sweeps ({sw['layout']}) {sw['ms_per_frame']:.3f} ms "
+              f"({sw['garment_frames_per_s']:.0f} gf/s, "
               f"{sw['ns_per_particle_sweep']:.3f} ns), stream {st['ms_per_frame']:.3f} ms "
               f"({st['garment_frames_per_s']:.0f} gf/s), launch {fig['launch']['ms_per_frame']:.3f} ms",
               flush=True)

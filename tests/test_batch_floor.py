@@ -27,14 +27,17 @@ def _bent_stretched_sheet(device: str, bending: float = 2e-5):
     return b.finalize(device), x
 
 
+@pytest.mark.parametrize("layout", ["threads", "lanes"])
 @pytest.mark.parametrize("sweeps", [1, 4])
 @pytest.mark.parametrize("bending, rtol", [(0.0, 1e-4), (2e-5, 1e-2)])
-def test_the_floor_sweep_takes_the_solvers_contact_free_step(device, sweeps, bending, rtol):
+def test_the_floor_sweep_takes_the_solvers_contact_free_step(device, layout, sweeps, bending, rtol):
     """With contact, self-contact, air damping and the coarse correction off, one substep of
     ``SolverVBD`` is the floor kernel's sweeps from the same first guess: the same positions to
     round-off without bending; with it, up to the solver reading a hinge's same-coloured
     opposite vertex from the sweep's snapshot where the floor reads it live (a Jacobi against a
-    Gauss-Seidel coupling: 0.4 % of the move at this stiffness, 3 % at ten times it)."""
+    Gauss-Seidel coupling: 0.4 % of the move at this stiffness, 3 % at ten times it). Both
+    layouts: one thread per particle, and blocks of particles x lanes (4 lanes on CUDA; a CPU
+    block is one thread)."""
     from benchmarks.batch_floor import FloorScene
 
     wp = pytest.importorskip("warp")
@@ -46,8 +49,9 @@ def test_the_floor_sweep_takes_the_solvers_contact_free_step(device, sweeps, ben
     x_solver = state.positions.numpy()
 
     scene = FloorScene(model, h)
+    lanes = None if layout == "threads" else ((32, 4) if device == "cuda" else (1, 1))
     for _ in range(sweeps):
-        scene.sweep()
+        scene.sweep(lanes)
     wp.synchronize_device(device)
     x_floor = scene.x.numpy()
 
