@@ -1,28 +1,31 @@
-"""How fast could a batch of t-shirts go at the job's setting, if contact cost nothing?
-(issue 3's batched target: >= 20,000 garment-frames/s at 5k vertices.)
+"""How fast do a batch's sweeps go if contact costs nothing? (issue 3's batched target:
+>= 20,000 garment-frames/s at 5k vertices.)
 
-Three floors for N copies of the 5k t-shirt in one ``ClothModel`` (the job's CUDA colouring,
-``CUDA_COLORS``), each timed as a CUDA graph of one 30 fps frame, replayed:
+N copies of the 5k t-shirt in one ``ClothModel`` (the job's CUDA colouring, ``CUDA_COLORS``),
+each figure timed as a CUDA graph of one 30 fps frame, replayed:
 
 - ``sweeps``: the VBD sweeps of a frame (``substeps`` x ``iterations`` x colours launches) with
-  the job's own energies and nothing else: one thread per particle gathers the damped
-  co-rotated membrane (``vbd_kernels.membrane_force_hessian``) and the damped hinge bending
-  (``energies.bending_damped_vertex_force_hessian``) of its triangles and hinges, adds inertia
-  and takes the 3x3 Newton step. No body contact, no self-contact (no detection, no pair
-  terms, no bounds), no coarse correction, no forward / velocity kernels, no snapshot (a
-  hinge's same-coloured opposite vertex is read live: a benign race, timing only). It is the
-  cheapest a sweep of this design's physics can be written; the job's sweep does all of it and
-  more.
-- ``stream``: the bandwidth roofline of those sweeps: the bytes of every array the sweep
-  kernel reads (each once) plus the positions it writes, per sweep, at the copy bandwidth
-  measured in the same run (a device-to-device copy of a 1 GiB array). A sweep cannot take
-  less than this on this GPU unless the model's data shrinks.
+  the job's own energies and nothing else: each particle gathers the damped co-rotated membrane
+  (``vbd_kernels.membrane_force_hessian``, with the solver's Jacobi scale where a corner shares
+  its colour) and the damped hinge bending (``energies.bending_damped_vertex_force_hessian``) of
+  its triangles and hinges, adds inertia and takes the 3x3 Newton step. No body contact, no
+  self-contact (no detection, no pair terms, no bounds), no coarse correction, no forward /
+  velocity kernels. Layouts (``--layouts``): one thread per particle (``threads``), blocks of
+  particles x lanes with a tile reduction (``32x4``, ...), and ``job``: the job's own solve
+  kernel (``SolverVBD.sweep``: its layout, raw loads, fast math, register cap) with contact
+  off. The first two read a same-coloured neighbour live where the job reads its snapshot: the
+  same work, a slightly different step. ``sweeps`` is the fastest layout. These are measured
+  kernels, so they bound what this code reaches, not what any kernel could.
+- ``stream``: the bandwidth roofline of those sweeps: the bytes of every array the sweep reads
+  (each once) plus the positions it writes, per sweep, at the copy bandwidth measured in the
+  same run (the better of ``wp.copy`` and a copy kernel, 1 GiB); ``stream_shared`` the same with
+  the topology counted once for all copies (``FloorScene.sweep_bytes_shared``).
 - ``launch``: the frame's launches with empty kernels (the graph's per-launch floor).
 
-It prints and writes ``batch_floor<tag>.json``: per batch size the three floors in ms per
-batched frame, their garment-frames/s ceilings, and ns per particle per sweep.
+It prints and writes ``batch_floor_<device><tag>.json``: per batch size the figures in ms per
+batched frame, their garment-frames/s, and ns per particle per sweep.
 
-    python -m benchmarks.batch_floor --device cuda --batch 1,16,128,1024 --tag _s52
+    python -m benchmarks.batch_floor --device cuda --batch 1,16,128,1024 --tag _s53
     python -m benchmarks.batch_floor --device cpu --batch 1 --vertices 1000 --rounds 2   # CPU check
 """
 
@@ -36,7 +39,7 @@ import warp as wp
 
 from benchmarks.common import machine, write_result
 from sim.cloth.energies import bending_damped_vertex_force_hessian
-from sim.cloth.vbd_kernels import MEMBRANE_COROTATED, membrane_force_hessian
+from sim.cloth.vbd_kernels import MEMBRANE_COROTATED, jacobi_scale, membrane_force_hessian
 
 TARGET = 20_000.0
 """Issue 3's batched target [garment-frames/s]."""
@@ -71,6 +74,9 @@ class FloorArrays:
 
 
 FLOOR_ARRAYS = tuple(FloorArrays.vars)
+TOPOLOGY_ARRAYS = ("color_vertices", "tri_indices", "edge_indices", "vertex_tri_offsets", "vertex_tri_ids",
+                   "vertex_tri_local", "vertex_edge_offsets", "vertex_edge_ids", "vertex_edge_local")
+"""The ``FloorArrays`` that copies of one mesh share (``FloorScene.sweep_bytes_shared``)."""
 
 
 @wp.func
@@ -82,11 +88,12 @@ def floor_gather(i: int, share: int, stride: int, a: FloorArrays, x: wp.array(dt
     for k in range(a.vertex_tri_offsets[i] + share, a.vertex_tri_offsets[i + 1], stride):
         t = a.vertex_tri_ids[k]
         tri = a.tri_indices[t]
+        packed = a.vertex_tri_local[k]
         fe, he = membrane_force_hessian(MEMBRANE_COROTATED, x[tri[0]], x[tri[1]], x[tri[2]], a.tri_dm_inv[t],
                                         a.tri_area[t], a.tri_mu[t], a.tri_lam[t], a.tri_strain_prev[t],
-                                        a.tri_damping[t] * inv_h, a.vertex_tri_local[k] & 3)
+                                        a.tri_damping[t] * inv_h, packed & 3)
         f = f + fe
-        H = H + he
+        H = H + he * jacobi_scale(packed)
     for k in range(a.vertex_edge_offsets[i] + share, a.vertex_edge_offsets[i + 1], stride):
         e = a.vertex_edge_ids[k]
         q = a.edge_indices[e]
@@ -213,6 +220,40 @@ class FloorScene:
             self._arrays = a
         return self._arrays
 
+    def job_solver(self):
+        """The job's own ``SolverVBD`` on this model with contact off (no bodies, no
+        self-contact, no coarse correction, no air damping), its substep buffers set up by one
+        step of length ``h`` from the model's positions: ``job_sweep`` then runs the job's solve
+        kernel (its layout, raw loads and register cap) on them."""
+        if getattr(self, "_job", None) is None:
+            import dataclasses
+
+            from sim.cloth import SolverVBD
+            from sim.simulate import SimulationConfig
+
+            m = self.model
+            cuda = wp.get_device(m.device).is_cuda
+            # the job's solver settings (fast math, register cap, lanes, colours) without contact
+            vertices = m.particle_count // m.instance_count
+            job = SimulationConfig(device=m.device).vbd_config(vertices, cuda=cuda)
+            cfg = dataclasses.replace(job, substeps=1, iterations=1, air_damping=0.0, self_contact=False,
+                                      coarse_sweeps=(), coarse_prefactor=False, coarse_early=False)
+            solver = SolverVBD(m, cfg)
+            state = m.state()
+            solver.step(state, state, m.control(), self.h)
+            self._job = (solver, state)
+        return self._job
+
+    def job_sweep(self) -> None:
+        """One more sweep of the job's solve kernel (``SolverVBD.sweep``) on the substep that
+        ``job_solver`` set up: the sweeps alternate the solver's two snapshots as a substep's do,
+        the first after the set-up step's one sweep reading snapshot 1. (A CUDA graph of an even
+        number of them replays in step with its snapshots.)"""
+        solver, state = self.job_solver()
+        eps_u = solver.config.friction_epsilon * self.h
+        self._job_parity = 1 - getattr(self, "_job_parity", 0)
+        solver.sweep(state.positions, solver._sc_data, eps_u, self.h, self._job_parity)
+
     def sweep(self, layout: tuple[int, int] | None = None) -> None:
         """One sweep: every colour in turn, one thread per particle (``layout`` None) or in
         blocks of ``layout`` = (particles, lanes) (``floor_lanes_kernel``)."""
@@ -227,11 +268,22 @@ class FloorScene:
                                 inputs=[count, begin, self.arrays(), self.x, self.h], device=d)
 
     def sweep_bytes(self) -> int:
-        """Bytes one sweep moves at the least: every array it reads once (the colour lists and
-        offsets included) and the positions written once."""
+        """Bytes one sweep of this model's arrays moves at the least: every array it reads once
+        (the colour lists and adjacencies included) and the positions written once."""
         a = self.arrays()
         read = sum(getattr(a, name).capacity for name in FLOOR_ARRAYS) + self.x.capacity
         return int(read + self.x.capacity)
+
+    def sweep_bytes_shared(self) -> int:
+        """The same with the topology shared by the model's instances, which are copies of one
+        mesh: the colour lists, the triangles' and hinges' vertex indices and the adjacencies
+        counted once, every per-particle, per-triangle and per-hinge value (rest shape, material,
+        state) once per instance. A batch of one garment pattern on different bodies could be
+        laid out so; this model is not."""
+        a = self.arrays()
+        m = self.model
+        shared = sum(getattr(a, name).capacity for name in TOPOLOGY_ARRAYS)
+        return int(self.sweep_bytes() - shared + shared // m.instance_count)
 
 
 def timed_frames(fn, device: str, rounds: int, graph: bool) -> float:
@@ -259,39 +311,60 @@ def timed_frames(fn, device: str, rounds: int, graph: bool) -> float:
     return (time.perf_counter() - t0) / rounds
 
 
-def copy_bandwidth(device: str, nbytes: int, rounds: int) -> float:
-    """Device-to-device copy bandwidth [bytes/s] (read + write counted) of an ``nbytes`` array."""
+@wp.kernel(enable_backward=False)
+def copy_kernel(src: wp.array(dtype=wp.vec4), dst: wp.array(dtype=wp.vec4)):
+    i = wp.tid()
+    dst[i] = src[i]
+
+
+def copy_bandwidth(device: str, nbytes: int, rounds: int) -> dict:
+    """Device-to-device copy bandwidth [bytes/s] (read + write counted) of an ``nbytes`` array,
+    by ``wp.copy`` (``memcpy``) and by a kernel (``kernel``); ``best`` is the larger. (Session 52's
+    runs measured the memcpy alone: 2.77 TB/s on an H200 in a CUDA graph, where PyTorch's copy
+    reaches about 4.3 TB/s on the same kind: .library/device/KINDS.md.)"""
     n = nbytes // 16
     a = wp.zeros(n, dtype=wp.vec4, device=device)
     b = wp.zeros(n, dtype=wp.vec4, device=device)
-    s = timed_frames(lambda: wp.copy(b, a), device, rounds, graph=device.startswith("cuda"))
-    return 2.0 * n * 16 / s
+    graph = device.startswith("cuda")
+    out = {"memcpy": 2.0 * n * 16 / timed_frames(lambda: wp.copy(b, a), device, rounds, graph),
+           "kernel": 2.0 * n * 16 / timed_frames(
+               lambda: wp.launch(copy_kernel, dim=n, inputs=[a, b], device=device), device, rounds, graph)}
+    out["best"] = max(out["memcpy"], out["kernel"])
+    return out
 
 
-def parse_layouts(text: str) -> list[tuple[int, int] | None]:
-    """``threads,32x4,16x8`` -> [None, (32, 4), (16, 8)]: one thread per particle, or blocks of
-    particles x lanes (``floor_lanes_kernel``)."""
-    out: list[tuple[int, int] | None] = []
+Layout = tuple[int, int] | None | str
+
+
+def parse_layouts(text: str) -> list[Layout]:
+    """``threads,32x4,job`` -> [None, (32, 4), "job"]: one thread per particle, blocks of
+    particles x lanes (``floor_lanes_kernel``), or the job's own solve kernel with contact off
+    (``FloorScene.job_sweep``)."""
+    out: list[Layout] = []
     for item in text.split(","):
         item = item.strip()
-        if item == "threads":
-            out.append(None)
+        if item in ("threads", "job"):
+            out.append(None if item == "threads" else item)
             continue
         p, sep, lanes = item.partition("x")
         if not sep or not p.isdigit() or not lanes.isdigit() or int(p) < 1 or int(lanes) < 1:
-            raise ValueError(f"layout {item!r}: 'threads' or PARTICLESxLANES, e.g. 32x4")
+            raise ValueError(f"layout {item!r}: 'threads', 'job' or PARTICLESxLANES, e.g. 32x4")
         out.append((int(p), int(lanes)))
     return out
 
 
-def layout_name(layout: tuple[int, int] | None) -> str:
+def layout_name(layout: Layout) -> str:
+    if isinstance(layout, str):
+        return layout
     return "threads" if layout is None else f"{layout[0]}x{layout[1]}"
 
 
 def floors(scene: FloorScene, device: str, substeps: int, iterations: int, rounds: int, bandwidth: float,
-           layouts: list[tuple[int, int] | None]) -> dict:
+           layouts: list[Layout]) -> dict:
     """The floors of one scene, JSON-ready (module docstring): ``sweeps`` is the fastest of the
-    ``layouts``, each of which is also in ``layouts``."""
+    ``layouts``, each of which is also in ``layouts``; ``stream`` at this model's bytes,
+    ``stream_shared`` with the topology shared by the copies (``FloorScene.sweep_bytes_shared``),
+    both at ``bandwidth`` [bytes/s]."""
     m = scene.model
     graph = device.startswith("cuda")
     sweeps = substeps * iterations
@@ -308,18 +381,23 @@ def floors(scene: FloorScene, device: str, substeps: int, iterations: int, round
     out = {"particles": m.particle_count, "triangles": m.tri_count, "hinges": m.edge_count,
            "colors": m.color_count, "sweeps_per_frame": sweeps,
            "launches_per_frame": sweeps * m.color_count, "bytes_per_sweep": scene.sweep_bytes(),
-           "layouts": {}}
+           "bytes_per_sweep_shared": scene.sweep_bytes_shared(), "layouts": {}}
     for layout in layouts:
         def frame(layout=layout):
             for _ in range(sweeps):
-                scene.sweep(layout)
+                if layout == "job":
+                    scene.job_sweep()
+                else:
+                    scene.sweep(layout)
 
         out["layouts"][layout_name(layout)] = figures(timed_frames(frame, device, rounds, graph))
     best = min(out["layouts"], key=lambda k: out["layouts"][k]["ms_per_frame"])
     out["sweeps"] = {**out["layouts"][best], "layout": best}
     out["stream"] = figures(sweeps * scene.sweep_bytes() / bandwidth)
+    out["stream_shared"] = figures(sweeps * scene.sweep_bytes_shared() / bandwidth)
     out["launch"] = figures(timed_frames(launches, device, rounds, graph))
-    out["finite"] = bool(np.isfinite(scene.x.numpy()).all())
+    x = [scene.x.numpy()] + ([scene.job_solver()[1].positions.numpy()] if "job" in layouts else [])
+    out["finite"] = bool(all(np.isfinite(a).all() for a in x))
     return out
 
 
@@ -331,9 +409,9 @@ def main(argv=None) -> int:
     ap.add_argument("--substeps", type=int, default=0, help="substeps per frame (0: the job's default)")
     ap.add_argument("--iterations", type=int, default=0, help="sweeps per substep (0: the job's default)")
     ap.add_argument("--rounds", type=int, default=20, help="frames per timed batch (3 batches, best)")
-    ap.add_argument("--layouts", default="threads,32x4,16x8",
-                    help="sweep layouts to time: 'threads' (one per particle) and PARTICLESxLANES blocks "
-                         "(CUDA; the CPU runs 'threads' and 1x1)")
+    ap.add_argument("--layouts", default="threads,32x4,64x2,job",
+                    help="sweep layouts to time: 'threads' (one per particle), PARTICLESxLANES blocks (CUDA; "
+                         "the CPU runs them as 1x1) and 'job' (the job's own solve kernel, contact off)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     from benchmarks.bench_tshirt import build_garment
@@ -360,13 +438,15 @@ def main(argv=None) -> int:
     iterations = args.iterations or default_iterations(nv)
     colors = CUDA_COLORS if device.startswith("cuda") else 0
     if not device.startswith("cuda"):  # a CPU block is one thread
-        layouts = sorted({None if k is None else (1, 1) for k in layouts}, key=layout_name)
-    bandwidth = copy_bandwidth(device, 1 << 30 if device.startswith("cuda") else 1 << 26, args.rounds)
+        layouts = sorted({(1, 1) if isinstance(k, tuple) else k for k in layouts}, key=layout_name)
+    copy = copy_bandwidth(device, 1 << 30 if device.startswith("cuda") else 1 << 26, args.rounds)
+    bandwidth = copy["best"]
     print(f"{garment.name}: {nv} vertices, {substeps} x {iterations}, "
-          f"copy bandwidth {bandwidth / 1e9:.0f} GB/s", flush=True)
+          f"copy bandwidth {bandwidth / 1e9:.0f} GB/s (memcpy {copy['memcpy'] / 1e9:.0f})", flush=True)
     res = {"machine": machine(device), "garment": garment.name, "vertices": nv, "edge_length": edge,
            "substeps": substeps, "iterations": iterations, "max_colors": colors,
            "copy_bandwidth_gb_s": bandwidth / 1e9,
+           "copy_bandwidths_gb_s": {k: v / 1e9 for k, v in copy.items()},
            "layouts": [layout_name(k) for k in layouts], "target_garment_frames_per_s": TARGET, "batches": {}}
     for n in batches:
         t0 = time.perf_counter()

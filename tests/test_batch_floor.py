@@ -64,6 +64,30 @@ def test_the_floor_sweep_takes_the_solvers_contact_free_step(device, layout, swe
     assert np.abs(x_floor - y).max() > 0.5 * moved
 
 
+@pytest.mark.parametrize("sweeps", [1, 4])
+def test_the_job_layout_times_the_solvers_own_sweeps(device, sweeps):
+    """``FloorScene.job_sweep`` runs the job's solve kernel on the substep its one set-up step
+    left: k more sweeps land exactly where a step of 1 + k sweeps does (the snapshots
+    alternating as the step's), so the ``job`` layout times the job's own contact-free sweeps."""
+    from benchmarks.batch_floor import FloorScene
+
+    h = 1.0 / 240.0
+    model, x0 = _bent_stretched_sheet(device)
+    solver = SolverVBD(model, VBDConfig(substeps=1, iterations=1 + sweeps, air_damping=0.0))
+    state = model.state()
+    solver.step(state, state, model.control(), h)
+
+    scene = FloorScene(model, h)
+    for _ in range(sweeps):
+        scene.job_sweep()
+    x_job = scene.job_solver()[1].positions.numpy()
+    assert np.abs(x_job - x0).max() > 1e-4
+    if device == "cpu":
+        np.testing.assert_array_equal(x_job, state.positions.numpy())
+    else:  # the job's CUDA settings (fast math) against the bare config's
+        np.testing.assert_allclose(x_job, state.positions.numpy(), atol=1e-6)
+
+
 def test_the_floor_reads_each_array_once_per_sweep():
     """``sweep_bytes``: every input array's bytes once, plus the positions written back."""
     from benchmarks.batch_floor import FloorScene
@@ -78,3 +102,13 @@ def test_the_floor_reads_each_array_once_per_sweep():
                 + e * (16 + 4 * 4)  # indices, rest angle, stiffness, damping, angle_prev
                 + 2 * (n + 1) * 4 + 2 * adj_t * 4 + 2 * adj_e * 4)  # the two CSR adjacencies
     assert scene.sweep_bytes() == expected
+    # copies of one mesh share the topology: the colour lists, indices and adjacencies once
+    b = ClothModelBuilder()
+    v, f = grid(9, 9, 0.2, 0.2)
+    for _ in range(3):
+        b.add_cloth(v, f, ClothMaterialParams())
+    three = FloorScene(b.finalize("cpu"), 1.0 / 360.0)
+    topology = n * 4 + t * 12 + e * 16 + 2 * (n + 1) * 4 + 2 * adj_t * 4 + 2 * adj_e * 4
+    offsets_once = 2 * 2 * 4  # the two CSR offset arrays have 3n + 1 entries, not 3 (n + 1)
+    assert three.sweep_bytes() == 3 * expected - offsets_once
+    assert three.sweep_bytes_shared() == 3 * (expected - topology) + (3 * topology - offsets_once) // 3

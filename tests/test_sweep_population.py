@@ -56,6 +56,11 @@ def test_benchmark_motions_are_built_on_the_bodys_skeleton_as_the_cli_builds_the
     np.testing.assert_array_equal(ours.poses, cli.poses)
     np.testing.assert_array_equal(ours.trans, cli.trans)
     old = benchmark_motion("run", body, 0.5, "default", speed=3.0)
-    assert old.extra["hip_scale"] > 1.03 * ours.extra["hip_scale"]  # SMPL's legs stride longer
+    # SMPL's legs need more hip swing per stride at the same speed: a larger swing at the same
+    # cadence, or (session 52, where the swing is capped at the hips' joint limits) quicker steps
+    def sweep_rate(m):
+        return m.extra["hip_scale"] * m.extra["stride_frequency"]
+
+    assert sweep_rate(old) > 1.03 * sweep_rate(ours)
     pop = population_motions(4, 0.5, seed=3, body=body)
     np.testing.assert_array_equal(pop[1][1].poses, benchmark_motion("run", body, 0.5).poses)
