@@ -184,9 +184,12 @@ def simulator_defaults(cuda: bool = False) -> dict:
     pairs left the coarse correction alone (``FINE_COARSE_EXCLUSION``, session 50) or before the
     coarse system's overshoot guard (``JOB_COARSE_GUARD``; recorded since session 51),
     nor one begun under other template defaults (every template's default parameters, recorded
-    since session 44, when the tank top's armholes were rounded)."""
+    since session 44, when the tank top's armholes were rounded), nor one begun before the
+    procedural gaits' cadence rose to keep the hips inside their joint limits (``gait``,
+    ``sim.motions.gait.limited_cadence``, session 52: the run's motion changed)."""
     from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
     from sim.garments.templates import TEMPLATES, make_params
+    from sim.motions.gait import HIP_EXTENSION_MARGIN
 
     out = {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
                         "fine_over_vertices": FINE_GARMENT_VERTICES},
@@ -195,7 +198,8 @@ def simulator_defaults(cuda: bool = False) -> dict:
            "coarse_guard": JOB_COARSE_GUARD,
            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
            "retry_factors": {"default": list(RETRY_FACTORS), "fine": list(FINE_RETRY_FACTORS)},
-           "templates": {name: dataclasses.asdict(make_params(name)) for name in TEMPLATES}}
+           "templates": {name: dataclasses.asdict(make_params(name)) for name in TEMPLATES},
+           "gait": {"cadence": "hip-limited", "hip_extension_margin_rad": HIP_EXTENSION_MARGIN}}
     if cuda:
         out["max_colors"] = CUDA_COLORS
         out["coarse_early"] = CUDA_COARSE_EARLY

@@ -335,8 +335,14 @@ def test_shards_combine_into_the_same_dataset(reference, tmp_path):
 
     assert cuda_made["simulator"] != simulator_defaults(cuda=True)
     assert {**cuda_made["simulator"], "coarse_early": True} == simulator_defaults(cuda=True)
+    # begun before the gaits' cadence kept the hips inside their limits (session 52)
+    from sim.motions.procedural import D2R
+
+    session51 = json.loads(json.dumps(old))
+    gait = session51["simulator"].pop("gait")
+    assert gait == {"cadence": "hip-limited", "hip_extension_margin_rad": 1.0 * D2R}
     del old["simulator"]
-    for record in (old, session38, cuda_made):
+    for record in (old, session38, cuda_made, session51):
         (out / "config.json").write_text(json.dumps(record))
         before = _files(out)
         r = _generate(cfg, out, "--resume", check=False)
