@@ -13,7 +13,9 @@ each figure timed as a CUDA graph of one 30 fps frame, replayed:
   velocity kernels. Layouts (``--layouts``): one thread per particle (``threads``), blocks of
   particles x lanes with a tile reduction (``32x4``, ...), and ``job``: the job's own solve
   kernel (``SolverVBD.sweep``: its layout, raw loads, fast math, register cap) with contact
-  off. The first two read a same-coloured neighbour live where the job reads its snapshot: the
+  off; ``block256``: one block (of 256 threads) per garment, its positions in shared memory,
+  the colours separated by block barriers, one launch per substep (``floor_block_kernel``).
+  All but ``job`` read a same-coloured neighbour live where the job reads its snapshot: the
   same work, a slightly different step. ``sweeps`` is the fastest layout. These are measured
   kernels, so they bound what this code reaches, not what any kernel could.
 - ``stream``: the bandwidth roofline of those sweeps: the bytes of every array the sweep reads
@@ -33,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import Any
 
 import numpy as np
 import warp as wp
@@ -80,24 +83,28 @@ TOPOLOGY_ARRAYS = ("color_vertices", "tri_indices", "edge_indices", "vertex_tri_
 
 
 @wp.func
-def floor_gather(i: int, share: int, stride: int, a: FloorArrays, x: wp.array(dtype=wp.vec3), inv_h: float):
+def floor_gather(i: int, share: int, stride: int, a: FloorArrays, x: Any, base: int, inv_h: float):
     """Items ``share, share + stride, ...`` of particle ``i``'s triangles and hinges: their damped
-    co-rotated membrane and damped bending force on it and Hessian blocks (the job's energies)."""
+    co-rotated membrane and damped bending force on it and Hessian blocks (the job's energies).
+    Particle ``p``'s position is ``x[p - base]``: ``x`` the model's positions (``base`` 0) or one
+    instance's in a shared-memory tile (``base`` its first particle)."""
     f = wp.vec3(0.0)
     H = wp.mat33(0.0)
     for k in range(a.vertex_tri_offsets[i] + share, a.vertex_tri_offsets[i + 1], stride):
         t = a.vertex_tri_ids[k]
         tri = a.tri_indices[t]
         packed = a.vertex_tri_local[k]
-        fe, he = membrane_force_hessian(MEMBRANE_COROTATED, x[tri[0]], x[tri[1]], x[tri[2]], a.tri_dm_inv[t],
-                                        a.tri_area[t], a.tri_mu[t], a.tri_lam[t], a.tri_strain_prev[t],
-                                        a.tri_damping[t] * inv_h, packed & 3)
+        fe, he = membrane_force_hessian(MEMBRANE_COROTATED, x[tri[0] - base], x[tri[1] - base],
+                                        x[tri[2] - base], a.tri_dm_inv[t], a.tri_area[t], a.tri_mu[t],
+                                        a.tri_lam[t], a.tri_strain_prev[t], a.tri_damping[t] * inv_h,
+                                        packed & 3)
         f = f + fe
         H = H + he * jacobi_scale(packed)
     for k in range(a.vertex_edge_offsets[i] + share, a.vertex_edge_offsets[i + 1], stride):
         e = a.vertex_edge_ids[k]
         q = a.edge_indices[e]
-        fb, hb = bending_damped_vertex_force_hessian(x[q[0]], x[q[1]], x[q[2]], x[q[3]], a.edge_rest_angle[e],
+        fb, hb = bending_damped_vertex_force_hessian(x[q[0] - base], x[q[1] - base], x[q[2] - base],
+                                                     x[q[3] - base], a.edge_rest_angle[e],
                                                      a.edge_stiffness[e], a.edge_angle_prev[e],
                                                      a.edge_damping[e] * inv_h, a.vertex_edge_local[k] & 3)
         f = f + fb
@@ -106,15 +113,15 @@ def floor_gather(i: int, share: int, stride: int, a: FloorArrays, x: wp.array(dt
 
 
 @wp.func
-def floor_newton_step(i: int, f: wp.vec3, H: wp.mat33, a: FloorArrays, x: wp.array(dtype=wp.vec3),
-                      inv_h: float):
-    """Add inertia to particle ``i``'s gathered system and take its Newton step in place."""
-    xi = x[i]
+def floor_newton_step(i: int, xi: wp.vec3, f: wp.vec3, H: wp.mat33, a: FloorArrays, inv_h: float) -> wp.vec3:
+    """Particle ``i``'s new position: inertia added to its gathered system at ``xi``, then the
+    Newton step ``xi + H^-1 f``."""
     mh = a.mass[i] * inv_h * inv_h
     f = f + mh * (a.y[i] - xi)
     H = H + mh * wp.identity(n=3, dtype=float)
     if wp.abs(wp.determinant(H)) > 1.0e-20:
-        x[i] = xi + wp.inverse(H) * f
+        return xi + wp.inverse(H) * f
+    return xi
 
 
 @wp.kernel(enable_backward=False)
@@ -123,8 +130,8 @@ def floor_sweep_kernel(begin: int, a: FloorArrays, x: wp.array(dtype=wp.vec3), h
     ``color_vertices[begin + tid]`` takes the Newton step ``x += H^-1 f`` of the substep's
     incremental potential (inertia, damped co-rotated membrane, damped bending) in place."""
     i = a.color_vertices[begin + wp.tid()]
-    f, H = floor_gather(i, 0, 1, a, x, 1.0 / h)
-    floor_newton_step(i, f, H, a, x, 1.0 / h)
+    f, H = floor_gather(i, 0, 1, a, x, 0, 1.0 / h)
+    x[i] = floor_newton_step(i, x[i], f, H, a, 1.0 / h)
 
 
 _LANE_KERNELS: dict = {}
@@ -151,16 +158,86 @@ def floor_lanes_kernel(particles: int, lanes: int):
         H = wp.mat33(0.0)
         if slot < count:
             i = a.color_vertices[begin + slot]
-            f, H = floor_gather(i, lane, wp.static(L), a, x, 1.0 / h)
+            f, H = floor_gather(i, lane, wp.static(L), a, x, 0, 1.0 / h)
         shape = (wp.static(P), wp.static(L))
         f_sum = wp.tile_sum(wp.tile_reshape(wp.tile(f, preserve_type=True), shape=shape), axis=1)
         H_sum = wp.tile_sum(wp.tile_reshape(wp.tile(H, preserve_type=True), shape=shape), axis=1)
         if lane == 0 and i >= 0:
-            floor_newton_step(i, wp.tile_extract(f_sum, local), wp.tile_extract(H_sum, local), a, x, 1.0 / h)
+            x[i] = floor_newton_step(i, x[i], wp.tile_extract(f_sum, local), wp.tile_extract(H_sum, local), a,
+                                     1.0 / h)
 
     sweep.__name__ = sweep.__qualname__ = f"floor_sweep_p{P}_l{L}"
     kernel = wp.kernel(sweep, enable_backward=False, module="unique")
     _LANE_KERNELS[key] = kernel
+    return kernel
+
+
+_BARRIER = r"""
+#if defined(__CUDA_ARCH__)
+    __syncthreads();
+#endif
+"""
+
+
+@wp.func_native(_BARRIER)
+def block_barrier(): ...
+
+
+_BLOCK_KERNELS: dict = {}
+
+
+def floor_block_kernel(max_vertices: int):
+    """The contact-free sweeps of one substep with **one block per instance** (a garment): the
+    block copies its instance's positions into a shared-memory tile of ``max_vertices`` (a
+    compile-time size larger than every instance: 12 B each, 60 KB for the 5k t-shirt; Warp opts
+    the kernel into more than 48 KB of shared memory), runs ``sweeps`` sweeps of every
+    colour with block barriers between colours instead of launches, the threads striding over
+    the colour's particles of this instance, each gathering from the tile, and writes the
+    positions back. Launch with ``wp.launch_tiled(kernel, dim=[instances], block_dim=threads)``
+    (on the CPU 1). The same step as ``floor_sweep_kernel`` swept colour by colour."""
+    key = int(max_vertices)
+    if key in _BLOCK_KERNELS:
+        return _BLOCK_KERNELS[key]
+    V = key
+
+    def sweeps(sweeps: int, colors: int, starts: wp.array(dtype=wp.int32), runs: wp.array(dtype=wp.vec2i),
+               a: FloorArrays, x: wp.array(dtype=wp.vec3), h: float):
+        b, t = wp.tid()
+        nt = wp.block_dim()
+        inv_h = 1.0 / h
+        start = starts[b]
+        n = starts[b + 1] - start
+        spare = wp.static(V - 1)  # V > every instance's size: a slot nobody reads
+        s = wp.tile_zeros(shape=wp.static(V), dtype=wp.vec3, storage="shared")
+        # every thread runs every round of these loops: an element store into a shared tile ends
+        # in a block barrier (Warp's tile_element_assign), so a thread out of work stores to the
+        # spare slot instead of skipping it
+        for base in range(0, n, nt):
+            k = base + t
+            value = wp.vec3(0.0)
+            if k < n:
+                value = x[start + k]
+            s[wp.where(k < n, k, spare)] = value
+        for _sweep in range(sweeps):
+            for c in range(colors):
+                run = runs[b * colors + c]  # this instance's particles of colour c in color_vertices
+                for base in range(run[0], run[0] + run[1], nt):
+                    j = base + t
+                    slot = int(spare)
+                    value = wp.vec3(0.0)
+                    if j < run[0] + run[1]:
+                        i = a.color_vertices[j]
+                        f, H = floor_gather(i, 0, 1, a, s, start, inv_h)
+                        slot = i - start
+                        value = floor_newton_step(i, s[slot], f, H, a, inv_h)
+                    s[slot] = value
+                block_barrier()
+        for k in range(t, n, nt):  # reads only: no barrier inside
+            x[start + k] = s[k]
+
+    sweeps.__name__ = sweeps.__qualname__ = f"floor_block_v{V}"
+    kernel = wp.kernel(sweeps, enable_backward=False, module="unique")
+    _BLOCK_KERNELS[key] = kernel
     return kernel
 
 
@@ -254,6 +331,29 @@ class FloorScene:
         self._job_parity = 1 - getattr(self, "_job_parity", 0)
         solver.sweep(state.positions, solver._sc_data, eps_u, self.h, self._job_parity)
 
+    def block_sweeps(self, threads: int, sweeps: int) -> None:
+        """``sweeps`` sweeps in one launch of ``floor_block_kernel``: a block of ``threads`` per
+        instance (one thread on the CPU)."""
+        m = self.model
+        if getattr(self, "_runs", None) is None:
+            starts = np.asarray(m.instance_starts, np.int64)
+            cv = m.color_vertices.numpy()
+            runs = np.zeros((m.instance_count, m.color_count, 2), np.int32)
+            for c in range(m.color_count):  # each colour's list ascends, so instances are runs in it
+                lo, hi = m.color_offsets[c], m.color_offsets[c + 1]
+                first = np.searchsorted(cv[lo:hi], starts[:-1])
+                runs[:, c, 0] = lo + first
+                runs[:, c, 1] = np.searchsorted(cv[lo:hi], starts[1:]) - first
+            self._runs = (wp.array(starts.astype(np.int32), dtype=wp.int32, device=m.device),
+                          wp.array(runs.reshape(-1, 2), dtype=wp.vec2i, device=m.device),
+                          -(-(int(np.diff(starts).max()) + 1) // 32) * 32)  # a spare slot
+        starts_wp, runs_wp, max_vertices = self._runs
+        cuda = wp.get_device(m.device).is_cuda
+        wp.launch_tiled(floor_block_kernel(max_vertices), dim=[m.instance_count],
+                        block_dim=threads if cuda else 1,
+                        inputs=[sweeps, m.color_count, starts_wp, runs_wp, self.arrays(), self.x, self.h],
+                        device=m.device)
+
     def sweep(self, layout: tuple[int, int] | None = None) -> None:
         """One sweep: every colour in turn, one thread per particle (``layout`` None) or in
         blocks of ``layout`` = (particles, lanes) (``floor_lanes_kernel``)."""
@@ -346,9 +446,13 @@ def parse_layouts(text: str) -> list[Layout]:
         if item in ("threads", "job"):
             out.append(None if item == "threads" else item)
             continue
+        if item.startswith("block") and item[5:].isdigit() and int(item[5:]) >= 1:
+            out.append(item)
+            continue
         p, sep, lanes = item.partition("x")
         if not sep or not p.isdigit() or not lanes.isdigit() or int(p) < 1 or int(lanes) < 1:
-            raise ValueError(f"layout {item!r}: 'threads', 'job' or PARTICLESxLANES, e.g. 32x4")
+            raise ValueError(f"layout {item!r}: 'threads', 'job', 'blockTHREADS' (e.g. block256) or "
+                             "PARTICLESxLANES (e.g. 32x4)")
         out.append((int(p), int(lanes)))
     return out
 
@@ -384,6 +488,10 @@ def floors(scene: FloorScene, device: str, substeps: int, iterations: int, round
            "bytes_per_sweep_shared": scene.sweep_bytes_shared(), "layouts": {}}
     for layout in layouts:
         def frame(layout=layout):
+            if isinstance(layout, str) and layout.startswith("block"):
+                for _ in range(substeps):  # one launch per substep
+                    scene.block_sweeps(int(layout[5:]), iterations)
+                return
             for _ in range(sweeps):
                 if layout == "job":
                     scene.job_sweep()
@@ -409,9 +517,11 @@ def main(argv=None) -> int:
     ap.add_argument("--substeps", type=int, default=0, help="substeps per frame (0: the job's default)")
     ap.add_argument("--iterations", type=int, default=0, help="sweeps per substep (0: the job's default)")
     ap.add_argument("--rounds", type=int, default=20, help="frames per timed batch (3 batches, best)")
-    ap.add_argument("--layouts", default="threads,32x4,64x2,job",
+    ap.add_argument("--layouts", default="threads,32x4,64x2,job,block256",
                     help="sweep layouts to time: 'threads' (one per particle), PARTICLESxLANES blocks (CUDA; "
-                         "the CPU runs them as 1x1) and 'job' (the job's own solve kernel, contact off)")
+                         "the CPU runs them as 1x1), 'job' (the job's own solve kernel, contact off) and "
+                         "'blockTHREADS' (a block per garment, positions in shared memory, one launch per "
+                         "substep)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     from benchmarks.bench_tshirt import build_garment
