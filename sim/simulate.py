@@ -189,7 +189,7 @@ def simulator_defaults(cuda: bool = False) -> dict:
     ``sim.motions.gait.limited_cadence``, session 52: the run's motion changed)."""
     from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
     from sim.garments.templates import TEMPLATES, make_params
-    from sim.motions.gait import HIP_EXTENSION_MARGIN
+    from sim.motions.gait import gait_record
 
     out = {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
                         "fine_over_vertices": FINE_GARMENT_VERTICES},
@@ -199,7 +199,7 @@ def simulator_defaults(cuda: bool = False) -> dict:
            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
            "retry_factors": {"default": list(RETRY_FACTORS), "fine": list(FINE_RETRY_FACTORS)},
            "templates": {name: dataclasses.asdict(make_params(name)) for name in TEMPLATES},
-           "gait": {"cadence": "hip-limited", "hip_extension_margin_rad": HIP_EXTENSION_MARGIN}}
+           "gait": gait_record()}
     if cuda:
         out["max_colors"] = CUDA_COLORS
         out["coarse_early"] = CUDA_COARSE_EARLY

@@ -340,9 +340,13 @@ def test_shards_combine_into_the_same_dataset(reference, tmp_path):
 
     session51 = json.loads(json.dumps(old))
     gait = session51["simulator"].pop("gait")
-    assert gait == {"cadence": "hip-limited", "hip_extension_margin_rad": 1.0 * D2R}
+    assert gait["cadence"] == "hip-limited" and gait["hip_extension_margin_rad"] == 1.0 * D2R
+    assert gait["max_stride_frequency"] == {"walk": 1.75, "run": 2.5} and len(gait["curves_sha1"]) == 40
+    # and one made with other gait curves (a key moved)
+    curves = json.loads(json.dumps(old))
+    curves["simulator"]["gait"]["curves_sha1"] = "0" * 40
     del old["simulator"]
-    for record in (old, session38, cuda_made, session51):
+    for record in (old, session38, cuda_made, session51, curves):
         (out / "config.json").write_text(json.dumps(record))
         before = _files(out)
         r = _generate(cfg, out, "--resume", check=False)

@@ -735,6 +735,37 @@ def test_gaits_keep_the_hips_inside_their_limits_by_quicker_steps(default_body):
     assert m.extra["cadence_raised"] == 1.0 and m.extra["stride_frequency"] == pytest.approx(3.5 / 2.5)
 
 
+def test_the_raised_cadence_stops_at_a_human_step_rate(default_body):
+    """A short body running fast would need an absurd step rate to keep its hips inside the
+    limits (3 strides/s at 5 m/s, 6 at 10): the cadence stops at ``MAX_STRIDE_FREQUENCY`` and the
+    hip swing grows past the cap instead, the stance foot still moving with the floor (up to the
+    swing's clip at 2, past which it slid before session 52 too)."""
+    from sim.motions.gait import _RUN, MAX_STRIDE_FREQUENCY, hip_scale_cap
+
+    betas = np.zeros(default_body.num_betas, np.float32)
+    betas[0] = -2.0
+    sk = MotionSkeleton.from_body(default_body, betas)
+    fps = 240.0
+    walk = procedural_motion("walk", duration=2.5, fps=fps, skeleton=sk, speed=3.0)
+    assert walk.extra["stride_frequency"] == pytest.approx(MAX_STRIDE_FREQUENCY["walk"])
+    for speed in (5.0, 10.0):
+        m = procedural_motion("run", duration=2.5, fps=fps, skeleton=sk, speed=speed)
+        cap = hip_scale_cap(_RUN, m.extra["duty"])
+        assert m.extra["stride_frequency"] == pytest.approx(MAX_STRIDE_FREQUENCY["run"])
+        assert m.extra["hip_scale"] > 1.1 * cap and not within_limits(m.poses, tol=1e-6)  # the ceiling wins
+    # at 5 m/s the swing the ceiling needs (~1.5) is inside the calibration's range: no sliding
+    m = procedural_motion("run", duration=2.5, fps=fps, skeleton=sk, speed=5.0)
+    _, P = sk.forward_kinematics(m.poses, m.trans)
+    ph = np.mod(m.extra["phase"], 1.0)
+    duty = m.extra["duty"]
+    mid = np.nonzero((np.arange(m.num_frames) > 1.2 * fps) & (ph > 0.15 * duty) & (ph < 0.75 * duty))[0]
+    z = P[:, JOINT["right_ankle"], 2]
+    windows = [w for w in np.split(mid, np.nonzero(np.diff(mid) > 1)[0] + 1) if np.ptp(ph[w]) > 0.55 * duty]
+    assert windows
+    for w in windows:
+        assert abs(z[w[-1]] - z[w[0]]) / ((w[-1] - w[0]) / fps) < 0.1
+
+
 @pytest.mark.parametrize("name", ["walk", "run"])
 def test_gait_arms_do_not_cut_into_the_body(default_body, name):
     """The default body is skinned without pose correctives: an arm lowered past ~25 degrees

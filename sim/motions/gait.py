@@ -77,6 +77,8 @@ WALK_TOE_OFF = 0.62
 RUN_HIP = ((0, 35), (12, 27), (28, 5), (42, -12), (55, 0), (70, 30), (85, 45), (94, 40))
 RUN_KNEE = ((0, 18), (14, 40), (28, 25), (39, 15), (48, 35), (60, 75), (70, 95), (80, 80),
             (90, 40), (96, 22))
+# the 14 % key was 20 deg until session 52: the interpolated curve overshoots its key (20.12 deg),
+# past the joint-limit table's 20 deg of dorsiflexion; 19.5 peaks at 19.64
 RUN_ANKLE = ((0, 5), (14, 19.5), (28, 10), (39, -20), (46, -24), (56, -8), (70, 5), (85, 10),
              (94, 7))
 RUN_TOE_OFF = 0.39
@@ -221,6 +223,14 @@ HIP_EXTENSION_MARGIN = 1.0 * D2R
 """How far [rad] below the joint-limit table's hip extension (``sim.motions.limits``, 30 deg)
 the automatic cadence keeps a gait's peak hip extension (``limited_cadence``)."""
 
+MAX_STRIDE_FREQUENCY = {"walk": 1.75, "run": 2.5}
+"""The quickest cadence [strides/s] ``limited_cadence`` raises a gait to: race walkers take about
+3.5 steps/s, sprinters about 5 (Weyand et al. 2000, "Faster top running speeds are achieved with
+greater ground forces not more rapid leg movements"). A body that would need more (a short body
+at a sprint) keeps this cadence and a hip swing past the joint-limit table, as before session 52:
+an absurd step rate is the worse error. (Past a swing of 2, where ``stride_calibration`` clips,
+the stance foot slides, as it did before at the lower automatic cadence: a short body at 10 m/s.)"""
+
 
 def peak_hip_extension(style: _GaitStyle, duty: float, hip_scale: float) -> float:
     """Largest hip extension [rad] (the hips' axis-angle X component, extension positive) over a
@@ -237,7 +247,10 @@ def hip_scale_cap(style: _GaitStyle, duty: float) -> float:
     target = limit - HIP_EXTENSION_MARGIN
     lo, hi = 0.5, 2.0
     if peak_hip_extension(style, duty, hi) <= target:
-        return hi
+        return hi  # stride_calibration clips its scale at 2 too
+    if peak_hip_extension(style, duty, lo) > target:
+        raise RuntimeError(f"gait curves: the hip extension passes the joint limits even at scale {lo} "
+                           f"(duty {duty}); the curve tables and the limit table disagree")
     for _ in range(40):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if peak_hip_extension(style, duty, mid) <= target else (lo, mid)
@@ -245,7 +258,8 @@ def hip_scale_cap(style: _GaitStyle, duty: float) -> float:
 
 
 def limited_cadence(style: _GaitStyle, duty: float, f: float, speed: float,
-                    skeleton: MotionSkeleton | None = None) -> tuple[float, float]:
+                    skeleton: MotionSkeleton | None = None,
+                    f_max: float = float("inf")) -> tuple[float, float]:
     """Stride frequency [Hz] and hip-curve scale of a gait at ``speed`` [m/s] whose stance foot
     does not slide and whose hips stay inside the joint limits.
 
@@ -256,13 +270,35 @@ def limited_cadence(style: _GaitStyle, duty: float, f: float, speed: float,
     ``hip_scale_cap``, the cadence rises instead, as shorter runners' does: the scale is held at
     the cap and the frequency is the one at which the stance foot, swept at that scale, moves at
     ``speed`` (the stance speed is proportional to the frequency), so the foot still does not
-    slide."""
+    slide. The cadence rises to ``f_max`` [Hz] at most (``MAX_STRIDE_FREQUENCY``); a gait that
+    would need more takes ``f_max`` and the swing that frequency needs, past the cap."""
     k = stride_calibration(style, duty, f, speed, skeleton)
     cap = hip_scale_cap(style, duty)
     if k <= cap:
         return f, k
     per_hz = _stance_speed(style, duty, 1.0, cap, skeleton)
-    return (speed / per_hz, cap) if per_hz > 1e-6 else (f, k)
+    if per_hz <= 1e-6:
+        raise RuntimeError(f"gait: the stance foot does not move at hip scale {cap} (duty {duty})")
+    f_limited = speed / per_hz
+    if f_limited <= f_max:
+        return f_limited, cap
+    f_top = max(f, f_max)
+    return f_top, stride_calibration(style, duty, f_top, speed, skeleton)
+
+
+def gait_record() -> dict:
+    """What shapes the procedural walks and runs beyond their parameters, for a dataset's record
+    of its simulator defaults (``sim.simulate.simulator_defaults``): the cadence rule, its
+    margin, ceiling and hip limit, and a digest of the gait curves, so that a dataset is not
+    continued with other motions."""
+    import hashlib
+
+    curves = repr((_WALK, _RUN, WALK_HIP, RUN_HIP)).encode()
+    return {"cadence": "hip-limited", "hip_extension_margin_rad": HIP_EXTENSION_MARGIN,
+            "hip_extension_limit_rad": float(min(JOINT_LIMITS[JOINT["left_hip"], 0, 1],
+                                                 JOINT_LIMITS[JOINT["right_hip"], 0, 1])),
+            "max_stride_frequency": dict(MAX_STRIDE_FREQUENCY),
+            "curves_sha1": hashlib.sha1(curves).hexdigest()}
 
 
 def _ramped_phase(t: np.ndarray, w: np.ndarray, rate: float, fps: float) -> np.ndarray:
@@ -273,7 +309,9 @@ def _ramped_phase(t: np.ndarray, w: np.ndarray, rate: float, fps: float) -> np.n
 @dataclass(frozen=True)
 class WalkParams:
     """Attributes: duration [s]; fps [1/s]; speed: forward speed along +Z [m/s]; stride: stride
-    length (two steps) [m], 0 for the speed-dependent default; arm_swing: arm swing scale (0
+    length (two steps) [m], 0 for the speed-dependent default (whose cadence rises where the
+    body's hips would pass their joint limits: ``limited_cadence``); a stride given is kept at
+    whatever hip swing it takes, inside the limits or not; arm_swing: arm swing scale (0
     keeps the arms still); ramp: blend-in time from the rest T-pose (speed and pose) [s]."""
 
     duration: float = 4.0
@@ -299,7 +337,7 @@ def walk(p: WalkParams, skeleton: MotionSkeleton | None = None) -> Motion:
     elif p.stride > 0:  # the stride asked for, at whatever hip swing it takes
         k = stride_calibration(_WALK, WALK_TOE_OFF, f, p.speed, skeleton)
     else:
-        f, k = limited_cadence(_WALK, WALK_TOE_OFF, f, p.speed, skeleton)
+        f, k = limited_cadence(_WALK, WALK_TOE_OFF, f, p.speed, skeleton, MAX_STRIDE_FREQUENCY["walk"])
         stride = p.speed / f
     phase = _ramped_phase(t, w, f, p.fps)
     poses = w[:, None, None] * gait_pose(_WALK, phase, arm_swing=p.arm_swing, hip_scale=k)
@@ -314,7 +352,9 @@ def walk(p: WalkParams, skeleton: MotionSkeleton | None = None) -> Motion:
 @dataclass(frozen=True)
 class RunParams:
     """Attributes: duration [s]; fps [1/s]; speed: forward speed along +Z [m/s]; stride: stride
-    length [m], 0 for the speed-dependent default; duty: stance fraction of the stride (< 0.5
+    length [m], 0 for the speed-dependent default (whose cadence rises where the body's hips
+    would pass their joint limits: ``limited_cadence``); a stride given is kept at whatever hip
+    swing it takes, inside the limits or not; duty: stance fraction of the stride (< 0.5
     gives a flight phase); arm_swing: arm swing scale; ramp: blend-in time from rest [s]."""
 
     duration: float = 4.0
@@ -354,7 +394,7 @@ def run(p: RunParams, skeleton: MotionSkeleton | None = None) -> Motion:
     if p.stride > 0:  # the stride asked for, at whatever hip swing it takes
         k = stride_calibration(_RUN, p.duty, f, p.speed, skeleton)
     else:
-        f, k = limited_cadence(_RUN, p.duty, f, p.speed, skeleton)
+        f, k = limited_cadence(_RUN, p.duty, f, p.speed, skeleton, MAX_STRIDE_FREQUENCY["run"])
     phase = _ramped_phase(t, w, f, p.fps)
     poses = w[:, None, None] * gait_pose(_RUN, phase, duty=p.duty, arm_swing=p.arm_swing,
                                          hip_scale=k)
