@@ -34,13 +34,14 @@ batched frame, their garment-frames/s, and ns per particle per sweep.
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from typing import Any
 
 import numpy as np
 import warp as wp
 
-from benchmarks.common import machine, write_result
+from benchmarks.common import machine, timed_ms, write_result
 from sim.cloth.energies import bending_damped_vertex_force_hessian
 from sim.cloth.vbd_kernels import MEMBRANE_COROTATED, jacobi_scale, membrane_force_hessian
 
@@ -134,19 +135,14 @@ def floor_sweep_kernel(begin: int, a: FloorArrays, x: wp.array(dtype=wp.vec3), h
     x[i] = floor_newton_step(i, x[i], f, H, a, 1.0 / h)
 
 
-_LANE_KERNELS: dict = {}
-
-
+@functools.cache
 def floor_lanes_kernel(particles: int, lanes: int):
     """The same colour sweep as ``floor_sweep_kernel`` in the solver's batched layout: blocks of
     ``particles`` x ``lanes`` threads, each lane a share of its particle's triangles and hinges,
     summed over the lanes by a tile reduction, lane 0 taking the step. Launch with
     ``wp.launch_tiled(kernel, dim=[ceil(count / particles)], block_dim=particles * lanes)``
     (on the CPU 1 x 1)."""
-    key = (int(particles), int(lanes))
-    if key in _LANE_KERNELS:
-        return _LANE_KERNELS[key]
-    P, L = key
+    P, L = int(particles), int(lanes)
 
     def sweep(count: int, begin: int, a: FloorArrays, x: wp.array(dtype=wp.vec3), h: float):
         block, thread = wp.tid()
@@ -167,9 +163,7 @@ def floor_lanes_kernel(particles: int, lanes: int):
                                      1.0 / h)
 
     sweep.__name__ = sweep.__qualname__ = f"floor_sweep_p{P}_l{L}"
-    kernel = wp.kernel(sweep, enable_backward=False, module="unique")
-    _LANE_KERNELS[key] = kernel
-    return kernel
+    return wp.kernel(sweep, enable_backward=False, module="unique")
 
 
 _BARRIER = r"""
@@ -183,9 +177,7 @@ _BARRIER = r"""
 def block_barrier(): ...
 
 
-_BLOCK_KERNELS: dict = {}
-
-
+@functools.cache
 def floor_block_kernel(max_vertices: int):
     """The contact-free sweeps of one substep with **one block per instance** (a garment): the
     block copies its instance's positions into a shared-memory tile of ``max_vertices`` (a
@@ -195,10 +187,7 @@ def floor_block_kernel(max_vertices: int):
     the colour's particles of this instance, each gathering from the tile, and writes the
     positions back. Launch with ``wp.launch_tiled(kernel, dim=[instances], block_dim=threads)``
     (on the CPU 1). The same step as ``floor_sweep_kernel`` swept colour by colour."""
-    key = int(max_vertices)
-    if key in _BLOCK_KERNELS:
-        return _BLOCK_KERNELS[key]
-    V = key
+    V = int(max_vertices)
 
     def sweeps(sweeps: int, colors: int, starts: wp.array(dtype=wp.int32), runs: wp.array(dtype=wp.vec2i),
                a: FloorArrays, x: wp.array(dtype=wp.vec3), h: float):
@@ -236,9 +225,7 @@ def floor_block_kernel(max_vertices: int):
             x[start + k] = s[k]
 
     sweeps.__name__ = sweeps.__qualname__ = f"floor_block_v{V}"
-    kernel = wp.kernel(sweeps, enable_backward=False, module="unique")
-    _BLOCK_KERNELS[key] = kernel
-    return kernel
+    return wp.kernel(sweeps, enable_backward=False, module="unique")
 
 
 @wp.kernel(enable_backward=False)
@@ -272,6 +259,14 @@ class FloorScene:
                   outputs=[self.strain_prev, self.angle_prev], device=d)
         self.colors = [(m.color_offsets[c], m.color_offsets[c + 1] - m.color_offsets[c])
                        for c in range(m.color_count)]
+        own = {"y": self.y, "mass": m.particle_mass, "tri_strain_prev": self.strain_prev,
+               "edge_angle_prev": self.angle_prev}
+        self.arrays = FloorArrays()  # what every sweep kernel reads
+        for name in FLOOR_ARRAYS:
+            setattr(self.arrays, name, own[name] if name in own else getattr(m, name))
+        self._job = None  # job_solver, built on first use
+        self._job_parity = 0
+        self._runs = None  # block_sweeps' per-instance colour runs, built on first use
 
     @classmethod
     def tshirts(cls, garment, copies: int, device: str, substeps: int, max_colors: int) -> FloorScene:
@@ -285,24 +280,12 @@ class FloorScene:
                         face_layers=garment.face_layers)
         return cls(b.finalize(device), 1.0 / (30.0 * substeps))
 
-    def arrays(self) -> FloorArrays:
-        """The sweep's ``FloorArrays`` (built once)."""
-        if getattr(self, "_arrays", None) is None:
-            m = self.model
-            own = {"y": self.y, "mass": m.particle_mass, "tri_strain_prev": self.strain_prev,
-                   "edge_angle_prev": self.angle_prev}
-            a = FloorArrays()
-            for name in FLOOR_ARRAYS:
-                setattr(a, name, own[name] if name in own else getattr(m, name))
-            self._arrays = a
-        return self._arrays
-
     def job_solver(self):
         """The job's own ``SolverVBD`` on this model with contact off (no bodies, no
         self-contact, no coarse correction, no air damping), its substep buffers set up by one
         step of length ``h`` from the model's positions: ``job_sweep`` then runs the job's solve
         kernel (its layout, raw loads and register cap) on them."""
-        if getattr(self, "_job", None) is None:
+        if self._job is None:
             import dataclasses
 
             from sim.cloth import SolverVBD
@@ -328,14 +311,14 @@ class FloorScene:
         number of them replays in step with its snapshots.)"""
         solver, state = self.job_solver()
         eps_u = solver.config.friction_epsilon * self.h
-        self._job_parity = 1 - getattr(self, "_job_parity", 0)
+        self._job_parity = 1 - self._job_parity
         solver.sweep(state.positions, solver._sc_data, eps_u, self.h, self._job_parity)
 
     def block_sweeps(self, threads: int, sweeps: int) -> None:
         """``sweeps`` sweeps in one launch of ``floor_block_kernel``: a block of ``threads`` per
         instance (one thread on the CPU)."""
         m = self.model
-        if getattr(self, "_runs", None) is None:
+        if self._runs is None:
             starts = np.asarray(m.instance_starts, np.int64)
             cv = m.color_vertices.numpy()
             runs = np.zeros((m.instance_count, m.color_count, 2), np.int32)
@@ -351,7 +334,7 @@ class FloorScene:
         cuda = wp.get_device(m.device).is_cuda
         wp.launch_tiled(floor_block_kernel(max_vertices), dim=[m.instance_count],
                         block_dim=threads if cuda else 1,
-                        inputs=[sweeps, m.color_count, starts_wp, runs_wp, self.arrays(), self.x, self.h],
+                        inputs=[sweeps, m.color_count, starts_wp, runs_wp, self.arrays, self.x, self.h],
                         device=m.device)
 
     def sweep(self, layout: tuple[int, int] | None = None) -> None:
@@ -360,18 +343,17 @@ class FloorScene:
         d = self.model.device
         for begin, count in self.colors:
             if layout is None:
-                wp.launch(floor_sweep_kernel, dim=count, inputs=[begin, self.arrays(), self.x, self.h],
+                wp.launch(floor_sweep_kernel, dim=count, inputs=[begin, self.arrays, self.x, self.h],
                           device=d)
             else:
                 P, L = layout
                 wp.launch_tiled(floor_lanes_kernel(P, L), dim=[-(-count // P)], block_dim=P * L,
-                                inputs=[count, begin, self.arrays(), self.x, self.h], device=d)
+                                inputs=[count, begin, self.arrays, self.x, self.h], device=d)
 
     def sweep_bytes(self) -> int:
         """Bytes one sweep of this model's arrays moves at the least: every array it reads once
         (the colour lists and adjacencies included) and the positions written once."""
-        a = self.arrays()
-        read = sum(getattr(a, name).capacity for name in FLOOR_ARRAYS) + self.x.capacity
+        read = sum(getattr(self.arrays, name).capacity for name in FLOOR_ARRAYS) + self.x.capacity
         return int(read + self.x.capacity)
 
     def sweep_bytes_shared(self) -> int:
@@ -380,35 +362,14 @@ class FloorScene:
         counted once, every per-particle, per-triangle and per-hinge value (rest shape, material,
         state) once per instance. A batch of one garment pattern on different bodies could be
         laid out so; this model is not."""
-        a = self.arrays()
-        m = self.model
-        shared = sum(getattr(a, name).capacity for name in TOPOLOGY_ARRAYS)
-        return int(self.sweep_bytes() - shared + shared // m.instance_count)
+        shared = sum(getattr(self.arrays, name).capacity for name in TOPOLOGY_ARRAYS)
+        return int(self.sweep_bytes() - shared + shared // self.model.instance_count)
 
 
 def timed_frames(fn, device: str, rounds: int, graph: bool) -> float:
-    """Seconds per call of ``fn`` (one frame's launches): captured in a CUDA graph and replayed
-    ``rounds`` times on CUDA (best of 3 batches of rounds), called ``rounds`` times on the CPU."""
-    fn()  # compiles, warms caches
-    wp.synchronize_device(device)
-    if graph:
-        with wp.ScopedCapture(device=device) as cap:
-            fn()
-        wp.capture_launch(cap.graph)
-        wp.synchronize_device(device)
-        best = float("inf")
-        for _ in range(3):
-            t0 = time.perf_counter()
-            for _ in range(rounds):
-                wp.capture_launch(cap.graph)
-            wp.synchronize_device(device)
-            best = min(best, (time.perf_counter() - t0) / rounds)
-        return best
-    t0 = time.perf_counter()
-    for _ in range(rounds):
-        fn()
-    wp.synchronize_device(device)
-    return (time.perf_counter() - t0) / rounds
+    """Seconds per call of ``fn`` (one frame's launches): ``benchmarks.common.timed_ms`` over
+    ``rounds`` calls, replaying a CUDA graph of one on CUDA, best of 3 such batches there."""
+    return min(timed_ms(wp, device, fn, rounds, graph) for _ in range(3 if graph else 1)) / 1e3
 
 
 @wp.kernel(enable_backward=False)

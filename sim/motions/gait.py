@@ -47,6 +47,7 @@ sink (the flight phase, where the feet are above the floor, stays ballistic).
 from __future__ import annotations
 
 import functools
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -291,8 +292,6 @@ def gait_record() -> dict:
     of its simulator defaults (``sim.simulate.simulator_defaults``): the cadence rule, its
     margin, ceiling and hip limit, and a digest of the gait curves, so that a dataset is not
     continued with other motions."""
-    import hashlib
-
     curves = repr((_WALK, _RUN, WALK_HIP, RUN_HIP)).encode()
     return {"cadence": "hip-limited", "hip_extension_margin_rad": HIP_EXTENSION_MARGIN,
             "hip_extension_limit_rad": float(min(JOINT_LIMITS[JOINT["left_hip"], 0, 1],
