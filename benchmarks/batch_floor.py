@@ -78,6 +78,8 @@ class FloorArrays:
 
 
 FLOOR_ARRAYS = tuple(FloorArrays.vars)
+TERMS = ("all", "membrane", "bending", "inertia")
+"""What a sweep may be timed with (``FloorScene.without``, ``--terms``)."""
 TOPOLOGY_ARRAYS = ("color_vertices", "tri_indices", "edge_indices", "vertex_tri_offsets", "vertex_tri_ids",
                    "vertex_tri_local", "vertex_edge_offsets", "vertex_edge_ids", "vertex_edge_local")
 """The ``FloorArrays`` that copies of one mesh share (``FloorScene.sweep_bytes_shared``)."""
@@ -337,18 +339,39 @@ class FloorScene:
                         inputs=[sweeps, m.color_count, starts_wp, runs_wp, self.arrays, self.x, self.h],
                         device=m.device)
 
-    def sweep(self, layout: tuple[int, int] | None = None) -> None:
+    def sweep(self, layout: tuple[int, int] | None = None, arrays: FloorArrays | None = None) -> None:
         """One sweep: every colour in turn, one thread per particle (``layout`` None) or in
-        blocks of ``layout`` = (particles, lanes) (``floor_lanes_kernel``)."""
+        blocks of ``layout`` = (particles, lanes) (``floor_lanes_kernel``), on ``arrays`` (default
+        the scene's own; ``without`` leaves terms out)."""
         d = self.model.device
+        arrays = self.arrays if arrays is None else arrays
         for begin, count in self.colors:
             if layout is None:
-                wp.launch(floor_sweep_kernel, dim=count, inputs=[begin, self.arrays, self.x, self.h],
+                wp.launch(floor_sweep_kernel, dim=count, inputs=[begin, arrays, self.x, self.h],
                           device=d)
             else:
                 P, L = layout
                 wp.launch_tiled(floor_lanes_kernel(P, L), dim=[-(-count // P)], block_dim=P * L,
-                                inputs=[count, begin, self.arrays, self.x, self.h], device=d)
+                                inputs=[count, begin, arrays, self.x, self.h], device=d)
+
+    def without(self, terms: str) -> FloorArrays:
+        """This scene's arrays with some of the sweep's terms left out, for timing them apart:
+        ``membrane`` keeps the triangles (no hinges), ``bending`` the hinges (no triangles),
+        ``inertia`` neither (each particle's Newton step on its inertia alone), ``all`` both.
+        A term is left out by an adjacency offset array of zeros, so its gather loop runs no
+        rounds and loads nothing of it; the kernels are the same."""
+        if terms not in TERMS:
+            raise ValueError(f"terms {terms!r}: one of {', '.join(TERMS)}")
+        a = FloorArrays()
+        for name in FLOOR_ARRAYS:
+            setattr(a, name, getattr(self.arrays, name))
+        m = self.model
+        zeros = wp.zeros(m.particle_count + 1, dtype=wp.int32, device=m.device)
+        if terms in ("bending", "inertia"):
+            a.vertex_tri_offsets = zeros
+        if terms in ("membrane", "inertia"):
+            a.vertex_edge_offsets = zeros
+        return a
 
     def sweep_bytes(self) -> int:
         """Bytes one sweep of this model's arrays moves at the least: every array it reads once
@@ -425,11 +448,12 @@ def layout_name(layout: Layout) -> str:
 
 
 def floors(scene: FloorScene, device: str, substeps: int, iterations: int, rounds: int, bandwidth: float,
-           layouts: list[Layout]) -> dict:
+           layouts: list[Layout], terms: tuple[str, ...] = ()) -> dict:
     """The floors of one scene, JSON-ready (module docstring): ``sweeps`` is the fastest of the
     ``layouts``, each of which is also in ``layouts``; ``stream`` at this model's bytes,
     ``stream_shared`` with the topology shared by the copies (``FloorScene.sweep_bytes_shared``),
-    both at ``bandwidth`` [bytes/s]."""
+    both at ``bandwidth`` [bytes/s]; ``terms``: the fastest plain layout (``threads`` or
+    ``PxL``) again with only those terms (``FloorScene.without``)."""
     m = scene.model
     graph = device.startswith("cuda")
     sweeps = substeps * iterations
@@ -462,6 +486,18 @@ def floors(scene: FloorScene, device: str, substeps: int, iterations: int, round
         out["layouts"][layout_name(layout)] = figures(timed_frames(frame, device, rounds, graph))
     best = min(out["layouts"], key=lambda k: out["layouts"][k]["ms_per_frame"])
     out["sweeps"] = {**out["layouts"][best], "layout": best}
+    plain = [k for k in layouts if not isinstance(k, str)]
+    if terms and plain:
+        fastest = min(plain, key=lambda k: out["layouts"][layout_name(k)]["ms_per_frame"])
+        out["terms"] = {"layout": layout_name(fastest)}
+        for term in terms:
+            arrays = scene.without(term)
+
+            def partial(arrays=arrays):
+                for _ in range(sweeps):
+                    scene.sweep(fastest, arrays)
+
+            out["terms"][term] = figures(timed_frames(partial, device, rounds, graph))
     out["stream"] = figures(sweeps * scene.sweep_bytes() / bandwidth)
     out["stream_shared"] = figures(sweeps * scene.sweep_bytes_shared() / bandwidth)
     out["launch"] = figures(timed_frames(launches, device, rounds, graph))
@@ -483,6 +519,9 @@ def main(argv=None) -> int:
                          "the CPU runs them as 1x1), 'job' (the job's own solve kernel, contact off) and "
                          "'blockTHREADS' (a block per garment, positions in shared memory, one launch per "
                          "substep)")
+    ap.add_argument("--terms", default="",
+                    help="also time the fastest plain layout with only some of the sweep's terms, e.g. "
+                         "'membrane,bending,inertia' (inertia: neither triangles nor hinges)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     from benchmarks.bench_tshirt import build_garment
@@ -500,6 +539,9 @@ def main(argv=None) -> int:
         layouts = parse_layouts(args.layouts)
     except ValueError as e:
         ap.error(f"--layouts: {e}")
+    terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
+    if any(t not in TERMS for t in terms):
+        ap.error(f"--terms: a comma-separated list of {', '.join(TERMS)}, got {args.terms!r}")
     wp.init()
     device = resolve_device(args.device)
     body = load_default_body()
@@ -518,12 +560,13 @@ def main(argv=None) -> int:
            "substeps": substeps, "iterations": iterations, "max_colors": colors,
            "copy_bandwidth_gb_s": bandwidth / 1e9,
            "copy_bandwidths_gb_s": {k: v / 1e9 for k, v in copy.items()},
-           "layouts": [layout_name(k) for k in layouts], "target_garment_frames_per_s": TARGET, "batches": {}}
+           "layouts": [layout_name(k) for k in layouts], "terms": list(terms),
+           "target_garment_frames_per_s": TARGET, "batches": {}}
     for n in batches:
         t0 = time.perf_counter()
         scene = FloorScene.tshirts(garment, n, device, substeps, colors)
         build_s = time.perf_counter() - t0
-        fig = floors(scene, device, substeps, iterations, args.rounds, bandwidth, layouts)
+        fig = floors(scene, device, substeps, iterations, args.rounds, bandwidth, layouts, terms)
         fig["build_s"] = build_s
         res["batches"][str(n)] = fig
         sw, st = fig["sweeps"], fig["stream"]

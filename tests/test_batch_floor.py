@@ -145,3 +145,29 @@ def test_the_floor_reads_each_array_once_per_sweep():
     offsets_once = 2 * 2 * 4  # the two CSR offset arrays have 3n + 1 entries, not 3 (n + 1)
     assert three.sweep_bytes() == 3 * expected - offsets_once
     assert three.sweep_bytes_shared() == 3 * (expected - topology) + (3 * topology - offsets_once) // 3
+
+
+def test_the_terms_are_timed_apart_by_leaving_the_others_out(device):
+    """``FloorScene.without``: the ``membrane`` sweep of a bent sheet is the whole sweep of the
+    same sheet with no bending stiffness; the ``inertia`` sweep leaves every particle at its
+    inertial target (the Newton step of ``m/h^2 |x - y|^2`` alone from ``y``); the ``bending``
+    sweep moves the sheet off that target, and elsewhere than the membrane does."""
+    from benchmarks.batch_floor import FloorScene
+
+    h = 1.0 / 240.0
+    moved = {}
+    for terms in ("membrane", "bending", "inertia"):
+        model, _ = _bent_stretched_sheet(device)
+        scene = FloorScene(model, h)
+        scene.sweep(None, scene.without(terms))
+        moved[terms] = scene.x.numpy()
+        y = scene.y.numpy()
+    flat, _ = _bent_stretched_sheet(device, bending=0.0)
+    reference = FloorScene(flat, h)
+    reference.sweep(None)
+    np.testing.assert_allclose(moved["membrane"], reference.x.numpy(), rtol=0, atol=1e-7)
+    np.testing.assert_array_equal(moved["inertia"], y)
+    assert np.abs(moved["bending"] - y).max() > 1e-6
+    assert np.abs(moved["bending"] - moved["membrane"]).max() > 1e-6
+    with pytest.raises(ValueError, match="terms 'contact'"):
+        reference.without("contact")
