@@ -780,3 +780,22 @@ def test_gait_arms_do_not_cut_into_the_body(default_body, name):
     arms = self_intersections(frames.vertices[20::4], frames.faces, device="cpu",
                               edge_mask=arm_vertex[edges[:, 0]] & arm_vertex[edges[:, 1]])
     assert arms.max() == 0, f"{name}: arm skin crosses the body in {np.count_nonzero(arms)} frames"
+
+
+def test_a_slow_run_keeps_its_stance_foot_on_the_floor(default_body):
+    """A run slower than ~1 m/s keeps its cadence above 1.25 strides/s, so its strides are short
+    and its hips swing less than the curves' half: until session 53 the calibration stopped at
+    half and the stance foot slid forward (0.44 m/s at a 0.5 m/s jog). Now it moves with the
+    floor down to the slowest run ``RunParams`` allows, and the swing shrinks with the speed."""
+    from sim.motions.gait import HIP_SCALE_RANGE, gait_record
+
+    sk = MotionSkeleton.from_body(default_body, np.zeros(default_body.num_betas, np.float32))
+    fps = 240.0
+    scales = []
+    for speed in (0.5, 0.8):
+        m = procedural_motion("run", duration=2.5, fps=fps, skeleton=sk, speed=speed)
+        assert np.abs(stance_ankle_speeds(sk, m, fps)).max() < 0.05, speed
+        assert within_limits(m.poses, tol=1e-6)
+        scales.append(m.extra["hip_scale"])
+    assert HIP_SCALE_RANGE[0] < scales[0] < scales[1] < 0.5  # below the old floor, which slid
+    assert gait_record()["hip_scale_range"] == list(HIP_SCALE_RANGE)  # datasets see the change

@@ -206,17 +206,27 @@ def _stance_speed(style: _GaitStyle, duty: float, f: float, hip_scale: float,
     return float(-(z[-1] - z[0]) / (ph[-1] - ph[0]) * f)
 
 
+HIP_SCALE_RANGE = (0.2, 2.0)
+"""The hip-curve scales ``stride_calibration`` chooses from. The floor was 0.5 until session 53:
+a run slower than ~1 m/s (the running cadence stays above 1.25 strides/s, so its strides are
+short) needs a smaller swing, and at 0.5 the stance foot slid forward at 0.44 m/s at a 0.5 m/s
+jog. At 0.2 the stance foot still moves backwards (the knee's flexion alone moves it forwards:
+the stance speed is ~(1.74 s - 0.12) m per stride, s the scale), and every run down to the
+slowest ``RunParams`` allows (0.5 m/s) is within the range."""
+
+
 def stride_calibration(style: _GaitStyle, duty: float, f: float, speed: float,
                        skeleton: MotionSkeleton | None = None) -> float:
     """Hip-curve scale so the stance foot does not slide at ``speed`` [m/s]: the normative
     curves are for one stride length; longer strides need a larger hip excursion (and the
-    reverse). Three fixed-point steps ``s <- s * speed / v(s)``, clipped to [0.5, 2]."""
+    reverse). Three fixed-point steps ``s <- s * speed / v(s)``, clipped to ``HIP_SCALE_RANGE``."""
     s = 1.0
+    lo, hi = HIP_SCALE_RANGE
     for _ in range(3):
         v = _stance_speed(style, duty, f, s, skeleton)
         if v <= 1e-6:
             break
-        s = float(np.clip(s * speed / v, 0.5, 2.0))
+        s = float(np.clip(s * speed / v, lo, hi))
     return s
 
 
@@ -246,9 +256,9 @@ def hip_scale_cap(style: _GaitStyle, duty: float) -> float:
     joint-limit table (bisection; the extension grows with the scale)."""
     limit = min(JOINT_LIMITS[JOINT["left_hip"], 0, 1], JOINT_LIMITS[JOINT["right_hip"], 0, 1])
     target = limit - HIP_EXTENSION_MARGIN
-    lo, hi = 0.5, 2.0
+    lo, hi = 0.5, HIP_SCALE_RANGE[1]
     if peak_hip_extension(style, duty, hi) <= target:
-        return hi  # stride_calibration clips its scale at 2 too
+        return hi  # stride_calibration clips its scale there too (HIP_SCALE_RANGE)
     if peak_hip_extension(style, duty, lo) > target:
         raise RuntimeError(f"gait curves: the hip extension passes the joint limits even at scale {lo} "
                            f"(duty {duty}); the curve tables and the limit table disagree")
@@ -296,7 +306,7 @@ def gait_record() -> dict:
     return {"cadence": "hip-limited", "hip_extension_margin_rad": HIP_EXTENSION_MARGIN,
             "hip_extension_limit_rad": float(min(JOINT_LIMITS[JOINT["left_hip"], 0, 1],
                                                  JOINT_LIMITS[JOINT["right_hip"], 0, 1])),
-            "max_stride_frequency": dict(MAX_STRIDE_FREQUENCY),
+            "max_stride_frequency": dict(MAX_STRIDE_FREQUENCY), "hip_scale_range": list(HIP_SCALE_RANGE),
             "curves_sha1": hashlib.sha1(curves).hexdigest()}
 
 
