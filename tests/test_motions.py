@@ -785,7 +785,7 @@ def test_gait_arms_do_not_cut_into_the_body(default_body, name):
 def test_a_slow_run_keeps_its_stance_foot_on_the_floor(default_body):
     """A run slower than ~1 m/s keeps its cadence above 1.25 strides/s, so its strides are short
     and its hips swing less than the curves' half: until session 53 the calibration stopped at
-    half and the stance foot slid forward (0.44 m/s at a 0.5 m/s jog). Now it moves with the
+    half and the stance foot slid forward (~0.5 m/s at a 0.5 m/s jog). Now it moves with the
     floor down to the slowest run ``RunParams`` allows, and the swing shrinks with the speed."""
     from sim.motions.gait import HIP_SCALE_RANGE, gait_record
 

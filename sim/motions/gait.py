@@ -209,7 +209,7 @@ def _stance_speed(style: _GaitStyle, duty: float, f: float, hip_scale: float,
 HIP_SCALE_RANGE = (0.2, 2.0)
 """The hip-curve scales ``stride_calibration`` chooses from. The floor was 0.5 until session 53:
 a run slower than ~1 m/s (the running cadence stays above 1.25 strides/s, so its strides are
-short) needs a smaller swing, and at 0.5 the stance foot slid forward at 0.44 m/s at a 0.5 m/s
+short) needs a smaller swing, and at 0.5 the stance foot slid forward at ~0.5 m/s at a 0.5 m/s
 jog. At 0.2 the stance foot still moves backwards (the knee's flexion alone moves it forwards:
 the stance speed is ~(1.74 s - 0.12) m per stride, s the scale), and every run down to the
 slowest ``RunParams`` allows (0.5 m/s) is within the range."""
