@@ -127,18 +127,31 @@ def floor_newton_step(i: int, xi: wp.vec3, f: wp.vec3, H: wp.mat33, a: FloorArra
     return xi
 
 
-@wp.kernel(enable_backward=False)
-def floor_sweep_kernel(begin: int, a: FloorArrays, x: wp.array(dtype=wp.vec3), h: float):
-    """One colour of a contact-free VBD sweep, one thread per particle: particle
-    ``color_vertices[begin + tid]`` takes the Newton step ``x += H^-1 f`` of the substep's
-    incremental potential (inertia, damped co-rotated membrane, damped bending) in place."""
-    i = a.color_vertices[begin + wp.tid()]
-    f, H = floor_gather(i, 0, 1, a, x, 0, 1.0 / h)
-    x[i] = floor_newton_step(i, x[i], f, H, a, 1.0 / h)
+def _floor_kernel(fn, name: str, fast_math: bool):
+    """``fn`` as a kernel of its own module, named ``name`` (``_fm`` added with fast math: CUDA's
+    approximate division and square roots, denormals flushed, as the job's solve kernel is
+    built, ``VBDConfig.fast_math``; the CPU is unaffected)."""
+    fn.__name__ = fn.__qualname__ = name + ("_fm" if fast_math else "")
+    options = {"module_options": {"fast_math": True}} if fast_math else {}
+    return wp.kernel(fn, enable_backward=False, module="unique", **options)
 
 
 @functools.cache
-def floor_lanes_kernel(particles: int, lanes: int):
+def floor_sweep_kernel(fast_math: bool = False):
+    """One colour of a contact-free VBD sweep, one thread per particle: particle
+    ``color_vertices[begin + tid]`` takes the Newton step ``x += H^-1 f`` of the substep's
+    incremental potential (inertia, damped co-rotated membrane, damped bending) in place."""
+
+    def sweep(begin: int, a: FloorArrays, x: wp.array(dtype=wp.vec3), h: float):
+        i = a.color_vertices[begin + wp.tid()]
+        f, H = floor_gather(i, 0, 1, a, x, 0, 1.0 / h)
+        x[i] = floor_newton_step(i, x[i], f, H, a, 1.0 / h)
+
+    return _floor_kernel(sweep, "floor_sweep_kernel", fast_math)
+
+
+@functools.cache
+def floor_lanes_kernel(particles: int, lanes: int, fast_math: bool = False):
     """The same colour sweep as ``floor_sweep_kernel`` in the solver's batched layout: blocks of
     ``particles`` x ``lanes`` threads, each lane a share of its particle's triangles and hinges,
     summed over the lanes by a tile reduction, lane 0 taking the step. Launch with
@@ -164,8 +177,7 @@ def floor_lanes_kernel(particles: int, lanes: int):
             x[i] = floor_newton_step(i, x[i], wp.tile_extract(f_sum, local), wp.tile_extract(H_sum, local), a,
                                      1.0 / h)
 
-    sweep.__name__ = sweep.__qualname__ = f"floor_sweep_p{P}_l{L}"
-    return wp.kernel(sweep, enable_backward=False, module="unique")
+    return _floor_kernel(sweep, f"floor_sweep_p{P}_l{L}", fast_math)
 
 
 _BARRIER = r"""
@@ -180,7 +192,7 @@ def block_barrier(): ...
 
 
 @functools.cache
-def floor_block_kernel(max_vertices: int):
+def floor_block_kernel(max_vertices: int, fast_math: bool = False):
     """The contact-free sweeps of one substep with **one block per instance** (a garment): the
     block copies its instance's positions into a shared-memory tile of ``max_vertices`` (a
     compile-time size larger than every instance: 12 B each, 60 KB for the 5k t-shirt; Warp opts
@@ -226,8 +238,7 @@ def floor_block_kernel(max_vertices: int):
         for k in range(t, n, nt):  # reads only: no barrier inside
             x[start + k] = s[k]
 
-    sweeps.__name__ = sweeps.__qualname__ = f"floor_block_v{V}"
-    return wp.kernel(sweeps, enable_backward=False, module="unique")
+    return _floor_kernel(sweeps, f"floor_block_v{V}", fast_math)
 
 
 @wp.kernel(enable_backward=False)
@@ -242,13 +253,14 @@ class FloorScene:
     guess (a fresh ``ClothState`` is falling: the adaptive guess is ``y``); the strain-rate
     damping's reference (strain and hinge angles) is taken at the substep's start."""
 
-    def __init__(self, model, h: float):
+    def __init__(self, model, h: float, fast_math: bool = False):
         from sim.cloth.vbd_kernels import previous_deformation_kernel
 
         m = model
         d = m.device
         self.model = m
         self.h = float(h)
+        self.fast_math = bool(fast_math)  # the plain and block kernels built with fast math
         x0 = m.particle_q.numpy()
         start = wp.array(x0, dtype=wp.vec3, device=d)
         g = np.asarray(m.gravity, np.float32)
@@ -271,7 +283,8 @@ class FloorScene:
         self._runs = None  # block_sweeps' per-instance colour runs, built on first use
 
     @classmethod
-    def tshirts(cls, garment, copies: int, device: str, substeps: int, max_colors: int) -> FloorScene:
+    def tshirts(cls, garment, copies: int, device: str, substeps: int, max_colors: int,
+                fast_math: bool = False) -> FloorScene:
         """``copies`` of ``garment`` at its rest shape in one model, as ``simulate_batch`` adds
         them (hems included), for a substep of a 30 fps frame of ``substeps``."""
         from sim.cloth.model import ClothModelBuilder
@@ -280,7 +293,7 @@ class FloorScene:
         for _ in range(copies):
             b.add_cloth(garment.rest_vertices, garment.faces, garment.material,
                         face_layers=garment.face_layers)
-        return cls(b.finalize(device), 1.0 / (30.0 * substeps))
+        return cls(b.finalize(device), 1.0 / (30.0 * substeps), fast_math)
 
     def job_solver(self):
         """The job's own ``SolverVBD`` on this model with contact off (no bodies, no
@@ -334,7 +347,7 @@ class FloorScene:
                           -(-(int(np.diff(starts).max()) + 1) // 32) * 32)  # a spare slot
         starts_wp, runs_wp, max_vertices = self._runs
         cuda = wp.get_device(m.device).is_cuda
-        wp.launch_tiled(floor_block_kernel(max_vertices), dim=[m.instance_count],
+        wp.launch_tiled(floor_block_kernel(max_vertices, self.fast_math), dim=[m.instance_count],
                         block_dim=threads if cuda else 1,
                         inputs=[sweeps, m.color_count, starts_wp, runs_wp, self.arrays, self.x, self.h],
                         device=m.device)
@@ -347,12 +360,12 @@ class FloorScene:
         arrays = self.arrays if arrays is None else arrays
         for begin, count in self.colors:
             if layout is None:
-                wp.launch(floor_sweep_kernel, dim=count, inputs=[begin, arrays, self.x, self.h],
-                          device=d)
+                wp.launch(floor_sweep_kernel(self.fast_math), dim=count,
+                          inputs=[begin, arrays, self.x, self.h], device=d)
             else:
                 P, L = layout
-                wp.launch_tiled(floor_lanes_kernel(P, L), dim=[-(-count // P)], block_dim=P * L,
-                                inputs=[count, begin, arrays, self.x, self.h], device=d)
+                wp.launch_tiled(floor_lanes_kernel(P, L, self.fast_math), dim=[-(-count // P)],
+                                block_dim=P * L, inputs=[count, begin, arrays, self.x, self.h], device=d)
 
     def without(self, terms: str) -> FloorArrays:
         """This scene's arrays with some of the sweep's terms left out, for timing them apart:
@@ -522,6 +535,9 @@ def main(argv=None) -> int:
     ap.add_argument("--terms", default="",
                     help="also time the fastest plain layout with only some of the sweep's terms, e.g. "
                          "'membrane,bending,inertia' (inertia: neither triangles nor hinges)")
+    ap.add_argument("--fast-math", action="store_true",
+                    help="build the plain and block layouts' kernels with CUDA fast math, as the job's solve "
+                         "kernel is (the 'job' layout always is)")
     ap.add_argument("--tag", default="")
     args = ap.parse_args(argv)
     from benchmarks.bench_tshirt import build_garment
@@ -560,11 +576,11 @@ def main(argv=None) -> int:
            "substeps": substeps, "iterations": iterations, "max_colors": colors,
            "copy_bandwidth_gb_s": bandwidth / 1e9,
            "copy_bandwidths_gb_s": {k: v / 1e9 for k, v in copy.items()},
-           "layouts": [layout_name(k) for k in layouts], "terms": list(terms),
+           "layouts": [layout_name(k) for k in layouts], "terms": list(terms), "fast_math": args.fast_math,
            "target_garment_frames_per_s": TARGET, "batches": {}}
     for n in batches:
         t0 = time.perf_counter()
-        scene = FloorScene.tshirts(garment, n, device, substeps, colors)
+        scene = FloorScene.tshirts(garment, n, device, substeps, colors, args.fast_math)
         build_s = time.perf_counter() - t0
         fig = floors(scene, device, substeps, iterations, args.rounds, bandwidth, layouts, terms)
         fig["build_s"] = build_s

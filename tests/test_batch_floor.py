@@ -171,3 +171,27 @@ def test_the_terms_are_timed_apart_by_leaving_the_others_out(device):
     assert np.abs(moved["bending"] - moved["membrane"]).max() > 1e-6
     with pytest.raises(ValueError, match="terms 'contact'"):
         reference.without("contact")
+
+
+@pytest.mark.parametrize("layout", ["threads", "lanes"])
+def test_the_fast_math_floor_takes_the_same_step(device, layout):
+    """``fast_math``: the floor's kernels built as the job's solve kernel is (CUDA's approximate
+    division and square roots) take the same step to within their rounding; the CPU build is
+    unaffected, so there the floats are the same."""
+    from benchmarks.batch_floor import FloorScene
+
+    h = 1.0 / 240.0
+    lanes = None if layout == "threads" else ((32, 4) if device == "cuda" else (1, 1))
+    out = []
+    for fast in (False, True):
+        model, x0 = _bent_stretched_sheet(device)
+        scene = FloorScene(model, h, fast_math=fast)
+        for _ in range(3):
+            scene.sweep(lanes)
+        out.append(scene.x.numpy())
+    moved = np.abs(out[0] - x0).max()
+    assert moved > 1e-4
+    if device == "cpu":
+        np.testing.assert_array_equal(out[1], out[0])
+    else:
+        np.testing.assert_allclose(out[1], out[0], atol=1e-3 * moved)
