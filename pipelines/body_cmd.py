@@ -23,7 +23,7 @@ library ('wrinkles motions' lists them) or an AMASS .npz / BVH file.
 
 examples:
   wrinkles body --motion walk --out walk.usda --preview walk.mp4
-  wrinkles body --motion run --param speed=3.5 --shape height=0.9,weight=0.3 --out run.usdc
+  wrinkles body --motion run --param speed=3.5 --shape height=0.6,weight=0.3 --out run.usdc
   wrinkles body --body SMPL_NEUTRAL.npz --motion CMU_01_01.npz --fps 30 --out clip.usda
   wrinkles body --motion capture.bvh --shape 1.0,-0.5 --out capture.usda --sheet capture.png
   wrinkles body --motion squat --self-crossings --out squat.usda

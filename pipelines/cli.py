@@ -8,8 +8,11 @@ input). User errors (``WrinklesInputError``) print one line and exit with status
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 import textwrap
+import threading
 
 from sim import __version__
 from sim.errors import WrinklesInputError
@@ -82,14 +85,43 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "command", None):
         parser.print_help()
         return EXIT_USAGE
+    previous = _terminate_as_interrupt()
     try:
         return int(args._run(args) or 0)
     except WrinklesInputError as e:
         print(f"wrinkles {args.command}: error: {e}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
-        print(f"wrinkles {args.command}: interrupted; no output was written", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:
+        print(f"wrinkles {args.command}: {'terminated' if isinstance(e, Terminated) else 'interrupted'}; "
+              "no output was written", file=sys.stderr)
+        return 143 if isinstance(e, Terminated) else 130
+    except BrokenPipeError:  # `wrinkles garments | head`: the reader left; say nothing more
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141
+    finally:
+        if previous is not _NOT_INSTALLED:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a scheduler or ``kill``), raised where the job is, so that it unwinds as an
+    interrupt does: its temporary outputs removed (``pipelines.outputs.OutputSet``)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+_NOT_INSTALLED = object()
+
+
+def _terminate_as_interrupt():
+    """Route SIGTERM to ``Terminated`` while a command runs; the handler it replaced (to put
+    back), or ``_NOT_INSTALLED`` where signals cannot be handled (not the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return _NOT_INSTALLED
+    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 
 if __name__ == "__main__":  # pragma: no cover

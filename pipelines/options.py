@@ -25,13 +25,20 @@ def add_motion_arguments(p: argparse.ArgumentParser) -> None:
                    help="output frame rate [1/s]; files are resampled to it (default: %(default)s)")
 
 
+SHAPE_RANGES_HELP = ("height 0.1-0.7 (about 1.33-2.11 m; mean 0.39), weight 0-1 (0.55), muscle 0-1 (0.43), "
+                     "gender 0-1 (0 male, 1 female), proportions 0-1, age 0.77-0.9 (18 to 83 years)")
+"""The default body's phenotype ranges for ``--help`` (``sim.bodies.default.phenotype_ranges``,
+held to it by a test; written out so that ``--help`` loads no body)."""
+
+
 def add_body_arguments(p: argparse.ArgumentParser) -> None:
     """``--body``, ``--shape``."""
     p.add_argument("--body", default="default",
                    help="'default' (embedded body) or an SMPL/SMPL-H/SMPL-X model file (.npz/.pkl)")
     p.add_argument("--shape", default=None,
-                   help="body shape: comma-separated betas ('0.5,-1.2') or, for the default body, "
-                        "named phenotype values ('height=0.8,weight=0.3')")
+                   help="body shape: comma-separated betas within +-5 ('0.5,-1.2'; the first is mostly "
+                        "size) or, for the default body, named phenotype values ('height=0.6,weight=0.3'): "
+                        f"{SHAPE_RANGES_HELP}")
 
 
 NUMBER_LIST_OPTIONS = ("--shape",)
@@ -113,12 +120,16 @@ def parse_body_shape(body, spec: str | None) -> np.ndarray | None:
         from sim.bodies.default import parse_shape
 
         return parse_shape(spec)
+    from sim.bodies.default import check_betas
+
     try:
-        return np.array([float(x) for x in spec.split(",") if x.strip()], dtype=np.float32)
+        betas = np.array([float(x) for x in spec.split(",") if x.strip()], dtype=np.float32)
     except ValueError as e:
         raise WrinklesInputError(
             f"--shape {spec!r}: an SMPL-family body takes comma-separated betas "
             f"(named phenotypes are for the default body)") from e
+    check_betas(betas, spec)
+    return betas
 
 
 def check_fps(fps: float) -> None:

@@ -9,6 +9,7 @@ partial output (DESIGN.md, Conventions).
 from __future__ import annotations
 
 import os
+import tempfile
 import uuid
 from pathlib import Path
 
@@ -16,10 +17,12 @@ from sim.errors import WrinklesInputError
 
 
 def check_output_path(path: str | os.PathLike, allowed_suffixes: tuple[str, ...], what: str) -> Path:
-    """Validate an output path's suffix and make its directory.
+    """Validate an output path: its suffix, and that its directory exists or can be made and
+    takes files. The directory is not made here (``OutputSet.temp`` makes it).
 
     Raises:
-        WrinklesInputError: the suffix is not one of ``allowed_suffixes``.
+        WrinklesInputError: the suffix is not one of ``allowed_suffixes``, the path is a
+            directory, or its directory cannot be made or written.
     """
     p = Path(path)
     if p.suffix.lower() not in allowed_suffixes:
@@ -28,10 +31,20 @@ def check_output_path(path: str | os.PathLike, allowed_suffixes: tuple[str, ...]
             path=p)
     if p.exists() and p.is_dir():
         raise WrinklesInputError(f"{what} is a directory", path=p)
+    # nothing is created yet (``OutputSet.temp`` makes the directory when the job writes), so a
+    # run that fails before its outputs leaves no empty folder; but an unwritable place fails now,
+    # not after the job: a probe file in the nearest directory that exists
+    existing = p.parent.absolute()
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise WrinklesInputError(f"cannot create the output directory: {existing} is not a directory",
+                                 path=p.parent)
     try:
-        p.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=existing):
+            pass
     except OSError as e:
-        raise WrinklesInputError(f"cannot create the output directory: {e.strerror}", path=p.parent) from e
+        raise WrinklesInputError(f"cannot write in {existing}: {e.strerror}", path=p) from e
     return p
 
 
@@ -48,10 +61,19 @@ class OutputSet:
 
     def __init__(self) -> None:
         self._pending: list[tuple[Path, Path]] = []
+        self._made: list[Path] = []  # directories temp() made, removed again on abort if empty
 
     def temp(self, final: str | os.PathLike) -> Path:
-        """A temporary path beside ``final`` with the same suffix (writers pick formats by it)."""
+        """A temporary path beside ``final`` with the same suffix (writers pick formats by it);
+        ``final``'s directory is made here if it does not exist."""
         final = Path(final)
+        missing = []
+        d = final.parent.absolute()
+        while not d.exists() and d != d.parent:
+            missing.append(d)
+            d = d.parent
+        final.parent.mkdir(parents=True, exist_ok=True)
+        self._made.extend(missing)  # deepest first
         tmp = final.with_name(f".{final.stem}.partial-{uuid.uuid4().hex[:8]}{final.suffix}")
         self._pending.append((tmp, final))
         return tmp
@@ -74,6 +96,12 @@ class OutputSet:
             except FileNotFoundError:
                 pass
         self._pending.clear()
+        for d in self._made:
+            try:
+                d.rmdir()  # only if empty: a directory someone else wrote into stays
+            except OSError:
+                pass
+        self._made.clear()
 
     def __enter__(self) -> OutputSet:
         return self

@@ -26,7 +26,8 @@ The garment is placed on the body in its rest pose and settles there (--settle s
 the body blends from rest into the motion's first pose (--blend seconds) and plays the motion.
 That prelude is dropped from the output: the sequence starts at the motion's first frame with
 the garment at rest on the body (--keep-prelude keeps it). Attachment sets named by --pin
-(default: waistband) follow the skin; everything else is free cloth.
+(default: the waistband, where the garment has one) follow the skin; everything else is free
+cloth.
 
 Every frame is checked for NaN/explosion: a run that blows up stops at that frame, naming it
 and the cause; when its last retry (below) stops too, that is one line, exit status 1, and
@@ -51,7 +52,7 @@ examples:
   wrinkles simulate --garment tshirt --motion walk --material cotton --out tshirt_walk.usda \\
       --preview tshirt_walk.mp4
   wrinkles simulate --garment straight_skirt --garment-param length=0.45 --motion squat \\
-      --shape height=0.9,weight=0.3 --resolution fine --out skirt.usdc --sheet skirt.png
+      --shape height=0.6,weight=0.3 --resolution fine --out skirt.usdc --sheet skirt.png
   wrinkles simulate --garment trousers --material denim --motion run --duration 2 \\
       --substeps 20 --out jeans_run.usda
   wrinkles simulate --garment my_dress.obj --material silk --motion CMU_01_01.npz \\
@@ -112,9 +113,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default: %(default)s)")
     s.add_argument("--keep-prelude", action="store_true",
                    help="keep the settle and blend frames in the outputs")
-    s.add_argument("--pin", default="waistband",
-                   help="comma-separated attachment sets pinned to the skin (waistband, shoulders, hem, "
-                        "cuffs) or 'none' (default: %(default)s)")
+    s.add_argument("--pin", default=None,
+                   help="comma-separated attachment sets pinned to the skin, of those the garment has "
+                        "('wrinkles garments' lists them: waistband, shoulders, hem, cuffs), or 'none' "
+                        "(default: the waistband where the garment has one; tops hang free)")
     s.add_argument("--self-collision", dest="self_collision", action=argparse.BooleanOptionalAction,
                    default=True, help="cloth self-collision (vertex-triangle and edge-edge) on/off "
                    "(default: on; --no-self-collision is ~3x faster and lets folds pass through each other)")
@@ -165,9 +167,26 @@ def is_garment_file(spec: str) -> bool:
     return Path(spec).suffix.lower() in MESH_SUFFIXES + USD_SUFFIXES or os.sep in spec or "/" in spec
 
 
-def parse_pins(spec: str) -> tuple[str, ...]:
+def parse_pins(spec: str | None) -> tuple[str, ...]:
+    """``--pin``: the attachment sets named, () for 'none', the default for None."""
+    from sim.simulate import DEFAULT_PINNED
+
+    if spec is None:
+        return DEFAULT_PINNED
     names = tuple(s.strip() for s in spec.split(",") if s.strip())
     return () if names in ((), ("none",)) else names
+
+
+def check_pins(spec: str | None, garment) -> None:
+    """Attachment sets named by ``--pin`` must be the garment's own (the default may name a set
+    a garment lacks: a top has no waistband and hangs free)."""
+    if spec is None:
+        return
+    missing = [n for n in parse_pins(spec) if n not in garment.attachments]
+    if missing:
+        have = ", ".join(sorted(garment.attachments)) or "none"
+        raise WrinklesInputError(f"--pin {missing[0]}: {garment.name} has no such attachment set; "
+                                 f"it has: {have} (or --pin none)")
 
 
 def parse_sweeps(spec: str) -> tuple[int, ...] | None:
@@ -258,6 +277,7 @@ def run(args: argparse.Namespace) -> int:
 
     bm = load_body_and_motion(args)
     garment = load_garment_arg(args, bm.body, bm.betas)
+    check_pins(args.pin, garment)
 
     total = config.solver_steps(bm.motion.num_frames)
     counts = [config.substeps_for(garment.num_vertices)]

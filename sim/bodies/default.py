@@ -113,6 +113,25 @@ def betas_to_phenotype(betas: np.ndarray) -> dict[str, float]:
     return {n: float(v) for n, v in zip(PHENOTYPE_NAMES, p, strict=True)}
 
 
+BETA_LIMIT = 5.0
+"""The largest |beta| ``--shape`` takes: shape coefficients are in standard deviations of the
+body model's population, datasets sample within +-2.5, and far past +-5 the bodies are no longer
+human (at 50 the garment templates cannot be fitted at all)."""
+
+
+def check_betas(vals: np.ndarray, spec: str) -> None:
+    """``--shape`` betas must be finite and within ``BETA_LIMIT``: a one-line error naming the
+    first that is not."""
+    vals = np.asarray(vals, dtype=np.float64)
+    if not np.all(np.isfinite(vals)):
+        raise WrinklesInputError(f"--shape {spec!r}: betas must be finite")
+    bad = np.nonzero(np.abs(vals) > BETA_LIMIT)[0]
+    if bad.size:
+        k = int(bad[0])
+        raise WrinklesInputError(f"--shape {spec!r}: beta {k} = {vals[k]:g} is outside [-{BETA_LIMIT:g}, "
+                                 f"{BETA_LIMIT:g}] (standard deviations of the body population)")
+
+
 def parse_shape(spec: str) -> np.ndarray:
     """Parse a ``--shape`` value into betas (float32, (B,)).
 
@@ -145,8 +164,7 @@ def parse_shape(spec: str) -> np.ndarray:
     except ValueError:
         raise WrinklesInputError(f"--shape {spec!r}: expected comma-separated numbers or "
                                  f"name=value pairs ({', '.join(PHENOTYPE_NAMES)})") from None
-    if not np.all(np.isfinite(vals)):
-        raise WrinklesInputError(f"--shape {spec!r}: betas must be finite")
+    check_betas(vals, spec)
     if vals.size > B:
         raise WrinklesInputError(f"--shape {spec!r}: {vals.size} betas, the default body has {B}")
     out = np.zeros(B, np.float32)
