@@ -8,6 +8,7 @@ input). User errors (``WrinklesInputError``) print one line and exit with status
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import signal
 import sys
@@ -96,8 +97,12 @@ def main(argv: list[str] | None = None) -> int:
               "no output was written", file=sys.stderr)
         return 143 if isinstance(e, Terminated) else 130
     except BrokenPipeError:  # `wrinkles garments | head`: the reader left; say nothing more
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
+        try:  # and let the interpreter's last flush of stdout go nowhere
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            os.close(devnull)
+        except (OSError, ValueError, io.UnsupportedOperation):
+            pass
         return 141
     finally:
         if previous is not _NOT_INSTALLED:

@@ -193,3 +193,27 @@ def test_interrupted_preview_leaves_nothing(tmp_path, monkeypatch):
         main(["body", "--motion", "squat", "--duration", "0.2", "--fps", "10", "--device", "cpu",
               "--out", str(tmp_path / "a.usda"), "--preview", str(tmp_path / "a.mp4"), "--quiet"])
     assert list(tmp_path.iterdir()) == []
+
+
+def test_every_documented_shape_parses_and_the_help_states_the_ranges():
+    """Every ``--shape`` example in the README and the commands' help is a shape the default
+    body takes (they used height=0.9, outside its range), and ``--help``'s phenotype ranges and
+    means are the body's own."""
+    import re
+    from pathlib import Path
+
+    from pipelines.cli import _commands
+    from pipelines.options import SHAPE_RANGES_HELP
+    from sim.bodies.default import parse_shape, phenotype_mean, phenotype_ranges
+
+    texts = [Path(__file__).resolve().parents[1].joinpath("README.md").read_text()]
+    texts += [mod.DESCRIPTION for mod in _commands().values()]
+    item = r"(?:[a-z]+=)?-?[\d.]+"
+    examples = {m for t in texts for m in re.findall(rf"--shape[ =]'?({item}(?:,{item})*)", t)}
+    assert len(examples) >= 3
+    for spec in examples:
+        parse_shape(spec)  # raises on a value out of range
+    for name, (lo, hi) in phenotype_ranges().items():
+        assert re.search(rf"{name} {lo:.2g}-{hi:.2g}", SHAPE_RANGES_HELP), name
+    for name in ("height", "weight", "muscle"):
+        assert f"{phenotype_mean()[name]:.2f}" in SHAPE_RANGES_HELP, name

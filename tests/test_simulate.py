@@ -549,7 +549,8 @@ def test_cli_explosion_is_one_line_nothing_written(tmp_path, capsys, monkeypatch
 @pytest.mark.parametrize("case", ["unknown_garment", "unknown_material", "unknown_garment_param",
                                   "bad_garment_param", "bad_suffix", "missing_garment_file", "bad_resolution",
                                   "bad_material_param", "params_for_file", "bad_coarse_sweeps",
-                                  "late_coarse_sweep"])
+                                  "late_coarse_sweep", "unknown_pin", "pin_the_garment_lacks", "huge_beta",
+                                  "into_a_new_folder"])
 def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
     out = tmp_path / "o.usda"
     args = ["simulate", "--out", str(out), *CLI_FAST]
@@ -583,6 +584,19 @@ def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
     elif case == "late_coarse_sweep":
         args += ["--iterations", "3", "--coarse-sweeps", "1,3"]
         needles = ("coarse_sweeps", "0..2")
+    elif case == "unknown_pin":
+        args += ["--garment", "skirt", "--pin", "waistband,bogus"]
+        needles = ("--pin bogus", "hem, waistband")
+    elif case == "pin_the_garment_lacks":  # a top has no waistband: said, not ignored
+        args += ["--garment", "tshirt", "--pin", "waistband"]
+        needles = ("--pin waistband", "t_shirt", "shoulders")
+    elif case == "huge_beta":  # was a NaN traceback from the template fitting
+        args += ["--shape", "50,0"]
+        needles = ("--shape", "beta 0 = 50", "[-5, 5]")
+    elif case == "into_a_new_folder":  # the folder --out names is not left behind either
+        args[args.index("--out") + 1] = str(tmp_path / "new" / "deeper" / "o.usda")
+        args += ["--material", "kevlar"]
+        needles = ("kevlar",)
     else:
         args += ["--garment", str(tmp_path / "nope.obj"), "--garment-param", "length=0.5"]
         needles = ("--garment-param",)

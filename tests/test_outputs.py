@@ -1,0 +1,75 @@
+"""pipelines/outputs.py and the CLI's interrupt handling: a failed or killed job leaves nothing
+behind, not even the folders it would have written into."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from pipelines.outputs import OutputSet, check_output_path
+from sim.errors import WrinklesInputError
+
+
+def test_checking_an_output_path_makes_nothing(tmp_path):
+    out = check_output_path(tmp_path / "a" / "b" / "x.usda", (".usda",), "--out")
+    assert out == tmp_path / "a" / "b" / "x.usda"
+    assert list(tmp_path.iterdir()) == []  # the folders come when the job writes
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(WrinklesInputError, match="afile is not a directory"):
+        check_output_path(tmp_path / "afile" / "x.usda", (".usda",), "--out")
+    with pytest.raises(WrinklesInputError, match="must end in one of"):
+        check_output_path(tmp_path / "x.abc", (".usda",), "--out")
+
+
+def test_a_failed_job_removes_its_temporaries_and_the_folders_it_made(tmp_path):
+    (tmp_path / "kept").mkdir()
+    (tmp_path / "kept" / "other.txt").write_text("someone else's")
+    with pytest.raises(RuntimeError), OutputSet() as out:
+        out.temp(tmp_path / "new" / "deeper" / "x.usda").write_text("partial")
+        out.temp(tmp_path / "kept" / "y.json").write_text("partial")
+        raise RuntimeError("the job failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
+    assert [p.name for p in (tmp_path / "kept").iterdir()] == ["other.txt"]
+    # a job that succeeds keeps its folders and files
+    with OutputSet() as out:
+        out.temp(tmp_path / "new" / "x.usda").write_text("done")
+    assert (tmp_path / "new" / "x.usda").read_text() == "done"
+    assert [p.name for p in (tmp_path / "new").iterdir()] == ["x.usda"]
+
+
+def test_sigterm_unwinds_a_command_as_an_interrupt(tmp_path, monkeypatch, capsys):
+    """A scheduler's SIGTERM during the write: exit 143, one line, no temporaries left, and the
+    process's own SIGTERM handler back in place afterwards."""
+    from pipelines import cli, garments_cmd
+
+    def killed_while_writing(args):
+        with OutputSet() as out:
+            out.temp(tmp_path / "sub" / "tee.obj").write_text("half a mesh")
+            os.kill(os.getpid(), signal.SIGTERM)
+        return 0
+
+    monkeypatch.setattr(garments_cmd, "run", killed_while_writing)
+    before = signal.getsignal(signal.SIGTERM)
+    assert cli.main(["garments"]) == 143
+    assert capsys.readouterr().err.strip() == "wrinkles garments: terminated; no output was written"
+    assert list(tmp_path.iterdir()) == []
+    assert signal.getsignal(signal.SIGTERM) == before
+
+
+def test_a_closed_pipe_ends_the_listing_quietly(monkeypatch, capsys):
+    """``wrinkles garments | head``: the reader leaves, the command stops without a traceback."""
+    from pipelines import cli, garments_cmd
+
+    def reader_gone(args):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(garments_cmd, "run", reader_gone)
+    saved = os.dup(1)
+    try:
+        assert cli.main(["garments"]) == 141
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+    assert "Traceback" not in capsys.readouterr().err
