@@ -25,18 +25,21 @@ or an edge length in metres; each template has its own edge lengths, fixed acros
 With --export, write one template, fitted to --body/--shape, as a mesh with its UVs (seams
 kept) for texturing or editing: .obj (positions + 'vt' per corner), .ply / .glb (vertices split
 along UV seams), or .usda / .usdc / .usd (the garment under /World/Garments, face-varying st).
---uv-image draws the UV layout (panels in colour, triangle edges) as a PNG.
+--uv-image draws the UV layout (panels in colour, triangle edges) as a PNG. --body-out writes
+the body it is fitted to, in its rest pose and the same frame: model or edit a garment around
+it and simulate the file with 'wrinkles simulate --garment FILE --shape <the same>'.
 
 examples:
   wrinkles garments
   wrinkles garments --params
   wrinkles garments --json > garments.json
-  wrinkles garments --export t_shirt --out tee.obj --uv-image tee_uv.png
+  wrinkles garments --export t_shirt --out tee.obj --uv-image tee_uv.png --body-out body.obj
   wrinkles garments --export trousers --shape height=0.6,weight=0.3 --resolution fine \\
       --param length=0.95 --out trousers.usda
 """
 
 EXPORT_SUFFIXES = (".obj", ".ply", ".glb", ".usda", ".usdc", ".usd")
+BODY_SUFFIXES = (".obj", ".ply", ".glb")
 PANEL_COLORS = ((0.85, 0.37, 0.33), (0.33, 0.56, 0.85), (0.38, 0.72, 0.44), (0.93, 0.73, 0.27),
                 (0.65, 0.45, 0.80), (0.27, 0.75, 0.75), (0.92, 0.52, 0.72), (0.60, 0.60, 0.60))
 """Panel colours of UV pictures (cycled), linear-ish RGB in [0, 1]."""
@@ -56,6 +59,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "only with --garment-param hem_width=0.02")
     e.add_argument("--out", default=None, help=f"mesh file to write: {', '.join(EXPORT_SUFFIXES)}")
     e.add_argument("--uv-image", default=None, metavar="PNG", help="also draw the UV layout to this PNG")
+    e.add_argument("--body-out", default=None, metavar="FILE",
+                   help="also write the body the garment is fitted to, in its rest pose and in the same "
+                        "frame (.obj, .ply or .glb): the frame a garment file for 'wrinkles simulate "
+                        "--garment FILE' is modelled in (Y up, metres, the pelvis near the origin)")
     e.add_argument("--uv-image-size", type=int, default=1024,
                    help="UV picture size [px] (default: %(default)s)")
     e.add_argument("--resolution", default="coarse",
@@ -192,6 +199,7 @@ def export(args: argparse.Namespace) -> int:
         raise WrinklesInputError("--export needs --out (a .obj, .ply, .glb or .usd* file)")
     out = check_output_path(args.out, EXPORT_SUFFIXES, "--out")
     out_png = check_output_path(args.uv_image, (".png",), "--uv-image") if args.uv_image else None
+    out_body = check_output_path(args.body_out, BODY_SUFFIXES, "--body-out") if args.body_out else None
     if not 64 <= args.uv_image_size <= 8192:
         raise WrinklesInputError(f"--uv-image-size must lie in [64, 8192], got {args.uv_image_size}")
     category = template_name(args.export)
@@ -208,11 +216,15 @@ def export(args: argparse.Namespace) -> int:
         write_garment(g, outputs.temp(out), metadata=metadata)
         if out_png:
             draw_uv_layout(g, args.uv_image_size).save(outputs.temp(out_png))
+        if out_body:
+            import trimesh
+
+            trimesh.Trimesh(body.rest_mesh(betas), body.faces, process=False).export(outputs.temp(out_body))
     print(f"{category}: {g.num_vertices} vertices, {g.num_faces} triangles, {len(g.uvs)} UVs, "
           f"panels {', '.join(g.panel_names)}; attachments "
           + ", ".join(f"{k} ({len(a)})" for k, a in g.attachments.items())
           + f"; {time.perf_counter() - t0:.1f} s")
-    for p in (out, out_png):
+    for p in (out, out_png, out_body):
         if p:
             print(f"  wrote {p}")
     return 0
@@ -221,8 +233,8 @@ def export(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     if args.export:
         return export(args)
-    if args.out or args.uv_image:
-        raise WrinklesInputError("--out and --uv-image need --export NAME")
+    if args.out or args.uv_image or args.body_out:
+        raise WrinklesInputError("--out, --uv-image and --body-out need --export NAME")
     cat = catalogue()
     if args.json:
         print(json.dumps(cat, indent=1))

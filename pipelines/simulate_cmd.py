@@ -44,9 +44,11 @@ sidecar <out stem>.quality.json with the gates, the resolved config and the seed
 
 --garment is a template (straight_skirt, flared_skirt, shorts, trousers, tank_top, t_shirt,
 long_sleeve, dress; aliases such as tshirt, tee, skirt, pants, tank) fitted to the body's
-shape, or a garment file (.obj/.ply/.glb/.gltf/.off/.stl/.usd*) with UVs, modelled around the
-body in its rest pose. --body/--shape/--motion/--param/--duration/--fps are those of
-'wrinkles body'.
+shape, or a garment file (.obj/.ply/.glb/.gltf/.off/.stl/.usd*) with UVs, in metres, modelled
+around the body in its rest pose in the body's own frame (Y up, the pelvis near the origin, not
+the floor-standing frame of the output stages): 'wrinkles garments --export NAME --body-out
+body.obj' writes a template and that body to start from. A file far from the body or in other
+units is refused. --body/--shape/--motion/--param/--duration/--fps are those of 'wrinkles body'.
 
 examples:
   wrinkles simulate --garment tshirt --motion walk --material cotton --out tshirt_walk.usda \\
@@ -229,6 +231,7 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
     """The garment ``--garment`` names, with ``--material`` (+ overrides) and its parameters."""
     from pipelines.options import parse_numbers, parse_resolution
     from sim.garments import get_material, load_garment, make_garment
+    from sim.garments.io import check_garment_on_body
 
     material = get_material(args.material)
     overrides = parse_numbers(args.material_param, "--material-param")
@@ -240,7 +243,9 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
         if other:
             raise WrinklesInputError(f"--garment-param {other[0]} applies to templates, not to a garment "
                                      f"file ({args.garment}); a file takes hem_width and hem_layers only")
-        return load_garment(args.garment, material=material, **params)
+        garment = load_garment(args.garment, material=material, **params)
+        check_garment_on_body(garment, body.rest_mesh(betas), args.garment)
+        return garment
     category = resolve_template(args.garment)
     return make_garment(category, body, betas, resolution=parse_resolution(args.resolution),
                         material=material, **params)

@@ -72,6 +72,8 @@ def test_export_loads_back_with_the_same_mesh_and_uvs(tmp_path, capsys, suffix):
     (["--export", "t_shirt"], ["--export needs --out"]),
     (["--export", "t_shirt", "--out", "x.stl"], ["x.stl", "--out must end in"]),
     (["--out", "x.obj"], ["need --export"]),
+    (["--body-out", "b.obj"], ["need --export"]),
+    (["--export", "t_shirt", "--out", "x.obj", "--body-out", "b.usda"], ["b.usda", "--body-out must end in"]),
     (["--export", "t_shirt", "--out", "x.obj", "--param", "lenght=0.4"], ["unknown parameter", "length"]),
     (["--export", "t_shirt", "--out", "x.obj", "--resolution", "ultra"], ["--resolution 'ultra'"]),
     (["--export", "t_shirt", "--out", "x.obj", "--material", "tweed"], ["unknown material", "denim"]),
@@ -107,3 +109,47 @@ def test_cli_process_user_error(tmp_path):
     proc = run_cli("garments", "--export", "dress", "--out", "x.fbx", cwd=tmp_path)
     assert_user_error(proc, "x.fbx", "--out")
     assert not list(tmp_path.iterdir())
+
+
+def test_a_garment_file_must_be_around_the_rest_body_in_metres(tmp_path, capsys):
+    """``--body-out`` writes the rest body in the garment's frame; a garment exported there is
+    simulated as it is, the same file moved 1.2 m up (modelled around a body standing on the
+    floor, as the output stages show it) or in centimetres is refused in one line, exit 2,
+    before any simulation (``check_garment_on_body``)."""
+    import trimesh
+
+    from sim.bodies import load_body
+    from sim.bodies.default import parse_shape
+    from sim.errors import WrinklesInputError
+    from sim.garments.io import check_garment_on_body
+
+    tee, body_file = tmp_path / "tee.obj", tmp_path / "body.obj"
+    assert main(["garments", "--export", "t_shirt", "--out", str(tee), "--resolution", "0.05",
+                 "--shape", "height=0.6", "--body-out", str(body_file)]) == 0
+    body = load_body()
+    rest = body.rest_mesh(parse_shape("height=0.6"))
+    written = trimesh.load(body_file, process=False)
+    np.testing.assert_allclose(written.vertices, rest, atol=1e-5)
+    assert len(written.faces) == len(body.faces)
+    g = load_garment(tee)
+    check_garment_on_body(g, rest, tee)  # the export itself fits
+    from dataclasses import replace
+
+    up = replace(g, rest_vertices=g.rest_vertices + np.float32([0.0, 1.2, 0.0]))
+    with pytest.raises(WrinklesInputError, match=r"up.obj: the garment is not around the body: 100% of its"):
+        check_garment_on_body(up, rest, "up.obj")
+    cm = replace(g, rest_vertices=g.rest_vertices * np.float32(100.0))
+    with pytest.raises(WrinklesInputError, match=r"cm.obj: the garment is \S+ m across.*in centimetres"):
+        check_garment_on_body(cm, rest, "cm.obj")
+    # through the command: one line, exit 2, nothing written
+    lines = tee.read_text().splitlines()
+    moved = [f"v {float(a):.6f} {float(b) + 1.2:.6f} {float(c):.6f}" if ln.startswith("v ") else ln
+             for ln in lines for a, b, c in [ln.split()[1:4] if ln.startswith("v ") else (0, 0, 0)]]
+    (tmp_path / "up.obj").write_text("\n".join(moved) + "\n")
+    capsys.readouterr()
+    out = tmp_path / "sim" / "up.usda"
+    assert main(["simulate", "--garment", str(tmp_path / "up.obj"), "--out", str(out), "--device", "cpu",
+                 "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not around the body" in err, err
+    assert not (tmp_path / "sim").exists()

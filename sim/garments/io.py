@@ -184,3 +184,44 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
                    material=get_material(material), attachments={}, category="imported",
                    name=name or path.stem, panel_ids=np.zeros(len(faces), np.int32), panel_names=("mesh",),
                    face_layers=hem_face_layers(rest, tris, hem_width, hem_layers))
+
+
+FIT_MARGIN = 0.3
+"""How far [m] beyond the rest body's bounding box a garment vertex may lie and still count as
+around the body (``check_garment_on_body``): a flared hem, a cape or a loose sleeve reaches
+this far past the body; a garment modelled elsewhere, or in other units, does not."""
+
+
+def check_garment_on_body(garment: Garment, body_vertices: np.ndarray, path: str | os.PathLike) -> None:
+    """Refuse a garment file that is not modelled around the body in its rest pose, with one
+    line naming the file: one far larger or smaller than the body (other units: centimetres read
+    as metres), or one whose vertices mostly lie away from it (another frame: e.g. modelled
+    around a body standing on the floor, where the simulator's rest body has its pelvis near the
+    origin; ``wrinkles garments --export NAME --body-out FILE`` writes that body).
+
+    Args:
+        garment: the garment as loaded (``load_garment``).
+        body_vertices: the body's rest-pose vertices [m] (``BodyModel.rest_mesh(betas)``).
+        path: the garment file, for the message.
+    """
+    x = np.asarray(garment.rest_vertices, np.float64)
+    b = np.asarray(body_vertices, np.float64)
+    lo, hi = b.min(axis=0), b.max(axis=0)
+    height = float(hi[1] - lo[1])
+    size = float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+    if size > 3.0 * height or size < 0.02 * height:
+        cm = 30.0 * height < size < 300.0 * height
+        units = " (in centimetres? garment files are read in metres)" if cm else ""
+        raise WrinklesInputError(f"the garment is {size:.3g} m across, the body {height:.2f} m tall{units}; "
+                                 "model it around the body in its rest pose, in metres", path=path)
+    near = np.all((x >= lo - FIT_MARGIN) & (x <= hi + FIT_MARGIN), axis=1).mean()
+    if near < 0.5:
+        off = np.maximum(np.maximum(lo - x, x - hi), 0.0)
+        gap = float(np.median(np.linalg.norm(off, axis=1)))
+        centre = 0.5 * (x.min(axis=0) + x.max(axis=0))
+        raise WrinklesInputError(
+            f"the garment is not around the body: {100.0 * (1.0 - near):.0f}% of its vertices lie more than "
+            f"{FIT_MARGIN:g} m outside the rest body's box (median {gap:.2f} m; garment centre "
+            f"({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}), body box y {lo[1]:.2f} to {hi[1]:.2f} m); "
+            "model it around the body in its rest pose, in the frame 'wrinkles garments --export NAME "
+            "--body-out body.obj' writes", path=path)
