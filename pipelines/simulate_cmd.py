@@ -227,6 +227,18 @@ def build_config(args: argparse.Namespace, device: str):
         **({} if args.retry else {"retry_factors": ()}), device=device)
 
 
+def describe_drops(repairs: dict[str, int]) -> str:
+    """The faces a garment file lost in its repair, in words ('' if none; merged duplicate
+    vertices, e.g. split along UV seams, are no loss and not told)."""
+    parts = []
+    if repairs.get("collapsed_faces_dropped"):
+        parts.append(f"dropped {repairs['collapsed_faces_dropped']} collapsed (zero-area) faces")
+    if repairs.get("tiny_pieces_dropped"):
+        parts.append(f"dropped {repairs['tiny_pieces_dropped']} stray piece(s) of "
+                     f"{repairs['tiny_piece_faces_dropped']} faces (each under 5 % of the mesh)")
+    return "; ".join(parts)
+
+
 def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
     """The garment ``--garment`` names, with ``--material`` (+ overrides) and its parameters."""
     from pipelines.options import parse_numbers, parse_resolution
@@ -245,6 +257,9 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
                                      f"file ({args.garment}); a file takes hem_width and hem_layers only")
         garment = load_garment(args.garment, material=material, **params)
         check_garment_on_body(garment, body.rest_mesh(betas), args.garment)
+        dropped = describe_drops(garment.repairs)
+        if dropped and not args.quiet:
+            print(f"wrinkles simulate: {args.garment}: repaired: {dropped}", file=sys.stderr)
         return garment
     category = resolve_template(args.garment)
     return make_garment(category, body, betas, resolution=parse_resolution(args.resolution),
@@ -359,6 +374,8 @@ def run(args: argparse.Namespace) -> int:
         "garment_params": parse_numbers(args.garment_param, "--garment-param"),
         "material": dataclasses.asdict(garment.material),
     }
+    if garment.repairs:  # what reading the garment file repaired
+        metadata["garment_repairs"] = dict(garment.repairs)
     metadata = json.loads(json.dumps(metadata))
     with OutputSet() as outputs:
         write_sequence_usd(outputs.temp(out_usd), seq, metadata, quiet=args.quiet)

@@ -167,6 +167,14 @@ def test_repairs_duplicates_collapsed_faces_and_specks(tmp_path):
     np.testing.assert_allclose(np.sort(g.rest_vertices, axis=0), np.sort(points, axis=0), atol=1e-6)
     edges = np.sort(g.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     assert np.unique(edges, axis=0, return_counts=True)[1].max() == 2  # welded: interior edges shared
+    # and it says what it did (the simulate command tells the drops and stores them all)
+    from pipelines.simulate_cmd import describe_drops
+
+    assert g.repairs == {"merged_vertices": len(soup_v) - len(points) - 3, "collapsed_faces_dropped": 1,
+                         "tiny_piece_faces_dropped": 1, "tiny_pieces_dropped": 1}
+    assert describe_drops(g.repairs) == ("dropped 1 collapsed (zero-area) faces; dropped 1 stray piece(s) of "
+                                         "1 faces (each under 5 % of the mesh)")
+    assert load_garment(tmp_path / "soup.obj").repairs == g.repairs
 
 
 def _refused(path, pattern, **kwargs):
@@ -262,10 +270,13 @@ def test_simulate_cli_passes_hem_parameters_to_a_garment_file(tmp_path):
 
     def args(*params):
         return argparse.Namespace(garment=str(path), material="cotton", material_param=[],
-                                  garment_param=list(params), resolution="coarse")
+                                  garment_param=list(params), resolution="coarse", quiet=True)
 
-    assert (load_garment_arg(args(), None, None).face_layers == 1.0).all()
-    g = load_garment_arg(args("hem_width=0.05", "hem_layers=2"), None, None)
+    from sim.bodies import load_body
+
+    body = load_body()  # the 20 cm sheet lies in the rest body's box, as a garment file must
+    assert (load_garment_arg(args(), body, None).face_layers == 1.0).all()
+    g = load_garment_arg(args("hem_width=0.05", "hem_layers=2"), body, None)
     assert g.face_layers.min() == 1.0 and g.face_layers.max() == 2.0
     with pytest.raises(WrinklesInputError, match="--garment-param length.*hem_width and hem_layers only"):
-        load_garment_arg(args("length=0.5"), None, None)
+        load_garment_arg(args("length=0.5"), body, None)

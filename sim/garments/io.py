@@ -99,7 +99,7 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
 
     Returns:
         Garment with category "imported", all faces in one panel (``"mesh"``; UV islands are
-        not turned into panels), no attachments.
+        not turned into panels), no attachments, and what was repaired in ``repairs``.
 
     Raises:
         WrinklesInputError: unreadable, empty, no UVs (when required), non-manifold edges,
@@ -132,6 +132,7 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     faces = rank[inv.reshape(-1)][faces]
+    n_read = len(points)
     points = points[first[order]]
     # 2. drop faces that collapsed to an edge or a point (repair); refuse flat ones with three
     #    distinct vertices (removing them would open a crack along their longest edge)
@@ -171,6 +172,9 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     sizes = np.bincount(face_label)
     keep = sizes[face_label] >= TINY_COMPONENT * len(faces)
     faces, uv_faces = faces[keep], uv_faces[keep]
+    repairs = {"merged_vertices": int(n_read - len(points)), "collapsed_faces_dropped": n_degenerate,
+               "tiny_piece_faces_dropped": int((~keep).sum()),
+               "tiny_pieces_dropped": int(len(np.unique(face_label[~keep])))}
     # 5. compact vertices and UVs
     used = np.unique(faces)
     remap = np.full(n, -1, np.int64)
@@ -183,7 +187,8 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
                    uvs=uvs[used_uv].astype(np.float32), uv_faces=remap_uv[uv_faces].astype(np.int32),
                    material=get_material(material), attachments={}, category="imported",
                    name=name or path.stem, panel_ids=np.zeros(len(faces), np.int32), panel_names=("mesh",),
-                   face_layers=hem_face_layers(rest, tris, hem_width, hem_layers))
+                   face_layers=hem_face_layers(rest, tris, hem_width, hem_layers),
+                   repairs={k: v for k, v in repairs.items() if v})
 
 
 FIT_MARGIN = 0.3

@@ -30,6 +30,8 @@ class Garment:
         face_layers: layers of fabric per face, shape (F,), float32, >= 1: 3 in a template's
             hems (``sim.garments.hems``), 1 elsewhere and everywhere in an imported garment
             (None: all 1). The simulator scales a face's mass, membrane and bending by it.
+        repairs: what reading a garment file repaired (``load_garment``): vertices merged,
+            collapsed faces and faces of tiny pieces dropped; empty for a template.
     """
 
     rest_vertices: np.ndarray
@@ -43,6 +45,7 @@ class Garment:
     panel_ids: np.ndarray | None = None
     panel_names: tuple[str, ...] = ()
     face_layers: np.ndarray | None = None
+    repairs: dict[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         v = np.ascontiguousarray(self.rest_vertices, dtype=np.float32)
