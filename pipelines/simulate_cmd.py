@@ -81,9 +81,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(repeatable; an unknown key lists the template's parameters); every template "
                         "has hems, hem_width=0.02 hem_layers=3 (hem_width=0: none), and a garment file "
                         "takes those two only (its default: no hems)")
-    g.add_argument("--resolution", default="coarse",
-                   help="template mesh resolution: coarse (25 mm edges), fine (9 mm) or an edge "
-                        "length in metres (default: %(default)s)")
+    g.add_argument("--resolution", default=None,
+                   help="template mesh resolution: coarse (about 3,000 vertices; edges of 14.5-23.5 mm "
+                        "by template, 'wrinkles garments' lists them), fine (about 20,000; 5.5-9 mm) or "
+                        "an edge length in metres (default: coarse; a garment file keeps its own mesh)")
     g.add_argument("--material", default="cotton",
                    help="material preset: cotton, denim, silk, polyester, jersey_knit, leather "
                         "(default: %(default)s)")
@@ -256,13 +257,16 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
             raise WrinklesInputError(f"--garment-param {other[0]} applies to templates, not to a garment "
                                      f"file ({args.garment}); a file takes hem_width and hem_layers only")
         garment = load_garment(args.garment, material=material, **params)
+        if args.resolution is not None:
+            raise WrinklesInputError(f"--resolution applies to templates; a garment file ({args.garment}) "
+                                     "is simulated with its own mesh")
         check_garment_on_body(garment, body.rest_mesh(betas), args.garment)
         dropped = describe_drops(garment.repairs)
         if dropped and not args.quiet:
             print(f"wrinkles simulate: {args.garment}: repaired: {dropped}", file=sys.stderr)
         return garment
     category = resolve_template(args.garment)
-    return make_garment(category, body, betas, resolution=parse_resolution(args.resolution),
+    return make_garment(category, body, betas, resolution=parse_resolution(args.resolution or "coarse"),
                         material=material, **params)
 
 
@@ -291,7 +295,7 @@ def run(args: argparse.Namespace) -> int:
     out_sheet = check_output_path(args.sheet, (".png",), "--sheet") if args.sheet else None
     if not is_garment_file(args.garment):
         resolve_template(args.garment)  # fail fast, before loading anything
-    parse_resolution(args.resolution)
+    parse_resolution(args.resolution or "coarse")
     device = resolve_device(args.device)
     config = build_config(args, device)
 

@@ -153,3 +153,16 @@ def test_a_garment_file_must_be_around_the_rest_body_in_metres(tmp_path, capsys)
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "not around the body" in err, err
     assert not (tmp_path / "sim").exists()
+
+
+def test_a_garment_file_keeps_its_own_mesh(tmp_path, capsys):
+    """--resolution is a template's: with a garment file it is an error, not ignored."""
+    tee = tmp_path / "tee.obj"
+    assert main(["garments", "--export", "t_shirt", "--out", str(tee), "--resolution", "0.05"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "sim" / "tee.usda"
+    assert main(["simulate", "--garment", str(tee), "--resolution", "fine", "--out", str(out),
+                 "--device", "cpu", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--resolution applies to templates" in err and str(tee) in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "sim").exists()

@@ -270,7 +270,7 @@ def test_simulate_cli_passes_hem_parameters_to_a_garment_file(tmp_path):
 
     def args(*params):
         return argparse.Namespace(garment=str(path), material="cotton", material_param=[],
-                                  garment_param=list(params), resolution="coarse", quiet=True)
+                                  garment_param=list(params), resolution=None, quiet=True)
 
     from sim.bodies import load_body
 

@@ -809,8 +809,19 @@ def template_parameters(category: str) -> list[tuple[str, float, str, str]]:
         text = docs.get(f.name, "")
         unit = re.search(r"\[([^\]]*)\]", text)
         meaning = re.sub(r"\s*\[[^\]]*\]", "", text, count=1).strip()
-        out.append((f.name, getattr(p, f.name), unit.group(1) if unit else "", meaning))
+        out.append((f.name, getattr(p, f.name), unit.group(1) if unit else "", user_text(meaning)))
     return out + list(HEM_PARAMETERS)
+
+
+def user_text(text: str) -> str:
+    """A parameter's docstring as users read it (``wrinkles garments --params``, its JSON): the
+    developers' asides, "(session 49: ... docs/BENCHMARKS.md)", left out, ``code`` marks
+    dropped."""
+    import re
+
+    text = re.sub(r"\s*\(session \d+[^()]*\)", "", text)
+    text = re.sub(r"[,;]?\s*docs/BENCHMARKS\.md", "", text)
+    return re.sub(r"``([^`]*)``", r"\1", text).strip()
 
 
 # Accepted range of every template parameter ([m], flare [-]); a template can still refuse a value
