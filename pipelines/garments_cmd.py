@@ -81,6 +81,7 @@ def catalogue() -> dict:
     from dataclasses import asdict
 
     from sim.garments import MATERIALS, TEMPLATES
+    from sim.garments.materials import MATERIAL_UNITS
     from sim.garments.templates import template_parameters
 
     templates = []
@@ -92,7 +93,8 @@ def catalogue() -> dict:
             "parameters": [{"name": n, "default": d, "unit": u, "meaning": m}
                            for n, d, u, m in template_parameters(name)],
         })
-    return {"templates": templates, "materials": [asdict(m) for m in MATERIALS.values()]}
+    return {"templates": templates, "materials": [asdict(m) for m in MATERIALS.values()],
+            "material_units": dict(MATERIAL_UNITS)}
 
 
 def print_listing(cat: dict, *, params: bool) -> None:
@@ -113,6 +115,13 @@ def print_listing(cat: dict, *, params: bool) -> None:
     print("\nvertices: on the default body (mean shape) with the default parameters; the edge length "
           "is kept on other bodies.")
     print("materials (--material): " + ", ".join(m["name"] for m in cat["materials"]))
+    if params:  # the presets' values, with units (simulate's --material-param overrides them)
+        units = cat["material_units"]
+        names = [m["name"] for m in cat["materials"]]
+        print(f"\n{'material field':<26}" + "".join(f"{n:>12}" for n in names))
+        for field, unit in units.items():
+            label = f"{field} [{unit}]"
+            print(f"{label:<26}" + "".join(f"{m[field]:>12.4g}" for m in cat["materials"]))
 
 
 # ------------------------------------------------------------------------------- export

@@ -248,6 +248,12 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
 
     material = get_material(args.material)
     overrides = parse_numbers(args.material_param, "--material-param")
+    text = sorted(set(overrides) & {"name", "source"})
+    if text:
+        from sim.garments.materials import MATERIAL_UNITS
+
+        raise WrinklesInputError(f"--material-param {text[0]}: not a number field; the fields are "
+                                 + ", ".join(f"{k} [{u}]" for k, u in MATERIAL_UNITS.items()))
     if overrides:
         material = material.with_(name=f"{material.name}*", **overrides)
     params = parse_numbers(args.garment_param, "--garment-param")

@@ -35,6 +35,16 @@ def test_params_and_json(capsys):
         for p in t["parameters"]:  # every parameter documented: a unit and a meaning
             assert p["unit"] in ("m", "-") and len(p["meaning"]) > 10, p
     assert {m["name"] for m in cat["materials"]} == set(MATERIALS)
+    # every numeric material field has its unit, in the JSON and in the table --params prints
+    numeric = {k for k, v in cat["materials"][0].items() if isinstance(v, float)}
+    assert set(cat["material_units"]) == numeric
+    main(["garments", "--params"])
+    table = capsys.readouterr().out
+    for field, unit in cat["material_units"].items():
+        assert f"{field} [{unit}]" in table
+    # the developers' asides stay in the docstrings, out of the users' listing
+    for word in ("session ", "BENCHMARKS", "``"):
+        assert word not in table
 
 
 @pytest.mark.parametrize("suffix", [".obj", ".ply", ".glb", ".usda"])

@@ -549,8 +549,8 @@ def test_cli_explosion_is_one_line_nothing_written(tmp_path, capsys, monkeypatch
 @pytest.mark.parametrize("case", ["unknown_garment", "unknown_material", "unknown_garment_param",
                                   "bad_garment_param", "bad_suffix", "missing_garment_file", "bad_resolution",
                                   "bad_material_param", "params_for_file", "bad_coarse_sweeps",
-                                  "late_coarse_sweep", "unknown_pin", "pin_the_garment_lacks", "huge_beta",
-                                  "into_a_new_folder"])
+                                  "late_coarse_sweep", "text_material_param", "unknown_pin",
+                                  "pin_the_garment_lacks", "huge_beta", "into_a_new_folder"])
 def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
     out = tmp_path / "o.usda"
     args = ["simulate", "--out", str(out), *CLI_FAST]
@@ -584,6 +584,9 @@ def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
     elif case == "late_coarse_sweep":
         args += ["--iterations", "3", "--coarse-sweeps", "1,3"]
         needles = ("coarse_sweeps", "0..2")
+    elif case == "text_material_param":
+        args += ["--material-param", "name=3"]
+        needles = ("--material-param name", "density [kg/m²]")
     elif case == "unknown_pin":
         args += ["--garment", "skirt", "--pin", "waistband,bogus"]
         needles = ("--pin bogus", "hem, waistband")

@@ -102,6 +102,12 @@ class Material:
         return replace(self, **changes)  # type: ignore[arg-type]
 
 
+MATERIAL_UNITS: dict[str, str] = {
+    "density": "kg/m²", "youngs_modulus": "N/m", "poisson_ratio": "-", "shear_modulus": "N/m",
+    "bending_stiffness": "N·m", "damping": "s", "friction": "-", "thickness": "m"}
+"""The unit of each numeric ``Material`` field (the others, ``name`` and ``source``, are text)."""
+
+
 def lame_from_youngs(E: float, nu: float) -> tuple[float, float]:
     """Plane-stress (membrane) Lamé parameters.
 
