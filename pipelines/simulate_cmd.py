@@ -370,6 +370,9 @@ def run(args: argparse.Namespace) -> int:
         "gates": config.to_dict()["gates"],
         "quality": quality.to_json(),
         "config": config.to_dict(),
+        # the automatic settings (0 in the config) as this garment ran them
+        "resolved": {"substeps": config.substeps_for(garment.num_vertices),
+                     "iterations": config.iterations_for(garment.num_vertices)},
         "seed": args.seed,
     }
     if crossings is not None:  # where the body passes through itself, when the gates failed

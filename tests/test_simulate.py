@@ -407,6 +407,7 @@ def test_cli_writes_body_and_garment_with_uvs_and_quality(tmp_path):
     assert md["quality"]["inside_fraction"][0] == 0.0 and md["quality"]["self_intersections"][0] == 0
     assert set(md["gates"]) == {"max_edge_strain", "max_inside_fraction", "max_self_intersections"}
     assert md["config"]["substeps"] == 4 and md["seed"] == 0
+    assert md["resolved"] == {"substeps": 4, "iterations": 4}  # what ran (0 in a config: automatic)
     side = json.loads((tmp_path / "tee_walk.quality.json").read_text())
     assert side["quality"] == md["quality"] and side["config"] == md["config"]
     assert validate_stage(out) == []
