@@ -21,7 +21,11 @@ class SimulationError(RuntimeError):
     def __init__(self, frame: int, cause: str):
         self.frame = int(frame)
         self.cause = cause
-        super().__init__(f"simulation failed at frame {frame}: {cause}")
+        # a negative frame is in the prelude (the settle and the blend from rest), before the
+        # motion's first output frame
+        where = (f"at frame {self.frame}" if self.frame >= 0 else
+                 f"{-self.frame} frame{'s' if self.frame < -1 else ''} before the motion's first frame")
+        super().__init__(f"simulation failed {where}: {cause}")
 
 
 @dataclass(frozen=True)

@@ -256,3 +256,16 @@ def test_body_crossings_refuses_bad_options_with_status_2(bad, monkeypatch, caps
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.startswith("body_crossings: error: --") and bad[0] in err
+
+
+def test_a_failure_in_the_prelude_is_named_as_such():
+    """Frames before the motion's first output frame (the settle, the blend from rest) are
+    negative; the message says where that is rather than "frame -5"."""
+    from sim.quality import SimulationError
+
+    assert str(SimulationError(3, "x")) == "simulation failed at frame 3: x"
+    assert str(SimulationError(0, "x")) == "simulation failed at frame 0: x"
+    assert str(SimulationError(-5, "while settling: x")) == (
+        "simulation failed 5 frames before the motion's first frame: while settling: x")
+    assert str(SimulationError(-1, "x")) == "simulation failed 1 frame before the motion's first frame: x"
+    assert SimulationError(-5, "x").frame == -5
