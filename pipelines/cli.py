@@ -88,7 +88,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     previous = _terminate_as_interrupt()
     try:
-        return int(args._run(args) or 0)
+        code = int(args._run(args) or 0)
+        sys.stdout.flush()  # here, where a closed pipe is caught, not at the interpreter's exit
+        return code
     except WrinklesInputError as e:
         print(f"wrinkles {args.command}: error: {e}", file=sys.stderr)
         return EXIT_USAGE
@@ -97,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
               "no output was written", file=sys.stderr)
         return 143 if isinstance(e, Terminated) else 130
     except BrokenPipeError:  # `wrinkles garments | head`: the reader left; say nothing more
+        if not _stdout_closed():
+            raise  # another pipe (a socket, a subprocess): a real error
         try:  # and let the interpreter's last flush of stdout go nowhere
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, sys.stdout.fileno())
@@ -107,6 +111,20 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not _NOT_INSTALLED:
             signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+
+
+def _stdout_closed() -> bool:
+    """Whether standard output is a pipe whose reader has gone (poll reports an error on it);
+    True where that cannot be told (no file descriptor: captured output)."""
+    import select
+
+    try:
+        fd = sys.stdout.fileno()
+    except (OSError, ValueError, io.UnsupportedOperation):
+        return True
+    poll = select.poll()
+    poll.register(fd, select.POLLOUT)
+    return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poll.poll(0))
 
 
 class Terminated(KeyboardInterrupt):

@@ -121,10 +121,13 @@ def run_generate(args: argparse.Namespace) -> int:
             summary = generate(cfg, args.out, shard=shard, shards=shards, resume=args.resume,
                                batch=args.batch, device=device, progress=advance, splits=args.splits,
                                log=None if args.quiet else (lambda s: print(s, file=sys.stderr)))
-    except KeyboardInterrupt:
-        print("wrinkles dataset generate: interrupted; finished sequences are kept, run again with --resume "
+    except KeyboardInterrupt as e:
+        from pipelines.cli import Terminated
+
+        how = "terminated" if isinstance(e, Terminated) else "interrupted"
+        print(f"wrinkles dataset generate: {how}; finished sequences are kept, run again with --resume "
               "to continue", file=sys.stderr)
-        return 130
+        return 143 if isinstance(e, Terminated) else 130
     gfs = summary.garment_frames / summary.seconds if summary.seconds > 0 else 0.0
     print(f"{args.out}: {summary.accepted} accepted, {summary.rejected} rejected, "
           f"{summary.skipped} already done, {summary.recovered} recovered; "

@@ -8,8 +8,11 @@ partial output (DESIGN.md, Conventions).
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import tempfile
+import threading
 import uuid
 from pathlib import Path
 
@@ -29,23 +32,37 @@ def check_output_path(path: str | os.PathLike, allowed_suffixes: tuple[str, ...]
         raise WrinklesInputError(
             f"{what} must end in one of {', '.join(allowed_suffixes)} (got '{p.suffix or 'no suffix'}')",
             path=p)
-    if p.exists() and p.is_dir():
-        raise WrinklesInputError(f"{what} is a directory", path=p)
-    # nothing is created yet (``OutputSet.temp`` makes the directory when the job writes), so a
-    # run that fails before its outputs leaves no empty folder; but an unwritable place fails now,
-    # not after the job: a probe file in the nearest directory that exists
-    existing = p.parent.absolute()
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
-    if not existing.is_dir():
-        raise WrinklesInputError(f"cannot create the output directory: {existing} is not a directory",
-                                 path=p.parent)
     try:
+        if p.is_dir():
+            raise WrinklesInputError(f"{what} is a directory", path=p)
+        # nothing is created yet (``OutputSet.temp`` makes the directory when the job writes), so
+        # a run that fails before its outputs leaves no empty folder; but an unwritable place fails
+        # now, not after the job: a probe file in the nearest directory that exists
+        existing = p.parent.absolute()
+        while not os.path.lexists(existing) and existing != existing.parent:
+            existing = existing.parent
+        if not existing.is_dir():  # a file, or a link to nowhere
+            raise WrinklesInputError(f"cannot create the output directory: {existing} is not a directory",
+                                     path=p.parent)
         with tempfile.TemporaryFile(dir=existing):
             pass
-    except OSError as e:
-        raise WrinklesInputError(f"cannot write in {existing}: {e.strerror}", path=p) from e
+    except OSError as e:  # a folder on the way that cannot be searched, or the probe refused
+        raise WrinklesInputError(f"cannot write there: {e.strerror}", path=p) from e
     return p
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """SIGINT and SIGTERM held back (delivered on exit) in the main thread, where a handler can
+    interrupt; elsewhere nothing."""
+    held = (signal.SIGINT, signal.SIGTERM)
+    main = threading.current_thread() is threading.main_thread()
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held) if main else None
+    try:
+        yield
+    finally:
+        if old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 class OutputSet:
@@ -69,11 +86,15 @@ class OutputSet:
         final = Path(final)
         missing = []
         d = final.parent.absolute()
-        while not d.exists() and d != d.parent:
+        while not os.path.lexists(d) and d != d.parent:
             missing.append(d)
             d = d.parent
-        final.parent.mkdir(parents=True, exist_ok=True)
-        self._made.extend(missing)  # deepest first
+        try:
+            final.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise WrinklesInputError(f"cannot create the output directory: {e.strerror}",
+                                     path=final.parent) from e
+        self._made.extend(missing)
         tmp = final.with_name(f".{final.stem}.partial-{uuid.uuid4().hex[:8]}{final.suffix}")
         self._pending.append((tmp, final))
         return tmp
@@ -83,9 +104,10 @@ class OutputSet:
         for tmp, final in self._pending:
             if not tmp.exists():
                 raise RuntimeError(f"{final}: the writer produced no file")
-        for tmp, final in self._pending:
-            os.replace(tmp, final)
-            done.append(final)
+        with _signals_held():  # a Ctrl-C or SIGTERM between two renames would mix old and new
+            for tmp, final in self._pending:
+                os.replace(tmp, final)
+                done.append(final)
         self._pending.clear()
         return done
 
@@ -96,7 +118,7 @@ class OutputSet:
             except FileNotFoundError:
                 pass
         self._pending.clear()
-        for d in self._made:
+        for d in sorted(set(self._made), key=lambda q: len(q.parts), reverse=True):  # deepest first
             try:
                 d.rmdir()  # only if empty: a directory someone else wrote into stays
             except OSError:

@@ -263,9 +263,6 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
             raise WrinklesInputError(f"--garment-param {other[0]} applies to templates, not to a garment "
                                      f"file ({args.garment}); a file takes hem_width and hem_layers only")
         garment = load_garment(args.garment, material=material, **params)
-        if args.resolution is not None:
-            raise WrinklesInputError(f"--resolution applies to templates; a garment file ({args.garment}) "
-                                     "is simulated with its own mesh")
         check_garment_on_body(garment, body.rest_mesh(betas), args.garment)
         dropped = describe_drops(garment.repairs)
         if dropped and not args.quiet:
@@ -301,6 +298,9 @@ def run(args: argparse.Namespace) -> int:
     out_sheet = check_output_path(args.sheet, (".png",), "--sheet") if args.sheet else None
     if not is_garment_file(args.garment):
         resolve_template(args.garment)  # fail fast, before loading anything
+    elif args.resolution is not None:
+        raise WrinklesInputError(f"--resolution applies to templates; a garment file ({args.garment}) "
+                                 "is simulated with its own mesh")
     parse_resolution(args.resolution or "coarse")
     device = resolve_device(args.device)
     config = build_config(args, device)

@@ -10,7 +10,7 @@ from sim.cloth import ClothMaterialParams, ClothModelBuilder, SolverVBD, VBDConf
 from tests.test_cloth_solver import grid
 
 
-def _bent_stretched_sheet(device: str, bending: float = 2e-5):
+def _bent_stretched_sheet(device: str, bending: float = 2e-5, membrane: bool = True):
     """A flat 9 x 9 sheet of 20 cm, stretched 8 % along x and rolled onto a cylinder of 30 cm
     radius about the x axis (its hinges bent 38 degrees in all), at rest (zero velocity):
     membrane, its damping, bending and inertia all act on the first step."""
@@ -22,7 +22,8 @@ def _bent_stretched_sheet(device: str, bending: float = 2e-5):
     theta = -v[:, 1] / r  # arc length along the roll = the rest length: only x is stretched
     x[:, 1], x[:, 2] = -r * np.sin(theta), r * (1.0 - np.cos(theta))
     b = ClothModelBuilder()
-    b.add_cloth(x, f, ClothMaterialParams(density=0.2, mu=400.0, lam=150.0, bending=bending, damping=3e-3),
+    mu, lam = (400.0, 150.0) if membrane else (0.0, 0.0)
+    b.add_cloth(x, f, ClothMaterialParams(density=0.2, mu=mu, lam=lam, bending=bending, damping=3e-3),
                 rest_vertices=rest)
     return b.finalize(device), x
 
@@ -167,6 +168,11 @@ def test_the_terms_are_timed_apart_by_leaving_the_others_out(device):
     reference.sweep(None)
     np.testing.assert_allclose(moved["membrane"], reference.x.numpy(), rtol=0, atol=1e-7)
     np.testing.assert_array_equal(moved["inertia"], y)
+    # the bending sweep is the whole sweep of the sheet with no membrane stiffness
+    limp, _ = _bent_stretched_sheet(device, membrane=False)
+    reference = FloorScene(limp, h)
+    reference.sweep(None)
+    np.testing.assert_allclose(moved["bending"], reference.x.numpy(), rtol=0, atol=1e-7)
     assert np.abs(moved["bending"] - y).max() > 1e-6
     assert np.abs(moved["bending"] - moved["membrane"]).max() > 1e-6
     with pytest.raises(ValueError, match="terms 'contact'"):

@@ -148,6 +148,16 @@ def test_a_garment_file_must_be_around_the_rest_body_in_metres(tmp_path, capsys)
     up = replace(g, rest_vertices=g.rest_vertices + np.float32([0.0, 1.2, 0.0]))
     with pytest.raises(WrinklesInputError, match=r"up.obj: the garment is not around the body: 100% of its"):
         check_garment_on_body(up, rest, "up.obj")
+    # every template lifted into the floor-standing frame, long ones too (a dress kept half its
+    # vertices in the body's tall box when lifted)
+    from sim.garments import make_garment
+
+    lift = np.float32([0.0, -rest[:, 1].min(), 0.0])
+    for name in TEMPLATES:
+        fitted = make_garment(name, body, parse_shape("height=0.6"), resolution=0.05)
+        check_garment_on_body(fitted, rest, name)
+        with pytest.raises(WrinklesInputError, match="not around the body"):
+            check_garment_on_body(replace(fitted, rest_vertices=fitted.rest_vertices + lift), rest, name)
     cm = replace(g, rest_vertices=g.rest_vertices * np.float32(100.0))
     with pytest.raises(WrinklesInputError, match=r"cm.obj: the garment is \S+ m across.*in centimetres"):
         check_garment_on_body(cm, rest, "cm.obj")

@@ -43,6 +43,12 @@ def test_the_page_is_read_and_the_budget_is_the_issue_rate_shared_out():
     assert b["frame_ms_at_batch_target"] == pytest.approx(8e-3)
 
 
+def test_a_frequency_in_megahertz_is_read_as_such():
+    ncu = read_ncu(PAGE.replace("SM Frequency                    Ghz         2.00",
+                                "SM Frequency                    Mhz     1,980.00"))
+    assert ncu["sm_ghz"] == pytest.approx(1.98)
+
+
 def test_a_page_without_the_metrics_or_with_two_launches_is_refused():
     with pytest.raises(ValueError, match=r"r\.txt: no 'smsp__sass_thread_inst_executed_op_ffma_pred_on.sum'"):
         read_ncu(PAGE.replace("op_ffma", "op_hfma"), "r.txt")

@@ -23,11 +23,30 @@ def test_checking_an_output_path_makes_nothing(tmp_path):
         check_output_path(tmp_path / "x.abc", (".usda",), "--out")
 
 
+def test_an_unusable_output_place_is_refused_up_front(tmp_path, monkeypatch):
+    """A link to nowhere on the way, and a folder that refuses files (the suite runs as root,
+    so the refusal is simulated), are one-line errors before the job, not tracebacks after it."""
+    import tempfile
+
+    (tmp_path / "dangling").symlink_to(tmp_path / "missing")
+    with pytest.raises(WrinklesInputError, match="dangling is not a directory"):
+        check_output_path(tmp_path / "dangling" / "x.usda", (".usda",), "--out")
+
+    def refused(*a, **k):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(tempfile, "TemporaryFile", refused)
+    with pytest.raises(WrinklesInputError, match=r"x.usda: cannot write there: Permission denied"):
+        check_output_path(tmp_path / "sub" / "x.usda", (".usda",), "--out")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dangling"]
+
+
 def test_a_failed_job_removes_its_temporaries_and_the_folders_it_made(tmp_path):
     (tmp_path / "kept").mkdir()
     (tmp_path / "kept" / "other.txt").write_text("someone else's")
     with pytest.raises(RuntimeError), OutputSet() as out:
-        out.temp(tmp_path / "new" / "deeper" / "x.usda").write_text("partial")
+        out.temp(tmp_path / "new" / "x.usda").write_text("partial")  # a shallow folder first,
+        out.temp(tmp_path / "new" / "deeper" / "still" / "x.png").write_text("partial")  # then deeper
         out.temp(tmp_path / "kept" / "y.json").write_text("partial")
         raise RuntimeError("the job failed")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["kept"]
@@ -73,3 +92,23 @@ def test_a_closed_pipe_ends_the_listing_quietly(monkeypatch, capsys):
         os.dup2(saved, 1)
         os.close(saved)
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_a_reader_that_left_ends_the_command_quietly_with_buffered_output():
+    """With ordinary buffering (no PYTHONUNBUFFERED), stdout is flushed inside the command, where
+    the closed pipe is caught: exit 141 and nothing on stderr, not "Exception ignored ... Broken
+    pipe" at the interpreter's exit."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    r, w = os.pipe()
+    os.close(r)  # the reader is gone before the command writes
+    try:
+        proc = subprocess.run([sys.executable, "-m", "pipelines.cli", "motions"], stdout=w,
+                              stderr=subprocess.PIPE, env=env, cwd=Path(__file__).resolve().parents[1],
+                              timeout=120)
+    finally:
+        os.close(w)
+    assert proc.returncode == 141 and proc.stderr == b"", proc.stderr.decode()

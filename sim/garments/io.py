@@ -200,9 +200,11 @@ this far past the body; a garment modelled elsewhere, or in other units, does no
 def check_garment_on_body(garment: Garment, body_vertices: np.ndarray, path: str | os.PathLike) -> None:
     """Refuse a garment file that is not modelled around the body in its rest pose, with one
     line naming the file: one far larger or smaller than the body (other units: centimetres read
-    as metres), or one whose vertices mostly lie away from it (another frame: e.g. modelled
-    around a body standing on the floor, where the simulator's rest body has its pelvis near the
-    origin; ``wrinkles garments --export NAME --body-out FILE`` writes that body).
+    as metres), one with more than a tenth of its vertices ``FIT_MARGIN`` outside the body's
+    box, or one reaching above the head by more than that (another frame: e.g. modelled around a
+    body standing on the floor, where the simulator's rest body has its pelvis near the origin;
+    ``wrinkles garments --export NAME --body-out FILE`` writes that body: every template lifted
+    into it is refused). Smaller shifts, up to ~0.6 m for a skirt, are not caught.
 
     Args:
         garment: the garment as loaded (``load_garment``).
@@ -220,13 +222,16 @@ def check_garment_on_body(garment: Garment, body_vertices: np.ndarray, path: str
         raise WrinklesInputError(f"the garment is {size:.3g} m across, the body {height:.2f} m tall{units}; "
                                  "model it around the body in its rest pose, in metres", path=path)
     near = np.all((x >= lo - FIT_MARGIN) & (x <= hi + FIT_MARGIN), axis=1).mean()
-    if near < 0.5:
+    # nearly all of it near the body, and nothing above the head: a long garment (a dress,
+    # trousers) lifted into the floor-standing frame keeps half its vertices in the tall box
+    if near < 0.9 or x[:, 1].max() > hi[1] + FIT_MARGIN:
         off = np.maximum(np.maximum(lo - x, x - hi), 0.0)
         gap = float(np.median(np.linalg.norm(off, axis=1)))
         centre = 0.5 * (x.min(axis=0) + x.max(axis=0))
         raise WrinklesInputError(
             f"the garment is not around the body: {100.0 * (1.0 - near):.0f}% of its vertices lie more than "
             f"{FIT_MARGIN:g} m outside the rest body's box (median {gap:.2f} m; garment centre "
-            f"({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}), body box y {lo[1]:.2f} to {hi[1]:.2f} m); "
+            f"({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}), top y {x[:, 1].max():.2f} m; body box y "
+            f"{lo[1]:.2f} to {hi[1]:.2f} m); "
             "model it around the body in its rest pose, in the frame 'wrinkles garments --export NAME "
             "--body-out body.obj' writes", path=path)
