@@ -278,8 +278,7 @@ class FloorScene:
         self.arrays = FloorArrays()  # what every sweep kernel reads
         for name in FLOOR_ARRAYS:
             setattr(self.arrays, name, own[name] if name in own else getattr(m, name))
-        self._job = None  # job_solver, built on first use
-        self._job_parity = 0
+        self._jobs: dict[str, list] = {}  # job_solver's, by layout name: [solver, state, parity]
         self._runs = None  # block_sweeps' per-instance colour runs, built on first use
 
     @classmethod
@@ -295,12 +294,13 @@ class FloorScene:
                         face_layers=garment.face_layers)
         return cls(b.finalize(device), 1.0 / (30.0 * substeps), fast_math)
 
-    def job_solver(self):
+    def job_solver(self, layout: str = "job"):
         """The job's own ``SolverVBD`` on this model with contact off (no bodies, no
         self-contact, no coarse correction, no air damping), its substep buffers set up by one
         step of length ``h`` from the model's positions: ``job_sweep`` then runs the job's solve
-        kernel (its layout, raw loads and register cap) on them."""
-        if self._job is None:
+        kernel (its layout, raw loads and register cap) on them. ``layout`` "job:KEY=V+KEY=V"
+        changes those ``VBDConfig`` fields (``job_overrides``), e.g. "job:max_registers=0"."""
+        if layout not in self._jobs:
             import dataclasses
 
             from sim.cloth import SolverVBD
@@ -312,22 +312,24 @@ class FloorScene:
             vertices = m.particle_count // m.instance_count
             job = SimulationConfig(device=m.device).vbd_config(vertices, cuda=cuda)
             cfg = dataclasses.replace(job, substeps=1, iterations=1, air_damping=0.0, self_contact=False,
-                                      coarse_sweeps=(), coarse_prefactor=False, coarse_early=False)
+                                      coarse_sweeps=(), coarse_prefactor=False, coarse_early=False,
+                                      **job_overrides(layout))
             solver = SolverVBD(m, cfg)
             state = m.state()
             solver.step(state, state, m.control(), self.h)
-            self._job = (solver, state)
-        return self._job
+            self._jobs[layout] = [solver, state, 0]
+        return self._jobs[layout][:2]
 
-    def job_sweep(self) -> None:
+    def job_sweep(self, layout: str = "job") -> None:
         """One more sweep of the job's solve kernel (``SolverVBD.sweep``) on the substep that
         ``job_solver`` set up: the sweeps alternate the solver's two snapshots as a substep's do,
         the first after the set-up step's one sweep reading snapshot 1. (A CUDA graph of an even
         number of them replays in step with its snapshots.)"""
-        solver, state = self.job_solver()
+        solver, state = self.job_solver(layout)
+        entry = self._jobs[layout]
+        entry[2] = 1 - entry[2]
         eps_u = solver.config.friction_epsilon * self.h
-        self._job_parity = 1 - self._job_parity
-        solver.sweep(state.positions, solver._sc_data, eps_u, self.h, self._job_parity)
+        solver.sweep(state.positions, solver._sc_data, eps_u, self.h, entry[2])
 
     def block_sweeps(self, threads: int, sweeps: int) -> None:
         """``sweeps`` sweeps in one launch of ``floor_block_kernel``: a block of ``threads`` per
@@ -433,15 +435,37 @@ def copy_bandwidth(device: str, nbytes: int, rounds: int) -> dict:
 Layout = tuple[int, int] | None | str
 
 
+def job_overrides(layout: str) -> dict:
+    """The ``VBDConfig`` fields a "job:KEY=V+KEY=V" layout sets (integers; {} for "job").
+
+    Raises:
+        ValueError: an unknown field or a value that is not an integer."""
+    from sim.cloth import VBDConfig
+
+    _, _, spec = layout.partition(":")
+    out = {}
+    for part in filter(None, spec.split("+")):
+        key, eq, value = part.partition("=")
+        if not eq or key not in VBDConfig.__dataclass_fields__ or not value.lstrip("-").isdigit():
+            raise ValueError(f"layout {layout!r}: 'job:KEY=INT+KEY=INT' with VBDConfig fields, e.g. "
+                             "job:max_registers=0 or job:lanes=2+particles_per_block=64")
+        out[key] = int(value)
+    return out
+
+
 def parse_layouts(text: str) -> list[Layout]:
     """``threads,32x4,job`` -> [None, (32, 4), "job"]: one thread per particle, blocks of
     particles x lanes (``floor_lanes_kernel``), or the job's own solve kernel with contact off
-    (``FloorScene.job_sweep``)."""
+    (``FloorScene.job_sweep``), also with solver fields changed ("job:max_registers=0")."""
     out: list[Layout] = []
     for item in text.split(","):
         item = item.strip()
         if item in ("threads", "job"):
             out.append(None if item == "threads" else item)
+            continue
+        if item.startswith("job:"):
+            job_overrides(item)
+            out.append(item)
             continue
         if item.startswith("block") and item[5:].isdigit() and int(item[5:]) >= 1:
             out.append(item)
@@ -491,8 +515,8 @@ def floors(scene: FloorScene, device: str, substeps: int, iterations: int, round
                     scene.block_sweeps(int(layout[5:]), iterations)
                 return
             for _ in range(sweeps):
-                if layout == "job":
-                    scene.job_sweep()
+                if isinstance(layout, str) and layout.startswith("job"):
+                    scene.job_sweep(layout)
                 else:
                     scene.sweep(layout)
 
@@ -514,7 +538,7 @@ def floors(scene: FloorScene, device: str, substeps: int, iterations: int, round
     out["stream"] = figures(sweeps * scene.sweep_bytes() / bandwidth)
     out["stream_shared"] = figures(sweeps * scene.sweep_bytes_shared() / bandwidth)
     out["launch"] = figures(timed_frames(launches, device, rounds, graph))
-    x = [scene.x.numpy()] + ([scene.job_solver()[1].positions.numpy()] if "job" in layouts else [])
+    x = [scene.x.numpy()] + [scene.job_solver(k)[1].positions.numpy() for k in scene._jobs]
     out["finite"] = bool(all(np.isfinite(a).all() for a in x))
     return out
 
@@ -529,7 +553,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=20, help="frames per timed batch (3 batches, best)")
     ap.add_argument("--layouts", default="threads,32x4,64x2,job,block256",
                     help="sweep layouts to time: 'threads' (one per particle), PARTICLESxLANES blocks (CUDA; "
-                         "the CPU runs them as 1x1), 'job' (the job's own solve kernel, contact off) and "
+                         "the CPU runs them as 1x1), 'job' (the job's own solve kernel, contact off; "
+                         "'job:KEY=INT+KEY=INT' with VBDConfig fields changed, e.g. job:max_registers=0) and "
                          "'blockTHREADS' (a block per garment, positions in shared memory, one launch per "
                          "substep)")
     ap.add_argument("--terms", default="",

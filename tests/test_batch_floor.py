@@ -201,3 +201,30 @@ def test_the_fast_math_floor_takes_the_same_step(device, layout):
         np.testing.assert_array_equal(out[1], out[0])
     else:
         np.testing.assert_allclose(out[1], out[0], atol=1e-3 * moved)
+
+
+def test_a_job_variant_changes_only_what_it_names(device):
+    """"job:KEY=V" layouts time the job's kernel with solver fields changed: the register cap and
+    the block layout change how the kernel runs, not the step (the same positions as 'job'; on
+    the CPU a block is one thread and no cap applies). Bad variants are refused."""
+    from benchmarks.batch_floor import FloorScene, job_overrides, parse_layouts
+
+    assert parse_layouts("job,job:max_registers=0+lanes=2") == ["job", "job:max_registers=0+lanes=2"]
+    assert job_overrides("job:lanes=2+particles_per_block=64") == {"lanes": 2, "particles_per_block": 64}
+    for bad in ("job:warp_speed=9", "job:lanes=two", "job:lanes"):
+        with pytest.raises(ValueError, match="job:KEY=INT"):
+            parse_layouts(bad)
+    h = 1.0 / 240.0
+    model, _ = _bent_stretched_sheet(device)
+    scene = FloorScene(model, h)
+    for layout in ("job", "job:max_registers=0+lanes=2+particles_per_block=64"):
+        for _ in range(2):
+            scene.job_sweep(layout)
+    solver, _ = scene.job_solver("job:max_registers=0+lanes=2+particles_per_block=64")
+    assert solver.config.max_registers == 0 and solver.config.lanes == 2
+    a, b = (scene.job_solver(k)[1].positions.numpy() for k in ("job", "job:max_registers=0+lanes=2+"
+                                                                       "particles_per_block=64"))
+    if device == "cpu":
+        np.testing.assert_array_equal(a, b)
+    else:  # another lane split sums the same terms in another order
+        np.testing.assert_allclose(a, b, atol=1e-6)
