@@ -815,11 +815,12 @@ def template_parameters(category: str) -> list[tuple[str, float, str, str]]:
 
 def user_text(text: str) -> str:
     """A parameter's docstring as users read it (``wrinkles garments --params``, its JSON): the
-    developers' asides, "(session 49: ... docs/BENCHMARKS.md)", left out, ``code`` marks
-    dropped."""
+    developers' asides, "(session 49: ... docs/BENCHMARKS.md)" and a function's name opening a
+    parenthesis, left out, ``code`` marks dropped."""
     import re
 
     text = re.sub(r"\s*\(session \d+[^()]*\)", "", text)
+    text = re.sub(r"\(``[a-z_0-9]+``; ", "(", text)  # "(``armhole_inset``; they reach ...": a function name
     text = re.sub(r"[,;]?\s*docs/BENCHMARKS\.md", "", text)
     return re.sub(r"``([^`]*)``", r"\1", text).strip()
 
