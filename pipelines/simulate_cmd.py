@@ -235,6 +235,8 @@ def describe_drops(repairs: dict[str, int]) -> str:
     parts = []
     if repairs.get("collapsed_faces_dropped"):
         parts.append(f"dropped {repairs['collapsed_faces_dropped']} collapsed (zero-area) faces")
+    if repairs.get("duplicate_faces_dropped"):
+        parts.append(f"dropped {repairs['duplicate_faces_dropped']} faces given twice")
     if repairs.get("tiny_pieces_dropped"):
         parts.append(f"dropped {repairs['tiny_pieces_dropped']} stray piece(s) of "
                      f"{repairs['tiny_piece_faces_dropped']} faces (each under 5 % of the mesh)")

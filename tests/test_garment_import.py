@@ -177,6 +177,26 @@ def test_repairs_duplicates_collapsed_faces_and_specks(tmp_path):
     assert load_garment(tmp_path / "soup.obj").repairs == g.repairs
 
 
+def test_a_face_given_twice_is_dropped_not_called_non_manifold(tmp_path):
+    """An exporter's doubled face (the same three vertices, either winding) makes its edges
+    appear in three or four faces; it is a repair (dropped, counted), not a non-manifold refusal.
+    A real fin (a third face on an edge) is still refused."""
+    points, faces, uvs, uv_faces = _seamed_grid()
+    doubled = np.concatenate([faces, faces[[3]], faces[[7]][:, ::-1]])
+    doubled_uv = np.concatenate([uv_faces, uv_faces[[3]], uv_faces[[7]][:, ::-1]])
+    path = tmp_path / "doubled.obj"
+    _write_obj(path, points, doubled, uvs, doubled_uv)
+    g = load_garment(path)
+    assert g.num_faces == len(faces) and g.repairs.get("duplicate_faces_dropped") == 2
+    from pipelines.simulate_cmd import describe_drops
+
+    assert describe_drops(g.repairs) == "dropped 2 faces given twice"
+    def triangles(f):
+        return np.sort(np.sort(f, axis=1), axis=0)
+
+    np.testing.assert_array_equal(triangles(g.faces), triangles(faces))
+
+
 def _refused(path, pattern, **kwargs):
     with pytest.raises(WrinklesInputError, match=pattern) as e:
         load_garment(path, **kwargs)

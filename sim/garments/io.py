@@ -99,7 +99,9 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
 
     Returns:
         Garment with category "imported", all faces in one panel (``"mesh"``; UV islands are
-        not turned into panels), no attachments, and what was repaired in ``repairs``.
+        not turned into panels), no attachments, and what was repaired in ``repairs``
+        (duplicate positions merged, collapsed faces, faces given twice and stray pieces
+        dropped).
 
     Raises:
         WrinklesInputError: unreadable, empty, no UVs (when required), non-manifold edges,
@@ -152,6 +154,13 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     faces, uv_faces = faces[~same], uv_faces[~same]
     if len(faces) == 0:
         raise WrinklesInputError("every face is degenerate (zero area)", path=path)
+    # 2b. drop faces given twice (the same three vertices, either winding: an exporter's double),
+    #     which would otherwise read as non-manifold edges
+    _, first_face = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    unique = np.zeros(len(faces), bool)
+    unique[first_face] = True
+    n_duplicate = int((~unique).sum())
+    faces, uv_faces = faces[unique], uv_faces[unique]
     # 3. manifold check
     edges, counts = _edge_counts(faces)
     bad = counts > 2
@@ -173,6 +182,7 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     keep = sizes[face_label] >= TINY_COMPONENT * len(faces)
     faces, uv_faces = faces[keep], uv_faces[keep]
     repairs = {"merged_vertices": int(n_read - len(points)), "collapsed_faces_dropped": n_degenerate,
+               "duplicate_faces_dropped": n_duplicate,
                "tiny_piece_faces_dropped": int((~keep).sum()),
                "tiny_pieces_dropped": int(len(np.unique(face_label[~keep])))}
     # 5. compact vertices and UVs
