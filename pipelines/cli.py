@@ -95,9 +95,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrinkles {args.command}: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt as e:
-        print(f"wrinkles {args.command}: {'terminated' if isinstance(e, Terminated) else 'interrupted'}; "
-              "no output was written", file=sys.stderr)
-        return 143 if isinstance(e, Terminated) else 130
+        how, code = interruption(e)
+        print(f"wrinkles {args.command}: {how}; no output was written", file=sys.stderr)
+        return code
     except BrokenPipeError:  # `wrinkles garments | head`: the reader left; say nothing more
         if not _stdout_closed():
             raise  # another pipe (a socket, a subprocess): a real error
@@ -130,6 +130,12 @@ def _stdout_closed() -> bool:
 class Terminated(KeyboardInterrupt):
     """SIGTERM (a scheduler or ``kill``), raised where the job is, so that it unwinds as an
     interrupt does: its temporary outputs removed (``pipelines.outputs.OutputSet``)."""
+
+
+def interruption(e: KeyboardInterrupt) -> tuple[str, int]:
+    """How a command was stopped, in a word, and its exit status: SIGTERM ('terminated', 143)
+    or Ctrl-C ('interrupted', 130)."""
+    return ("terminated", 143) if isinstance(e, Terminated) else ("interrupted", 130)
 
 
 def _raise_terminated(signum, frame):

@@ -122,12 +122,12 @@ def run_generate(args: argparse.Namespace) -> int:
                                batch=args.batch, device=device, progress=advance, splits=args.splits,
                                log=None if args.quiet else (lambda s: print(s, file=sys.stderr)))
     except KeyboardInterrupt as e:
-        from pipelines.cli import Terminated
+        from pipelines.cli import interruption
 
-        how = "terminated" if isinstance(e, Terminated) else "interrupted"
+        how, code = interruption(e)
         print(f"wrinkles dataset generate: {how}; finished sequences are kept, run again with --resume "
               "to continue", file=sys.stderr)
-        return 143 if isinstance(e, Terminated) else 130
+        return code
     gfs = summary.garment_frames / summary.seconds if summary.seconds > 0 else 0.0
     print(f"{args.out}: {summary.accepted} accepted, {summary.rejected} rejected, "
           f"{summary.skipped} already done, {summary.recovered} recovered; "

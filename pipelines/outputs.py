@@ -19,6 +19,16 @@ from pathlib import Path
 from sim.errors import WrinklesInputError
 
 
+def _missing_folders(folder: Path) -> tuple[Path, list[Path]]:
+    """The nearest folder at or above ``folder`` that exists (a link counts, even one to
+    nowhere), and the folders below it down to ``folder`` that do not, deepest first."""
+    d, missing = folder.absolute(), []
+    while not os.path.lexists(d) and d != d.parent:
+        missing.append(d)
+        d = d.parent
+    return d, missing
+
+
 def check_output_path(path: str | os.PathLike, allowed_suffixes: tuple[str, ...], what: str) -> Path:
     """Validate an output path: its suffix, and that its directory exists or can be made and
     takes files. The directory is not made here (``OutputSet.temp`` makes it).
@@ -38,9 +48,7 @@ def check_output_path(path: str | os.PathLike, allowed_suffixes: tuple[str, ...]
         # nothing is created yet (``OutputSet.temp`` makes the directory when the job writes), so
         # a run that fails before its outputs leaves no empty folder; but an unwritable place fails
         # now, not after the job: a probe file in the nearest directory that exists
-        existing = p.parent.absolute()
-        while not os.path.lexists(existing) and existing != existing.parent:
-            existing = existing.parent
+        existing, _ = _missing_folders(p.parent)
         if not existing.is_dir():  # a file, or a link to nowhere
             raise WrinklesInputError(f"cannot create the output directory: {existing} is not a directory",
                                      path=p.parent)
@@ -84,11 +92,7 @@ class OutputSet:
         """A temporary path beside ``final`` with the same suffix (writers pick formats by it);
         ``final``'s directory is made here if it does not exist."""
         final = Path(final)
-        missing = []
-        d = final.parent.absolute()
-        while not os.path.lexists(d) and d != d.parent:
-            missing.append(d)
-            d = d.parent
+        _, missing = _missing_folders(final.parent)
         try:
             final.parent.mkdir(parents=True, exist_ok=True)
         except OSError as e:

@@ -229,25 +229,11 @@ def build_config(args: argparse.Namespace, device: str):
         **({} if args.retry else {"retry_factors": ()}), device=device)
 
 
-def describe_drops(repairs: dict[str, int]) -> str:
-    """The faces a garment file lost in its repair, in words ('' if none; merged duplicate
-    vertices, e.g. split along UV seams, are no loss and not told)."""
-    parts = []
-    if repairs.get("collapsed_faces_dropped"):
-        parts.append(f"dropped {repairs['collapsed_faces_dropped']} collapsed (zero-area) faces")
-    if repairs.get("duplicate_faces_dropped"):
-        parts.append(f"dropped {repairs['duplicate_faces_dropped']} faces given twice")
-    if repairs.get("tiny_pieces_dropped"):
-        parts.append(f"dropped {repairs['tiny_pieces_dropped']} stray piece(s) of "
-                     f"{repairs['tiny_piece_faces_dropped']} faces (each under 5 % of the mesh)")
-    return "; ".join(parts)
-
-
 def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
     """The garment ``--garment`` names, with ``--material`` (+ overrides) and its parameters."""
     from pipelines.options import parse_numbers, parse_resolution
     from sim.garments import get_material, load_garment, make_garment
-    from sim.garments.io import check_garment_on_body
+    from sim.garments.io import check_garment_on_body, describe_drops
 
     material = get_material(args.material)
     overrides = parse_numbers(args.material_param, "--material-param")

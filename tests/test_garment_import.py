@@ -168,7 +168,7 @@ def test_repairs_duplicates_collapsed_faces_and_specks(tmp_path):
     edges = np.sort(g.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     assert np.unique(edges, axis=0, return_counts=True)[1].max() == 2  # welded: interior edges shared
     # and it says what it did (the simulate command tells the drops and stores them all)
-    from pipelines.simulate_cmd import describe_drops
+    from sim.garments.io import describe_drops
 
     assert g.repairs == {"merged_vertices": len(soup_v) - len(points) - 3, "collapsed_faces_dropped": 1,
                          "tiny_piece_faces_dropped": 1, "tiny_pieces_dropped": 1}
@@ -188,7 +188,7 @@ def test_a_face_given_twice_is_dropped_not_called_non_manifold(tmp_path):
     _write_obj(path, points, doubled, uvs, doubled_uv)
     g = load_garment(path)
     assert g.num_faces == len(faces) and g.repairs.get("duplicate_faces_dropped") == 2
-    from pipelines.simulate_cmd import describe_drops
+    from sim.garments.io import describe_drops
 
     assert describe_drops(g.repairs) == "dropped 2 faces given twice"
     def triangles(f):

@@ -201,6 +201,21 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
                    repairs={k: v for k, v in repairs.items() if v})
 
 
+def describe_drops(repairs: dict[str, int]) -> str:
+    """The faces a garment file lost in its repair (``Garment.repairs``), in words ('' if none;
+    merged duplicate vertices, e.g. split along UV seams, are no loss and not told)."""
+    parts = []
+    if repairs.get("collapsed_faces_dropped"):
+        parts.append(f"dropped {repairs['collapsed_faces_dropped']} collapsed (zero-area) faces")
+    if repairs.get("duplicate_faces_dropped"):
+        parts.append(f"dropped {repairs['duplicate_faces_dropped']} faces given twice")
+    if repairs.get("tiny_pieces_dropped"):
+        parts.append(f"dropped {repairs['tiny_pieces_dropped']} stray piece(s) of "
+                     f"{repairs['tiny_piece_faces_dropped']} faces (each under {100 * TINY_COMPONENT:g} % "
+                     "of the mesh)")
+    return "; ".join(parts)
+
+
 FIT_MARGIN = 0.3
 """How far [m] beyond the rest body's bounding box a garment vertex may lie and still count as
 around the body (``check_garment_on_body``): a flared hem, a cape or a loose sleeve reaches
@@ -232,16 +247,17 @@ def check_garment_on_body(garment: Garment, body_vertices: np.ndarray, path: str
         raise WrinklesInputError(f"the garment is {size:.3g} m across, the body {height:.2f} m tall{units}; "
                                  "model it around the body in its rest pose, in metres", path=path)
     near = np.all((x >= lo - FIT_MARGIN) & (x <= hi + FIT_MARGIN), axis=1).mean()
+    top = float(x[:, 1].max())
     # nearly all of it near the body, and nothing above the head: a long garment (a dress,
     # trousers) lifted into the floor-standing frame keeps half its vertices in the tall box
-    if near < 0.9 or x[:, 1].max() > hi[1] + FIT_MARGIN:
+    if near < 0.9 or top > hi[1] + FIT_MARGIN:
         off = np.maximum(np.maximum(lo - x, x - hi), 0.0)
         gap = float(np.median(np.linalg.norm(off, axis=1)))
         centre = 0.5 * (x.min(axis=0) + x.max(axis=0))
         raise WrinklesInputError(
             f"the garment is not around the body: {100.0 * (1.0 - near):.0f}% of its vertices lie more than "
             f"{FIT_MARGIN:g} m outside the rest body's box (median {gap:.2f} m; garment centre "
-            f"({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}), top y {x[:, 1].max():.2f} m; body box y "
+            f"({centre[0]:.2f}, {centre[1]:.2f}, {centre[2]:.2f}), top y {top:.2f} m; body box y "
             f"{lo[1]:.2f} to {hi[1]:.2f} m); "
             "model it around the body in its rest pose, in the frame 'wrinkles garments --export NAME "
             "--body-out body.obj' writes", path=path)

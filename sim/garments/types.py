@@ -30,8 +30,9 @@ class Garment:
         face_layers: layers of fabric per face, shape (F,), float32, >= 1: 3 in a template's
             hems (``sim.garments.hems``), 1 elsewhere and everywhere in an imported garment
             (None: all 1). The simulator scales a face's mass, membrane and bending by it.
-        repairs: what reading a garment file repaired (``load_garment``): vertices merged,
-            collapsed faces and faces of tiny pieces dropped; empty for a template.
+        repairs: what reading a garment file repaired (``load_garment``), as counts: vertices
+            merged, collapsed faces, faces given twice and faces of tiny pieces dropped; empty
+            for a template.
     """
 
     rest_vertices: np.ndarray
