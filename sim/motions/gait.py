@@ -243,6 +243,11 @@ an absurd step rate is the worse error. (Past a swing of 2, where ``stride_calib
 the stance foot slides, as it did before at the lower automatic cadence: a short body at 10 m/s.)"""
 
 
+def hip_extension_limit() -> float:
+    """The joint-limit table's hip extension [rad] (the smaller of the two hips')."""
+    return float(min(JOINT_LIMITS[JOINT["left_hip"], 0, 1], JOINT_LIMITS[JOINT["right_hip"], 0, 1]))
+
+
 def peak_hip_extension(style: _GaitStyle, duty: float, hip_scale: float) -> float:
     """Largest hip extension [rad] (the hips' axis-angle X component, extension positive) over a
     stride of the gait at ``hip_scale``, either hip."""
@@ -254,8 +259,7 @@ def peak_hip_extension(style: _GaitStyle, duty: float, hip_scale: float) -> floa
 def hip_scale_cap(style: _GaitStyle, duty: float) -> float:
     """The largest hip-curve scale whose peak extension stays ``HIP_EXTENSION_MARGIN`` inside the
     joint-limit table (bisection; the extension grows with the scale)."""
-    limit = min(JOINT_LIMITS[JOINT["left_hip"], 0, 1], JOINT_LIMITS[JOINT["right_hip"], 0, 1])
-    target = limit - HIP_EXTENSION_MARGIN
+    target = hip_extension_limit() - HIP_EXTENSION_MARGIN
     lo, hi = 0.5, HIP_SCALE_RANGE[1]
     if peak_hip_extension(style, duty, hi) <= target:
         return hi  # stride_calibration clips its scale there too (HIP_SCALE_RANGE)
@@ -304,8 +308,7 @@ def gait_record() -> dict:
     continued with other motions."""
     curves = repr((_WALK, _RUN, WALK_HIP, RUN_HIP)).encode()
     return {"cadence": "hip-limited", "hip_extension_margin_rad": HIP_EXTENSION_MARGIN,
-            "hip_extension_limit_rad": float(min(JOINT_LIMITS[JOINT["left_hip"], 0, 1],
-                                                 JOINT_LIMITS[JOINT["right_hip"], 0, 1])),
+            "hip_extension_limit_rad": hip_extension_limit(),
             "max_stride_frequency": dict(MAX_STRIDE_FREQUENCY), "hip_scale_range": list(HIP_SCALE_RANGE),
             "curves_sha1": hashlib.sha1(curves).hexdigest()}
 
