@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from pipelines.outputs import OutputSet, check_output_path
+from pipelines.outputs import OutputSet, check_stage_outputs, command_line, write_previews
 from pipelines.progress import progress_bar
 from sim.errors import WrinklesInputError
 
@@ -42,8 +41,7 @@ examples:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from pipelines.cli import add_common_arguments
-    from pipelines.options import add_body_arguments, add_motion_arguments
+    from pipelines.options import add_body_arguments, add_common_arguments, add_motion_arguments
 
     g = p.add_argument_group("garment and models")
     g.add_argument(
@@ -115,32 +113,63 @@ def _model_paths(args: argparse.Namespace) -> tuple[Path, Path | None]:
     return c, None if args.no_wrinkles else w
 
 
+def _check_options(args: argparse.Namespace) -> None:
+    if args.steps is not None and args.steps < 1:
+        raise WrinklesInputError(f"--steps must be >= 1, got {args.steps}")
+    if not (args.clearance >= 0 and args.clearance < 0.1):
+        raise WrinklesInputError(f"--clearance must be in [0, 0.1) m, got {args.clearance}")
+
+
+def _grounded_frames(bm, device: str):
+    """The body posed by the motion, stood on the floor at frame 0, and the motion's root
+    translations moved with it."""
+    from sim.bodies.placement import floor_offset, translate_frames
+
+    frames = bm.body.pose(bm.betas, bm.motion.poses, bm.motion.trans, device=device)
+    dy = floor_offset(frames, frame=0)
+    frames = translate_frames(frames, np.array([0.0, dy, 0.0]))
+    trans = bm.motion.trans + np.array([0.0, dy, 0.0], np.float32)
+    return frames, trans
+
+
+def _garment(pipe, material: str | None):
+    """The models' garment with the wrinkle model's material (its first unless named)."""
+    from sim.garments.materials import get_material
+    from sim.garments.types import Garment
+
+    material = material or (
+        pipe.wrinkles.materials[0] if pipe.wrinkles and pipe.wrinkles.materials else "cotton"
+    )
+    return Garment(
+        rest_vertices=pipe.rest,
+        faces=pipe.faces,
+        uvs=pipe.uvs,
+        uv_faces=pipe.uv_faces,
+        face_layers=pipe.face_layers,
+        material=get_material(material),
+        attachments={},
+        category=pipe.category,
+        name=pipe.category,
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
 
     from learn.animate import WrinklePipeline
     from learn.train.distributed import resolve_torch_device
-    from pipelines.options import load_body_and_motion, package_versions
-    from pipelines.simulate_cmd import PREVIEW_SUFFIXES, USD_SUFFIXES, preview_meshes, write_sequence_usd
-    from sim.bodies.placement import floor_offset, translate_frames
+    from pipelines.options import load_body_and_motion
+    from pipelines.simulate_cmd import preview_meshes, write_sequence_usd
     from sim.device import resolve_device
-    from sim.garments.materials import get_material
-    from sim.garments.types import Garment
     from sim.types import GarmentSequence
+    from sim.versions import package_versions
 
     t0 = time.perf_counter()
-    if args.steps is not None and args.steps < 1:
-        raise WrinklesInputError(f"--steps must be >= 1, got {args.steps}")
-    if not (args.clearance >= 0 and args.clearance < 0.1):
-        raise WrinklesInputError(f"--clearance must be in [0, 0.1) m, got {args.clearance}")
+    _check_options(args)
     coarse, wrinkles = _model_paths(args)
     label = Path(args.garment).stem if not args.coarse else coarse.stem
-    out_usd = check_output_path(
-        args.out or f"out/{label}_{Path(args.motion).stem}.usda", USD_SUFFIXES, "--out"
-    )
-    out_json = out_usd.with_name(out_usd.stem + ".animate.json")
-    out_preview = check_output_path(args.preview, PREVIEW_SUFFIXES, "--preview") if args.preview else None
-    out_sheet = check_output_path(args.sheet, (".png",), "--sheet") if args.sheet else None
+    paths = check_stage_outputs(args.out or f"out/{label}_{Path(args.motion).stem}.usda", args.preview,
+                                args.sheet, sidecar=".animate.json")
     dev = resolve_torch_device(args.device)
     wdev = resolve_device(args.device)
     torch.manual_seed(args.seed)
@@ -150,10 +179,7 @@ def run(args: argparse.Namespace) -> int:
     body_name = pipe.coarse.state.get("body_model", "default")
     if body_name not in ("default", str(args.body)) and not args.coarse:
         print(f"note: the models were trained on body model {body_name!r}", file=sys.stderr)
-    frames = bm.body.pose(bm.betas, bm.motion.poses, bm.motion.trans, device=wdev)
-    dy = floor_offset(frames, frame=0)
-    frames = translate_frames(frames, np.array([0.0, dy, 0.0]))
-    trans = bm.motion.trans + np.array([0.0, dy, 0.0], np.float32)
+    frames, trans = _grounded_frames(bm, wdev)
     T = len(trans)
     with progress_bar(T, "wrinkles", quiet=args.quiet) as advance:
         res = pipe(
@@ -169,23 +195,10 @@ def run(args: argparse.Namespace) -> int:
             body_faces=frames.faces,
             clearance=args.clearance,
         )
-    material = args.material or (
-        pipe.wrinkles.materials[0] if pipe.wrinkles and pipe.wrinkles.materials else "cotton"
-    )
-    garment = Garment(
-        rest_vertices=pipe.rest,
-        faces=pipe.faces,
-        uvs=pipe.uvs,
-        uv_faces=pipe.uv_faces,
-        face_layers=pipe.face_layers,
-        material=get_material(material),
-        attachments={},
-        category=pipe.category,
-        name=pipe.category,
-    )
+    garment = _garment(pipe, args.material)
     steps = args.steps or (pipe.wrinkles.config.sample_steps if pipe.wrinkles else 0)
     provenance = {
-        "command": "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+        "command": command_line(),
         "coarse_model": str(coarse),
         "wrinkle_model": None if wrinkles is None else str(wrinkles),
         "ddim_steps": steps,
@@ -194,44 +207,21 @@ def run(args: argparse.Namespace) -> int:
         "stage_seconds": {k: round(v, 3) for k, v in res.seconds.items()},
         "versions": package_versions("usd-core"),
     }
-    seq = GarmentSequence(
-        vertices=res.vertices,
-        body=frames,
-        garment=garment,
-        motion=bm.motion,
-        fps=float(bm.motion.fps),
-        provenance=provenance,
-    )
-    metadata = json.loads(
-        json.dumps(
-            {
-                **provenance,
-                "motion_params": bm.params,
-                "betas": [float(b) for b in np.asarray(bm.betas).ravel()],
-            }
-        )
-    )
+    seq = GarmentSequence(vertices=res.vertices, body=frames, garment=garment, motion=bm.motion,
+                          fps=float(bm.motion.fps), provenance=provenance)
+    betas = [float(b) for b in np.asarray(bm.betas).ravel()]
+    metadata = json.loads(json.dumps({**provenance, "motion_params": bm.params, "betas": betas}))
     with OutputSet() as outputs:
-        write_sequence_usd(outputs.temp(out_usd), seq, metadata, quiet=args.quiet)
-        outputs.temp(out_json).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
-        if out_preview or out_sheet:
-            from pipelines.preview import write_contact_sheet, write_video
-
-            meshes = preview_meshes(seq)
-            if out_preview:
-                with progress_bar(T, "preview", quiet=args.quiet) as adv:
-                    write_video(
-                        meshes, outputs.temp(out_preview), fps=seq.fps, camera=args.camera, progress=adv
-                    )
-            if out_sheet:
-                write_contact_sheet(meshes, outputs.temp(out_sheet), fps=seq.fps, camera=args.camera)
+        write_sequence_usd(outputs.temp(paths.usd), seq, metadata, quiet=args.quiet)
+        outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
+        write_previews(outputs, paths, lambda: preview_meshes(seq), num_frames=T, fps=seq.fps,
+                       camera=args.camera, quiet=args.quiet)
     if not args.quiet:
         what = f"{steps} DDIM steps" if wrinkles is not None else "base only"
         print(
             f"{pipe.category} ({len(pipe.rest)} vertices) on {bm.motion.name}: {T} frames, {what}, {dev}, "
             f"{time.perf_counter() - t0:.1f} s"
         )
-        for p in (out_usd, out_json, out_preview, out_sheet):
-            if p:
-                print(f"  wrote {p}")
+        for p in paths.written():
+            print(f"  wrote {p}")
     return 0

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
-import sys
 import time
 from pathlib import Path
 
-from pipelines.outputs import OutputSet, check_output_path
+from pipelines.outputs import OutputSet, check_stage_outputs, command_line, write_previews
 from pipelines.progress import progress_bar
 
 HELP = "pose a body with a motion; write an animated USD stage and a preview"
@@ -29,13 +27,8 @@ examples:
   wrinkles body --motion squat --self-crossings --out squat.usda
 """
 
-USD_SUFFIXES = (".usda", ".usdc", ".usd")
-PREVIEW_SUFFIXES = (".mp4", ".gif")
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from pipelines.cli import add_common_arguments
-    from pipelines.options import add_body_arguments, add_motion_arguments
+    from pipelines.options import add_body_arguments, add_common_arguments, add_motion_arguments
 
     add_motion_arguments(p)
     add_body_arguments(p)
@@ -57,14 +50,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.options import check_fps, load_body_and_motion, package_versions
+    from pipelines.options import check_fps, load_body_and_motion
+    from pipelines.preview import frames_to_preview_meshes
     from sim.bodies.placement import ground
     from sim.device import resolve_device
+    from sim.versions import package_versions
 
     t0 = time.perf_counter()
-    out_usd = check_output_path(args.out, USD_SUFFIXES, "--out")
-    out_preview = check_output_path(args.preview, PREVIEW_SUFFIXES, "--preview") if args.preview else None
-    out_sheet = check_output_path(args.sheet, (".png",), "--sheet") if args.sheet else None
+    paths = check_stage_outputs(args.out, args.preview, args.sheet)
     check_fps(args.fps)
     device = resolve_device(args.device)
 
@@ -85,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
             crossings = body_self_crossings(frames.vertices, body.faces, body.rest_mesh(betas), body.weights,
                                             body.joint_names, device=device, progress=advance)
     metadata = {
-        "command": "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+        "command": command_line(),
         "config": {"motion": motion.name, "motion_source": motion.source, "fps": motion.fps,
                    "frames": motion.num_frames, "body": body.name, "body_source": body.source,
                    "betas": [float(b) for b in body.full_betas(betas)], "params": params,
@@ -95,25 +88,16 @@ def run(args: argparse.Namespace) -> int:
     if crossings is not None:
         metadata["self_crossings"] = crossings
     with OutputSet() as outputs:
-        write_body_usd(outputs.temp(out_usd), frames, motion.fps, body.name, metadata, quiet=args.quiet)
-        if out_preview or out_sheet:
-            from pipelines.preview import frames_to_preview_meshes, write_contact_sheet, write_video
-
-            meshes = frames_to_preview_meshes(frames)
-            if out_preview:
-                with progress_bar(frames.num_frames, "preview", quiet=args.quiet) as advance:
-                    write_video(meshes, outputs.temp(out_preview), fps=motion.fps, camera=args.camera,
-                                progress=advance)
-            if out_sheet:
-                write_contact_sheet(meshes, outputs.temp(out_sheet), fps=motion.fps, camera=args.camera)
-    written = [p for p in (out_usd, out_preview, out_sheet) if p]
+        write_body_usd(outputs.temp(paths.usd), frames, motion.fps, body.name, metadata, quiet=args.quiet)
+        write_previews(outputs, paths, lambda: frames_to_preview_meshes(frames), num_frames=frames.num_frames,
+                       fps=motion.fps, camera=args.camera, quiet=args.quiet)
     if not args.quiet:
         print(f"{motion.name}: {motion.num_frames} frames at {motion.fps:g} fps, body "
               f"{body.name} ({body.num_vertices} vertices), {device}, "
               f"{time.perf_counter() - t0:.1f} s")
         if crossings is not None:
             print("  self-crossings: " + describe_self_crossings(crossings))
-        for p in written:
+        for p in paths.written():
             print(f"  wrote {p}")
     return 0
 

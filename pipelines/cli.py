@@ -1,8 +1,10 @@
 """The ``wrinkles`` command line.
 
-Each sub-command lives in its own module with ``add_arguments(parser)`` and ``run(args)``;
-``COMMANDS`` is the registry (STYLE.md 5: explicit registries, no import-by-string from user
-input). User errors (``WrinklesInputError``) print one line and exit with status 2.
+Each sub-command lives in its own module with ``HELP``, ``DESCRIPTION``,
+``add_arguments(parser)`` and ``run(args)``; ``COMMANDS`` is the registry (STYLE.md 5: explicit
+registries, no import-by-string from user input). The commands import their shared options from
+``pipelines.options``, never this module. User errors (``WrinklesInputError``) print one line and
+exit with status 2; SIGTERM and Ctrl-C unwind the job (``pipelines.interrupts``).
 """
 
 from __future__ import annotations
@@ -10,39 +12,37 @@ from __future__ import annotations
 import argparse
 import io
 import os
-import signal
 import sys
 import textwrap
-import threading
 
+from pipelines import (
+    animate_cmd,
+    body_cmd,
+    dataset_cmd,
+    evaluate_cmd,
+    garments_cmd,
+    motions_cmd,
+    simulate_cmd,
+    train_cmd,
+)
+from pipelines.interrupts import interruption, restore_sigterm, terminate_as_interrupt
+from pipelines.options import join_negative_values
 from sim import __version__
 from sim.errors import WrinklesInputError
 
 EXIT_USAGE = 2
 
 
-def _commands() -> dict:
-    from pipelines import (
-        animate_cmd,
-        body_cmd,
-        dataset_cmd,
-        evaluate_cmd,
-        garments_cmd,
-        motions_cmd,
-        simulate_cmd,
-        train_cmd,
-    )
-
-    return {
-        "body": body_cmd,
-        "motions": motions_cmd,
-        "garments": garments_cmd,
-        "simulate": simulate_cmd,
-        "dataset": dataset_cmd,
-        "train": train_cmd,
-        "evaluate": evaluate_cmd,
-        "animate": animate_cmd,
-    }
+COMMANDS = {
+    "body": body_cmd,
+    "motions": motions_cmd,
+    "garments": garments_cmd,
+    "simulate": simulate_cmd,
+    "dataset": dataset_cmd,
+    "train": train_cmd,
+    "evaluate": evaluate_cmd,
+    "animate": animate_cmd,
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"wrinkles {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name, mod in _commands().items():
+    for name, mod in COMMANDS.items():
         p = sub.add_parser(name, help=mod.HELP, description=mod.DESCRIPTION,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(p)
@@ -65,28 +65,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def add_common_arguments(p: argparse.ArgumentParser, *, seed: bool = True, device: bool = True) -> None:
-    """Options every heavy command shares."""
-    if device:
-        p.add_argument("--device", default="auto",
-                       help="Warp device: auto (cuda when present, else cpu), cpu, cuda, cuda:N "
-                            "(default: %(default)s)")
-    if seed:
-        p.add_argument("--seed", type=int, default=0,
-                       help="random seed; the same seed gives the same result on the same device "
-                            "(default: %(default)s)")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
-
-
 def main(argv: list[str] | None = None) -> int:
-    from pipelines.options import join_negative_values
-
     parser = build_parser()
     args = parser.parse_args(join_negative_values(sys.argv[1:] if argv is None else list(argv)))
     if not getattr(args, "command", None):
         parser.print_help()
         return EXIT_USAGE
-    previous = _terminate_as_interrupt()
+    previous = terminate_as_interrupt()
     try:
         code = int(args._run(args) or 0)
         sys.stdout.flush()  # here, where a closed pipe is caught, not at the interpreter's exit
@@ -109,8 +94,7 @@ def main(argv: list[str] | None = None) -> int:
             pass
         return 141
     finally:
-        if previous is not _NOT_INSTALLED:
-            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+        restore_sigterm(previous)
 
 
 def _stdout_closed() -> bool:
@@ -125,32 +109,6 @@ def _stdout_closed() -> bool:
     poll = select.poll()
     poll.register(fd, select.POLLOUT)
     return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poll.poll(0))
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (a scheduler or ``kill``), raised where the job is, so that it unwinds as an
-    interrupt does: its temporary outputs removed (``pipelines.outputs.OutputSet``)."""
-
-
-def interruption(e: KeyboardInterrupt) -> tuple[str, int]:
-    """How a command was stopped, in a word, and its exit status: SIGTERM ('terminated', 143)
-    or Ctrl-C ('interrupted', 130)."""
-    return ("terminated", 143) if isinstance(e, Terminated) else ("interrupted", 130)
-
-
-def _raise_terminated(signum, frame):
-    raise Terminated()
-
-
-_NOT_INSTALLED = object()
-
-
-def _terminate_as_interrupt():
-    """Route SIGTERM to ``Terminated`` while a command runs; the handler it replaced (to put
-    back), or ``_NOT_INSTALLED`` where signals cannot be handled (not the main thread)."""
-    if threading.current_thread() is not threading.main_thread():
-        return _NOT_INSTALLED
-    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -50,7 +50,7 @@ def _splits(text: str) -> tuple[str, ...]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from pipelines.cli import add_common_arguments
+    from pipelines.options import add_common_arguments
 
     sub = p.add_subparsers(dest="dataset_command", metavar="ACTION")
     g = sub.add_parser("generate", help="generate (or resume) a dataset from a config",
@@ -122,7 +122,7 @@ def run_generate(args: argparse.Namespace) -> int:
                                batch=args.batch, device=device, progress=advance, splits=args.splits,
                                log=None if args.quiet else (lambda s: print(s, file=sys.stderr)))
     except KeyboardInterrupt as e:
-        from pipelines.cli import interruption
+        from pipelines.interrupts import interruption
 
         how, code = interruption(e)
         print(f"wrinkles dataset generate: {how}; finished sequences are kept, run again with --resume "

@@ -718,7 +718,7 @@ def write_report(root: str | os.PathLike, out_dir: str | os.PathLike | None = No
 
 def add_report_arguments(p: argparse.ArgumentParser) -> None:
     """Arguments of ``wrinkles dataset report``."""
-    from pipelines.cli import add_common_arguments
+    from pipelines.options import add_common_arguments
 
     p.add_argument("dataset", metavar="DIR", help="dataset directory (with manifest.json)")
     p.add_argument("--out", default=None, metavar="OUT_DIR",

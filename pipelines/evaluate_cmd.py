@@ -43,7 +43,7 @@ examples:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from pipelines.cli import add_common_arguments
+    from pipelines.options import add_common_arguments
 
     p.add_argument("--model", required=True,
                    help="checkpoint file (RUN/checkpoints/last.pt), or 'base' for the base surface alone")

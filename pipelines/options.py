@@ -1,5 +1,6 @@
-"""Command-line options shared by the commands that pose a body with a motion (``wrinkles body``,
-``wrinkles simulate``): their arguments, parsing, and loading the body and motion they name."""
+"""Command-line options the commands share: ``--device/--seed/--quiet`` of every heavy command,
+and those of the commands that pose a body with a motion (``wrinkles body``, ``simulate``,
+``animate``): their arguments, parsing, and loading the body and motion they name."""
 
 from __future__ import annotations
 
@@ -9,6 +10,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.errors import WrinklesInputError
+from sim.versions import package_versions  # noqa: F401  (pipelines.garments_cmd imports it from here)
+
+
+def add_common_arguments(p: argparse.ArgumentParser, *, seed: bool = True, device: bool = True) -> None:
+    """``--device``, ``--seed``, ``--quiet``: the options every heavy command shares."""
+    if device:
+        p.add_argument("--device", default="auto",
+                       help="Warp device: auto (cuda when present, else cpu), cpu, cuda, cuda:N "
+                            "(default: %(default)s)")
+    if seed:
+        p.add_argument("--seed", type=int, default=0,
+                       help="random seed; the same seed gives the same result on the same device "
+                            "(default: %(default)s)")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
 
 
 def add_motion_arguments(p: argparse.ArgumentParser) -> None:
@@ -170,18 +185,3 @@ def load_body_and_motion(args: argparse.Namespace) -> BodyAndMotion:
     motion = load_motion(args.motion, fps=args.fps, duration=args.duration,
                          skeleton=MotionSkeleton.from_body(body, shape), **params)
     return BodyAndMotion(body, resolve_betas(body, motion, shape), motion, params)
-
-
-def package_versions(*extra: str) -> dict[str, str]:
-    """Installed versions of wrinkles' core packages and ``extra`` ones."""
-    import importlib.metadata as md
-
-    from sim.simulate import package_versions as core
-
-    out = core()
-    for pkg in extra:
-        try:
-            out[pkg] = md.version(pkg)
-        except md.PackageNotFoundError:
-            pass
-    return out

@@ -3,20 +3,29 @@
 Every output of a job is first written under a temporary name in its own directory; only when
 the whole job has succeeded are they renamed into place (``os.replace`` is atomic on one file
 system). On any error or interrupt the temporaries are removed, so a failed run leaves no
-partial output (DESIGN.md, Conventions).
+partial output. The commands that write a USD stage share its companions here: a JSON sidecar,
+a preview video and a contact sheet (``StageOutputs``).
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shlex
 import signal
+import sys
 import tempfile
 import threading
 import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
+from pipelines.progress import progress_bar
 from sim.errors import WrinklesInputError
+
+USD_SUFFIXES = (".usda", ".usdc", ".usd")
+PREVIEW_SUFFIXES = (".mp4", ".gif")
 
 
 def _missing_folders(folder: Path) -> tuple[Path, list[Path]]:
@@ -142,3 +151,58 @@ class OutputSet:
         else:
             self.abort()
         return False
+
+
+@dataclass(frozen=True)
+class StageOutputs:
+    """The files of a command that writes a USD stage, checked before the job runs.
+
+    Attributes:
+        usd: the stage (``--out``).
+        sidecar: the JSON record beside it (``<stem><suffix>``), or None.
+        preview: the preview video (``--preview``), or None.
+        sheet: the contact sheet PNG (``--sheet``), or None.
+    """
+
+    usd: Path
+    sidecar: Path | None
+    preview: Path | None
+    sheet: Path | None
+
+    def written(self) -> list[Path]:
+        """The files the command writes, in the order it reports them."""
+        return [p for p in (self.usd, self.sidecar, self.preview, self.sheet) if p]
+
+
+def check_stage_outputs(out: str, preview: str | None, sheet: str | None, *,
+                        sidecar: str | None = None) -> StageOutputs:
+    """``--out``, ``--preview`` and ``--sheet`` checked (``check_output_path``) in that order;
+    ``sidecar`` is the suffix of the JSON record beside the stage (e.g. ``".quality.json"``)."""
+    usd = check_output_path(out, USD_SUFFIXES, "--out")
+    return StageOutputs(
+        usd=usd,
+        sidecar=usd.with_name(usd.stem + sidecar) if sidecar else None,
+        preview=check_output_path(preview, PREVIEW_SUFFIXES, "--preview") if preview else None,
+        sheet=check_output_path(sheet, (".png",), "--sheet") if sheet else None,
+    )
+
+
+def write_previews(outputs: OutputSet, paths: StageOutputs, meshes: Callable[[], list], *,
+                   num_frames: int, fps: float, camera: str, quiet: bool) -> None:
+    """The preview video and contact sheet ``paths`` name, if any, of the meshes ``meshes()``
+    makes (called only when there is one to write)."""
+    if not (paths.preview or paths.sheet):
+        return
+    from pipelines.preview import write_contact_sheet, write_video
+
+    drawn = meshes()
+    if paths.preview:
+        with progress_bar(num_frames, "preview", quiet=quiet) as advance:
+            write_video(drawn, outputs.temp(paths.preview), fps=fps, camera=camera, progress=advance)
+    if paths.sheet:
+        write_contact_sheet(drawn, outputs.temp(paths.sheet), fps=fps, camera=camera)
+
+
+def command_line() -> str:
+    """The command as typed, for the record kept beside the outputs."""
+    return "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:])

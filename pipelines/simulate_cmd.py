@@ -7,14 +7,13 @@ import argparse
 import dataclasses
 import json
 import os
-import shlex
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from pipelines.outputs import OutputSet, check_output_path
+from pipelines.outputs import OutputSet, StageOutputs, check_stage_outputs, command_line, write_previews
 from pipelines.progress import progress_bar
 from sim.errors import WrinklesInputError
 
@@ -61,8 +60,6 @@ examples:
       --fps 30 --out dress.usda --allow-failed-gates
 """
 
-USD_SUFFIXES = (".usda", ".usdc", ".usd")
-PREVIEW_SUFFIXES = (".mp4", ".gif")
 CLOTH_PREVIEW_COLOR: tuple[float, float, float] = (0.22, 0.38, 0.72)
 PREVIEW_CLOTH_LIFT = 0.003
 """Previews draw the garment this far out along its normals [m] so skin a fraction of a
@@ -70,8 +67,7 @@ millimetre below the cloth does not show through it (display only; USD holds the
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from pipelines.cli import add_common_arguments
-    from pipelines.options import add_body_arguments, add_motion_arguments
+    from pipelines.options import add_body_arguments, add_common_arguments, add_motion_arguments
 
     g = p.add_argument_group("garment")
     g.add_argument("--garment", default="t_shirt",
@@ -207,6 +203,13 @@ def parse_sweeps(spec: str) -> tuple[int, ...] | None:
                                  "(e.g. 2 or 1,3), 'none' or 'auto'") from None
 
 
+def parse_solver_params(items: list[str]) -> dict[str, float]:
+    """``--solver-param KEY=VALUE`` items: the solver settings they override."""
+    from pipelines.options import parse_numbers
+
+    return parse_numbers(items, "--solver-param")
+
+
 def build_config(args: argparse.Namespace, device: str):
     """The ``SimulationConfig`` of the command line (validated)."""
     from pipelines.options import parse_numbers
@@ -225,7 +228,7 @@ def build_config(args: argparse.Namespace, device: str):
         coarse_sweeps=parse_sweeps(args.coarse_sweeps),
         settle_seconds=args.settle, blend_seconds=args.blend, keep_prelude=args.keep_prelude,
         pinned=parse_pins(args.pin), ground=not args.no_ground, self_contact=args.self_collision,
-        solver=parse_numbers(args.solver_param, "--solver-param"), gates=QualityGates(**gates),
+        solver=parse_solver_params(args.solver_param), gates=QualityGates(**gates),
         **({} if args.retry else {"retry_factors": ()}), device=device)
 
 
@@ -265,46 +268,52 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
 # ------------------------------------------------------------------------------- the command
 
 
-def run(args: argparse.Namespace) -> int:
-    from pipelines.options import (
-        check_fps,
-        load_body_and_motion,
-        package_versions,
-        parse_numbers,
-        parse_resolution,
-    )
-    from sim.device import resolve_device
-    from sim.quality import SimulationError
-    from sim.simulate import simulate
+def check_garment_spec(args: argparse.Namespace) -> None:
+    """``--garment`` names a template, or a file without ``--resolution`` (before loading anything)."""
+    from pipelines.options import parse_resolution
 
-    t0 = time.perf_counter()
-    check_fps(args.fps)
-    garment_label = Path(args.garment).stem if is_garment_file(args.garment) else args.garment
-    out_usd = check_output_path(args.out or f"out/{garment_label}_{Path(args.motion).stem}.usda",
-                                USD_SUFFIXES, "--out")
-    out_json = out_usd.with_name(out_usd.stem + ".quality.json")
-    out_preview = check_output_path(args.preview, PREVIEW_SUFFIXES, "--preview") if args.preview else None
-    out_sheet = check_output_path(args.sheet, (".png",), "--sheet") if args.sheet else None
     if not is_garment_file(args.garment):
-        resolve_template(args.garment)  # fail fast, before loading anything
+        resolve_template(args.garment)
     elif args.resolution is not None:
         raise WrinklesInputError(f"--resolution applies to templates; a garment file ({args.garment}) "
                                  "is simulated with its own mesh")
     parse_resolution(args.resolution or "coarse")
-    device = resolve_device(args.device)
-    config = build_config(args, device)
 
-    bm = load_body_and_motion(args)
-    garment = load_garment_arg(args, bm.body, bm.betas)
-    check_pins(args.pin, garment)
+
+@dataclasses.dataclass
+class Runs:
+    """The runs of one sequence at rising substeps (``--retry``).
+
+    Attributes:
+        counts: the substeps of each run to try, in order.
+        attempts: every run made, in order: its substeps and why it was not enough.
+        finished: ``(SimulationResult, SimulationConfig)`` of the runs that finished, last one last.
+        why: why the last run made was not enough ("" when it passed).
+    """
+
+    counts: list[int]
+    attempts: list[dict] = dataclasses.field(default_factory=list)
+    finished: list = dataclasses.field(default_factory=list)
+    why: str = ""
+
+    def tried(self) -> str:
+        """" (at 12, 20 substeps)" where more than one run failed, else ""."""
+        if len(self.attempts) > 1:
+            return f" (at {', '.join(str(a['substeps']) for a in self.attempts)} substeps)"
+        return ""
+
+
+def simulate_with_retries(args: argparse.Namespace, garment, bm, config) -> Runs:
+    """Simulate at the garment's substeps, then (``--retry``) at each retry count until a run
+    passes the quality gates."""
+    from sim.quality import SimulationError
+    from sim.simulate import simulate
 
     total = config.solver_steps(bm.motion.num_frames)
-    counts = [config.substeps_for(garment.num_vertices)]
+    runs = Runs(counts=[config.substeps_for(garment.num_vertices)])
     if args.retry:
-        counts += config.retry_substeps(garment.num_vertices)
-    attempts: list[dict] = []  # every run in order, and why each was not enough
-    runs: list = []  # (result, config) of the runs that finished, last one last
-    for k, n in enumerate(counts):
+        runs.counts += config.retry_substeps(garment.num_vertices)
+    for k, n in enumerate(runs.counts):
         if k:
             config = dataclasses.replace(config, substeps=n)
         label = f"simulating {garment.name}" + (f" at {n} substeps" if k else "")
@@ -313,51 +322,51 @@ def run(args: argparse.Namespace) -> int:
                 result = simulate(garment, bm.body, bm.motion, betas=bm.betas, config=config, seed=args.seed,
                                   progress=advance)
         except SimulationError as e:
-            why = str(e)
-            attempts.append({"substeps": n, "error": why})
+            runs.why = str(e)
+            runs.attempts.append({"substeps": n, "error": runs.why})
         else:
-            runs.append((result, config))
+            runs.finished.append((result, config))
             if result.passed:
                 break
-            why = "quality gates failed: " + "; ".join(result.failed_gates)
-            attempts.append({"substeps": n, "failed_gates": list(result.failed_gates)})
-        if k + 1 < len(counts) and not args.quiet:
-            print(f"wrinkles simulate: {why} (at {n} substeps); retrying at {counts[k + 1]} substeps",
-                  file=sys.stderr)
-    tried = ""
-    if len(attempts) > 1:
-        tried = f" (at {', '.join(str(a['substeps']) for a in attempts)} substeps)"
-    if not runs:
-        print(f"wrinkles simulate: {why}{tried}", file=sys.stderr)
-        return 1
-    # the run written: the one that passed, else the last that finished (with its failed gates)
-    result, config = runs[-1]
-    attempts = [a for a in attempts if a["substeps"] != config.substeps_for(garment.num_vertices)]
-    seq, quality = result.sequence, result.quality
-    crossings = body_note = None
-    if result.failed_gates:  # is the body to blame? (session 46)
-        from pipelines.body_cmd import describe_self_crossings
-        from sim.quality import garment_body_crossings
+            runs.why = "quality gates failed: " + "; ".join(result.failed_gates)
+            runs.attempts.append({"substeps": n, "failed_gates": list(result.failed_gates)})
+        if k + 1 < len(runs.counts) and not args.quiet:
+            print(f"wrinkles simulate: {runs.why} (at {n} substeps); retrying at {runs.counts[k + 1]} "
+                  "substeps", file=sys.stderr)
+    return runs
 
-        with progress_bar(seq.num_frames, "body self-crossings", quiet=args.quiet) as advance:
-            crossings = garment_body_crossings(bm.body, bm.betas, garment, seq.body.vertices, device=device,
-                                               progress=advance)
-        if crossings["frames_with_crossings"]:
-            body_note = describe_self_crossings(crossings)
-    if result.failed_gates and not args.allow_failed_gates:
-        print(f"wrinkles simulate: quality gates failed: {'; '.join(result.failed_gates)}{tried} "
-              "(nothing written; --allow-failed-gates writes it anyway; more --substeps than "
-              f"{counts[-1]} or --iterations than {config.iterations_for(garment.num_vertices)} lower strain "
-              "and crossings, at their cost in time)" + (f"; {body_note}" if body_note else ""),
-              file=sys.stderr)
-        return 1
+
+def body_self_crossings(args: argparse.Namespace, result, bm, garment,
+                        device: str) -> tuple[dict | None, str | None]:
+    """Where the skinned body passes through itself near the garment, and that in words, when
+    the run failed its gates (cloth caught in a fold of the skin fails them for the body's sake);
+    ``(None, None)`` when it passed."""
+    if not result.failed_gates:
+        return None, None
+    from pipelines.body_cmd import describe_self_crossings
+    from sim.quality import garment_body_crossings
+
+    seq = result.sequence
+    with progress_bar(seq.num_frames, "body self-crossings", quiet=args.quiet) as advance:
+        crossings = garment_body_crossings(bm.body, bm.betas, garment, seq.body.vertices, device=device,
+                                           progress=advance)
+    note = describe_self_crossings(crossings) if crossings["frames_with_crossings"] else None
+    return crossings, note
+
+
+def stage_metadata(args: argparse.Namespace, result, config, garment, bm, attempts: list[dict],
+                   crossings: dict | None) -> dict:
+    """The quality report, the resolved config and the provenance, as stored in the stage and
+    its ``.quality.json`` sidecar (JSON types only)."""
+    from pipelines.options import parse_numbers
+    from sim.versions import package_versions
 
     report = {
         "passed": result.passed,
         "failed_gates": list(result.failed_gates),
         "attempts": attempts,
         "gates": config.to_dict()["gates"],
-        "quality": quality.to_json(),
+        "quality": result.quality.to_json(),
         "config": config.to_dict(),
         # the automatic settings (0 in the config) as this garment ran them
         "resolved": {"substeps": config.substeps_for(garment.num_vertices),
@@ -369,44 +378,76 @@ def run(args: argparse.Namespace) -> int:
 
         report["body_self_crossings"] = short_crossings(crossings)
     metadata = {
-        "command": "wrinkles " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+        "command": command_line(),
         **report,
-        "provenance": {**seq.provenance, "versions": package_versions("usd-core")},
+        "provenance": {**result.sequence.provenance, "versions": package_versions("usd-core")},
         "motion_params": bm.params,
         "garment_params": parse_numbers(args.garment_param, "--garment-param"),
         "material": dataclasses.asdict(garment.material),
     }
     if garment.repairs:  # what reading the garment file repaired
         metadata["garment_repairs"] = dict(garment.repairs)
-    metadata = json.loads(json.dumps(metadata))
-    with OutputSet() as outputs:
-        write_sequence_usd(outputs.temp(out_usd), seq, metadata, quiet=args.quiet)
-        outputs_json = outputs.temp(out_json)
-        outputs_json.write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
-        if out_preview or out_sheet:
-            from pipelines.preview import write_contact_sheet, write_video
+    return json.loads(json.dumps(metadata))
 
-            meshes = preview_meshes(seq)
-            if out_preview:
-                with progress_bar(seq.num_frames, "preview", quiet=args.quiet) as advance:
-                    write_video(meshes, outputs.temp(out_preview), fps=seq.fps, camera=args.camera,
-                                progress=advance)
-            if out_sheet:
-                write_contact_sheet(meshes, outputs.temp(out_sheet), fps=seq.fps, camera=args.camera)
+
+def print_summary(result, garment, bm, device: str, seconds: float, body_note: str | None,
+                  paths: StageOutputs) -> None:
+    seq, quality = result.sequence, result.quality
+    inside = 100.0 * float(quality.inside_fraction.max())
+    print(f"{garment.name} ({garment.num_vertices} vertices, {garment.material.name}) on "
+          f"{bm.motion.name}: {seq.num_frames} frames at {seq.fps:g} fps, {device}, {seconds:.1f} s")
+    print(f"  edge strain max {quality.max_edge_strain:.3f} mean {quality.mean_edge_strain:.4f}, "
+          f"inside the body max {inside:.2f}%, self-intersections max "
+          f"{int(quality.self_intersections.max())}: "
+          + ("gates passed" if result.passed else "GATES FAILED: " + "; ".join(result.failed_gates)))
+    if body_note:
+        print(f"  {body_note}")
+    for p in paths.written():
+        print(f"  wrote {p}")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipelines.options import check_fps, load_body_and_motion
+    from sim.device import resolve_device
+
+    t0 = time.perf_counter()
+    check_fps(args.fps)
+    garment_label = Path(args.garment).stem if is_garment_file(args.garment) else args.garment
+    paths = check_stage_outputs(args.out or f"out/{garment_label}_{Path(args.motion).stem}.usda",
+                                args.preview, args.sheet, sidecar=".quality.json")
+    check_garment_spec(args)
+    device = resolve_device(args.device)
+    config = build_config(args, device)
+
+    bm = load_body_and_motion(args)
+    garment = load_garment_arg(args, bm.body, bm.betas)
+    check_pins(args.pin, garment)
+
+    runs = simulate_with_retries(args, garment, bm, config)
+    if not runs.finished:
+        print(f"wrinkles simulate: {runs.why}{runs.tried()}", file=sys.stderr)
+        return 1
+    # the run written: the one that passed, else the last that finished (with its failed gates)
+    result, config = runs.finished[-1]
+    attempts = [a for a in runs.attempts if a["substeps"] != config.substeps_for(garment.num_vertices)]
+    crossings, body_note = body_self_crossings(args, result, bm, garment, device)
+    if result.failed_gates and not args.allow_failed_gates:
+        print(f"wrinkles simulate: quality gates failed: {'; '.join(result.failed_gates)}{runs.tried()} "
+              "(nothing written; --allow-failed-gates writes it anyway; more --substeps than "
+              f"{runs.counts[-1]} or --iterations than {config.iterations_for(garment.num_vertices)} lower "
+              "strain and crossings, at their cost in time)" + (f"; {body_note}" if body_note else ""),
+              file=sys.stderr)
+        return 1
+
+    metadata = stage_metadata(args, result, config, garment, bm, attempts, crossings)
+    seq = result.sequence
+    with OutputSet() as outputs:
+        write_sequence_usd(outputs.temp(paths.usd), seq, metadata, quiet=args.quiet)
+        outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
+        write_previews(outputs, paths, lambda: preview_meshes(seq), num_frames=seq.num_frames, fps=seq.fps,
+                       camera=args.camera, quiet=args.quiet)
     if not args.quiet:
-        inside = 100.0 * float(quality.inside_fraction.max())
-        print(f"{garment.name} ({garment.num_vertices} vertices, {garment.material.name}) on "
-              f"{bm.motion.name}: {seq.num_frames} frames at {seq.fps:g} fps, {device}, "
-              f"{time.perf_counter() - t0:.1f} s")
-        print(f"  edge strain max {quality.max_edge_strain:.3f} mean {quality.mean_edge_strain:.4f}, "
-              f"inside the body max {inside:.2f}%, self-intersections max "
-              f"{int(quality.self_intersections.max())}: "
-              + ("gates passed" if result.passed else "GATES FAILED: " + "; ".join(result.failed_gates)))
-        if body_note:
-            print(f"  {body_note}")
-        for p in (out_usd, out_json, out_preview, out_sheet):
-            if p:
-                print(f"  wrote {p}")
+        print_summary(result, garment, bm, device, time.perf_counter() - t0, body_note, paths)
     return 0
 
 

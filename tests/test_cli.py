@@ -54,6 +54,7 @@ def test_motions_lists_library(capsys):
     assert "--param" in out
 
 
+@pytest.mark.slow
 def test_body_writes_usd_and_preview(tmp_path):
     from usd_io import read_stage, validate_stage
 
@@ -76,6 +77,7 @@ def test_body_writes_usd_and_preview(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["walk.mp4", "walk.usda"]
 
 
+@pytest.mark.slow
 def test_body_self_crossings_are_counted_by_joint(tmp_path, capsys):
     """``wrinkles body --self-crossings``: the default body never passes through itself in the walk;
     in the run its knee pits fold through themselves (the calf into the thigh, skinned by the knee
@@ -197,17 +199,17 @@ def test_interrupted_preview_leaves_nothing(tmp_path, monkeypatch):
 
 def test_every_documented_shape_parses_and_the_help_states_the_ranges():
     """Every ``--shape`` example in the README and the commands' help is a shape the default
-    body takes (they used height=0.9, outside its range), and ``--help``'s phenotype ranges and
-    means are the body's own."""
+    body takes (a value out of its range, such as height=0.9, is refused), and ``--help``'s
+    phenotype ranges and means are the body's own."""
     import re
     from pathlib import Path
 
-    from pipelines.cli import _commands
+    from pipelines.cli import COMMANDS
     from pipelines.options import SHAPE_RANGES_HELP
     from sim.bodies.default import parse_shape, phenotype_mean, phenotype_ranges
 
     texts = [Path(__file__).resolve().parents[1].joinpath("README.md").read_text()]
-    texts += [mod.DESCRIPTION for mod in _commands().values()]
+    texts += [mod.DESCRIPTION for mod in COMMANDS.values()]
     item = r"(?:[a-z]+=)?-?[\d.]+"
     examples = {m for t in texts for m in re.findall(rf"--shape[ =]'?({item}(?:,{item})*)", t)}
     assert len(examples) >= 3

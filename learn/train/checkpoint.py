@@ -8,7 +8,7 @@ A checkpoint file (``torch.save`` zip) holds plain containers and tensors only:
 - ``model``: the model's state dict; ``ema``: the EMA state (or absent);
 - ``optimizer``, ``scaler``: optimizer and gradient-scaler states (absent in exported weights);
 - ``rng``: torch CPU/CUDA generator states (as uint8 tensors);
-- ``versions``: package versions, for the model card.
+- ``versions``: package versions (``sim.versions.package_versions``), for the model card.
 
 It is loaded with ``torch.load(..., weights_only=True)``, which refuses anything that would run
 code. Writing goes to a temporary name in the same directory, then ``os.replace`` (atomic), so a
@@ -94,20 +94,4 @@ def check_state_dict(model: torch.nn.Module, state: dict[str, torch.Tensor], *, 
         problems.append(f"{len(shapes)} shape mismatch(es): {shapes[0]}")
     if problems:
         raise WrinklesInputError(f"the checkpoint's {what} does not match this model: " + "; ".join(problems)
-                                 + " (was it trained with a different method or model config?)", path=path)
-
-
-def package_versions() -> dict[str, str]:
-    """Versions of the packages a checkpoint depends on."""
-    import numpy as np
-
-    import sim
-
-    out = {"wrinkles": str(sim.__version__), "torch": str(torch.__version__), "numpy": str(np.__version__)}
-    try:
-        import warp
-
-        out["warp"] = str(warp.__version__)
-    except ImportError:  # pragma: no cover
-        pass
-    return out
+                                 + " (a checkpoint of another method or model config?)", path=path)

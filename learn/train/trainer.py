@@ -33,12 +33,13 @@ import torch
 
 from learn.methods.base import Method, batch_to
 from learn.train import distributed as D
-from learn.train.checkpoint import check_state_dict, load_checkpoint, package_versions, save_checkpoint
+from learn.train.checkpoint import check_state_dict, load_checkpoint, save_checkpoint
 from learn.train.config import RESUMABLE_CHANGES, RunConfig, config_differences, config_to_dict
 from learn.train.ema import ExponentialMovingAverage
 from learn.train.logging import MetricLogger
 from sim.datasets.storage import atomic_write_json
 from sim.errors import WrinklesInputError
+from sim.versions import package_versions
 
 CHECKPOINT_DIR = "checkpoints"
 LAST = "last.pt"
@@ -301,7 +302,7 @@ class Trainer:
                 "optimizer": optimizer.state_dict(),
                 "scaler": scaler.state_dict(),
                 "rng": {"torch": torch.get_rng_state()},
-                "versions": package_versions(),
+                "versions": package_versions("torch"),
             }
             if ctx.device.type == "cuda":
                 payload["rng"]["cuda"] = torch.cuda.get_rng_state(ctx.device)
