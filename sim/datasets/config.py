@@ -45,8 +45,9 @@ shipped one)::
     iterations = 0           # 0: automatic, 5 sweeps per substep (8 over 10k garment vertices)
     # retry_factors = [1.6667, 2.0]  # a sequence failing a gate: again at these x substeps
                              # ([]: never; left out: automatic, [1.6667, 2.0] up to 10k garment
-                             # vertices, [1.6667, 2.0, 3.0] above: 14 -> 23 -> 28 -> 42 passes
-                             # more fine runs, docs/BENCHMARKS.md session 45)
+                             # vertices, [1.6667, 2.0, 3.0] above: 14 -> 23 -> 28 -> 42 accepts
+                             # 14 of 16 fine sequences against 12 of 16 with two retries,
+                             # docs/BENCHMARKS.md)
 
     [derive]
     smoothing_length = 0.04  # base surface: wrinkles shorter than ~this [m] are removed
@@ -202,8 +203,8 @@ class DatasetConfig:
         d.pop("source")
         if not np.isfinite(d["split"]["ood_shape_norm"]):
             d["split"]["ood_shape_norm"] = None
-        if d["garments"]["fit"] == "body":  # the default, left out: datasets made before it resume
-            d["garments"].pop("fit")
+        if d["garments"]["fit"] == "body":  # the default is left out: a manifest without the key
+            d["garments"].pop("fit")         # is a "body" fit, and compares equal on --resume
         return _jsonable(d)
 
     def simulation_config(self):
@@ -314,19 +315,35 @@ def motion_files(cfg: DatasetConfig) -> list[Path]:
     return out
 
 
+def _is_count(v, lo: int) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= lo
+
+
 def validate(cfg: DatasetConfig, err=None) -> None:
     """Check every value and open every user motion file (raises ``WrinklesInputError``)."""
-    from sim.garments import MATERIALS
-    from sim.garments.templates import TEMPLATES, make_params, resolve_resolution
-    from sim.motions import PROCEDURAL_MOTIONS, load_motion, procedural_motion
-
     if err is None:
         def err(msg: str) -> WrinklesInputError:
             return WrinklesInputError(msg, path=cfg.source or "dataset config")
 
-    if not (isinstance(cfg.seed, int) and not isinstance(cfg.seed, bool) and cfg.seed >= 0):
+    _check_top(cfg, err)
+    body = _check_garments(cfg, err)
+    _check_materials(cfg, err)
+    _check_bodies(cfg, body, err)
+    stems = _check_motions(cfg, err)
+    _check_split(cfg, stems, err)
+    _check_derive(cfg, err)
+    try:
+        cfg.simulation_config()
+    except WrinklesInputError as e:
+        raise err(f"[simulation] {e}") from None
+    except (TypeError, ValueError) as e:
+        raise err(f"[simulation] {e}") from None
+
+
+def _check_top(cfg: DatasetConfig, err) -> None:
+    if not _is_count(cfg.seed, 0):
         raise err(f"seed must be an integer >= 0, got {cfg.seed!r}")
-    if not (isinstance(cfg.sequences, int) and not isinstance(cfg.sequences, bool) and cfg.sequences >= 1):
+    if not _is_count(cfg.sequences, 1):
         raise err(f"sequences must be an integer >= 1, got {cfg.sequences!r}")
     for name in ("fps", "seconds"):
         v = getattr(cfg, name)
@@ -334,6 +351,12 @@ def validate(cfg: DatasetConfig, err=None) -> None:
             raise err(f"{name} must be a positive number, got {v!r}")
     if cfg.fps > 240:
         raise err(f"fps {cfg.fps} is above 240")
+
+
+def _check_garments(cfg: DatasetConfig, err):
+    """``[garments]``, every category built at the ends of its ranges; the body model loaded."""
+    from sim.garments.templates import TEMPLATES, resolve_resolution
+
     g = cfg.garments
     if not g.categories:
         raise err("[garments] categories is empty")
@@ -348,6 +371,13 @@ def validate(cfg: DatasetConfig, err=None) -> None:
                 resolve_resolution(getattr(g, name), c)
             except WrinklesInputError as e:
                 raise err(f"[garments] {name}: {e}") from None
+    _check_garment_params(g, err)
+    return _check_garments_build(cfg, err)
+
+
+def _check_garment_params(g: GarmentsConfig, err) -> None:
+    from sim.garments.templates import make_params
+
     if not isinstance(g.params, dict):
         raise err("[garments.params] must be a table of categories")
     for c, params in g.params.items():
@@ -362,11 +392,15 @@ def validate(cfg: DatasetConfig, err=None) -> None:
                 make_params(c, **end)
             except (WrinklesInputError, ValueError, TypeError) as e:
                 raise err(f"[garments.params.{c}] {e}") from None
-    # every category at the ends of its ranges, on the mean body, at the coarse resolution: a
-    # combination the template cannot build fails here, not hours into a run
+
+
+def _check_garments_build(cfg: DatasetConfig, err):
+    """Every category at the ends of its ranges, on the mean body, at the coarse resolution: a
+    combination the template cannot build fails here, not hours into a run. Returns the body."""
     from sim.bodies import load_body
     from sim.garments import make_garment
 
+    g = cfg.garments
     try:
         body = load_body(cfg.bodies.model)
     except WrinklesInputError as e:
@@ -377,20 +411,35 @@ def validate(cfg: DatasetConfig, err=None) -> None:
                 make_garment(c, body, None, resolution=g.coarse_resolution, **end)
             except (WrinklesInputError, ValueError, FloatingPointError) as e:
                 raise err(f"[garments.params.{c}] {end}: {e}") from None
+    return body
+
+
+def _check_materials(cfg: DatasetConfig, err) -> None:
+    from sim.garments import MATERIALS
+
     if not cfg.materials.names:
         raise err("[materials] names is empty")
     for m in cfg.materials.names:
         if m not in MATERIALS:
             raise err(f"[materials] unknown material {m!r}; available: {', '.join(MATERIALS)}")
+
+
+def _check_bodies(cfg: DatasetConfig, body, err) -> None:
     b = cfg.bodies
     nb = int(body.num_betas) if hasattr(body, "num_betas") else 300
-    if not (isinstance(b.betas, int) and not isinstance(b.betas, bool) and 0 <= b.betas <= nb):
+    if not (_is_count(b.betas, 0) and b.betas <= nb):
         raise err(f"[bodies] betas must be an integer in 0..{nb} (the body model's shape count), "
                   f"got {b.betas!r}")
     for name in ("shape_std", "shape_clip"):
         v = getattr(b, name)
         if not (_is_number(v) and v >= 0):
             raise err(f"[bodies] {name} must be a number >= 0, got {v!r}")
+
+
+def _check_motions(cfg: DatasetConfig, err) -> list[str]:
+    """``[motions]``, every user file opened; the files' stems."""
+    from sim.motions import PROCEDURAL_MOTIONS, load_motion
+
     mo = cfg.motions
     if not mo.procedural and not mo.files:
         raise err("[motions] names no procedural motion and no files")
@@ -398,6 +447,23 @@ def validate(cfg: DatasetConfig, err=None) -> None:
         if name not in PROCEDURAL_MOTIONS:
             raise err(f"[motions] unknown procedural motion {name!r}; available: "
                       f"{', '.join(PROCEDURAL_MOTIONS)}")
+    _check_motion_params(cfg, err)
+    stems = []
+    for f in motion_files(cfg):
+        try:
+            load_motion(f, fps=cfg.fps, duration=cfg.seconds)
+        except WrinklesInputError as e:
+            raise err(f"[motions] files: {e}") from None
+        stems.append(f.stem)
+    if mo.files and not stems:
+        raise err(f"[motions] files {list(mo.files)} hold no .npz or .bvh file")
+    return stems
+
+
+def _check_motion_params(cfg: DatasetConfig, err) -> None:
+    from sim.motions import procedural_motion
+
+    mo = cfg.motions
     if not isinstance(mo.params, dict):
         raise err("[motions.params] must be a table of motion names")
     for name, params in mo.params.items():
@@ -414,19 +480,13 @@ def validate(cfg: DatasetConfig, err=None) -> None:
                 procedural_motion(name, fps=cfg.fps, duration=min(cfg.seconds, 0.5), **end)
             except (WrinklesInputError, ValueError, TypeError) as e:
                 raise err(f"[motions.params.{name}] {e}") from None
-    stems = []
-    for f in motion_files(cfg):
-        try:
-            load_motion(f, fps=cfg.fps, duration=cfg.seconds)
-        except WrinklesInputError as e:
-            raise err(f"[motions] files: {e}") from None
-        stems.append(f.stem)
-    if mo.files and not stems:
-        raise err(f"[motions] files {list(mo.files)} hold no .npz or .bvh file")
+
+
+def _check_split(cfg: DatasetConfig, stems: list[str], err) -> None:
     s = cfg.split
     if not (_is_number(s.test_fraction) and 0 <= s.test_fraction < 1):
         raise err(f"[split] test_fraction must be in [0, 1), got {s.test_fraction!r}")
-    known = set(mo.procedural) | set(stems)
+    known = set(cfg.motions.procedural) | set(stems)
     for name in s.ood_motions:
         if name not in known:
             raise err(f"[split] ood_motions: {name!r} is not a configured motion")
@@ -434,17 +494,14 @@ def validate(cfg: DatasetConfig, err=None) -> None:
         raise err("[split] ood_motions holds every motion: nothing is left to train on")
     if not (isinstance(s.ood_shape_norm, (int, float)) and s.ood_shape_norm > 0):
         raise err(f"[split] ood_shape_norm must be > 0, got {s.ood_shape_norm!r}")
+
+
+def _check_derive(cfg: DatasetConfig, err) -> None:
     d = cfg.derive
     if not (_is_number(d.smoothing_length) and 0 < d.smoothing_length <= 1.0):
         raise err(f"[derive] smoothing_length must be in (0, 1] m, got {d.smoothing_length!r}")
     res = d.image_resolution
-    if not (isinstance(res, int) and not isinstance(res, bool) and (res == 0 or 16 <= res <= 4096)):
+    if not (_is_count(res, 0) and (res == 0 or 16 <= res <= 4096)):
         raise err(f"[derive] image_resolution must be 0 or an integer in 16..4096, got {res!r}")
     if not isinstance(d.coarse, bool):
         raise err(f"[derive] coarse must be true or false, got {d.coarse!r}")
-    try:
-        cfg.simulation_config()
-    except WrinklesInputError as e:
-        raise err(f"[simulation] {e}") from None
-    except (TypeError, ValueError) as e:
-        raise err(f"[simulation] {e}") from None

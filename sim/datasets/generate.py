@@ -77,7 +77,7 @@ class _Shard:
 
 def _refuse_other_simulator(old: dict | None, cfg_dict: dict, root: Path) -> None:
     """The error for a dataset whose config matches but whose simulator defaults do not (or that
-    predates their record): continuing it would mix two physics."""
+    has no record of them): continuing it would mix two physics."""
     if isinstance(old, dict) and {k: v for k, v in old.items() if k != "simulator"} == \
             {k: v for k, v in cfg_dict.items() if k != "simulator"}:
         raise WrinklesInputError("this dataset was made with other simulator defaults (automatic substeps, "
@@ -99,6 +99,19 @@ def _check_root(root: Path, cfg_dict: dict, resume: bool) -> None:
     elif root.exists() and any(p.name not in (S.PARTS_DIR, S.SEQUENCE_DIR) for p in root.iterdir()):
         raise WrinklesInputError("exists and is not an empty directory or a dataset of this config",
                                  path=root)
+
+
+@dataclass
+class _Run:
+    """What every group of one ``generate`` call shares."""
+
+    cfg: DatasetConfig
+    body: object
+    root: Path
+    part: _Shard
+    device: str
+    summary: GenerateSummary
+    log: Log
 
 
 def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shards: int = 1,
@@ -123,7 +136,8 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
         counts and timings; ``out/manifest.json`` is rebuilt from every part at the end.
     """
     from sim.bodies import load_body
-    from sim.device import resolve_device
+    from sim.device import resolve_device, warp
+    from sim.simulate import simulator_defaults
 
     if not (0 <= shard < shards):
         raise WrinklesInputError(f"--shard {shard}/{shards}: need 0 <= i < n")
@@ -131,58 +145,65 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
         raise WrinklesInputError(f"--batch must be >= 1, got {batch}")
     specs = sample_sequences(cfg)
     mine = select_indices(specs, shard, shards, splits)
-    log = log or (lambda s: None)
     root = Path(out)
-    from sim.device import warp
-    from sim.simulate import simulator_defaults
-
     sim_cfg = cfg.simulation_config()
     dev = resolve_device(device if device is not None else sim_cfg.device)
     cfg_dict = {**cfg.to_dict(), "simulator": simulator_defaults(cuda=warp().get_device(dev).is_cuda)}
+    part = _open_shard(root, cfg_dict, shard, shards, resume)
+    body = load_body(cfg.bodies.model)  # once: an SMPL file is not re-read for every group
+    _remove_stale_temporaries(root, part, [specs[k] for k in mine])
+    run = _Run(cfg, body, root, part, dev, GenerateSummary(), log or (lambda s: None))
+    t0 = time.perf_counter()
+    done = 0
+    for group in [mine[k:k + batch] for k in range(0, len(mine), batch)]:
+        todo = [sp for sp in (specs[k] for k in group) if not _recorded(run, sp)]
+        if todo:
+            # the whole group is simulated as in an uninterrupted run (same batch composition)
+            _make_group(run, sim_cfg, [specs[k] for k in group], {s.id for s in todo})
+        done += len(group)
+        if progress is not None:
+            progress(done, len(mine))
+    run.summary.seconds = time.perf_counter() - t0
+    S.combine_parts(root, config=cfg_dict)
+    _write_rejections(root)
+    return run.summary
+
+
+def _open_shard(root: Path, cfg_dict: dict, shard: int, shards: int, resume: bool) -> _Shard:
+    """The dataset's folders and ``config.json`` made where missing, and this shard's part."""
     _check_root(root, cfg_dict, resume)
     (root / S.SEQUENCE_DIR).mkdir(parents=True, exist_ok=True)
     (root / S.PARTS_DIR).mkdir(parents=True, exist_ok=True)
     if not (root / "config.json").exists():
         S.atomic_write_json(root / "config.json", cfg_dict)
-    part = _Shard(root, cfg_dict, shard, shards, resume)
-    body = load_body(cfg.bodies.model)  # once: an SMPL file is not re-read for every group
-    # temp files a killed run of this shard left (other shards' are theirs: they may be running)
+    return _Shard(root, cfg_dict, shard, shards, resume)
+
+
+def _remove_stale_temporaries(root: Path, part: _Shard, specs: list[SequenceSpec]) -> None:
+    """Temp files a killed run of this shard left (other shards' are theirs: they may be running)."""
     stale = [part.path.with_name(f".{part.path.name}.tmp")]
-    stale += [(p := S.sequence_path(root, specs[k].id)).with_name(f".{p.name}.tmp") for k in mine]
+    stale += [(p := S.sequence_path(root, sp.id)).with_name(f".{p.name}.tmp") for sp in specs]
     for t in stale:
         for f in t.parent.glob(t.name + "*"):
             f.unlink(missing_ok=True)
-    summary = GenerateSummary()
-    t0 = time.perf_counter()
-    groups = [mine[k:k + batch] for k in range(0, len(mine), batch)]
-    done = 0
-    for group in groups:
-        todo = []
-        for k in group:
-            sp = specs[k]
-            if sp.id in part.data["sequences"] or sp.id in part.data["rejected"]:
-                summary.skipped += 1
-                continue
-            path = S.sequence_path(root, sp.id)
-            if path.exists():  # written just before an interruption: its entry is inside
-                entry = json.loads(S.SequenceFile(path).metadata["entry"])
-                entry.update(sha256=S.file_sha256(path), bytes=path.stat().st_size)
-                part.data["sequences"][sp.id] = entry
-                part.save()
-                summary.recovered += 1
-                continue
-            todo.append(sp)
-        if todo:
-            # the whole group is simulated as in an uninterrupted run (same batch composition)
-            _make_group(cfg, body, [specs[k] for k in group], {s.id for s in todo}, root, part, sim_cfg,
-                        dev, summary, log)
-        done += len(group)
-        if progress is not None:
-            progress(done, len(mine))
-    summary.seconds = time.perf_counter() - t0
-    S.combine_parts(root, config=cfg_dict)
-    _write_rejections(root)
-    return summary
+
+
+def _recorded(run: _Run, sp: SequenceSpec) -> bool:
+    """Whether ``sp`` is done: in the shard's part (skipped), or a sequence file written just
+    before an interruption (its entry is inside; recorded now)."""
+    part = run.part
+    if sp.id in part.data["sequences"] or sp.id in part.data["rejected"]:
+        run.summary.skipped += 1
+        return True
+    path = S.sequence_path(run.root, sp.id)
+    if not path.exists():
+        return False
+    entry = json.loads(S.SequenceFile(path).metadata["entry"])
+    entry.update(sha256=S.file_sha256(path), bytes=path.stat().st_size)
+    part.data["sequences"][sp.id] = entry
+    part.save()
+    run.summary.recovered += 1
+    return True
 
 
 def _write_rejections(root: Path) -> None:
@@ -211,8 +232,7 @@ def garment_betas(cfg: DatasetConfig, body, betas: np.ndarray) -> np.ndarray:
     return np.asarray(betas, np.float32)
 
 
-def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set[str], root: Path,
-                part: _Shard, sim_cfg, device: str, summary: GenerateSummary, log: Log,
+def _make_group(run: _Run, sim_cfg, group: list[SequenceSpec], wanted: set[str],
                 retries: tuple[int, ...] | None = None, tried: tuple[int, ...] = (),
                 attempts: dict[str, list[dict]] | None = None) -> None:
     """Simulate, judge, derive and write one batch of sequences. A sequence whose simulation
@@ -226,16 +246,54 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
     ``retries``: the substeps still to try (None: the config's); ``tried``: those tried before;
     ``attempts``: per sequence id, the earlier rungs' substeps and reasons, kept with a rejection
     (``attempts``) and in an accepted sequence's provenance (``failed_attempts``), so what each rung
-    of the ladder did is on record (session 46)."""
+    of the ladder did is on record."""
     from dataclasses import replace
 
-    from sim.datasets.derive import Deriver, coarse_arrays
-    from sim.garments import make_garment
-    from sim.quality import SimulationError, edge_strain, garment_body_crossings, short_crossings
-    from sim.simulate import SimulationJob, simulate_batch
+    from sim.simulate import simulate_batch
 
-    sim_cfg = replace(sim_cfg, device=device)
+    sim_cfg = replace(sim_cfg, device=run.device)
     attempts = attempts or {}
+    jobs, meta = _group_jobs(run.cfg, run.body, group)
+    results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
+    largest = max(j.garment.num_vertices for j in jobs)
+    substeps = sim_cfg.substeps_for(largest)
+    if retries is None:
+        retries = sim_cfg.retry_substeps(largest)
+    by_seq, reasons_of = _judge(group, meta, results, substeps)
+    # every failing sequence of the group is retried, wanted or not (one that is done, or not in
+    # --splits): a retry batch is then the same on a resumed or split run, and so are its floats
+    retried = [sp for sp in group if reasons_of[sp.id]] if retries else []
+    if not any(sp.id in wanted for sp in retried):
+        retried = []
+    for sp in group:
+        if sp.id not in wanted or (reasons_of[sp.id] and retries):
+            continue  # a failing one is written by its retry, below
+        if reasons_of[sp.id]:
+            _reject(run, sp, by_seq[sp.id], reasons_of[sp.id],
+                    substeps=[*tried, substeps],
+                    attempts=[*attempts.get(sp.id, []), {"substeps": substeps, "reasons": reasons_of[sp.id]}])
+        else:
+            _accept(run, sp, by_seq[sp.id], attempts.get(sp.id))
+    if retried:  # after the batch's good results are stored: an interrupted retry loses only itself
+        for sp in retried:
+            if sp.id in wanted:
+                run.log(f"{sp.id}: {'; '.join(reasons_of[sp.id])}; retrying at {retries[0]} substeps")
+        _make_group(run, replace(sim_cfg, substeps=retries[0]), retried,
+                    {sp.id for sp in retried if sp.id in wanted}, retries=retries[1:],
+                    tried=(*tried, substeps),
+                    attempts={sp.id: [*attempts.get(sp.id, []),
+                                      {"substeps": substeps, "reasons": reasons_of[sp.id]}]
+                              for sp in retried})
+
+
+def _group_jobs(cfg: DatasetConfig, body, group: list[SequenceSpec]) -> tuple[list, list[tuple]]:
+    """The simulation jobs of a group (fine, and coarse where the config derives it, per
+    sequence) and, per job, ``(spec, garment, motion, betas, kind)``."""
+    from dataclasses import replace
+
+    from sim.garments import make_garment
+    from sim.simulate import SimulationJob
+
     kinds = {"fine": cfg.garments.fine_resolution}
     if cfg.derive.coarse:
         kinds["coarse"] = cfg.garments.coarse_resolution
@@ -262,11 +320,16 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
             jobs.append(SimulationJob(garment, body, motion, betas=betas, name=f"{sp.id} {kind}",
                                       garment_betas=None if cfg.garments.fit == "body" else gbetas))
             meta.append((sp, garment, motion, betas, kind))
-    results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
-    largest = max(j.garment.num_vertices for j in jobs)
-    substeps = sim_cfg.substeps_for(largest)
-    if retries is None:
-        retries = sim_cfg.retry_substeps(largest)
+    return jobs, meta
+
+
+def _judge(group: list[SequenceSpec], meta: list[tuple], results: list,
+           substeps: int) -> tuple[dict[str, dict], dict[str, list[str]]]:
+    """Per sequence id: its ``{"spec", "motion", "betas", "fine": (garment, result)[, "coarse":
+    ...]}``, and why it fails (empty: it passed); a result is a ``SimulationResult`` or the
+    ``SimulationError`` that stopped it."""
+    from sim.quality import SimulationError
+
     failed = {sp.id: r for (sp, *_), r in zip(meta, results, strict=True) if isinstance(r, SimulationError)}
     by_seq: dict[str, dict] = {}
     for k, (sp, garment, motion, betas, kind) in enumerate(meta):
@@ -280,94 +343,99 @@ def _make_group(cfg: DatasetConfig, body, group: list[SequenceSpec], wanted: set
             reasons_of[sp.id] = [f"fine: {r}" for r in item["fine"][1].failed_gates]
             if "coarse" in item:
                 reasons_of[sp.id] += [f"coarse: {r}" for r in item["coarse"][1].failed_gates]
-    # every failing sequence of the group is retried, wanted or not (one that is done, or not in
-    # --splits): a retry batch is then the same on a resumed or split run, and so are its floats
-    retried = [sp for sp in group if reasons_of[sp.id]] if retries else []
-    if not any(sp.id in wanted for sp in retried):
-        retried = []
-    for sp in group:
-        if sp.id not in wanted or (reasons_of[sp.id] and retries):
-            continue  # a failing one is written by its retry, below
-        item = by_seq[sp.id]
-        fine_g, fine_r = item["fine"]
-        reasons = reasons_of[sp.id]
-        if reasons:
-            # everything needed to simulate it again (``wrinkles simulate``, ``benchmarks.worst_edges
-            # --shape --motion-param``): its body, garment and motion parameters and its seed
-            part.data["rejected"][sp.id] = {"index": sp.index, "garment": sp.category,
-                                            "motion": sp.motion_label, "material": sp.material,
-                                            "reasons": reasons, "substeps": [*tried, substeps],
-                                            "attempts": [*attempts.get(sp.id, []),
-                                                         {"substeps": substeps, "reasons": reasons}],
-                                            "seed": sp.seed, "split": sp.split, "betas": list(sp.betas),
-                                            "fit": cfg.garments.fit, "garment_params": sp.garment_params,
-                                            "motion_source": sp.motion, "motion_params": sp.motion_params,
-                                            "vertices": int(fine_g.num_vertices)}
-            if not isinstance(fine_r, SimulationError):  # is the body to blame? (session 46)
-                part.data["rejected"][sp.id]["body_self_crossings"] = short_crossings(garment_body_crossings(
-                    body, item["betas"], fine_g, fine_r.sequence.body.vertices, device=device))
-            part.save()
-            summary.rejected += 1
-            log(f"{sp.id} rejected ({sp.category}, {sp.motion_label}): {'; '.join(reasons)}")
-            continue
-        seq = fine_r.sequence
-        arrays = Deriver(fine_g, cfg.derive, device=device)(seq.vertices)
-        if "coarse" in item:
-            coarse_g, coarse_r = item["coarse"]
-            arrays.update(coarse_arrays(coarse_g, coarse_r.sequence.vertices, device=device))
-        T = seq.vertices.shape[0]
-        poses = np.asarray(seq.motion.poses, np.float32)
-        trans = np.asarray(seq.motion.trans, np.float32)
-        # the simulated body may stand on the floor by a constant offset: fold it into trans so
-        # body.pose(betas, poses, trans) gives the simulated body back
-        posed = body.pose(item["betas"], poses[:1], trans[:1])
-        trans = trans + (seq.body.joints[0, 0] - posed.joints[0, 0]).astype(np.float32)
-        fine_strain = edge_strain(seq.vertices, fine_g.rest_vertices, fine_g.faces, device=device)
-        arrays.update({"body/poses": poses, "body/trans": trans,
-                       "body/joints": np.asarray(seq.body.joints, np.float32),
-                       "body/betas": np.asarray(item["betas"], np.float32),
-                       "quality/edge_strain_max": np.abs(fine_strain).max(axis=1).astype(np.float32),
-                       "quality/inside_fraction": np.asarray(fine_r.quality.inside_fraction, np.float32),
-                       "quality/self_intersections": np.asarray(fine_r.quality.self_intersections, np.int32)})
-        entry = {"file": f"{S.SEQUENCE_DIR}/{sp.id}{S.SUFFIX}", "frames": int(T), "split": sp.split,
-                 "index": sp.index, "seed": sp.seed, "garment": sp.category,
-                 "garment_params": sp.garment_params, "material": sp.material, "motion": sp.motion_label,
-                 "motion_params": sp.motion_params,
-                 "betas": list(sp.betas), "fit": cfg.garments.fit,
-                 "garment_betas": list(sp.betas) if cfg.garments.fit == "body" else [0.0] * len(sp.betas),
-                 "vertices": int(fine_g.num_vertices),
-                 "faces": int(fine_g.num_faces), "uvs": int(len(fine_g.uvs)),
-                 "coarse_vertices": int(item["coarse"][0].num_vertices) if "coarse" in item else None,
-                 "image_resolution": [res, res] if (res := cfg.derive.image_resolution) else None,
-                 "quality": _entry_quality(fine_r.quality, arrays["fine/wrinkle"],
-                                           arrays["fine/strain_norm"])}
-        prov = {**seq.provenance, "seed": sp.seed}
-        if attempts.get(sp.id):  # the rungs it failed before the one it passed at
-            prov["failed_attempts"] = attempts[sp.id]
-        meta_json = {"entry": json.dumps(entry, sort_keys=True),
-                     "sequence": json.dumps(sp.to_json(), sort_keys=True),
-                     "provenance": json.dumps(_stable(prov), sort_keys=True, default=str),
-                     "body": json.dumps({"model": cfg.bodies.model, "name": getattr(body, "name", "body")})}
-        path = S.sequence_path(root, sp.id)
-        sha = S.write_sequence(path, arrays, meta_json)
-        entry.update(sha256=sha, bytes=path.stat().st_size)
-        part.data["sequences"][sp.id] = entry
-        part.save()
-        summary.accepted += 1
-        summary.garment_frames += T
-        summary.bytes += entry["bytes"]
-        log(f"{sp.id} accepted ({sp.category}, {sp.material}, {sp.motion_label}, {sp.split}): {T} frames, "
+    return by_seq, reasons_of
+
+
+def _reject(run: _Run, sp: SequenceSpec, item: dict, reasons: list[str], *, substeps: list[int],
+            attempts: list[dict]) -> None:
+    """Record a sequence that failed at its last rung, with everything needed to simulate it
+    again (``wrinkles simulate``, ``benchmarks.worst_edges --shape --motion-param``): its body,
+    garment and motion parameters and its seed."""
+    from sim.quality import SimulationError, garment_body_crossings, short_crossings
+
+    cfg = run.cfg
+    fine_g, fine_r = item["fine"]
+    rejected = {"index": sp.index, "garment": sp.category,
+                "motion": sp.motion_label, "material": sp.material,
+                "reasons": reasons, "substeps": substeps, "attempts": attempts,
+                "seed": sp.seed, "split": sp.split, "betas": list(sp.betas),
+                "fit": cfg.garments.fit, "garment_params": sp.garment_params,
+                "motion_source": sp.motion, "motion_params": sp.motion_params,
+                "vertices": int(fine_g.num_vertices)}
+    run.part.data["rejected"][sp.id] = rejected
+    if not isinstance(fine_r, SimulationError):  # where the body passes through itself near the cloth
+        rejected["body_self_crossings"] = short_crossings(garment_body_crossings(
+            run.body, item["betas"], fine_g, fine_r.sequence.body.vertices, device=run.device))
+    run.part.save()
+    run.summary.rejected += 1
+    run.log(f"{sp.id} rejected ({sp.category}, {sp.motion_label}): {'; '.join(reasons)}")
+
+
+def _accept(run: _Run, sp: SequenceSpec, item: dict, failed_attempts: list[dict] | None) -> None:
+    """Derive a passing sequence's arrays, write its file and record its manifest entry."""
+    cfg = run.cfg
+    fine_g, fine_r = item["fine"]
+    seq = fine_r.sequence
+    arrays = _sequence_arrays(run, item)
+    T = seq.vertices.shape[0]
+    entry = {"file": f"{S.SEQUENCE_DIR}/{sp.id}{S.SUFFIX}", "frames": int(T), "split": sp.split,
+             "index": sp.index, "seed": sp.seed, "garment": sp.category,
+             "garment_params": sp.garment_params, "material": sp.material, "motion": sp.motion_label,
+             "motion_params": sp.motion_params,
+             "betas": list(sp.betas), "fit": cfg.garments.fit,
+             "garment_betas": list(sp.betas) if cfg.garments.fit == "body" else [0.0] * len(sp.betas),
+             "vertices": int(fine_g.num_vertices),
+             "faces": int(fine_g.num_faces), "uvs": int(len(fine_g.uvs)),
+             "coarse_vertices": int(item["coarse"][0].num_vertices) if "coarse" in item else None,
+             "image_resolution": [res, res] if (res := cfg.derive.image_resolution) else None,
+             "quality": _entry_quality(fine_r.quality, arrays["fine/wrinkle"],
+                                       arrays["fine/strain_norm"])}
+    prov = {**seq.provenance, "seed": sp.seed}
+    if failed_attempts:  # the rungs it failed before the one it passed at
+        prov["failed_attempts"] = failed_attempts
+    meta_json = {"entry": json.dumps(entry, sort_keys=True),
+                 "sequence": json.dumps(sp.to_json(), sort_keys=True),
+                 "provenance": json.dumps(_stable(prov), sort_keys=True, default=str),
+                 "body": json.dumps({"model": cfg.bodies.model, "name": getattr(run.body, "name", "body")})}
+    path = S.sequence_path(run.root, sp.id)
+    sha = S.write_sequence(path, arrays, meta_json)
+    entry.update(sha256=sha, bytes=path.stat().st_size)
+    run.part.data["sequences"][sp.id] = entry
+    run.part.save()
+    run.summary.accepted += 1
+    run.summary.garment_frames += T
+    run.summary.bytes += entry["bytes"]
+    run.log(f"{sp.id} accepted ({sp.category}, {sp.material}, {sp.motion_label}, {sp.split}): {T} frames, "
             f"{entry['bytes'] / 2**20:.1f} MiB")
-    if retried:  # after the batch's good results are stored: an interrupted retry loses only itself
-        for sp in retried:
-            if sp.id in wanted:
-                log(f"{sp.id}: {'; '.join(reasons_of[sp.id])}; retrying at {retries[0]} substeps")
-        _make_group(cfg, body, retried, {sp.id for sp in retried if sp.id in wanted}, root, part,
-                    replace(sim_cfg, substeps=retries[0]), device, summary, log, retries=retries[1:],
-                    tried=(*tried, substeps),
-                    attempts={sp.id: [*attempts.get(sp.id, []),
-                                      {"substeps": substeps, "reasons": reasons_of[sp.id]}]
-                              for sp in retried})
+
+
+def _sequence_arrays(run: _Run, item: dict) -> dict[str, np.ndarray]:
+    """The arrays of a sequence file (``sim.datasets.schema``): derived fine (and coarse)
+    fields, the body's motion and the per-frame quality."""
+    from sim.datasets.derive import Deriver, coarse_arrays
+    from sim.quality import edge_strain
+
+    body, device = run.body, run.device
+    fine_g, fine_r = item["fine"]
+    seq = fine_r.sequence
+    arrays = Deriver(fine_g, run.cfg.derive, device=device)(seq.vertices)
+    if "coarse" in item:
+        coarse_g, coarse_r = item["coarse"]
+        arrays.update(coarse_arrays(coarse_g, coarse_r.sequence.vertices, device=device))
+    poses = np.asarray(seq.motion.poses, np.float32)
+    trans = np.asarray(seq.motion.trans, np.float32)
+    # the simulated body may stand on the floor by a constant offset: fold it into trans so
+    # body.pose(betas, poses, trans) gives the simulated body back
+    posed = body.pose(item["betas"], poses[:1], trans[:1])
+    trans = trans + (seq.body.joints[0, 0] - posed.joints[0, 0]).astype(np.float32)
+    fine_strain = edge_strain(seq.vertices, fine_g.rest_vertices, fine_g.faces, device=device)
+    arrays.update({"body/poses": poses, "body/trans": trans,
+                   "body/joints": np.asarray(seq.body.joints, np.float32),
+                   "body/betas": np.asarray(item["betas"], np.float32),
+                   "quality/edge_strain_max": np.abs(fine_strain).max(axis=1).astype(np.float32),
+                   "quality/inside_fraction": np.asarray(fine_r.quality.inside_fraction, np.float32),
+                   "quality/self_intersections": np.asarray(fine_r.quality.self_intersections, np.int32)})
+    return arrays
 
 
 def _stable(prov: dict) -> dict:
