@@ -1,4 +1,4 @@
-"""Dressing and the sequence driver (sim/dressing.py, sim/simulate.py) and ``wrinkles simulate``,
+"""Dressing and the sequence driver (sim/dressing.py, sim/simulate/) and ``wrinkles simulate``,
 on tiny CPU configurations: coarse garments (5 cm edges, a few hundred vertices), fractions of a
 second of motion, few substeps."""
 
@@ -79,41 +79,50 @@ def test_config_round_trips_and_refuses_unknown_keys():
     assert SimulationConfig(fps=30, settle_seconds=0.5, blend_seconds=1.0).solver_steps(60) == 15 + 30 + 59
 
 
-def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
+SIZES = (1000, 10_000, 10_001, 19_542)  # garment vertices either side of FINE_GARMENT_VERTICES
+
+
+def test_config_defaults_scale_substeps_and_sweeps_with_the_garment_size():
+    """12 substeps x 5 sweeps up to 10k garment vertices, 14 x 8 above, with a coarse correction
+    before sweep 2 either way; a number in the config wins; automatic survives the round trip."""
     vbd = SimulationConfig().vbd_config(4939)
     assert (vbd.substeps, vbd.iterations, vbd.coarse_sweeps, vbd.coarse_spacing) == (12, 5, (2,), 0)
-    # automatic substeps (session 38): 12 up to 10k garment vertices, 14 above; a number wins
-    sizes = (1000, 10_000, 10_001, 19_542)
-    assert [SimulationConfig().vbd_config(n).substeps for n in sizes] == [12, 12, 14, 14]
+    assert [SimulationConfig().vbd_config(n).substeps for n in SIZES] == [12, 12, 14, 14]
     assert SimulationConfig(substeps=9).vbd_config(19_542).substeps == 9
     assert SimulationConfig().substeps_for(30_000) == 14 and SimulationConfig.from_dict(
         SimulationConfig().to_dict()).substeps == 0
-    # automatic sweeps (session 44): 5 up to 10k garment vertices, 8 above; a number wins; the
-    # automatic correction before sweep 2 either way, the retries keep the sweeps
-    assert [SimulationConfig().vbd_config(n).iterations for n in sizes] == [5, 5, 8, 8]
+    assert [SimulationConfig().vbd_config(n).iterations for n in SIZES] == [5, 5, 8, 8]
     assert SimulationConfig().vbd_config(19_542).coarse_sweeps == (2,)
     assert SimulationConfig(iterations=6).vbd_config(19_542).iterations == 6
     assert SimulationConfig(iterations=6).iterations_for(1000) == 6
     assert SimulationConfig.from_dict(SimulationConfig().to_dict()).iterations == 0
+    # a retry keeps the automatic sweeps
     import dataclasses
     retry = dataclasses.replace(SimulationConfig(), substeps=SimulationConfig().retry_substeps(19_542)[0])
     assert (retry.vbd_config(19_542).substeps, retry.vbd_config(19_542).iterations) == (23, 8)
     assert simulator_defaults()["iterations"] == {"default": 5, "fine": 8}
-    # self-contact pairs near at rest leave the coarse correction alone on fine garments only
-    # (session 50); a solver override wins; recorded with a dataset
-    exclusion = [SimulationConfig().vbd_config(n).self_contact_coarse_exclusion for n in sizes]
+    with pytest.raises(WrinklesInputError, match="iterations must be an integer >= 0"):
+        SimulationConfig(iterations=-1)
+
+
+def test_config_coarse_exclusion_on_fine_garments_and_no_coarse_guard():
+    """Self-contact pairs near at rest leave the coarse correction alone on fine garments only; the
+    job runs without the coarse overshoot guard a bare VBDConfig has; a solver override wins; a
+    dataset records both."""
+    exclusion = [SimulationConfig().vbd_config(n).self_contact_coarse_exclusion for n in SIZES]
     assert exclusion == [0.0, 0.0, 0.006, 0.006]
     assert SimulationConfig(solver={"self_contact_coarse_exclusion": 0.0}).vbd_config(
         19_542).self_contact_coarse_exclusion == 0.0
     assert simulator_defaults()["coarse_exclusion"] == {"default": 0.0, "fine": 0.006}
-    # session 51: a bare VBDConfig has the coarse overshoot guard, the job keeps the old coarse
-    # system unless its solver table asks; a dataset records which
     assert VBDConfig().coarse_guard and simulator_defaults()["coarse_guard"] is False
     assert not SimulationConfig().vbd_config(3_000).coarse_guard
     assert SimulationConfig(solver={"coarse_guard": True}).vbd_config(19_542).coarse_guard
-    # automatic retries (session 45): two rungs up to 10k garment vertices, a third (3x) above;
-    # a list wins, [] means none; automatic survives the round trip
-    assert [SimulationConfig().retry_substeps(n) for n in sizes] == [(20, 24), (20, 24), (23, 28, 42),
+
+
+def test_config_retry_ladder():
+    """Automatic retries: two rungs up to 10k garment vertices, a third (3x) above; a list wins,
+    [] means none; automatic survives the round trip; factors must increase above 1."""
+    assert [SimulationConfig().retry_substeps(n) for n in SIZES] == [(20, 24), (20, 24), (23, 28, 42),
                                                                      (23, 28, 42)]
     assert SimulationConfig(retry_factors=[2.0]).retry_substeps(19_542) == (28,)
     assert SimulationConfig(retry_factors=[]).retry_substeps(19_542) == ()
@@ -124,45 +133,50 @@ def test_config_defaults_to_the_issue_setting_with_a_coarse_correction():
                                                      "fine": [5.0 / 3.0, 2.0, 3.0]}
     with pytest.raises(WrinklesInputError, match="retry_factors"):
         SimulationConfig(retry_factors=[2.0, 1.5])
-    # every template's default parameters (session 44: the tank top's armholes rounded; session 49:
-    # lowered to 5 cm below the armpit, the shirts keep 3 cm)
+
+
+def test_simulator_defaults_record_the_templates_and_the_device_kind():
+    """A dataset records every template's default parameters, and the colouring and early coarse
+    system only on CUDA (the CPU uses neither); the rest of the record is the same on both."""
     templates = simulator_defaults()["templates"]
     assert templates["tank_top"]["armhole_fillet"] == 0.08 and templates["t_shirt"]["armhole_fillet"] == 0.0
     assert templates["tank_top"]["armhole_depth"] == 0.05 and templates["t_shirt"]["armhole_depth"] == 0.03
     assert templates["t_shirt"]["sleeve_length"] == 0.2 and len(templates) == 8
-    with pytest.raises(WrinklesInputError, match="iterations must be an integer >= 0"):
-        SimulationConfig(iterations=-1)
-    # the CUDA solve kernel with fast math by default, off on request (the solver-level default)
-    assert vbd.fast_math and not SimulationConfig(solver={"fast_math": False}).vbd_config().fast_math
-    assert not VBDConfig().fast_math
-    # 3 colours on CUDA (session 41), a proper colouring on the CPU; the solver dict wins
-    assert vbd.max_colors == 0 and SimulationConfig().vbd_config(4939, cuda=True).max_colors == 3
-    assert SimulationConfig(solver={"max_colors": 0}).vbd_config(4939, cuda=True).max_colors == 0
-    assert SimulationConfig(solver={"max_colors": 5}).vbd_config(4939).max_colors == 5
-    # a dataset records the colouring of the device kind it runs on: on CUDA only (the CPU's
-    # record is as before session 41, so CPU datasets begun then still continue)
-    assert simulator_defaults(cuda=True)["max_colors"] == 3 and "max_colors" not in simulator_defaults()
     on_cuda = simulator_defaults(cuda=True)
+    assert on_cuda["max_colors"] == 3 and "max_colors" not in simulator_defaults()
     assert on_cuda["coarse_early"] is True and "coarse_early" not in simulator_defaults()
     cuda_only = ("max_colors", "coarse_early")
     assert {k: v for k, v in on_cuda.items() if k not in cuda_only} == simulator_defaults()
-    # the coarse system beside the detection on CUDA (session 42), in order on the CPU
+
+
+def test_config_cuda_settings_and_their_overrides():
+    """The job's solver settings against a bare VBDConfig: fast math and the coarse prefactor on;
+    on CUDA 3 colours and the early coarse system, a proper colouring and in order on the CPU;
+    the solver dict wins over each."""
+    vbd = SimulationConfig().vbd_config(4939)
+    assert vbd.fast_math and not SimulationConfig(solver={"fast_math": False}).vbd_config().fast_math
+    assert not VBDConfig().fast_math
+    assert vbd.max_colors == 0 and SimulationConfig().vbd_config(4939, cuda=True).max_colors == 3
+    assert SimulationConfig(solver={"max_colors": 0}).vbd_config(4939, cuda=True).max_colors == 0
+    assert SimulationConfig(solver={"max_colors": 5}).vbd_config(4939).max_colors == 5
     assert SimulationConfig().vbd_config(4939, cuda=True).coarse_early and not vbd.coarse_early
     assert not SimulationConfig(solver={"coarse_early": False}).vbd_config(4939, cuda=True).coarse_early
-    # the coarse factor beside the first sweeps likewise (session 34)
     assert vbd.coarse_prefactor and not VBDConfig().coarse_prefactor
     assert not SimulationConfig(solver={"coarse_prefactor": False}).vbd_config().coarse_prefactor
+
+
+def test_config_coarse_sweeps():
+    """Explicit coarse sweeps round-trip and reach the solver; the solver dict overrides them;
+    automatic: before sweep 2 where there is one; a sweep out of range says what to change."""
     cfg = SimulationConfig(iterations=4, coarse_sweeps=[1, 3], coarse_spacing=3)
     d = json.loads(json.dumps(cfg.to_dict()))
     assert d["coarse_sweeps"] == [1, 3] and SimulationConfig.from_dict(d) == cfg
     assert cfg.vbd_config().coarse_sweeps == (1, 3)
-    # the solver dict still overrides: no corrections
     assert SimulationConfig(solver={"coarse_sweeps": ()}).vbd_config().coarse_sweeps == ()
-    # automatic: two sweeps leave no sweep 2 to correct before, so none
+    # two sweeps leave no sweep 2 to correct before, so none
     assert SimulationConfig(iterations=2).vbd_config().coarse_sweeps == ()
     assert SimulationConfig(iterations=3).vbd_config().coarse_sweeps == (2,)
     assert SimulationConfig.from_dict(SimulationConfig().to_dict()).coarse_sweeps is None
-    # asked for explicitly: the error says what to change
     with pytest.raises(WrinklesInputError, match="coarse_sweeps = \\[\\]"):
         SimulationConfig(iterations=2, coarse_sweeps=[2])
     with pytest.raises(WrinklesInputError, match="coarse_sweeps must be a list"):
@@ -270,6 +284,7 @@ def test_prelude_dropped_by_default_same_seed_same_result(prelude_run, plain_run
     assert again.sequence.provenance["config"] == seq.provenance["config"]
 
 
+@pytest.mark.slow
 def test_batched_sequences_match_separate_runs(body, skirt, plain_run):
     from sim.garments import make_garment
 
@@ -332,6 +347,7 @@ def test_nan_stops_the_run_naming_the_frame(body, skirt, monkeypatch):
     assert "NaN" in e.value.cause and "frame 2" in str(e.value)
 
 
+@pytest.mark.slow
 def test_a_failed_sequence_is_frozen_and_the_batch_runs_on(body, skirt, plain_run, monkeypatch):
     """failures="return": the sequence that blows up gets its SimulationError in its slot; the
     other sequence of the batch is bit-identical to its run alone."""
@@ -387,6 +403,7 @@ def test_simulate_help_explains_itself(capsys):
         assert flag in out
 
 
+@pytest.mark.slow
 @needs_usd
 def test_cli_writes_body_and_garment_with_uvs_and_quality(tmp_path):
     from usd_io import read_stage, validate_stage
@@ -427,13 +444,14 @@ def test_cli_failed_gates_exit_1_nothing_written(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 @needs_usd
 def test_cli_failed_gates_name_where_the_body_passes_through_itself(tmp_path, capsys):
-    """A run whose gates fail is checked for the body passing through itself near the garment
-    (session 46): the run folds the default body's knee pits through themselves, inside the
-    trousers' legs, so the trousers' one-line error names the knees, and with --allow-failed-gates
-    the report keeps the frames by joint; the t-shirt, far from the knees, gets no such note, nor
-    does a walk (no crossings at all)."""
+    """A run whose gates fail is checked for the body passing through itself near the garment:
+    the run folds the default body's knee pits through themselves, inside the trousers' legs, so
+    the trousers' one-line error names the knees, and with --allow-failed-gates the report keeps
+    the frames by joint; the t-shirt, far from the knees, gets no such note, nor does a walk (no
+    crossings at all)."""
     fast = [a for a in CLI_FAST if a not in ("--duration", "0.2")]
 
     def fails(garment: str, *extra: str) -> str:
@@ -471,6 +489,7 @@ def _simulate_calls(monkeypatch, passes_from: int) -> list[int]:
     return calls
 
 
+@pytest.mark.slow
 @needs_usd
 def test_cli_retries_a_failing_sequence_at_more_substeps(tmp_path, capsys, monkeypatch):
     """A sequence that fails its gates is simulated again at 5/3 and then 2 times the substeps
@@ -492,6 +511,7 @@ def test_cli_retries_a_failing_sequence_at_more_substeps(tmp_path, capsys, monke
     assert "more --substeps than 8" in err and not out2.exists()
 
 
+@pytest.mark.slow
 @needs_usd
 def test_cli_writes_the_last_finished_run_when_the_retries_stop(tmp_path, monkeypatch):
     """With --allow-failed-gates, a run that fails its gates is written when both retries stop
@@ -525,6 +545,7 @@ def test_cli_writes_the_last_finished_run_when_the_retries_stop(tmp_path, monkey
     assert rc == 0 and calls == [4] and side["config"]["retry_factors"] == [] and side["attempts"] == []
 
 
+@pytest.mark.slow
 @needs_usd
 def test_cli_explosion_is_one_line_nothing_written(tmp_path, capsys, monkeypatch):
     import sim.cloth
@@ -594,7 +615,7 @@ def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
     elif case == "pin_the_garment_lacks":  # a top has no waistband: said, not ignored
         args += ["--garment", "tshirt", "--pin", "waistband"]
         needles = ("--pin waistband", "t_shirt", "shoulders")
-    elif case == "huge_beta":  # was a NaN traceback from the template fitting
+    elif case == "huge_beta":  # outside the accepted range of a beta
         args += ["--shape", "50,0"]
         needles = ("--shape", "beta 0 = 50", "[-5, 5]")
     elif case == "into_a_new_folder":  # the folder --out names is not left behind either

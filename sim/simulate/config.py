@@ -1,0 +1,386 @@
+"""The job's settings: ``SimulationConfig``, the solver defaults it resolves for a garment's size
+(``vbd_config``), the retry ladder, and the record of the defaults a config does not spell out
+(``simulator_defaults``).
+
+Figures are from docs/BENCHMARKS.md; "the population" there is 144 random walks and runs (48 of
+each of three motion families) of the 5k t-shirt on one H100, judged by every quality gate.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sim.errors import WrinklesInputError
+from sim.quality import QualityGates
+
+DEFAULT_PINNED: tuple[str, ...] = ("waistband",)
+"""Attachment sets pinned to the body by default: an elastic waistband grips the waist. Tops
+hang on the shoulders by contact and friction: pinning their shoulder line to the skin drags
+it with the deltoid, whose skin stretches and folds as the arm moves (edge strain up to 0.9 on
+the walk's T-pose-to-arms-down ramp against 0.6 free). Hems and cuffs stay free."""
+
+# --------------------------------------------------------------------- the job's solver defaults
+
+FINE_GARMENT_VERTICES = 10_000
+"""Garments with more vertices than this take the fine defaults (``FINE_SUBSTEPS``,
+``FINE_ITERATIONS``, ``FINE_COARSE_EXCLUSION``, ``FINE_RETRY_FACTORS``)."""
+
+DEFAULT_SUBSTEPS, FINE_SUBSTEPS = 12, 14
+"""Default substeps per frame (``SimulationConfig.substeps`` 0) of a garment up to
+``FINE_GARMENT_VERTICES`` vertices, and of a finer one. H100, populations of random walks and
+runs: the 5k t-shirt (with the templates' hems) passes 134 of 144 at 12; the 19k t-shirt 7 of 16
+at 14 and 2 of 16 at 12."""
+
+DEFAULT_ITERATIONS, FINE_ITERATIONS = 5, 8
+"""Default sweeps per substep (``SimulationConfig.iterations`` 0) of a garment up to
+``FINE_GARMENT_VERTICES`` vertices, and of a finer one. A finer mesh at the same substeps needs
+more sweeps: its particles are lighter against the same membrane stiffness, so a sweep carries
+less of a substep's correction. H100, every template at ~20k vertices on the default body: the
+walks pass 4 of 8 at 14x5, 6 of 8 at 14x8 (18 % more time per frame: 15.2-20.6 ms against
+12.7-17.2) and 6 of 8 at 23x5 (60 % more); the runs 0 of 8 at both 14x5 and 14x8 (max strain
+lower at 14x8 for 6 of 8: tank top 0.60 against 0.84, dress 0.60 against 0.76); the 19k
+t-shirt's population of random walks and runs 8 of 16 against 7; a fine dataset of 16 sampled
+walks and runs accepts 5 without retries against 2."""
+
+CUDA_COLORS = 3
+"""Colours of the vertex colouring (``VBDConfig.max_colors``) of a run on CUDA; the CPU keeps a
+proper colouring (0). H100, the 5k t-shirt with the cluster broadphase: 4.24 / 4.30 ms per walk
+/ run frame against 4.46 / 4.52 with a proper colouring (one launch fewer per sweep; ~2 % of the
+edges same-coloured, coupled by a Jacobi step); 135 of 144 of the population pass against 134;
+batches of 1-256 t-shirts 2-6 % more garment-frames/s. On the CPU it buys nothing (1k t-shirt
+125.3 / 123.3 against 118.1 / 126.8 ms per walk / run frame, strain 0.16 / 0.18 against
+0.14 / 0.14)."""
+
+CUDA_COARSE_EARLY = True
+"""Whether a run on CUDA prepares the coarse system beside the self-contact detection
+(``VBDConfig.coarse_early``: its diagonal's self-contact stiffness at the particles with pairs at
+the previous substep's end). H100, the 5k t-shirt: 3.76 / 3.82 ms per walk / run frame against
+3.95 / 4.00 (the coarse factor is on the critical path: doubling it adds 0.75 ms per frame); 139
+of 144 of the population pass against 135. The CPU runs in order on one stream, where there is
+nothing to overlap, so it prepares the coarse system after the detection, from the pairs found
+now."""
+
+FINE_COARSE_EXCLUSION = 0.006
+"""``VBDConfig.self_contact_coarse_exclusion`` [m] of the job default for fine garments (more
+than ``FINE_GARMENT_VERTICES``; 0 for the others): self-contact pairs closer than 6 mm at rest
+leave the coarse correction alone. H100, the fine shorts: without it the crotch point sinks
+98 mm by the blend's end and the whole garment 12 mm in the settle; with it, 22 mm and 3 mm (as
+without self-contact), and the walk's largest strain is 0.391 against 0.546 (the fine trousers':
+0.235 against 0.297). Coarse garments keep 0: there the exclusion frees only the pants' inner
+walls, and the coarse trousers' walk crosses itself with it."""
+
+JOB_COARSE_GUARD = False
+"""``VBDConfig.coarse_guard`` of the job (the CLI, datasets): off, though a bare ``VBDConfig``
+has the coarse system's overshoot guard on. On the GPU the guard is even with the unguarded
+coarse system (fine gates: walks 7 of 8 against 6, runs 2 and 2; the fine dataset 13 of 16
+against 14, 10 at the first rung against 7; the 5k t-shirt 3.76 / 3.84 ms); on the CPU it raises
+every fine walk's strain (t-shirt 0.262 against 0.203, dress 0.318 against 0.241, the long sleeve
+on two bodies 0.427 / 0.557 with crossings against 0.199 / 0.205). The job's other defaults are
+measured without it."""
+
+
+def default_substeps(vertices: int) -> int:
+    """Substeps per frame of the job default for a garment of ``vertices`` vertices."""
+    return FINE_SUBSTEPS if vertices > FINE_GARMENT_VERTICES else DEFAULT_SUBSTEPS
+
+
+def default_iterations(vertices: int) -> int:
+    """Sweeps per substep of the job default for a garment of ``vertices`` vertices."""
+    return FINE_ITERATIONS if vertices > FINE_GARMENT_VERTICES else DEFAULT_ITERATIONS
+
+
+# ---------------------------------------------------------------------------------- retries
+
+RETRY_FACTORS = (5.0 / 3.0, 2.0)
+"""Substeps of the retries of a sequence that fails its quality gates or stops (NaN, explosion), as
+multiples of its run's substeps (``SimulationConfig.retry_factors``): 12 -> 20 -> 24 (a fine
+garment: 14 -> 23 -> 28 and a third rung, ``FINE_RETRY_FACTORS``). A step too long for a fast
+motion, not the physics, fails most fast sequences that fail: at the fine size more sweeps or
+coarse corrections per substep do not pass the runs, more substeps do. H100, the templates'
+runs: at the coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (not the same
+5), so 6 of 8 pass within the ladder; at the fine size (~20k) none at 14, 1 at 23 and 2 at 28.
+Walks pass at the default (8 of 8, coarse). The trousers' and the straight skirt's runs pass at
+no count: the skinned body's own skin within 5 cm of the trousers' worst edge is stretched by
+48 % (90th percentile) and up to 78 % (linear blend skinning at the crotch), and a straight
+skirt's hem cannot span a running stride."""
+
+FINE_RETRY_FACTORS = (5.0 / 3.0, 2.0, 3.0)
+"""The retries of a garment over ``FINE_GARMENT_VERTICES`` vertices (``SimulationConfig.retry_factors``
+None, automatic): ``RETRY_FACTORS`` and a third rung at 3x, 14 -> 23 -> 28 -> 42. H100, a fine
+dataset of 8 sampled walks and runs (every template): 6 accepted with the rung against 4
+without, in 160 s against 113 s (27 s per accepted sequence against 28); the dress's and the
+straight skirt's runs pass at 42, the trousers' runs fail at every count. On the default body 42
+substeps pass the fine tank-top and long-sleeve runs. At the coarse size the rung adds nothing
+(a dataset of 32 accepts 28 either way, in 16 % more time; the trousers' runs and a straight
+skirt's fail at 36 too), so coarse garments keep ``RETRY_FACTORS``."""
+
+
+def default_retry_factors(vertices: int) -> tuple[float, ...]:
+    """Retry factors of the job default for a garment of ``vertices`` vertices."""
+    return FINE_RETRY_FACTORS if vertices > FINE_GARMENT_VERTICES else RETRY_FACTORS
+
+
+def retry_substeps(base: int, factors: tuple[float, ...]) -> tuple[int, ...]:
+    """Substeps of the retries of a run at ``base`` substeps: each factor times ``base``, rounded,
+    counts not above the one before dropped."""
+    out: list[int] = []
+    for f in factors:
+        n = int(round(f * base))
+        if n > (out[-1] if out else base):
+            out.append(n)
+    return tuple(out)
+
+
+def simulator_defaults(cuda: bool = False) -> dict:
+    """The defaults that shape a simulation without being written in its config.
+
+    A dataset records them beside its config (``sim.datasets.generate``) and is not continued
+    under other physics: a dataset is resumed only where the record it began with is equal to
+    this one. Recorded: the automatic substeps and sweeps, the fine garments' coarse exclusion,
+    the job's coarse guard, the retry ladders (a dataset's own ``[simulation] retry_factors`` is
+    in its config), the templates' hems and every template's default parameters, and the
+    procedural gaits' rule (``sim.motions.gait.gait_record``). On CUDA (``cuda``) also the
+    colouring (``CUDA_COLORS``) and the early coarse system (``CUDA_COARSE_EARLY``); the CPU uses
+    neither and records neither, so a dataset begun on one kind of device is not continued on
+    the other.
+    """
+    from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
+    from sim.garments.templates import TEMPLATES, make_params
+    from sim.motions.gait import gait_record
+
+    out = {"substeps": {"default": DEFAULT_SUBSTEPS, "fine": FINE_SUBSTEPS,
+                        "fine_over_vertices": FINE_GARMENT_VERTICES},
+           "iterations": {"default": DEFAULT_ITERATIONS, "fine": FINE_ITERATIONS},
+           "coarse_exclusion": {"default": 0.0, "fine": FINE_COARSE_EXCLUSION},
+           "coarse_guard": JOB_COARSE_GUARD,
+           "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
+           "retry_factors": {"default": list(RETRY_FACTORS), "fine": list(FINE_RETRY_FACTORS)},
+           "templates": {name: dataclasses.asdict(make_params(name)) for name in TEMPLATES},
+           "gait": gait_record()}
+    if cuda:
+        out["max_colors"] = CUDA_COLORS
+        out["coarse_early"] = CUDA_COARSE_EARLY
+    return out
+
+
+# ---------------------------------------------------------------------------------- the config
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """Settings of a simulation run (saved with every output; ``from_dict`` refuses unknown keys).
+
+    The solver runs 12 substeps x 5 sweeps with one coarse-level correction before sweep 2 (14
+    substeps x 8 sweeps for garments over 10k vertices: ``default_substeps``,
+    ``default_iterations``), with the job's settings of ``vbd_config``. The coarse correction:
+    H100, the 5k t-shirt at 14 x 5 with it passes 43 of 48 random walks and runs against 38 at
+    16 x 10 without, at 0.30x Newton's time per frame (max strain 0.20 / 0.27 on the walk / run).
+
+    Attributes:
+        fps: output frame rate [1/s]; the solver takes one step of ``1/fps`` per frame and the
+            motion is resampled to it.
+        substeps: implicit-Euler substeps per frame; 0, the default: ``default_substeps`` of
+            the run's largest garment (12, or 14 over 10k vertices).
+        iterations: VBD Gauss-Seidel sweeps per substep; 0, the default:
+            ``default_iterations`` of the run's largest garment (5, or 8 over 10k vertices).
+        coarse_sweeps: sweeps (0 .. iterations - 1) before which a coarse-level correction runs
+            (``VBDConfig.coarse_sweeps``; empty: none; None, the default: before sweep 2 where
+            there are 3 or more sweeps, else none).
+        coarse_spacing: the coarse level's aggregate spacing [edges] (``VBDConfig``; 0: 4, with
+            a third level for a garment whose coarse level has more than 256 nodes,
+            ``VBDConfig.coarse_levels``).
+        settle_seconds: time [s] the garment settles on the static rest body before the body
+            moves.
+        blend_seconds: time [s] of the eased transition from rest into the motion's first pose.
+        settle_relax: zero the garment's velocities after every settle frame (kinetic damping:
+            the settle converges to static equilibrium instead of swinging).
+        keep_prelude: keep the settle and blend frames in the output (default: the sequence
+            starts at the motion's first frame).
+        pinned: attachment sets pinned to the body (names a garment does not define are
+            skipped; an imported garment has none).
+        ground: stand the body on the floor (y = 0) at the motion's first frame.
+        self_contact: cloth self-contact on/off in the solver (default on: without it every
+            fine garment folds through itself and fails the self-intersection gate); None
+            keeps the solver's own default (off, for solver-level use).
+        solver: further ``VBDConfig`` fields by name (``contact_stiffness`` [N/m] ...).
+        gates: quality thresholds a sequence must meet.
+        max_speed: explosion test: a garment vertex faster than this over one frame [m/s].
+        max_stretch: explosion test: an edge longer than this many times its rest length [-].
+        max_distance: explosion test: a garment vertex farther than this from the body's root
+            joint [m].
+        retry_factors: a sequence that fails its gates or stops is simulated again at these
+            multiples of its substeps (``retry_substeps``), in turn, until it passes (None:
+            automatic, ``RETRY_FACTORS`` up to ``FINE_GARMENT_VERTICES`` garment vertices,
+            ``FINE_RETRY_FACTORS`` above; empty: no retries). ``wrinkles simulate`` and the
+            dataset generator retry; ``simulate`` and ``simulate_batch`` run once.
+        device: Warp device ("auto": cuda when present, else cpu).
+    """
+
+    fps: float = 30.0
+    substeps: int = 0
+    iterations: int = 0
+    coarse_sweeps: tuple[int, ...] | None = None
+    coarse_spacing: int = 0
+    settle_seconds: float = 1.0
+    blend_seconds: float = 1.0
+    settle_relax: bool = True
+    keep_prelude: bool = False
+    pinned: tuple[str, ...] = DEFAULT_PINNED
+    ground: bool = True
+    self_contact: bool | None = True
+    solver: dict = field(default_factory=dict)
+    gates: QualityGates = field(default_factory=QualityGates)
+    max_speed: float = 50.0
+    max_stretch: float = 3.0
+    max_distance: float = 3.0
+    retry_factors: tuple[float, ...] | None = None
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pinned", tuple(str(p) for p in self.pinned))
+        f = self.retry_factors
+        if f is not None and not (isinstance(f, (list, tuple)) and all(
+                isinstance(k, (int, float)) and not isinstance(k, bool) and np.isfinite(k) for k in f)
+                and all(b > a for a, b in zip((1.0, *f), f, strict=False))):
+            raise WrinklesInputError("simulation config: retry_factors must be a list of increasing numbers "
+                                     f"above 1 (empty: no retries), got {f!r}")
+        if f is not None:
+            object.__setattr__(self, "retry_factors", tuple(float(k) for k in f))
+        if self.coarse_sweeps is not None:
+            if not isinstance(self.coarse_sweeps, (list, tuple)) or not all(
+                    isinstance(k, int) and not isinstance(k, bool) for k in self.coarse_sweeps):
+                raise WrinklesInputError("simulation config: coarse_sweeps must be a list of sweep indices "
+                                         f"or null (automatic), got {self.coarse_sweeps!r}")
+            object.__setattr__(self, "coarse_sweeps", tuple(self.coarse_sweeps))
+        object.__setattr__(self, "solver", dict(self.solver))
+        if isinstance(self.gates, dict):
+            object.__setattr__(self, "gates", _from_fields(QualityGates, self.gates, "gates"))
+        self._check_numbers()
+        self.vbd_config()  # validates solver / self_contact
+
+    def _check_numbers(self) -> None:
+        def bad(name: str, rule: str) -> WrinklesInputError:
+            return WrinklesInputError(f"simulation config: {name} must be {rule}, "
+                                      f"got {getattr(self, name)!r}")
+
+        for name in ("fps", "max_speed", "max_stretch", "max_distance"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise bad(name, "a positive number")
+        for name in ("substeps", "iterations"):
+            v = getattr(self, name)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
+                raise bad(name, "an integer >= 0 (0: automatic)")
+        for name in ("settle_seconds", "blend_seconds"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
+                raise bad(name, "a number of seconds >= 0")
+        if self.max_stretch <= 1.0:
+            raise bad("max_stretch", "> 1")
+
+    @property
+    def settle_frames(self) -> int:
+        """Frames of the settle phase (as ``blend_from_rest`` rounds its ``hold``)."""
+        return int(round(self.settle_seconds * self.fps))
+
+    @property
+    def blend_frames(self) -> int:
+        """Frames of the blend from rest (as ``blend_from_rest`` rounds them)."""
+        return int(round(self.blend_seconds * self.fps))
+
+    def solver_steps(self, motion_frames: int) -> int:
+        """Solver steps (one per frame) of a run over a motion of ``motion_frames`` frames."""
+        return self.settle_frames + self.blend_frames + int(motion_frames) - 1
+
+    # --- solver settings -----------------------------------------------------------------
+    def substeps_for(self, vertices: int) -> int:
+        """Substeps per frame for a run whose largest garment has ``vertices`` vertices."""
+        return self.substeps or default_substeps(vertices)
+
+    def iterations_for(self, vertices: int) -> int:
+        """Sweeps per substep for a run whose largest garment has ``vertices`` vertices."""
+        return self.iterations or default_iterations(vertices)
+
+    def retry_factors_for(self, vertices: int) -> tuple[float, ...]:
+        """Retry factors for a run whose largest garment has ``vertices`` vertices."""
+        return self.retry_factors if self.retry_factors is not None else default_retry_factors(vertices)
+
+    def retry_substeps(self, vertices: int) -> tuple[int, ...]:
+        """Substeps of the retries (``retry_factors_for``) of a run whose largest garment has
+        ``vertices`` vertices, in order: each factor times ``substeps_for``, rounded, counts not
+        above the one before dropped."""
+        return retry_substeps(self.substeps_for(vertices), self.retry_factors_for(vertices))
+
+    def vbd_config(self, vertices: int = 0, cuda: bool = False):
+        """The ``VBDConfig`` of these settings (``substeps`` and ``iterations`` for a largest
+        garment of ``vertices`` vertices, ``self_contact`` and ``solver`` overrides) for a run on CUDA
+        (``cuda``: the colouring of ``CUDA_COLORS``) or on the CPU.
+
+        Raises:
+            WrinklesInputError: an unknown solver field, or self-contact requested from a
+                solver that has no ``self_contact`` option.
+        """
+        from sim.cloth import VBDConfig
+
+        allowed = {f.name for f in dataclasses.fields(VBDConfig)}
+        iterations = self.iterations_for(vertices)
+        sweeps = self.coarse_sweeps
+        if sweeps is None:
+            sweeps = (2,) if iterations > 2 else ()
+        # fast math in the CUDA solve kernel: H100, 7.04 against 7.69 ms per 5k t-shirt frame, 134
+        # of 144 of the population passing against 133; the CPU is unaffected. The coarse factor
+        # beside the first sweeps: 6.25 against 7.05 ms, 133 of 144 passing against 134, within
+        # noise (docs/BENCHMARKS.md)
+        kw: dict[str, Any] = {"substeps": self.substeps_for(vertices), "iterations": iterations,
+                              "coarse_sweeps": sweeps, "coarse_spacing": self.coarse_spacing,
+                              "fast_math": True, "coarse_prefactor": True,
+                              "max_colors": CUDA_COLORS if cuda else 0,
+                              "coarse_early": CUDA_COARSE_EARLY and cuda,
+                              "self_contact_coarse_exclusion":
+                                  FINE_COARSE_EXCLUSION if vertices > FINE_GARMENT_VERTICES else 0.0,
+                              "coarse_guard": JOB_COARSE_GUARD}
+        unknown = sorted(set(self.solver) - allowed)
+        if unknown:
+            raise WrinklesInputError(f"simulation config: unknown solver option(s) {unknown}; "
+                                     f"expected {', '.join(sorted(allowed))}")
+        kw.update(self.solver)
+        if self.self_contact is not None:
+            if "self_contact" in allowed:
+                kw["self_contact"] = bool(self.self_contact)
+            elif self.self_contact:
+                raise WrinklesInputError("self-contact was requested but this build's VBD solver has no "
+                                         "'self_contact' option")
+        try:
+            return VBDConfig(**kw)
+        except (TypeError, ValueError) as e:
+            raise WrinklesInputError(f"simulation config: {e}") from None
+
+    # --- (de)serialisation ---------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """JSON-ready dict (``from_dict`` inverts it)."""
+        d = dataclasses.asdict(self)
+        d["pinned"] = list(self.pinned)
+        d["retry_factors"] = None if self.retry_factors is None else list(self.retry_factors)
+        if self.coarse_sweeps is not None:
+            d["coarse_sweeps"] = list(self.coarse_sweeps)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SimulationConfig:
+        """Build from a dict; unknown keys are an error (they list the known ones)."""
+        d = dict(d)
+        if "pinned" in d:
+            d["pinned"] = tuple(d["pinned"])
+        return _from_fields(cls, d, "simulation config")
+
+
+def _from_fields(cls, d: dict, what: str):
+    allowed = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(d) - set(allowed))
+    if unknown:
+        raise WrinklesInputError(f"{what}: unknown key(s) {unknown}; expected {', '.join(allowed)}")
+    return cls(**d)

@@ -1,0 +1,88 @@
+"""Per-frame screening of a run for NaN and explosion: ``BatchScreen`` tests every instance of a
+batch at once; ``FrameChecker`` words the ``SimulationError`` of one flagged instance (the frame,
+the phase and the first vertex or edge at fault)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.garments.types import Garment
+from sim.quality import SimulationError, check_frame, unique_edges
+from sim.simulate.config import SimulationConfig
+from sim.simulate.jobs import Track
+
+
+class FrameChecker:
+    """Per-frame NaN / explosion tests of one garment (host, on the frame's positions)."""
+
+    def __init__(self, garment: Garment, cfg: SimulationConfig):
+        self.edges = unique_edges(garment.faces)
+        rest = garment.rest_vertices
+        self.rest_len = np.linalg.norm(rest[self.edges[:, 1]] - rest[self.edges[:, 0]], axis=1)
+        self.mean_edge = float(self.rest_len.mean())
+        self.cfg = cfg
+
+    def __call__(self, x: np.ndarray, x_prev: np.ndarray, root: np.ndarray, frame: int, phase: str) -> None:
+        """Raise ``SimulationError(frame, phase + cause)`` if the garment's positions ``x`` (V, 3) [m]
+        hold a non-finite value, a vertex farther than ``max_distance`` from ``root`` (3,), one
+        faster than ``max_speed`` since ``x_prev``, or an edge stretched beyond ``max_stretch``."""
+        cfg = self.cfg
+        try:
+            check_frame(x, frame, rest_edge_length=self.mean_edge, bound=1.0e4)
+        except SimulationError as e:
+            raise SimulationError(frame, phase + e.cause) from None
+        dist = np.linalg.norm(x - root, axis=1)
+        if dist.max() > cfg.max_distance:
+            i = int(np.argmax(dist))
+            raise SimulationError(frame, f"{phase}explosion: vertex {i} is {dist[i]:.2f} m from the body's "
+                                         f"root joint (limit {cfg.max_distance:g} m)")
+        speed = np.linalg.norm(x - x_prev, axis=1) * cfg.fps
+        if speed.max() > cfg.max_speed:
+            i = int(np.argmax(speed))
+            raise SimulationError(frame, f"{phase}explosion: vertex {i} moved at {speed[i]:.1f} m/s "
+                                         f"(limit {cfg.max_speed:g} m/s)")
+        length = np.linalg.norm(x[self.edges[:, 1]] - x[self.edges[:, 0]], axis=1)
+        ratio = length / self.rest_len
+        if ratio.max() > cfg.max_stretch:
+            e = int(np.argmax(ratio))
+            a, b = (int(v) for v in self.edges[e])
+            raise SimulationError(frame, f"{phase}explosion: edge {a}-{b} stretched to {ratio[e]:.1f}x its "
+                                         f"rest length (limit {cfg.max_stretch:g}x)")
+
+
+class BatchScreen:
+    """The ``FrameChecker`` tests vectorised over every instance of a batch at once; the
+    per-garment checker runs only on an instance the screen flags, to word the error."""
+
+    def __init__(self, tracks: list[Track], checkers: list[FrameChecker], cfg: SimulationConfig):
+        self.cfg = cfg
+        self.count = len(tracks)
+        self.inst = np.concatenate([np.full(tr.span.stop - tr.span.start, k) for k, tr in enumerate(tracks)])
+        self.edges = np.concatenate([c.edges + tr.span.start for c, tr in zip(checkers, tracks, strict=True)])
+        self.edge_inst = self.inst[self.edges[:, 0]]
+        self.rest_len = np.concatenate([c.rest_len for c in checkers])
+
+    def __call__(self, x: np.ndarray, x_prev: np.ndarray, roots: np.ndarray) -> np.ndarray:
+        """Instances (bool (I,)) with a non-finite, too distant, too fast vertex or a too long edge."""
+        cfg = self.cfg
+        with np.errstate(invalid="ignore", over="ignore"):
+            bad = ~np.isfinite(x).all(axis=1)
+            bad |= ~(np.linalg.norm(x - roots[self.inst], axis=1) <= cfg.max_distance)
+            bad |= ~(np.linalg.norm(x - x_prev, axis=1) * cfg.fps <= cfg.max_speed)
+            ratio = np.linalg.norm(x[self.edges[:, 1]] - x[self.edges[:, 0]], axis=1) / self.rest_len
+            bad_edge = ~(ratio <= cfg.max_stretch)
+        flags = np.zeros(self.count, bool)
+        flags[self.inst[bad]] = True
+        flags[self.edge_inst[bad_edge]] = True
+        return flags
+
+
+def phase_label(tr: Track, frame: int, n_prelude: int, batched: bool) -> str:
+    """The prefix of an error at timeline ``frame`` of ``tr``: the phase inside the prelude
+    (``n_prelude`` frames), and the job's label in a batch of several (``batched``)."""
+    phase = ""
+    if frame <= n_prelude:
+        phase = "while settling: " if frame <= tr.n_settle else "while blending from rest: "
+    if batched:
+        phase = f"{tr.job.label}: {phase}"
+    return phase
