@@ -187,14 +187,15 @@ def draw_uv_layout(garment, size: int = 1024, *, edges: bool = True):
 
 
 def template_name(name: str) -> str:
-    """A template from its name (case, '-' and ' ' ignored)."""
-    from sim.garments import TEMPLATES
+    """The template ``--export`` names (an alias too; case, '-', '_' and ' ' ignored)."""
+    from sim.garments.templates import TEMPLATES
+    from sim.garments.templates import template_name as find
 
-    key = name.strip().lower().replace("-", "_").replace(" ", "_")
-    if key not in TEMPLATES:
+    found = find(name)
+    if found is None:
         raise WrinklesInputError(f"--export {name!r}: unknown template; expected one of "
                                  f"{', '.join(TEMPLATES)}")
-    return key
+    return found
 
 
 def export(args: argparse.Namespace) -> int:

@@ -1,4 +1,8 @@
-"""Importing user garments: OBJ, PLY, GLB and USD with UV seams; repairs; refusals."""
+"""Importing user garments: OBJ, PLY, GLB and USD with UV seams; repairs; refusals.
+
+The files are read as the commands read them (``pipelines.garment_files.load_garment_file``:
+USD through ``usd_io``, the rest through ``sim.garments.load_garment``).
+"""
 
 from __future__ import annotations
 
@@ -6,6 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from pipelines.garment_files import load_garment_file
 from sim.errors import WrinklesInputError
 from sim.garments import load_garment
 
@@ -106,7 +111,7 @@ def test_trimesh_formats_keep_uv_seams(tmp_path, suffix):
         _write_obj(path, points, faces, uvs, uv_faces)
     else:
         _export(path, points, faces, uvs, uv_faces)
-    g = load_garment(path, material="denim")
+    g = load_garment_file(path, material="denim")
     _check_same(g, points, faces, uvs, uv_faces)
     assert g.name == "grid" and g.category == "imported" and g.material.name == "denim"
 
@@ -122,7 +127,7 @@ def test_ply_with_per_corner_texcoords(tmp_path):
              for f, uf in zip(faces, uv_faces, strict=True)]
     path = tmp_path / "wedge.ply"
     path.write_text("\n".join(head + body) + "\n")
-    g = load_garment(path)
+    g = load_garment_file(path)
     assert g.num_vertices == len(points) and g.num_faces == len(faces)
     np.testing.assert_allclose(np.sort(g.uvs[g.uv_faces].reshape(-1, 2), axis=0),
                                np.sort(uvs[uv_faces].reshape(-1, 2), axis=0), atol=1e-6)
@@ -136,7 +141,7 @@ def test_usd_written_by_write_stage(tmp_path):
     path = tmp_path / "skirt.usda"
     write_stage(path, body=None, fps=30.0, garments=[GarmentTrack(
         "skirt", points[None].astype(np.float32), faces.astype(np.int32), uvs, uv_faces)])
-    g = load_garment(path)
+    g = load_garment_file(path)
     _check_same(g, points, faces, uvs, uv_faces)
 
 
@@ -144,7 +149,7 @@ def test_usd_from_another_tool_in_centimetres_z_up(tmp_path):
     points, faces, uvs, uv_faces = _seamed_grid()
     zup_cm = np.stack([points[:, 0], -points[:, 2], points[:, 1]], 1) * 100.0
     path = _write_usd(tmp_path / "shirt.usda", zup_cm, faces, uvs, uv_faces, up="Z", meters_per_unit=0.01)
-    g = load_garment(path)
+    g = load_garment_file(path)
     _check_same(g, points, faces, uvs, uv_faces)  # back in metres, Y up
 
 
@@ -162,7 +167,7 @@ def test_repairs_duplicates_collapsed_faces_and_specks(tmp_path):
     soup_f = np.concatenate([soup_f, [[k, k + 1, 0]], [[k + 2, k + 3, k + 4]]])
     path = tmp_path / "soup.obj"
     _write_obj(path, soup_v, soup_f, soup_uv, soup_f)
-    g = load_garment(path)
+    g = load_garment_file(path)
     assert g.num_vertices == len(points) and g.num_faces == len(faces)
     np.testing.assert_allclose(np.sort(g.rest_vertices, axis=0), np.sort(points, axis=0), atol=1e-6)
     edges = np.sort(g.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
@@ -174,7 +179,7 @@ def test_repairs_duplicates_collapsed_faces_and_specks(tmp_path):
                          "tiny_piece_faces_dropped": 1, "tiny_pieces_dropped": 1}
     assert describe_drops(g.repairs) == ("dropped 1 collapsed (zero-area) faces; dropped 1 stray piece(s) of "
                                          "1 faces (each under 5 % of the mesh)")
-    assert load_garment(tmp_path / "soup.obj").repairs == g.repairs
+    assert load_garment_file(tmp_path / "soup.obj").repairs == g.repairs
 
 
 def test_a_face_given_twice_is_dropped_not_called_non_manifold(tmp_path):
@@ -186,7 +191,7 @@ def test_a_face_given_twice_is_dropped_not_called_non_manifold(tmp_path):
     doubled_uv = np.concatenate([uv_faces, uv_faces[[3]], uv_faces[[7]][:, ::-1]])
     path = tmp_path / "doubled.obj"
     _write_obj(path, points, doubled, uvs, doubled_uv)
-    g = load_garment(path)
+    g = load_garment_file(path)
     assert g.num_faces == len(faces) and g.repairs.get("duplicate_faces_dropped") == 2
     from sim.garments.io import describe_drops
 
@@ -199,7 +204,7 @@ def test_a_face_given_twice_is_dropped_not_called_non_manifold(tmp_path):
 
 def _refused(path, pattern, **kwargs):
     with pytest.raises(WrinklesInputError, match=pattern) as e:
-        load_garment(path, **kwargs)
+        load_garment_file(path, **kwargs)
     msg = str(e.value)
     assert "\n" not in msg and msg.startswith(str(path)), msg  # one line, naming the file
     return msg
@@ -223,7 +228,7 @@ def test_refuses_missing_uvs(tmp_path):
                  _write_usd(tmp_path / "nouv.usda", points, faces, None, None),
                  trimesh.Trimesh(points, faces).export(tmp_path / "nouv.ply") and tmp_path / "nouv.ply"):
         _refused(path, "no UVs")
-        g = load_garment(path, require_uvs=False)  # a simulation-only garment may skip them
+        g = load_garment_file(path, require_uvs=False)  # a simulation-only garment may skip them
         assert g.num_faces == len(faces)
     _refused(_write_obj(tmp_path / "flatuv.obj", points, faces, np.zeros_like(uvs), uv_faces), "collapsed")
 
@@ -255,6 +260,26 @@ def test_refuses_unreadable_missing_and_unknown(tmp_path):
     _refused(body_only, "no garment mesh")
 
 
+def test_the_simulator_core_leaves_usd_to_the_pipelines(tmp_path):
+    """``sim.garments.load_garment`` reads the trimesh formats only: a USD file is refused in one
+    line that names the file and the function that reads it, and ``sim.garments`` does not load
+    ``usd_io``."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    points, faces, uvs, uv_faces = _seamed_grid()
+    path = _write_usd(tmp_path / "shirt.usda", points, faces, uvs, uv_faces)
+    with pytest.raises(WrinklesInputError, match=r"shirt.usda: .*pipelines.garment_files.load_garment_file"):
+        load_garment(path)
+    assert load_garment_file(path).num_faces == len(faces)
+    code = "import sys, sim.garments; print('usd_io' in sys.modules, 'pxr' in sys.modules)"
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=root).stdout
+    assert out.split() == ["False", "False"]
+
+
 def test_imported_garment_has_no_hems_unless_asked(tmp_path):
     """A file does not say how its openings are sewn: no hems by default; ``hem_width`` lines
     every boundary loop (the grid's border) as a template's openings are, and a width outside
@@ -262,9 +287,9 @@ def test_imported_garment_has_no_hems_unless_asked(tmp_path):
     points, faces, uvs, uv_faces = _seamed_grid(11)
     path = tmp_path / "grid.obj"
     _write_obj(path, points, faces, uvs, uv_faces)
-    plain = load_garment(path)
+    plain = load_garment_file(path)
     assert (plain.face_layers == 1.0).all()
-    hemmed = load_garment(path, hem_width=0.05, hem_layers=2.0)
+    hemmed = load_garment_file(path, hem_width=0.05, hem_layers=2.0)
     assert hemmed.face_layers.min() == 1.0 and hemmed.face_layers.max() == 2.0
     # the border faces are hem, the middle is not (the grid is 0.4 m tall, edges 4 cm)
     c = hemmed.rest_vertices[hemmed.faces].mean(axis=1)
@@ -276,7 +301,7 @@ def test_imported_garment_has_no_hems_unless_asked(tmp_path):
     assert middle.sum() > 10 and (hemmed.face_layers[middle] == 1.0).all()
     np.testing.assert_array_equal(hemmed.faces, plain.faces)
     with pytest.raises(WrinklesInputError, match="grid.obj.*hem_width"):
-        load_garment(path, hem_width=0.5)
+        load_garment_file(path, hem_width=0.5)
 
 
 def test_simulate_cli_passes_hem_parameters_to_a_garment_file(tmp_path):

@@ -16,13 +16,9 @@ from sim.bodies.default import parse_shape
 from sim.errors import WrinklesInputError
 from sim.garments import TEMPLATES, make_garment
 from sim.garments.panels import corner_angles, stitch
-from sim.garments.templates import (
-    ARMHOLE_FILLET_ANGLE,
-    PARAM_RANGES,
-    armhole_inset,
-    fillet_inset,
-    resolve_resolution,
-)
+from sim.garments.parameters import parameter_specs
+from sim.garments.templates import resolve_resolution
+from sim.garments.tops import ARMHOLE_FILLET_ANGLE, armhole_inset, fillet_inset
 from sim.garments.uv import UV_MARGIN, uv_stats
 
 SHAPES = {"mean": "", "tall_heavy": "height=0.7,weight=0.9", "short_slim": "height=0.1,weight=0.1"}
@@ -109,7 +105,8 @@ def test_stagger_puts_mid_points_on_the_curve():
     ring = np.stack([0.1 * np.cos(t), 0.1 * np.sin(t), np.zeros_like(t)], axis=1)
     ring[-1] = ring[0]
     out = stagger(ring)
-    assert out.shape == (26, 3) and np.array_equal(out[0], ring[0]) and np.array_equal(out[-1], ring[-1])
+    assert out.shape == (26, 3)
+    np.testing.assert_array_equal(out[[0, -1]], ring[[0, -1]])
     r = np.linalg.norm(out[1:-1, :2], axis=1)
     assert np.abs(r - 0.1).max() < 2e-5  # the chord mid-point would sit 0.86 mm inside
     ang = np.unwrap(np.arctan2(out[1:-1, 1], out[1:-1, 0]))
@@ -228,14 +225,15 @@ def test_no_self_intersection_at_rest(garments, shape):
         assert not crossing_edges(g.rest_vertices, g.faces, device="cpu").any(), category
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("category", ["t_shirt", "long_sleeve"])
-def test_sleeve_that_dipped_through_the_back_panel_no_longer_does(body, category):
-    """A shape and resolution where the sleeve's first rows crossed the back panel under the arm
-    (17 edge-face crossings; until session 28 ``_untangle`` smoothed them out). The cause was
-    the left sleeve taking each row point's x from the mirrored armhole loop; the raw build is
-    now clean."""
+def test_sleeve_stays_clear_of_the_back_panel_without_untangling(body, category):
+    """A shape and resolution where a sleeve's first rows would cross the back panel under the
+    arm (17 edge-face crossings) if the left sleeve took each row point's x from the mirrored
+    armhole loop: the raw build, before ``untangle``, has no crossing and is the garment."""
+    from sim.garments.measure import BodyMeasure
     from sim.garments.panels import sew
-    from sim.garments.templates import BodyMeasure, make_params
+    from sim.garments.templates import make_params
     from sim.quality import crossing_edges
 
     betas = body.full_betas(np.array([0.12573022, -0.13210486, 0.64042264, 0.10490011], np.float32))
@@ -246,12 +244,13 @@ def test_sleeve_that_dipped_through_the_back_panel_no_longer_does(body, category
     np.testing.assert_array_equal(raw.vertices.astype(np.float32), g.rest_vertices)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("category", ["t_shirt", "long_sleeve"])
 def test_a_sleeve_vertex_through_the_back_panel_is_untangled(body, category):
-    """``_untangle``, the rest shape's safety net: a sleeve vertex pushed 1 cm through the back
+    """``untangle``, the rest shape's safety net: a sleeve vertex pushed 1 cm through the back
     panel (past the back vertex nearest to it) is smoothed back. No edge crosses a face after,
     only sleeve vertices move, and the result lies within an edge length of the clean shape."""
-    from sim.garments.templates import _untangle
+    from sim.garments.templates import untangle
     from sim.quality import crossing_edges
 
     h = 0.0125
@@ -267,27 +266,29 @@ def test_a_sleeve_vertex_through_the_back_panel_is_untangled(body, category):
     tangled = v.copy()
     tangled[a] = v[b] + 0.01 * (v[b] - v[a]) / np.linalg.norm(v[b] - v[a])
     assert crossing_edges(tangled, g.faces, device="cpu").sum() > 0
-    out = _untangle(tangled, g.faces, g.panel_ids, list(g.panel_names))
+    out = untangle(tangled, g.faces, g.panel_ids, list(g.panel_names))
     assert not crossing_edges(out, g.faces, device="cpu").any()
     moved = np.linalg.norm(out - tangled, axis=1) > 1e-9
     assert moved.any() and np.isin(np.flatnonzero(moved), only_sleeve).all()
     assert np.linalg.norm(out - v, axis=1).max() < h
     # a clean mesh passes through unchanged
-    assert _untangle(g.rest_vertices, g.faces, g.panel_ids, list(g.panel_names)) is g.rest_vertices
+    assert untangle(g.rest_vertices, g.faces, g.panel_ids, list(g.panel_names)) is g.rest_vertices
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("category", list(TEMPLATES))
 def test_fine_template_has_no_long_edges_or_slivers(fine, category):
     """At the fine resolution (~20k vertices) no edge is longer than 2.7 median edges and no
-    corner is under 12°. Before session 28 a fine sleeve's first row jumped 4 row spacings off
-    the armhole (edges 4.4 medians long, where a batched run's cloth crossed itself) and hip
-    rings shifted sideways by their hull's vertex mean (7° corners on the shorts)."""
+    corner is under 12°: a sleeve's first row that jumps 4 row spacings off the armhole makes
+    edges 4.4 medians long (where a batched run's cloth crosses itself), hip rings centred on
+    their hull's vertex mean make 7° corners on the shorts."""
     g = fine(category)
     length = _edge_lengths(g)
     assert length.max() < 2.7 * np.median(length), (category, length.max() / np.median(length))
     assert corner_angles(g.rest_vertices, g.faces).min() > 12.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", list(SHAPES))
 def test_fine_sleeves_follow_the_armhole(fine, shape):
     """Each sleeve row stays within reach of the one before, on both sides: at the fine
@@ -373,11 +374,12 @@ def _leg_vertices(g):
 @pytest.mark.parametrize("category", ["shorts", "trousers"])
 def test_legs_leave_the_mid_plane_below_the_bridge(garments, category, shape):
     """The two legs' inner rows do not lie on the mid-sagittal plane, where the other leg's lie:
-    off the seams, no leg vertex is within a quarter of ``leg_gap`` of it (before session 42 the rows
-    blending from the crotch bridge, at x = 0, left 54 of the shorts' and 21 of the trousers'
-    there, faces of one leg on the other's: the shorts crossed themselves within four frames of
-    the settle on the default body; one vertex is allowed, the back end of the bridge's row)."""
-    from sim.garments.templates import PantsParams
+    off the seams, no leg vertex is within a quarter of ``leg_gap`` of it (rows left on the plane
+    by the blend from the crotch bridge, at x = 0, would put faces of one leg on the other's:
+    54 of the shorts' vertices and 21 of the trousers', and the shorts cross themselves within
+    four frames of the settle on the default body; one vertex is allowed, the back end of the
+    bridge's row)."""
+    from sim.garments.pants import PantsParams
 
     g = garments[(category, shape)]
     panels_of, leg = _leg_vertices(g)
@@ -414,6 +416,7 @@ def test_deterministic(body, category):
     np.testing.assert_array_equal(a.uvs, b.uvs)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("category", ["t_shirt", "dress"])
 def test_fine_resolution_vertex_count(fine, category):
     g = fine(category)
@@ -450,6 +453,7 @@ def _strap_corner_angle(g) -> float:
     return _boundary_cloth_angle(g, ("left_strap", "right_strap"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("category", ["tank_top", "t_shirt"])
 @pytest.mark.parametrize("shape", ["mean", "short_slim"])
 def test_neckline_corners_are_rounded(body, category, shape):
@@ -473,9 +477,10 @@ def _armhole_corner_angle(g) -> float:
     return _boundary_cloth_angle(g, ("front_bib", "back_bib"), exclude=("left_strap", "right_strap"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shape", ["mean", "short_slim"])
 def test_armhole_fillet_rounds_the_armholes_bottom_corners(body, shape):
-    """``armhole_fillet`` (session 44): the bibs' sides curve into the tube's top row along an arc
+    """``armhole_fillet``: the bibs' sides curve into the tube's top row along an arc
     that leaves the side tangentially and meets the row at 45° (``armhole_inset``), so no bib
     boundary vertex below the straps has more than 235° of cloth around it where the square
     corner (``armhole_fillet=0``) has about 270°. The bibs' bottom rows reach out by the arc's
@@ -568,11 +573,14 @@ def test_params_and_errors(body):
         make_garment("dress", body, length=3.0)
     with pytest.raises(WrinklesInputError, match="must be a number"):
         make_garment("shorts", body, ease=float("nan"))
-    # every parameter of every template has a range, and the template defaults lie inside it
+    # every parameter of every template has a unit, a range and a description, and the
+    # template's default lies inside the range
     for cat, t in TEMPLATES.items():
+        specs = parameter_specs(t.params)
         for f in fields(t.params):
-            lo, hi = PARAM_RANGES[f.name]
-            assert lo <= t.defaults.get(f.name, f.default) <= hi, (cat, f.name)
+            spec = specs[f.name]
+            assert spec.unit in ("m", "-") and spec.description, (cat, f.name)
+            assert spec.low <= t.defaults.get(f.name, f.default) <= spec.high, (cat, f.name)
     short = make_garment("dress", body, length=0.6)
     assert short.num_vertices < make_garment("dress", body).num_vertices
 

@@ -85,7 +85,7 @@ def test_grid_hem_is_the_band_along_the_border():
     assert crossing.sum() > 100 and ((layers[crossing] > 1.0) & (layers[crossing] < 2.5)).all()
     frame = 0.3 * 0.4 - (0.3 - 2 * w) * (0.4 - 2 * w)
     assert abs(hem_area(v, f, layers, 2.5) / frame - 1.0) < 0.02
-    assert np.array_equal(hem_face_layers(v, f, 0.0, 2.5), np.ones(len(f), np.float32))
+    np.testing.assert_array_equal(hem_face_layers(v, f, 0.0, 2.5), np.ones(len(f), np.float32))
 
 
 @pytest.fixture(scope="module")
@@ -117,11 +117,12 @@ def test_template_hems_line_every_opening(body, category, shape):
     assert (layers[d[g.faces].min(axis=1) >= HEM_WIDTH] == 1.0).all()
 
 
-@pytest.mark.parametrize("category", ["straight_skirt", "t_shirt", "dress"])
+@pytest.mark.parametrize("category", ["straight_skirt", pytest.param("t_shirt", marks=pytest.mark.slow),
+                                      pytest.param("dress", marks=pytest.mark.slow)])
 def test_hem_mass_does_not_depend_on_the_resolution(body, category):
     """At 7 cm edges (coarser than the hem: every face on an opening partly hem), 2.5 cm and 1.4 cm
-    the band covers the openings' length times the width to within 10 % (the all-or-nothing rule
-    before session 39 gave 0.89-1.45 times it, 1.37-1.72 at 7 cm)."""
+    the band covers the openings' length times the width to within 10 % (faces all hem or none
+    by the mean of their corners' distances would give 0.89-1.45 times it, 1.37-1.72 at 7 cm)."""
     for res in (0.07, 0.025, 0.014):
         g = make_garment(category, body, resolution=res)
         edges, uses = unique_edges(g.faces, counts=True)

@@ -14,9 +14,8 @@ Distance is measured along the mesh: Dijkstra over the edges from every boundary
 (an armhole's neighbour across a fold) is not marked. A face takes layers in proportion to the
 share of its area within ``width`` of the boundary, the distance interpolated linearly over the
 face from its corners (``band_fraction``): ``1 + (layers - 1) * share``. The hem's mass is then
-``width`` times the openings' length at any mesh resolution (session 39; until then a face was
-all hem or none by the mean of its corners, and the hem's area was 0.89-1.45 times that,
-depending on the resolution).
+``width`` times the openings' length at any mesh resolution (a face all hem or none by the mean
+of its corners' distances gives 0.89-1.45 times that, depending on the resolution).
 """
 
 from __future__ import annotations
@@ -26,12 +25,13 @@ import numpy as np
 HEM_WIDTH = 0.02
 """Default hem width [m] of the templates (a t-shirt's neckband and hems are 1.5-2.5 cm)."""
 HEM_RULE = "area share"
-"""How a face's layers follow from the band (``hem_face_layers``): since session 39 by the share of
-its area inside it (before: all or nothing by the mean of its corners' distances). Datasets record
-it (``sim.simulate.simulator_defaults``), so one made under the other rule is not continued."""
+"""How a face's layers follow from the band (``hem_face_layers``): by the share of its area inside
+it. Datasets record it (``sim.simulate.simulator_defaults``), so a dataset made under another rule
+is not continued."""
 HEM_LAYERS = 3.0
-"""Default layers of fabric in a hem: a double-fold hem's three (session 38: with 3, 12 substeps
-pass the 5k t-shirt's population of random walks and runs 134 of 144 times, with 2 131)."""
+"""Default layers of fabric in a hem: a double-fold hem's three (with 3, 12 substeps pass the 5k
+t-shirt's population of random walks and runs 134 of 144 times, with 2 layers 131 times;
+docs/BENCHMARKS.md)."""
 
 
 def _edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

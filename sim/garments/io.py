@@ -1,23 +1,28 @@
-"""Import a user garment (OBJ / PLY / GLB via trimesh, USD via ``usd_io``) with its UVs.
+"""Import a user garment mesh (OBJ / PLY / GLB / glTF / OFF / STL via trimesh) with its UVs.
 
 Repairs what is safe to repair (duplicate vertices merged while UV seams are kept, faces that
-collapse to an edge or a point once duplicates are merged dropped, tiny disconnected pieces
-dropped) and refuses the rest with a one-line ``WrinklesInputError`` naming the file: no UVs,
-non-manifold edges, degenerate triangles (three distinct vertices, no area: removing one leaves
-a crack, so the mesh needs fixing in the modelling tool).
+collapse to an edge or a point once duplicates are merged dropped, faces given twice dropped,
+tiny disconnected pieces dropped) and refuses the rest with a one-line ``WrinklesInputError``
+naming the file: no UVs, non-manifold edges, degenerate triangles (three distinct vertices, no
+area: removing one leaves a crack, so the mesh needs fixing in the modelling tool).
+
+USD files are read above ``sim`` (``pipelines.garment_files.load_garment_file``, through
+``usd_io``), which hands its reader to ``load_garment``.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from sim.errors import WrinklesInputError
 from sim.garments.hems import HEM_LAYERS, hem_face_layers
 from sim.garments.materials import Material, get_material
-from sim.garments.templates import check_parameter
+from sim.garments.parameters import HEM_SPECS, check_parameter
 from sim.garments.types import Garment
 
 MERGE_TOL = 1e-6
@@ -30,28 +35,27 @@ DEGENERATE_ASPECT = 1e-6
 """A face whose height is below 2e-6 × its longest edge (area / longest² < 1e-6) is a
 needle with a vertex on the opposite edge (a T-junction) [-]."""
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".off", ".stl")
+"""Garment files ``read_mesh`` reads."""
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
+"""Garment files read by ``pipelines.garment_files`` (``sim`` does not read USD)."""
 
 
-def _read(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
-    """(points (V,3), faces (F,3), uvs (U,2) | None, uv_faces (F,3) | None) of the first mesh."""
+class GarmentMesh(NamedTuple):
+    """A garment file's first mesh as read, before repair."""
+
+    points: np.ndarray  # (V, 3) [m], Y up
+    faces: np.ndarray  # (F, 3) indices into points
+    uvs: np.ndarray | None  # (U, 2), None: the file has none
+    uv_faces: np.ndarray | None  # (F, 3) indices into uvs
+
+
+def read_mesh(path: Path) -> GarmentMesh:
+    """The first triangle mesh of a file trimesh reads (``MESH_SUFFIXES``), read as metres,
+    Y up; UVs per vertex as trimesh gives them (vertices split along UV seams)."""
     suffix = path.suffix.lower()
     if suffix in USD_SUFFIXES:
-        from usd_io import read_stage  # the only pxr user (DESIGN.md, Layout)
-
-        stage = read_stage(path, require_body=False)  # a garment file has no body
-        meshes = list(stage.garments.values()) or [m for m in stage.meshes.values()
-                                                    if m.path != "/World/Body"]
-        if not meshes:
-            raise WrinklesInputError("no garment mesh in the stage", path=path)
-        m = meshes[0]
-        uv_faces = m.uv_faces
-        if m.uvs is not None and uv_faces is None:
-            uv_faces = m.faces
-        points = np.asarray(m.points[0], np.float64) * stage.meters_per_unit  # to metres
-        if stage.up_axis.upper() == "Z":  # to Y up: (x, y, z) -> (x, z, -y)
-            points = np.stack([points[:, 0], points[:, 2], -points[:, 1]], axis=1)
-        return points, m.faces, m.uvs, uv_faces
+        raise WrinklesInputError("USD garment files are read by pipelines.garment_files.load_garment_file "
+                                 "(the simulator core does not read USD)", path=path)
     if suffix not in MESH_SUFFIXES:
         raise WrinklesInputError(f"unsupported garment format {suffix!r}; expected one of "
                                  f"{', '.join(MESH_SUFFIXES + USD_SUFFIXES)}", path=path)
@@ -73,9 +77,9 @@ def _read(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.nda
     points = np.asarray(loaded.vertices, np.float64)
     faces = np.asarray(loaded.faces, np.int64)
     if uv is None or len(uv) != len(points):
-        return points, faces, None, None
+        return GarmentMesh(points, faces, None, None)
     # trimesh splits vertices along UV seams: per-vertex UVs, uv_faces == faces before merging
-    return points, faces, np.asarray(uv, np.float64), faces.copy()
+    return GarmentMesh(points, faces, np.asarray(uv, np.float64), faces.copy())
 
 
 def _edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -84,18 +88,21 @@ def _edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton", name: str | None = None,
-                 require_uvs: bool = True, hem_width: float = 0.0, hem_layers: float = HEM_LAYERS) -> Garment:
+                 require_uvs: bool = True, hem_width: float = 0.0, hem_layers: float = HEM_LAYERS,
+                 read: Callable[[Path], GarmentMesh] = read_mesh) -> Garment:
     """Read a garment mesh, repair it, and check it is a usable cloth mesh.
 
     Args:
-        path: .obj, .ply, .glb/.gltf, .off, .stl (read as metres, Y up) or
-            .usd/.usda/.usdc/.usdz (frame 0; the stage's metersPerUnit and upAxis are applied).
+        path: .obj, .ply, .glb/.gltf, .off, .stl (read as metres, Y up); with ``read``, any
+            file that reader reads.
         material: preset name or ``Material``.
         name: garment name (default: the file stem).
         require_uvs: refuse meshes without UVs.
         hem_width, hem_layers: hems along every boundary loop, as the templates have
             (``sim.garments.hems``); 0, the default: none (a file does not say how its
             openings are sewn).
+        read: ``read(path) -> GarmentMesh`` (``read_mesh``; ``pipelines.garment_files`` passes
+            its USD reader).
 
     Returns:
         Garment with category "imported", all faces in one panel (``"mesh"``; UV islands are
@@ -109,10 +116,44 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     """
     path = Path(path)
     for key, value in (("hem_width", hem_width), ("hem_layers", hem_layers)):
-        check_parameter(key, value, "load_garment", path=path)
+        check_parameter(key, value, HEM_SPECS[key], "load_garment", path=path)
     if not path.is_file():
         raise WrinklesInputError("no such file", path=path)
-    points, faces, uvs, uv_faces = _read(path)
+    points, faces, uvs, uv_faces = _checked(read(path), require_uvs, path)
+    n_read = len(points)
+    points, faces = _merge_duplicates(points, faces)
+    faces, uv_faces, n_degenerate = _drop_collapsed(points, faces, uv_faces, path)
+    # faces given twice (the same three vertices, either winding: an exporter's double) would
+    # otherwise read as non-manifold edges
+    _, first_face = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    unique = np.zeros(len(faces), bool)
+    unique[first_face] = True
+    n_duplicate = int((~unique).sum())
+    faces, uv_faces = faces[unique], uv_faces[unique]
+    edges = _manifold_edges(points, faces, n_degenerate, path)
+    faces, uv_faces, tiny = _drop_tiny_pieces(len(points), faces, uv_faces, edges)
+    repairs = {"merged_vertices": int(n_read - len(points)), "collapsed_faces_dropped": n_degenerate,
+               "duplicate_faces_dropped": n_duplicate, **tiny}
+    # compact vertices and UVs
+    used = np.unique(faces)
+    remap = np.full(len(points), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    used_uv = np.unique(uv_faces)
+    remap_uv = np.full(len(uvs), -1, np.int64)
+    remap_uv[used_uv] = np.arange(len(used_uv))
+    rest, tris = points[used].astype(np.float32), remap[faces].astype(np.int32)
+    return Garment(rest_vertices=rest, faces=tris,
+                   uvs=uvs[used_uv].astype(np.float32), uv_faces=remap_uv[uv_faces].astype(np.int32),
+                   material=get_material(material), attachments={}, category="imported",
+                   name=name or path.stem, panel_ids=np.zeros(len(faces), np.int32), panel_names=("mesh",),
+                   face_layers=hem_face_layers(rest, tris, hem_width, hem_layers),
+                   repairs={k: v for k, v in repairs.items() if v})
+
+
+def _checked(mesh: GarmentMesh, require_uvs: bool, path: Path) -> GarmentMesh:
+    """The mesh if it has faces, finite positions and (when required) usable UVs; a mesh
+    without UVs that may go without gets one UV at the origin."""
+    points, faces, uvs, uv_faces = mesh
     if len(points) == 0 or len(faces) == 0:
         raise WrinklesInputError("the mesh is empty", path=path)
     if not np.all(np.isfinite(points)):
@@ -127,17 +168,27 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
         if not np.all(np.isfinite(uvs)) or uv_area <= 1e-12:
             raise WrinklesInputError("the mesh's UVs are NaN/inf or all collapsed (zero UV area); "
                                      "UVs are required", path=path)
-    # 1. merge duplicate positions (UV seams stay: uv_faces keep their own indices)
+    return GarmentMesh(points, faces, uvs, uv_faces)
+
+
+def _merge_duplicates(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions within ``MERGE_TOL`` merged into their first occurrence, in reading order (UV
+    seams stay: uv_faces keep their own indices)."""
     key = np.round(points / MERGE_TOL).astype(np.int64)
     _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
     order = np.argsort(first, kind="stable")
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
-    faces = rank[inv.reshape(-1)][faces]
-    n_read = len(points)
-    points = points[first[order]]
-    # 2. drop faces that collapsed to an edge or a point (repair); refuse flat ones with three
-    #    distinct vertices (removing them would open a crack along their longest edge)
+    return points[first[order]], rank[inv.reshape(-1)][faces]
+
+
+def _drop_collapsed(points: np.ndarray, faces: np.ndarray, uv_faces: np.ndarray, path: Path):
+    """Faces that collapsed to an edge or a point dropped (a repair); flat ones with three
+    distinct vertices refused (removing them would open a crack along their longest edge).
+
+    Returns:
+        (faces, uv_faces, number dropped).
+    """
     same = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 2] == faces[:, 0])
     tri = points[faces]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
@@ -150,18 +201,14 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
             f"{int(flat.sum())} degenerate triangle(s) with three distinct vertices and no area, e.g. "
             f"face {k} at ({x:.4g}, {y:.4g}, {z:.4g}); fix the mesh (merge the vertex that lies on "
             "the opposite edge, or flip that edge)", path=path)
-    n_degenerate = int(same.sum())
     faces, uv_faces = faces[~same], uv_faces[~same]
     if len(faces) == 0:
         raise WrinklesInputError("every face is degenerate (zero area)", path=path)
-    # 2b. drop faces given twice (the same three vertices, either winding: an exporter's double),
-    #     which would otherwise read as non-manifold edges
-    _, first_face = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
-    unique = np.zeros(len(faces), bool)
-    unique[first_face] = True
-    n_duplicate = int((~unique).sum())
-    faces, uv_faces = faces[unique], uv_faces[unique]
-    # 3. manifold check
+    return faces, uv_faces, int(same.sum())
+
+
+def _manifold_edges(points: np.ndarray, faces: np.ndarray, n_degenerate: int, path: Path) -> np.ndarray:
+    """The mesh's unique edges (E, 2); refused when one is in more than two faces."""
     edges, counts = _edge_counts(faces)
     bad = counts > 2
     if bad.any():
@@ -170,35 +217,26 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
         extra = f" (after removing {n_degenerate} collapsed faces)" if n_degenerate else ""
         raise WrinklesInputError(f"{int(bad.sum())} non-manifold edges (in more than 2 faces){extra}, "
                                  f"e.g. the edge at ({x:.4g}, {y:.4g}, {z:.4g})", path=path)
-    # 4. drop tiny disconnected components
+    return edges
+
+
+def _drop_tiny_pieces(n: int, faces: np.ndarray, uv_faces: np.ndarray, edges: np.ndarray):
+    """Connected pieces with fewer than ``TINY_COMPONENT`` of the faces dropped.
+
+    Returns:
+        (faces, uv_faces, repair counts ``tiny_piece_faces_dropped``, ``tiny_pieces_dropped``).
+    """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    n = len(points)
     adj = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
     _, label = connected_components(adj, directed=False)
     face_label = label[faces[:, 0]]
     sizes = np.bincount(face_label)
     keep = sizes[face_label] >= TINY_COMPONENT * len(faces)
-    faces, uv_faces = faces[keep], uv_faces[keep]
-    repairs = {"merged_vertices": int(n_read - len(points)), "collapsed_faces_dropped": n_degenerate,
-               "duplicate_faces_dropped": n_duplicate,
-               "tiny_piece_faces_dropped": int((~keep).sum()),
-               "tiny_pieces_dropped": int(len(np.unique(face_label[~keep])))}
-    # 5. compact vertices and UVs
-    used = np.unique(faces)
-    remap = np.full(n, -1, np.int64)
-    remap[used] = np.arange(len(used))
-    used_uv = np.unique(uv_faces)
-    remap_uv = np.full(len(uvs), -1, np.int64)
-    remap_uv[used_uv] = np.arange(len(used_uv))
-    rest, tris = points[used].astype(np.float32), remap[faces].astype(np.int32)
-    return Garment(rest_vertices=rest, faces=tris,
-                   uvs=uvs[used_uv].astype(np.float32), uv_faces=remap_uv[uv_faces].astype(np.int32),
-                   material=get_material(material), attachments={}, category="imported",
-                   name=name or path.stem, panel_ids=np.zeros(len(faces), np.int32), panel_names=("mesh",),
-                   face_layers=hem_face_layers(rest, tris, hem_width, hem_layers),
-                   repairs={k: v for k, v in repairs.items() if v})
+    counts = {"tiny_piece_faces_dropped": int((~keep).sum()),
+              "tiny_pieces_dropped": int(len(np.unique(face_label[~keep])))}
+    return faces[keep], uv_faces[keep], counts
 
 
 def describe_drops(repairs: dict[str, int]) -> str:

@@ -96,9 +96,9 @@ def stagger(row: np.ndarray) -> np.ndarray:
 
 
 STAGGER_MIN_ANGLE = 20.0
-"""[deg] A row is staggered unless that makes its strips' smallest corner angle worse than it was
-and below this (where a seam's end points shift sideways from row to row, a half segment at the
-row's end would make a sliver)."""
+"""[deg] A row is staggered unless that makes its strips' smallest corner angle worse than the
+unstaggered row's and below this (where a seam's end points shift sideways from row to row, a
+half segment at the row's end would make a sliver)."""
 
 
 def corner_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
