@@ -1,4 +1,4 @@
-"""Dataset generation (issue 4): config checks, sampling, storage, generate / resume / shards."""
+"""Dataset generation: config checks, sampling, storage, generate / resume / shards."""
 
 from __future__ import annotations
 
@@ -102,6 +102,7 @@ def test_bad_config_is_refused_naming_file_and_key(tmp_path, edit, message):
     assert message in msg and "tiny.toml" in msg and "\n" not in msg
 
 
+@pytest.mark.slow
 def test_unreadable_user_motion_is_refused_before_anything_runs(tmp_path):
     bad = tmp_path / "motions"
     bad.mkdir()
@@ -124,6 +125,7 @@ def test_not_toml_is_refused(tmp_path):
         _load(tmp_path, "seed = = 3")
 
 
+@pytest.mark.slow
 def test_shipped_sample_config_is_valid():
     from sim.datasets.config import load_config
 
@@ -212,6 +214,7 @@ def reference(tmp_path_factory):
     return cfg, out, time.perf_counter() - t0
 
 
+@pytest.mark.slow
 def test_generated_dataset_holds_the_schema(reference):
     from sim.datasets.schema import BODY_KEYS, COARSE_KEYS, FINE_KEYS, IMAGE_KEYS, QUALITY_KEYS
 
@@ -258,6 +261,7 @@ def test_generated_dataset_holds_the_schema(reference):
     assert stats["frames"] == sum(e["frames"] for e in m["sequences"].values())
 
 
+@pytest.mark.slow
 def test_same_config_same_bytes(reference, tmp_path):
     cfg, out, _ = reference
     again = tmp_path / "again"
@@ -265,6 +269,7 @@ def test_same_config_same_bytes(reference, tmp_path):
     assert _files(again) == _files(out)
 
 
+@pytest.mark.slow
 def test_sigkill_and_resume_give_the_same_dataset(tmp_path):
     cfg = tiny_config(tmp_path, TINY.replace("sequences = 4", "sequences = 12"))
     ref = tmp_path / "ref"
@@ -301,6 +306,7 @@ def test_sigkill_and_resume_give_the_same_dataset(tmp_path):
     assert " 0 accepted" in r.stdout
 
 
+@pytest.mark.slow
 def test_shards_combine_into_the_same_dataset(reference, tmp_path):
     cfg, ref, _ = reference
     out = tmp_path / "sharded"
@@ -315,38 +321,38 @@ def test_shards_combine_into_the_same_dataset(reference, tmp_path):
     other = tiny_config(tmp_path, TINY.replace("seed = 3", "seed = 4"), "other.toml")
     r = _generate(other, out, "--resume", check=False)
     assert r.returncode == 2 and "different config" in r.stderr
-    # the same config from before the simulator defaults were recorded (or with other ones):
-    # refused too, naming why, and nothing is written
+    # the same config without a record of the simulator defaults, or with other ones: refused
+    # too, naming why, and nothing is written
     import json
 
     old = json.loads((out / "config.json").read_text())
     assert old["simulator"]["hems"]["layers"] == 3.0 and old["simulator"]["substeps"]["default"] == 12
     assert old["simulator"]["hems"]["rule"] == "area share"
-    session38 = json.loads(json.dumps(old))
-    del session38["simulator"]["hems"]["rule"]  # all-or-nothing hems, before session 39
-    # begun on CUDA (3 colours since session 41), continued here on the CPU
+    no_hem_rule = json.loads(json.dumps(old))
+    del no_hem_rule["simulator"]["hems"]["rule"]  # hems without their area-share rule
+    # begun on CUDA (3 colours), continued here on the CPU
     cuda_made = json.loads(json.dumps(old))
     assert "max_colors" not in cuda_made["simulator"]
     cuda_made["simulator"]["max_colors"] = 3
-    # begun on CUDA in session 41 (3 colours, the coarse diagonal after the detection) and
-    # continued on CUDA now: refused by the CUDA run's record (its "coarse_early"); a CUDA run
-    # cannot be made here, so the record is compared as generate.py compares it
+    # begun on CUDA with 3 colours and the coarse diagonal after the detection, continued on
+    # CUDA with today's defaults: refused by the CUDA run's record (its "coarse_early"); a CUDA
+    # run cannot be made here, so the record is compared as generate.py compares it
     from sim.simulate import simulator_defaults
 
     assert cuda_made["simulator"] != simulator_defaults(cuda=True)
     assert {**cuda_made["simulator"], "coarse_early": True} == simulator_defaults(cuda=True)
-    # begun before the gaits' cadence kept the hips inside their limits (session 52)
+    # without the gait record (the cadence that keeps the hips inside their limits)
     from sim.motions.procedural import D2R
 
-    session51 = json.loads(json.dumps(old))
-    gait = session51["simulator"].pop("gait")
+    no_gait = json.loads(json.dumps(old))
+    gait = no_gait["simulator"].pop("gait")
     assert gait["cadence"] == "hip-limited" and gait["hip_extension_margin_rad"] == 1.0 * D2R
     assert gait["max_stride_frequency"] == {"walk": 1.75, "run": 2.5} and len(gait["curves_sha1"]) == 40
     # and one made with other gait curves (a key moved)
     curves = json.loads(json.dumps(old))
     curves["simulator"]["gait"]["curves_sha1"] = "0" * 40
     del old["simulator"]
-    for record in (old, session38, cuda_made, session51, curves):
+    for record in (old, no_hem_rule, cuda_made, no_gait, curves):
         (out / "config.json").write_text(json.dumps(record))
         before = _files(out)
         r = _generate(cfg, out, "--resume", check=False)
@@ -354,6 +360,7 @@ def test_shards_combine_into_the_same_dataset(reference, tmp_path):
         assert len(r.stderr.strip().splitlines()) == 1 and _files(out) == before
 
 
+@pytest.mark.slow
 def test_only_the_test_splits_are_made_again(reference, tmp_path):
     """--splits test_id,test_ood makes exactly the reference's test sequences, byte for byte."""
     cfg, ref, _ = reference
@@ -391,90 +398,113 @@ def test_user_motion_folders_are_sampled(tmp_path):
         _load(tmp_path, text.replace("seconds = 0.2", "seconds = 1.0"))
 
 
-def test_failed_sequences_are_retried_at_more_substeps(tmp_path, monkeypatch):
-    """A sequence whose simulation stops (explosion) or that fails a quality gate is simulated
-    again at the config's retry substeps (2 -> 3 -> 4 here: 5/3 and 2 times) until it passes;
-    if it fails at the last it is rejected with its reasons and the substeps tried. In a batch
-    only the failing sequences are redone (batched together), not the whole batch."""
+@pytest.fixture
+def flaky_batches(monkeypatch):
+    """``simulate_batch`` whose jobs of the sequences in ``state["bad"]`` fail below
+    ``state["limit"]`` substeps: they explode (``state["mode"] == "explode"``) or fail a gate
+    ("gates"); every call's (jobs, substeps) goes to ``state["calls"]``."""
     import dataclasses
 
     import sim.simulate as simulate_mod
-    from sim.datasets.config import load_config
-    from sim.datasets.generate import generate
-    from sim.datasets.sampling import sample_sequences
     from sim.quality import SimulationError
 
     real = simulate_mod.simulate_batch
-    calls = []
+    state = {"calls": [], "bad": set(), "limit": 4, "mode": "explode"}
 
     def flaky(jobs, *, config=None, failures="raise", **kw):
-        # the jobs of the "bad" sequences fail below ``limit`` substeps: explode, or fail a gate
-        calls.append((len(jobs), config.substeps))
+        state["calls"].append((len(jobs), config.substeps))
         out = real(jobs, config=config, failures=failures, **kw)
-        if config.substeps < limit[0]:
+        if config.substeps < state["limit"]:
             for k, j in enumerate(jobs):
-                if j.name.split()[0] in bad:
+                if j.name.split()[0] in state["bad"]:
                     assert failures == "return"
-                    out[k] = (SimulationError(7, "explosion: test") if mode[0] == "explode" else
+                    out[k] = (SimulationError(7, "explosion: test") if state["mode"] == "explode" else
                               dataclasses.replace(out[k], failed_gates=("max edge strain 0.9 > 0.35",)))
         return out
 
     monkeypatch.setattr(simulate_mod, "simulate_batch", flaky)
+    return state
+
+
+def _two_sequence_config(tmp_path):
+    from sim.datasets.config import load_config
+    from sim.datasets.sampling import sample_sequences
+
     cfg = load_config(tiny_config(tmp_path, TINY.replace("sequences = 4", "sequences = 2")))
-    ids = [sp.id for sp in sample_sequences(cfg)]
-    for mode in (["explode"], ["gates"]):
-        out = tmp_path / mode[0]
-        bad, limit = {ids[1]}, [4]
-        calls.clear()
-        s = generate(cfg, out / "a", batch=2, device="cpu")
-        m = S.read_manifest(out / "a")
-        assert s.accepted + s.rejected == 2 and not m["rejected"]
-        # the batch of 2 (coarse + fine jobs: 4), then only the failing sequence at 3 and at 4
-        assert calls == [(4, 2), (2, 3), (2, 4)]
-        subs = {sid: S.SequenceFile(out / "a" / e["file"]).json("provenance")["config"]["substeps"]
-                for sid, e in m["sequences"].items()}
-        assert subs == {ids[0]: 2, ids[1]: 4}
-        # the rungs it failed are in the provenance of the one that passed (session 46)
-        prov = {sid: S.SequenceFile(out / "a" / e["file"]).json("provenance")
-                for sid, e in m["sequences"].items()}
-        assert "failed_attempts" not in prov[ids[0]]
-        assert [a["substeps"] for a in prov[ids[1]]["failed_attempts"]] == [2, 3]
-        assert all(a["reasons"] for a in prov[ids[1]]["failed_attempts"])
-        bad = set(ids)
-        calls.clear()
-        limit[0] = 100  # fails at every substep count
-        s = generate(cfg, out / "b", batch=1, device="cpu")
-        m = S.read_manifest(out / "b")
-        assert s.accepted == 0 and s.rejected == 2 and calls == [(2, 2), (2, 3), (2, 4)] * 2
-        specs = {sp.id: sp for sp in sample_sequences(cfg)}
-        for sid, r in m["rejected"].items():
-            assert r["substeps"] == [2, 3, 4]
-            # the record holds what it takes to simulate the sequence again
-            sp = specs[sid]
-            assert (r["seed"], r["betas"], r["garment_params"], r["motion_source"], r["motion_params"]) == (
-                sp.seed, list(sp.betas), sp.garment_params, sp.motion, sp.motion_params)
-            assert r["fit"] == cfg.garments.fit and r["vertices"] > 0 and r["split"] == sp.split
-            gate = "max edge strain 0.9 > 0.35"
-            assert r["reasons"] == (["simulation failed at frame 7: explosion: test (at 4 substeps)"]
-                                    if mode[0] == "explode" else [f"fine: {gate}", f"coarse: {gate}"])
-            # where the body passes through itself near the garment (a walk: nowhere), when it ran
-            if mode[0] == "explode":
-                assert "body_self_crossings" not in r
-            else:
-                bc = r["body_self_crossings"]
-                assert bc["frames"] > 0 and bc["frames_with_crossings"] == 0 and bc["frames_by_joint"] == {}
-            # every rung's reasons, the last one's the record's own
-            assert [a["substeps"] for a in r["attempts"]] == [2, 3, 4]
-            assert r["attempts"][-1]["reasons"] == r["reasons"]
-            if mode[0] == "explode":
-                assert [a["reasons"] for a in r["attempts"]] == [
-                    [f"simulation failed at frame 7: explosion: test (at {n} substeps)"] for n in (2, 3, 4)]
-        lines = [json.loads(line) for line in (out / "b" / S.REJECTIONS).read_text().splitlines()]
-        assert sorted(r["id"] for r in lines) == sorted(m["rejected"])
-        assert all(len(r["attempts"]) == 3 for r in lines)
-    # no retries: rejected at the first failure
-    calls.clear()
+    return cfg, [sp.id for sp in sample_sequences(cfg)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["explode", "gates"])
+def test_failed_sequences_are_retried_at_more_substeps(tmp_path, flaky_batches, mode):
+    """A sequence whose simulation stops (explosion) or that fails a quality gate is simulated
+    again at the config's retry substeps (2 -> 3 -> 4 here: 5/3 and 2 times) until it passes.
+    In a batch only the failing sequences are redone (batched together), not the whole batch."""
+    from sim.datasets.generate import generate
+
+    cfg, ids = _two_sequence_config(tmp_path)
+    flaky_batches.update(mode=mode, bad={ids[1]}, limit=4)
+    s = generate(cfg, tmp_path / "a", batch=2, device="cpu")
+    m = S.read_manifest(tmp_path / "a")
+    assert s.accepted + s.rejected == 2 and not m["rejected"]
+    # the batch of 2 (coarse + fine jobs: 4), then only the failing sequence at 3 and at 4
+    assert flaky_batches["calls"] == [(4, 2), (2, 3), (2, 4)]
+    prov = {sid: S.SequenceFile(tmp_path / "a" / e["file"]).json("provenance")
+            for sid, e in m["sequences"].items()}
+    assert {sid: p["config"]["substeps"] for sid, p in prov.items()} == {ids[0]: 2, ids[1]: 4}
+    # the rungs it failed are in the provenance of the one that passed
+    assert "failed_attempts" not in prov[ids[0]]
+    assert [a["substeps"] for a in prov[ids[1]]["failed_attempts"]] == [2, 3]
+    assert all(a["reasons"] for a in prov[ids[1]]["failed_attempts"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["explode", "gates"])
+def test_a_sequence_failing_at_every_rung_is_rejected_with_its_record(tmp_path, flaky_batches, mode):
+    """A sequence that fails at the last rung is rejected with its reasons, the substeps tried,
+    every rung's reasons and what it takes to simulate it again."""
+    from sim.datasets.generate import generate
+    from sim.datasets.sampling import sample_sequences
+
+    cfg, ids = _two_sequence_config(tmp_path)
+    flaky_batches.update(mode=mode, bad=set(ids), limit=100)  # fails at every substep count
+    s = generate(cfg, tmp_path / "b", batch=1, device="cpu")
+    m = S.read_manifest(tmp_path / "b")
+    assert s.accepted == 0 and s.rejected == 2 and flaky_batches["calls"] == [(2, 2), (2, 3), (2, 4)] * 2
+    specs = {sp.id: sp for sp in sample_sequences(cfg)}
+    gate = "max edge strain 0.9 > 0.35"
+    for sid, r in m["rejected"].items():
+        assert r["substeps"] == [2, 3, 4]
+        sp = specs[sid]
+        assert (r["seed"], r["betas"], r["garment_params"], r["motion_source"], r["motion_params"]) == (
+            sp.seed, list(sp.betas), sp.garment_params, sp.motion, sp.motion_params)
+        assert r["fit"] == cfg.garments.fit and r["vertices"] > 0 and r["split"] == sp.split
+        assert r["reasons"] == (["simulation failed at frame 7: explosion: test (at 4 substeps)"]
+                                if mode == "explode" else [f"fine: {gate}", f"coarse: {gate}"])
+        # where the body passes through itself near the garment (a walk: nowhere), when it ran
+        if mode == "explode":
+            assert "body_self_crossings" not in r
+            assert [a["reasons"] for a in r["attempts"]] == [
+                [f"simulation failed at frame 7: explosion: test (at {n} substeps)"] for n in (2, 3, 4)]
+        else:
+            bc = r["body_self_crossings"]
+            assert bc["frames"] > 0 and bc["frames_with_crossings"] == 0 and bc["frames_by_joint"] == {}
+        # every rung's reasons, the last one's the record's own
+        assert [a["substeps"] for a in r["attempts"]] == [2, 3, 4]
+        assert r["attempts"][-1]["reasons"] == r["reasons"]
+    lines = [json.loads(line) for line in (tmp_path / "b" / S.REJECTIONS).read_text().splitlines()]
+    assert sorted(r["id"] for r in lines) == sorted(m["rejected"])
+    assert all(len(r["attempts"]) == 3 for r in lines)
+
+
+@pytest.mark.slow
+def test_without_retries_a_failing_sequence_is_rejected_at_once(tmp_path, flaky_batches):
+    from sim.datasets.config import load_config
+    from sim.datasets.generate import generate
+    from sim.datasets.sampling import sample_sequences
+
     cfg = load_config(tiny_config(tmp_path, TINY.replace("sequences = 4", "sequences = 2").replace(
         "substeps = 2", "substeps = 2\nretry_factors = []"), "no_retry.toml"))
+    flaky_batches.update(mode="gates", bad={sp.id for sp in sample_sequences(cfg)}, limit=100)
     s = generate(cfg, tmp_path / "c", batch=1, device="cpu")
-    assert s.rejected == 2 and calls == [(2, 2)] * 2
+    assert s.rejected == 2 and flaky_batches["calls"] == [(2, 2)] * 2
