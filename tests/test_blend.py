@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sim.errors import WrinklesInputError
-from sim.motions.blend import blend_from_rest, smoothstep
+from sim.motions.blend import blend_from_rest
 from sim.rotations import axis_angle_to_matrix
 from sim.types import Motion
 
@@ -17,10 +17,6 @@ def motion_starting_bent(T: int = 10) -> Motion:
     poses[:, 18] = [0.0, 0.0, -1.2]  # left elbow bent
     trans = np.tile([[0.3, 0.9, -0.2]], (T, 1)).astype(np.float32)
     return Motion(poses=poses, trans=trans, fps=30.0, name="bent")
-
-
-def test_smoothstep_ends():
-    np.testing.assert_allclose(smoothstep(np.array([0.0, 0.5, 1.0])), [0.0, 0.5, 1.0])
 
 
 def test_blend_starts_at_rest_and_reaches_first_frame():
@@ -39,7 +35,7 @@ def test_blend_starts_at_rest_and_reaches_first_frame():
     # rotations interpolate on the sphere: halfway is half the angle about the same axis
     half = 6 + 15
     R = axis_angle_to_matrix(b.poses[half, 18])
-    assert np.isclose(np.linalg.norm(b.poses[half, 18]), 0.6, atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(b.poses[half, 18]), 0.6, atol=1e-5)
     np.testing.assert_allclose(R[2, 2], 1.0, atol=1e-6)  # rotation about Z only
 
 

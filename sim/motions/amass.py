@@ -155,6 +155,39 @@ def load_amass(path: str | os.PathLike, *, pelvis_offset: np.ndarray | None = No
     if up_axis not in ("z", "y"):
         raise WrinklesInputError(f"up_axis must be 'z' or 'y', got {up_axis!r}", path=path)
     data = _read_npz(path)
+    poses = _read_poses(data, path)
+    T, D = poses.shape
+    if "trans" not in data:
+        raise WrinklesInputError(f"no 'trans' array; keys present: {', '.join(sorted(data))}",
+                                 path=path)
+    trans = _float_array(data, "trans", path)
+    if trans.shape != (T, 3):
+        raise WrinklesInputError(f"'trans' must have shape ({T}, 3) to match 'poses', got "
+                                 f"{trans.shape}", path=path)
+    bad = ~(np.isfinite(poses).all(axis=1) & np.isfinite(trans).all(axis=1))
+    if bad.any():
+        raise WrinklesInputError(f"NaN/inf in 'poses' or 'trans' at frame {int(np.argmax(bad))}",
+                                 path=path)
+    fps = _frame_rate(data, source_fps, path)
+    body, extra = _smpl_joints(poses)
+    if up_axis == "z":
+        body, trans = z_up_to_y_up(body, trans, pelvis_offset)
+    betas = None
+    if "betas" in data:
+        b = _float_array(data, "betas", path)
+        b = b.reshape(-1) if b.ndim <= 1 else b.reshape(b.shape[0], -1)[0]
+        if not np.all(np.isfinite(b)):
+            raise WrinklesInputError("NaN/inf in 'betas'", path=path)
+        betas = b.astype(np.float32)
+    gender = _as_str(data.get("gender"))
+    if gender is not None:
+        extra["gender"] = gender
+    return Motion(poses=body.astype(np.float32), trans=trans.astype(np.float32), fps=fps,
+                  name=name or Path(path).stem, betas=betas, source=path, extra=extra)
+
+
+def _read_poses(data: dict, path: str) -> np.ndarray:
+    """The file's poses as (T, D), D one of ``LAYOUTS`` (from ``poses`` or the split keys)."""
     if "poses" in data:
         poses = _float_array(data, "poses", path)
     elif "root_orient" in data and "pose_body" in data:
@@ -174,18 +207,11 @@ def load_amass(path: str | os.PathLike, *, pelvis_offset: np.ndarray | None = No
         raise WrinklesInputError(
             f"'poses' has {D} numbers per frame; expected 72 (SMPL), 66 (body), 156 (SMPL-H) "
             "or 165 (SMPL-X)", path=path)
-    if "trans" not in data:
-        raise WrinklesInputError(f"no 'trans' array; keys present: {', '.join(sorted(data))}",
-                                 path=path)
-    trans = _float_array(data, "trans", path)
-    if trans.shape != (T, 3):
-        raise WrinklesInputError(f"'trans' must have shape ({T}, 3) to match 'poses', got "
-                                 f"{trans.shape}", path=path)
-    bad = ~(np.isfinite(poses).all(axis=1) & np.isfinite(trans).all(axis=1))
-    if bad.any():
-        raise WrinklesInputError(f"NaN/inf in 'poses' or 'trans' at frame {int(np.argmax(bad))}",
-                                 path=path)
+    return poses
 
+
+def _frame_rate(data: dict, source_fps: float | None, path: str) -> float:
+    """The file's frame rate [1/s] (the first of ``_FPS_KEYS`` present), else ``source_fps``."""
     fps = None
     for key in _FPS_KEYS:
         if key in data:
@@ -201,7 +227,13 @@ def load_amass(path: str | os.PathLike, *, pelvis_offset: np.ndarray | None = No
                                  "source_fps", path=path)
     if not (np.isfinite(fps) and fps > 0):
         raise WrinklesInputError(f"frame rate must be positive, got {fps}", path=path)
+    return fps
 
+
+def _smpl_joints(poses: np.ndarray) -> tuple[np.ndarray, dict]:
+    """SMPL's 24 joint rotations (T, 24, 3) from a (T, D) pose array, and ``extra`` with the
+    layout and the hand / jaw / eye rotations SMPL has no joints for."""
+    T, D = poses.shape
     layout = LAYOUTS[D]
     joints = poses.reshape(T, D // 3, 3)
     body = np.zeros((T, NUM_SMPL_JOINTS, 3))
@@ -216,18 +248,4 @@ def load_amass(path: str | os.PathLike, *, pelvis_offset: np.ndarray | None = No
             extra["jaw_pose"] = joints[:, 22:23].astype(np.float32)
             extra["eye_pose"] = joints[:, 23:25].astype(np.float32)
             extra["hand_pose"] = joints[:, 25:55].astype(np.float32)
-    if up_axis == "z":
-        body, trans = z_up_to_y_up(body, trans, pelvis_offset)
-
-    betas = None
-    if "betas" in data:
-        b = _float_array(data, "betas", path)
-        b = b.reshape(-1) if b.ndim <= 1 else b.reshape(b.shape[0], -1)[0]
-        if not np.all(np.isfinite(b)):
-            raise WrinklesInputError("NaN/inf in 'betas'", path=path)
-        betas = b.astype(np.float32)
-    gender = _as_str(data.get("gender"))
-    if gender is not None:
-        extra["gender"] = gender
-    return Motion(poses=body.astype(np.float32), trans=trans.astype(np.float32), fps=fps,
-                  name=name or Path(path).stem, betas=betas, source=path, extra=extra)
+    return body, extra

@@ -1,4 +1,4 @@
-"""Blending a motion in from the rest pose (issue 3, "Dressing").
+"""Blending a motion in from the rest pose.
 
 A garment is dressed on the body in its rest pose and settled; then the body must move from
 rest into the motion's first frame before the motion plays, so every sequence starts at rest
@@ -11,22 +11,18 @@ from dataclasses import replace
 
 import numpy as np
 
+from sim.easing import smootherstep
 from sim.errors import WrinklesInputError
 from sim.motions.resample import slerp_axis_angle
 from sim.types import Motion
-
-
-def smoothstep(t: np.ndarray) -> np.ndarray:
-    """C2 ease curve 6t^5 - 15t^4 + 10t^3 on [0, 1] (zero velocity and acceleration at ends)."""
-    t = np.clip(t, 0.0, 1.0)
-    return t * t * t * (t * (6.0 * t - 15.0) + 10.0)
 
 
 def blend_from_rest(motion: Motion, seconds: float, *, hold: float = 0.0) -> tuple[Motion, int]:
     """Prepend a transition from the rest pose to the motion's first frame.
 
     Joint rotations (the root's included) are slerped from identity to frame 0 with a C2 ease
-    curve; the root translation stays at frame 0's. ``hold`` seconds of rest come first.
+    curve (``smootherstep``); the root translation stays at frame 0's. ``hold`` seconds of rest
+    come first.
 
     Args:
         motion: the motion.
@@ -46,7 +42,7 @@ def blend_from_rest(motion: Motion, seconds: float, *, hold: float = 0.0) -> tup
     if n == 0:
         return motion, 0
     t = np.concatenate([np.zeros(n_hold), (np.arange(n_blend) / max(n_blend, 1))])
-    w = smoothstep(t)
+    w = smootherstep(t)
     p0 = motion.poses[0].astype(np.float64)
     rest = np.zeros_like(p0)
     pre = slerp_axis_angle(np.broadcast_to(rest, (n, *p0.shape)), np.broadcast_to(p0, (n, *p0.shape)),

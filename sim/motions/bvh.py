@@ -195,87 +195,122 @@ def parse_bvh(path: str | os.PathLike) -> BvhData:
     toks = [(n, t) for n, t in toks if t]
     if not toks or toks[0][1][0].upper() != "HIERARCHY":
         raise _err(path, toks[0][0] if toks else None, "expected 'HIERARCHY' at the start")
-    joints: list[BvhJoint] = []
-    stack: list[int] = []  # open joint indices; -2 marks an End Site block
-    pending: BvhJoint | None = None
-    end_offset = np.zeros(3)
-    n_channels = 0
+    hierarchy = _Hierarchy(path)
     i = 1
     while i < len(toks):
-        line, t = toks[i]
-        key = t[0]
-        if key in ("ROOT", "JOINT"):
-            if (key == "ROOT") != (not stack) or (key == "ROOT" and joints):
-                raise _err(path, line, f"'{key}' not allowed here (one ROOT, JOINTs inside it)")
-            if stack and stack[-1] == -2:
-                raise _err(path, line, "'JOINT' inside an End Site")
-            if len(t) < 2:
-                raise _err(path, line, f"'{key}' without a name")
-            pending = BvhJoint(name=" ".join(t[1:]), parent=stack[-1] if stack else -1,
-                               offset=np.zeros(3))
-        elif key == "End":
-            if not stack or stack[-1] == -2:
-                raise _err(path, line, "'End Site' outside a joint")
-            pending = BvhJoint(name="", parent=-2, offset=np.zeros(3))
-        elif key == "{":
-            if pending is None:
-                raise _err(path, line, "'{' without a ROOT, JOINT or End Site before it")
-            if pending.parent == -2:
-                stack.append(-2)
-                end_offset = np.zeros(3)
-            else:
-                joints.append(pending)
-                idx = len(joints) - 1
-                if pending.parent >= 0:
-                    joints[pending.parent].children.append(idx)
-                stack.append(idx)
-            pending = None
-        elif key == "}":
-            if not stack:
-                raise _err(path, line, "unbalanced '}'")
-            top = stack.pop()
-            if top == -2:
-                joints[stack[-1]].end_sites.append(end_offset)
-            if not stack:
-                i += 1
-                break
-        elif key == "OFFSET":
-            if len(t) != 4:
-                raise _err(path, line, f"OFFSET needs 3 numbers, got {len(t) - 1}")
-            off = _floats(path, line, t[1:], "OFFSET")
-            if stack and stack[-1] == -2:
-                end_offset = off
-            elif stack:
-                joints[stack[-1]].offset = off
-            else:
-                raise _err(path, line, "OFFSET outside a joint")
-        elif key == "CHANNELS":
-            if not stack or stack[-1] == -2:
-                raise _err(path, line, "CHANNELS outside a joint")
-            if len(t) < 2 or not t[1].isdigit():
-                raise _err(path, line, "CHANNELS needs a count")
-            n = int(t[1])
-            chans = t[2:]
-            if len(chans) != n:
-                raise _err(path, line, f"CHANNELS says {n} channels, lists {len(chans)}")
-            for c in chans:
-                if c not in _CHANNELS:
-                    raise _err(path, line, f"unknown channel '{c}' (allowed: {', '.join(_CHANNELS)})")
-            jt = joints[stack[-1]]
-            jt.channels = chans
-            jt.channel_start = n_channels
-            n_channels += n
-        elif key == "MOTION":
-            raise _err(path, line, "MOTION before the hierarchy is closed (missing '}')")
-        else:
-            raise _err(path, line, f"unexpected '{key}' in the hierarchy")
+        closed = hierarchy.read(*toks[i])
         i += 1
+        if closed:
+            break
     else:
         raise _err(path, toks[-1][0], "hierarchy not closed (missing '}') and no MOTION section")
-    if not joints:
+    if not hierarchy.joints:
         raise _err(path, None, "no ROOT joint in the hierarchy")
+    frames, frame_time = _parse_motion(path, toks, i, hierarchy.n_channels)
+    return BvhData(joints=hierarchy.joints, frames=frames, frame_time=frame_time, path=path)
 
-    # --- MOTION ---
+
+@dataclass
+class _Hierarchy:
+    """The HIERARCHY section read line by line: joints in file order, the open blocks."""
+
+    path: str
+    joints: list[BvhJoint] = field(default_factory=list)
+    stack: list[int] = field(default_factory=list)  # open joint indices; -2 marks an End Site block
+    pending: BvhJoint | None = None  # declared, its '{' not yet read
+    end_offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    n_channels: int = 0
+
+    def read(self, line: int, t: list[str]) -> bool:
+        """Take one line's tokens; True once the ROOT's block is closed."""
+        key = t[0]
+        if key in ("ROOT", "JOINT", "End"):
+            self._declare(line, t)
+        elif key == "{":
+            self._open(line)
+        elif key == "}":
+            return self._close(line)
+        elif key == "OFFSET":
+            self._offset(line, t)
+        elif key == "CHANNELS":
+            self._channels(line, t)
+        elif key == "MOTION":
+            raise _err(self.path, line, "MOTION before the hierarchy is closed (missing '}')")
+        else:
+            raise _err(self.path, line, f"unexpected '{key}' in the hierarchy")
+        return False
+
+    def _declare(self, line: int, t: list[str]) -> None:
+        key, stack = t[0], self.stack
+        if key == "End":
+            if not stack or stack[-1] == -2:
+                raise _err(self.path, line, "'End Site' outside a joint")
+            self.pending = BvhJoint(name="", parent=-2, offset=np.zeros(3))
+            return
+        if (key == "ROOT") != (not stack) or (key == "ROOT" and self.joints):
+            raise _err(self.path, line, f"'{key}' not allowed here (one ROOT, JOINTs inside it)")
+        if stack and stack[-1] == -2:
+            raise _err(self.path, line, "'JOINT' inside an End Site")
+        if len(t) < 2:
+            raise _err(self.path, line, f"'{key}' without a name")
+        self.pending = BvhJoint(name=" ".join(t[1:]), parent=stack[-1] if stack else -1,
+                                offset=np.zeros(3))
+
+    def _open(self, line: int) -> None:
+        pending = self.pending
+        if pending is None:
+            raise _err(self.path, line, "'{' without a ROOT, JOINT or End Site before it")
+        if pending.parent == -2:
+            self.stack.append(-2)
+            self.end_offset = np.zeros(3)
+        else:
+            self.joints.append(pending)
+            idx = len(self.joints) - 1
+            if pending.parent >= 0:
+                self.joints[pending.parent].children.append(idx)
+            self.stack.append(idx)
+        self.pending = None
+
+    def _close(self, line: int) -> bool:
+        if not self.stack:
+            raise _err(self.path, line, "unbalanced '}'")
+        top = self.stack.pop()
+        if top == -2:
+            self.joints[self.stack[-1]].end_sites.append(self.end_offset)
+        return not self.stack
+
+    def _offset(self, line: int, t: list[str]) -> None:
+        if len(t) != 4:
+            raise _err(self.path, line, f"OFFSET needs 3 numbers, got {len(t) - 1}")
+        off = _floats(self.path, line, t[1:], "OFFSET")
+        if self.stack and self.stack[-1] == -2:
+            self.end_offset = off
+        elif self.stack:
+            self.joints[self.stack[-1]].offset = off
+        else:
+            raise _err(self.path, line, "OFFSET outside a joint")
+
+    def _channels(self, line: int, t: list[str]) -> None:
+        if not self.stack or self.stack[-1] == -2:
+            raise _err(self.path, line, "CHANNELS outside a joint")
+        if len(t) < 2 or not t[1].isdigit():
+            raise _err(self.path, line, "CHANNELS needs a count")
+        n = int(t[1])
+        chans = t[2:]
+        if len(chans) != n:
+            raise _err(self.path, line, f"CHANNELS says {n} channels, lists {len(chans)}")
+        for c in chans:
+            if c not in _CHANNELS:
+                raise _err(self.path, line, f"unknown channel '{c}' (allowed: {', '.join(_CHANNELS)})")
+        jt = self.joints[self.stack[-1]]
+        jt.channels = chans
+        jt.channel_start = self.n_channels
+        self.n_channels += n
+
+
+def _parse_motion(path: str, toks: list[tuple[int, list[str]]], i: int,
+                  n_channels: int) -> tuple[np.ndarray, float]:
+    """The MOTION section from token line ``i`` on: (frames (T, n_channels), frame time [s])."""
     if i >= len(toks) or toks[i][1][0].upper() != "MOTION":
         raise _err(path, toks[i][0] if i < len(toks) else None, "missing 'MOTION' section")
     i += 1
@@ -304,7 +339,7 @@ def parse_bvh(path: str | os.PathLike) -> BvhData:
             raise _err(path, line, f"frame {k} has {len(t)} values, the hierarchy has "
                                    f"{n_channels} channels")
         frames[k] = _floats(path, line, t, f"frame {k}")
-    return BvhData(joints=joints, frames=frames, frame_time=frame_time, path=path)
+    return frames, frame_time
 
 
 def _short(name: str) -> str:

@@ -26,9 +26,10 @@ with speed (cf. Grieve 1968, "Gait patterns and the speed of walking"), giving 1
 1.3 m/s; running stride frequency ``f = 1.25 + 0.04 v`` Hz (runners speed up mostly by longer
 strides; Cavanagh & Kram 1989, ~1.35-1.45 Hz at 3-5 m/s). Where a body's legs would need a hip
 extension past the joint-limit table (30 deg, ``sim.motions.limits``) to reach that stride, the
-cadence rises instead (:func:`limited_cadence`, session 52): on the default body the run takes
-1.62 strides/s (194 steps/min) at 29 deg of hip extension instead of 1.39 at 35 deg, a short
-body (betas[0] = -2) 2.09 instead of 1.39 at 49 deg. A stride given explicitly is kept.
+cadence rises instead (:func:`limited_cadence`): on the default body the run takes 1.62
+strides/s (194 steps/min) at 29 deg of hip extension, where 1.39 strides/s would need 35 deg; a
+short body (betas[0] = -2) takes 2.09, where 1.39 would need 49 deg. A stride given explicitly is
+kept.
 
 Stride calibration: the normative curves belong to one stride length; at another speed /
 stride the hip curve is scaled about its mean so that the stance foot, carried back by the
@@ -52,6 +53,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.easing import smoothstep
 from sim.motions.limits import JOINT_LIMITS
 from sim.motions.procedural import (
     D2R,
@@ -61,7 +63,6 @@ from sim.motions.procedural import (
     check_params,
     ground_trans_y,
     make_motion,
-    smoothstep,
     time_axis,
 )
 from sim.motions.skeleton import MotionSkeleton, resolve_skeleton
@@ -78,8 +79,8 @@ WALK_TOE_OFF = 0.62
 RUN_HIP = ((0, 35), (12, 27), (28, 5), (42, -12), (55, 0), (70, 30), (85, 45), (94, 40))
 RUN_KNEE = ((0, 18), (14, 40), (28, 25), (39, 15), (48, 35), (60, 75), (70, 95), (80, 80),
             (90, 40), (96, 22))
-# the 14 % key was 20 deg until session 52: the interpolated curve overshoots its key (20.12 deg),
-# past the joint-limit table's 20 deg of dorsiflexion; 19.5 peaks at 19.64
+# the 14 % key is 19.5 deg: the interpolated curve overshoots its key (to 19.64 deg), and a key of
+# 20 would pass the joint-limit table's 20 deg of dorsiflexion (20.12)
 RUN_ANKLE = ((0, 5), (14, 19.5), (28, 10), (39, -20), (46, -24), (56, -8), (70, 5), (85, 10),
              (94, 7))
 RUN_TOE_OFF = 0.39
@@ -207,10 +208,10 @@ def _stance_speed(style: _GaitStyle, duty: float, f: float, hip_scale: float,
 
 
 HIP_SCALE_RANGE = (0.2, 2.0)
-"""The hip-curve scales ``stride_calibration`` chooses from. The floor was 0.5 until session 53:
-a run slower than ~1 m/s (the running cadence stays above 1.25 strides/s, so its strides are
-short) needs a smaller swing, and at 0.5 the stance foot slid forward at ~0.5 m/s at a 0.5 m/s
-jog. At 0.2 the stance foot still moves backwards (the knee's flexion alone moves it forwards:
+"""The hip-curve scales ``stride_calibration`` chooses from. A run slower than ~1 m/s (the
+running cadence stays above 1.25 strides/s, so its strides are short) needs a swing below half
+the curves': with a floor of 0.5 the stance foot slides forward at ~0.5 m/s at a 0.5 m/s jog.
+At 0.2 the stance foot still moves backwards (the knee's flexion alone moves it forwards:
 the stance speed is ~(1.74 s - 0.12) m per stride, s the scale), and every run down to the
 slowest ``RunParams`` allows (0.5 m/s) is within the range."""
 
@@ -238,9 +239,9 @@ MAX_STRIDE_FREQUENCY = {"walk": 1.75, "run": 2.5}
 """The quickest cadence [strides/s] ``limited_cadence`` raises a gait to: race walkers take about
 3.5 steps/s, sprinters about 5 (Weyand et al. 2000, "Faster top running speeds are achieved with
 greater ground forces not more rapid leg movements"). A body that would need more (a short body
-at a sprint) keeps this cadence and a hip swing past the joint-limit table, as before session 52:
-an absurd step rate is the worse error. (Past a swing of 2, where ``stride_calibration`` clips,
-the stance foot slides, as it did before at the lower automatic cadence: a short body at 10 m/s.)"""
+at a sprint) keeps this cadence and a hip swing past the joint-limit table: an absurd step rate
+is the worse error. (Past a swing of 2, where ``stride_calibration`` clips, the stance foot
+slides: a short body at 10 m/s.)"""
 
 
 def hip_extension_limit() -> float:

@@ -20,6 +20,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from sim.easing import smoothstep
 from sim.errors import WrinklesInputError
 from sim.motions.limits import JOINT_LIMITS
 from sim.motions.skeleton import MotionSkeleton, resolve_skeleton
@@ -90,12 +91,6 @@ def check_choice(p, name: str, allowed: tuple[str, ...]) -> None:
 def time_axis(duration: float, fps: float) -> np.ndarray:
     """Frame times [s], shape (round(duration * fps),), at least one frame."""
     return np.arange(max(1, int(round(duration * fps))), dtype=np.float64) / fps
-
-
-def smoothstep(x: np.ndarray) -> np.ndarray:
-    """C1 ramp 0 -> 1 on [0, 1] with zero slope at both ends (clamped outside)."""
-    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)
 
 
 class PoseBuilder:

@@ -95,8 +95,8 @@ class MotionSkeleton:
     # --- construction --------------------------------------------------------------------
     @classmethod
     def default(cls) -> MotionSkeleton:
-        """SMPL's approximate skeleton with one heel and one toe point per foot (the model
-        procedural motions used before they knew bodies); cached."""
+        """SMPL's approximate skeleton with one heel and one toe point per foot (what procedural
+        motions are built on when no body is given); cached."""
         global _DEFAULT
         if _DEFAULT is None:
             J = SMPL_REST_JOINTS
