@@ -24,7 +24,7 @@ from sim.cloth.spans import (
 def _loads_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=float), c: wp.array(dtype=wp.vec3),
                   d: wp.array(dtype=wp.vec3i), e: wp.array(dtype=wp.vec4i), f: wp.array(dtype=wp.mat22),
                   g: wp.array(dtype=wp.vec2i), sa: Span, sc: Span, order: wp.array(dtype=wp.int32),
-                  raw: wp.array(dtype=float, ndim=2), ref: wp.array(dtype=float, ndim=2)):
+                  raw_out: wp.array(dtype=float, ndim=2), ref_out: wp.array(dtype=float, ndim=2)):
     k = wp.tid()
     j = order[k]
     vi = load_vec3i(d, j)
@@ -32,27 +32,27 @@ def _loads_kernel(a: wp.array(dtype=wp.int32), b: wp.array(dtype=float), c: wp.a
     m = load_mat22(f, j)
     v = load_vec3(c, j)
     w = load_vec3(vec3s(sc), j)
-    raw[k, 0] = float(load_int(a, j))
-    raw[k, 1] = load_float(b, j)
-    raw[k, 2] = v[0] + 2.0 * v[1] + 4.0 * v[2]
-    raw[k, 3] = float(vi[0] + 3 * vi[1] + 9 * vi[2])
-    raw[k, 4] = float(vq[0] + 5 * vq[1] + 25 * vq[2] + 125 * vq[3])
-    raw[k, 5] = m[0, 0] + 2.0 * m[0, 1] + 4.0 * m[1, 0] + 8.0 * m[1, 1]
-    raw[k, 6] = float(load_int(ints(sa), j)) + w[2]
-    raw[k, 7] = float(load_vec2i(g, j)[0] - 7 * load_vec2i(g, j)[1])
+    raw_out[k, 0] = float(load_int(a, j))
+    raw_out[k, 1] = load_float(b, j)
+    raw_out[k, 2] = v[0] + 2.0 * v[1] + 4.0 * v[2]
+    raw_out[k, 3] = float(vi[0] + 3 * vi[1] + 9 * vi[2])
+    raw_out[k, 4] = float(vq[0] + 5 * vq[1] + 25 * vq[2] + 125 * vq[3])
+    raw_out[k, 5] = m[0, 0] + 2.0 * m[0, 1] + 4.0 * m[1, 0] + 8.0 * m[1, 1]
+    raw_out[k, 6] = float(load_int(ints(sa), j)) + w[2]
+    raw_out[k, 7] = float(load_vec2i(g, j)[0] - 7 * load_vec2i(g, j)[1])
     vi = d[j]
     vq = e[j]
     m = f[j]
     v = c[j]
     w = vec3s(sc)[j]
-    ref[k, 0] = float(a[j])
-    ref[k, 1] = b[j]
-    ref[k, 2] = v[0] + 2.0 * v[1] + 4.0 * v[2]
-    ref[k, 3] = float(vi[0] + 3 * vi[1] + 9 * vi[2])
-    ref[k, 4] = float(vq[0] + 5 * vq[1] + 25 * vq[2] + 125 * vq[3])
-    ref[k, 5] = m[0, 0] + 2.0 * m[0, 1] + 4.0 * m[1, 0] + 8.0 * m[1, 1]
-    ref[k, 6] = float(ints(sa)[j]) + w[2]
-    ref[k, 7] = float(g[j][0] - 7 * g[j][1])
+    ref_out[k, 0] = float(a[j])
+    ref_out[k, 1] = b[j]
+    ref_out[k, 2] = v[0] + 2.0 * v[1] + 4.0 * v[2]
+    ref_out[k, 3] = float(vi[0] + 3 * vi[1] + 9 * vi[2])
+    ref_out[k, 4] = float(vq[0] + 5 * vq[1] + 25 * vq[2] + 125 * vq[3])
+    ref_out[k, 5] = m[0, 0] + 2.0 * m[0, 1] + 4.0 * m[1, 0] + 8.0 * m[1, 1]
+    ref_out[k, 6] = float(ints(sa)[j]) + w[2]
+    ref_out[k, 7] = float(g[j][0] - 7 * g[j][1])
 
 
 def test_raw_loads_read_the_element_warp_indexing_reads(device):

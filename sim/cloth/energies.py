@@ -1,16 +1,18 @@
-"""Cloth energies as Warp functions: StVK membrane and dihedral-angle bending.
+"""Cloth energies as Warp functions: the co-rotated linear membrane and dihedral-angle bending
+the solver integrates, and the StVK membrane energy of the physics losses (``sim.losses``).
 
-Each energy comes with its per-vertex gradient and 3x3 Hessian block, the quantities a
-Vertex Block Descent iteration needs (Chen et al. 2024, Eq. 9-10). The same functions give
-physics losses later (DESIGN.md: "physics energies that double as learning losses").
+The solver's energies come with their per-vertex force and 3x3 Hessian block, the quantities a
+Vertex Block Descent iteration needs (Chen et al. 2024, Eq. 9-10), with strain-rate damping.
 
 Conventions:
-    * Membrane (Saint Venant-Kirchhoff on a triangle): ``F = Ds Dm^-1`` (3x2),
-      ``G = (F^T F - I) / 2``, ``psi = mu |G|_F^2 + lam/2 tr(G)^2`` [J/m^2], energy
-      ``E = A psi`` [J] with rest area ``A`` [m^2] (Bonet & Wood, Nonlinear Continuum
-      Mechanics, Eq. 6.27 restricted to 2D). The vertex gradient is ``A P g_i`` with the first
-      Piola stress ``P = F (2 mu G + lam tr(G) I)`` and ``g_i`` the vertex's row of the shape
-      derivative (``F = sum_i x_i g_i^T``).
+    * Deformation gradient of a triangle ``F = Ds Dm^-1`` (3x2), Green strain
+      ``G = (F^T F - I) / 2``; ``g_i`` is vertex ``i``'s row of the shape derivative
+      (``F = sum_i x_i g_i^T``, ``shape_row``); rest area ``A`` [m^2].
+    * Co-rotated linear membrane: ``F = R S``, ``E = A (mu |F - R|^2 + lam/2 (tr S - 2)^2)`` [J]
+      (``corotated_energy``). It resists compression as stiffly as stretch, so compressed
+      cloth buckles out of plane into wrinkles instead of shrinking in plane.
+    * StVK membrane: ``psi = mu |G|_F^2 + lam/2 tr(G)^2`` [J/m^2], ``E = A psi`` [J] (Bonet &
+      Wood, Nonlinear Continuum Mechanics, Eq. 6.27 restricted to 2D; ``stvk_energy``).
     * Bending (discrete shells, Grinspun et al. 2003; hinge gradient as in Bridson et al.
       2003 / Tamstorf & Grinspun 2013): ``E = k_e/2 (theta - theta_rest)^2`` per interior edge
       with ``k_e = k_b 3 |e|^2 / (A_1 + A_2)`` from the rest shape, ``k_b`` [N m]. This
@@ -27,7 +29,7 @@ import warp as wp
 
 
 @wp.func
-def stvk_shape_row(dm_inv: wp.mat22, local: int) -> wp.vec2:
+def shape_row(dm_inv: wp.mat22, local: int) -> wp.vec2:
     """Row ``g_i`` of the shape derivative for local vertex ``local`` (F = sum_i x_i g_i^T)."""
     g1 = wp.vec2(dm_inv[0, 0], dm_inv[0, 1])
     g2 = wp.vec2(dm_inv[1, 0], dm_inv[1, 1])
@@ -49,39 +51,6 @@ def stvk_energy(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: f
     g01 = 0.5 * wp.dot(f0, f1)
     tr = g00 + g11
     return area * (mu * (g00 * g00 + 2.0 * g01 * g01 + g11 * g11) + 0.5 * lam * tr * tr)
-
-
-@wp.func
-def stvk_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: float,
-                              mu: float, lam: float, local: int):
-    """Force ``-dE/dx_local`` [N] and Hessian block ``d2E/dx_local^2`` [N/m] of the StVK
-    membrane energy.
-
-    The Hessian is exact except that the term ``(g^T S g) I`` is clamped at zero under
-    compression, which keeps the block positive semi-definite (the VBD step needs a descent
-    direction; Chen et al. 2024, Sec. 3.4).
-    """
-    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
-    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
-    g00 = 0.5 * (wp.dot(f0, f0) - 1.0)
-    g11 = 0.5 * (wp.dot(f1, f1) - 1.0)
-    g01 = 0.5 * wp.dot(f0, f1)
-    tr = g00 + g11
-    # second Piola-Kirchhoff stress S = 2 mu G + lam tr(G) I (2x2, symmetric)
-    s00 = 2.0 * mu * g00 + lam * tr
-    s11 = 2.0 * mu * g11 + lam * tr
-    s01 = 2.0 * mu * g01
-    g = stvk_shape_row(dm_inv, local)
-    # P g = F S g
-    sg0 = s00 * g[0] + s01 * g[1]
-    sg1 = s01 * g[0] + s11 * g[1]
-    force = -area * (f0 * sg0 + f1 * sg1)
-    fg = f0 * g[0] + f1 * g[1]
-    gsg = wp.max(g[0] * sg0 + g[1] * sg1, 0.0)
-    gg = wp.dot(g, g)
-    hess = area * (gsg * wp.identity(n=3, dtype=float) + (mu + lam) * wp.outer(fg, fg)
-                   + (mu * gg) * (wp.outer(f0, f0) + wp.outer(f1, f1)))
-    return force, hess
 
 
 @wp.func
@@ -113,40 +82,6 @@ def membrane_material_hessian(f0: wp.vec3, f1: wp.vec3, g: wp.vec2, mu: float, l
     fg = f0 * g[0] + f1 * g[1]
     gg = wp.dot(g, g)
     return (mu + lam) * wp.outer(fg, fg) + (mu * gg) * (wp.outer(f0, f0) + wp.outer(f1, f1))
-
-
-@wp.func
-def stvk_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: float,
-                                     mu: float, lam: float, strain_prev: wp.vec3, kd_over_h: float,
-                                     local: int):
-    """StVK force and Hessian block (as ``stvk_vertex_force_hessian``) plus strain-rate damping.
-
-    Damping is Rayleigh stiffness-proportional on the strain rate: the viscous second
-    Piola-Kirchhoff stress is ``(k_d/h) C:(G - G_prev)`` with ``C`` the elastic tensor
-    (``2 mu``, ``lam``), ``G_prev`` the strain at the substep start and ``k_d`` [s] the
-    material's damping. It vanishes for rigid motion (no drag on a falling or moving garment;
-    cf. the per-vertex form of Chen et al. 2024, Eq. 14, which damps absolute motion and
-    over-damps fine meshes). Its Hessian block is ``k_d/h`` times the material part of the
-    elastic block (positive semi-definite).
-    """
-    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
-    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
-    g00 = 0.5 * (wp.dot(f0, f0) - 1.0)
-    g11 = 0.5 * (wp.dot(f1, f1) - 1.0)
-    g01 = 0.5 * wp.dot(f0, f1)
-    tr = g00 + g11
-    s00 = 2.0 * mu * g00 + lam * tr
-    s11 = 2.0 * mu * g11 + lam * tr
-    s01 = 2.0 * mu * g01
-    g = stvk_shape_row(dm_inv, local)
-    sg0 = s00 * g[0] + s01 * g[1]
-    sg1 = s01 * g[0] + s11 * g[1]
-    vg = viscous_stress_g(wp.vec3(g00, g11, g01), strain_prev, g, mu, lam, kd_over_h)
-    force = -area * (f0 * (sg0 + vg[0]) + f1 * (sg1 + vg[1]))
-    gsg = wp.max(g[0] * sg0 + g[1] * sg1, 0.0)
-    material = membrane_material_hessian(f0, f1, g, mu, lam)
-    hess = area * (gsg * wp.identity(n=3, dtype=float) + (1.0 + kd_over_h) * material)
-    return force, hess
 
 
 @wp.func
@@ -211,12 +146,19 @@ def corotated_energy(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, ar
 def corotated_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22,
                                           area: float, mu: float, lam: float, strain_prev: wp.vec3,
                                           kd_over_h: float, local: int):
-    """Co-rotated linear membrane (``corotated_energy``) force and Hessian block with the same
-    strain-rate damping as ``stvk_damped_vertex_force_hessian``.
+    """Co-rotated linear membrane (``corotated_energy``) force and Hessian block plus
+    strain-rate damping.
 
-    Unlike StVK it resists compression as stiffly as stretch (StVK's stress vanishes as a
-    triangle collapses), so compressed cloth buckles out of plane into wrinkles instead of
-    shrinking in plane. First Piola stress ``P = 2 mu (F - R) + lam (tr S - 2) R``; the Hessian
+    Damping is Rayleigh stiffness-proportional on the strain rate: the viscous second
+    Piola-Kirchhoff stress is ``(k_d/h) C:(G - G_prev)`` (``viscous_stress_g``) with ``C`` the
+    elastic tensor (``2 mu``, ``lam``), ``G_prev`` the strain at the substep start and ``k_d``
+    [s] the material's damping (``kd_over_h`` is ``k_d/h``). It vanishes for rigid motion (no
+    drag on a falling or moving garment; cf. the per-vertex form of Chen et al. 2024, Eq. 14,
+    which damps absolute motion and over-damps fine meshes). Its Hessian block is ``k_d/h``
+    times the material part of the StVK block (``membrane_material_hessian``, positive
+    semi-definite).
+
+    First Piola stress ``P = 2 mu (F - R) + lam (tr S - 2) R``; the Hessian
     block is the positive semi-definite ``A (2 mu |g|^2 T + k_n n n^T + lam (R g)(R g)^T)`` with
     ``T`` the projector onto the triangle's plane (the rotation's derivative dropped) and
     ``k_n = max(0, g^T S2 g)`` the exact out-of-plane stiffness of a stressed triangle (second
@@ -225,7 +167,7 @@ def corotated_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3,
     f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
     f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
     r0, r1, tr_s = corotated_frame(f0, f1)
-    g = stvk_shape_row(dm_inv, local)
+    g = shape_row(dm_inv, local)
     fg = f0 * g[0] + f1 * g[1]
     rg = r0 * g[0] + r1 * g[1]
     pg = 2.0 * mu * (fg - rg) + lam * (tr_s - 2.0) * rg
@@ -322,19 +264,6 @@ def dihedral_angle_gradient(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3
 
 
 @wp.func
-def bending_vertex_force_hessian(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3, rest_angle: float,
-                                 k_edge: float, local: int):
-    """Force [N] and Gauss-Newton Hessian block ``k_e g g^T`` [N/m] of the hinge energy.
-
-    The Hessian drops ``k_e (theta - theta_rest) d2theta``: exact at the rest angle, always
-    positive semi-definite.
-    """
-    d = angle_difference(dihedral_angle(xo0, xo1, xa, xb), rest_angle)
-    g = dihedral_angle_gradient(xo0, xo1, xa, xb, local)
-    return -k_edge * d * g, k_edge * wp.outer(g, g)
-
-
-@wp.func
 def bending_damped_vertex_force_hessian(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3,
                                         rest_angle: float, k_edge: float, angle_prev: float,
                                         kd_over_h: float, local: int):
@@ -345,86 +274,3 @@ def bending_damped_vertex_force_hessian(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3,
     g = dihedral_angle_gradient(xo0, xo1, xa, xb, local)
     f = -k_edge * (angle_difference(theta, rest_angle) + kd_over_h * angle_difference(theta, angle_prev)) * g
     return f, (k_edge * (1.0 + kd_over_h)) * wp.outer(g, g)
-
-
-@wp.kernel
-def membrane_energy_kernel(
-    x: wp.array(dtype=wp.vec3),
-    tri_indices: wp.array(dtype=wp.vec3i),
-    tri_dm_inv: wp.array(dtype=wp.mat22),
-    tri_area: wp.array(dtype=float),
-    tri_mu: wp.array(dtype=float),
-    tri_lam: wp.array(dtype=float),
-    energy_out: wp.array(dtype=float),
-):
-    """Per-triangle StVK membrane energy [J]."""
-    t = wp.tid()
-    i = tri_indices[t]
-    energy_out[t] = stvk_energy(x[i[0]], x[i[1]], x[i[2]], tri_dm_inv[t], tri_area[t], tri_mu[t], tri_lam[t])
-
-
-@wp.kernel
-def bending_energy_kernel(
-    x: wp.array(dtype=wp.vec3),
-    edge_indices: wp.array(dtype=wp.vec4i),
-    edge_rest_angle: wp.array(dtype=float),
-    edge_stiffness: wp.array(dtype=float),
-    energy_out: wp.array(dtype=float),
-):
-    """Per-hinge bending energy [J]."""
-    e = wp.tid()
-    i = edge_indices[e]
-    energy_out[e] = bending_energy(x[i[0]], x[i[1]], x[i[2]], x[i[3]], edge_rest_angle[e], edge_stiffness[e])
-
-
-@wp.kernel
-def membrane_vertex_derivatives_kernel(
-    x: wp.array(dtype=wp.vec3),
-    dm_inv: wp.mat22,
-    area: float,
-    mu: float,
-    lam: float,
-    force_out: wp.array(dtype=wp.vec3),
-    hessian_out: wp.array(dtype=wp.mat33),
-):
-    """Force and Hessian block of one triangle ``x[0..2]`` at each of its vertices (tests, losses)."""
-    k = wp.tid()
-    f, h = stvk_vertex_force_hessian(x[0], x[1], x[2], dm_inv, area, mu, lam, k)
-    force_out[k] = f
-    hessian_out[k] = h
-
-
-@wp.kernel
-def corotated_vertex_derivatives_kernel(
-    x: wp.array(dtype=wp.vec3),
-    dm_inv: wp.mat22,
-    area: float,
-    mu: float,
-    lam: float,
-    force_out: wp.array(dtype=wp.vec3),
-    hessian_out: wp.array(dtype=wp.mat33),
-    energy_out: wp.array(dtype=float),
-):
-    """Co-rotated membrane force and Hessian block of one triangle ``x[0..2]`` per vertex
-    (no damping), and its energy (tests)."""
-    k = wp.tid()
-    s = green_strain(x[0], x[1], x[2], dm_inv)
-    f, h = corotated_damped_vertex_force_hessian(x[0], x[1], x[2], dm_inv, area, mu, lam, s, 0.0, k)
-    force_out[k] = f
-    hessian_out[k] = h
-    energy_out[k] = corotated_energy(x[0], x[1], x[2], dm_inv, area, mu, lam)
-
-
-@wp.kernel
-def bending_vertex_derivatives_kernel(
-    x: wp.array(dtype=wp.vec3),
-    rest_angle: float,
-    k_edge: float,
-    force_out: wp.array(dtype=wp.vec3),
-    hessian_out: wp.array(dtype=wp.mat33),
-):
-    """Force and Gauss-Newton Hessian of one hinge ``x[0..3] = (o0, o1, a, b)`` per vertex."""
-    k = wp.tid()
-    f, h = bending_vertex_force_hessian(x[0], x[1], x[2], x[3], rest_angle, k_edge, k)
-    force_out[k] = f
-    hessian_out[k] = h

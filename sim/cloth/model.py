@@ -1,7 +1,7 @@
 """Static cloth data: ``ClothModelBuilder`` (numpy) and ``ClothModel`` (Warp arrays on a device).
 
 A model holds any number of independent cloth *instances* (garments, or the same garment in
-several sequences) so that one kernel launch advances all of them (DESIGN.md, Core types).
+several sequences) so that one kernel launch advances all of them.
 Every particle carries its instance id; per-instance data (thickness, friction, which body
 mesh it collides with) is indexed by it. Instances never interact.
 
@@ -11,10 +11,10 @@ colouring. Colours are computed per instance and merged by colour index, so an i
 batch is updated in exactly the same order as alone (bit-identical results).
 
 The colouring separates the vertices of every triangle, not the two opposite vertices of a
-bending hinge (session 15): the t-shirt needs 4 colours instead of 6, so every sweep is two
-launches shorter. A hinge whose opposite vertices share a colour is marked in
+bending hinge: the t-shirt needs 4 colours instead of 6, so every sweep is two launches
+shorter. A hinge whose opposite vertices share a colour is marked in
 ``vertex_edge_local`` (bits 2-5: which of the hinge's vertices have this vertex's colour), and
-the solve reads those from the sweep's snapshot (``vbd_kernels.solve_color_kernel``): the weak
+the solve reads those from the sweep's snapshot (``sim.cloth.solve_kernel``): the weak
 bending coupling between them is a Jacobi step, every other coupling Gauss-Seidel.
 """
 
@@ -66,8 +66,8 @@ def as_cloth_params(material: Any) -> Any:
     """Solver parameters from a ``sim.garments.Material`` (E, nu, B in SI) or anything that
     already has ``density, mu, lam, bending, damping, friction, thickness``.
 
-    The solver's membrane is isotropic StVK: mu, lam are the plane-stress Lame parameters of
-    the material's (E, nu); its separate in-plane shear stiffness is not used yet.
+    The solver's membrane is isotropic (co-rotated linear): mu, lam are the plane-stress Lame
+    parameters of the material's (E, nu); its separate in-plane shear stiffness is not used.
     """
     if hasattr(material, "mu") or not hasattr(material, "lame_mu"):
         return material
@@ -248,51 +248,11 @@ class ClothModelBuilder:
             raise ValueError("ClothModelBuilder.finalize: no cloth instances were added")
         wp = warp()
         d = resolve_device(device)
-        pos, rest, mass, flags, inst_of = [], [], [], [], []
-        faces, dm_inv, area, mu, lam, damp = [], [], [], [], [], []
-        hinges, rest_angle, k_edge, e_damp = [], [], [], []
-        thickness, friction, starts = [], [], []
-        offset = 0
-        for k, ins in enumerate(self._instances):
-            m = ins.material
-            nv = len(ins.vertices)
-            starts.append(offset)
-            dinv, a = triangle_rest_data(ins.rest, ins.faces)
-            pos.append(ins.vertices)
-            rest.append(ins.rest)
-            mass.append(m.density * lumped_areas(nv, ins.faces, a, ins.layers))
-            flags.append(ins.pinned.astype(np.int32))
-            inst_of.append(np.full(nv, k, dtype=np.int32))
-            faces.append(ins.faces + offset)
-            dm_inv.append(dinv)
-            area.append(a)
-            mu.append(m.mu * ins.layers)
-            lam.append(m.lam * ins.layers)
-            damp.append(np.full(len(a), m.damping))
-            if len(ins.hinges):
-                hinges.append(ins.hinges + offset)
-                rest_angle.append(dihedral_angles(ins.rest, ins.hinges))
-                k_edge.append(hinge_factors(ins.rest, ins.faces, ins.hinges, a, ins.layers, m.bending))
-                e_damp.append(np.full(len(ins.hinges), m.damping))
-            thickness.append(m.thickness)
-            friction.append(m.friction)
-            offset += nv
-        f_all = np.concatenate(faces)
-        h_all = np.concatenate(hinges) if hinges else np.zeros((0, 4), np.int32)
-        n = offset
-        # vertex -> (triangle, local corner) and vertex -> (hinge, local slot) adjacency, CSR
-        tri_ids = np.repeat(np.arange(len(f_all)), 3)
-        vt = _csr(n, f_all.reshape(-1), [tri_ids, np.tile(np.arange(3), len(f_all))])
-        edge_ids = np.repeat(np.arange(len(h_all)), 4)
-        ve = _csr(n, h_all.reshape(-1).astype(np.int64), [edge_ids, np.tile(np.arange(4), len(h_all))])
+        parts = _stack_instances(self._instances)
+        n = parts.pop("particle_count")
+        faces, hinges = parts["faces"], parts["hinges"]
         colors = np.concatenate([ins.colors for ins in self._instances])
-        ve = (*ve[:2], local_packed(colors, h_all.reshape(-1, 4), ve))
-        vt = (*vt[:2], local_packed(colors, f_all, vt))
-        # every mesh edge (boundary included) for edge-edge self-contact, and vertex -> edge
-        me_all = mesh_edges(f_all)
-        me_ids = np.repeat(np.arange(len(me_all)), 2)
-        vme = _csr(n, me_all.reshape(-1).astype(np.int64), [me_ids, np.tile(np.arange(2), len(me_all))])
-        inst_all = np.concatenate(inst_of)
+        adjacency = _adjacency(n, faces, hinges, colors, parts["particle_instance"])
         # merge per-instance colourings by colour index (see module docstring)
         color_order = np.argsort(colors, kind="stable").astype(np.int32)
         counts = np.bincount(colors)
@@ -301,53 +261,101 @@ class ClothModelBuilder:
         def arr(a, dtype):
             return wp.array(np.ascontiguousarray(a), dtype=dtype, device=d)
 
-        cat = np.concatenate
-
-        def per_edge(parts):
-            return cat(parts).astype(np.float32) if parts else np.zeros(0, np.float32)
         return ClothModel(
-            device=d,
-            particle_count=n,
-            tri_count=len(f_all),
-            edge_count=len(h_all),
-            instance_count=len(self._instances),
-            gravity=self.gravity,
-            instance_starts=np.asarray(starts + [n], dtype=np.int64),
-            faces=f_all,
-            hinges=h_all,
-            colors=colors,
+            device=d, particle_count=n, tri_count=len(faces), edge_count=len(hinges),
+            instance_count=len(self._instances), gravity=self.gravity,
+            instance_starts=parts["instance_starts"], faces=faces, hinges=hinges, colors=colors,
             color_offsets=color_offsets,
-            particle_q=arr(cat(pos).astype(np.float32), wp.vec3),
-            particle_rest=arr(cat(rest).astype(np.float32), wp.vec3),
-            particle_mass=arr(cat(mass).astype(np.float32), float),
-            particle_flags=arr(cat(flags), wp.int32),
-            particle_instance=arr(cat(inst_of), wp.int32),
-            tri_indices=arr(f_all.astype(np.int32), wp.vec3i),
-            tri_dm_inv=arr(cat(dm_inv).astype(np.float32), wp.mat22),
-            tri_area=arr(cat(area).astype(np.float32), float),
-            tri_mu=arr(cat(mu).astype(np.float32), float),
-            tri_lam=arr(cat(lam).astype(np.float32), float),
-            tri_damping=arr(cat(damp).astype(np.float32), float),
-            edge_indices=arr(h_all.astype(np.int32).reshape(-1, 4), wp.vec4i),
-            edge_rest_angle=arr(per_edge(rest_angle), float),
-            edge_stiffness=arr(per_edge(k_edge), float),
-            edge_damping=arr(per_edge(e_damp), float),
-            vertex_tri_offsets=arr(vt[0], wp.int32),
-            vertex_tri_ids=arr(vt[1], wp.int32),
-            vertex_tri_local=arr(vt[2], wp.int32),
-            vertex_edge_offsets=arr(ve[0], wp.int32),
-            vertex_edge_ids=arr(ve[1], wp.int32),
-            vertex_edge_local=arr(ve[2], wp.int32),
+            **{name: arr(parts[name], dtype) for name, dtype in _warp_dtypes().items()},
+            **{name: arr(a, dtype) for name, (a, dtype) in adjacency.items()},
             color_vertices=arr(color_order, wp.int32),
-            mesh_edge_indices=arr(me_all.astype(np.int32).reshape(-1, 2), wp.vec2i),
-            vertex_mesh_edge_offsets=arr(vme[0], wp.int32),
-            vertex_mesh_edge_ids=arr(vme[1], wp.int32),
-            vertex_mesh_edge_local=arr(vme[2], wp.int32),
-            tri_instance=arr(inst_all[f_all[:, 0]].astype(np.int32), wp.int32),
-            mesh_edge_instance=arr(inst_all[me_all[:, 0]].astype(np.int32), wp.int32),
-            instance_thickness=arr(np.asarray(thickness, np.float32), float),
-            instance_friction=arr(np.asarray(friction, np.float32), float),
         )
+
+
+def _stack_instances(instances: list[_Instance]) -> dict[str, Any]:
+    """The instances' per-particle, per-triangle, per-hinge and per-instance arrays, stacked in
+    instance order (float32 / int32 numpy), with ``particle_count``, ``instance_starts`` and the
+    stacked ``faces`` and ``hinges`` (global vertex indices)."""
+    cols: dict[str, list] = collections.defaultdict(list)
+    offset = 0
+    for k, ins in enumerate(instances):
+        m = ins.material
+        nv = len(ins.vertices)
+        cols["starts"].append(offset)
+        dinv, a = triangle_rest_data(ins.rest, ins.faces)
+        cols["particle_q"].append(ins.vertices)
+        cols["particle_rest"].append(ins.rest)
+        cols["particle_mass"].append(m.density * lumped_areas(nv, ins.faces, a, ins.layers))
+        cols["particle_flags"].append(ins.pinned.astype(np.int32))
+        cols["particle_instance"].append(np.full(nv, k, dtype=np.int32))
+        cols["faces"].append(ins.faces + offset)
+        cols["tri_dm_inv"].append(dinv)
+        cols["tri_area"].append(a)
+        cols["tri_mu"].append(m.mu * ins.layers)
+        cols["tri_lam"].append(m.lam * ins.layers)
+        cols["tri_damping"].append(np.full(len(a), m.damping))
+        if len(ins.hinges):
+            cols["hinges"].append(ins.hinges + offset)
+            cols["edge_rest_angle"].append(dihedral_angles(ins.rest, ins.hinges))
+            cols["edge_stiffness"].append(hinge_factors(ins.rest, ins.faces, ins.hinges, a, ins.layers,
+                                                        m.bending))
+            cols["edge_damping"].append(np.full(len(ins.hinges), m.damping))
+        cols["instance_thickness"].append(m.thickness)
+        cols["instance_friction"].append(m.friction)
+        offset += nv
+    cat = np.concatenate
+    out: dict[str, Any] = {name: cat(cols[name]).astype(np.float32) for name in (
+        "particle_q", "particle_rest", "particle_mass", "tri_dm_inv", "tri_area", "tri_mu", "tri_lam",
+        "tri_damping")}
+    out["particle_flags"] = cat(cols["particle_flags"])
+    out["particle_instance"] = cat(cols["particle_instance"])
+    for name in ("edge_rest_angle", "edge_stiffness", "edge_damping"):
+        out[name] = cat(cols[name]).astype(np.float32) if cols[name] else np.zeros(0, np.float32)
+    for name in ("instance_thickness", "instance_friction"):
+        out[name] = np.asarray(cols[name], np.float32)
+    out["faces"] = cat(cols["faces"])
+    out["hinges"] = cat(cols["hinges"]) if cols["hinges"] else np.zeros((0, 4), np.int32)
+    out["tri_indices"] = out["faces"].astype(np.int32)
+    out["edge_indices"] = out["hinges"].astype(np.int32).reshape(-1, 4)
+    out["particle_count"] = offset
+    out["instance_starts"] = np.asarray(cols["starts"] + [offset], dtype=np.int64)
+    return out
+
+
+def _adjacency(n: int, faces: np.ndarray, hinges: np.ndarray, colors: np.ndarray,
+               particle_instance: np.ndarray) -> dict[str, tuple]:
+    """Vertex -> (triangle, corner), vertex -> (hinge, slot) and vertex -> (mesh edge, end) CSR
+    adjacency (``local`` columns packed with the same-coloured vertices, ``local_packed``), every
+    mesh edge (boundary included, for edge-edge self-contact) and the instance of every triangle
+    and mesh edge, as ``ClothModel`` field -> (numpy array, Warp dtype)."""
+    wp = warp()
+    tri_ids = np.repeat(np.arange(len(faces)), 3)
+    vt = _csr(n, faces.reshape(-1), [tri_ids, np.tile(np.arange(3), len(faces))])
+    edge_ids = np.repeat(np.arange(len(hinges)), 4)
+    ve = _csr(n, hinges.reshape(-1).astype(np.int64), [edge_ids, np.tile(np.arange(4), len(hinges))])
+    ve = (*ve[:2], local_packed(colors, hinges.reshape(-1, 4), ve))
+    vt = (*vt[:2], local_packed(colors, faces, vt))
+    me_all = mesh_edges(faces)
+    me_ids = np.repeat(np.arange(len(me_all)), 2)
+    vme = _csr(n, me_all.reshape(-1).astype(np.int64), [me_ids, np.tile(np.arange(2), len(me_all))])
+    out = {}
+    for prefix, csr in (("vertex_tri", vt), ("vertex_edge", ve), ("vertex_mesh_edge", vme)):
+        for suffix, a in zip(("offsets", "ids", "local"), csr, strict=True):
+            out[f"{prefix}_{suffix}"] = (a, wp.int32)
+    out["mesh_edge_indices"] = (me_all.astype(np.int32).reshape(-1, 2), wp.vec2i)
+    out["tri_instance"] = (particle_instance[faces[:, 0]].astype(np.int32), wp.int32)
+    out["mesh_edge_instance"] = (particle_instance[me_all[:, 0]].astype(np.int32), wp.int32)
+    return out
+
+
+def _warp_dtypes() -> dict[str, Any]:
+    """The Warp dtype of each ``ClothModel`` array ``_stack_instances`` makes."""
+    wp = warp()
+    return {"particle_q": wp.vec3, "particle_rest": wp.vec3, "particle_mass": float,
+            "particle_flags": wp.int32, "particle_instance": wp.int32, "tri_indices": wp.vec3i,
+            "tri_dm_inv": wp.mat22, "tri_area": float, "tri_mu": float, "tri_lam": float,
+            "tri_damping": float, "edge_indices": wp.vec4i, "edge_rest_angle": float, "edge_stiffness": float,
+            "edge_damping": float, "instance_thickness": float, "instance_friction": float}
 
 
 def local_packed(colors: np.ndarray, prims: np.ndarray, csr: tuple[np.ndarray, ...]) -> np.ndarray:

@@ -97,8 +97,8 @@ class BodyCollider:
         self.velocities = w.zeros_like(self.points)
         self.indices = w.array(f.reshape(-1), dtype=w.int32, device=device)
         # a top-down SAH tree (built on the host, refit on the device each substep): its
-        # closest-point queries ran 25-30 % faster on an H100 than the default CUDA LBVH's
-        # (session 14, the body's upper half at walk and run frames, ``benchmarks/profile_body_query.py``)
+        # closest-point queries run 25-30 % faster on an H100 than the default CUDA LBVH's (the
+        # body's upper half at walk and run frames, docs/BENCHMARKS.md)
         self.mesh = w.Mesh(points=self.points, indices=self.indices, velocities=self.velocities,
                            bvh_constructor="sah")
 
@@ -148,8 +148,7 @@ class ClothControl:
             self-contact detection measures speeds relative to it, so a garment carried along
             by its body (a run covers 3.5 m/s) is searched as if it stood still, as Galilean
             invariance allows (cloth-cloth contact depends on relative motion only). Its only
-            effect is on the cost of the search and, with ``self_contact_bounds``, on the frame
-            the displacement bounds hold in. Zeros (the default): absolute speeds.
+            effect is on the cost of the search. Zeros (the default): absolute speeds.
             ``sim.simulate`` sets it per step to the mean velocity of the instance's body.
     """
 
