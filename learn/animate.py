@@ -91,10 +91,10 @@ class WrinklePipeline:
         uvs, uv_faces = st.get("uvs"), st.get("uv_faces")
         if uvs is None:
             raise WrinklesInputError(
-                "this coarse model has no UV layout (trained before UVs were stored)", path=coarse
+                "this coarse model has no UV layout (its checkpoint stores no 'uvs')", path=coarse
             )
         self.uvs, self.uv_faces = uvs.numpy(), uv_faces.numpy().astype(np.int32)
-        layers = st.get("face_layers")  # absent in models trained before session 48: one layer
+        layers = st.get("face_layers")  # absent where its training data stores none: one layer
         self.face_layers = None if layers is None else layers.numpy().astype(np.float32)
         self._maps = None
 
@@ -137,20 +137,11 @@ class WrinklePipeline:
                 out, on the base before its strain is taken and on the wrinkled result
                 (``sim.quality.push_outside``; 0 or no body: off).
         """
-        from sim.quality import push_outside
-
-        fix = body_vertices is not None and body_faces is not None and clearance > 0
-        wdev = "cuda" if self.device.type == "cuda" else "cpu"
+        sec: dict[str, float] = {}
 
         def outside(x: np.ndarray) -> np.ndarray:
-            if not fix:
-                return x
-            t1 = time.perf_counter()
-            y = push_outside(x, body_vertices, body_faces, clearance=clearance, device=wdev)
-            sec["collision"] = sec.get("collision", 0.0) + time.perf_counter() - t1
-            return y
+            return self._outside(x, body_vertices, body_faces, clearance, sec)
 
-        sec = {}
         t0 = time.perf_counter()
         base = self.coarse.base_from_body(
             self.coarse_model, poses, trans, betas, device=self.device, sample_latent=sample_latent, seed=seed
@@ -159,6 +150,31 @@ class WrinklePipeline:
         base = outside(base)
         if self.wrinkles is None:
             return AnimationResult(base, base, self.faces, self.uvs, self.uv_faces, None, sec)
+        w = self._sample(base, steps=steps, material=material, seed=seed, progress=progress, sec=sec)
+        t0 = time.perf_counter()
+        fine = self.maps().decode(w, base)
+        sec["decode"] = time.perf_counter() - t0
+        fine = outside(fine)
+        return AnimationResult(fine, base, self.faces, self.uvs, self.uv_faces, w, sec)
+
+    def _outside(self, x: np.ndarray, body_vertices: np.ndarray | None, body_faces: np.ndarray | None,
+                 clearance: float, sec: dict[str, float]) -> np.ndarray:
+        """``x`` with the vertices inside the body (or within ``clearance``) moved out; ``x``
+        itself without a body or at 0 clearance. Its time adds to ``sec["collision"]``."""
+        from sim.quality import push_outside
+
+        if body_vertices is None or body_faces is None or not clearance > 0:
+            return x
+        t1 = time.perf_counter()
+        wdev = "cuda" if self.device.type == "cuda" else "cpu"
+        y = push_outside(x, body_vertices, body_faces, clearance=clearance, device=wdev)
+        sec["collision"] = sec.get("collision", 0.0) + time.perf_counter() - t1
+        return y
+
+    def _sample(self, base: np.ndarray, *, steps: int | None, material: str | None, seed: int, progress,
+                sec: dict[str, float]) -> np.ndarray:
+        """The wrinkle maps (T, H, W, 3) the diffusion model draws for the base's strain; times
+        ``sec["strain"]`` and ``sec["diffusion"]``."""
         m = self.maps()
         t0 = time.perf_counter()
         cond = m.conditioning(base, self.wrinkles.config.conditioning)
@@ -183,8 +199,4 @@ class WrinklePipeline:
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
         sec["diffusion"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        fine = m.decode(w, base)
-        sec["decode"] = time.perf_counter() - t0
-        fine = outside(fine)
-        return AnimationResult(fine, base, self.faces, self.uvs, self.uv_faces, w, sec)
+        return w

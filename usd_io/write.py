@@ -1,4 +1,4 @@
-"""Write animated body and garment meshes to a USD stage (DESIGN.md, "On disk: USD").
+"""Write animated body and garment meshes to a USD stage.
 
 Stage layout::
 
@@ -246,6 +246,34 @@ def write_stage(
     final, fmt = _stage_path(Path(path))
     if not (np.isfinite(fps) and fps > 0):
         raise ValueError(f"write_stage fps must be positive, got {fps}")
+    c = _content(body, garments, body_name, write_joints)
+    meta_json = _metadata_json(metadata)
+
+    def author(stage: Usd.Stage) -> None:
+        _author(stage, body_verts=c.body_verts, body_faces=c.body_faces, body_name=body_name,
+                joints=c.joints, tracks=c.tracks, names=c.names, fps=float(fps),
+                start=int(start_time_code), n_frames=c.n_frames, meta_json=meta_json,
+                progress=progress)
+
+    _write_layer(final, fmt, author)
+    return final
+
+
+@dataclass(frozen=True)
+class _Content:
+    """The checked arrays of a stage (see ``write_stage``)."""
+
+    body_verts: np.ndarray | None
+    body_faces: np.ndarray | None
+    joints: np.ndarray | None
+    tracks: list[GarmentTrack]
+    names: list[str]
+    n_frames: int
+
+
+def _content(body: BodyFrames | None, garments: Sequence[GarmentTrack], body_name: str,
+             write_joints: bool) -> _Content:
+    """Shapes, finiteness, frame counts and names checked (``ValueError`` naming what is wrong)."""
     tracks = [_check_garment(g) for g in garments]
     body_verts = None if body is None else _positions(body.vertices, "body vertices")
     body_faces = None
@@ -268,8 +296,12 @@ def write_stage(
         joints = _positions(body.joints, "body joints")
         if joints.shape[0] != n_frames:
             raise ValueError(f"body joints have {joints.shape[0]} frames, vertices {n_frames}")
-    meta_json = _metadata_json(metadata)
+    return _Content(body_verts, body_faces, joints, tracks, names, n_frames)
 
+
+def _write_layer(final: Path, fmt: str, author: Callable[[Usd.Stage], None]) -> None:
+    """A new layer of format ``fmt`` authored by ``author(stage)`` in a temporary directory
+    beside ``final`` (packaged for ``.usdz``), then renamed to ``final``; nothing is left on error."""
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp_dir = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial",
                                     dir=final.parent))
@@ -280,10 +312,7 @@ def write_stage(
         if layer is None:
             raise OSError(f"{final}: cannot create a USD layer at {layer_path}")
         stage = Usd.Stage.Open(layer)
-        _author(stage, body_verts=body_verts, body_faces=body_faces, body_name=body_name,
-                joints=joints, tracks=tracks, names=names, fps=float(fps),
-                start=int(start_time_code), n_frames=n_frames, meta_json=meta_json,
-                progress=progress)
+        author(stage)
         layer.Save()
         del stage, layer
         if final.suffix.lower() == ".usdz":
@@ -294,7 +323,6 @@ def write_stage(
         os.replace(layer_path, final)
     finally:
         shutil.rmtree(tmp_dir, ignore_errors=True)
-    return final
 
 
 def _author(stage: Usd.Stage, *, body_verts: np.ndarray | None, body_faces: np.ndarray | None,

@@ -105,8 +105,9 @@ def ddim_sample(
             never sees pixels outside, so the network's noise there is untrained: at every step
             their ``x0`` estimate is set to 0 (the data's value) and the noise re-derived, which
             keeps ``x_t`` outside the pure scaled noise of training; without this the outside
-            drifts and, through the convolutions at the chart borders, spoils the inside (the
-            run-7 models sampled 5-20x the data's wrinkle amplitude). 0 outside in the output.
+            drifts and, through the convolutions at the chart borders, spoils the inside (a
+            trained model samples 5-20x the data's wrinkle amplitude without it). 0 outside in
+            the output.
         temporal_weight: ``w`` of the temporal guidance for a batch of consecutive frames: at each
             step the estimate ``x0_hat_k`` is replaced by
             ``x0_hat_k + w (t / T) (mean(x0_hat_{k-1}, x0_hat_{k+1}) - x0_hat_k)`` (the ends use
@@ -127,15 +128,7 @@ def ddim_sample(
     shape = (B, model.out_channels, H, W)
     if label is None and guidance_scale != 1.0:
         raise ValueError("guidance_scale != 1 needs a label (classifier-free guidance)")
-    if initial_noise is None:
-        x = torch.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
-    else:
-        x = initial_noise.to(device=cond.device, dtype=cond.dtype)
-        if x.ndim == 3:
-            x = x[None]
-        if x.shape[1:] != shape[1:] or x.shape[0] not in (1, B):
-            raise ValueError(f"initial_noise shape {tuple(initial_noise.shape)} does not fit {shape}")
-        x = x.expand(shape).clone()
+    x = _initial_noise(shape, cond, initial_noise, generator)
     if label is not None:
         label = label.to(cond.device).long()
     m = None
@@ -153,6 +146,20 @@ def ddim_sample(
     if m is not None:
         x = x * m
     return x
+
+
+def _initial_noise(shape: tuple[int, ...], cond: torch.Tensor, initial_noise: torch.Tensor | None,
+                   generator: torch.Generator | None) -> torch.Tensor:
+    """``x_T`` of shape ``shape``: drawn from ``generator``, or ``initial_noise`` broadcast over the
+    batch, on ``cond``'s device and dtype."""
+    if initial_noise is None:
+        return torch.randn(shape, generator=generator, device=cond.device, dtype=cond.dtype)
+    x = initial_noise.to(device=cond.device, dtype=cond.dtype)
+    if x.ndim == 3:
+        x = x[None]
+    if x.shape[1:] != shape[1:] or x.shape[0] not in (1, shape[0]):
+        raise ValueError(f"initial_noise shape {tuple(initial_noise.shape)} does not fit {shape}")
+    return x.expand(shape).clone()
 
 
 def _edit_x0(scheduler: DDIMScheduler, x: torch.Tensor, eps: torch.Tensor, t: int, edit) -> torch.Tensor:

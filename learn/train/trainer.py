@@ -211,13 +211,7 @@ class Trainer:
         step = self._restore(resumed, model, optimizer, scaler, ema, dev) if resumed else 0
         start_step = step
 
-        dataset = self.method.train_dataset(self.data_root)
-        if len(dataset) == 0:
-            raise WrinklesInputError("no training items (empty train split, or sequences shorter than the "
-                                     "window)", path=self.data_root)
-        stream = _IndexStream(len(dataset), tc.batch_size, tc.seed, ctx.rank, ctx.world_size, step, tc.steps)
-        loader = torch.utils.data.DataLoader(dataset, batch_sampler=stream, collate_fn=self.method.collate,
-                                             num_workers=tc.num_workers, pin_memory=dev.type == "cuda")
+        loader = self._loader(ctx, step)
         net = model
         if ctx.distributed:
             net = torch.nn.parallel.DistributedDataParallel(
@@ -233,27 +227,8 @@ class Trainer:
         try:
             with _StopFlag() as stop:
                 for batch in loader:
-                    for g in optimizer.param_groups:
-                        g["lr"] = cfg.optim.lr * _lr_factor(step, cfg)
-                    batch = batch_to(batch, dev)
-                    gen = torch.Generator(device=dev).manual_seed(
-                        int(np.random.SeedSequence([tc.seed, 15485863, step, ctx.rank]).generate_state(1)[0]))
-                    optimizer.zero_grad(set_to_none=True)
-                    ac = torch.autocast(dev.type, dtype=amp) if amp is not None else contextlib.nullcontext()
-                    with ac:
-                        out = self.method.training_loss(net, batch, gen)
+                    out, gnorm = self._step(ctx, net, model, batch, optimizer, scaler, ema, step, amp)
                     loss = out.loss
-                    if not torch.isfinite(loss.detach()):
-                        raise FloatingPointError(f"step {step}: the loss is {loss.item()} (not finite); "
-                                                 f"lower optim.lr or check the data")
-                    scaler.scale(loss).backward()
-                    scaler.unscale_(optimizer)
-                    gnorm = (torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
-                             if cfg.optim.grad_clip > 0 else torch.tensor(float("nan")))
-                    scaler.step(optimizer)
-                    scaler.update()
-                    if ema is not None:
-                        ema.update(model)
                     step += 1
                     last_loss = float(loss.detach())
                     if bar is not None:
@@ -283,6 +258,44 @@ class Trainer:
                             checkpoint=ckpt_path, interrupted=interrupted, seconds=time.perf_counter() - t0)
 
     # ------------------------------------------------------------------------------------------
+    def _loader(self, ctx: D.DistContext, step: int):
+        """The training items of this process from ``step`` on (``_IndexStream``)."""
+        tc = self.config.train
+        dataset = self.method.train_dataset(self.data_root)
+        if len(dataset) == 0:
+            raise WrinklesInputError("no training items (empty train split, or sequences shorter than the "
+                                     "window)", path=self.data_root)
+        stream = _IndexStream(len(dataset), tc.batch_size, tc.seed, ctx.rank, ctx.world_size, step, tc.steps)
+        return torch.utils.data.DataLoader(dataset, batch_sampler=stream, collate_fn=self.method.collate,
+                                           num_workers=tc.num_workers, pin_memory=ctx.device.type == "cuda")
+
+    def _step(self, ctx: D.DistContext, net, model, batch, optimizer, scaler, ema, step: int, amp):
+        """One optimizer step at ``step`` (learning-rate schedule, mixed precision, gradient
+        clipping, EMA); the method's loss output and the gradient norm (NaN without clipping)."""
+        cfg, tc, dev = self.config, self.config.train, ctx.device
+        for g in optimizer.param_groups:
+            g["lr"] = cfg.optim.lr * _lr_factor(step, cfg)
+        batch = batch_to(batch, dev)
+        gen = torch.Generator(device=dev).manual_seed(
+            int(np.random.SeedSequence([tc.seed, 15485863, step, ctx.rank]).generate_state(1)[0]))
+        optimizer.zero_grad(set_to_none=True)
+        ac = torch.autocast(dev.type, dtype=amp) if amp is not None else contextlib.nullcontext()
+        with ac:
+            out = self.method.training_loss(net, batch, gen)
+        loss = out.loss
+        if not torch.isfinite(loss.detach()):
+            raise FloatingPointError(f"step {step}: the loss is {loss.item()} (not finite); "
+                                     f"lower optim.lr or check the data")
+        scaler.scale(loss).backward()
+        scaler.unscale_(optimizer)
+        gnorm = (torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
+                 if cfg.optim.grad_clip > 0 else torch.tensor(float("nan")))
+        scaler.step(optimizer)
+        scaler.update()
+        if ema is not None:
+            ema.update(model)
+        return out, gnorm
+
     def _bar(self, ctx: D.DistContext, start: int, stop: int):
         if self.quiet or not ctx.is_main:
             return None

@@ -524,12 +524,7 @@ def fit_ssdr(
     # --- initialisation: rigid-motion clustering grown by splitting (Le & Deng 2012)
     labels, rot, tr = _init_clusters(prob, tree, j, rng, init_rounds, seed_size)
     # Final transforms of the rigid clustering, one-hot weights.
-    idx = np.zeros((v, k), np.int64)
-    idx[:, 0] = labels
-    if k > 1:  # distinct (zero-weight) fillers keep supports well defined
-        idx[:, 1:] = (labels[:, None] + np.arange(1, k)) % j
-    val = np.zeros((v, k))
-    val[:, 0] = 1.0
+    idx, val = _one_hot_weights(labels, v, k, j)
     y = _lbs_columns(prob.rest, idx, val, rot, tr)
     history = [prob.rmse(y)]
     if progress is not None:
@@ -551,6 +546,23 @@ def fit_ssdr(
         if progress is not None:
             progress(it, history[-1])
 
+    return _world_result(prob, rest, idx, val, rot, tr, history)
+
+
+def _one_hot_weights(labels: np.ndarray, v: int, k: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each vertex fully on its cluster's bone: indices (V, K) and weights (V, K)."""
+    idx = np.zeros((v, k), np.int64)
+    idx[:, 0] = labels
+    if k > 1:  # distinct (zero-weight) fillers keep supports well defined
+        idx[:, 1:] = (labels[:, None] + np.arange(1, k)) % j
+    val = np.zeros((v, k))
+    val[:, 0] = 1.0
+    return idx, val
+
+
+def _world_result(prob: _Problem, rest: np.ndarray, idx: np.ndarray, val: np.ndarray, rot: np.ndarray,
+                  tr: np.ndarray, history: list) -> SSDRResult:
+    """The fit in world coordinates, negligible weights dropped and the rest renormalised."""
     # Undo the centring: x = x' + c_t, r = r' + c_r  =>  T = T' + c_t - R c_r.
     tr_world = tr + prob.frame_center[:, None, :] - np.einsum("tjab,b->tja", rot, prob.rest_center)
     val = np.where(val > _WEIGHT_EPS * 1e-3, val, 0.0)
