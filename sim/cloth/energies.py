@@ -41,6 +41,14 @@ def shape_row(dm_inv: wp.mat22, local: int) -> wp.vec2:
 
 
 @wp.func
+def deformation_gradient(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22):
+    """The columns ``f0``, ``f1`` of a triangle's deformation gradient ``F = Ds Dm^-1`` (3x2)."""
+    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
+    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
+    return f0, f1
+
+
+@wp.func
 def stvk_energy(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: float, mu: float,
                 lam: float) -> float:
     """StVK membrane energy [J] of one triangle (module docstring)."""
@@ -56,8 +64,7 @@ def stvk_energy(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: f
 @wp.func
 def green_strain(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22) -> wp.vec3:
     """Green-Lagrange strain ``G = (F^T F - I)/2`` of a triangle as ``(G00, G11, G01)``."""
-    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
-    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
+    f0, f1 = deformation_gradient(x0, x1, x2, dm_inv)
     return wp.vec3(0.5 * (wp.dot(f0, f0) - 1.0), 0.5 * (wp.dot(f1, f1) - 1.0), 0.5 * wp.dot(f0, f1))
 
 
@@ -134,8 +141,7 @@ def corotated_frame(f0: wp.vec3, f1: wp.vec3):
 def corotated_energy(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22, area: float, mu: float,
                      lam: float) -> float:
     """Co-rotated linear membrane energy [J]: ``A (mu |F - R|^2 + lam/2 (tr S - 2)^2)``."""
-    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
-    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
+    f0, f1 = deformation_gradient(x0, x1, x2, dm_inv)
     r0, r1, tr_s = corotated_frame(f0, f1)
     d0 = f0 - r0
     d1 = f1 - r1
@@ -164,8 +170,7 @@ def corotated_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3,
     ``k_n = max(0, g^T S2 g)`` the exact out-of-plane stiffness of a stressed triangle (second
     Piola stress ``S2``; 0 under compression).
     """
-    f0 = (x1 - x0) * dm_inv[0, 0] + (x2 - x0) * dm_inv[1, 0]
-    f1 = (x1 - x0) * dm_inv[0, 1] + (x2 - x0) * dm_inv[1, 1]
+    f0, f1 = deformation_gradient(x0, x1, x2, dm_inv)
     r0, r1, tr_s = corotated_frame(f0, f1)
     g = shape_row(dm_inv, local)
     fg = f0 * g[0] + f1 * g[1]
