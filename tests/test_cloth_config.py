@@ -156,6 +156,7 @@ def test_flat_keywords_map_onto_the_sections():
                      self_contact_coarse_exclusion=0.006, coarse_guard=False, self_contact=True)
     assert flat == job_config(19_542, True)
     assert flat.max_colors == 3 and flat.substeps == 14 and flat.contact_margin == 0.015
+    assert VBDConfig.air_damping == Stepping().air_damping and VBDConfig.max_colors == 0  # the defaults
     with pytest.raises(ValueError, match="coarse_prefactor"):
         VBDConfig(coarse_prefactor=False)
     with pytest.raises(TypeError):

@@ -31,7 +31,8 @@ is factored at the substep start and has no overshoot guard."""
 
 
 def accept_flat_fields(cls: type) -> type:
-    """Let the dataclass ``cls`` (``VBDConfig``) take flat keywords and read flat attributes."""
+    """Let the dataclass ``cls`` (``VBDConfig``) take flat keywords and read flat attributes
+    (on the class: the defaults)."""
     init = cls.__init__
 
     def __init__(self, *args: Any, **kw: Any) -> None:
@@ -54,12 +55,19 @@ def accept_flat_fields(cls: type) -> type:
             object.__setattr__(self, s, value)
         self.__post_init__()
 
-    def __getattr__(self, name: str) -> Any:
-        if name in FLAT_FIELDS:
-            section, field = FLAT_FIELDS[name]
-            return getattr(object.__getattribute__(self, section), field)
-        raise AttributeError(f"{cls.__name__!r} object has no attribute {name!r}")
-
     cls.__init__ = __init__
-    cls.__getattr__ = __getattr__
+    for key, (section, name) in FLAT_FIELDS.items():
+        setattr(cls, key, _FlatField(section, name))
     return cls
+
+
+class _FlatField:
+    """A flat attribute: the section field of an instance, the field's default on the class."""
+
+    def __init__(self, section: str, name: str):
+        self.section, self.name = section, name
+
+    def __get__(self, obj: Any, owner: type) -> Any:
+        if obj is None:
+            return getattr(owner.__dataclass_fields__[self.section].default_factory(), self.name)
+        return getattr(getattr(obj, self.section), self.name)
