@@ -1,12 +1,15 @@
-"""Dataset generation throughput (issue 4): sequences per hour, garment-frames per second and
-bytes per frame on disk, for fine garments, coarse garments, and the default fine + coarse.
+"""Dataset generation end to end: sequences per hour, garment-frames per second and bytes per
+frame on disk, for fine garments, coarse garments, and the default fine + coarse.
 
 Each case generates a fresh dataset from one config (t-shirts and straight skirts on sampled
-bodies, walk / arm_raise / squat, cotton and jersey, self-contact on, 10 x 10, 256^2 UV images)
-with ``sim.datasets.generate`` and reports the wall time of the whole job: simulation
-(settle, blend and motion), derivation (smoothing, frames, strain, images), and writing.
+bodies, walk / arm_raise / squat, cotton and jersey, self-contact on, the job's solver defaults
+and retries, 256^2 UV images) with ``sim.datasets.generate`` in a temporary folder, and reports
+the wall time of the whole job: simulation (settle, blend and motion), derivation (smoothing,
+frames, strain, images), and writing.
 
-``python -m benchmarks.bench_dataset --device cuda --sequences 8 --batch 8``
+    python -m benchmarks.bench_dataset --device cuda --sequences 8 --seconds 1 --batch 8
+    python -m benchmarks.bench_dataset --device cpu --sequences 1 --seconds 0.1 --batch 1 --cases coarse \
+        --resolution 0.07
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import shutil
 import tempfile
 import time
 
-from benchmarks.common import machine, write_result
+from benchmarks.common import add_results_argument, machine, write_result
 
 CONFIG = """\
 seed = 0
@@ -27,7 +30,7 @@ seconds = {seconds}
 
 [garments]
 categories = ["t_shirt", "straight_skirt"]
-fine_resolution = "{fine}"
+fine_resolution = {fine}
 coarse_resolution = "coarse"
 
 [materials]
@@ -52,10 +55,9 @@ coarse = {coarse}
 """
 
 
-def generate_in_temp(text: str, source: str, batch: int, device: str, inspect=None):
+def generate_in_temp(text: str, source: str, batch: int, device: str):
     """Generate a dataset from the config TOML ``text`` in a temporary folder, removed after:
-    (``GenerateSummary``, wall time [s] of the whole job, manifest, ``inspect(root)`` or None),
-    each generated line printed."""
+    (``GenerateSummary``, wall time [s] of the whole job, manifest), each generated line printed."""
     from sim.datasets import storage as S
     from sim.datasets.config import parse_config
     from sim.datasets.generate import generate
@@ -70,7 +72,7 @@ def generate_in_temp(text: str, source: str, batch: int, device: str, inspect=No
         t0 = time.perf_counter()
         s = generate(cfg, root, batch=batch, device=device, log=lambda m: print(m, flush=True))
         wall = time.perf_counter() - t0
-        return s, wall, S.read_manifest(root), inspect(root) if inspect else None
+        return s, wall, S.read_manifest(root)
     finally:
         shutil.rmtree(root, ignore_errors=True)
 
@@ -82,6 +84,10 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=1.0, help="motion length [s] (plus 2 s of prelude)")
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--cases", default="coarse,fine,fine+coarse")
+    ap.add_argument("--resolution", type=float, default=None,
+                    help="edge length [m] of every case's garments instead of the templates' coarse / fine "
+                    "size (the coarse twin keeps the templates' coarse size)")
+    add_results_argument(ap)
     args = ap.parse_args()
 
     from sim.device import resolve_device
@@ -92,8 +98,10 @@ def main() -> None:
     fig = {}
     for name in args.cases.split(","):
         fine, coarse = cases[name]
-        text = CONFIG.format(sequences=args.sequences, seconds=args.seconds, fine=fine, coarse=coarse)
-        s, wall, manifest, _ = generate_in_temp(text, f"bench_dataset:{name}", args.batch, device)
+        fine = fine if args.resolution is None else args.resolution
+        text = CONFIG.format(sequences=args.sequences, seconds=args.seconds, fine=json.dumps(fine),
+                             coarse=coarse)
+        s, wall, manifest = generate_in_temp(text, f"bench_dataset:{name}", args.batch, device)
         seqs = list(manifest["sequences"].values())
         frames = sum(e["frames"] for e in seqs)
         made = s.accepted + s.rejected
@@ -110,11 +118,11 @@ def main() -> None:
     write_result(f"dataset_{device.split(':')[0]}", {
         "machine": machine(device),
         "sizes": {"sequences": args.sequences, "seconds": args.seconds, "batch": args.batch, "fps": 30.0,
-                  "image_resolution": 256,
+                  "image_resolution": 256, "resolution": args.resolution,
                   "edge_m": {c: {"coarse": TEMPLATES[c].coarse, "fine": TEMPLATES[c].fine}
                              for c in ("t_shirt", "straight_skirt")}},
         "figures": fig,
-    })
+    }, args.results)
 
 
 if __name__ == "__main__":

@@ -3,8 +3,8 @@
 Measures (a) device-resident skinning (kernels only, synchronised) and (b) skinning plus the
 copy of all vertices to host numpy, the path `wrinkles body` takes.
 
-    python benchmarks/bench_lbs.py --device cpu
-    python benchmarks/bench_lbs.py --device cuda
+    python -m benchmarks.bench_lbs --device cpu --repeats 3
+    python -m benchmarks.bench_lbs --device cuda --repeats 10
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from benchmarks.common import machine, write_result
+from benchmarks.common import add_results_argument, machine, write_result
 
 
 def main() -> None:
@@ -23,6 +23,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=1000)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--body", default="default", help="'default' or an SMPL-family model file")
+    add_results_argument(ap)
     args = ap.parse_args()
 
     from sim.bodies import load_body
@@ -67,7 +68,7 @@ def main() -> None:
         },
         "method": f"best of {args.repeats}; poses uploaded each call; includes FK + LBS launches",
     }
-    write_result(f"lbs_{device.split(':')[0]}", result)
+    write_result(f"lbs_{device.split(':')[0]}", result, args.results)
 
 
 if __name__ == "__main__":

@@ -21,17 +21,15 @@ Needs torch, numpy, scipy and warp only (no trimesh / usd / pyvista).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import resource
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from benchmarks.common import machine, write_result
+from benchmarks.common import add_results_argument, machine, write_result
 
 
 def build_garment(target_vertices: int):
@@ -119,7 +117,7 @@ def timed(fn, sync, repeats: int, warmup: int) -> float:
     return statistics.median(times)
 
 
-def main() -> None:
+def parse_args() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
     ap.add_argument("--batch", type=int, default=64)
@@ -129,18 +127,92 @@ def main() -> None:
     ap.add_argument("--search-repeats", type=int, default=3,
                     help="repeats (after one warm-up) of the search-only timings (the cpu full scan is slow)")
     ap.add_argument("--no-reference", action="store_true", help="skip the plain-torch references")
-    ap.add_argument("--out", default=None, help="also write the JSON here (default benchmarks/results/"
-                    "losses_<device>.json)")
-    args = ap.parse_args()
+    add_results_argument(ap)
+    return ap.parse_args()
 
+
+def deformed_batch(topology, body, bsz: int, tdev):
+    """``bsz`` garments at rest plus 5 mm of noise, their two previous positions, and the rest
+    body shifted by a few mm per sample (seeded)."""
+    gen = torch.Generator().manual_seed(0)
+    nv = topology.num_vertices
+    rest = torch.as_tensor(topology.rest_vertices)
+    x = (rest[None] + 0.005 * torch.randn((bsz, nv, 3), generator=gen)).to(tdev)
+    xp = (x.cpu() - 0.003 + 0.001 * torch.randn((bsz, nv, 3), generator=gen)).to(tdev)
+    xpp = (xp.cpu() - 0.003 + 0.001 * torch.randn((bsz, nv, 3), generator=gen)).to(tdev)
+    bv = (torch.as_tensor(body.rest_mesh(), dtype=torch.float32)[None]
+          + 0.004 * torch.randn((bsz, 1, 3), generator=gen)).to(tdev)
+    return x, xp, xpp, bv
+
+
+def time_term(fn, batch: tuple, sync, args, tdev) -> dict:
+    """Forward and forward + backward figures of one implementation of a term."""
+    x, xp, xpp, bv = batch
+    bsz = x.shape[0]
+    if tdev.type == "cuda":
+        torch.cuda.reset_peak_memory_stats(tdev)
+    xg = x.clone().requires_grad_(True)
+
+    def fwd():
+        with torch.no_grad():
+            return fn(x, xp, xpp, bv)
+
+    def fwd_bwd():
+        xg.grad = None
+        fn(xg, xp, xpp, bv).sum().backward()
+
+    try:
+        t_f = timed(fwd, sync, args.repeats, args.warmup)
+        t_fb = timed(fwd_bwd, sync, args.repeats, args.warmup)
+    except (RuntimeError, MemoryError) as exc:  # e.g. the dense reference search out of memory
+        return {"error": str(exc).splitlines()[0][:200]}
+    r = {"forward_ms": 1e3 * t_f, "forward_backward_ms": 1e3 * t_fb,
+         "forward_samples_per_s": bsz / t_f, "forward_backward_samples_per_s": bsz / t_fb}
+    if tdev.type == "cuda":
+        r["torch_peak_mb"] = torch.cuda.max_memory_allocated(tdev) / 2**20
+    return r
+
+
+def time_terms(terms: list, batch: tuple, sync, args, tdev) -> dict:
+    """{term: {"warp": figures, "torch": figures}}, each term printed as it is timed."""
+    rows = {}
+    nan = float("nan")
+    for name, warp_fn, ref_fn in terms:
+        impls = [("warp", warp_fn)] + ([] if args.no_reference else [("torch", ref_fn)])
+        rows[name] = {impl: time_term(fn, batch, sync, args, tdev) for impl, fn in impls}
+        w, ref = rows[name].get("warp", {}), rows[name].get("torch", {})
+        print(f"{name:18s} warp fwd {w.get('forward_ms', nan):9.3f} ms  fwd+bwd "
+              f"{w.get('forward_backward_ms', nan):9.3f} ms | torch fwd "
+              f"{ref.get('forward_ms', nan):9.3f} ms  fwd+bwd {ref.get('forward_backward_ms', nan):9.3f} ms "
+              f"{ref.get('error', '')}", flush=True)
+    return rows
+
+
+def time_search(topology, collisions: dict, bf, batch: tuple, sync, repeats: int) -> dict:
+    """The collision terms' nearest-anchor search alone (no energy, no gradient): BVH against a
+    full scan, body-vertex against body-face anchors."""
+    from learn.losses import CollisionLoss
+
+    x, _, _, bv = batch
+    search = {}
+    for anchor in ("vertex", "face"):
+        for method in ("bvh", "brute"):
+            mod = collisions[f"collision_{anchor}"] if method == "bvh" else CollisionLoss(
+                topology, body_faces=bf, anchor=anchor, search=method)
+            t = timed(lambda mod=mod: mod.nearest_anchors(x, bv), sync, repeats, 1)
+            search[f"{anchor}_{method}"] = {"ms": 1e3 * t, "samples_per_s": x.shape[0] / t}
+            print(f"search {anchor:6s} {method:5s} {1e3 * t:9.3f} ms", flush=True)
+    return search
+
+
+def main() -> None:
+    args = parse_args()
     from sim.device import resolve_device, warp
     from sim.losses import topology_of
 
     wp = warp()
     device = resolve_device(args.device)
-    tdev = torch.device("cuda" if device.startswith("cuda") else "cpu")
-    if tdev.type == "cuda":
-        tdev = torch.device(device)
+    tdev = torch.device(device if device.startswith("cuda") else "cpu")
 
     def sync():
         if tdev.type == "cuda":
@@ -150,90 +222,30 @@ def main() -> None:
     body, garment, h = build_garment(args.vertices)
     topology = topology_of(garment)
     setup_s = time.perf_counter() - t0
-    bsz, nv = args.batch, topology.num_vertices
-    gen = torch.Generator().manual_seed(0)
-    rest = torch.as_tensor(topology.rest_vertices)
-    x = (rest[None] + 0.005 * torch.randn((bsz, nv, 3), generator=gen)).to(tdev)
-    xp = (x.cpu() - 0.003 + 0.001 * torch.randn((bsz, nv, 3), generator=gen)).to(tdev)
-    xpp = (xp.cpu() - 0.003 + 0.001 * torch.randn((bsz, nv, 3), generator=gen)).to(tdev)
-    bv = (torch.as_tensor(body.rest_mesh(), dtype=torch.float32)[None]
-          + 0.004 * torch.randn((bsz, 1, 3), generator=gen)).to(tdev)
+    batch = deformed_batch(topology, body, args.batch, tdev)
     bf = body.faces.astype(np.int32)
     terms, collisions = make_terms(topology, bf, dt=1.0 / 30.0)
-
-    rows = {}
-    for name, warp_fn, ref_fn in terms:
-        row = {}
-        impls = [("warp", warp_fn)] + ([] if args.no_reference else [("torch", ref_fn)])
-        for impl, fn in impls:
-            if tdev.type == "cuda":
-                torch.cuda.reset_peak_memory_stats(tdev)
-            xg = x.clone().requires_grad_(True)
-
-            def fwd(fn=fn):
-                with torch.no_grad():
-                    return fn(x, xp, xpp, bv)
-
-            def fwd_bwd(fn=fn, xg=xg):
-                xg.grad = None
-                fn(xg, xp, xpp, bv).sum().backward()
-
-            try:
-                t_f = timed(fwd, sync, args.repeats, args.warmup)
-                t_fb = timed(fwd_bwd, sync, args.repeats, args.warmup)
-            except (RuntimeError, MemoryError) as exc:  # e.g. the dense reference search out of memory
-                row[impl] = {"error": str(exc).splitlines()[0][:200]}
-                continue
-            r = {"forward_ms": 1e3 * t_f, "forward_backward_ms": 1e3 * t_fb,
-                 "forward_samples_per_s": bsz / t_f, "forward_backward_samples_per_s": bsz / t_fb}
-            if tdev.type == "cuda":
-                r["torch_peak_mb"] = torch.cuda.max_memory_allocated(tdev) / 2**20
-            row[impl] = r
-        rows[name] = row
-        w = row.get("warp", {})
-        ref = row.get("torch", {})
-        nan = float("nan")
-        print(f"{name:18s} warp fwd {w.get('forward_ms', nan):9.3f} ms  fwd+bwd "
-              f"{w.get('forward_backward_ms', nan):9.3f} ms | torch fwd "
-              f"{ref.get('forward_ms', nan):9.3f} ms  fwd+bwd {ref.get('forward_backward_ms', nan):9.3f} ms "
-              f"{ref.get('error', '')}", flush=True)
-
-    # the collision search alone (no energy, no gradient)
-    from learn.losses import CollisionLoss
-
-    search = {}
-    for anchor in ("vertex", "face"):
-        for method in ("bvh", "brute"):
-            mod = collisions[f"collision_{anchor}"] if method == "bvh" else CollisionLoss(
-                topology, body_faces=bf, anchor=anchor, search=method)
-            t = timed(lambda mod=mod: mod.nearest_anchors(x, bv), sync, args.search_repeats, 1)
-            search[f"{anchor}_{method}"] = {"ms": 1e3 * t, "samples_per_s": bsz / t}
-            print(f"search {anchor:6s} {method:5s} {1e3 * t:9.3f} ms", flush=True)
+    rows = time_terms(terms, batch, sync, args, tdev)
+    search = time_search(topology, collisions, bf, batch, sync, args.search_repeats)
 
     info = machine(device)
     info["torch"] = torch.__version__
     mem = {"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
     if tdev.type == "cuda":
         mem["warp_mempool_high_mb"] = wp.get_mempool_used_mem_high(device) / 2**20
-    result = {
+    write_result(f"losses_{device.split(':')[0]}", {
         "machine": info,
-        "sizes": {"batch": bsz, "garment_vertices": nv, "garment_faces": topology.num_faces,
-                  "garment_edges": len(topology.edges), "hinges": len(topology.hinges),
-                  "edge_length_m": h, "body_vertices": int(body.num_vertices), "body_faces": len(bf),
-                  "garment": "t_shirt on the default body (rest pose)"},
+        "sizes": {"batch": args.batch, "garment_vertices": topology.num_vertices,
+                  "garment_faces": topology.num_faces, "garment_edges": len(topology.edges),
+                  "hinges": len(topology.hinges), "edge_length_m": h, "body_vertices": int(body.num_vertices),
+                  "body_faces": len(bf), "garment": "t_shirt on the default body (rest pose)"},
         "figures": {"terms": rows, "collision_search": search, "memory": mem},
         "method": (f"median of {args.repeats} after {args.warmup} warm-up calls (search alone: "
                    f"{args.search_repeats} after 1), synchronised; forward under "
                    "no_grad, forward_backward = energy.sum().backward() wrt garment positions (float32); "
                    "'torch' = learn.losses.reference on the same device; setup (template build) "
                    f"{setup_s:.1f} s not included"),
-    }
-    name = f"losses_{device.split(':')[0]}"
-    path = write_result(name, result)
-    if args.out and Path(args.out).resolve() != path.resolve():
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(json.loads(path.read_text()), indent=2) + "\n")
+    }, args.results)
 
 
 if __name__ == "__main__":

@@ -1,21 +1,28 @@
-"""Shared benchmark helpers: machine description and JSON results (DESIGN.md, Performance)."""
+"""What every benchmark shares: the machine a figure was measured on, and its JSON result file."""
 
 from __future__ import annotations
 
+import argparse
 import datetime as _dt
 import json
 import os
 import platform
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
+"""Where a benchmark writes ``<name>.json`` unless ``--results`` says otherwise."""
+
+
+def add_results_argument(ap: argparse.ArgumentParser) -> None:
+    """``--results DIR``: the folder of the JSON result (default ``benchmarks/results``)."""
+    ap.add_argument("--results", type=Path, default=RESULTS,
+                    help="folder of the JSON result (default: benchmarks/results)")
 
 
 def machine(device: str) -> dict:
-    """CPU / GPU / library facts for the result file."""
+    """CPU, GPU and library versions of this process, for the result file."""
     info = {
         "host_cpu": platform.processor() or platform.machine(),
         "cpu_count": os.cpu_count(),
@@ -46,16 +53,24 @@ def machine(device: str) -> dict:
     return info
 
 
-def write_result(name: str, result: dict) -> Path:
-    """Print and write ``benchmarks/results/<name>.json`` (and $OUT/<name>.json when set)."""
+def command_line() -> str:
+    """This process's command line as ``python -m benchmarks.NAME ARGS`` where it ran as a module."""
     spec = getattr(sys.modules.get("__main__"), "__spec__", None)
     argv = ["-m", spec.name, *sys.argv[1:]] if spec is not None else sys.argv
+    return " ".join(["python", *argv])
+
+
+def write_result(name: str, result: dict, folder: Path = RESULTS) -> Path:
+    """Print ``result`` with the benchmark's name, the date and the command line, and write it to
+    ``folder/<name>.json``; also to ``$OUT/<name>.json`` where ``OUT`` is set (the folder a GPU
+    runner brings back)."""
     result = {"benchmark": name, "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-              "command": " ".join(["python", *argv]), **result}
+              "command": command_line(), **result}
     text = json.dumps(result, indent=2)
     print(text)
-    RESULTS.mkdir(exist_ok=True)
-    paths = [RESULTS / f"{name}.json"]
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [folder / f"{name}.json"]
     if os.environ.get("OUT"):
         paths.append(Path(os.environ["OUT"]) / f"{name}.json")
     for p in paths:
@@ -63,22 +78,3 @@ def write_result(name: str, result: dict) -> Path:
         tmp.write_text(text + "\n")
         os.replace(tmp, p)
     return paths[0]
-
-
-def timed_ms(wp, device: str, fn, repeats: int, graph: bool = False) -> float:
-    """Milliseconds per call of ``fn`` (launches on ``device``): one warm-up call, then the mean of
-    ``repeats`` calls, synchronised; ``graph`` (CUDA): the calls replay a CUDA graph of one."""
-    fn()
-    wp.synchronize_device(device)
-    run = fn
-    if graph and wp.get_device(device).is_cuda:
-        with wp.ScopedCapture(device=device) as cap:
-            fn()
-        run = lambda: wp.capture_launch(cap.graph)  # noqa: E731
-    run()
-    wp.synchronize_device(device)
-    t = time.perf_counter()
-    for _ in range(repeats):
-        run()
-    wp.synchronize_device(device)
-    return 1000.0 * (time.perf_counter() - t) / repeats

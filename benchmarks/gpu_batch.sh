@@ -1,16 +1,17 @@
 #!/bin/bash
-# Run benchmark command lines on the GPU machine, one after another, with logs (docs/BENCHMARKS.md,
-# "GPU machine"). Usage there, after the Warp parts are stashed (.gpu2-.gpu4, see that section),
-# in a call that carries .gpu1:
-#     CMDS_FILE=benchmarks/plans/s37_lookahead.txt bash benchmarks/gpu_batch.sh
-# Each non-empty line of CMDS_FILE not starting with '#' runs under `timeout ${TMO:-500}` with
-# its output in /tmp/gpu_batch/cmd_N.log; the last ${TAIL:-6} lines of each are printed. The
-# result files the run wrote (benchmarks/results/*.json) go to $OUT/results, and with every log
-# to $OUT/all.tgz (for when there are too many files to bring back one by one).
+# Run benchmark command lines on a GPU machine one after another, each with a time limit and a
+# log (docs/BENCHMARKS.md, "How to run"), from the repository root:
+#     CMDS_FILE=cmds.txt bash benchmarks/gpu_batch.sh
+# Each non-empty line of CMDS_FILE not starting with '#' runs under `timeout ${TMO:-500}` with its
+# output in /tmp/gpu_batch/cmd_N.log; the last ${TAIL:-6} lines of each are printed. Where the
+# machine has no Warp, .gpu1/install.sh (../shared/tools/gpu-warp-pack) installs it into
+# /tmp/site first. Where OUT is set, the result files the lines wrote (benchmarks/results/*.json)
+# go to $OUT/results, and with every log to $OUT/all.tgz.
 set -u
-rm -rf /tmp/site
-bash .gpu1/install.sh > /tmp/install.log 2>&1 || { tail -20 /tmp/install.log; exit 1; }
-export PYTHONPATH=/tmp/site:$PWD
+if [ -f .gpu1/install.sh ]; then
+  bash .gpu1/install.sh > /tmp/install.log 2>&1 || { tail -20 /tmp/install.log; exit 1; }
+  export PYTHONPATH=/tmp/site:$PWD
+fi
 logs=/tmp/gpu_batch
 mkdir -p "$logs"
 touch "$logs/.start"
@@ -24,6 +25,8 @@ while IFS= read -r line; do
   echo "rc=$? ($(date +%T))"
   tail -n "${TAIL:-6}" "$logs/cmd_$n.log"
 done < "${CMDS_FILE:?set CMDS_FILE to a file of command lines}"
-mkdir -p "$OUT/results"
-find benchmarks/results -name '*.json' -newer "$logs/.start" -exec cp {} "$OUT/results/" \;
-tar czf "$OUT/all.tgz" -C /tmp gpu_batch -C "$OUT" results
+if [ -n "${OUT:-}" ]; then
+  mkdir -p "$OUT/results"
+  find benchmarks/results -name '*.json' -newer "$logs/.start" -exec cp {} "$OUT/results/" \;
+  tar czf "$OUT/all.tgz" -C /tmp gpu_batch -C "$OUT" results
+fi

@@ -1,11 +1,10 @@
 #!/usr/bin/env bash
-# Pack Newton (PyPI `newton`, the reference of issue 3's side-by-side benchmark) for the GPU
-# machine: Python 3.12 with numpy/scipy/torch, no network, no Warp, no Newton.
+# Pack Newton (PyPI `newton`, the reference of `bench_tshirt --newton`) for a GPU machine whose
+# Python 3.12 has numpy and torch but no network, no Warp and no Newton.
 #
 # Newton 1.8.0 is one pure-Python wheel (~8.6 MB). Its only hard requirement is warp-lang
 # (>= 1.17), and the cloth path used by benchmarks/newton_ref.py (ModelBuilder, Mesh,
-# CollisionPipeline, SolverVBD) imports nothing else but numpy: checked in a venv holding only
-# warp-lang, numpy and newton, where tests/test_newton_ref.py passes. Warp travels separately
+# CollisionPipeline, SolverVBD) imports nothing else but numpy. Warp travels separately
 # (../shared/tools/gpu-warp-pack) and MUST include its CPU backend (WITH_CLANG=1): Newton runs
 # the graph colouring and mesh adjacency kernels on the "cpu" device even for a CUDA model.
 #

@@ -1,10 +1,12 @@
-"""Reference runner: the same cloth scene through Newton's ``SolverVBD`` (PyPI ``newton``).
+"""The same cloth scene through Newton's ``SolverVBD`` (PyPI ``newton``), for the side-by-side
+figures of ``bench_tshirt --newton``.
 
-An optional benchmark dependency only (issue 3: "the same scene run with Newton's SolverVBD side
-by side in the same run"). This module imports nothing from ``sim/``: a scene is a plain dict of
-numpy arrays, so it runs wherever Newton and Warp run (``.venv-newton`` here, ``/tmp/site`` on
-the GPU machine, see ``benchmarks/newton_pack.sh`` and docs/BENCHMARKS.md). ``newton`` is
-imported inside :func:`run_newton_vbd`, so importing this module needs only numpy and warp.
+Newton is an optional benchmark dependency, in no requirement of the project. This module
+imports nothing from ``sim/``: a scene is a plain dict of numpy arrays, so it runs wherever Newton
+and Warp run (a separate ``.venv-newton`` on a workstation, ``benchmarks/newton_pack.sh`` for a GPU
+machine without network). ``newton`` is imported inside :func:`run_newton_vbd`.
+
+    python -m benchmarks.newton_ref --device cpu      # a sheet dropped onto a sphere, with checks
 
 Scene (``dict``; arrays are converted to float32 / int32)
 -------------------------------------------------------
@@ -55,7 +57,7 @@ How the scene is built in Newton 1.8 (read from the installed package's source)
   collider: move the kinematics, then ``CollisionPipeline.collide`` and ``solver.step`` every
   substep.) The shape's local AABB (``model.shape_collision_aabb_lower/upper``, which
   ``compute_shape_aabbs`` uses for meshes and which culls soft contacts) is widened once to the
-  union over all frames, since it is otherwise computed from frame 0 only. The friction code
+  union over all frames, since Newton computes it from frame 0 only. The friction code
   (``rigid_vbd_kernels._eval_body_particle_contact``) takes the body velocity at the contact
   as ``(bx - bx_prev)/dt + contact_body_vel``; for a static shape the first term is 0 and
   ``contact_body_vel`` is the mesh velocity interpolated at the closest point: the cloth is
@@ -70,33 +72,32 @@ How the scene is built in Newton 1.8 (read from the installed package's source)
 * CUDA graph: one frame (all substeps, the frame index kept in a device counter so the same
   graph replays every frame, positions written into a device (T, V, 3) buffer) is captured
   with ``wp.ScopedCapture`` after one eager warm-up frame, like Newton's examples. Newton 1.8
-  captures **with** self-contact too: ``example_cloth_twist`` and ``example_cloth_franka``
-  capture ``rebuild_bvh`` + self-contact steps; Warp 1.19's CUDA LBVH ``Bvh.rebuild`` and
-  ``Mesh.refit`` are capture-safe. If capture raises, the run falls back to plain launches and
-  says why in ``notes``. An odd ``substeps`` count is handled by copying the state back at the
-  end of the frame (Newton's examples ask for an even count instead).
+  captures with self-contact too (``example_cloth_twist`` and ``example_cloth_franka`` capture
+  ``rebuild_bvh`` + self-contact steps; Warp 1.19's CUDA LBVH ``Bvh.rebuild`` and ``Mesh.refit``
+  are capture-safe). If capture raises, the run falls back to plain launches and says why in
+  ``notes``. An odd ``substeps`` count is handled by copying the state back at the end of the
+  frame (Newton's examples ask for an even count instead).
 
 Parameter mapping (ours → Newton)
 ---------------------------------
 * Mass: ``add_cloth_mesh(density=density)`` lumps ``density * area / 3`` per vertex (rest
   areas), identical to ours.
-* Fabric layers (``face_layers``, session 42): a face of n layers has n times the density, the
-  membrane moduli and damping, and a hinge the mean of its two faces' layers times the bending,
-  as in ``sim.cloth.model.ClothModelBuilder.add_cloth``. After ``finalize`` the runner writes
-  the lumped masses (``particle_mass``, ``particle_inv_mass``), each triangle's
-  ``tri_materials`` k_mu, k_lambda, k_damp and each hinge's bending properties scaled so
-  (``layered_masses``, ``hinge_layers``); until session 41 Newton ran the t-shirt without its
-  hems.
+* Fabric layers (``face_layers``): a face of n layers has n times the density, the membrane
+  moduli and damping, and a hinge the mean of its two faces' layers times the bending, as in
+  ``sim.cloth.model.ClothModelBuilder.add_cloth``. After ``finalize`` the runner writes the
+  lumped masses (``particle_mass``, ``particle_inv_mass``), each triangle's ``tri_materials``
+  k_mu, k_lambda, k_damp and each hinge's bending properties scaled so (``layered_masses``,
+  ``hinge_layers``).
 * Membrane: ``tri_ke = mu``, ``tri_ka = lam``. **Mismatch:** Newton 1.8's VBD membrane is the
   stable Neo-Hookean membrane of Smith et al. 2018 (``evaluate_neo_hookean_membrane_force_
-  hessian``: ψ = μ/2 (I_c − 2) + λ'/2 (J − α)², λ' = λ + μ, α = 1 + μ/λ'), ours is StVK. Both
-  have the same small-strain Lamé moduli; they differ at large strain and under compression.
-* Membrane damping: ``tri_kd = damping * mu / 2`` [N·s/m]. **Mismatch:** Newton damps the
-  rate of the metric C = FᵀF (dissipation kd·A/2·|Ċ|², objective: rigid motion is not
-  damped). Ours is the VBD paper's per-vertex Rayleigh term ``-(β/h) H_ii (x_i - x_prev_i)``
-  with the vertex's own Hessian block only, which also resists rigid translation (a drag of
-  β·H_ii·v). β·μ/2 matches the two definitions exactly for in-plane shear near rest; for
-  uniaxial stretch the equivalent would be β(μ + λ/2)/2.
+  hessian``: ψ = μ/2 (I_c − 2) + λ'/2 (J − α)², λ' = λ + μ, α = 1 + μ/λ'), ours the co-rotated
+  linear membrane (``sim.cloth.energies.corotated_energy``). Both have the same small-strain
+  Lamé moduli; they differ at large strain and under compression.
+* Membrane damping: ``tri_kd = damping * mu / 2`` [N·s/m]. Newton dissipates kd·A/2·|Ċ|² with
+  C = FᵀF = I + 2G, i.e. 2·kd·A·|Ġ|²; ours is Rayleigh damping of the strain rate
+  (``sim.cloth.energies.viscous_stress_g``), dissipating β·A·(μ|Ġ|² + λ/2 (tr Ġ)²). Both are
+  objective (rigid motion is not damped); β·μ/2 matches the shear part exactly, the λ part of
+  ours has no counterpart in Newton.
 * Bending: Newton's hinge energy is ½·edge_ke·|e|·(θ − θ₀)² (``evaluate_dihedral_angle_
   based_bending_force_hessian``: k = stiffness·rest_length), ours ½·k_e·(θ − θ₀)² with
   k_e = 3·k_b·|e|²/(A₁ + A₂). A scalar ``edge_ke`` therefore cannot represent a material
@@ -110,13 +111,13 @@ Parameter mapping (ours → Newton)
   ``rigid_avbd_beta`` = 0), contact damping kd = 0 on both (ours has none; Newton's defaults
   are 10 and 100), friction ``soft_contact_mu`` = shape ``mu`` = ``friction`` (Newton takes
   the geometric mean), ``friction_epsilon`` the same 1e-2 m/s (both use eps_u = ε·h).
-  Detection: ``CollisionPipeline(soft_contact_gap=body_contact_gap)``, the counterpart of our
-  ``VBDConfig.contact_margin`` (query distance beyond the contact distance).
+  Detection: ``CollisionPipeline(soft_contact_gap=body_contact_gap)``, the query distance beyond
+  the contact distance.
 * Self-contact: ``particle_enable_self_contact``, ``particle_self_contact_margin`` (the
   interaction distance) and ``particle_self_contact_gap`` (extra detection reach; query radius
   = margin + gap), stiffness ``soft_contact_ke`` and friction ``soft_contact_mu`` (shared with
   the body contact in Newton). **Mismatch:** Newton's DAT truncation caps each particle's
-  motion between two detections at 0.5 × 0.85 × (margin + gap) — with the default schedule
+  motion between two detections at 0.5 × 0.85 × (margin + gap); with the default schedule
   (two detections per substep) cloth can follow the body at most about
   2 × 0.425 × (margin + gap) × substeps × fps [m/s]; ``notes`` reports this budget and the
   body's largest vertex speed. Ours bounds with the distance to the nearest primitive and a
@@ -127,9 +128,9 @@ Parameter mapping (ours → Newton)
 
 from __future__ import annotations
 
+import argparse
 import math
 import time
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -138,6 +139,10 @@ import warp as wp
 SCENE_ARRAYS = ("garment_positions", "garment_rest_positions", "garment_faces", "body_faces", "body_vertices")
 SCENE_SCALARS = ("density", "mu", "lam", "bending", "damping", "friction", "thickness", "fps")
 DAT_RELAXATION = 0.85  # Newton's default dat_conservative_bound_relaxation
+DETECTIONS_PER_SUBSTEP = 2  # Newton's default self-contact schedule, PRE_POST_INIT
+VERTEX_CONTACT_BUFFER = 32  # Newton's per-vertex self-contact pairs (beyond are dropped)
+EDGE_CONTACT_BUFFER = 64  # Newton's per-edge self-contact pairs
+TIMED_FROM = 3  # output frame 1 runs eagerly (compiles), frame 2 is the graph's first launch
 
 
 @wp.kernel
@@ -279,25 +284,172 @@ def bending_edge_stiffness(rest: np.ndarray, edges: np.ndarray, k_b: float) -> n
     return out
 
 
-def run_newton_vbd(
-    scene: dict,
-    *,
-    device: str,
-    substeps: int,
-    iterations: int,
-    self_contact: bool,
-    use_graph: bool,
-    frames: int | None = None,
-    progress: Callable[[int, int], Any] | None = None,
-    contact_stiffness: float = 1.0e5,
-    body_contact_gap: float = 0.05,
-    self_contact_margin: float = 3.0e-3,
-    self_contact_gap: float = 3.0e-3,
-    self_contact_detection_interval: int | None = None,
-    vertex_contact_buffer: int = 32,
-    edge_contact_buffer: int = 64,
-    friction_epsilon: float = 1.0e-2,
-) -> dict:
+def build_model(newton, sc: dict, dev, contact_stiffness: float, body_contact_gap: float):
+    """Newton's model of the scene ``sc`` (``validate_scene``) on ``dev``, with the per-edge
+    bending, the fabric layers, the pins and the contact material of the module docstring:
+    (model, the body's ``newton.Mesh``, per-edge ``edge_ke``, lumped masses [kg])."""
+    bv = sc["body_vertices"]
+    rest, faces = sc["garment_rest_positions"], sc["garment_faces"]
+    mu, lam, beta = sc["mu"], sc["lam"], sc["damping"]
+    builder = newton.ModelBuilder(up_axis=newton.Axis.Y, gravity=sc["gravity"])
+    builder.add_cloth_mesh(
+        pos=wp.vec3(0.0, 0.0, 0.0), rot=wp.quat_identity(), scale=1.0, vel=wp.vec3(0.0, 0.0, 0.0),
+        vertices=rest.tolist(), indices=faces.reshape(-1).tolist(), density=sc["density"],
+        tri_ke=mu, tri_ka=lam, tri_kd=beta * mu / 2.0, edge_ke=0.0, edge_kd=0.0,
+        particle_radius=sc["thickness"])
+    body_mesh = newton.Mesh(bv[0], sc["body_faces"].reshape(-1), compute_inertia=False)
+    shape_cfg = newton.ModelBuilder.ShapeConfig(
+        ke=contact_stiffness, kd=0.0, mu=sc["friction"], margin=0.0,
+        has_shape_collision=False, has_particle_collision=True)
+    body_shape = builder.add_shape_mesh(-1, mesh=body_mesh, cfg=shape_cfg)
+    builder.color()
+    model = builder.finalize(device=dev)
+    if model.particle_count != len(rest) or model.tri_count != len(faces):
+        raise RuntimeError(f"newton_ref: Newton's model has {model.particle_count} particles and "
+                           f"{model.tri_count} triangles, the scene {len(rest)} and {len(faces)}")
+    edge_ke, mass = set_layered_material(model, sc)
+    pinned = sc["pinned"]
+    if len(pinned):  # pinned particles are inactive, moved by the runner
+        flags = model.particle_flags.numpy()
+        flags[pinned] &= ~int(newton.ParticleFlags.ACTIVE)
+        model.particle_flags.assign(flags)
+    model.soft_contact_ke = contact_stiffness
+    model.soft_contact_kd = 0.0
+    model.soft_contact_mu = sc["friction"]
+    # the body mesh deforms: its local AABB must cover every frame
+    pad = body_contact_gap + sc["thickness"]
+    lo = model.shape_collision_aabb_lower.numpy()
+    hi = model.shape_collision_aabb_upper.numpy()
+    lo[body_shape] = bv.reshape(-1, 3).min(axis=0) - pad
+    hi[body_shape] = bv.reshape(-1, 3).max(axis=0) + pad
+    model.shape_collision_aabb_lower.assign(lo)
+    model.shape_collision_aabb_upper.assign(hi)
+    return model, body_mesh, edge_ke, mass
+
+
+def set_layered_material(model, sc: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Write the per-edge bending and damping, and the fabric layers' masses and membrane moduli,
+    into a finalized model (module docstring): (per-edge ``edge_ke``, lumped masses [kg])."""
+    rest, faces, layers = sc["garment_rest_positions"], sc["garment_faces"], sc["face_layers"]
+    mu, lam, beta = sc["mu"], sc["lam"], sc["damping"]
+    edges = model.edge_indices.numpy()
+    edge_ke = bending_edge_stiffness(rest, edges, sc["bending"]) * hinge_layers(faces, layers, edges)
+    props = model.edge_bending_properties.numpy()
+    props[:, 0] = edge_ke
+    props[:, 1] = beta * edge_ke
+    model.edge_bending_properties.assign(props.astype(np.float32))
+    mass = layered_masses(rest, faces, layers, sc["density"])
+    model.particle_mass.assign(mass.astype(np.float32))
+    model.particle_inv_mass.assign((1.0 / np.maximum(mass, 1e-30)).astype(np.float32))
+    mats = model.tri_materials.numpy()
+    mats[:, :3] = np.array([mu, lam, beta * mu / 2.0], np.float32) * layers[:, None]
+    model.tri_materials.assign(mats)
+    return edge_ke, mass
+
+
+def frame_program(model, solver, pipeline, body_mesh, sc: dict, dev, substeps: int, self_contact: bool,
+                  n_out: int):
+    """``simulate()``, one output frame of ``substeps`` substeps (module docstring, "Per
+    substep"), its frame index in a device counter so that a CUDA graph of it replays every
+    frame; and the device buffer (n_out, V) it writes the frames into."""
+    bv = sc["body_vertices"]
+    fps, pinned = sc["fps"], sc["pinned"]
+    h = 1.0 / (fps * substeps)
+    wmesh = body_mesh.mesh  # the finalized wp.Mesh the contact kernels query
+    contacts = pipeline.contacts()
+    control = model.control()
+    states = [model.state(), model.state()]
+    for st in states:
+        st.particle_q.assign(sc["garment_positions"])
+        st.particle_qd.zero_()
+    body_frames = wp.array(bv, dtype=wp.vec3, device=dev)
+    counter = wp.array([1], dtype=wp.int32, device=dev)
+    out = wp.zeros((n_out, len(sc["garment_positions"])), dtype=wp.vec3, device=dev)
+    pin_idx = wp.array(pinned, dtype=wp.int32, device=dev) if len(pinned) else None
+    pin_frames = (wp.array(sc["pin_targets"], dtype=wp.vec3, device=dev)
+                  if (len(pinned) and sc["pin_targets"] is not None) else None)
+
+    def simulate() -> None:
+        s0, s1 = states
+        if self_contact:
+            solver.rebuild_bvh(s0)
+        for s in range(substeps):
+            alpha = (s + 1) / substeps
+            wp.launch(_place_body_kernel, dim=bv.shape[1], inputs=[body_frames, counter, alpha, fps],
+                      outputs=[wmesh.points, wmesh.velocities], device=dev)
+            wmesh.refit()
+            if pin_frames is not None:
+                wp.launch(_place_pins_kernel, dim=len(pinned), inputs=[pin_frames, pin_idx, counter, alpha],
+                          outputs=[s0.particle_q, s1.particle_q], device=dev)
+            s0.clear_forces()
+            pipeline.collide(s0, contacts)
+            solver.step(s0, s1, control, contacts, h)
+            s0, s1 = s1, s0
+        if s0 is not states[0]:  # odd substep count: bring the result back to states[0]
+            wp.copy(states[0].particle_q, s0.particle_q)
+            wp.copy(states[0].particle_qd, s0.particle_qd)
+        wp.launch(_record_kernel, dim=out.shape[1], inputs=[states[0].particle_q, counter], outputs=[out],
+                  device=dev)
+        wp.launch(_advance_kernel, dim=1, inputs=[counter], device=dev)
+
+    return simulate, out
+
+
+def play(simulate, n_out: int, use_graph: bool, dev, notes: list[str]) -> tuple[float, int, bool]:
+    """Output frames 1 .. n_out-1: frame 1 eagerly, then (CUDA, ``use_graph``) a CUDA graph of one
+    frame captured at frame 2 and replayed. (ms per frame over frames ``TIMED_FROM``.., NaN when
+    there are none; frames timed; whether a graph ran)."""
+    graph = None
+    want_graph = bool(use_graph) and dev.is_cuda
+    if use_graph and not dev.is_cuda:
+        notes.append("use_graph ignored: CUDA graphs need a CUDA device")
+    t0 = None
+    for k in range(1, n_out):
+        if k == TIMED_FROM:
+            wp.synchronize_device(dev)
+            t0 = time.perf_counter()
+        if k == 1 or not want_graph:
+            simulate()
+            continue
+        if graph is None:
+            try:
+                with wp.ScopedCapture(device=dev) as cap:
+                    simulate()
+                graph = cap.graph
+            except Exception as e:  # reported in the notes: the run goes on in plain launches
+                want_graph = False
+                notes.append(f"graph capture failed, plain launches used: {type(e).__name__}: {e}")
+                simulate()
+                continue
+        wp.capture_launch(graph)
+    wp.synchronize_device(dev)
+    timed = n_out - TIMED_FROM if n_out > TIMED_FROM else 0
+    ms = 1000.0 * (time.perf_counter() - t0) / timed if timed > 0 and t0 is not None else float("nan")
+    return ms, timed, graph is not None
+
+
+def newton_params(sc: dict, edge_ke: np.ndarray, mass: np.ndarray, h: float, contact: dict) -> dict:
+    """The Newton values the scene mapped to (module docstring), for the result."""
+    mu, beta, layers = sc["mu"], sc["damping"], sc["face_layers"]
+    inner = edge_ke > 0
+    return {
+        "tri_ke": mu, "tri_ka": sc["lam"], "tri_kd": beta * mu / 2.0,
+        "edge_ke_mean": float(edge_ke[inner].mean()) if inner.any() else 0.0,
+        "edge_kd_mean": float(beta * edge_ke[inner].mean()) if inner.any() else 0.0,
+        "particle_radius": sc["thickness"], "soft_contact_ke": contact["contact_stiffness"],
+        "soft_contact_kd": 0.0, "soft_contact_mu": sc["friction"],
+        "soft_contact_gap": contact["body_contact_gap"],
+        "friction_epsilon": contact["friction_epsilon"], "dt_substep": h,
+        "membrane": "stable Neo-Hookean (Newton) against co-rotated linear (ours)",
+        "face_layers": {"min": float(layers.min()), "max": float(layers.max()), "mean": float(layers.mean())},
+        "mass_kg": float(mass.sum()),
+    }
+
+
+def run_newton_vbd(scene: dict, *, device: str, substeps: int, iterations: int, self_contact: bool,
+                   use_graph: bool, frames: int | None = None, contact_stiffness: float = 1.0e5,
+                   body_contact_gap: float = 0.05, self_contact_margin: float = 3.0e-3,
+                   self_contact_gap: float = 3.0e-3, friction_epsilon: float = 1.0e-2) -> dict:
     """Simulate ``scene`` with Newton's ``SolverVBD``; see the module docstring for the mapping.
 
     Args:
@@ -307,17 +459,10 @@ def run_newton_vbd(
         self_contact: Newton's particle self-contact (vertex-triangle + edge-edge, DAT).
         use_graph: capture one frame as a CUDA graph and replay it (CUDA only).
         frames: output frames including frame 0 (default: all T body frames).
-        progress: ``progress(done, total)`` after every simulated frame.
-        contact_stiffness: body (and self-) contact penalty [N/m] (our ``VBDConfig`` default).
-        body_contact_gap: body contact detection slack [m] (our ``VBDConfig.contact_margin``).
+        contact_stiffness: body (and self-) contact penalty [N/m] (our body contact's stiffness).
+        body_contact_gap: body contact detection reach beyond the contact distance [m].
         self_contact_margin, self_contact_gap: Newton's interaction distance and extra detection
             reach [m] for self-contact.
-        self_contact_detection_interval: None: Newton's default schedule (``PRE_POST_INIT``:
-            detect before and right after the initialisation of every substep); k >= 1:
-            ``ITERATIONS`` (before the initialisation and before every k-th iteration: a larger
-            motion budget for more detection passes).
-        vertex_contact_buffer, edge_contact_buffer: Newton's per-vertex / per-edge self-contact
-            buffer capacities (pairs beyond are dropped).
         friction_epsilon: friction smoothing speed [m/s].
 
     Returns:
@@ -327,209 +472,142 @@ def run_newton_vbd(
         ``device``; ``newton_params`` (the mapped values); ``notes`` (list of str).
     """
     import newton
-    from newton.solvers import SolverBase, SolverVBD
+    from newton.solvers import SolverVBD
 
     if substeps < 1 or iterations < 1:
         raise ValueError("substeps and iterations must be >= 1")
     sc = validate_scene(scene)
-    notes: list[str] = []
     bv = sc["body_vertices"]
-    t_body = bv.shape[0]
-    n_out = t_body if frames is None else int(frames)
-    if not 1 <= n_out <= t_body:
-        raise ValueError(f"frames must lie in 1..{t_body} (body frames), got {frames}")
-    fps = sc["fps"]
-    h = 1.0 / (fps * substeps)
-    x0, rest, faces = sc["garment_positions"], sc["garment_rest_positions"], sc["garment_faces"]
-    nv = len(x0)
-    mu, lam, beta, k_b = sc["mu"], sc["lam"], sc["damping"], sc["bending"]
-
+    n_out = bv.shape[0] if frames is None else int(frames)
+    if not 1 <= n_out <= bv.shape[0]:
+        raise ValueError(f"frames must lie in 1..{bv.shape[0]} (body frames), got {frames}")
+    notes: list[str] = []
     wp.init()
     dev = wp.get_device(device)
     with wp.ScopedDevice(dev):
-        builder = newton.ModelBuilder(up_axis=newton.Axis.Y, gravity=sc["gravity"])
-        builder.add_cloth_mesh(
-            pos=wp.vec3(0.0, 0.0, 0.0), rot=wp.quat_identity(), scale=1.0, vel=wp.vec3(0.0, 0.0, 0.0),
-            vertices=rest.tolist(), indices=faces.reshape(-1).tolist(), density=sc["density"],
-            tri_ke=mu, tri_ka=lam, tri_kd=beta * mu / 2.0, edge_ke=0.0, edge_kd=0.0,
-            particle_radius=sc["thickness"])
-        body_mesh = newton.Mesh(bv[0], sc["body_faces"].reshape(-1), compute_inertia=False)
-        shape_cfg = newton.ModelBuilder.ShapeConfig(
-            ke=contact_stiffness, kd=0.0, mu=sc["friction"], margin=0.0,
-            has_shape_collision=False, has_particle_collision=True)
-        body_shape = builder.add_shape_mesh(-1, mesh=body_mesh, cfg=shape_cfg)
-        builder.color()
-        model = builder.finalize(device=dev)
-
-        # per-edge bending stiffness and damping (module docstring)
-        edges = model.edge_indices.numpy()
-        edge_ke = bending_edge_stiffness(rest, edges, k_b)
-        layers = sc["face_layers"]
-        edge_ke = edge_ke * hinge_layers(faces, layers, edges)
-        props = model.edge_bending_properties.numpy()
-        props[:, 0] = edge_ke
-        props[:, 1] = beta * edge_ke
-        model.edge_bending_properties.assign(props.astype(np.float32))
-        # fabric layers (hems): masses and membrane moduli per face (module docstring)
-        if model.particle_count != nv or model.tri_count != len(faces):
-            raise RuntimeError(f"newton_ref: Newton's model has {model.particle_count} particles and "
-                               f"{model.tri_count} triangles, the scene {nv} and {len(faces)}")
-        mass = layered_masses(rest, faces, layers, sc["density"])
-        model.particle_mass.assign(mass.astype(np.float32))
-        model.particle_inv_mass.assign((1.0 / np.maximum(mass, 1e-30)).astype(np.float32))
-        mats = model.tri_materials.numpy()
-        mats[:, :3] = np.array([mu, lam, beta * mu / 2.0], np.float32) * layers[:, None]
-        model.tri_materials.assign(mats)
-        # pins: inactive particles, moved by us
-        pinned = sc["pinned"]
-        if len(pinned):
-            flags = model.particle_flags.numpy()
-            flags[pinned] &= ~int(newton.ParticleFlags.ACTIVE)
-            model.particle_flags.assign(flags)
-        # contact material
-        model.soft_contact_ke = contact_stiffness
-        model.soft_contact_kd = 0.0
-        model.soft_contact_mu = sc["friction"]
-        # the body mesh deforms: its local AABB must cover every frame
-        pad = body_contact_gap + sc["thickness"]
-        lo = model.shape_collision_aabb_lower.numpy()
-        hi = model.shape_collision_aabb_upper.numpy()
-        lo[body_shape] = bv.reshape(-1, 3).min(axis=0) - pad
-        hi[body_shape] = bv.reshape(-1, 3).max(axis=0) + pad
-        model.shape_collision_aabb_lower.assign(lo)
-        model.shape_collision_aabb_upper.assign(hi)
-        wmesh = body_mesh.mesh  # the finalized wp.Mesh the contact kernels query
-
+        model, body_mesh, edge_ke, mass = build_model(newton, sc, dev, contact_stiffness, body_contact_gap)
         pipeline = newton.CollisionPipeline(model, soft_contact_gap=body_contact_gap)
-        contacts = pipeline.contacts()
         solver_kw: dict[str, Any] = dict(iterations=iterations, friction_epsilon=friction_epsilon)
         if self_contact:
             solver_kw.update(
-                particle_enable_self_contact=True,
-                particle_self_contact_margin=self_contact_margin,
+                particle_enable_self_contact=True, particle_self_contact_margin=self_contact_margin,
                 particle_self_contact_gap=self_contact_gap,
-                particle_vertex_contact_buffer_size=vertex_contact_buffer,
-                particle_edge_contact_buffer_size=edge_contact_buffer)
-            if self_contact_detection_interval is not None:
-                solver_kw["collision_frequency_type"] = {
-                    SolverBase.CollisionSlot.SOFT_SELF_CONTACT: SolverBase.CollisionFrequencyType.ITERATIONS}
-                solver_kw["collision_frequency"] = {
-                    SolverBase.CollisionSlot.SOFT_SELF_CONTACT: int(self_contact_detection_interval)}
+                particle_vertex_contact_buffer_size=VERTEX_CONTACT_BUFFER,
+                particle_edge_contact_buffer_size=EDGE_CONTACT_BUFFER)
         solver = SolverVBD(model, **solver_kw)
-
-        states = [model.state(), model.state()]
-        for st in states:
-            st.particle_q.assign(x0)
-            st.particle_qd.zero_()
-        control = model.control()
-
-        body_frames = wp.array(bv, dtype=wp.vec3, device=dev)
-        counter = wp.array([1], dtype=wp.int32, device=dev)
-        out = wp.zeros((n_out, nv), dtype=wp.vec3, device=dev)
-        out_host0 = x0.copy()
-        pin_idx = wp.array(pinned, dtype=wp.int32, device=dev) if len(pinned) else None
-        pin_frames = (wp.array(sc["pin_targets"], dtype=wp.vec3, device=dev)
-                      if (len(pinned) and sc["pin_targets"] is not None) else None)
-
-        def simulate() -> None:
-            s0, s1 = states
-            if self_contact:
-                solver.rebuild_bvh(s0)
-            for s in range(substeps):
-                alpha = (s + 1) / substeps
-                wp.launch(_place_body_kernel, dim=bv.shape[1], inputs=[body_frames, counter, alpha, fps],
-                          outputs=[wmesh.points, wmesh.velocities], device=dev)
-                wmesh.refit()
-                if pin_frames is not None:
-                    wp.launch(_place_pins_kernel, dim=len(pinned),
-                              inputs=[pin_frames, pin_idx, counter, alpha],
-                              outputs=[s0.particle_q, s1.particle_q], device=dev)
-                s0.clear_forces()
-                pipeline.collide(s0, contacts)
-                solver.step(s0, s1, control, contacts, h)
-                s0, s1 = s1, s0
-            if s0 is not states[0]:  # odd substep count: bring the result back to states[0]
-                wp.copy(states[0].particle_q, s0.particle_q)
-                wp.copy(states[0].particle_qd, s0.particle_qd)
-            wp.launch(_record_kernel, dim=nv, inputs=[states[0].particle_q, counter], outputs=[out],
-                      device=dev)
-            wp.launch(_advance_kernel, dim=1, inputs=[counter], device=dev)
-
-        graph = None
-        want_graph = bool(use_graph) and dev.is_cuda
-        if use_graph and not dev.is_cuda:
-            notes.append("use_graph ignored: CUDA graphs need a CUDA device")
-        timed_from = 3  # frame 1: eager warm-up (compile); frame 2: first graph launch
-        t0 = None
-        n_steps = n_out - 1
-        for k in range(1, n_out):
-            if k == timed_from:
-                wp.synchronize_device(dev)
-                t0 = time.perf_counter()
-            if k == 1 or not want_graph:
-                simulate()
-            else:
-                if graph is None:
-                    try:
-                        with wp.ScopedCapture(device=dev) as cap:
-                            simulate()
-                        graph = cap.graph
-                    except Exception as e:  # report, never hide (issue 3 asks whether it captures)
-                        want_graph = False
-                        notes.append(f"graph capture failed, plain launches used: {type(e).__name__}: {e}")
-                        simulate()
-                        continue
-                wp.capture_launch(graph)
-            if progress is not None:
-                progress(k, n_steps)
-        wp.synchronize_device(dev)
-        timed = n_out - timed_from if n_out > timed_from else 0
-        ms = 1000.0 * (time.perf_counter() - t0) / timed if timed > 0 and t0 is not None else float("nan")
+        simulate, out = frame_program(model, solver, pipeline, body_mesh, sc, dev, substeps, self_contact,
+                                      n_out)
+        ms, timed, graph = play(simulate, n_out, use_graph, dev, notes)
         positions = out.numpy()
-        positions[0] = out_host0
-
-    speed = float(np.linalg.norm(np.diff(bv, axis=0), axis=2).max() * fps) if t_body > 1 else 0.0
-    params = {
-        "tri_ke": mu, "tri_ka": lam, "tri_kd": beta * mu / 2.0,
-        "edge_ke_mean": float(edge_ke[edge_ke > 0].mean()) if (edge_ke > 0).any() else 0.0,
-        "edge_kd_mean": float(beta * edge_ke[edge_ke > 0].mean()) if (edge_ke > 0).any() else 0.0,
-        "particle_radius": sc["thickness"], "soft_contact_ke": contact_stiffness, "soft_contact_kd": 0.0,
-        "soft_contact_mu": sc["friction"], "soft_contact_gap": body_contact_gap,
-        "friction_epsilon": friction_epsilon, "dt_substep": h,
-        "membrane": "stable Neo-Hookean (Newton) vs StVK (ours)",
-        "face_layers": {"min": float(layers.min()), "max": float(layers.max()), "mean": float(layers.mean())},
-        "mass_kg": float(mass.sum()),
-    }
+        positions[0] = sc["garment_positions"]
+    fps = sc["fps"]
+    speed = float(np.linalg.norm(np.diff(bv, axis=0), axis=2).max() * fps) if bv.shape[0] > 1 else 0.0
+    contact = {"contact_stiffness": contact_stiffness, "body_contact_gap": body_contact_gap,
+               "friction_epsilon": friction_epsilon}
+    params = newton_params(sc, edge_ke, mass, 1.0 / (fps * substeps), contact)
     if self_contact:
-        query = self_contact_margin + self_contact_gap
-        # motion segments between detections per substep: PRE_POST_INIT 2; ITERATIONS (every k-th
-        # iteration, plus once before the initialisation) 1 + iterations // k
-        k = self_contact_detection_interval
-        passes = 2 if k is None else 1 + iterations // int(k)
-        budget = passes * 0.5 * DAT_RELAXATION * query * substeps * fps
+        budget = DETECTIONS_PER_SUBSTEP * 0.5 * DAT_RELAXATION * (self_contact_margin + self_contact_gap) \
+            * substeps * fps
         params.update(particle_self_contact_margin=self_contact_margin,
-                      particle_self_contact_gap=self_contact_gap, self_contact_detection_interval=k,
-                      self_contact_speed_budget_m_per_s=budget)
+                      particle_self_contact_gap=self_contact_gap, self_contact_speed_budget_m_per_s=budget)
         notes.append(f"self-contact DAT caps cloth speed at about {budget:.2f} m/s "
                      f"(body's fastest vertex: {speed:.2f} m/s)")
     if not np.isfinite(positions).all():
         notes.append("non-finite positions in the result")
     return {
-        "positions": positions,
-        "ms_per_frame": ms,
-        "timed_frames": timed,
-        "graph": graph is not None,
-        "self_contact": bool(self_contact),
-        "substeps": substeps,
-        "iterations": iterations,
-        "frames": n_out,
-        "cloth_vertices": nv,
-        "body_vertices": int(bv.shape[1]),
-        "body_triangles": int(len(sc["body_faces"])),
-        "body_max_vertex_speed_m_per_s": speed,
-        "device": str(dev),
-        "newton_version": newton.__version__,
-        "warp_version": wp.config.version,
-        "newton_params": params,
-        "notes": notes,
+        "positions": positions, "ms_per_frame": ms, "timed_frames": timed, "graph": graph,
+        "self_contact": bool(self_contact), "substeps": substeps, "iterations": iterations, "frames": n_out,
+        "cloth_vertices": len(sc["garment_positions"]), "body_vertices": int(bv.shape[1]),
+        "body_triangles": int(len(sc["body_faces"])), "body_max_vertex_speed_m_per_s": speed,
+        "device": str(dev), "newton_version": newton.__version__, "warp_version": wp.config.version,
+        "newton_params": params, "notes": notes,
     }
+
+
+# --- a self-check: a sheet dropped onto a sphere ---------------------------------------------------
+
+G = 9.81
+DROP_FPS = 30.0
+SPHERE_RADIUS = 0.2  # [m]
+SHEET_HEIGHT = 0.3  # [m]: 0.1 m above the sphere's top
+
+
+def drape_scene(frames: int, n: int = 10, size: float = 0.5) -> dict:
+    """An ``n`` x ``n`` cotton-like sheet (``sim.garments.materials`` "cotton", a thicker contact
+    offset for the coarse sheet) ``SHEET_HEIGHT`` above a static sphere, for ``frames`` frames."""
+    s = np.linspace(-size / 2, size / 2, n, dtype=np.float32)
+    xx, zz = np.meshgrid(s, s, indexing="ij")
+    v = np.stack([xx.ravel(), np.full(n * n, SHEET_HEIGHT, np.float32), zz.ravel()], axis=1)
+    f = [(i * n + j, i * n + j + 1, (i + 1) * n + j) for i in range(n - 1) for j in range(n - 1)]
+    f += [((i + 1) * n + j, i * n + j + 1, (i + 1) * n + j + 1) for i in range(n - 1) for j in range(n - 1)]
+    n_lat, n_lon = 16, 24
+    sv = [(0.0, SPHERE_RADIUS, 0.0)]
+    for i in range(1, n_lat):
+        th = np.pi * i / n_lat
+        sv += [(SPHERE_RADIUS * np.sin(th) * np.cos(2 * np.pi * j / n_lon), SPHERE_RADIUS * np.cos(th),
+                SPHERE_RADIUS * np.sin(th) * np.sin(2 * np.pi * j / n_lon)) for j in range(n_lon)]
+    sv.append((0.0, -SPHERE_RADIUS, 0.0))
+
+    def ring(i, j):
+        return 1 + (i - 1) * n_lon + j % n_lon
+
+    sf = [(0, ring(1, j + 1), ring(1, j)) for j in range(n_lon)]
+    sf += [(len(sv) - 1, ring(n_lat - 1, j), ring(n_lat - 1, j + 1)) for j in range(n_lon)]
+    for i in range(1, n_lat - 1):
+        for j in range(n_lon):
+            a, b, c, d = ring(i, j), ring(i, j + 1), ring(i + 1, j + 1), ring(i + 1, j)
+            sf += [(a, b, c), (a, c, d)]
+    sv = np.asarray(sv, np.float32)
+    return {
+        "garment_positions": v, "garment_rest_positions": v, "garment_faces": np.asarray(f, np.int32),
+        "density": 0.15, "mu": 1.5e3, "lam": 6.0e2, "bending": 5e-6, "damping": 2e-3, "friction": 0.4,
+        "thickness": 2e-3, "body_faces": np.asarray(sf, np.int32),
+        "body_vertices": np.repeat(sv[None], frames, axis=0), "fps": DROP_FPS,
+    }
+
+
+def drape_figures(x: np.ndarray) -> dict:
+    """What the drop should show: a free fall of g t^2 / 2 over its first 3 frames (before the
+    sheet reaches the sphere), no vertex inside the sphere, the centre resting on its top, the
+    edges hanging below the contact."""
+    t = 3 / DROP_FPS
+    drop = SHEET_HEIGHT - x[3, :, 1]
+    centre = x[-1][np.argmin(np.abs(x[0, :, 0]) + np.abs(x[0, :, 2]))]
+    return {"free_fall_drop_m": [float(drop.min()), float(drop.max())],
+            "free_fall_expected_m": 0.5 * G * t * t,
+            "min_radius_m": float(np.linalg.norm(x[-1], axis=1).min()), "centre_height_m": float(centre[1]),
+            "lowest_m": float(x[-1, :, 1].min()), "finite": bool(np.isfinite(x).all())}
+
+
+def drape_passes(fig: dict) -> bool:
+    """Whether ``drape_figures`` show the drop they should: every vertex within 10 % of the free
+    fall, none more than 2 mm inside the sphere, the centre on its top (within 2 cm above it),
+    the edges 5 cm below it."""
+    fall = fig["free_fall_expected_m"]
+    return (fig["finite"] and all(math.isclose(d, fall, rel_tol=0.1) for d in fig["free_fall_drop_m"])
+            and fig["min_radius_m"] > SPHERE_RADIUS - 2e-3
+            and SPHERE_RADIUS - 2e-3 < fig["centre_height_m"] < SPHERE_RADIUS + 2e-2
+            and fig["lowest_m"] < SPHERE_RADIUS - 0.05)
+
+
+def main() -> None:
+    from benchmarks.common import add_results_argument, machine, write_result
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--frames", type=int, default=24)
+    add_results_argument(ap)
+    args = ap.parse_args()
+    res = run_newton_vbd(drape_scene(args.frames), device=args.device, substeps=10, iterations=10,
+                         self_contact=False, use_graph=args.device.startswith("cuda"))
+    fig = drape_figures(res["positions"])
+    fig.update(ms_per_frame=res["ms_per_frame"], graph=res["graph"])
+    write_result(f"newton_drape_{args.device.split(':')[0]}", {
+        "machine": machine(args.device), "newton_version": res["newton_version"],
+        "sizes": {"cloth_vertices": res["cloth_vertices"], "frames": args.frames, "substeps": 10,
+                  "iterations": 10}, "figures": fig}, args.results)
+    raise SystemExit(0 if drape_passes(fig) else 1)
+
+
+if __name__ == "__main__":
+    main()

@@ -99,8 +99,9 @@ def markdown(tables: dict) -> str:
             ]
             for key, label in ROWS:
                 if key in rows:
+                    seeds = rows[key].get("ev", (0, 0, 1))[2]
                     lines.append(
-                        f"| {label}{' (5 seeds)' if rows[key].get('ev', (0, 0, 1))[2] > 1 else ''} | "
+                        f"| {label}{f' ({seeds} seeds)' if seeds > 1 else ''} | "
                         + " | ".join(_cell(rows[key][m], s) if m in rows[key] else "–" for m, _, s in METRICS)
                         + " |"
                     )

@@ -1,5 +1,6 @@
-"""Reference-shape dressing (sim/simulate.py ``garment_betas``, ``morph_settle``; the dataset's
-``[garments] fit = "reference"``): one garment mesh built on the mean shape worn by other shapes.
+"""Reference-shape dressing (``sim.datasets.generate.garment_betas``,
+``sim.simulate.morph_settle``; the dataset's ``[garments] fit = "reference"``): one garment mesh
+built on the mean shape worn by other shapes.
 Tiny CPU cases: coarse skirt (7 cm edges), few substeps, fractions of a second."""
 
 from __future__ import annotations
@@ -14,8 +15,8 @@ from sim.errors import WrinklesInputError
 from sim.simulate import SimulationConfig, morph_frames, morph_settle, simulate
 
 RES = 0.07  # template edge length [m] (the sample config's coarse resolution)
-# 5 x 5: at 3 x 3 the job default's coarse prefactor leaves 5 of the skirt's 164 vertices up to
-# 1.06 mm inside the body at the settle's end (benchmarks/morph_inside.py, docs/BENCHMARKS.md s34)
+# 5 x 5: at 3 x 3 the coarse system factored at the substep start leaves 5 of the skirt's 164
+# vertices up to 1.06 mm inside the body at the settle's end (CPU)
 FAST = dict(fps=30.0, substeps=5, iterations=5, settle_seconds=0.5, blend_seconds=0.1, device="cpu")
 TARGET = np.array([1.5, -1.0], np.float32)
 

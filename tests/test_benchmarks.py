@@ -1,0 +1,158 @@
+"""Every maintained benchmark runs: each script as a subprocess at its smallest CPU setting,
+writing its JSON (the date, the command line, the machine and its figures) to a temporary
+folder. The figures are checked for what the scene guarantees, never for timings."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_benchmark(module: str, *args: str, results: Path | None = None, timeout: float = 900.0):
+    """``python -m benchmarks.<module> ARGS [--results DIR]`` from the repository root:
+    (the completed process, the parsed JSON results by file name)."""
+    cmd = [sys.executable, "-m", f"benchmarks.{module}", *args]
+    if results is not None:
+        cmd += ["--results", str(results)]
+    env = {k: v for k, v in os.environ.items() if k != "OUT"}
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
+    found = {p.name: json.loads(p.read_text()) for p in sorted(results.glob("*.json"))} if results else {}
+    return proc, found
+
+
+def single_result(module: str, *args: str, tmp_path: Path) -> dict:
+    """The one JSON result of a benchmark run that must succeed, with its common fields checked."""
+    proc, found = run_benchmark(module, *args, results=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert len(found) == 1, sorted(found)
+    (name, result), = found.items()
+    assert name == f"{result['benchmark']}.json"
+    assert result["command"].startswith(f"python -m benchmarks.{module} ")
+    assert result["machine"]["device"].startswith("cpu") and result["machine"]["warp"]
+    assert result["date"][:2] == "20"
+    return result
+
+
+@pytest.mark.slow
+def test_lbs(tmp_path):
+    r = single_result("bench_lbs", "--device", "cpu", "--frames", "8", "--repeats", "1", tmp_path=tmp_path)
+    assert r["benchmark"] == "lbs_cpu" and r["sizes"]["frames"] == 8
+    assert r["sizes"]["vertices"] == 13348 and r["figures"]["device_frames_per_s"] > 0
+
+
+@pytest.mark.slow
+def test_cloth_core_drops_the_sheet_onto_the_sphere(tmp_path):
+    r = single_result("bench_cloth", "--device", "cpu", "--n", "11", "--frames", "3", "--self-contact",
+                      tmp_path=tmp_path)
+    assert r["benchmark"] == "cloth_core_cpu" and r["sizes"]["cloth_vertices"] == 121
+    assert r["sizes"]["config"]["self_contact"]["enabled"] is True
+    fig = r["figures"]
+    assert fig["single_finite"] and "batched" not in fig  # batches run on CUDA only
+    # six frames of 1/30 s: the sheet, 5 cm above the sphere, has fallen onto it, not through it
+    assert 0.29 < fig["single_min_radius_m"] < 0.35
+
+
+@pytest.mark.slow
+def test_tshirt_walk(tmp_path):
+    r = single_result("bench_tshirt", "--device", "cpu", "--vertices", "500", "--motions", "walk",
+                      "--seconds", "0.1", tmp_path=tmp_path)
+    assert r["benchmark"] == "tshirt_cpu"
+    assert 400 < r["sizes"]["garment_vertices"] < 650 and r["sizes"]["substeps"] == 12
+    ours = r["figures"]["walk"]["ours"]
+    # 0.1 s at 30 fps: 3 output frames, the first the blend's end, so 2 timed solver frames
+    assert ours["frames"] == 2 and ours["quality"]["finite"]
+    assert ours["sequences_failing_gates"] == (1 if ours["failed_gates"] else 0)
+
+
+@pytest.mark.slow
+def test_sweep_runs_the_population_it_draws(tmp_path):
+    r = single_result("sweep_tshirt", "--device", "cpu", "--vertices", "500", "--motions", "walk",
+                      "--seconds", "0.1", "--settings", "2x2", "--population", "3", "--population-seed", "4",
+                      tmp_path=tmp_path)
+    assert r["benchmark"] == "tshirt_sweep_cpu"
+    (row,) = r["settings"]
+    assert (row["substeps"], row["iterations"]) == (2, 2)
+    pop = row["population"]
+    assert pop["size"] == 3 and len(pop["members"]) == 3 and 0 <= pop["passing"] <= 3
+    labels = r["population"]
+    assert labels[:2] == ["walk", "run"]  # the benchmark's own motions first
+    name, *params = labels[2].split()
+    drawn = dict(p.split("=") for p in params)
+    assert name == "walk" and 1.0 <= float(drawn["speed"]) <= 1.8 and 0.7 <= float(drawn["arm_swing"]) <= 1.4
+    assert row["passes"] == (pop["passing"] == 3 and not row["motions"]["walk"]["failed_gates"])
+
+
+def test_sweep_refuses_a_setting_it_cannot_read(tmp_path):
+    proc, found = run_benchmark("sweep_tshirt", "--device", "cpu", "--settings", "12by5", results=tmp_path)
+    assert proc.returncode == 2 and not found
+    assert proc.stderr.strip().splitlines()[-1].endswith("error: --settings: cannot read '12by5' "
+                                                         "(SUBSTEPSxITERATIONS, e.g. 12x5)")
+
+
+@pytest.mark.slow
+def test_dataset_generation(tmp_path):
+    r = single_result("bench_dataset", "--device", "cpu", "--sequences", "1", "--seconds", "0.1",
+                      "--batch", "1", "--cases", "coarse", "--resolution", "0.07", tmp_path=tmp_path)
+    case = r["figures"]["coarse"]
+    assert all(v < 400 for v in case["vertices"])  # 7 cm edges: a few hundred vertices
+    assert case["sequences"] == 1 and case["accepted"] + case["rejected"] == 1
+    assert case["sequences_per_hour"] > 0
+
+
+@pytest.mark.slow
+def test_losses(tmp_path):
+    r = single_result("bench_losses", "--device", "cpu", "--batch", "1", "--vertices", "300",
+                      "--repeats", "1", "--warmup", "0", "--search-repeats", "1", tmp_path=tmp_path)
+    terms = r["figures"]["terms"]
+    assert {"membrane", "bending", "collision_vertex", "sum_snug_hood", "sum_gsnet"} <= set(terms)
+    assert all(t["warp"]["forward_backward_ms"] > 0 and "torch" in t for t in terms.values())
+    assert set(r["figures"]["collision_search"]) == {"vertex_bvh", "vertex_brute", "face_bvh", "face_brute"}
+
+
+@pytest.mark.slow
+def test_wrinkle_inference(tmp_path):
+    r = single_result("bench_wrinkles", "--device", "cpu", "--frames", "2", "--steps", "1", tmp_path=tmp_path)
+    (row,) = r["figures"]["rows"]
+    assert row["steps"] == 1 and row["frames"] == 2 and row["fps"] > 0
+    assert r["sizes"]["garment"] == "t_shirt" and r["machine"]["torch"]
+
+
+def test_wrinkle_tables_average_the_seeds(tmp_path):
+    """``wrinkle_tables`` reads ``EVAL/<garment>-<row>-<split>/metrics.json``: the seeds of ours
+    are averaged (mean and standard deviation), the step sweep goes to its own table."""
+    runs = {"tshirt-base-test_id": 0.002, "tshirt-ours-s0-test_id": 0.001, "tshirt-ours-s1-test_id": 0.003,
+            "tshirt-ours-steps20-test_id": 0.004}
+    for name, ev in runs.items():
+        (tmp_path / "eval" / name).mkdir(parents=True)
+        summary = {"ev": ev, "ecd": ev * ev, "normal_fd": 1e-4}
+        record = {"split": "test_id", "summary": summary}
+        (tmp_path / "eval" / name / "metrics.json").write_text(json.dumps(record))
+    out, js = tmp_path / "tables.md", tmp_path / "tables.json"
+    proc, _ = run_benchmark("wrinkle_tables", str(tmp_path / "eval"), "--out", str(out), "--json", str(js))
+    assert proc.returncode == 0, proc.stderr
+    tables = json.loads(js.read_text())
+    mean, std, n = tables["tshirt"]["test_id"]["ours"]["ev"]
+    assert n == 2 and mean == pytest.approx(0.002) and std == pytest.approx(0.001)
+    assert tables["steps"]["20"]["ev"] == pytest.approx(0.004)
+    text = out.read_text()
+    assert "| ours, strain-norm conditioning (shipped) (2 seeds) | 2 ± 1 |" in text
+    assert "| base mesh alone | 2 |" in text and "### DDIM steps" in text
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("newton") is None, reason="newton is not installed (optional)")
+def test_newton_drops_a_sheet_onto_a_sphere(tmp_path):
+    """``newton_ref``'s own check: Newton's ``SolverVBD`` on the scene it is given falls freely,
+    rests on the sphere, and hangs its edges below the contact (it exits 1 otherwise)."""
+    r = single_result("newton_ref", "--device", "cpu", tmp_path=tmp_path)
+    fig = r["figures"]
+    assert r["newton_version"].startswith("1.") and fig["finite"]
+    assert fig["min_radius_m"] > 0.198 and fig["lowest_m"] < 0.15
