@@ -1,4 +1,4 @@
-"""Differentiable linear blend skinning for torch, computed by Warp kernels (issue 5, deliverable 3).
+"""Differentiable linear blend skinning for torch, computed by Warp kernels.
 
 Users: a learned displacement model that skins a garment (rest + displacement, per sample) with
 weights transferred from the body (``sim.skinning.transfer.transfer_skinning_weights``), and the

@@ -35,7 +35,7 @@ Table 1). --model base evaluates the base surface alone (no wrinkles).
 examples:
   wrinkles evaluate --model runs/mlp/checkpoints/last.pt --data data/sample --split test_id
   wrinkles evaluate --model runs/wrinkles/checkpoints/last.pt --data data/tshirt --split test_id --steps 20
-  wrinkles evaluate --model runs/wrinkles/checkpoints/last.pt --coarse runs/coarse/checkpoints/last.pt \
+  wrinkles evaluate --model runs/wrinkles/checkpoints/last.pt --coarse runs/coarse/checkpoints/last.pt \\
       --data data/tshirt --split test_ood
   wrinkles evaluate --model base --coarse runs/coarse/checkpoints/last.pt --data data/tshirt --split test_ood
   wrinkles evaluate --model runs/mlp/checkpoints/last.pt --data data/big --split test_ood --max-sequences 50

@@ -72,9 +72,9 @@ def join_negative_values(argv: list[str], options: tuple[str, ...] = NUMBER_LIST
     """``["--shape", "-1.2,0.5"]`` -> ``["--shape=-1.2,0.5"]``.
 
     argparse takes a value that starts with ``-`` for an option unless it is one plain negative
-    number, so betas whose first value is negative stopped with "expected one argument". A
+    number, so betas whose first value is negative would stop with "expected one argument". A
     value of one of ``options`` that is a comma list of numbers is joined to its option; every
-    other token, and everything after ``--``, is left as it was.
+    other token, and everything after ``--``, is kept as it is.
     """
     out: list[str] = []
     i = 0

@@ -10,7 +10,7 @@ pyvista, imageio-ffmpeg and Pillow are optional (extra ``preview``) and imported
 the functions that need them (STYLE.md 7); a missing one raises ``WrinklesInputError``
 naming the extra to install.
 
-Conventions: Y up, metres, bodies face +Z (DESIGN.md, Conventions).
+Conventions: Y up, metres, bodies face +Z (ARCHITECTURE.md).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Device selection for Warp kernels.
 
-Every kernel runs on ``cpu`` and ``cuda`` (DESIGN.md, Conventions). ``None`` or ``"auto"``
+Every kernel runs on ``cpu`` and ``cuda`` (ARCHITECTURE.md). ``None`` or ``"auto"``
 picks ``cuda`` when a CUDA device is present, else ``cpu``.
 """
 

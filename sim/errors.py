@@ -2,7 +2,7 @@
 
 A ``WrinklesInputError`` is a problem with something the user supplied (a file, a name, an
 array). The CLI prints its message on one line and exits with status 2, without a traceback
-(DESIGN.md, Conventions). Messages name the file (when there is one) and what is wrong.
+(ARCHITECTURE.md). Messages name the file (when there is one) and what is wrong.
 """
 
 from __future__ import annotations

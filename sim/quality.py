@@ -1,4 +1,4 @@
-"""Quality gates for simulated garment sequences (issue 3, "Quality gates").
+"""Quality gates for simulated garment sequences.
 
 Computed for every simulated sequence and stored with it: edge strain (max, mean), the fraction
 of garment vertices inside the body, self-intersections, and non-finite values. ``check_frame``
@@ -305,7 +305,7 @@ def summarize_self_crossings(hits, rest_hit: np.ndarray, edges: np.ndarray, rest
 def body_self_crossings(vertices: np.ndarray, faces: np.ndarray, rest_vertices: np.ndarray,
                         weights: np.ndarray, joint_names, *, edge_mask: np.ndarray | None = None,
                         device: str | None = None, progress=None) -> dict:
-    """Where a skinned body passes through itself over a motion (session 46).
+    """Where a skinned body passes through itself over a motion.
 
     Linear blend skinning without pose correctives folds the skin through itself at deep joint
     flexion: the calf into the thigh behind a bent knee, the thigh into the belly at the groin,

@@ -1,4 +1,4 @@
-"""Plain data types that flow between stages (DESIGN.md, Core types).
+"""Plain data types that flow between stages.
 
 Arrays at module boundaries are numpy ``float32`` (positions), ``int32`` (indices).
 """
@@ -15,7 +15,7 @@ from sim.errors import WrinklesInputError
 if TYPE_CHECKING:  # pragma: no cover
     from sim.garments.types import Garment
 
-#: SMPL's 24 joints, names and order as SMPL (DESIGN.md, Conventions).
+#: SMPL's 24 joints, names and order as SMPL.
 SMPL_JOINT_NAMES: tuple[str, ...] = (
     "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
     "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck", "left_collar",
@@ -107,8 +107,7 @@ class Motion:
 
 @dataclass(frozen=True)
 class GarmentSequence:
-    """A garment animated on a body: what simulation and inference produce (DESIGN.md, Core
-    types).
+    """A garment animated on a body: what simulation and inference produce.
 
     Attributes:
         vertices: garment positions [m], shape (T, V, 3), float32, V = ``garment.num_vertices``

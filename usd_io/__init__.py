@@ -1,4 +1,4 @@
-"""USD out and back in; the only package that imports ``pxr`` (DESIGN.md, Layout).
+"""USD out and back in; the only package that imports ``pxr`` (ARCHITECTURE.md).
 
 - ``write_stage(path, body=..., fps=..., garments=[GarmentTrack(...)])`` writes
   ``/World/Body`` and ``/World/Garments/<name>`` as time-sampled ``UsdGeom.Mesh`` prims

@@ -1,7 +1,7 @@
 """Validate a USD stage: OpenUSD's ``UsdValidation`` validators plus mesh-topology checks.
 
-usd-core 26.x no longer ships the old compliance checker (``usdchecker``'s Python
-``ComplianceChecker``); the replacement is the ``UsdValidation`` framework: a
+usd-core 26.x validates through the ``UsdValidation`` framework (it ships no Python
+``ComplianceChecker`` for ``usdchecker``): a
 ``ValidationRegistry`` of validators contributed by plugins (usdGeom, usdShade, usdUtils ...),
 run by a ``ValidationContext`` over a stage, returning ``ValidationError`` records typed
 Error / Warn / Info.

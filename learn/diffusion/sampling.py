@@ -105,9 +105,9 @@ def ddim_sample(
             never sees pixels outside, so the network's noise there is untrained: at every step
             their ``x0`` estimate is set to 0 (the data's value) and the noise re-derived, which
             keeps ``x_t`` outside the pure scaled noise of training; without this the outside
-            drifts and, through the convolutions at the chart borders, spoils the inside (a
-            trained model samples 5-20x the data's wrinkle amplitude without it). 0 outside in
-            the output.
+            drifts and, through the convolutions at the chart borders, spoils the inside (without
+            it samples have 5-8x the data's wrinkle std, 20x without ``clip_x0``:
+            docs/WRINKLES.md). 0 outside in the output.
         temporal_weight: ``w`` of the temporal guidance for a batch of consecutive frames: at each
             step the estimate ``x0_hat_k`` is replaced by
             ``x0_hat_k + w (t / T) (mean(x0_hat_{k-1}, x0_hat_{k+1}) - x0_hat_k)`` (the ends use

@@ -12,7 +12,7 @@ timestep FiLM (scale/shift after the second GroupNorm); optional self-attention 
 and in the middle; one skip connection per level; nearest upsampling + conv; zero-initialised
 output convolution so the untrained network predicts ``eps = 0``.
 
-The network never owns its noise schedule (DESIGN.md, ``learn/``); see ``scheduler.py``.
+The network never owns its noise schedule (ARCHITECTURE.md); see ``scheduler.py``.
 """
 
 from __future__ import annotations

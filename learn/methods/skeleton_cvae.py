@@ -266,7 +266,7 @@ class SkeletonCVAEMethod(Method):
             "garment_params": dict(e0.get("garment_params") or {}),
             "body_model": str((ds.generator_config.get("bodies") or {}).get("model", "default")),
         }
-        if "fine/face_layers" in f0:  # hems (datasets since session 48): carried to the USD it animates
+        if "fine/face_layers" in f0:  # hems, where the dataset stores them: carried to the USD it animates
             state["face_layers"] = torch.from_numpy(np.array(f0["fine/face_layers"], np.float32))
         self.state = state
         _, labels = self.labelled_frames(root, ds=ds)

@@ -312,7 +312,7 @@ class WrinkleDiffusionMethod(Method):
         shared = torch.randn((3, H, W), generator=gen, device=device) if cfg.shared_noise else None
         label = self.label_of(material)
         std = self.state["wrinkle_std"].to(device)
-        clip = None  # checkpoints made before the bound was fitted sample unclamped
+        clip = None  # a checkpoint without a fitted bound samples unclamped
         if cfg.clip_x0 > 0 and "wrinkle_clip" in self.state:
             clip = (self.state["wrinkle_clip"] * cfg.clip_x0).to(device)
         mask_t = torch.from_numpy(np.asarray(mask, np.float32)).to(device)

@@ -1,4 +1,4 @@
-"""Evaluation metrics: one implementation, used everywhere (DESIGN.md "Metrics"; issue 5).
+"""Evaluation metrics: one implementation, used by training, evaluation and benchmarks.
 
 - Accuracy (Guo et al. 2024, Sec 4.1): :func:`vertex_error` ``Ev`` [m],
   :func:`chamfer_distance` ``Ecd`` [m²].

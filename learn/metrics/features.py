@@ -3,7 +3,7 @@
 Guo et al. 2024 (Sec 4.1, Table 2) score wrinkle realism with FID on UV-space normal maps: the
 Fréchet distance between Gaussians fitted to Inception-v3 features of two image sets. Inception
 weights cannot be downloaded here, and a network trained on photographs is an odd judge of
-normal maps anyway, so the project ships its own extractor (DESIGN.md "Metrics"):
+normal maps anyway, so the project ships its own extractor:
 deterministic, no training, no downloaded weights. **Its Fréchet distances are NOT comparable
 with Inception FID numbers in papers**; every table must say "FD on NormalMapFeatures
 ``VERSION``", and numbers are comparable only at equal ``VERSION`` and equal set sizes.

@@ -1,4 +1,4 @@
-"""Geometric and physical metrics of garment meshes (DESIGN.md "Metrics").
+"""Geometric and physical metrics of garment meshes.
 
 Accuracy against ground truth (Guo et al. 2024, Sec 4.1):
 

@@ -1,4 +1,4 @@
-"""Wrinkle spectrum: radially averaged power spectrum of UV maps (DESIGN.md "Metrics").
+"""Wrinkle spectrum: radially averaged power spectrum of UV maps.
 
 Wrinkles are a band of spatial frequencies in the garment's UV displacement (or normal) maps
 (``images/wrinkle`` of the dataset, ``sim.datasets.schema``). Comparing the radially averaged

@@ -1,4 +1,4 @@
-"""``BodyModel``: an SMPL-structured parametric body (DESIGN.md, Core types).
+"""``BodyModel``: an SMPL-structured parametric body.
 
 One class serves the embedded default body and user SMPL / SMPL-H / SMPL-X files: all are a
 template mesh, linear shape blend shapes, optional pose blend shapes, a joint regressor,

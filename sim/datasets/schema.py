@@ -24,8 +24,8 @@ fine/faces                 (F, 3)             i32
 fine/uvs                   (U, 2)             f32    in [0, 1]^2, split along seams
 fine/uv_faces              (F, 3)             i32
 fine/face_layers           (F,)               f32    layers of fabric per face, >= 1 (a template's
-                                                     hems: 3; ``Garment.face_layers``); files
-                                                     written before session 48 lack it (read: 1)
+                                                     hems: 3; ``Garment.face_layers``); a file
+                                                     without it reads as 1 layer everywhere
 =========================  =================  =====  ==============================================
 
 UV images of the fine garment (pixel (row, col) centred at u = (col + .5) / W,

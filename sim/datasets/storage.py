@@ -1,4 +1,4 @@
-"""Dataset storage: sequence files, the manifest, atomic writes (DESIGN.md, On disk).
+"""Dataset storage: sequence files, the manifest, atomic writes.
 
 A dataset is a directory::
 

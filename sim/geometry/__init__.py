@@ -1,4 +1,4 @@
-"""Surface geometry for datasets and learning (DESIGN.md, Layout: ``sim/`` geometry).
+"""Surface geometry for datasets and learning.
 
 Green-Lagrange strain, normals and local frames, wrinkle-field encode/decode, base-surface
 smoothing, and UV-image rasterisation / sample-back, as Warp kernels (``cpu`` and ``cuda``)

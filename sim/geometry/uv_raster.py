@@ -1,4 +1,4 @@
-"""UV-image rasterisation and sample-back (issue 4: dataset generator's UV images).
+"""UV-image rasterisation and sample-back (the dataset generator's UV images).
 
 A garment's per-vertex fields (strain, wrinkle displacement, normals) become images over its UV
 layout for convolutional networks, and images become per-vertex fields again.
