@@ -121,6 +121,7 @@ def report(tmp_path_factory):
     return root, written, json.loads((root / "report" / dr.REPORT_JSON).read_text())
 
 
+@pytest.mark.slow
 def test_report_writes_every_file(report):
     root, written, rep = report
     out = root / "report"
@@ -137,6 +138,7 @@ def _image(path) -> np.ndarray:
         return np.asarray(im.convert("RGB"))
 
 
+@pytest.mark.slow
 def test_pictures_have_expected_size_and_are_not_blank(report):
     root, _, rep = report
     out = root / "report"
@@ -162,6 +164,7 @@ def test_pictures_have_expected_size_and_are_not_blank(report):
     assert hist.astype(np.float64).var() > 10.0
 
 
+@pytest.mark.slow
 def test_histogram_numbers_match_numpy(report):
     _, _, rep = report
     frames = dr.sample_frames(T, 3)
@@ -193,6 +196,7 @@ def test_histogram_numbers_match_numpy(report):
     np.testing.assert_allclose(hists["penetration_percent"]["max"], 3.0, rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_subsampled_histograms_keep_exact_extremes(tmp_path):
     root = tmp_path / "data"
     _make_dataset(root)
@@ -251,6 +255,7 @@ def test_failure_leaves_no_partial_output(tmp_path, monkeypatch):
     assert (out / dr.HISTOGRAMS).read_bytes() == b"old"
 
 
+@pytest.mark.slow
 def test_no_images_skips_uv_examples_and_removes_a_stale_one(tmp_path):
     root = tmp_path / "data"
     _make_dataset(root, specs=[("skirt", "walk", "train", False)], rejected=0)
@@ -297,6 +302,7 @@ def test_default_body_is_posed_into_the_render(tmp_path):
     assert near.sum() > 50
 
 
+@pytest.mark.slow
 def test_run_report_from_arguments(tmp_path, capsys):
     root = tmp_path / "data"
     _make_dataset(root, specs=SPECS[:1], rejected=0)

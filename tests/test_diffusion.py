@@ -170,6 +170,7 @@ def test_clip_x0_bounds_the_sample_and_is_inert_inside_the_range():
     np.testing.assert_allclose(wide.numpy(), free.numpy(), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_ddim_eta0_deterministic_and_noise_sharing_and_mask():
     torch.manual_seed(0)
     model = WrinkleUNet(_tiny_config()).eval()
@@ -259,6 +260,7 @@ def test_unet_shape_and_zero_init(cond_channels):
         model(torch.randn(2, 3, 62, 62), torch.tensor([3, 900]), torch.randn(2, cond_channels, 62, 62))
 
 
+@pytest.mark.slow
 def test_unet_gradients_reach_every_parameter():
     torch.manual_seed(0)
     model = WrinkleUNet(_tiny_config(num_labels=2, dropout=0.1))

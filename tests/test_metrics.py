@@ -1,4 +1,4 @@
-"""Metrics (learn/metrics, issue 5): every metric on exact cases, on cpu and cuda (torch)."""
+"""Metrics (learn/metrics): every metric on exact cases, on cpu and cuda (torch)."""
 
 from __future__ import annotations
 

@@ -134,6 +134,7 @@ def test_terms_match_reference_value_and_gradient(shirt, device):
                                        err_msg=name)
 
 
+@pytest.mark.slow
 def test_gradients_match_finite_differences(shirt):
     """<grad E, d> of the Warp term equals the central difference of the float64 reference, and
     (looser) of the float32 Warp energy itself, in random directions."""

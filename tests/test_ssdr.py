@@ -63,6 +63,7 @@ def fitted(rig) -> SSDRResult:
     return fit_ssdr(rest, frames, num_bones=NUM_BONES, max_influences=3, iterations=30, seed=0)
 
 
+@pytest.mark.slow
 def test_reconstruction_error_small(rig, fitted):
     rest, _, frames = rig
     size = float(np.linalg.norm(rest.max(0) - rest.min(0)))
@@ -73,6 +74,7 @@ def test_reconstruction_error_small(rig, fitted):
     assert rmse < 1e-3 * size, (rmse, fitted.rmse_per_iteration)
 
 
+@pytest.mark.slow
 def test_weights_match_truth_up_to_permutation(rig, fitted):
     _, w_true, _ = rig
     w_fit = fitted.dense_weights()
@@ -82,6 +84,7 @@ def test_weights_match_truth_up_to_permutation(rig, fitted):
     np.testing.assert_allclose(w_fit[:, col], w_true, atol=2e-2)
 
 
+@pytest.mark.slow
 def test_weight_constraints(fitted):
     v = fitted.rest.shape[0]
     assert fitted.weight_idx.shape == (v, 3) and fitted.weight_idx.dtype == np.int32
@@ -95,6 +98,7 @@ def test_weight_constraints(fitted):
         assert len(set(nz.tolist())) == len(nz)
 
 
+@pytest.mark.slow
 def test_rotations_proper(fitted):
     r = fitted.rotations.astype(np.float64)
     assert r.shape == (FRAMES, NUM_BONES, 3, 3) and fitted.translations.shape == (FRAMES, NUM_BONES, 3)
@@ -103,6 +107,7 @@ def test_rotations_proper(fitted):
     np.testing.assert_allclose(np.linalg.det(r), 1.0, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_rmse_history_non_increasing(fitted):
     h = np.asarray(fitted.rmse_per_iteration)
     assert len(h) == 31
@@ -122,6 +127,7 @@ def test_deterministic_same_seed(rig):
     assert a.rmse_per_iteration == b.rmse_per_iteration
 
 
+@pytest.mark.slow
 def test_reconstruct_with_given_transforms(fitted):
     """Identity bones give back the rest mesh (convex weights)."""
     rot = np.tile(np.eye(3, dtype=np.float32), (2, NUM_BONES, 1, 1))
@@ -172,6 +178,7 @@ def test_single_bone_recovers_rigid_motion():
     assert res.rmse < 1e-6
 
 
+@pytest.mark.slow
 def test_fit_bone_transforms_labels_new_frames(rig, fitted):
     """With the fitted weights fixed, new frames of the same rig get transforms that reconstruct
     them as well as the joint fit did (the CVAE's per-frame targets)."""

@@ -24,6 +24,7 @@ def run_cli(*args) -> int:
     return main([str(a) for a in args])
 
 
+@pytest.mark.slow
 def test_train_resume_evaluate_end_to_end(sample_dataset, tmp_path, capsys):
     straight, split = tmp_path / "straight", tmp_path / "split"
     assert run_cli("train", "skinned_mlp", "--data", sample_dataset, "--out", straight, "--steps", 8,
@@ -60,6 +61,7 @@ def test_train_resume_evaluate_end_to_end(sample_dataset, tmp_path, capsys):
         assert (out / name).stat().st_size > 5000
 
 
+@pytest.mark.slow
 def test_evaluate_bad_inputs_exit_2_without_output(sample_dataset, tmp_path, capsys):
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"nope")
@@ -75,6 +77,7 @@ def test_evaluate_bad_inputs_exit_2_without_output(sample_dataset, tmp_path, cap
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_skinned_mlp_starts_as_pure_skinning_and_learns(sample_dataset):
     from learn.methods.skinned_mlp import SkinnedMLPConfig, SkinnedMLPMethod, skin_batch
 
@@ -105,6 +108,7 @@ def test_skinned_mlp_starts_as_pure_skinning_and_learns(sample_dataset):
     assert losses[-1] < 0.5 * losses[0]
 
 
+@pytest.mark.slow
 def test_ddp_two_cpu_processes_match_one(sample_dataset, tmp_path):
     """torchrun with 2 gloo processes, global batch 4 (2 each) == one process with batch 4."""
     common = ["skinned_mlp", "--data", str(sample_dataset), "--steps", "3", "--batch-size", "4",
@@ -123,6 +127,7 @@ def test_ddp_two_cpu_processes_match_one(sample_dataset, tmp_path):
     assert any(float(a[k].abs().max()) > 0 for k in a if k.startswith("mlp.4"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bad", ["fp16"])
 def test_fp16_on_cpu_is_refused(sample_dataset, tmp_path, bad, capsys):
     assert run_cli("train", "skinned_mlp", "--data", sample_dataset, "--out", tmp_path / "r", "--steps", 1,

@@ -185,6 +185,7 @@ def test_ema_matches_closed_form():
 # ---------------------------------------------------------------------------------- training
 
 
+@pytest.mark.slow
 def test_training_reduces_loss_and_logs(tmp_path):
     s = fit(toy_config(steps=60, checkpoint_every=100), tmp_path / "a")
     recs = read_metrics(tmp_path / "a")
@@ -199,6 +200,7 @@ def test_training_reduces_loss_and_logs(tmp_path):
     assert lrs[-1] < lrs[1]
 
 
+@pytest.mark.slow
 def test_resume_is_bit_exact_on_cpu(tmp_path):
     # a constant schedule, so that raising train.steps on resume does not change the past steps
     # (a cosine schedule depends on the total; the SIGINT test resumes one with the same total)
@@ -225,6 +227,7 @@ def test_resume_refuses_changed_config_and_fresh_run_refuses_existing(tmp_path):
         fit(changed, tmp_path / "r", resume=True)
 
 
+@pytest.mark.slow
 def test_sigint_finishes_step_writes_checkpoint_and_resumes(tmp_path):
     ToyMethod.calls, ToyMethod.stop_at = 0, 4
     try:

@@ -150,6 +150,7 @@ def test_cvae_skinning_is_exact_lbs():
     assert net.decode(torch.zeros(5, 4), cond).shape == (5, J * 9)
 
 
+@pytest.mark.slow
 def test_coarse_model_learns_the_base(runs, sample_dataset):
     from learn.train.checkpoint import load_checkpoint
     from learn.train.trainer import load_trained
@@ -178,6 +179,7 @@ def test_coarse_model_learns_the_base(runs, sample_dataset):
         method.predict_sequence(model, {k: np.asarray(g[k]) for k in g.keys()}, device=torch.device("cpu"))
 
 
+@pytest.mark.slow
 def test_coarse_refuses_mixed_topologies(sample_dataset, tmp_path, capsys):
     code = cli(
         "train",
@@ -220,6 +222,7 @@ def test_temporal_guidance_pulls_x0_toward_neighbours():
     assert abs(float(x0_a[0].mean()) - lam * ((-2.0 + 1.0) / 2)) < 1e-4
 
 
+@pytest.mark.slow
 def test_diffusion_state_items_and_prediction(runs, sample_dataset):
     from learn.train.checkpoint import load_checkpoint
     from learn.train.trainer import load_trained
@@ -245,6 +248,7 @@ def test_diffusion_state_items_and_prediction(runs, sample_dataset):
     np.testing.assert_array_equal(pred.vertices, again.vertices)  # seeded
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("conditioning,channels", [("strain_tensor", 4), ("normal", 4)])
 def test_conditioning_variants_train(sample_dataset, tmp_path, conditioning, channels):
     from learn.train.trainer import load_trained
@@ -257,6 +261,7 @@ def test_conditioning_variants_train(sample_dataset, tmp_path, conditioning, cha
     assert method.train_dataset(sample_dataset)[(0, 0)]["cond"].shape[0] == channels
 
 
+@pytest.mark.slow
 def test_lfgd_baseline_trains_and_predicts(sample_dataset, tmp_path):
     from learn.train.trainer import load_trained
 
@@ -268,6 +273,7 @@ def test_lfgd_baseline_trains_and_predicts(sample_dataset, tmp_path):
 
 
 # ------------------------------------------------------------------- evaluation, export, animate
+@pytest.mark.slow
 def test_evaluate_rows_with_the_coarse_base(runs, sample_dataset, tmp_path):
     for name, model in (("base", "base"), ("ours", runs["wrinkles"])):
         assert (
@@ -297,6 +303,7 @@ def test_evaluate_rows_with_the_coarse_base(runs, sample_dataset, tmp_path):
     assert ours["predict_options"]["steps"] == 2
 
 
+@pytest.mark.slow
 def test_export_round_trip(runs, tmp_path):
     from learn.train.export import export_model
     from learn.train.trainer import load_trained
@@ -312,6 +319,7 @@ def test_export_round_trip(runs, tmp_path):
     torch.testing.assert_close(c.rest, load_trained(runs["coarse"])[1].rest)  # buffers stay float32
 
 
+@pytest.mark.slow
 def test_animate_writes_usd_and_preview(runs, sample_dataset, tmp_path, capsys):
     pytest.importorskip("pxr")
     out = tmp_path / "anim" / "t.usda"
@@ -359,6 +367,7 @@ def test_animate_writes_usd_and_preview(runs, sample_dataset, tmp_path, capsys):
     assert (tmp_path / "anim" / "t.png").stat().st_size > 1000
 
 
+@pytest.mark.slow
 def test_animate_bad_inputs(runs, tmp_path, capsys):
     cases = [
         (["--coarse", tmp_path / "missing.pt", "--wrinkles", runs["wrinkles"]], "no such model file"),
@@ -374,6 +383,7 @@ def test_animate_bad_inputs(runs, tmp_path, capsys):
         assert not out.parent.exists() or not any(out.parent.iterdir())
 
 
+@pytest.mark.slow
 def test_pipeline_without_wrinkles_is_the_base(runs):
     from learn.animate import WrinklePipeline
     from sim.motions import procedural_motion
@@ -386,6 +396,7 @@ def test_pipeline_without_wrinkles_is_the_base(runs):
     assert Path(str(runs["coarse"])).exists()
 
 
+@pytest.mark.slow
 def test_pipeline_moves_the_garment_out_of_the_body(runs):
     from learn.animate import WrinklePipeline
     from sim.bodies.default import load_default_body
