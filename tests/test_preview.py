@@ -147,7 +147,7 @@ def test_static_mesh_beside_animated_one():
     mixed = [PreviewMesh("still", v + np.float32([0, 0.25, -1.5]), f), moving]  # (V, 3)
     imgs = list(preview.render_frames(mixed, [0, 2], size=(80, 64)))
     assert imgs[0].shape == (64, 80, 3) and imgs[0].dtype == np.uint8
-    assert not np.array_equal(imgs[0], imgs[1])
+    assert (imgs[0] != imgs[1]).any()  # the frames differ
 
 
 def test_rendering_is_deterministic():
