@@ -232,11 +232,10 @@ def build_config(args: argparse.Namespace, device: str):
         **({} if args.retry else {"retry_factors": ()}), device=device)
 
 
-def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
-    """The garment ``--garment`` names, with ``--material`` (+ overrides) and its parameters."""
-    from pipelines.options import parse_numbers, parse_resolution
-    from sim.garments import get_material, load_garment, make_garment
-    from sim.garments.io import check_garment_on_body, describe_drops
+def material_arg(args: argparse.Namespace):
+    """The ``Material`` of ``--material`` with the ``--material-param`` overrides."""
+    from pipelines.options import parse_numbers
+    from sim.garments import get_material
 
     material = get_material(args.material)
     overrides = parse_numbers(args.material_param, "--material-param")
@@ -248,21 +247,39 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
                                  + ", ".join(f"{k} [{u}]" for k, u in MATERIAL_UNITS.items()))
     if overrides:
         material = material.with_(name=f"{material.name}*", **overrides)
+    return material
+
+
+def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
+    """The garment ``--garment`` names, with ``--material`` (+ overrides) and its parameters."""
+    from pipelines.options import parse_numbers, parse_resolution
+    from sim.garments import make_garment
+
+    material = material_arg(args)
     params = parse_numbers(args.garment_param, "--garment-param")
     if is_garment_file(args.garment):
-        other = sorted(set(params) - {"hem_width", "hem_layers"})
-        if other:
-            raise WrinklesInputError(f"--garment-param {other[0]} applies to templates, not to a garment "
-                                     f"file ({args.garment}); a file takes hem_width and hem_layers only")
-        garment = load_garment(args.garment, material=material, **params)
-        check_garment_on_body(garment, body.rest_mesh(betas), args.garment)
-        dropped = describe_drops(garment.repairs)
-        if dropped and not args.quiet:
-            print(f"wrinkles simulate: {args.garment}: repaired: {dropped}", file=sys.stderr)
-        return garment
+        return load_garment_file(args, material, params, body, betas)
     category = resolve_template(args.garment)
     return make_garment(category, body, betas, resolution=parse_resolution(args.resolution or "coarse"),
                         material=material, **params)
+
+
+def load_garment_file(args: argparse.Namespace, material, params: dict[str, float], body, betas: np.ndarray):
+    """The garment file ``--garment`` names (hem parameters only), checked to sit around the
+    rest body; what reading it repaired is said on stderr."""
+    from sim.garments import load_garment
+    from sim.garments.io import check_garment_on_body, describe_drops
+
+    other = sorted(set(params) - {"hem_width", "hem_layers"})
+    if other:
+        raise WrinklesInputError(f"--garment-param {other[0]} applies to templates, not to a garment "
+                                 f"file ({args.garment}); a file takes hem_width and hem_layers only")
+    garment = load_garment(args.garment, material=material, **params)
+    check_garment_on_body(garment, body.rest_mesh(betas), args.garment)
+    dropped = describe_drops(garment.repairs)
+    if dropped and not args.quiet:
+        print(f"wrinkles simulate: {args.garment}: repaired: {dropped}", file=sys.stderr)
+    return garment
 
 
 # ------------------------------------------------------------------------------- the command
