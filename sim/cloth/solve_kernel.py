@@ -1,6 +1,7 @@
 """The per-colour solve of Vertex Block Descent (Chen et al. 2024, Alg. 1): every particle of a
-colour gathers the membrane, bending and self-contact forces and Hessian blocks of its elements
-and takes its Newton step (``vbd_kernels.vertex_newton_step``).
+colour gathers the membrane, bending and self-contact forces and Hessian blocks of its elements,
+adds inertia, air damping and body contact (``vertex_system``) and takes its Newton step
+(``vertex_newton_step``).
 
 The ``lanes`` threads of a particle each sum a share of its elements and contacts; one block
 reduction (``tile_sum`` over the lanes axis of a particles x lanes tile) gives every particle its
@@ -51,7 +52,7 @@ from sim.cloth.spans import (
     vec3s,
     vec4is,
 )
-from sim.cloth.vbd_kernels import PINNED, ParticleStep, load_particle_step, vertex_newton_step, vertex_system
+from sim.cloth.vbd_kernels import PINNED
 
 FUSED_LANES = 8
 """Lanes per particle from which the solve gathers with the fused loop (``fused_share``)."""
@@ -105,6 +106,128 @@ SOLVE_ARRAYS = (
     "instance_friction"
 )
 """The ``SolveArrays`` fields filled from arrays (``sim.cloth.spans.fill_spans``), in order."""
+
+
+@wp.func
+def contact_force_hessian(
+    xi: wp.vec3,
+    xi_prev: wp.vec3,
+    p: wp.vec3,
+    n: wp.vec3,
+    body_v: wp.vec3,
+    thickness: float,
+    k_contact: float,
+    mu: float,
+    eps_u: float,
+    h: float,
+):
+    """One-sided quadratic penalty ``k/2 (thickness - n.(x - p))^2`` and smoothed Coulomb
+    friction on the tangential displacement relative to the body (Chen et al. 2024, Sec. 4.2,
+    IPC's lazy friction: normal force and tangent basis fixed over the substep)."""
+    f = wp.vec3(0.0)
+    H = wp.mat33(0.0)
+    d = wp.dot(n, xi - p)
+    pen = thickness - d
+    if pen > 0.0:
+        lam_n = k_contact * pen
+        f = n * lam_n
+        H = k_contact * wp.outer(n, n)
+        if mu > 0.0:
+            T = wp.identity(n=3, dtype=float) - wp.outer(n, n)
+            u = T * ((xi - xi_prev) - h * body_v)
+            ul = wp.length(u)
+            # f1(u)/u with f1 the C1 ramp of IPC (Li et al. 2020, Eq. 13)
+            c = 1.0 / wp.max(ul, 1.0e-12)
+            if ul < eps_u:
+                c = 2.0 / eps_u - ul / (eps_u * eps_u)
+            f = f - (mu * lam_n * c) * u
+            H = H + (mu * lam_n * c) * T
+    return f, H
+
+
+@wp.struct
+class ParticleStep:
+    """What the Newton step of one particle reads besides its gathered force and Hessian: loaded
+    before the block's reductions (``load_particle_step``), so the loads overlap them."""
+
+    x: wp.vec3
+    x_prev: wp.vec3
+    y: wp.vec3
+    mass: float
+    flags: int
+    contact_active: int
+    contact_point: wp.vec3
+    contact_normal: wp.vec3
+    contact_body_velocity: wp.vec3
+    thickness: float
+    friction: float
+
+
+@wp.func
+def load_particle_step(i: int, a: SolveArrays, x: wp.array(dtype=wp.vec3)) -> ParticleStep:
+    """Particle ``i``'s ``ParticleStep`` from the solve's arrays and positions ``x``."""
+    p = ParticleStep()
+    inst = load_int(ints(a.particle_instance), i)
+    p.x = load_vec3(x, i)
+    p.x_prev = load_vec3(vec3s(a.x_prev), i)
+    p.y = load_vec3(vec3s(a.y), i)
+    p.mass = load_float(floats(a.mass), i)
+    p.flags = load_int(ints(a.flags), i)
+    p.contact_active = load_int(ints(a.contact_active), i)
+    p.contact_point = load_vec3(vec3s(a.contact_point), i)
+    p.contact_normal = load_vec3(vec3s(a.contact_normal), i)
+    p.contact_body_velocity = load_vec3(vec3s(a.contact_body_velocity), i)
+    p.thickness = load_float(floats(a.instance_thickness), inst)
+    p.friction = load_float(floats(a.instance_friction), inst)
+    return p
+
+
+@wp.func
+def vertex_system(
+    p: ParticleStep,
+    f: wp.vec3,
+    H: wp.mat33,
+    k_contact: float,
+    eps_u: float,
+    h: float,
+    air_damping: float,
+):
+    """Add inertia, air damping and body contact to the gathered ``f``, ``H`` of a particle:
+    the force ``-dG/dx_i`` and Hessian block of the substep's incremental potential at ``p.x``."""
+    xi = p.x
+    inv_h = 1.0 / h
+    # inertia m/h^2 (y - x), Hessian m/h^2 I; mass-proportional (air) damping alpha m (x - x_prev)/h
+    mh = p.mass * inv_h * inv_h
+    ca = air_damping * p.mass * inv_h
+    f = f + mh * (p.y - xi) - ca * (xi - p.x_prev)
+    H = H + (mh + ca) * wp.identity(n=3, dtype=float)
+    if p.contact_active != 0:
+        fc, hc = contact_force_hessian(xi, p.x_prev, p.contact_point, p.contact_normal,
+                                       p.contact_body_velocity, p.thickness, k_contact, p.friction, eps_u, h)
+        f = f + fc
+        H = H + hc
+    return f, H
+
+
+@wp.func
+def vertex_newton_step(
+    p: ParticleStep,
+    f: wp.vec3,
+    H: wp.mat33,
+    k_contact: float,
+    eps_u: float,
+    h: float,
+    air_damping: float,
+) -> wp.vec3:
+    """Take the Newton step ``x += H^-1 f`` of a particle (Chen et al. 2024, Eq. 9-10) with its
+    gathered ``f``, ``H`` completed by ``vertex_system``: its new position."""
+    xi = p.x
+    f, H = vertex_system(p, f, H, k_contact, eps_u, h, air_damping)
+    # the block is symmetric positive definite (inertia + PSD terms); guard tiny determinants
+    x_new = xi
+    if wp.abs(wp.determinant(H)) > 1.0e-20:
+        x_new = xi + wp.inverse(H) * f
+    return x_new
 
 
 @wp.func
@@ -270,16 +393,6 @@ def fused_share(i: int, lane: int, stride: int, a: SolveArrays, sc: SelfContactD
 
 
 @wp.func
-def load_solve_particle(i: int, a: SolveArrays, sc: SelfContactData,
-                        x: wp.array(dtype=wp.vec3)) -> ParticleStep:
-    """``load_particle_step`` of particle ``i`` from the solve's arrays."""
-    return load_particle_step(i, vec3s(a.x_prev), vec3s(a.y), floats(a.mass), ints(a.flags),
-                              ints(a.particle_instance), vec3s(a.contact_point), vec3s(a.contact_normal),
-                              vec3s(a.contact_body_velocity), ints(a.contact_active),
-                              floats(a.instance_thickness), floats(a.instance_friction), sc, x)
-
-
-@wp.func
 def light_particle(a: SolveArrays, sc: SelfContactData, block: int, local: int, particles: int, count: int,
                    color: int, color_start: int, evaluate: int) -> int:
     """The particle of slot ``local`` of light block ``block`` (-1: none): the colour's particles
@@ -403,7 +516,7 @@ def _make_solve_kernel(particles: int, lanes: int, fused: bool, max_registers: i
         if heavy_block:
             solver = thread == 0
         if solver:
-            step = load_solve_particle(i, a, sc, x_inout)
+            step = load_particle_step(i, a, x_inout)
         f = wp.vec3(0.0)
         H = wp.mat33(0.0)
         if i >= 0:

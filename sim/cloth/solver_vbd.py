@@ -151,6 +151,7 @@ class SolverVBD:
                                            fast_math=layout.fast_math)
 
     def _build_self_contact(self) -> None:
+        """The self-contact detection and its data (disabled data without self-contact)."""
         sc = self.config.self_contact
         self.self_contact = None
         if not sc.enabled:
@@ -176,12 +177,12 @@ class SolverVBD:
         if cfg.coarse.sweeps:
             from sim.cloth.coarse import CoarseLevel
 
-            particles = (self._x_prev, self._y, self._contact_point, self._contact_normal,
-                         self._contact_body_velocity, self._contact_active)
-            c = cfg.coarse
-            self.coarse = CoarseLevel(m, particles, cfg.body_contact.stiffness, cfg.body_contact.margin,
-                                      cfg.stepping.air_damping, c.spacing, c.levels, c.smoothing,
-                                      prefactor=True, guard=False)
+            c, contact = cfg.coarse, cfg.body_contact
+            self.coarse = CoarseLevel(
+                m, self._y, self._contact_point, self._contact_normal, self._contact_active,
+                k_contact=contact.stiffness, contact_margin=contact.margin,
+                air_damping=cfg.stepping.air_damping, spacing=c.spacing, levels=c.levels,
+                smoothing=c.smoothing)
             self._evaluate = S.solve_color_kernel(self._particles, self._lanes, self._fused,
                                                   self._max_registers, evaluate=True,
                                                   fast_math=cfg.layout.fast_math)

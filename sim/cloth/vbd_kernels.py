@@ -1,13 +1,12 @@
 """Warp kernels of a Vertex Block Descent substep (Chen et al. 2024, "Vertex Block Descent",
-SIGGRAPH) around the sweeps, and the per-particle Newton step they share with the coarse level.
+SIGGRAPH) around the sweeps (``sim.cloth.solve_kernel``: the sweeps' per-particle solve).
 Inputs first, outputs with an ``_out`` suffix, arrays read and written in place with ``_inout``.
 Every kernel is a per-particle gather: no atomics, so results are deterministic on every device.
 
 One substep of length ``h`` minimises the incremental potential (Chen et al. 2024, Eq. 1)
     G(x) = sum_i m_i/(2 h^2) |x_i - y_i|^2 + E_membrane(x) + E_bending(x) + E_contact(x)
          + E_damping + E_friction,    y = x_prev + h v + h^2 g,
-by per-vertex Newton steps ``dx_i = H_i^-1 f_i`` (Eq. 9-10) swept colour by colour
-(``sim.cloth.solve_kernel``).
+by per-vertex Newton steps ``dx_i = H_i^-1 f_i`` (Eq. 9-10) swept colour by colour.
 """
 
 from __future__ import annotations
@@ -15,8 +14,7 @@ from __future__ import annotations
 import warp as wp
 
 from sim.cloth.energies import dihedral_angle, green_strain
-from sim.cloth.self_contact import SelfContactData, apply_bound, has_pairs
-from sim.cloth.spans import load_float, load_int, load_vec3
+from sim.cloth.self_contact import SelfContactData, has_pairs
 
 PINNED = wp.constant(1)
 
@@ -158,164 +156,3 @@ def velocity_kernel(
     a_out[i] = (v_new - v_inout[i]) * inv_h
     v_inout[i] = v_new
     x_prev_inout[i] = xi
-
-
-@wp.func
-def contact_force_hessian(
-    xi: wp.vec3,
-    xi_prev: wp.vec3,
-    p: wp.vec3,
-    n: wp.vec3,
-    body_v: wp.vec3,
-    thickness: float,
-    k_contact: float,
-    mu: float,
-    eps_u: float,
-    h: float,
-):
-    """One-sided quadratic penalty ``k/2 (thickness - n.(x - p))^2`` and smoothed Coulomb
-    friction on the tangential displacement relative to the body (Chen et al. 2024, Sec. 4.2,
-    IPC's lazy friction: normal force and tangent basis fixed over the substep)."""
-    f = wp.vec3(0.0)
-    H = wp.mat33(0.0)
-    d = wp.dot(n, xi - p)
-    pen = thickness - d
-    if pen > 0.0:
-        lam_n = k_contact * pen
-        f = n * lam_n
-        H = k_contact * wp.outer(n, n)
-        if mu > 0.0:
-            T = wp.identity(n=3, dtype=float) - wp.outer(n, n)
-            u = T * ((xi - xi_prev) - h * body_v)
-            ul = wp.length(u)
-            # f1(u)/u with f1 the C1 ramp of IPC (Li et al. 2020, Eq. 13)
-            c = 1.0 / wp.max(ul, 1.0e-12)
-            if ul < eps_u:
-                c = 2.0 / eps_u - ul / (eps_u * eps_u)
-            f = f - (mu * lam_n * c) * u
-            H = H + (mu * lam_n * c) * T
-    return f, H
-
-
-@wp.struct
-class ParticleStep:
-    """What the Newton step of one particle reads besides its gathered force and Hessian: loaded
-    before the block's reductions (``load_particle_step``), so the loads overlap them."""
-
-    x: wp.vec3
-    x_prev: wp.vec3
-    y: wp.vec3
-    mass: float
-    flags: int
-    contact_active: int
-    contact_point: wp.vec3
-    contact_normal: wp.vec3
-    contact_body_velocity: wp.vec3
-    thickness: float
-    friction: float
-    bound: float
-    reference: wp.vec3
-
-
-@wp.func
-def load_particle_step(
-    i: int,
-    x_prev: wp.array(dtype=wp.vec3),
-    y: wp.array(dtype=wp.vec3),
-    mass: wp.array(dtype=float),
-    flags: wp.array(dtype=wp.int32),
-    particle_instance: wp.array(dtype=wp.int32),
-    contact_point: wp.array(dtype=wp.vec3),
-    contact_normal: wp.array(dtype=wp.vec3),
-    contact_body_velocity: wp.array(dtype=wp.vec3),
-    contact_active: wp.array(dtype=wp.int32),
-    instance_thickness: wp.array(dtype=float),
-    instance_friction: wp.array(dtype=float),
-    sc: SelfContactData,
-    x: wp.array(dtype=wp.vec3),
-):
-    p = ParticleStep()
-    inst = load_int(particle_instance, i)
-    p.x = load_vec3(x, i)
-    p.x_prev = load_vec3(x_prev, i)
-    p.y = load_vec3(y, i)
-    p.mass = load_float(mass, i)
-    p.flags = load_int(flags, i)
-    p.contact_active = load_int(contact_active, i)
-    p.contact_point = load_vec3(contact_point, i)
-    p.contact_normal = load_vec3(contact_normal, i)
-    p.contact_body_velocity = load_vec3(contact_body_velocity, i)
-    p.thickness = load_float(instance_thickness, inst)
-    p.friction = load_float(instance_friction, inst)
-    p.bound = float(0.0)
-    p.reference = wp.vec3(0.0)
-    if sc.enabled != 0 and sc.use_bounds != 0:
-        p.bound = sc.bound[i]
-        p.reference = sc.reference[inst]
-    return p
-
-
-@wp.func
-def vertex_system(
-    p: ParticleStep,
-    f: wp.vec3,
-    H: wp.mat33,
-    k_contact: float,
-    eps_u: float,
-    h: float,
-    air_damping: float,
-):
-    """Add inertia, air damping and body contact to the gathered ``f``, ``H`` of a particle:
-    the force ``-dG/dx_i`` and Hessian block of the substep's incremental potential at ``p.x``."""
-    xi = p.x
-    inv_h = 1.0 / h
-    # inertia m/h^2 (y - x), Hessian m/h^2 I; mass-proportional (air) damping alpha m (x - x_prev)/h
-    mh = p.mass * inv_h * inv_h
-    ca = air_damping * p.mass * inv_h
-    f = f + mh * (p.y - xi) - ca * (xi - p.x_prev)
-    H = H + (mh + ca) * wp.identity(n=3, dtype=float)
-    if p.contact_active != 0:
-        fc, hc = contact_force_hessian(xi, p.x_prev, p.contact_point, p.contact_normal,
-                                       p.contact_body_velocity, p.thickness, k_contact, p.friction, eps_u, h)
-        f = f + fc
-        H = H + hc
-    return f, H
-
-
-@wp.func
-def bound_step(p: ParticleStep, x_new: wp.vec3, h: float, sc: SelfContactData, body_wins: int) -> wp.vec3:
-    """``x_new``, a particle's move from ``p.x``, truncated to its self-contact displacement
-    bound where the self-contact data holds bounds (``use_bounds``); ``body_wins``: not where the
-    body presses the particle."""
-    bounded = sc.enabled != 0 and sc.use_bounds != 0
-    x_ref = p.x_prev
-    if p.contact_active != 0:
-        x_ref = p.x_prev + h * p.contact_body_velocity
-        if body_wins != 0 and wp.dot(p.contact_normal, p.x - p.contact_point) < p.thickness + sc.radius:
-            bounded = False
-    elif bounded:
-        x_ref = p.x_prev + h * p.reference
-    if bounded:
-        return apply_bound(x_new, x_ref, p.bound)
-    return x_new
-
-
-@wp.func
-def vertex_newton_step(
-    p: ParticleStep,
-    f: wp.vec3,
-    H: wp.mat33,
-    k_contact: float,
-    eps_u: float,
-    h: float,
-    air_damping: float,
-) -> wp.vec3:
-    """Take the Newton step ``x += H^-1 f`` of a particle (Chen et al. 2024, Eq. 9-10) with its
-    gathered ``f``, ``H`` completed by ``vertex_system``: its new position."""
-    xi = p.x
-    f, H = vertex_system(p, f, H, k_contact, eps_u, h, air_damping)
-    # the block is symmetric positive definite (inertia + PSD terms); guard tiny determinants
-    x_new = xi
-    if wp.abs(wp.determinant(H)) > 1.0e-20:
-        x_new = xi + wp.inverse(H) * f
-    return x_new
