@@ -258,13 +258,13 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
     material = material_arg(args)
     params = parse_numbers(args.garment_param, "--garment-param")
     if is_garment_file(args.garment):
-        return load_garment_file(args, material, params, body, betas)
+        return garment_file_arg(args, material, params, body, betas)
     category = resolve_template(args.garment)
     return make_garment(category, body, betas, resolution=parse_resolution(args.resolution or "coarse"),
                         material=material, **params)
 
 
-def load_garment_file(args: argparse.Namespace, material, params: dict[str, float], body, betas: np.ndarray):
+def garment_file_arg(args: argparse.Namespace, material, params: dict[str, float], body, betas: np.ndarray):
     """The garment file ``--garment`` names (hem parameters only), checked to sit around the
     rest body; what reading it repaired is said on stderr."""
     from sim.garments import load_garment
