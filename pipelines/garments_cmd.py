@@ -199,10 +199,11 @@ def template_name(name: str) -> str:
 
 
 def export(args: argparse.Namespace) -> int:
-    from pipelines.options import package_versions, parse_body_shape, parse_numbers, parse_resolution
+    from pipelines.options import parse_body_shape, parse_numbers, parse_resolution
     from pipelines.outputs import OutputSet, check_output_path
     from sim.bodies import load_body
     from sim.garments import make_garment
+    from sim.versions import package_versions
 
     t0 = time.perf_counter()
     if not args.out:

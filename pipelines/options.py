@@ -10,7 +10,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.errors import WrinklesInputError
-from sim.versions import package_versions  # noqa: F401  (pipelines.garments_cmd imports it from here)
 
 
 def add_common_arguments(p: argparse.ArgumentParser, *, seed: bool = True, device: bool = True) -> None:

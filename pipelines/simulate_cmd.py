@@ -267,14 +267,14 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
 def garment_file_arg(args: argparse.Namespace, material, params: dict[str, float], body, betas: np.ndarray):
     """The garment file ``--garment`` names (hem parameters only), checked to sit around the
     rest body; what reading it repaired is said on stderr."""
-    from sim.garments import load_garment
+    from pipelines.garment_files import load_garment_file
     from sim.garments.io import check_garment_on_body, describe_drops
 
     other = sorted(set(params) - {"hem_width", "hem_layers"})
     if other:
         raise WrinklesInputError(f"--garment-param {other[0]} applies to templates, not to a garment "
                                  f"file ({args.garment}); a file takes hem_width and hem_layers only")
-    garment = load_garment(args.garment, material=material, **params)
+    garment = load_garment_file(args.garment, material=material, **params)
     check_garment_on_body(garment, body.rest_mesh(betas), args.garment)
     dropped = describe_drops(garment.repairs)
     if dropped and not args.quiet:

@@ -55,8 +55,6 @@ from sim.simulate.jobs import SimulationJob, resolve_betas
 from sim.simulate.prelude import MORPH_FRACTION, morph_frames, morph_settle, prepare_track, smoothstep
 from sim.simulate.results import SimulationResult, package_versions
 
-_prepare = prepare_track  # the name benchmarks/profile_body_query.py imports
-
 __all__ = [
     "CUDA_COARSE_EARLY",
     "CUDA_COLORS",

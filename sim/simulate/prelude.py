@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim.easing import smoothstep
 from sim.errors import WrinklesInputError
 from sim.simulate.config import SimulationConfig
 from sim.simulate.jobs import SimulationJob, Track, resolve_betas, shared_body_key
@@ -22,12 +23,6 @@ from sim.types import BodyFrames
 MORPH_FRACTION = 0.6
 """Share of the settle frames over which the body morphs from the garment's shape to the job's;
 the cloth comes to rest on the target shape during the remainder."""
-
-
-def smoothstep(t: np.ndarray) -> np.ndarray:
-    """C1 ease 3t^2 - 2t^3 of t clipped to [0, 1]."""
-    t = np.clip(np.asarray(t, np.float64), 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
 
 
 def morph_frames(n_settle: int, *, fraction: float = MORPH_FRACTION) -> int:

@@ -12,6 +12,7 @@ from sim.quality import QualityReport, evaluate_sequence
 from sim.simulate.config import SimulationConfig
 from sim.simulate.jobs import Track
 from sim.types import BodyFrames, GarmentSequence
+from sim.versions import package_versions
 
 
 @dataclass(frozen=True)
@@ -34,19 +35,6 @@ class SimulationResult:
     @property
     def passed(self) -> bool:
         return not self.failed_gates
-
-
-def package_versions() -> dict[str, str]:
-    """Installed versions of the packages a result depends on."""
-    import importlib.metadata as md
-
-    out = {}
-    for pkg in ("wrinkles", "warp-lang", "numpy"):
-        try:
-            out[pkg] = md.version(pkg)
-        except md.PackageNotFoundError:
-            pass
-    return out
 
 
 def provenance(tr: Track, cfg: SimulationConfig, vbd, device: str, seed: int, graph: bool) -> dict:
