@@ -1,24 +1,28 @@
 """Cluster broadphase for the cloth self-contact detection: a flat two-level culling that
 replaces the three BVHs' refits and traversals (``SelfContact(broadphase="clusters")``).
 
-Why (session 40): on one garment the detection's tree queries are bound by latency, not work.
-A query thread walks its tree as a chain of dependent node loads, ~50-60 us per query even
-when it finds nothing, and each refit is another ~32 us chain (session 35's floor). That chain
-sat on every substep's critical path: about a quarter of the 5k t-shirt's frame.
+Why: on one garment the detection's tree queries are bound by latency, not work. A query
+thread walks its tree as a chain of dependent node loads, ~50-60 us per query on the 5k t-shirt
+even when it finds nothing, and each refit is another ~32 us chain, on every substep's critical
+path. The clusters' launches have no such chains; ``SolverVBD.broadphase`` picks them on CUDA for
+single garments (docs/DECISIONS.md gives the batches' and the CPU's figures, where the trees
+stay).
 
 Method:
 
-* At construction the vertices, the triangles and the edges of every instance are sorted along
-  a Morton curve of their positions (centroids) and cut into clusters of ``size`` consecutive
-  primitives; an instance's last cluster is padded with ``-1`` slots. A cluster is a compact
-  patch of the garment, and it stays one as the cloth moves (its members are neighbours on
-  the surface, held together by the cloth's elasticity). Clusters never mix instances.
+* At construction the vertices, the triangles and the edges of every instance are cut into
+  surface patches of at most ``size`` primitives, grown from seeds taken in the Morton order of
+  their positions (centroids) (``grow_clusters``); a patch that runs out of neighbours is padded
+  with ``-1`` slots. A cluster is a compact patch of the garment, and it stays one as the cloth
+  moves (its members are neighbours on the surface, held together by the cloth's elasticity).
+  Clusters never mix instances.
 * Every detection (one thread each, no dependent chains): each slot's box (a vertex's point,
   a triangle's or an edge's box) and query radius (``member_bounds_kernel`` in
-  ``sim.cloth.self_contact``, which owns the radius rule); each cluster's box (the union of its
-  members' boxes) and query box (the union of its members' boxes grown by their radii),
-  ``cluster_bounds_kernel``; for each query cluster and each run of 32 target clusters of its
-  instance, a 32-bit mask of the targets whose box meets its query box, ``cluster_masks_kernel``.
+  ``sim.cloth.self_contact.cluster_broadphase``, which owns the radius rule); each cluster's box
+  (the union of its members' boxes) and query box (the union of its members' boxes grown by
+  their radii), ``cluster_bounds_kernel``; for each query cluster and each run of 32 target
+  clusters of its instance, a 32-bit mask of the targets whose box meets its query box,
+  ``cluster_masks_kernel``.
 * The query (``detect_clustered_kernel``) gives each query primitive one thread; the 32 threads
   of a warp are one cluster, so they read the same masks and the same target boxes (broadcast
   loads) and only their hits differ. A thread tests its own query box against the members of
@@ -51,7 +55,7 @@ EMPTY = 1.0e30
 CLUSTER_SIZES = (8, 16, 24, 32, 40, 48, 56, 64)
 # sizes whose clusters are whole segments of a CUDA warp: their octet and cluster data come from
 # lane shuffles inside the slots' own launch (``cluster_bounds_fused_kernel`` in
-# ``sim.cloth.self_contact``, session 41) instead of two launches more
+# ``sim.cloth.self_contact.cluster_broadphase``) instead of two launches more
 LANE_SIZES = (8, 16, 32)
 # threads per mask word where the lanes are used (``cluster_masks_kernel``: 1, 2 or 4)
 MASK_PARTS = 4
@@ -85,8 +89,8 @@ def grow_clusters(points: np.ndarray, neighbours: np.ndarray, size: int) -> np.n
     order (int64, patches x size, -1 padding a patch that ran out of neighbours).
 
     Patches follow the surface: a run of a space-filling curve cut into chunks jumps across
-    gaps and folds (session 40, the 5k t-shirt: chunks of 32 along the Morton curve spanned 18 cm
-    against the patches' 11 cm, and a query met twice as many of them)."""
+    gaps and folds (the 5k t-shirt: chunks of 32 along the Morton curve span 18 cm against the
+    patches' 11 cm, and a query meets twice as many of them)."""
     import heapq
 
     from scipy.sparse import coo_matrix
@@ -356,7 +360,7 @@ def cluster_bounds_kernel(cl: ClusterArrays):
 def reach_radius(radius: float, relative: int, margin: float, speed_factor: float, h: float,
                  speed: float) -> float:
     """The distance within which a query of radius ``radius`` can store a pair whose relative
-    speed is at most ``speed`` (``self_contact.list_pair``: closer than the radius of that
+    speed is at most ``speed`` (``self_contact.lists.list_pair``: closer than the radius of that
     speed), with a little slack for round-off; ``relative`` 0: ``radius`` itself."""
     if relative == 0:
         return radius
@@ -383,13 +387,13 @@ def cluster_masks_kernel(cl: ClusterArrays, relative: int, margin: float, speed_
     in a row): bit ``b`` of the word is set when target cluster ``32 word + b`` of the query
     cluster's instance lies within the query cluster's reach of its box: its largest query
     radius, or with ``relative`` (the pair lists keep only pairs within the radius of their own
-    relative speed, and no bounds need every nearest distance) the radius of the largest
+    relative speed) the radius of the largest
     relative speed two members can have: the clusters' mean velocities apart plus both spreads
     (``reach_radius``).
 
     With ``parts`` (1, 2 or 4; more than 1 on CUDA only, ``ClusterLayout.lanes``) each word has
     that many neighbouring threads, each testing ``32 / parts`` of its targets, whose bits are
-    joined by lane shuffles: a shorter chain of loads per thread (session 41)."""
+    joined by lane shuffles: a shorter chain of loads per thread."""
     t_all = wp.tid()
     t = t_all / parts
     part = t_all - t * parts

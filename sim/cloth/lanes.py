@@ -1,6 +1,6 @@
-"""Warp-lane shuffles for kernels whose threads cooperate in aligned segments of a CUDA warp
-(session 41): a reduction over a segment's lanes inside one launch instead of a second launch
-that reads the lanes' partial results back.
+"""Warp-lane shuffles for kernels whose threads cooperate in aligned segments of a CUDA warp: a
+reduction over a segment's lanes inside one launch instead of a second launch that reads the
+lanes' partial results back.
 
 CUDA only: the kernels that use them are launched on CUDA alone (their callers keep a
 separate-launch path for the CPU, where Warp runs a block's threads one after another). On the
