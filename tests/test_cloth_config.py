@@ -108,7 +108,6 @@ def test_overrides_take_their_fields_types():
     (lambda: Stepping(iterations=0), "stepping.iterations must be >= 1"),
     (lambda: Stepping(air_damping=-1.0), "stepping.air_damping"),
     (lambda: BodyContact(margin=0.0), "body_contact.margin must be > 0"),
-    (lambda: SelfContactConfig(relaxation=0.6), "self_contact.relaxation"),
     (lambda: SelfContactConfig(radius=0.02, margin=0.01), "self_contact.margin"),
     (lambda: SelfContactConfig(weight_floor=1.5), "self_contact.weight_floor"),
     (lambda: SelfContactConfig(heavy_cap=-2), "self_contact.heavy_cap"),

@@ -127,7 +127,6 @@ class SelfContactConfig:
             gates in walk 5 of 8, run 8 of 8 at 3e4 against 2 of 5, 0 of 5 at 1e4, where body
             contact (1e5) squeezes sleeve layers through each other.
         friction: Coulomb friction coefficient of a pair.
-        relaxation: gamma of the displacement bounds, < 0.5 (``SelfContact``).
         speed_factor: query radius at least this times a primitive's relative speed times
             ``h`` [-].
         capacity: pairs stored per vertex, triangle and edge.
@@ -163,7 +162,6 @@ class SelfContactConfig:
     margin: float = 0.004
     stiffness: float = 3.0e4
     friction: float = 0.2
-    relaxation: float = 0.45
     speed_factor: float = 2.5
     capacity: int = 16
     pool: int = 16
@@ -184,7 +182,6 @@ class SelfContactConfig:
             req(name, getattr(self, name) > 0, "> 0")
         req("margin", self.margin >= self.radius, f">= radius ({self.radius})")
         req("friction", self.friction >= 0.0, ">= 0")
-        req("relaxation", 0.0 < self.relaxation < 0.5, "in (0, 0.5)")
         req("pool", self.pool >= 0, ">= 0")
         req("heavy_cap", self.heavy_cap >= -1, ">= -1 (-1: auto)")
         req("weight_floor", 0.0 <= self.weight_floor <= 1.0, "in [0, 1]")

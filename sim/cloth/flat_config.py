@@ -13,7 +13,7 @@ from typing import Any
 _SECTION_PREFIXES = {
     "stepping": ("", ("substeps", "iterations", "air_damping")),
     "body_contact": ("contact_", ("stiffness", "margin")),
-    "self_contact": ("self_contact_", ("radius", "margin", "stiffness", "friction", "relaxation",
+    "self_contact": ("self_contact_", ("radius", "margin", "stiffness", "friction",
                                        "speed_factor", "capacity", "pool", "heavy_cap", "weight_floor",
                                        "coarse_exclusion", "broadphase", "cluster_size", "cluster_split")),
     "coarse": ("coarse_", ("sweeps", "spacing", "levels", "smoothing", "early")),

@@ -159,11 +159,10 @@ class SolverVBD:
             return
         self.self_contact = SelfContact(
             self.model, radius=sc.radius, margin=sc.margin, stiffness=sc.stiffness, friction=sc.friction,
-            relaxation=sc.relaxation, speed_factor=sc.speed_factor, capacity=sc.capacity,
-            coarse_exclusion=sc.coarse_exclusion, bounds=False, pool=sc.pool,
-            heavy_cap=self.heavy_cap(self._cuda), heavy_threshold=self._lanes, weight_floor=sc.weight_floor,
-            broadphase=self.broadphase(self._cuda), cluster_size=sc.cluster_size,
-            cluster_split=sc.cluster_split)
+            speed_factor=sc.speed_factor, capacity=sc.capacity, coarse_exclusion=sc.coarse_exclusion,
+            pool=sc.pool, heavy_cap=self.heavy_cap(self._cuda), heavy_threshold=self._lanes,
+            weight_floor=sc.weight_floor, broadphase=self.broadphase(self._cuda),
+            cluster_size=sc.cluster_size, cluster_split=sc.cluster_split)
         self._sc_data = self.self_contact.data
 
     def _build_coarse(self) -> None:
