@@ -29,8 +29,8 @@ FINE_SUBSTEPS = 14
 """Substeps per frame of a fine garment: the 19k t-shirt passes 7 of 16 random walks and runs at
 14 against 2 of 16 at 12."""
 DEFAULT_ITERATIONS = 5
-"""Sweeps per substep: with the coarse correction the 5k t-shirt passes 43 of 48 random walks
-and runs at 5 sweeps against 38 of 48 at 16 x 10 without it."""
+"""Sweeps per substep: with one coarse correction the 5k t-shirt passes 43 of 48 random walks and
+runs at 14 x 5 against 38 of 48 at 16 x 10 without it."""
 FINE_ITERATIONS = 8
 """Sweeps per substep of a fine garment (lighter particles against the same membrane stiffness:
 a sweep carries less of a substep's correction): every template at ~20k vertices passes 6 of 8
@@ -248,8 +248,8 @@ class KernelLayout:
             does not fit); 0: the compiler's choice; -1: ``solver_vbd.AUTO_BATCH_MAX_REGISTERS``
             in the automatic batch layout, else the compiler's choice.
         fast_math: compile the CUDA solve kernel with fast math (approximate division, square
-            root and transcendentals, denormals flushed): 5k t-shirt 7.04 against 8.00 ms per
-            frame, 134 of 144 random walks and runs passing against 133.
+            root and transcendentals, denormals flushed): 5k t-shirt 7.04 / 7.07 against 7.69 /
+            7.70 ms per walk / run frame, 134 of 144 random walks and runs passing against 133.
         max_colors: colours of the model's vertex colouring (``ClothModelBuilder(max_colors)``;
             0: a proper colouring, the t-shirt's 4; ``CUDA_COLORS`` on CUDA).
     """
