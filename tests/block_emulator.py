@@ -1,12 +1,13 @@
-"""CPU emulation of ``sim.cloth.coarse_block``'s CUDA snippets, for tests without a GPU.
+"""CPU emulation of the coarse level's CUDA snippets (``sim.cloth.coarse.block_snippets``), for
+tests without a GPU.
 
 The snippets are C++ with CUDA's block primitives. Here each is compiled by the system's C++
 compiler into a function of one thread, and a block is emulated by ``threads`` OS threads with a
 barrier for ``__syncthreads`` (the whole block) and one for ``__syncwarp`` (the first 32
 threads, the only ones that call it). A block that does not finish in time (threads waiting at a
 barrier others never reach) or whose threads cannot all start fails the run with an error
-instead of hanging it. A race
-that the barriers do not order shows up as a wrong or run-to-run varying result. Compiled with
+instead of hanging it. A race that the barriers do not order shows up as a wrong or run-to-run
+varying result. Compiled with
 ``-ffp-contract=off``: every multiply and add rounds as written, so two snippets that do the same
 operations in the same order give the same floats.
 """
