@@ -10,10 +10,22 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
+from sim.cloth.config import (
+    CUDA_COARSE_EARLY,
+    CUDA_COLORS,
+    DEFAULT_ITERATIONS,
+    DEFAULT_SUBSTEPS,
+    FINE_COARSE_EXCLUSION,
+    FINE_GARMENT_VERTICES,
+    FINE_ITERATIONS,
+    FINE_SUBSTEPS,
+    JOB_COARSE_GUARD,
+    VBDConfig,
+    job_config,
+)
 from sim.errors import WrinklesInputError
 from sim.quality import QualityGates
 
@@ -24,64 +36,6 @@ it with the deltoid, whose skin stretches and folds as the arm moves (edge strai
 the walk's T-pose-to-arms-down ramp against 0.6 free). Hems and cuffs stay free."""
 
 # --------------------------------------------------------------------- the job's solver defaults
-
-FINE_GARMENT_VERTICES = 10_000
-"""Garments with more vertices than this take the fine defaults (``FINE_SUBSTEPS``,
-``FINE_ITERATIONS``, ``FINE_COARSE_EXCLUSION``, ``FINE_RETRY_FACTORS``)."""
-
-DEFAULT_SUBSTEPS, FINE_SUBSTEPS = 12, 14
-"""Default substeps per frame (``SimulationConfig.substeps`` 0) of a garment up to
-``FINE_GARMENT_VERTICES`` vertices, and of a finer one. H100, populations of random walks and
-runs: the 5k t-shirt (with the templates' hems) passes 134 of 144 at 12; the 19k t-shirt 7 of 16
-at 14 and 2 of 16 at 12."""
-
-DEFAULT_ITERATIONS, FINE_ITERATIONS = 5, 8
-"""Default sweeps per substep (``SimulationConfig.iterations`` 0) of a garment up to
-``FINE_GARMENT_VERTICES`` vertices, and of a finer one. A finer mesh at the same substeps needs
-more sweeps: its particles are lighter against the same membrane stiffness, so a sweep carries
-less of a substep's correction. H100, every template at ~20k vertices on the default body: the
-walks pass 4 of 8 at 14x5, 6 of 8 at 14x8 (18 % more time per frame: 15.2-20.6 ms against
-12.7-17.2) and 6 of 8 at 23x5 (60 % more); the runs 0 of 8 at both 14x5 and 14x8 (max strain
-lower at 14x8 for 6 of 8: tank top 0.60 against 0.84, dress 0.60 against 0.76); the 19k
-t-shirt's population of random walks and runs 8 of 16 against 7; a fine dataset of 16 sampled
-walks and runs accepts 5 without retries against 2."""
-
-CUDA_COLORS = 3
-"""Colours of the vertex colouring (``VBDConfig.max_colors``) of a run on CUDA; the CPU keeps a
-proper colouring (0). H100, the 5k t-shirt with the cluster broadphase: 4.24 / 4.30 ms per walk
-/ run frame against 4.46 / 4.52 with a proper colouring (one launch fewer per sweep; ~2 % of the
-edges same-coloured, coupled by a Jacobi step); 135 of 144 of the population pass against 134;
-batches of 1-256 t-shirts 2-6 % more garment-frames/s. On the CPU it buys nothing (1k t-shirt
-125.3 / 123.3 against 118.1 / 126.8 ms per walk / run frame, strain 0.16 / 0.18 against
-0.14 / 0.14)."""
-
-CUDA_COARSE_EARLY = True
-"""Whether a run on CUDA prepares the coarse system beside the self-contact detection
-(``VBDConfig.coarse_early``: its diagonal's self-contact stiffness at the particles with pairs at
-the previous substep's end). H100, the 5k t-shirt: 3.76 / 3.82 ms per walk / run frame against
-3.95 / 4.00 (the coarse factor is on the critical path: doubling it adds 0.75 ms per frame); 139
-of 144 of the population pass against 135. The CPU runs in order on one stream, where there is
-nothing to overlap, so it prepares the coarse system after the detection, from the pairs found
-now."""
-
-FINE_COARSE_EXCLUSION = 0.006
-"""``VBDConfig.self_contact_coarse_exclusion`` [m] of the job default for fine garments (more
-than ``FINE_GARMENT_VERTICES``; 0 for the others): self-contact pairs closer than 6 mm at rest
-leave the coarse correction alone. H100, the fine shorts: without it the crotch point sinks
-98 mm by the blend's end and the whole garment 12 mm in the settle; with it, 22 mm and 3 mm (as
-without self-contact), and the walk's largest strain is 0.391 against 0.546 (the fine trousers':
-0.235 against 0.297). Coarse garments keep 0: there the exclusion frees only the pants' inner
-walls, and the coarse trousers' walk crosses itself with it."""
-
-JOB_COARSE_GUARD = False
-"""``VBDConfig.coarse_guard`` of the job (the CLI, datasets): off, though a bare ``VBDConfig``
-has the coarse system's overshoot guard on. On the GPU the guard is even with the unguarded
-coarse system (fine gates: walks 7 of 8 against 6, runs 2 and 2; the fine dataset 13 of 16
-against 14, 10 at the first rung against 7; the 5k t-shirt 3.76 / 3.84 ms); on the CPU it raises
-every fine walk's strain (t-shirt 0.262 against 0.203, dress 0.318 against 0.241, the long sleeve
-on two bodies 0.427 / 0.557 with crossings against 0.199 / 0.205). The job's other defaults are
-measured without it."""
-
 
 def default_substeps(vertices: int) -> int:
     """Substeps per frame of the job default for a garment of ``vertices`` vertices."""
@@ -206,7 +160,8 @@ class SimulationConfig:
         self_contact: cloth self-contact on/off in the solver (default on: without it every
             fine garment folds through itself and fails the self-intersection gate); None
             keeps the solver's own default (off, for solver-level use).
-        solver: further ``VBDConfig`` fields by name (``contact_stiffness`` [N/m] ...).
+        solver: solver settings over the job's, as ``"section.field": value`` (``sim.cloth.config``:
+            ``"body_contact.stiffness"`` [N/m], ``"self_contact.radius"`` [m] ...).
         gates: quality thresholds a sequence must meet.
         max_speed: explosion test: a garment vertex faster than this over one frame [m/s].
         max_stretch: explosion test: an edge longer than this many times its rest length [-].
@@ -315,49 +270,17 @@ class SimulationConfig:
         above the one before dropped."""
         return retry_substeps(self.substeps_for(vertices), self.retry_factors_for(vertices))
 
-    def vbd_config(self, vertices: int = 0, cuda: bool = False):
-        """The ``VBDConfig`` of these settings (``substeps`` and ``iterations`` for a largest
-        garment of ``vertices`` vertices, ``self_contact`` and ``solver`` overrides) for a run on CUDA
-        (``cuda``: the colouring of ``CUDA_COLORS``) or on the CPU.
+    def vbd_config(self, vertices: int = 0, cuda: bool = False) -> VBDConfig:
+        """The solver settings of this run whose largest garment has ``vertices`` vertices, on
+        CUDA (``cuda``) or the CPU: the job's (``sim.cloth.job_config``) with ``substeps``,
+        ``iterations``, the coarse settings, ``self_contact`` and the ``solver`` overrides.
 
         Raises:
-            WrinklesInputError: an unknown solver field, or self-contact requested from a
-                solver that has no ``self_contact`` option.
+            WrinklesInputError: an unknown solver option or an invalid value.
         """
-        from sim.cloth import VBDConfig
-
-        allowed = {f.name for f in dataclasses.fields(VBDConfig)}
-        iterations = self.iterations_for(vertices)
-        sweeps = self.coarse_sweeps
-        if sweeps is None:
-            sweeps = (2,) if iterations > 2 else ()
-        # fast math in the CUDA solve kernel: H100, 7.04 against 7.69 ms per 5k t-shirt frame, 134
-        # of 144 of the population passing against 133; the CPU is unaffected. The coarse factor
-        # beside the first sweeps: 6.25 against 7.05 ms, 133 of 144 passing against 134, within
-        # noise (docs/BENCHMARKS.md)
-        kw: dict[str, Any] = {"substeps": self.substeps_for(vertices), "iterations": iterations,
-                              "coarse_sweeps": sweeps, "coarse_spacing": self.coarse_spacing,
-                              "fast_math": True, "coarse_prefactor": True,
-                              "max_colors": CUDA_COLORS if cuda else 0,
-                              "coarse_early": CUDA_COARSE_EARLY and cuda,
-                              "self_contact_coarse_exclusion":
-                                  FINE_COARSE_EXCLUSION if vertices > FINE_GARMENT_VERTICES else 0.0,
-                              "coarse_guard": JOB_COARSE_GUARD}
-        unknown = sorted(set(self.solver) - allowed)
-        if unknown:
-            raise WrinklesInputError(f"simulation config: unknown solver option(s) {unknown}; "
-                                     f"expected {', '.join(sorted(allowed))}")
-        kw.update(self.solver)
-        if self.self_contact is not None:
-            if "self_contact" in allowed:
-                kw["self_contact"] = bool(self.self_contact)
-            elif self.self_contact:
-                raise WrinklesInputError("self-contact was requested but this build's VBD solver has no "
-                                         "'self_contact' option")
-        try:
-            return VBDConfig(**kw)
-        except (TypeError, ValueError) as e:
-            raise WrinklesInputError(f"simulation config: {e}") from None
+        return job_config(vertices, cuda, substeps=self.substeps, iterations=self.iterations,
+                          coarse_sweeps=self.coarse_sweeps, coarse_spacing=self.coarse_spacing,
+                          self_contact=self.self_contact, overrides=self.solver)
 
     # --- (de)serialisation ---------------------------------------------------------------
     def to_dict(self) -> dict:

@@ -57,7 +57,7 @@ def _build_model(tracks: list[Track], vbd, device: str):
     from sim.cloth import ClothModelBuilder
     from sim.dressing import bind_to_surface, place_garment
 
-    builder = ClothModelBuilder(max_colors=vbd.max_colors)
+    builder = ClothModelBuilder(max_colors=vbd.layout.max_colors)
     bindings = []
     for tr in tracks:
         g = tr.job.garment

@@ -3,7 +3,6 @@ provenance) and the quality report judged against the config's gates."""
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -45,7 +44,7 @@ def provenance(tr: Track, cfg: SimulationConfig, vbd, device: str, seed: int, gr
     body = tr.job.body
     out = {
         "config": cfg.to_dict(),
-        "solver": dataclasses.asdict(vbd),
+        "solver": vbd.to_dict(),
         "seed": int(seed),
         "device": device,
         "cuda_graph": bool(graph),
