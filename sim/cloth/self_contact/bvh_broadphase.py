@@ -90,10 +90,9 @@ def detect_vertex_kernel(
     """Per vertex: the VT pairs within the query radius of its speed in its instance's frame
     (``tri_roots``: each instance's subtree root, ``group_roots_kernel``)."""
     i = wp.tid()
-    sc = sc_inout
     xi = x[i]
     inst = particle_instance[i]
-    r = query_radius(margin, wp.length(v[i] - sc.reference[inst]), h, speed_factor)
+    r = query_radius(margin, wp.length(v[i] - sc_inout.reference[inst]), h, speed_factor)
     query = wp.bvh_query_aabb(tri_bvh, xi - wp.vec3(r), xi + wp.vec3(r), tri_roots[inst])
     t = int(0)
     count = int(0)
@@ -103,9 +102,10 @@ def detect_vertex_kernel(
             continue
         if load_int(particle_instance, tri[0]) != inst:
             continue
-        count = vertex_triangle_candidate(sc, x, v, i, tri, r, margin, speed_factor, h, count, sc.vt_tri,
-                                          sc.vt_dist, sc.vt_ref, sc.vt_rk, i, sc.vt_capacity, t)
-    sc.vt_count[i] = count
+        count = vertex_triangle_candidate(sc_inout, x, v, i, tri, r, margin, speed_factor, h, count,
+                                          sc_inout.vt_tri, sc_inout.vt_dist, sc_inout.vt_ref, sc_inout.vt_rk,
+                                          i, sc_inout.vt_capacity, t)
+    sc_inout.vt_count[i] = count
 
 
 @wp.kernel
@@ -125,13 +125,12 @@ def detect_triangle_kernel(
     vertices come straight from the vertex BVH: through the triangle BVH each vertex would be
     one of ~3 candidate triangles' corners, found again at its other triangles and skipped."""
     t = wp.tid()
-    sc = sc_inout
     tri = tri_indices[t]
     a = x[tri[0]]
     b = x[tri[1]]
     c = x[tri[2]]
     inst = particle_instance[tri[0]]
-    r = query_radius(margin, triangle_speed(v, tri, sc.reference[inst]), h, speed_factor)
+    r = query_radius(margin, triangle_speed(v, tri, sc_inout.reference[inst]), h, speed_factor)
     lo = wp.min(wp.min(a, b), c)
     hi = wp.max(wp.max(a, b), c)
     query = wp.bvh_query_aabb(vertex_bvh, lo - wp.vec3(r), hi + wp.vec3(r), vertex_roots[inst])
@@ -140,9 +139,10 @@ def detect_triangle_kernel(
     while wp.bvh_query_next(query, u):
         if u == tri[0] or u == tri[1] or u == tri[2] or load_int(particle_instance, u) != inst:
             continue
-        count = vertex_triangle_candidate(sc, x, v, u, tri, r, margin, speed_factor, h, count, sc.tv_vertex,
-                                          sc.tv_dist, sc.tv_ref, sc.tv_rk, t, sc.tv_capacity, u)
-    sc.tv_count[t] = count
+        count = vertex_triangle_candidate(sc_inout, x, v, u, tri, r, margin, speed_factor, h, count,
+                                          sc_inout.tv_vertex, sc_inout.tv_dist, sc_inout.tv_ref,
+                                          sc_inout.tv_rk, t, sc_inout.tv_capacity, u)
+    sc_inout.tv_count[t] = count
 
 
 @wp.kernel
@@ -160,25 +160,24 @@ def detect_edge_kernel(
     """Per edge: the EE pairs (edges sharing no vertex) within the query radius of its faster
     end."""
     e = wp.tid()
-    sc = sc_inout
-    ea = sc.mesh_edges[e]
+    ea = sc_inout.mesh_edges[e]
     p1 = x[ea[0]]
     q1 = x[ea[1]]
     inst = particle_instance[ea[0]]
-    r = query_radius(margin, edge_speed(v, ea, sc.reference[inst]), h, speed_factor)
+    r = query_radius(margin, edge_speed(v, ea, sc_inout.reference[inst]), h, speed_factor)
     lo = wp.min(p1, q1)
     hi = wp.max(p1, q1)
     query = wp.bvh_query_aabb(edge_bvh, lo - wp.vec3(r), hi + wp.vec3(r), edge_roots[inst])
     e2 = int(0)
     count = int(0)
     while wp.bvh_query_next(query, e2):
-        eb = load_vec2i(sc.mesh_edges, e2)
+        eb = load_vec2i(sc_inout.mesh_edges, e2)
         if eb[0] == ea[0] or eb[0] == ea[1] or eb[1] == ea[0] or eb[1] == ea[1]:
             continue
         if load_int(particle_instance, eb[0]) != inst:
             continue
-        count = edge_edge_candidate(sc, x, v, e, ea, p1, q1, e2, eb, r, margin, speed_factor, h, count)
-    sc.ee_count[e] = count
+        count = edge_edge_candidate(sc_inout, x, v, e, ea, p1, q1, e2, eb, r, margin, speed_factor, h, count)
+    sc_inout.ee_count[e] = count
 
 
 class BvhBroadphase:

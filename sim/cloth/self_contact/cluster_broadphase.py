@@ -161,21 +161,20 @@ def cluster_bounds_fused_kernel(
     zeroes the counters the gather records count with (``records``: two memset nodes fewer on
     the critical path)."""
     s = wp.tid()
-    cl = cl_inout
-    n = cl.order.shape[0]
+    n = cl_inout.order.shape[0]
     if s == 0:
         sc_inout.pair_cursor[0] = 0
         for colour in range(sc_inout.heavy_count.shape[0]):
             sc_inout.heavy_count[colour] = 0
     mask = lane_mask(s, n)
     lo, hi, r, mean, spread = slot_bounds(s, x, v, particle_instance, tri_indices, margin, speed_factor, h,
-                                          sc_inout, cl)
+                                          sc_inout, cl_inout)
     valid = float(0.0)
     if spread >= 0.0:
         valid = 1.0
-    cl.lo[s] = lo
-    cl.hi[s] = hi
-    cl.radius[s] = r
+    cl_inout.lo[s] = lo
+    cl_inout.hi[s] = hi
+    cl_inout.radius[s] = r
     # the octet (lanes differing in bits 1, 2, 4)
     o_lo, o_hi, o_r, o_total, o_count = reduce_lanes(lo, hi, r, valid * mean, valid, 1, 4, mask)
     o_mean = o_total / wp.max(o_count, 1.0)
@@ -184,18 +183,18 @@ def cluster_bounds_fused_kernel(
         reach = wp.length(mean - o_mean) + spread
     o_reach = max_lanes(reach, 1, 4, mask)
     if s % 8 == 0:
-        store_octet(cl, s / 8, o_lo, o_hi, o_r, o_mean, o_count, o_reach)
+        store_octet(cl_inout, s / 8, o_lo, o_hi, o_r, o_mean, o_count, o_reach)
     # the cluster (lanes differing in bits 8 to size / 2, each holding its octet's data)
     c_lo, c_hi, c_r, c_total, c_count = reduce_lanes(o_lo, o_hi, o_r, o_count * o_mean, o_count, 8,
-                                                     cl.size / 2, mask)
+                                                     cl_inout.size / 2, mask)
     # summed over the octets' lanes: every lane of an octet holds its octet's sums
     c_mean = c_total / wp.max(c_count, 1.0)
     c_reach = float(0.0)
     if o_count > 0.0:
         c_reach = wp.length(o_mean - c_mean) + o_reach
-    c_reach = max_lanes(c_reach, 8, cl.size / 2, mask)
-    if s % cl.size == 0:
-        store_cluster(cl, s / cl.size, c_lo, c_hi, c_r, c_mean, c_reach)
+    c_reach = max_lanes(c_reach, 8, cl_inout.size / 2, mask)
+    if s % cl_inout.size == 0:
+        store_cluster(cl_inout, s / cl_inout.size, c_lo, c_hi, c_r, c_mean, c_reach)
 
 
 @wp.struct
@@ -336,14 +335,13 @@ def detect_clustered_kernel(
     ``lists.merge_split_kernel`` merges. A query's chain of loads is what takes the time (a few
     warps per SM), and this cuts it."""
     t = wp.tid()
-    sc = sc_inout
     slots = cl.order.shape[0]
     f = t / slots
     s = t - f * slots
     p = cl.order[s]
     if p < 0:
         return
-    q = slot_query(s, p, f, split, x, v, tri_indices, cl, sc)
+    q = slot_query(s, p, f, split, x, v, tri_indices, cl, sc_inout)
     k = q.kind
     a = s / cl.size
     tk = 1 - k
@@ -362,15 +360,15 @@ def detect_clustered_kernel(
                 nth += 1
             if (bits & 1) != 0 and nth % split == f:
                 count = target_candidates(q, cl.target_first[k] + t0 + w * 32 + b, count, relative, x, v,
-                                          tri_indices, margin, speed_factor, h, cl, sc)
+                                          tri_indices, margin, speed_factor, h, cl, sc_inout)
             bits = (bits >> 1) & 0x7FFFFFFF
             b += 1
     if k == 0:
-        sc.vt_count[q.owner] = count
+        sc_inout.vt_count[q.owner] = count
     elif k == 1:
-        sc.tv_count[q.owner] = count
+        sc_inout.tv_count[q.owner] = count
     else:
-        sc.ee_count[q.owner] = count
+        sc_inout.ee_count[q.owner] = count
 
 
 class ClusterBroadphase:

@@ -218,18 +218,19 @@ def merge_split_kernel(
     lists hold what one thread would have kept; with ties at a full list, which of the tied
     pairs."""
     t = wp.tid()
-    sc = sc_inout
     if t < n_vertices:
-        sc.vt_count[t] = merge_lists(split, n_vertices, t, sc.vt_capacity, part.vt_count, part.vt_tri,
-                                     part.vt_dist, part.vt_ref, part.vt_rk, sc.vt_tri, sc.vt_dist, sc.vt_ref,
-                                     sc.vt_rk)
+        sc_inout.vt_count[t] = merge_lists(split, n_vertices, t, sc_inout.vt_capacity, part.vt_count,
+                                           part.vt_tri, part.vt_dist, part.vt_ref, part.vt_rk,
+                                           sc_inout.vt_tri, sc_inout.vt_dist, sc_inout.vt_ref, sc_inout.vt_rk)
     elif t < n_vertices + n_triangles:
         o = t - n_vertices
-        sc.tv_count[o] = merge_lists(split, n_triangles, o, sc.tv_capacity, part.tv_count, part.tv_vertex,
-                                     part.tv_dist, part.tv_ref, part.tv_rk, sc.tv_vertex, sc.tv_dist,
-                                     sc.tv_ref, sc.tv_rk)
+        sc_inout.tv_count[o] = merge_lists(split, n_triangles, o, sc_inout.tv_capacity, part.tv_count,
+                                           part.tv_vertex, part.tv_dist, part.tv_ref, part.tv_rk,
+                                           sc_inout.tv_vertex, sc_inout.tv_dist, sc_inout.tv_ref,
+                                           sc_inout.tv_rk)
     else:
         o = t - n_vertices - n_triangles
-        sc.ee_count[o] = merge_lists(split, n_edges, o, sc.ee_capacity, part.ee_count, part.ee_edge,
-                                     part.ee_dist, part.ee_ref, part.ee_rk, sc.ee_edge, sc.ee_dist, sc.ee_ref,
-                                     sc.ee_rk)
+        sc_inout.ee_count[o] = merge_lists(split, n_edges, o, sc_inout.ee_capacity, part.ee_count,
+                                           part.ee_edge, part.ee_dist, part.ee_ref, part.ee_rk,
+                                           sc_inout.ee_edge, sc_inout.ee_dist, sc_inout.ee_ref,
+                                           sc_inout.ee_rk)

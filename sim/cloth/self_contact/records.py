@@ -95,24 +95,23 @@ def vertex_summary_kernel(
     the threads' order; which vertices are in it does not, and each is solved the same wherever
     it sits."""
     i = wp.tid()
-    sc = sc_inout
     # pairs that hold back the coarse correction (``has_pairs``): all but those near at rest
     # (read only with an exclusion: without one every pair holds it, and the loads are saved)
-    near = sc.coarse_exclusion > 0.0
-    vt = sc.vt_count[i]
+    near = sc_inout.coarse_exclusion > 0.0
+    vt = sc_inout.vt_count[i]
     held = int(0)
     if near:
-        held += held_pairs(sc.vt_rk, i * sc.vt_capacity, vt)
-    tv, held = triangle_pairs(i, vertex_tri_offsets, vertex_tri_ids, near, held, sc)
-    ee, held = edge_pairs(i, near, held, sc)
-    sc.tv_total[i] = tv
-    sc.ee_total[i] = ee
+        held += held_pairs(sc_inout.vt_rk, i * sc_inout.vt_capacity, vt)
+    tv, held = triangle_pairs(i, vertex_tri_offsets, vertex_tri_ids, near, held, sc_inout)
+    ee, held = edge_pairs(i, near, held, sc_inout)
+    sc_inout.tv_total[i] = tv
+    sc_inout.ee_total[i] = ee
     total = vt + tv + ee
     if not near:
         held = total
-    sc.coarse_pairs[i] = held
-    sc.pair_count[i] = total
-    reserve_records(i, total, sc)
+    sc_inout.coarse_pairs[i] = held
+    sc_inout.pair_count[i] = total
+    reserve_records(i, total, sc_inout)
 
 
 @wp.func
