@@ -1,13 +1,13 @@
 """Arrays passed to a kernel as raw addresses (``Span``: pointer and length, 16 bytes) instead
 of Warp array arguments (56 bytes each: data, grad, shape, strides, ndim).
 
-Why (session 16): the per-colour solve kernel took ~100 array arguments (~5.6 KB of kernel
-parameters). CUDA kernel parameters live in constant memory and every array access reads its
-descriptor from there; Nsight Compute found 30 % of the solve's stall cycles waiting on
-immediate-constant cache misses. The kernel now takes one struct of spans and rebuilds the
-arrays it reads with ``wp.array(ptr=..., shape=..., dtype=...)``. An element access ``a[i]`` on
-such an array still wraps a negative index and scales by the stride at run time (Warp's
-``index``); the hot loads go through ``load_*`` below instead (session 33).
+Why: the per-colour solve kernel reads ~100 arrays (~5.6 KB as Warp array parameters). CUDA
+kernel parameters live in constant memory and every array access reads its descriptor from
+there; with plain array parameters Nsight Compute puts 30 % of the solve's stall cycles on
+immediate-constant cache misses (H100, 5k t-shirt). The kernel takes one struct of spans and
+rebuilds the arrays it reads with ``wp.array(ptr=..., shape=..., dtype=...)``. An element access
+``a[i]`` on such an array still wraps a negative index and scales by the stride at run time
+(Warp's ``index``); the hot loads go through ``load_*`` below instead.
 
 The spans do not own the memory: whoever builds them keeps the arrays alive (the solver holds
 its model, buffers and self-contact data for its lifetime)."""
@@ -77,7 +77,7 @@ def mat22s(s: Span):
     return wp.array(ptr=s.ptr, shape=(s.n,), dtype=wp.mat22)
 
 
-# Element loads without Warp's index arithmetic (session 33). ``a[i]`` on a Warp array wraps a
+# Element loads without Warp's index arithmetic. ``a[i]`` on a Warp array wraps a
 # negative index (``if (i < 0) i += shape[0]``) and scales the index by the runtime stride in
 # 64 bits before the load: Nsight Compute put 23 % of the 5k t-shirt solve kernel's executed
 # instructions in that code (``array.h``). These read ``a.data[i]`` directly: for the
