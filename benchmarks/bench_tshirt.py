@@ -79,7 +79,8 @@ def parse_args() -> argparse.Namespace:
     ap.add_argument("--iterations", type=int, default=SimulationConfig.iterations,
                     help="sweeps per substep (default 0: the job's, 5, or 8 over 10k vertices)")
     ap.add_argument("--no-self-contact", action="store_true")
-    ap.add_argument("--solver", default="{}", help="JSON dict of solver settings (SimulationConfig.solver)")
+    ap.add_argument("--solver", default="{}", help='JSON dict of solver settings, "section.field": value '
+                    '(SimulationConfig.solver), e.g. \'{"layout.lanes": 16}\'')
     ap.add_argument("--newton", action="store_true", help="also run Newton's SolverVBD (needs newton)")
     add_batch_arguments(ap)
     ap.add_argument("--tag", default="", help="suffix of the result file's name")

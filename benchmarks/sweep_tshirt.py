@@ -124,8 +124,8 @@ def main() -> None:
     add_scene_arguments(ap)
     ap.add_argument("--settings", default="12x5",
                     help="comma list of SUBSTEPSxITERATIONS (default: %(default)s)")
-    ap.add_argument("--solver", default="{}", help="JSON dict of solver settings shared by every setting "
-                    "(SimulationConfig.solver)")
+    ap.add_argument("--solver", default="{}", help='JSON dict of solver settings shared by every setting, '
+                    '"section.field": value (SimulationConfig.solver)')
     ap.add_argument("--population", type=int, default=0,
                     help="also run N walks and runs of varied speed per setting in one batch "
                     "(default: 0, none)")

@@ -120,7 +120,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    default=True, help="cloth self-collision (vertex-triangle and edge-edge) on/off "
                    "(default: on; --no-self-collision is ~3x faster and lets folds pass through each other)")
     s.add_argument("--solver-param", action="append", default=[], metavar="KEY=VALUE",
-                   help="a further VBD solver setting, e.g. contact_stiffness=2e5 (repeatable)")
+                   help="a further VBD solver setting as section.field=VALUE, e.g. "
+                   "body_contact.stiffness=2e5 or self_contact.radius=0.004 (sections: stepping, "
+                   "body_contact, self_contact, coarse, layout; repeatable)")
     s.add_argument("--gate", action="append", default=[], metavar="KEY=VALUE",
                    help="a quality gate: max_edge_strain (default 0.35), max_inside_fraction (0.01), "
                         "max_self_intersections (0) (repeatable)")

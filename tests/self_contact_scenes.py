@@ -4,10 +4,13 @@ sheet (``tests/test_self_contact*.py``, ``tests/test_coarse_correction.py``)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 import numpy as np
 import warp as wp
 
-from sim.cloth import ClothMaterialParams, ClothModelBuilder, SolverVBD, VBDConfig
+from sim.cloth import ClothMaterialParams, ClothModelBuilder, SolverVBD, VBDConfig, apply_overrides
 from sim.cloth.model import mesh_edges
 from tests.test_cloth_solver import grid
 
@@ -196,14 +199,13 @@ def three_pieces(device, motion: str):
 
 
 def stacked_layers(device, self_contact: bool, n: int = 13, frames: int = 12, speed: float = 3.0,
-                   carry: float = 0.0, reference: bool = False, air_damping: float = VBDConfig.air_damping,
-                   **config):
+                   carry: float = 0.0, reference: bool = False, solver: Mapping[str, Any] | None = None):
     """A sheet pinned at its corners and a second sheet dropped onto it at ``speed`` (one mesh),
     the whole scene, pins included, carried along x at ``carry`` [m/s] (``reference``: that is
-    the instance's reference velocity, else zero); ``config``: further solver settings (flat
-``VBDConfig`` keywords; no coarse correction unless they name one). Returns
-    the positions per frame with the carrying motion taken out, the faces, the vertices per
-    sheet and the grid size."""
+    the instance's reference velocity, else zero), at 5 substeps x 5 sweeps; ``solver``: further
+    ``"section.field"`` solver settings (``apply_overrides``; no coarse correction unless they
+    name one). Returns the positions per frame with the carrying motion taken out, the faces,
+    the vertices per sheet and the grid size."""
     v, f = grid(n, n, 0.5, 0.5, plane="xz")
     top = v + np.array([0.011, 0.03, 0.013], np.float32)
     x = np.concatenate([v, top])
@@ -212,9 +214,10 @@ def stacked_layers(device, self_contact: bool, n: int = 13, frames: int = 12, sp
     b.add_cloth(x, faces, ClothMaterialParams(mu=300.0, lam=100.0, thickness=0.003),
                 pinned=[0, n - 1, n * (n - 1), n * n - 1])
     m = b.finalize(device)
-    cfg = VBDConfig(substeps=5, iterations=5, self_contact=self_contact, air_damping=air_damping,
-                    **({"coarse_sweeps": ()} | config))
-    solver = SolverVBD(m, cfg)
+    cfg = apply_overrides(VBDConfig(), {"stepping.substeps": 5, "stepping.iterations": 5,
+                                        "self_contact.enabled": self_contact, "coarse.sweeps": (),
+                                        **(solver or {})})
+    vbd = SolverVBD(m, cfg)
     state = m.state()
     u = np.array([carry, 0.0, 0.0], np.float32)
     vel = np.zeros_like(x) + u
@@ -227,7 +230,7 @@ def stacked_layers(device, self_contact: bool, n: int = 13, frames: int = 12, sp
     out = []
     for k in range(frames):
         control.pin_targets.assign(x + u * (k + 1) * dt)
-        solver.step(state, state, control, dt)
+        vbd.step(state, state, control, dt)
         out.append(state.positions.numpy() - u * (k + 1) * dt)
     return np.stack(out), faces, len(v), n
 
@@ -238,15 +241,16 @@ def center_gap(x, nv, n):
     return x[:, nv + c, 1] - x[:, c, 1]
 
 
-def hairpin_pass(device, gap: float, speed: float = 1.0, frames: int = 8, **config):
+def hairpin_pass(device, gap: float, speed: float = 1.0, frames: int = 8,
+                 solver: Mapping[str, Any] | None = None):
     """One sheet folded at rest into a hairpin whose arms lie ``gap`` apart (a crease at a seam,
     as under a t-shirt's arm or at the crotch of trousers), the lower arm pinned and the upper
-    one thrown down onto it at ``speed`` [m/s] (no coarse correction; ``config``: further flat
-    ``VBDConfig`` keywords). Returns, per frame, the mean height [m] of the
-    upper arm's interior (away from the fold and the rims) above the lower arm, the largest
-    distance [m] of that interior past the fold line (> 0: the arm flipped over the fold, off
-    the lower arm) and the kinetic plus gravitational energy [J] of the sheet, with the energy
-    at the throw as the last entry."""
+    one thrown down onto it at ``speed`` [m/s] (10 substeps x 10 sweeps, no coarse correction;
+    ``solver``: further ``"section.field"`` solver settings, ``apply_overrides``). Returns, per
+    frame, the mean height [m] of the upper arm's interior (away from the fold and the rims)
+    above the lower arm, the largest distance [m] of that interior past the fold line (> 0: the
+    arm flipped over the fold, off the lower arm) and the kinetic plus gravitational energy [J]
+    of the sheet, with the energy at the throw as the last entry."""
     nx, ny, mid, e = 13, 5, 6, 0.02
     _, folded, f, col = folded_sheet(nx, ny, e, mid, gap)
     row = np.arange(len(folded)) // nx
@@ -255,8 +259,9 @@ def hairpin_pass(device, gap: float, speed: float = 1.0, frames: int = 8, **conf
     b.add_cloth(folded.astype(np.float32), f, ClothMaterialParams(mu=300.0, lam=100.0, thickness=0.001),
                 pinned=np.flatnonzero(col < mid))
     m = b.finalize(device)
-    cfg = VBDConfig(substeps=10, iterations=10, self_contact=True, coarse_sweeps=(), **config)
-    solver = SolverVBD(m, cfg)
+    cfg = apply_overrides(VBDConfig(), {"stepping.substeps": 10, "stepping.iterations": 10,
+                                        "self_contact.enabled": True, "coarse.sweeps": (), **(solver or {})})
+    vbd = SolverVBD(m, cfg)
     state, control = m.state(), m.control()
     vel = np.zeros_like(folded)
     vel[over, 1] = -speed
@@ -272,7 +277,7 @@ def hairpin_pass(device, gap: float, speed: float = 1.0, frames: int = 8, **conf
     e0 = energy(folded, vel)
     heights, flipped, energies = [], [], []
     for _ in range(frames):
-        solver.step(state, state, control, 1.0 / 30.0)
+        vbd.step(state, state, control, 1.0 / 30.0)
         x, v = state.positions.numpy(), state.velocities.numpy()
         assert np.all(np.isfinite(x))
         heights.append(float(x[interior, 1].mean()))

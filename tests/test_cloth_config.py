@@ -146,17 +146,3 @@ def test_dict_round_trip():
     with pytest.raises(ValueError, match="unknown field"):
         VBDConfig.from_dict({"stepping": {"sweeps": 3}})
 
-
-def test_flat_keywords_map_onto_the_sections():
-    """``VBDConfig(substeps=..., self_contact_radius=...)`` and ``config.max_colors`` spell the
-    section fields flat; the coarse system's fixed behaviour is accepted at its value only."""
-    flat = VBDConfig(substeps=14, iterations=8, coarse_sweeps=(2,), coarse_spacing=0, fast_math=True,
-                     coarse_prefactor=True, max_colors=3, coarse_early=True,
-                     self_contact_coarse_exclusion=0.006, coarse_guard=False, self_contact=True)
-    assert flat == job_config(19_542, True)
-    assert flat.max_colors == 3 and flat.substeps == 14 and flat.contact_margin == 0.015
-    assert VBDConfig.air_damping == Stepping().air_damping and VBDConfig.max_colors == 0  # the defaults
-    with pytest.raises(ValueError, match="coarse_prefactor"):
-        VBDConfig(coarse_prefactor=False)
-    with pytest.raises(TypeError):
-        VBDConfig(self_contact_bounds=True)

@@ -466,10 +466,9 @@ def draped_layers_in_contact(device, max_colors: int = 0):
 
 def one_step_from(m, start, **sections):
     """Positions after one 1/120 s step (1 substep, 4 sweeps) from ``start`` (positions,
-    velocities) with self-contact and the solver settings ``sections`` (``VBDConfig`` keywords
+    velocities) with self-contact and the solver settings ``sections`` (``VBDConfig`` sections
     over ``plain_config``'s); and the solver."""
-    solver = SolverVBD(m, VBDConfig(**{**vars(plain_config(1, 4, self_contact=SelfContactConfig())),
-                                       **sections}))
+    solver = SolverVBD(m, plain_config(1, 4, **{"self_contact": SelfContactConfig(), **sections}))
     s = m.state()
     s.positions.assign(start[0])
     s.velocities.assign(start[1])

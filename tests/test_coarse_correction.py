@@ -81,8 +81,8 @@ def test_coarse_corrections_carry_no_layer_through_another(device, sweeps):
     other."""
     from tests.self_contact_scenes import stacked_layers
 
-    x, faces, nv, n = stacked_layers(device, True, speed=1.0, frames=20, coarse_sweeps=sweeps,
-                                     coarse_spacing=3)
+    x, faces, nv, n = stacked_layers(device, True, speed=1.0, frames=20,
+                                     solver={"coarse.sweeps": sweeps, "coarse.spacing": 3})
     assert_layers_kept_apart(x, faces, nv, n, device, landed=0.03)
 
 
@@ -128,7 +128,7 @@ def test_early_diagonal_takes_the_previous_substeps_pairs(device):
         level.prepare(h, sc, pair_flags)
         diags[name] = level.diag.numpy().copy()
     np.testing.assert_array_equal(diags["flags"], diags["lists"])
-    assert not np.array_equal(stepped, diags["flags"])  # the planted flags are not the pairs
+    assert np.abs(stepped - diags["flags"]).max() > 0.0  # the planted flags are not the pairs
     added = level.prolongation.T @ (flags * sc.stiffness)
     assert added.max() > 0.0
     np.testing.assert_allclose(diags["lists"] - diags["none"], added, rtol=1e-4, atol=1e-6 * added.max())

@@ -11,7 +11,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from sim.cloth import ClothMaterialParams, ClothModelBuilder, SolverVBD, VBDConfig
+from sim.cloth import (
+    ClothMaterialParams,
+    ClothModelBuilder,
+    CoarseConfig,
+    SelfContactConfig,
+    SolverVBD,
+    Stepping,
+    VBDConfig,
+)
 from sim.cloth.config import FINE_COARSE_EXCLUSION, job_config
 from sim.cloth.self_contact import RADIUS_CODES
 from tests.self_contact_scenes import (
@@ -27,17 +35,17 @@ from tests.self_contact_scenes import (
 from tests.test_cloth_solver import grid, simulate
 
 
-@pytest.mark.parametrize("config", [{}, {"self_contact_broadphase": "clusters"}])
-def test_penalty_self_contact_holds_a_gently_dropped_layer(device, config):
+@pytest.mark.parametrize("solver", [{}, {"self_contact.broadphase": "clusters"}])
+def test_penalty_self_contact_holds_a_gently_dropped_layer(device, solver):
     """The penalty stops a layer dropped at 1 m/s onto a pinned one (the rims, where the loose
     layer folds over the pinned one's edge, may cross: no guarantee), with the pairs found
     through trees or through clusters; without self-contact the same drop goes straight
     through."""
-    x, faces, nv, n = stacked_layers(device, True, speed=1.0, frames=20, **config)
+    x, faces, nv, n = stacked_layers(device, True, speed=1.0, frames=20, solver=solver)
     gap = center_gap(x, nv, n)
     assert np.all(np.isfinite(x))
     assert np.all(gap > 0.0) and gap[-1] < 0.03
-    assert gap[-1] > 0.5 * VBDConfig().self_contact_radius
+    assert gap[-1] > 0.5 * VBDConfig().self_contact.radius
     x_off, *_ = stacked_layers(device, False, speed=1.0, frames=20)
     assert center_gap(x_off, nv, n).min() < -0.02
 
@@ -46,7 +54,7 @@ def test_instances_do_not_collide_with_each_other(device):
     """Two overlapping sheets as separate instances of one model fall through each other
     exactly as alone: self-contact only acts within an instance."""
     v, f = grid(7, 7, 0.3, 0.3, plane="xz")
-    cfg = VBDConfig(substeps=3, iterations=3, self_contact=True)
+    cfg = VBDConfig(stepping=Stepping(substeps=3, iterations=3))  # self-contact on
 
     def run(parts):
         b = ClothModelBuilder()
@@ -76,11 +84,12 @@ def test_a_hairpin_whose_arms_start_apart_lands_on_itself(device, speed):
 
 
 def test_the_exact_contact_hessian_lets_a_thrown_hairpin_gain_energy(device):
-    """Why the contact Hessian has a weight floor (``VBDConfig.self_contact_weight_floor``):
+    """Why the contact Hessian has a weight floor (``SelfContactConfig.weight_floor``):
     with the exact ``w^2 k`` (floor 0) the hairpin above, thrown at 1.1 m/s, gains energy in its
     first contact (a rim vertex with a small weight in its pairs takes their whole penetration as
     its own step). This keeps the energy check above a test that can fail."""
-    _, _, energy = hairpin_pass(device, gap=0.01, speed=1.1, frames=2, self_contact_weight_floor=0.0)
+    _, _, energy = hairpin_pass(device, gap=0.01, speed=1.1, frames=2,
+                                solver={"self_contact.weight_floor": 0.0})
     assert energy[:-1].max() > energy[-1] + 1e-3  # more than a millijoule made
 
 
@@ -115,8 +124,8 @@ def test_pairs_close_at_rest_get_half_their_rest_distance_and_push_nothing_at_re
         b = ClothModelBuilder()
         b.add_cloth(folded.astype(np.float32), f, params)
         m = b.finalize(device)
-        cfg = VBDConfig(substeps=1, iterations=2, coarse_sweeps=(), self_contact=True,
-                        self_contact_radius=radius)
+        cfg = VBDConfig(stepping=Stepping(substeps=1, iterations=2),
+                        self_contact=SelfContactConfig(radius=radius), coarse=CoarseConfig(sweeps=()))
         solver = SolverVBD(m, cfg)
         state = m.state()
         solver.self_contact.detect(state.positions, state.velocities, 1.0 / 300.0)
@@ -169,7 +178,7 @@ def test_neighbours_near_at_rest_leave_the_coarse_correction_of_a_fine_sheet_alo
     on as with it off (22 cm long, its bottom steady 0.1 mm below its rest height from the 6th
     frame). Its neighbours an edge or two apart (3.9-5.5 mm on the 5.5 mm grid) come within the
     4 mm query margin as it moves: nearly every particle holds pairs. Those pairs stay in
-    contact but, closer than ``self_contact_coarse_exclusion`` (6 mm for fine garments) at rest,
+    contact but, closer than ``self_contact.coarse_exclusion`` (6 mm for fine garments) at rest,
     leave the coarse correction alone (``has_pairs``); with an exclusion of 0 (the coarse
     garments' value) the correction is capped nearly everywhere and the sheet bounces by
     centimetres."""

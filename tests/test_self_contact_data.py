@@ -10,7 +10,7 @@ import re
 import pytest
 import warp as wp
 
-from sim.cloth import ClothMaterialParams, ClothModelBuilder, SolverVBD, VBDConfig
+from sim.cloth import ClothMaterialParams, ClothModelBuilder, SelfContactConfig, SolverVBD, VBDConfig
 from sim.cloth.self_contact import (
     SelfContact,
     SelfContactData,
@@ -84,14 +84,14 @@ def test_an_automatic_split_halves_one_garments_cluster_query():
 
 
 def test_solver_self_contact_options_are_checked():
-    for bad, match in (({"self_contact_radius": 0.02, "self_contact_margin": 0.01}, "margin"),
-                       ({"self_contact_broadphase": "grid"}, "broadphase"),
-                       ({"self_contact_cluster_size": 0}, "cluster_size"),
-                       ({"self_contact_weight_floor": -0.1}, "weight_floor"),
-                       ({"self_contact_weight_floor": 1.5}, "weight_floor"),
-                       ({"self_contact_coarse_exclusion": -0.001}, "coarse_exclusion")):
+    for bad, match in (({"radius": 0.02, "margin": 0.01}, "self_contact.margin"),
+                       ({"broadphase": "grid"}, "self_contact.broadphase"),
+                       ({"cluster_size": 0}, "self_contact.cluster_size"),
+                       ({"weight_floor": -0.1}, "self_contact.weight_floor"),
+                       ({"weight_floor": 1.5}, "self_contact.weight_floor"),
+                       ({"coarse_exclusion": -0.001}, "self_contact.coarse_exclusion")):
         with pytest.raises(ValueError, match=match):
-            VBDConfig(**bad)
+            SelfContactConfig(**bad)
 
 
 def test_the_automatic_broadphase_is_the_clusters_on_cuda_for_small_models():
@@ -99,7 +99,7 @@ def test_the_automatic_broadphase_is_the_clusters_on_cuda_for_small_models():
     triangles and edges, the trees on the CPU and for larger models."""
     from sim.cloth import solver_vbd
 
-    solver = SolverVBD(small_model(), VBDConfig(self_contact=True))
+    solver = SolverVBD(small_model(), VBDConfig())  # self-contact on, broadphase "auto"
     assert solver.broadphase(cuda=True) == "clusters" and solver.broadphase(cuda=False) == "bvh"
     assert solver.self_contact.clusters is None
     primitives = 9 + 8 + 16  # the 3 x 3 grid's vertices, triangles and edges

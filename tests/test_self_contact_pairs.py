@@ -7,7 +7,15 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from sim.cloth import ClothMaterialParams, ClothModelBuilder, SolverVBD, VBDConfig
+from sim.cloth import (
+    ClothMaterialParams,
+    ClothModelBuilder,
+    CoarseConfig,
+    SelfContactConfig,
+    SolverVBD,
+    Stepping,
+    VBDConfig,
+)
 from sim.cloth.self_contact import (
     SelfContact,
     SelfContactData,
@@ -187,8 +195,9 @@ def test_gather_records_hold_each_vertexs_pairs_in_list_order(device):
         b.add_cloth((folded + [0.0, 0.0, dz]).astype(np.float32), f,
                     ClothMaterialParams(mu=300.0, lam=100.0, thickness=0.001))
     m = b.finalize(device)
-    solver = SolverVBD(m, VBDConfig(substeps=1, iterations=2, coarse_sweeps=(), self_contact=True,
-                                    self_contact_radius=0.003, self_contact_pool=64))  # room for every record
+    cfg = VBDConfig(stepping=Stepping(substeps=1, iterations=2), coarse=CoarseConfig(sweeps=()),
+                    self_contact=SelfContactConfig(radius=0.003, pool=64))  # room for every record
+    solver = SolverVBD(m, cfg)
     state = m.state()
     solver.self_contact.detect(state.positions, state.velocities, 1.0 / 300.0)
     sc = solver.self_contact.data

@@ -62,10 +62,10 @@ def test_config_round_trips_and_refuses_unknown_keys():
     from sim.quality import QualityGates
 
     cfg = SimulationConfig(fps=24.0, substeps=7, pinned=("waistband", "shoulders"),
-                           solver={"contact_margin": 0.03}, gates=QualityGates(max_edge_strain=0.5))
+                           solver={"body_contact.margin": 0.03}, gates=QualityGates(max_edge_strain=0.5))
     d = json.loads(json.dumps(cfg.to_dict()))
     assert SimulationConfig.from_dict(d) == cfg
-    assert cfg.vbd_config().contact_margin == 0.03 and cfg.vbd_config().substeps == 7
+    assert cfg.vbd_config().body_contact.margin == 0.03 and cfg.vbd_config().stepping.substeps == 7
     with pytest.raises(WrinklesInputError, match="substep"):
         SimulationConfig.from_dict({**d, "substep": 3})
     with pytest.raises(WrinklesInputError, match="max_strain"):
@@ -86,37 +86,37 @@ def test_config_defaults_scale_substeps_and_sweeps_with_the_garment_size():
     """12 substeps x 5 sweeps up to 10k garment vertices, 14 x 8 above, with a coarse correction
     before sweep 2 either way; a number in the config wins; automatic survives the round trip."""
     vbd = SimulationConfig().vbd_config(4939)
-    assert (vbd.substeps, vbd.iterations, vbd.coarse_sweeps, vbd.coarse_spacing) == (12, 5, (2,), 0)
-    assert [SimulationConfig().vbd_config(n).substeps for n in SIZES] == [12, 12, 14, 14]
-    assert SimulationConfig(substeps=9).vbd_config(19_542).substeps == 9
+    assert (vbd.stepping.substeps, vbd.stepping.iterations, vbd.coarse.sweeps, vbd.coarse.spacing) == (
+        12, 5, (2,), 0)
+    assert [SimulationConfig().vbd_config(n).stepping.substeps for n in SIZES] == [12, 12, 14, 14]
+    assert SimulationConfig(substeps=9).vbd_config(19_542).stepping.substeps == 9
     assert SimulationConfig().substeps_for(30_000) == 14 and SimulationConfig.from_dict(
         SimulationConfig().to_dict()).substeps == 0
-    assert [SimulationConfig().vbd_config(n).iterations for n in SIZES] == [5, 5, 8, 8]
-    assert SimulationConfig().vbd_config(19_542).coarse_sweeps == (2,)
-    assert SimulationConfig(iterations=6).vbd_config(19_542).iterations == 6
+    assert [SimulationConfig().vbd_config(n).stepping.iterations for n in SIZES] == [5, 5, 8, 8]
+    assert SimulationConfig().vbd_config(19_542).coarse.sweeps == (2,)
+    assert SimulationConfig(iterations=6).vbd_config(19_542).stepping.iterations == 6
     assert SimulationConfig(iterations=6).iterations_for(1000) == 6
     assert SimulationConfig.from_dict(SimulationConfig().to_dict()).iterations == 0
     # a retry keeps the automatic sweeps
     import dataclasses
     retry = dataclasses.replace(SimulationConfig(), substeps=SimulationConfig().retry_substeps(19_542)[0])
-    assert (retry.vbd_config(19_542).substeps, retry.vbd_config(19_542).iterations) == (23, 8)
+    fine = retry.vbd_config(19_542).stepping
+    assert (fine.substeps, fine.iterations) == (23, 8)
     assert simulator_defaults()["iterations"] == {"default": 5, "fine": 8}
     with pytest.raises(WrinklesInputError, match="iterations must be an integer >= 0"):
         SimulationConfig(iterations=-1)
 
 
-def test_config_coarse_exclusion_on_fine_garments_and_no_coarse_guard():
-    """Self-contact pairs near at rest leave the coarse correction alone on fine garments only; the
-    job runs without the coarse overshoot guard a bare VBDConfig has; a solver override wins; a
-    dataset records both."""
-    exclusion = [SimulationConfig().vbd_config(n).self_contact_coarse_exclusion for n in SIZES]
+def test_config_coarse_exclusion_on_fine_garments():
+    """Self-contact pairs near at rest leave the coarse correction alone on fine garments only; a
+    solver override wins; a dataset records the exclusion and that the coarse system has no
+    overshoot guard."""
+    exclusion = [SimulationConfig().vbd_config(n).self_contact.coarse_exclusion for n in SIZES]
     assert exclusion == [0.0, 0.0, 0.006, 0.006]
-    assert SimulationConfig(solver={"self_contact_coarse_exclusion": 0.0}).vbd_config(
-        19_542).self_contact_coarse_exclusion == 0.0
+    assert SimulationConfig(solver={"self_contact.coarse_exclusion": 0.0}).vbd_config(
+        19_542).self_contact.coarse_exclusion == 0.0
     assert simulator_defaults()["coarse_exclusion"] == {"default": 0.0, "fine": 0.006}
-    assert VBDConfig().coarse_guard and simulator_defaults()["coarse_guard"] is False
-    assert not SimulationConfig().vbd_config(3_000).coarse_guard
-    assert SimulationConfig(solver={"coarse_guard": True}).vbd_config(19_542).coarse_guard
+    assert simulator_defaults()["coarse_guard"] is False
 
 
 def test_config_retry_ladder():
@@ -150,19 +150,31 @@ def test_simulator_defaults_record_the_templates_and_the_device_kind():
 
 
 def test_config_cuda_settings_and_their_overrides():
-    """The job's solver settings against a bare VBDConfig: fast math and the coarse prefactor on;
-    on CUDA 3 colours and the early coarse system, a proper colouring and in order on the CPU;
-    the solver dict wins over each."""
+    """The job's solver settings: on the CPU a coarse garment runs at a bare VBDConfig's (fast
+    math on, a proper colouring, in order); on CUDA 3 colours and the early coarse system; the
+    solver dict wins over each."""
     vbd = SimulationConfig().vbd_config(4939)
-    assert vbd.fast_math and not SimulationConfig(solver={"fast_math": False}).vbd_config().fast_math
-    assert not VBDConfig().fast_math
-    assert vbd.max_colors == 0 and SimulationConfig().vbd_config(4939, cuda=True).max_colors == 3
-    assert SimulationConfig(solver={"max_colors": 0}).vbd_config(4939, cuda=True).max_colors == 0
-    assert SimulationConfig(solver={"max_colors": 5}).vbd_config(4939).max_colors == 5
-    assert SimulationConfig().vbd_config(4939, cuda=True).coarse_early and not vbd.coarse_early
-    assert not SimulationConfig(solver={"coarse_early": False}).vbd_config(4939, cuda=True).coarse_early
-    assert vbd.coarse_prefactor and not VBDConfig().coarse_prefactor
-    assert not SimulationConfig(solver={"coarse_prefactor": False}).vbd_config().coarse_prefactor
+    assert vbd == VBDConfig()
+    cuda = SimulationConfig().vbd_config(4939, cuda=True)
+    assert vbd.layout.fast_math
+    assert not SimulationConfig(solver={"layout.fast_math": False}).vbd_config().layout.fast_math
+    assert vbd.layout.max_colors == 0 and cuda.layout.max_colors == 3
+    proper = SimulationConfig(solver={"layout.max_colors": 0}).vbd_config(4939, cuda=True)
+    assert proper.layout.max_colors == 0
+    assert SimulationConfig(solver={"layout.max_colors": 5}).vbd_config(4939).layout.max_colors == 5
+    assert cuda.coarse.early and not vbd.coarse.early
+    assert not SimulationConfig(solver={"coarse.early": False}).vbd_config(4939, cuda=True).coarse.early
+
+
+def test_cli_solver_params_reach_the_config_as_section_fields():
+    """``--solver-param section.field=VALUE`` items go to ``SimulationConfig.solver`` by their
+    keys, and from there over the job's settings."""
+    from pipelines.simulate_cmd import parse_solver_params
+
+    params = parse_solver_params(["body_contact.stiffness=2e5", " self_contact.radius = 0.004"])
+    assert params == {"body_contact.stiffness": 2e5, "self_contact.radius": 0.004}
+    vbd = SimulationConfig(solver=params).vbd_config()
+    assert vbd.body_contact.stiffness == 2e5 and vbd.self_contact.radius == 0.004
 
 
 def test_config_coarse_sweeps():
@@ -171,13 +183,13 @@ def test_config_coarse_sweeps():
     cfg = SimulationConfig(iterations=4, coarse_sweeps=[1, 3], coarse_spacing=3)
     d = json.loads(json.dumps(cfg.to_dict()))
     assert d["coarse_sweeps"] == [1, 3] and SimulationConfig.from_dict(d) == cfg
-    assert cfg.vbd_config().coarse_sweeps == (1, 3)
-    assert SimulationConfig(solver={"coarse_sweeps": ()}).vbd_config().coarse_sweeps == ()
+    assert cfg.vbd_config().coarse.sweeps == (1, 3)
+    assert SimulationConfig(solver={"coarse.sweeps": ()}).vbd_config().coarse.sweeps == ()
     # two sweeps leave no sweep 2 to correct before, so none
-    assert SimulationConfig(iterations=2).vbd_config().coarse_sweeps == ()
-    assert SimulationConfig(iterations=3).vbd_config().coarse_sweeps == (2,)
+    assert SimulationConfig(iterations=2).vbd_config().coarse.sweeps == ()
+    assert SimulationConfig(iterations=3).vbd_config().coarse.sweeps == (2,)
     assert SimulationConfig.from_dict(SimulationConfig().to_dict()).coarse_sweeps is None
-    with pytest.raises(WrinklesInputError, match="coarse_sweeps = \\[\\]"):
+    with pytest.raises(WrinklesInputError, match=r"coarse.sweeps .* 0\.\.1 .*or none: \[\]"):
         SimulationConfig(iterations=2, coarse_sweeps=[2])
     with pytest.raises(WrinklesInputError, match="coarse_sweeps must be a list"):
         SimulationConfig(coarse_sweeps=2)
@@ -571,8 +583,8 @@ def test_cli_explosion_is_one_line_nothing_written(tmp_path, capsys, monkeypatch
 @pytest.mark.parametrize("case", ["unknown_garment", "unknown_material", "unknown_garment_param",
                                   "bad_garment_param", "bad_suffix", "missing_garment_file", "bad_resolution",
                                   "bad_material_param", "params_for_file", "bad_coarse_sweeps",
-                                  "late_coarse_sweep", "text_material_param", "unknown_pin",
-                                  "pin_the_garment_lacks", "huge_beta", "into_a_new_folder"])
+                                  "late_coarse_sweep", "unsectioned_solver_param", "text_material_param",
+                                  "unknown_pin", "pin_the_garment_lacks", "huge_beta", "into_a_new_folder"])
 def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
     out = tmp_path / "o.usda"
     args = ["simulate", "--out", str(out), *CLI_FAST]
@@ -605,7 +617,10 @@ def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
         needles = ("--coarse-sweeps", "'none'")
     elif case == "late_coarse_sweep":
         args += ["--iterations", "3", "--coarse-sweeps", "1,3"]
-        needles = ("coarse_sweeps", "0..2")
+        needles = ("coarse.sweeps", "0..2")
+    elif case == "unsectioned_solver_param":  # solver settings are section.field
+        args += ["--solver-param", "contact_stiffness=2e5"]
+        needles = ("contact_stiffness", "section.field", "body_contact")
     elif case == "text_material_param":
         args += ["--material-param", "name=3"]
         needles = ("--material-param name", "density [kg/m²]")

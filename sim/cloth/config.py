@@ -17,7 +17,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from sim.cloth.flat_config import accept_flat_fields
 from sim.errors import WrinklesInputError
 
 FINE_GARMENT_VERTICES = 10_000
@@ -281,7 +280,6 @@ SECTION_TYPES: dict[str, type] = {"stepping": Stepping, "body_contact": BodyCont
 """The dataclass of each section."""
 
 
-@accept_flat_fields
 @dataclass(frozen=True)
 class VBDConfig:
     """Solver settings, by section (each validates its own fields; ``ValueError`` names the field).
