@@ -142,11 +142,11 @@ class SimulationConfig:
         iterations: VBD Gauss-Seidel sweeps per substep; 0, the default:
             ``default_iterations`` of the run's largest garment (5, or 8 over 10k vertices).
         coarse_sweeps: sweeps (0 .. iterations - 1) before which a coarse-level correction runs
-            (``VBDConfig.coarse_sweeps``; empty: none; None, the default: before sweep 2 where
+            (``VBDConfig.coarse.sweeps``; empty: none; None, the default: before sweep 2 where
             there are 3 or more sweeps, else none).
-        coarse_spacing: the coarse level's aggregate spacing [edges] (``VBDConfig``; 0: 4, with
-            a third level for a garment whose coarse level has more than 256 nodes,
-            ``VBDConfig.coarse_levels``).
+        coarse_spacing: the coarse level's aggregate spacing [edges] (``VBDConfig.coarse.spacing``;
+            0: 4, with a third level for a garment whose coarse level has more than 256 nodes,
+            ``VBDConfig.coarse.levels``).
         settle_seconds: time [s] the garment settles on the static rest body before the body
             moves.
         blend_seconds: time [s] of the eased transition from rest into the motion's first pose.
@@ -158,8 +158,8 @@ class SimulationConfig:
             skipped; an imported garment has none).
         ground: stand the body on the floor (y = 0) at the motion's first frame.
         self_contact: cloth self-contact on/off in the solver (default on: without it every
-            fine garment folds through itself and fails the self-intersection gate); None
-            keeps the solver's own default (off, for solver-level use).
+            fine garment folds through itself and fails the self-intersection gate); None: as the
+            ``solver`` overrides leave it (on).
         solver: solver settings over the job's, as ``"section.field": value`` (``sim.cloth.config``:
             ``"body_contact.stiffness"`` [N/m], ``"self_contact.radius"`` [m] ...).
         gates: quality thresholds a sequence must meet.
