@@ -1,7 +1,7 @@
 """Close-up of the shipped wrinkle model for docs/WRINKLES.md: the CVAE base mesh (left) and the
 same frame with the sampled wrinkles decoded onto it (right), garment only.
 
-    python tools/render_closeup.py                       # docs/images/animate_closeup_run8.png
+    python tools/render_closeup.py                       # docs/images/animate_closeup.png
     python tools/render_closeup.py --garment straight_skirt --out skirt.png --steps 20
 """
 
@@ -19,7 +19,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--motion", default="walk")
     ap.add_argument("--frames", type=int, default=24, help="frames of the motion; the last is drawn")
     ap.add_argument("--steps", type=int, default=50, help="DDIM steps")
-    ap.add_argument("--out", default="docs/images/animate_closeup_run8.png")
+    ap.add_argument("--out", default="docs/images/animate_closeup.png")
     args = ap.parse_args(argv)
 
     from PIL import Image
