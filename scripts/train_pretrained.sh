@@ -10,8 +10,8 @@
 # STAGES picks stages (default "generate train export evaluate"). On a machine that has only the
 # release files (WORKDIR/release, e.g. a second GPU lease), "testdata evaluate" makes the two test
 # splits again (dataset generate --splits: a sequence's split comes from the config) and evaluates;
-# run it at the commit that made the weights' data (the garment templates changed in session 8:
-# the run-8 weights need a checkout from before commit 2cede2f, whose t-shirt has other vertices).
+# run it at the commit that made the weights' data (the shipped weights: ccbf097; later garment
+# templates have other vertices).
 set -u
 W=${1:?work directory}; GEN=${2:-420}; TRAIN=${3:-600}
 STAGES=" ${STAGES:-generate train export evaluate} "
