@@ -100,6 +100,7 @@ def test_automatic_spacing_is_the_least_from_4_that_fits_the_node_cap():
     assert nodes == sorted([len(aggregate(mesh_edge_graph(len(v2), f2), 4)[1]), counts[least]])
 
 
+@pytest.mark.slow
 def test_automatic_levels_add_an_inner_level_where_spacing_4_has_too_many_nodes():
     """Spacing 0 and levels 0 (the job's): spacing 4 everywhere; the 9k-vertex sheet's ~370 nodes
     get an inner level of at most ``AUTO_MAX_NODES`` on their aggregate graph (the least spacing
