@@ -31,42 +31,22 @@ Modules:
 """
 
 from sim.simulate.config import (
-    CUDA_COARSE_EARLY,
-    CUDA_COLORS,
-    DEFAULT_ITERATIONS,
     DEFAULT_PINNED,
-    DEFAULT_SUBSTEPS,
-    FINE_COARSE_EXCLUSION,
-    FINE_GARMENT_VERTICES,
-    FINE_ITERATIONS,
     FINE_RETRY_FACTORS,
-    FINE_SUBSTEPS,
-    JOB_COARSE_GUARD,
     RETRY_FACTORS,
     SimulationConfig,
-    default_iterations,
     default_retry_factors,
-    default_substeps,
     retry_substeps,
     simulator_defaults,
 )
 from sim.simulate.driver import ProgressFn, body_mean_velocities, simulate, simulate_batch
 from sim.simulate.jobs import SimulationJob, resolve_betas
-from sim.simulate.prelude import MORPH_FRACTION, morph_frames, morph_settle, prepare_track, smoothstep
-from sim.simulate.results import SimulationResult, package_versions
+from sim.simulate.prelude import MORPH_FRACTION, morph_frames, morph_settle, prepare_track
+from sim.simulate.results import SimulationResult
 
 __all__ = [
-    "CUDA_COARSE_EARLY",
-    "CUDA_COLORS",
-    "DEFAULT_ITERATIONS",
     "DEFAULT_PINNED",
-    "DEFAULT_SUBSTEPS",
-    "FINE_COARSE_EXCLUSION",
-    "FINE_GARMENT_VERTICES",
-    "FINE_ITERATIONS",
     "FINE_RETRY_FACTORS",
-    "FINE_SUBSTEPS",
-    "JOB_COARSE_GUARD",
     "MORPH_FRACTION",
     "RETRY_FACTORS",
     "ProgressFn",
@@ -74,17 +54,13 @@ __all__ = [
     "SimulationJob",
     "SimulationResult",
     "body_mean_velocities",
-    "default_iterations",
     "default_retry_factors",
-    "default_substeps",
     "morph_frames",
     "morph_settle",
-    "package_versions",
     "prepare_track",
     "resolve_betas",
     "retry_substeps",
     "simulate",
     "simulate_batch",
     "simulator_defaults",
-    "smoothstep",
 ]

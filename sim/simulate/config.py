@@ -24,6 +24,8 @@ from sim.cloth.config import (
     FINE_SUBSTEPS,
     JOB_COARSE_GUARD,
     VBDConfig,
+    default_iterations,
+    default_substeps,
     job_config,
 )
 from sim.errors import WrinklesInputError
@@ -34,18 +36,6 @@ DEFAULT_PINNED: tuple[str, ...] = ("waistband",)
 hang on the shoulders by contact and friction: pinning their shoulder line to the skin drags
 it with the deltoid, whose skin stretches and folds as the arm moves (edge strain up to 0.9 on
 the walk's T-pose-to-arms-down ramp against 0.6 free). Hems and cuffs stay free."""
-
-# --------------------------------------------------------------------- the job's solver defaults
-
-def default_substeps(vertices: int) -> int:
-    """Substeps per frame of the job default for a garment of ``vertices`` vertices."""
-    return FINE_SUBSTEPS if vertices > FINE_GARMENT_VERTICES else DEFAULT_SUBSTEPS
-
-
-def default_iterations(vertices: int) -> int:
-    """Sweeps per substep of the job default for a garment of ``vertices`` vertices."""
-    return FINE_ITERATIONS if vertices > FINE_GARMENT_VERTICES else DEFAULT_ITERATIONS
-
 
 # ---------------------------------------------------------------------------------- retries
 
