@@ -39,33 +39,12 @@ def sheet(n: int, size: float = 1.0, y: float = SHEET_HEIGHT) -> tuple[np.ndarra
     return v.astype(np.float32), np.asarray(f, np.int32)
 
 
-def uv_sphere(radius: float, n_lat: int = 100, n_lon: int = 140) -> tuple[np.ndarray, np.ndarray]:
-    """A closed sphere at the origin, faces counter-clockwise seen from outside."""
-    v = [(0.0, radius, 0.0)]
-    for i in range(1, n_lat):
-        th = np.pi * i / n_lat
-        for j in range(n_lon):
-            ph = 2 * np.pi * j / n_lon
-            s = radius * np.sin(th)
-            v.append((s * np.cos(ph), radius * np.cos(th), s * np.sin(ph)))
-    v.append((0.0, -radius, 0.0))
-    bottom = len(v) - 1
-    f = [(0, 1 + (j + 1) % n_lon, 1 + j) for j in range(n_lon)]
-    for i in range(n_lat - 2):
-        r0, r1 = 1 + i * n_lon, 1 + (i + 1) * n_lon
-        for j in range(n_lon):
-            j1 = (j + 1) % n_lon
-            f += [(r0 + j, r0 + j1, r1 + j), (r0 + j1, r1 + j1, r1 + j)]
-    r = 1 + (n_lat - 2) * n_lon
-    f += [(bottom, r + j, r + (j + 1) % n_lon) for j in range(n_lon)]
-    return np.asarray(v, np.float32), np.asarray(f, np.int32)
-
-
 def build(instances: int, args: argparse.Namespace, device: str):
     """(model, solver, control, body triangles) of ``instances`` sheets over one sphere."""
     from sim.cloth import BodyCollider, ClothModelBuilder, SolverVBD, job_config
     from sim.device import warp
     from sim.garments.materials import get_material
+    from sim.geometry.primitives import uv_sphere
 
     v, f = sheet(args.n)
     config = job_config(len(v), warp().get_device(device).is_cuda, substeps=args.substeps,
@@ -75,7 +54,7 @@ def build(instances: int, args: argparse.Namespace, device: str):
     for _ in range(instances):
         builder.add_cloth(v, f, get_material("cotton"))
     model = builder.finalize(device)
-    sv, sf = uv_sphere(SPHERE_RADIUS)
+    sv, sf = uv_sphere(SPHERE_RADIUS, n_lat=100, n_lon=140)
     body = BodyCollider(sv, sf, device=device)
     body.set_frame(sv, sv)
     control = model.control()

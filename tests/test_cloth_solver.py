@@ -28,6 +28,7 @@ from sim.cloth.coloring import (
 )
 from sim.cloth.model import build_hinges, dihedral_angles
 from sim.device import warp
+from sim.geometry.primitives import uv_sphere
 
 G = 9.81
 
@@ -50,36 +51,6 @@ def grid(nx: int, ny: int, width: float, length: float, *,
             b, c = a + 1, a + nx
             f += [(a, c, b), (b, c, c + 1)]
     return v.astype(np.float32), np.asarray(f, dtype=np.int32)
-
-
-def uv_sphere(center, radius: float, n_lat: int = 16, n_lon: int = 24) -> tuple[np.ndarray, np.ndarray]:
-    """Closed, outward-oriented sphere mesh."""
-    v = [(0.0, radius, 0.0)]
-    for i in range(1, n_lat):
-        th = np.pi * i / n_lat
-        for j in range(n_lon):
-            ph = 2 * np.pi * j / n_lon
-            s = radius * np.sin(th)
-            v.append((s * np.cos(ph), radius * np.cos(th), s * np.sin(ph)))
-    v.append((0.0, -radius, 0.0))
-    f = []
-    bottom = len(v) - 1
-    for j in range(n_lon):
-        f.append((0, 1 + (j + 1) % n_lon, 1 + j))
-    for i in range(n_lat - 2):
-        r0, r1 = 1 + i * n_lon, 1 + (i + 1) * n_lon
-        for j in range(n_lon):
-            j1 = (j + 1) % n_lon
-            f += [(r0 + j, r0 + j1, r1 + j), (r0 + j1, r1 + j1, r1 + j)]
-    r = 1 + (n_lat - 2) * n_lon
-    for j in range(n_lon):
-        f.append((bottom, r + j, r + (j + 1) % n_lon))
-    v = np.asarray(v, dtype=np.float32) + np.asarray(center, dtype=np.float32)
-    f = np.asarray(f, dtype=np.int32)
-    # outward orientation: positive signed volume
-    a, b, c = (v[f[:, k]].astype(np.float64) - np.asarray(center) for k in range(3))
-    assert np.sum(np.einsum("ij,ij->i", a, np.cross(b, c))) > 0
-    return v, f
 
 
 def plain_config(substeps: int, iterations: int, air_damping: float = 0.5, **sections) -> VBDConfig:
@@ -344,7 +315,7 @@ def drop_on_sphere(device, steps: int = 30):
     b = ClothModelBuilder()
     b.add_cloth(v, f, ClothMaterialParams(bending=1e-5, friction=0.5, thickness=0.005))
     m = b.finalize(device)
-    sv, sf = uv_sphere((0.0, 0.0, 0.0), 0.2)
+    sv, sf = uv_sphere(0.2)
     body = BodyCollider(sv, sf, device=device)
     control = m.control()
     control.set_body(0, body)
@@ -372,7 +343,7 @@ def test_fast_sphere_through_hanging_cloth_does_not_tunnel(device):
     b.add_cloth(v, f, ClothMaterialParams(mu=200.0, lam=100.0, friction=0.3, thickness=0.005),
                 pinned=np.arange(15))
     m = b.finalize(device)
-    sv, sf = uv_sphere((0.0, 0.0, 0.0), 0.12)
+    sv, sf = uv_sphere(0.12)
     start = np.array([0.0, 0.6, -0.3], dtype=np.float32)
     dt, speed = 1.0 / 30.0, 5.0
 
@@ -408,7 +379,7 @@ def test_batched_instances_match_separate_runs(device):
     va, fa = grid(9, 7, 0.4, 0.3, plane="xz")
     va = va + np.array([-0.2, 0.22, -0.15], dtype=np.float32)
     vb, fb = grid(6, 10, 0.3, 0.5)
-    sv, sf = uv_sphere((0.0, 0.0, 0.0), 0.2)
+    sv, sf = uv_sphere(0.2)
     cfg = plain_config(3, 4)
 
     def build(parts):
@@ -615,7 +586,7 @@ def test_a_step_captured_in_a_cuda_graph_takes_the_plain_step(device, coarse):
     wp = warp()
     m, *start = draped_layers_in_contact(device)
     centre = start[0].mean(axis=0) - np.array([0.0, 0.012, 0.0], np.float32)
-    sphere_v, sphere_f = uv_sphere(centre, 0.01)
+    sphere_v, sphere_f = uv_sphere(0.01, center=centre)
     out = []
     for mode in ("in order", "plain", "graph"):
         solver = SolverVBD(m, plain_config(3, 4, self_contact=SelfContactConfig(), coarse=coarse))

@@ -38,9 +38,9 @@ def test_distance_to_boundary_on_a_grid_is_the_distance_to_the_nearest_side():
 
 
 def test_a_closed_mesh_has_no_hem():
-    from tests.test_cloth_solver import uv_sphere
+    from sim.geometry.primitives import uv_sphere
 
-    v, f = uv_sphere((0.0, 0.0, 0.0), 0.2)
+    v, f = uv_sphere(0.2)
     assert np.isinf(distance_to_boundary(v, f)).all()
     np.testing.assert_array_equal(hem_face_layers(v, f, 0.05, 2.0), 1.0)
 
