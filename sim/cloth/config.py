@@ -65,10 +65,6 @@ def default_iterations(vertices: int) -> int:
     return FINE_ITERATIONS if vertices > FINE_GARMENT_VERTICES else DEFAULT_ITERATIONS
 
 
-SECTIONS = ("stepping", "body_contact", "self_contact", "coarse", "layout")
-"""The sections of a ``VBDConfig``, as they are named in override keys and in ``to_dict``."""
-
-
 def _require(section: str, name: str, value: Any, ok: bool, rule: str) -> None:
     if not ok:
         raise ValueError(f"VBDConfig.{section}.{name} must be {rule}, got {value!r}")
@@ -288,6 +284,9 @@ SECTION_TYPES: dict[str, type] = {"stepping": Stepping, "body_contact": BodyCont
                                   "self_contact": SelfContactConfig, "coarse": CoarseConfig,
                                   "layout": KernelLayout}
 """The dataclass of each section."""
+
+SECTIONS = tuple(SECTION_TYPES)
+"""The sections of a ``VBDConfig``, as they are named in override keys and in ``to_dict``."""
 
 
 @dataclass(frozen=True)
