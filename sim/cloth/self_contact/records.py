@@ -25,32 +25,21 @@ def held_pairs(rk: wp.array(dtype=wp.int32), base: int, n: int) -> int:
 
 
 @wp.func
-def triangle_pairs(i: int, vertex_tri_offsets: wp.array(dtype=wp.int32),
-                   vertex_tri_ids: wp.array(dtype=wp.int32), near: bool, held: int, sc: SelfContactData):
-    """The TV pairs of vertex ``i``'s triangles: writes each incident triangle's offset
-    (``tv_first``), returns their number and ``held`` plus those that hold back the coarse
-    correction (counted with ``near`` only)."""
-    tv = int(0)
-    for k in range(vertex_tri_offsets[i], vertex_tri_offsets[i + 1]):
-        t = vertex_tri_ids[k]
-        sc.tv_first[k] = tv
-        tv += sc.tv_count[t]
+def incident_pairs(i: int, offsets: wp.array(dtype=wp.int32), ids: wp.array(dtype=wp.int32),
+                   counts: wp.array(dtype=wp.int32), rk: wp.array(dtype=wp.int32), capacity: int,
+                   first_out: wp.array(dtype=wp.int32), near: bool, held: int):
+    """The pairs of vertex ``i``'s incident triangles (TV lists) or edges (EE lists): writes each
+    incident entry's offset among them (``first_out``: ``tv_first`` / ``ee_first``), returns
+    their number and ``held`` plus those that hold back the coarse correction (counted with
+    ``near`` only)."""
+    n = int(0)
+    for k in range(offsets[i], offsets[i + 1]):
+        o = ids[k]
+        first_out[k] = n
+        n += counts[o]
         if near:
-            held += held_pairs(sc.tv_rk, t * sc.tv_capacity, sc.tv_count[t])
-    return tv, held
-
-
-@wp.func
-def edge_pairs(i: int, near: bool, held: int, sc: SelfContactData):
-    """The EE pairs of vertex ``i``'s edges, as ``triangle_pairs`` (``ee_first``)."""
-    ee = int(0)
-    for k in range(sc.vertex_edge_offsets[i], sc.vertex_edge_offsets[i + 1]):
-        e = sc.vertex_edge_ids[k]
-        sc.ee_first[k] = ee
-        ee += sc.ee_count[e]
-        if near:
-            held += held_pairs(sc.ee_rk, e * sc.ee_capacity, sc.ee_count[e])
-    return ee, held
+            held += held_pairs(rk, o * capacity, counts[o])
+    return n, held
 
 
 @wp.func
@@ -102,8 +91,10 @@ def vertex_summary_kernel(
     held = int(0)
     if near:
         held += held_pairs(sc_inout.vt_rk, i * sc_inout.vt_capacity, vt)
-    tv, held = triangle_pairs(i, vertex_tri_offsets, vertex_tri_ids, near, held, sc_inout)
-    ee, held = edge_pairs(i, near, held, sc_inout)
+    tv, held = incident_pairs(i, vertex_tri_offsets, vertex_tri_ids, sc_inout.tv_count, sc_inout.tv_rk,
+                              sc_inout.tv_capacity, sc_inout.tv_first, near, held)
+    ee, held = incident_pairs(i, sc_inout.vertex_edge_offsets, sc_inout.vertex_edge_ids, sc_inout.ee_count,
+                              sc_inout.ee_rk, sc_inout.ee_capacity, sc_inout.ee_first, near, held)
     sc_inout.tv_total[i] = tv
     sc_inout.ee_total[i] = ee
     total = vt + tv + ee
