@@ -23,6 +23,7 @@ from sim.cloth.self_contact import (
     triangle_closest_bary,
 )
 from tests.self_contact_scenes import (
+    bary_np,
     closest_point_triangle_np,
     contact_energy_np,
     contact_pairs_np,
@@ -54,6 +55,26 @@ def test_closest_point_on_triangle_matches_brute_force(device):
     # the sampled reference is an upper bound within its grid spacing
     assert np.all(d <= d_ref + 1e-5)
     assert np.all(d >= d_ref - 0.01)
+
+
+def test_closest_point_weights_in_each_voronoi_region(device):
+    """Ericson's seven regions of a triangle: a point beyond a corner gets exactly that corner,
+    one beyond an edge no weight on the opposite corner, one above the face its projection."""
+    a, b, c = np.array([0.0, 0.0, 0.0]), np.array([1.0, 0.1, 0.0]), np.array([0.3, 0.8, 0.2])
+    up = np.cross(b - a, c - a) / np.linalg.norm(np.cross(b - a, c - a))
+    centroid = (a + b + c) / 3.0
+    corners = [a + 0.5 * (a - centroid), b + 0.5 * (b - centroid), c + 0.5 * (c - centroid)]
+    edges = [(x + y) / 2.0 + 0.4 * ((x + y) / 2.0 - centroid) for x, y in ((a, b), (a, c), (b, c))]
+    p = np.array(corners + edges + [centroid + 0.3 * up, 0.2 * a + 0.5 * b + 0.3 * c - 0.1 * up])
+    out = wp.zeros(len(p), dtype=wp.vec3, device=device)
+    wp.launch(_bary_kernel, dim=len(p), inputs=[wp.array(p.astype(np.float32), dtype=wp.vec3, device=device),
+                                                 wp.vec3(*a), wp.vec3(*b), wp.vec3(*c)], outputs=[out], device=device)
+    w = out.numpy().astype(np.float64)
+    np.testing.assert_array_equal(w[:3], np.eye(3))
+    for row, zero in zip(w[3:6], (2, 1, 0)):
+        assert row[zero] == 0.0 and np.delete(row, zero).min() > 0.0
+    ref = np.array([bary_np(q, a, b, c) for q in p])
+    np.testing.assert_allclose(w, ref, atol=2e-6)
 
 
 @wp.kernel

@@ -14,40 +14,41 @@ RADIUS_CODES = 255
 @wp.func
 def triangle_closest_bary(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> wp.vec3:
     """Barycentric weights (of a, b, c) of the point of triangle abc closest to ``p``
-    (Ericson, Real-Time Collision Detection, 5.1.5)."""
+    (Ericson, Real-Time Collision Detection, 5.1.5: the Voronoi regions in his order, corner a,
+    corner b, edge ab, corner c, edge ac, edge bc, interior). Branch-free, each region's weights
+    computed as Ericson does and the first region that holds selected: the same floats as his
+    early returns. Inlined into a BVH query loop, the early returns make the CUDA compiler
+    reconverge the warp after every leaf the traversal finds, and the self-contact vertex and
+    triangle queries took 2.5x as long (H200, 128 t-shirts; docs/DECISIONS.md)."""
     ab = b - a
     ac = c - a
     ap = p - a
+    bp = p - b
+    cp = p - c
     d1 = wp.dot(ab, ap)
     d2 = wp.dot(ac, ap)
-    if d1 <= 0.0 and d2 <= 0.0:
-        return wp.vec3(1.0, 0.0, 0.0)
-    bp = p - b
     d3 = wp.dot(ab, bp)
     d4 = wp.dot(ac, bp)
-    if d3 >= 0.0 and d4 <= d3:
-        return wp.vec3(0.0, 1.0, 0.0)
-    vc = d1 * d4 - d3 * d2
-    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
-        v = d1 / (d1 - d3)
-        return wp.vec3(1.0 - v, v, 0.0)
-    cp = p - c
     d5 = wp.dot(ab, cp)
     d6 = wp.dot(ac, cp)
-    if d6 >= 0.0 and d5 <= d6:
-        return wp.vec3(0.0, 0.0, 1.0)
-    vb = d5 * d2 - d1 * d6
-    if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
-        w = d2 / (d2 - d6)
-        return wp.vec3(1.0 - w, 0.0, w)
     va = d3 * d6 - d5 * d4
-    if va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
-        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        return wp.vec3(0.0, 1.0 - w, w)
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    on_ab = vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0
+    on_ac = vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0
+    # the parameter along the edge of whichever edge region holds: one division
+    num = wp.where(on_ab, d1, wp.where(on_ac, d2, d4 - d3))
+    t = num / wp.where(on_ab, d1 - d3, wp.where(on_ac, d2 - d6, (d4 - d3) + (d5 - d6)))
     denom = 1.0 / (va + vb + vc)
     v = vb * denom
     w = vc * denom
-    return wp.vec3(1.0 - v - w, v, w)
+    out = wp.vec3(1.0 - v - w, v, w)
+    out = wp.where(va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0, wp.vec3(0.0, 1.0 - t, t), out)
+    out = wp.where(on_ac, wp.vec3(1.0 - t, 0.0, t), out)
+    out = wp.where(d6 >= 0.0 and d5 <= d6, wp.vec3(0.0, 0.0, 1.0), out)
+    out = wp.where(on_ab, wp.vec3(1.0 - t, t, 0.0), out)
+    out = wp.where(d3 >= 0.0 and d4 <= d3, wp.vec3(0.0, 1.0, 0.0), out)
+    return wp.where(d1 <= 0.0 and d2 <= 0.0, wp.vec3(1.0, 0.0, 0.0), out)
 
 
 @wp.func
