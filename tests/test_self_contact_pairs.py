@@ -67,11 +67,12 @@ def test_closest_point_weights_in_each_voronoi_region(device):
     edges = [(x + y) / 2.0 + 0.4 * ((x + y) / 2.0 - centroid) for x, y in ((a, b), (a, c), (b, c))]
     p = np.array(corners + edges + [centroid + 0.3 * up, 0.2 * a + 0.5 * b + 0.3 * c - 0.1 * up])
     out = wp.zeros(len(p), dtype=wp.vec3, device=device)
-    wp.launch(_bary_kernel, dim=len(p), inputs=[wp.array(p.astype(np.float32), dtype=wp.vec3, device=device),
-                                                 wp.vec3(*a), wp.vec3(*b), wp.vec3(*c)], outputs=[out], device=device)
+    points = wp.array(p.astype(np.float32), dtype=wp.vec3, device=device)
+    wp.launch(_bary_kernel, dim=len(p), inputs=[points, wp.vec3(*a), wp.vec3(*b), wp.vec3(*c)], outputs=[out],
+              device=device)
     w = out.numpy().astype(np.float64)
     np.testing.assert_array_equal(w[:3], np.eye(3))
-    for row, zero in zip(w[3:6], (2, 1, 0)):
+    for row, zero in zip(w[3:6], (2, 1, 0), strict=True):
         assert row[zero] == 0.0 and np.delete(row, zero).min() > 0.0
     ref = np.array([bary_np(q, a, b, c) for q in p])
     np.testing.assert_allclose(w, ref, atol=2e-6)
