@@ -17,13 +17,16 @@ optional MP4/GIF preview and PNG contact sheet.
 
 The body is the embedded default body (no download, no licence wall) or an SMPL, SMPL-H or
 SMPL-X model file you supply (.npz or .pkl). The motion is a name from the procedural
-library ('wrinkles motions' lists them) or an AMASS .npz / BVH file.
+library ('wrinkles motions' lists them) or an AMASS .npz / BVH file. A BVH file's rest pose
+(all rotations zero) is read as SMPL's T-pose with the file's own limb directions, so A-pose
+and CMU rests come out with the head level and the wrists straight; --rest changes that.
 
 examples:
-  wrinkles body --motion walk --out walk.usda --preview walk.mp4
-  wrinkles body --motion run --param speed=3.5 --shape height=0.6,weight=0.3 --out run.usdc
-  wrinkles body --body SMPL_NEUTRAL.npz --motion CMU_01_01.npz --fps 30 --out clip.usda
-  wrinkles body --motion capture.bvh --shape 1.0,-0.5 --out capture.usda --sheet capture.png
+  wrinkles body --motion walk --out walk.usdc --preview walk.mp4
+  wrinkles body --motion run --motion-param speed=3.5 --shape height=0.6,weight=0.3 --out run.usdc
+  wrinkles body --body SMPL_NEUTRAL.npz --motion CMU_01_01.npz --fps 30 --out clip.usdc
+  wrinkles body --motion capture.bvh --shape 1.0,-0.5 --out capture.usdc --sheet capture.png
+  wrinkles body --motion capture.bvh --rest tpose --out capture.usdc
   wrinkles body --motion squat --self-crossings --out squat.usda
 """
 
@@ -32,8 +35,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     add_motion_arguments(p)
     add_body_arguments(p)
-    p.add_argument("--out", required=False, default="out/body.usda",
-                   help="USD stage to write: .usda (text), .usdc or .usd (binary) "
+    p.add_argument("--out", required=False, default="out/body.usdc",
+                   help="USD stage to write: .usdc or .usd (binary, compact), .usda (text) "
                         "(default: %(default)s)")
     p.add_argument("--preview", default=None, help="preview video to write (.mp4 or .gif)")
     p.add_argument("--sheet", default=None, help="contact sheet PNG to write (8 frames)")

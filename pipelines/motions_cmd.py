@@ -8,8 +8,9 @@ import textwrap
 HELP = "list the procedural motions with their descriptions and parameters"
 DESCRIPTION = """\
 List the procedural motion library. Each motion is a name usable as 'wrinkles body --motion
-NAME', with parameters set by '--param KEY=VALUE'. Motions can also come from AMASS .npz
-(SMPL, SMPL-H, SMPL-X layouts) and BVH files (CMU- and Mixamo-style skeletons), given as paths.
+NAME', with parameters set by '--motion-param KEY=VALUE' (or its short form '--param'). Motions
+can also come from AMASS .npz (SMPL, SMPL-H, SMPL-X layouts) and BVH files (CMU- and
+Mixamo-style skeletons; '--rest' says what the file's rest pose stands for), given as paths.
 """
 
 
@@ -26,6 +27,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"{name:<{width}}  {desc}")
         if args.params:
             for pname, default, doc in motion_parameters(name):
-                line = f"--param {pname}={default}  {doc}"
+                line = f"--motion-param {pname}={default}  {doc}"
                 print(textwrap.indent(textwrap.fill(line, 96, subsequent_indent="    "), " " * (width + 4)))
     return 0

@@ -25,13 +25,27 @@ def add_common_arguments(p: argparse.ArgumentParser, *, seed: bool = True, devic
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
 
 
+REST_HELP = ("what a BVH file's rest pose (all rotations zero) stands for. auto: SMPL's T-pose with the "
+             "file's limb directions (thighs, shins, upper arms and forearms point as in the file, so an "
+             "A-pose rest or CMU's spread legs stay so), the hands continuing the forearms, the torso "
+             "upright, the head level and the feet flat. tpose: SMPL's T-pose as it is. file: every bone, "
+             "spine, neck, head and hands included, points as in the file (this tilts the head and bends "
+             "the wrists where the skeleton places those joints differently from SMPL). BVH files only: "
+             "AMASS and procedural motions are SMPL rotations already, and --rest with them is refused "
+             "(default: auto)")
+"""``--rest`` help, beside ``sim.motions.bvh.REST_MODES`` whose meanings it states."""
+
+
 def add_motion_arguments(p: argparse.ArgumentParser) -> None:
-    """``--motion``, ``--param``, ``--duration``, ``--fps``."""
+    """``--motion``, ``--motion-param`` (alias ``--param``), ``--rest``, ``--duration``, ``--fps``."""
     p.add_argument("--motion", default="walk",
                    help="procedural motion name, or an AMASS .npz / .bvh file (default: %(default)s)")
-    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                   help="a procedural motion parameter, e.g. --param speed=1.6 (repeatable; "
-                        "'wrinkles motions --params' lists each motion's parameters)")
+    p.add_argument("--motion-param", "--param", dest="motion_param", action="append", default=[],
+                   metavar="KEY=VALUE",
+                   help="a motion parameter, e.g. --motion-param speed=1.6 (repeatable; 'wrinkles motions "
+                        "--params' lists each procedural motion's parameters; for a file, the loader's "
+                        "options, e.g. scale=0.01 for a BVH in centimetres); --param is the same option")
+    p.add_argument("--rest", default=None, metavar="{auto,tpose,file}", help=REST_HELP)
     p.add_argument("--duration", type=float, default=None,
                    help="length of a procedural motion [s], or where to cut a file (default: the "
                         "motion's own)")
@@ -91,7 +105,7 @@ def join_negative_values(argv: list[str], options: tuple[str, ...] = NUMBER_LIST
     return out
 
 
-def parse_params(items: list[str], flag: str = "--param") -> dict[str, float | str]:
+def parse_params(items: list[str], flag: str) -> dict[str, float | str]:
     """``["speed=1.5", "side=left"]`` -> ``{"speed": 1.5, "side": "left"}`` (numbers where they parse)."""
     out: dict[str, float | str] = {}
     for item in items:
@@ -153,13 +167,14 @@ def check_fps(fps: float) -> None:
 
 @dataclass(frozen=True)
 class BodyAndMotion:
-    """What ``--body/--shape/--motion/--param/--duration/--fps`` resolve to.
+    """What ``--body/--shape/--motion/--motion-param/--rest/--duration/--fps`` resolve to.
 
     Attributes:
         body: the ``BodyModel``.
         betas: the shape used (B,): ``--shape``, else the motion's own (AMASS), else the mean.
         motion: the motion at ``--fps``.
-        params: the procedural parameters (with the seed where the motion takes one).
+        params: the procedural parameters (with the seed where the motion takes one), or a file
+            loader's options (a BVH's ``rest`` included).
     """
 
     body: object
@@ -168,19 +183,58 @@ class BodyAndMotion:
     params: dict
 
 
+def motion_params(args: argparse.Namespace) -> dict[str, float | str]:
+    """``--motion-param`` items with ``--rest``, checked before anything loads.
+
+    ``--rest`` sets a BVH file's ``rest`` option (``auto`` when not given, recorded with the
+    parameters); for any other motion it is refused, as is a rest given both ways.
+    """
+    from pathlib import Path
+
+    from sim.motions.bvh import REST_MODES
+
+    params = parse_params(args.motion_param, "--motion-param")
+    is_bvh = Path(str(args.motion)).suffix.lower() == ".bvh"
+    if args.rest is not None:
+        if args.rest not in REST_MODES:
+            raise WrinklesInputError(f"--rest {args.rest!r}: expected one of {', '.join(REST_MODES)}")
+        if not is_bvh:
+            raise WrinklesInputError(f"--rest applies to BVH files; the motion {args.motion!r} is already in "
+                                     "SMPL's rotations (zero is SMPL's T-pose)")
+        if "rest" in params:
+            raise WrinklesInputError("the rest pose is given twice (--rest and --motion-param rest=...); "
+                                     "keep --rest")
+        params["rest"] = args.rest
+    elif is_bvh:
+        params.setdefault("rest", "auto")
+    return params
+
+
 def load_body_and_motion(args: argparse.Namespace) -> BodyAndMotion:
-    """Load the body and motion the shared options name (``args.seed`` seeds random motions)."""
+    """Load the body and motion the shared options name (``args.seed`` seeds random motions).
+
+    Procedural motions place the feet with the body's own joints and soles; a BVH file's rest
+    alignment uses the body's own joints too, and an AMASS file's Z-up to Y-up translation the
+    body's pelvis at the shape it is posed with.
+    """
+    from pathlib import Path
+
     from sim.bodies import load_body
     from sim.motions import MotionSkeleton, accepts_parameter, load_motion
+    from sim.motions.amass import place_pelvis
     from sim.simulate import resolve_betas
 
     check_fps(args.fps)
+    params = motion_params(args)
     body = load_body(args.body)
     shape = parse_body_shape(body, args.shape)
-    params = parse_params(args.param)
     if accepts_parameter(args.motion, "seed"):
         params.setdefault("seed", args.seed)
-    # procedural motions place the feet with this body's own joints and soles
-    motion = load_motion(args.motion, fps=args.fps, duration=args.duration,
-                         skeleton=MotionSkeleton.from_body(body, shape), **params)
-    return BodyAndMotion(body, resolve_betas(body, motion, shape), motion, params)
+    skeleton = MotionSkeleton.from_body(body, shape)
+    options = dict(params)
+    if Path(str(args.motion)).suffix.lower() == ".bvh":
+        options.setdefault("rest_joints", skeleton.rest_joints)
+    motion = load_motion(args.motion, fps=args.fps, duration=args.duration, skeleton=skeleton, **options)
+    betas = resolve_betas(body, motion, shape)
+    motion = place_pelvis(motion, body.rest_joints(betas)[body.body_joint_map[0]])
+    return BodyAndMotion(body, betas, motion, params)

@@ -15,7 +15,7 @@ from sim.errors import WrinklesInputError
 from sim.motions import load_amass, load_bvh, load_motion
 from sim.motions.bvh import parse_bvh, resolve_joint_map
 from sim.motions.procedural import JOINT
-from sim.motions.retarget import BONE_CHILD, forward_kinematics
+from sim.motions.retarget import BONE_CHILD, LIMB_JOINTS, forward_kinematics
 from sim.rotations import axis_angle_to_matrix
 from sim.types import Motion
 
@@ -152,10 +152,12 @@ def test_amass_errors_name_the_file(tmp_path, case, words):
 
 # --- BVH --------------------------------------------------------------------------------------
 
-def _bone_check(path: Path, frames: slice, skip: tuple[str, ...] = ()) -> Motion:
-    """Retargeted SMPL bones point exactly where the BVH bones point."""
+def _bone_check(path: Path, frames: slice, skip: tuple[str, ...] = (), rest: str = "file") -> Motion:
+    """Retargeted SMPL bones point exactly where the BVH bones point: every mapped bone under
+    ``rest="file"``, the limbs under ``rest="auto"`` (whose torso, head, hands and feet turn
+    with the file's joints from SMPL's rest instead, checked in tests/test_motion_posture.py)."""
     bvh = parse_bvh(path)
-    m = load_bvh(path)
+    m = load_bvh(path, rest=rest)
     mapping, _ = resolve_joint_map(bvh)
     _, P = bvh.global_transforms()
     _, Ps = forward_kinematics(m.poses)
@@ -164,11 +166,13 @@ def _bone_check(path: Path, frames: slice, skip: tuple[str, ...] = ()) -> Motion
         c = BONE_CHILD[s]
         if s == 0 or c < 0 or c not in mapping or SMPL_NAME[s] in skip:
             continue
+        if rest == "auto" and s not in LIMB_JOINTS:
+            continue
         want = _unit(P[frames, mapping[c]] - P[frames, b])
         got = _unit(Ps[frames, c] - Ps[frames, s])
         np.testing.assert_allclose(got, want, atol=TOL_DIR, err_msg=SMPL_NAME[s])
         checked += 1
-    assert checked >= 14
+    assert checked >= (14 if rest == "file" else len(LIMB_JOINTS))
     return m
 
 
@@ -178,7 +182,9 @@ SMPL_NAME = {v: k for k, v in JOINT.items()}
 def test_bvh_cmu_style_retarget():
     m = _bone_check(CMU, slice(0, 3))
     _bone_check(CMU, slice(3, 4), skip=("neck",))  # CMU's Neck1 has no SMPL joint
+    m = _bone_check(CMU, slice(None), rest="auto")
     assert m.extra["joint_map"] == "cmu" and m.fps == 120.0 and m.num_frames == 4
+    assert m.extra["rest"] == "auto"
     assert m.extra["mapped"]["spine1"] == "LowerBack" and m.extra["mapped"]["spine3"] == "Spine1"
     assert "left_hand" not in m.extra["mapped"]  # unmapped: identity local rotation
     np.testing.assert_array_equal(m.poses[:, JOINT["left_hand"]], 0.0)
@@ -195,7 +201,8 @@ def test_bvh_cmu_style_retarget():
 
 
 def test_bvh_mixamo_style_retarget():
-    m = _bone_check(MIXAMO, slice(None))
+    _bone_check(MIXAMO, slice(None))
+    m = _bone_check(MIXAMO, slice(None), rest="auto")
     assert m.extra["joint_map"] == "mixamo" and m.extra["scale"] == 0.01 and m.fps == 30.0
     assert m.extra["mapped"]["spine3"] == "mixamorig:Spine2"
     np.testing.assert_allclose(m.trans[2] - m.trans[0], [0.05, -0.05, 0.30], atol=TOL_POS)

@@ -17,16 +17,19 @@ AMASS is Z up; the project is Y up. The conversion rotates the world by ``A = Rx
 (Z -> Y, Y -> -Z): root orientation ``R' = A R``. SMPL rotates the body about the pelvis
 joint ``J0`` (which depends on the body shape) before adding ``trans``, so the exact new
 translation is ``trans' = A (trans + J0) - J0``. With ``pelvis_offset=None`` the loader uses
-``trans' = A trans``: the body is then off by the constant ``(A - I) J0`` (a few centimetres
-for SMPL's neutral body), which the pipelines' grounding of the body on the floor absorbs.
-Pass the pelvis rest position of the body you will skin with (``body.rest_joints(betas)[0]``)
-to make it exact.
+``trans' = A trans``: the body then lacks the constant ``(A - I) J0`` (it stands 0.27 m
+too low and 0.21 m too far back for ``SMPL_REST_JOINTS``' pelvis, 0.25 m and 0.19 m for the
+default body's), and ``Motion.extra["pelvis_exact"]`` is False; :func:`place_pelvis` adds
+the offset once the body is known (the pipelines do, with the shape they pose). Pass the
+pelvis rest position of the body you will skin with (``body.rest_joints(betas)[0]``) to make
+it exact at load time.
 """
 
 from __future__ import annotations
 
 import os
 import zipfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +70,21 @@ def z_up_to_y_up(poses: np.ndarray, trans: np.ndarray,
         j0 = np.asarray(pelvis_offset, dtype=np.float64).reshape(3)
         new_trans = (trans + j0) @ A.T - j0
     return poses, new_trans
+
+
+def place_pelvis(motion: Motion, pelvis_offset: np.ndarray) -> Motion:
+    """Make a motion loaded with ``pelvis_offset=None`` from a Z-up file exact for a body whose
+    pelvis rest position is ``pelvis_offset`` [m] (3,): ``trans' = A trans + (A - I) J0``.
+
+    Returns ``motion`` itself when its translation is exact already (``extra["pelvis_exact"]``
+    True or absent: a Y-up file, an offset given at load time, a motion from elsewhere).
+    """
+    if motion.extra.get("pelvis_exact", True):
+        return motion
+    j0 = np.asarray(pelvis_offset, dtype=np.float64).reshape(3)
+    shift = Z_UP_TO_Y_UP @ j0 - j0
+    return replace(motion, trans=(motion.trans + shift).astype(np.float32),
+                   extra={**motion.extra, "pelvis_exact": True})
 
 
 def _read_npz(path: str) -> dict[str, np.ndarray]:
@@ -146,7 +164,8 @@ def load_amass(path: str | os.PathLike, *, pelvis_offset: np.ndarray | None = No
 
     Returns:
         ``Motion`` with poses (T, 24, 3) [rad], trans (T, 3) [m], the file's fps, betas when
-        present; ``extra`` holds ``layout``, ``gender`` and hand/jaw/eye rotations.
+        present; ``extra`` holds ``layout``, ``gender``, hand/jaw/eye rotations and
+        ``pelvis_exact`` (False: the translation waits for :func:`place_pelvis`).
 
     Raises:
         WrinklesInputError: unreadable archive, missing keys, wrong shapes, NaN/inf, no frames.
@@ -172,6 +191,7 @@ def load_amass(path: str | os.PathLike, *, pelvis_offset: np.ndarray | None = No
     body, extra = _smpl_joints(poses)
     if up_axis == "z":
         body, trans = z_up_to_y_up(body, trans, pelvis_offset)
+    extra["pelvis_exact"] = up_axis == "y" or pelvis_offset is not None
     betas = None
     if "betas" in data:
         b = _float_array(data, "betas", path)

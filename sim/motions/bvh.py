@@ -11,10 +11,20 @@ Retargeting (see ``sim.motions.retarget``) maps SMPL joints to BVH joints by nam
 maps for CMU-style and Mixamo-style skeletons, picked automatically, namespaces such as
 ``mixamorig:`` ignored, case-insensitive), copies global rotations through a rest alignment
 and converts them to SMPL's local rotations. Assumption about the rest pose: the BVH's zero
-pose is a standing pose, facing +Z, left side at +X; with ``rest="auto"`` (default) each bone's
-rest direction is aligned with SMPL's T-pose bone direction by the smallest rotation (an
-A-pose rest, or CMU's slightly bent arms, is corrected; twist about the bone is not), with
-``rest="tpose"`` the BVH rest is taken to be SMPL's T-pose as it is.
+pose is a standing pose, facing +Z, left side at +X. What it stands for (``rest``, see
+``sim.motions.retarget``):
+
+- ``"auto"`` (default): SMPL's T-pose with the file's limbs. SMPL's thighs, shins, upper arms
+  and forearms are turned by the smallest rotation onto the file's rest bone directions, so
+  they point where the file's point (at rest an A-pose file lowers the body's arms, CMU's
+  spreads its legs by 20 degrees, slightly bent arms stay bent); the hands continue their
+  forearms; the torso, neck, head, collars and feet are SMPL's rest (upright, head level,
+  feet flat) whatever the directions between the file's joints there.
+- ``"tpose"``: the file's rest is SMPL's T-pose as it is (no alignment).
+- ``"file"``: every bone's rest direction is aligned with SMPL's, torso, neck, head and hands
+  included; this follows the file's joint placement literally and tilts the head where it
+  differs from the body's (a CMU skeleton's head 50 degrees back on ``SMPL_REST_JOINTS``, 15
+  on the default body).
 
 Units: ``scale="auto"`` measures the rest skeleton's height ``h`` (in file units): metres when
 ``h <= 3``, centimetres when ``100 <= h <= 300``, millimetres when ``1000 <= h <= 3000``,
@@ -39,6 +49,9 @@ from sim.motions.retarget import (
 )
 from sim.rotations import axis_angle_to_matrix
 from sim.types import SMPL_JOINT_NAMES, Motion
+
+#: ``load_bvh``'s ``rest`` choices (see the module docstring).
+REST_MODES = ("auto", "tpose", "file")
 
 _CHANNELS = ("Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation")
 _AXIS = {"X": 0, "Y": 1, "Z": 2}
@@ -418,6 +431,18 @@ def _src_bone_dirs(bvh: BvhData, mapping: dict[int, int]) -> dict[int, np.ndarra
     return dirs
 
 
+def _rest_joints(rest_joints, path: str) -> np.ndarray:
+    """``rest_joints`` as a finite (24, 3) float64 array, or a one-line error."""
+    try:
+        J = np.asarray(rest_joints, dtype=np.float64)
+    except (TypeError, ValueError):
+        J = np.zeros(0)
+    if J.shape != (len(SMPL_JOINT_NAMES), 3) or not np.all(np.isfinite(J)):
+        raise WrinklesInputError("rest_joints must be SMPL's 24 joint positions [m], a finite (24, 3) "
+                                 f"array; got shape {J.shape}", path=path)
+    return J
+
+
 def bvh_scale(bvh: BvhData, scale: float | str = "auto") -> float:
     """Metres per file unit (see the module docstring for ``"auto"``)."""
     if not isinstance(scale, str):
@@ -447,32 +472,36 @@ def load_bvh(path: str | os.PathLike, *, joint_map: str | dict = "auto",
         path: the ``.bvh`` file.
         joint_map: ``"auto"`` / ``"cmu"`` / ``"mixamo"`` or a dict SMPL name -> BVH name.
         scale: metres per file unit, or ``"auto"``.
-        rest: ``"auto"`` aligns BVH rest bone directions to SMPL's T-pose; ``"tpose"`` takes
-            the BVH rest as SMPL's T-pose unchanged.
-        rest_joints: SMPL rest joints [m] (24, 3) for the alignment; default the approximate
-            ``SMPL_REST_JOINTS``.
+        rest: what the file's rest pose stands for (see the module docstring): ``"auto"``
+            aligns the limbs with SMPL's T-pose and keeps SMPL's torso, head, hands and feet;
+            ``"tpose"`` takes it as SMPL's T-pose unchanged; ``"file"`` aligns every bone.
+        rest_joints: SMPL rest joints [m] (24, 3) of the body the motion will pose, for the
+            alignment; default the approximate ``SMPL_REST_JOINTS``.
         name: label; default the file's stem.
 
     Returns:
         ``Motion`` at the file's frame rate: poses (T, 24, 3) [rad], trans (T, 3) [m];
-        ``extra`` has ``joint_map`` (name of the map used), ``mapped`` (SMPL -> BVH names)
-        and ``scale``.
+        ``extra`` has ``joint_map`` (name of the map used), ``mapped`` (SMPL -> BVH names),
+        ``scale`` and ``rest``.
     """
     path = os.fspath(path)
-    if rest not in ("auto", "tpose"):
-        raise WrinklesInputError(f"rest must be 'auto' or 'tpose', got {rest!r}", path=path)
+    if rest not in REST_MODES:
+        raise WrinklesInputError(f"rest must be one of {', '.join(REST_MODES)}, got {rest!r}", path=path)
+    if rest_joints is not None:
+        rest_joints = _rest_joints(rest_joints, path)
     bvh = parse_bvh(path)
     mapping, label = resolve_joint_map(bvh, joint_map)
     s = bvh_scale(bvh, scale)
     G, P = bvh.global_transforms()
-    align = rest_alignment(_src_bone_dirs(bvh, mapping), rest_joints) if rest == "auto" else None
+    align = None if rest == "tpose" else rest_alignment(
+        _src_bone_dirs(bvh, mapping), rest_joints, limbs_only=rest == "auto")
     poses = retarget_global_rotations(G, mapping, align)
     root = mapping[0]
     rest_pos = bvh.rest_positions()
     stand = rest_pos[root, 1] - bvh.rest_floor()  # root height above the rest skeleton's floor
     trans = P[:, root] * s
     trans[:, 1] -= stand * s
-    extra = {"joint_map": label, "scale": s,
+    extra = {"joint_map": label, "scale": s, "rest": rest,
              "mapped": {SMPL_JOINT_NAMES[k]: bvh.joints[v].name for k, v in mapping.items()}}
     return Motion(poses=poses.astype(np.float32), trans=trans.astype(np.float32), fps=bvh.fps,
                   name=name or Path(path).stem, source=path, extra=extra)

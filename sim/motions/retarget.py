@@ -4,17 +4,32 @@ Retargeting a source skeleton (BVH) onto SMPL's 24 joints works on *global* join
 
 1. every source joint's global rotation ``G_src(t)`` is the product of the local rotations
    down its chain (the source's rest pose, all channels zero, has ``G_src = I``);
-2. a *rest alignment* ``C_j`` per mapped SMPL joint turns SMPL's rest bone direction into the
-   source's rest bone direction (``C_j d_smpl = d_src``), so SMPL's global rotation
-   ``G_j(t) = G_src(t) C_j`` points SMPL's bone exactly where the source bone points;
-   ``C_j = I`` when the source rest is taken to be SMPL's T-pose (``rest="tpose"``);
+2. a *rest alignment* ``C_j`` per mapped SMPL joint says which SMPL orientation the source's
+   rest stands for: SMPL's global rotation is ``G_j(t) = G_src(t) C_j``, so at the source's
+   rest SMPL's joint has the global rotation ``C_j``;
 3. SMPL local rotations follow down SMPL's tree, ``L_j = G_parent(j)^T G_j``; an unmapped SMPL
    joint gets the identity local rotation (it follows its parent).
 
-The minimal rotation from one bone direction to another leaves the twist about the bone
-undetermined; ``rest="auto"`` takes the smallest rotation (no twist), which is right for
-skeletons whose rest differs from a T-pose by swings (A-pose arms, a bent spine) and leaves the
-source's own twist convention otherwise.
+Rest alignments (:func:`rest_alignment`):
+
+- *limbs* (``limbs_only=True``, what BVH's ``rest="auto"`` uses): the thighs, shins, upper
+  arms and forearms (``LIMB_JOINTS``) get the smallest rotation turning SMPL's rest bone
+  direction into the source's (``C_j d_smpl = d_src``), so the limbs point where the source's
+  point, at rest too (an A-pose rest lowers SMPL's arms, CMU's rest spreads its legs by 20
+  degrees). The hands take their forearm's alignment (a hand at rest continues its forearm,
+  as in SMPL's T-pose). The pelvis, spine, neck, head, collars and feet keep
+  ``C_j = I``: a standing rest is upright with the head level and the feet flat whatever the
+  directions between its joints, which follow where each convention places the joints, not a
+  posture (from the neck joint to the head joint, ``SMPL_REST_JOINTS`` leans 36 degrees
+  forward and a CMU subject's skeleton 11 degrees back; the ankle-to-toe bone descends 26 and
+  13 degrees).
+- *every bone* (``limbs_only=False``, BVH's ``rest="file"``): every joint with a bone
+  direction is aligned that way; a joint without one takes its parent's alignment.
+- none (BVH's ``rest="tpose"``): ``C_j = I``, the source's rest is SMPL's T-pose as it is.
+
+The smallest rotation from one bone direction to another leaves the twist about the bone
+undetermined; it is right for rests that differ from the T-pose by swings (A-pose arms,
+spread legs) and keeps the source's own twist convention otherwise.
 """
 
 from __future__ import annotations
@@ -65,6 +80,16 @@ BONE_CHILD: tuple[int, ...] = tuple(
         "left_foot", "right_foot", "neck", "", "", "head", "left_shoulder", "right_shoulder", "",
         "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hand", "right_hand", "", "",
     ))
+
+#: The limb segments (thighs, shins, upper arms, forearms), by the SMPL joint that drives each:
+#: their rest directions are a posture (A-pose or T-pose arms, spread legs) that the limb
+#: alignment turns into SMPL's T-pose.
+LIMB_JOINTS: tuple[int, ...] = tuple(_INDEX[n] for n in (
+    "left_hip", "right_hip", "left_knee", "right_knee",
+    "left_shoulder", "right_shoulder", "left_elbow", "right_elbow"))
+#: The hands (wrist and hand joints): under the limb alignment they continue their forearm.
+HAND_JOINTS: tuple[int, ...] = tuple(_INDEX[n] for n in (
+    "left_wrist", "right_wrist", "left_hand", "right_hand"))
 
 
 def forward_kinematics(poses: np.ndarray, trans: np.ndarray | None = None,
@@ -136,23 +161,31 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return axis_angle_to_matrix(axis * angle)
 
 
-def rest_alignment(src_bone_dirs: dict[int, np.ndarray],
-                   rest_joints: np.ndarray | None = None) -> np.ndarray:
-    """Per-joint rest alignment ``C_j`` mapping SMPL's rest bone direction to the source's.
+def rest_alignment(src_bone_dirs: dict[int, np.ndarray], rest_joints: np.ndarray | None = None,
+                   *, limbs_only: bool = False) -> np.ndarray:
+    """Per-joint rest alignment ``C_j`` (see the module docstring).
 
     Args:
         src_bone_dirs: SMPL joint index -> the source skeleton's rest direction of the bone
             that SMPL joint drives (3,), in the source's world frame (Y up, facing +Z).
-        rest_joints: SMPL rest joints [m] (24, 3); default ``SMPL_REST_JOINTS``.
+        rest_joints: SMPL rest joints [m] (24, 3) of the body the motion will pose; default
+            ``SMPL_REST_JOINTS``.
+        limbs_only: align the limbs only (``LIMB_JOINTS``; the hands follow their forearm, every
+            other joint keeps SMPL's rest orientation); False aligns every bone.
 
     Returns:
-        rotations (24, 3, 3); the root's is the identity (its orientation is copied as is), a
-        joint without a direction or a bone child takes its parent's (so a source leaf at
-        rest stays at identity local rotation).
+        rotations (24, 3, 3) with ``C_j d_smpl = d_src`` for each aligned bone; the root's is
+        the identity (its orientation is copied as is); an aligned joint without a direction or
+        a bone child takes its parent's (so a source leaf at rest stays at identity local
+        rotation).
     """
     J = SMPL_REST_JOINTS if rest_joints is None else np.asarray(rest_joints, dtype=np.float64)
     C = np.tile(np.eye(3), (NUM_SMPL_JOINTS, 1, 1))
     for j in range(1, NUM_SMPL_JOINTS):  # parents first
+        if limbs_only and j not in LIMB_JOINTS:
+            if j in HAND_JOINTS:
+                C[j] = C[_PARENTS[j]]  # a hand continues its forearm
+            continue  # torso, head, collars, feet: SMPL's rest orientation
         d = src_bone_dirs.get(j)
         child = BONE_CHILD[j]
         if child < 0 or d is None or np.linalg.norm(d) < 1e-9:
