@@ -39,6 +39,10 @@ betas = 2
 
 [motions]
 procedural = ["walk", "arm_raise"]
+[motions.params.walk]
+ramp = 0.1
+[motions.params.arm_raise]
+ramp = 0.1
 
 [split]
 test_fraction = 0.5
@@ -252,6 +256,12 @@ def test_generated_dataset_holds_the_schema(reference):
         posed = body.pose(np.asarray(f["body/betas"]), np.asarray(f["body/poses"]),
                           np.asarray(f["body/trans"]))
         assert np.abs(posed.joints - np.asarray(f["body/joints"])).max() < 1e-4
+        # the stored frames are the motion itself, from its first frame: the arms hang or swing,
+        # the T-pose (and the ramp from it, played before) is in none of them
+        rot = np.degrees(np.linalg.norm(np.asarray(f["body/poses"])[:, 1:], axis=-1)).max(axis=1)
+        assert rot.min() > 45.0, (sid, e["motion"], rot.min())
+        prov = f.json("provenance")
+        assert prov["frames"]["entry"] == "lead_in" and prov["frames"]["output"] == T == 6
         assert f.json("sequence")["split"] == e["split"]
     info = subprocess.run([sys.executable, "-m", "pipelines.cli", "dataset", "info", str(out), "--json"],
                           capture_output=True, text=True, cwd=ROOT)
@@ -386,6 +396,7 @@ def test_user_motion_folders_are_sampled(tmp_path):
         np.savez(data / f"{name}.npz", poses=rng.normal(0, 0.1, (T, 156)), trans=np.zeros((T, 3)),
                  mocap_framerate=60.0, betas=np.zeros(16))
     text = TINY.replace('procedural = ["walk", "arm_raise"]', 'procedural = ["arm_raise"]\nfiles = ["amass"]')
+    text = text.replace("[motions.params.walk]\nramp = 0.1\n", "")
     text = text.replace("sequences = 4", "sequences = 12")
     cfg = _load(tmp_path, text)
     specs = sample_sequences(cfg)

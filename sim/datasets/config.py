@@ -8,7 +8,8 @@ shipped one)::
     seed = 0
     sequences = 100          # sequences sampled (accepted + rejected)
     fps = 30.0
-    seconds = 3.0            # motion length [s] of every sequence
+    seconds = 3.0            # motion length [s] of every sequence (its frames are stored; a
+                             # procedural motion's lead-in from rest plays before, unstored)
 
     [garments]
     categories = ["t_shirt", "straight_skirt"]   # sampled uniformly
@@ -179,7 +180,9 @@ class DatasetConfig:
         seed: base seed; sequence k is sampled from ``(seed, k)`` alone, so shards agree.
         sequences: number of sequences to sample.
         fps: frame rate [1/s].
-        seconds: motion length [s].
+        seconds: motion length [s]: every sequence stores ``round(seconds * fps)`` frames of its
+            motion, a procedural motion in full motion from the first (its lead-in from the
+            rest pose, ``ramp`` seconds, plays in the simulation's prelude and is not stored).
         simulation: ``SimulationConfig`` fields (dict).
         source: the file it was read from ("" when built in code).
     """

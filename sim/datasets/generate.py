@@ -83,7 +83,7 @@ def _refuse_other_simulator(old: dict | None, cfg_dict: dict, root: Path) -> Non
         raise WrinklesInputError("this dataset was made with other simulator defaults (automatic substeps, "
                                  "garment hems and their rule, the colouring of the device kind, the retries "
                                  "at more substeps, the automatic sweeps, the templates' default "
-                                 "parameters, the gaits' cadence) than this "
+                                 "parameters, the gaits' cadence, how procedural motions begin) than this "
                                  "version's on this device, and "
                                  "continuing it would mix two physics; choose another --out", path=root)
 

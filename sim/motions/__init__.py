@@ -9,7 +9,10 @@ Public entry points:
 - :func:`load_amass`, :func:`load_bvh`, :func:`resample_motion`, :func:`trim_motion`.
 
 All outputs are Y up, metres, poses (T, 24, 3) axis-angle [rad] in SMPL's joint order and
-``trans`` (T, 3) [m] relative to standing at rest (see ``sim.motions.procedural``).
+``trans`` (T, 3) [m] relative to standing at rest (see ``sim.motions.procedural``). A
+procedural motion is in full motion from its first frame; its way in from the rest T-pose, its
+lead-in, rides along as ``extra["lead_in"]`` (a simulation plays it in its prelude:
+``sim.motions.blend.enter_from_rest``).
 """
 
 from __future__ import annotations
@@ -110,8 +113,9 @@ def load_motion(spec: str | os.PathLike, *, fps: float | None = None,
             ``.bvh`` file.
         fps: frame rate [1/s]; procedural motions are generated at it, files are resampled to
             it (slerp). None keeps the default / the file's rate.
-        duration: length [s]; procedural motions are generated for it, files are cut to it
-            (error when the file is shorter). None keeps the default / the whole file.
+        duration: length [s]; procedural motions are generated for it (their lead-in comes
+            before it), files are cut to it (error when the file is shorter). None keeps the
+            default / the whole file.
         skeleton: procedural motions are built on it (see :func:`procedural_motion`);
             ignored for files.
         **params: procedural params fields, or the file loader's keyword options

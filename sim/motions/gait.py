@@ -53,7 +53,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.easing import smoothstep
 from sim.motions.limits import JOINT_LIMITS
 from sim.motions.procedural import (
     D2R,
@@ -62,6 +61,8 @@ from sim.motions.procedural import (
     PoseBuilder,
     check_params,
     ground_trans_y,
+    lead_frames,
+    lead_weight,
     make_motion,
     time_axis,
 )
@@ -314,9 +315,23 @@ def gait_record() -> dict:
             "curves_sha1": hashlib.sha1(curves).hexdigest()}
 
 
-def _ramped_phase(t: np.ndarray, w: np.ndarray, rate: float, fps: float) -> np.ndarray:
-    """Integral of ``rate * w(t)`` from 0 (trapezoid-free: exact rate per frame once w = 1)."""
-    return np.concatenate([[0.0], np.cumsum(rate * w[:-1] / fps)])
+def ramped_phase(w: np.ndarray, rate: float, fps: float, lead: int) -> np.ndarray:
+    """Integral of ``rate * w(t)`` over frames at ``fps``, 0 at frame ``lead`` (t = 0).
+
+    Each step advances by ``rate * w / fps`` at the step's first frame, so from t = 0 (w = 1)
+    the value is exactly ``rate * t``, and in the lead-in before it (``w`` easing up from 0)
+    the speed rises smoothly to ``rate``.
+
+    Args:
+        w: the lead-in's ease per frame (``procedural.lead_weight``), 1 from frame ``lead``.
+        rate: the value's rate at full motion (stride frequency [1/s], speed [m/s]).
+        fps: frame rate [1/s].
+        lead: frames of the lead-in.
+    """
+    out = np.empty(w.size)
+    out[lead:] = rate * np.arange(w.size - lead) / fps
+    out[:lead] = -rate * np.cumsum(w[:lead][::-1])[::-1] / fps
+    return out
 
 
 @dataclass(frozen=True)
@@ -325,7 +340,8 @@ class WalkParams:
     length (two steps) [m], 0 for the speed-dependent default (whose cadence rises where the
     body's hips would pass their joint limits: ``limited_cadence``); a stride given is kept at
     whatever hip swing it takes, inside the limits or not; arm_swing: arm swing scale (0
-    keeps the arms still); ramp: blend-in time from the rest T-pose (speed and pose) [s]."""
+    keeps the arms still); ramp: lead-in before t = 0 from the rest T-pose up to full speed and
+    pose [s] (played in a simulation's prelude, not part of duration)."""
 
     duration: float = 4.0
     fps: float = 30.0
@@ -340,9 +356,11 @@ class WalkParams:
 
 
 def walk(p: WalkParams, skeleton: MotionSkeleton | None = None) -> Motion:
-    """Straight walk along +Z from normative gait curves (see the module docstring)."""
-    t = time_axis(p.duration, p.fps)
-    w = smoothstep(t / p.ramp)
+    """Straight walk along +Z from normative gait curves (see the module docstring), at full
+    speed from t = 0, where the right heel strikes at z = 0 (the lead-in walks up to it)."""
+    n = lead_frames(p.ramp, p.fps)
+    t = time_axis(p.duration, p.fps, n)
+    w = lead_weight(t, n, p.fps)
     stride = p.stride if p.stride > 0 else walk_stride_length(p.speed)
     f = f_auto = p.speed / stride
     if p.speed <= 0:
@@ -352,12 +370,12 @@ def walk(p: WalkParams, skeleton: MotionSkeleton | None = None) -> Motion:
     else:
         f, k = limited_cadence(_WALK, WALK_TOE_OFF, f, p.speed, skeleton, MAX_STRIDE_FREQUENCY["walk"])
         stride = p.speed / f
-    phase = _ramped_phase(t, w, f, p.fps)
+    phase = ramped_phase(w, f, p.fps, n)
     poses = w[:, None, None] * gait_pose(_WALK, phase, arm_swing=p.arm_swing, hip_scale=k)
     trans = np.zeros((t.size, 3))
-    trans[:, 2] = _ramped_phase(t, w, p.speed, p.fps)
+    trans[:, 2] = ramped_phase(w, p.speed, p.fps, n)
     trans[:, 1] = ground_trans_y(poses, skeleton)
-    return make_motion("walk", p, poses, trans, phase=phase.astype(np.float32),
+    return make_motion("walk", p, poses, trans, lead=n, phase=phase.astype(np.float32),
                        stride_frequency=f, stride_length=stride, toe_off=WALK_TOE_OFF,
                        hip_scale=k, cadence_raised=f / f_auto if f_auto > 0 else 1.0)
 
@@ -368,7 +386,8 @@ class RunParams:
     length [m], 0 for the speed-dependent default (whose cadence rises where the body's hips
     would pass their joint limits: ``limited_cadence``); a stride given is kept at whatever hip
     swing it takes, inside the limits or not; duty: stance fraction of the stride (< 0.5
-    gives a flight phase); arm_swing: arm swing scale; ramp: blend-in time from rest [s]."""
+    gives a flight phase); arm_swing: arm swing scale; ramp: lead-in before t = 0 from the rest
+    T-pose up to full speed and pose [s] (played in a simulation's prelude, not part of duration)."""
 
     duration: float = 4.0
     fps: float = 30.0
@@ -400,15 +419,17 @@ def spring_mass_height(step_time: np.ndarray, t_stance: float, t_flight: float) 
 
 def run(p: RunParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Straight run along +Z: normative running curves time-warped to ``duty``, spring-mass
-    vertical motion with a ballistic flight phase, forward trunk lean, bent-elbow arm swing."""
-    t = time_axis(p.duration, p.fps)
-    w = smoothstep(t / p.ramp)
+    vertical motion with a ballistic flight phase, forward trunk lean, bent-elbow arm swing; at
+    full speed from t = 0, where the right foot touches down at z = 0."""
+    n = lead_frames(p.ramp, p.fps)
+    t = time_axis(p.duration, p.fps, n)
+    w = lead_weight(t, n, p.fps)
     f = f_auto = p.speed / p.stride if p.stride > 0 else run_stride_frequency(p.speed)
     if p.stride > 0:  # the stride asked for, at whatever hip swing it takes
         k = stride_calibration(_RUN, p.duty, f, p.speed, skeleton)
     else:
         f, k = limited_cadence(_RUN, p.duty, f, p.speed, skeleton, MAX_STRIDE_FREQUENCY["run"])
-    phase = _ramped_phase(t, w, f, p.fps)
+    phase = ramped_phase(w, f, p.fps, n)
     poses = w[:, None, None] * gait_pose(_RUN, phase, duty=p.duty, arm_swing=p.arm_swing,
                                          hip_scale=k)
     t_stance, t_flight = p.duty / f, (0.5 - p.duty) / f
@@ -417,11 +438,11 @@ def run(p: RunParams, skeleton: MotionSkeleton | None = None) -> Motion:
     step_time = np.mod(phase, 0.5) / f
     y_run = y_td + spring_mass_height(step_time, t_stance, t_flight)
     trans = np.zeros((t.size, 3))
-    trans[:, 2] = _ramped_phase(t, w, p.speed, p.fps)
+    trans[:, 2] = ramped_phase(w, p.speed, p.fps, n)
     ground = ground_trans_y(poses, skeleton)
     # the spring-mass stance dips deeper than the normative leg curves flex (2-4 cm): raise it
     # wherever it would push the stance foot into the floor (flight stays ballistic)
     trans[:, 1] = np.maximum((1.0 - w) * ground + w * y_run, ground)
-    return make_motion("run", p, poses, trans, phase=phase.astype(np.float32),
+    return make_motion("run", p, poses, trans, lead=n, phase=phase.astype(np.float32),
                        stride_frequency=f, stride_length=p.speed / f, duty=p.duty,
                        t_stance=t_stance, t_flight=t_flight, hip_scale=k, cadence_raised=f / f_auto)

@@ -1,13 +1,21 @@
 """Procedural motions: shared kinematics helpers and the non-gait library.
 
 Every generator takes a frozen params dataclass and returns a ``Motion`` at ``params.fps``
-lasting ``params.duration`` (``round(duration * fps)`` frames). Every motion starts at the rest
-T-pose (poses 0, trans 0) and leaves it with zero velocity (a smoothstep ramp), so a garment
-draped on the rest body can follow. ``trans`` is relative to standing at rest: the feet stay
-on the rest floor level (sole contact points found by forward kinematics on a
+lasting ``params.duration`` (``round(duration * fps)`` frames), in full motion from its first
+frame (t = 0). The way in from the rest T-pose is the motion's *lead-in*: the same motion
+evaluated before t = 0 over its ``ramp`` (``round(ramp * fps)`` frames), every amplitude and
+the gaits' speed eased from zero by a smootherstep (:func:`lead_weight`), so it starts at rest
+(poses 0) with zero velocity and reaches t = 0 at full motion with continuous velocity and
+acceleration. It is returned beside the
+clip as ``extra["lead_in"]`` (a ``Motion`` of the frames before t = 0, ``LEAD_IN``), not in it:
+a simulation plays it in its prelude after the garment settles on the rest body
+(``sim.motions.blend.enter_from_rest``), and every output starts at t = 0. ``rest_to_apose``,
+whose content is that transition, has none. ``trans`` is relative to standing at rest: the feet
+stay on the rest floor level (sole contact points found by forward kinematics on a
 ``MotionSkeleton``: the body's own joints and soles via ``MotionSkeleton.from_body``, or SMPL's
 approximate skeleton ``sim.motions.retarget.SMPL_REST_JOINTS`` with heel/toe points when no
-skeleton is given); no height offset is added. Every generator takes ``skeleton=None``.
+skeleton is given); no height offset is added; the gaits reach z = 0 at t = 0 (their lead-in
+walks up from z < 0). Every generator takes ``skeleton=None``.
 
 Signs of SMPL joint rotations are listed in ``sim.motions.limits``. Angles in params are in
 degrees (``*_deg``), times in seconds, lengths in metres.
@@ -20,9 +28,10 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from sim.easing import smoothstep
+from sim.easing import smootherstep, smoothstep
 from sim.errors import WrinklesInputError
 from sim.motions.limits import JOINT_LIMITS
+from sim.motions.resample import LEAD_IN
 from sim.motions.skeleton import MotionSkeleton, resolve_skeleton
 from sim.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from sim.types import NUM_SMPL_JOINTS, SMPL_JOINT_NAMES, Motion
@@ -88,9 +97,23 @@ def check_choice(p, name: str, allowed: tuple[str, ...]) -> None:
 
 # --- small kinematics helpers -----------------------------------------------------------------
 
-def time_axis(duration: float, fps: float) -> np.ndarray:
-    """Frame times [s], shape (round(duration * fps),), at least one frame."""
-    return np.arange(max(1, int(round(duration * fps))), dtype=np.float64) / fps
+def lead_frames(ramp: float, fps: float) -> int:
+    """Frames of a lead-in of ``ramp`` seconds at ``fps``: ``round(ramp * fps)``, at least one."""
+    return max(1, int(round(ramp * fps)))
+
+
+def time_axis(duration: float, fps: float, lead: int = 0) -> np.ndarray:
+    """Frame times [s]: ``lead`` frames before t = 0 (the lead-in, negative times), then the
+    clip's ``round(duration * fps)`` frames (at least one) from t = 0."""
+    return np.arange(-lead, max(1, int(round(duration * fps))), dtype=np.float64) / fps
+
+
+def lead_weight(t: np.ndarray, lead: int, fps: float) -> np.ndarray:
+    """The lead-in's ease: smootherstep from 0 at its first frame (t = -lead / fps, the rest
+    pose) to 1 at t = 0, 1 from t = 0 on. Zero slope and curvature at both ends: a motion
+    ``w(t) g(t)`` leaves rest with zero velocity and meets ``g`` at t = 0 with continuous
+    velocity and acceleration (a cubic smoothstep would leave an acceleration jump there)."""
+    return smootherstep(1.0 + np.asarray(t, dtype=np.float64) * fps / lead)
 
 
 class PoseBuilder:
@@ -234,12 +257,24 @@ def balance_lean(knee: np.ndarray, dorsi: np.ndarray, *, down=0.0, flex=0.0, elb
     return out
 
 
-def make_motion(name: str, params, poses: np.ndarray, trans: np.ndarray, **extra) -> Motion:
-    """Wrap arrays into a ``Motion`` (float32) with ``source='procedural:<name>'``."""
-    return Motion(poses=poses.astype(np.float32), trans=trans.astype(np.float32),
-                  fps=float(params.fps), name=name, source=f"procedural:{name}",
-                  extra={"params": {f.name: getattr(params, f.name) for f in fields(params)},
-                         **extra})
+def make_motion(name: str, params, poses: np.ndarray, trans: np.ndarray, *, lead: int = 0,
+                **extra) -> Motion:
+    """Wrap arrays into a ``Motion`` (float32) with ``source='procedural:<name>'``.
+
+    The first ``lead`` frames (times before t = 0, :func:`time_axis`) become the lead-in,
+    ``extra[LEAD_IN]``; the clip is the rest. Per-frame arrays in ``extra`` are split the same way.
+    """
+    poses, trans = poses.astype(np.float32), trans.astype(np.float32)
+    per_frame = {k for k, v in extra.items()
+                 if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == poses.shape[0]}
+    clip = {k: (v[lead:] if k in per_frame else v) for k, v in extra.items()}
+    source = f"procedural:{name}"
+    if lead:
+        clip[LEAD_IN] = Motion(poses=poses[:lead], trans=trans[:lead], fps=float(params.fps),
+                               name=f"{name} lead-in", source=source,
+                               extra={k: extra[k][:lead] for k in per_frame})
+    return Motion(poses=poses[lead:], trans=trans[lead:], fps=float(params.fps), name=name, source=source,
+                  extra={"params": {f.name: getattr(params, f.name) for f in fields(params)}, **clip})
 
 
 # --- library ----------------------------------------------------------------------------------
@@ -274,8 +309,9 @@ def rest_to_apose(p: RestToAPoseParams, skeleton: MotionSkeleton | None = None) 
 class ArmRaiseParams:
     """Attributes: duration [s]; fps [1/s]; style: ``side`` (abduction, frontal plane) or
     ``front`` (flexion, sagittal plane); elevation_deg: top arm elevation from hanging [deg];
-    period: one raise-and-lower [s]; arms: ``both``, ``left`` or ``right``; ramp: time to go
-    from the T-pose to arms at the sides [s]."""
+    period: one raise-and-lower [s]; arms: ``both``, ``left`` or ``right``; ramp: lead-in
+    before t = 0 in which the arms come down from the T-pose to the sides [s] (played in a
+    simulation's prelude, not part of duration)."""
 
     duration: float = 5.0
     fps: float = 30.0
@@ -292,11 +328,13 @@ class ArmRaiseParams:
 
 
 def arm_raise(p: ArmRaiseParams, skeleton: MotionSkeleton | None = None) -> Motion:
-    """Arms from the T-pose down to the sides, then raised and lowered (side or front)."""
-    t = time_axis(p.duration, p.fps)
+    """Arms raised and lowered (side or front) from hanging at the sides at t = 0 (the lead-in
+    brings them down from the T-pose)."""
+    n = lead_frames(p.ramp, p.fps)
+    t = time_axis(p.duration, p.fps, n)
     hang = 75.0 * D2R  # arm at the side: 15 deg from vertical (SMPL's arm clears the hip)
-    down = hang * smoothstep(t / p.ramp)
-    cyc = 0.5 * (1.0 - np.cos(2.0 * np.pi * np.maximum(t - p.ramp, 0.0) / p.period))
+    down = hang * lead_weight(t, n, p.fps)
+    cyc = 0.5 * (1.0 - np.cos(2.0 * np.pi * np.maximum(t, 0.0) / p.period))
     E = p.elevation_deg * D2R  # top angle between the arm and straight down
     if p.style == "side":
         lift = (E - (np.pi / 2 - hang)) * cyc  # abduction beyond the hanging position
@@ -316,43 +354,49 @@ def arm_raise(p: ArmRaiseParams, skeleton: MotionSkeleton | None = None) -> Moti
             pb.rot(f"{s}_collar", "z", sg * 0.15 * np.maximum(lift - np.pi / 2, 0.0))
     for s in {"left", "right"} - set(sides):  # the other arm just hangs
         pb.rot(f"{s}_shoulder", "z", -(1.0 if s == "left" else -1.0) * down)
-    return make_motion("arm_raise", p, pb.axis_angle(), np.zeros((t.size, 3)))
+    return make_motion("arm_raise", p, pb.axis_angle(), np.zeros((t.size, 3)), lead=n)
 
 
 @dataclass(frozen=True)
 class TorsoTwistParams:
     """Attributes: duration [s]; fps [1/s]; amplitude_deg: thorax yaw relative to the pelvis
-    [deg]; period: one left-right twist [s]; arm_angle_deg: arms lowered from the T-pose [deg]."""
+    [deg]; period: one left-right twist [s]; arm_angle_deg: arms lowered from the T-pose [deg];
+    ramp: lead-in before t = 0 in which the arms come down and the twist grows to its full
+    amplitude [s] (played in a simulation's prelude, not part of duration)."""
 
     duration: float = 4.0
     fps: float = 30.0
     amplitude_deg: float = 35.0
     period: float = 2.0
     arm_angle_deg: float = 45.0
+    ramp: float = 1.0
 
     def __post_init__(self) -> None:
         check_params(self, amplitude_deg=(0.0, 45.0), period=(0.2, 1e5),
-                     arm_angle_deg=(0.0, 80.0))
+                     arm_angle_deg=(0.0, 80.0), ramp=(1e-3, 1e5))
 
 
 def torso_twist(p: TorsoTwistParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Trunk rotation about the vertical axis, shared by the three spine joints, head
-    partly counter-rotating; the arms go to an A-pose during the first half period."""
-    t = time_axis(p.duration, p.fps)
-    w = smoothstep(t / (0.5 * p.period))
+    partly counter-rotating, arms in an A-pose; at t = 0 the trunk passes the middle turning
+    left at full amplitude (the lead-in grows the twist and lowers the arms)."""
+    n = lead_frames(p.ramp, p.fps)
+    t = time_axis(p.duration, p.fps, n)
+    w = lead_weight(t, n, p.fps)
     yaw = p.amplitude_deg * D2R * np.sin(2.0 * np.pi * t / p.period) * w
     pb = PoseBuilder(t.shape)
     for j in ("spine1", "spine2", "spine3"):
         pb.rot(j, "y", yaw / 3.0)
     pb.rot("neck", "y", -0.3 * yaw)
     pb.side("shoulder", "z", -p.arm_angle_deg * D2R * w)
-    return make_motion("torso_twist", p, pb.axis_angle(), np.zeros((t.size, 3)))
+    return make_motion("torso_twist", p, pb.axis_angle(), np.zeros((t.size, 3)), lead=n)
 
 
 @dataclass(frozen=True)
 class SquatParams:
     """Attributes: duration [s]; fps [1/s]; depth_deg: knee flexion at the bottom [deg];
-    period: one down-and-up [s]; ramp: time to bring the arms forward from the T-pose [s]."""
+    period: one down-and-up [s], from standing at t = 0; ramp: lead-in before t = 0 in which
+    the arms come forward from the T-pose [s] (played in a simulation's prelude, not part of duration)."""
 
     duration: float = 6.0
     fps: float = 30.0
@@ -367,10 +411,12 @@ class SquatParams:
 def squat(p: SquatParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Bodyweight squat with arms held forward: knee flexion, ankle dorsiflexion (0.3 x knee,
     at most 35 deg), feet flat; the trunk lean is solved per frame so the centre of mass
-    stays over the feet (:func:`balance_lean`), the pelvis moving back and down."""
-    t = time_axis(p.duration, p.fps)
-    w = smoothstep(t / p.ramp)
-    cyc = 0.5 * (1.0 - np.cos(2.0 * np.pi * np.maximum(t - p.ramp, 0.0) / p.period))
+    stays over the feet (:func:`balance_lean`), the pelvis moving back and down. The first
+    squat starts at t = 0 from standing with the arms forward."""
+    n = lead_frames(p.ramp, p.fps)
+    t = time_axis(p.duration, p.fps, n)
+    w = lead_weight(t, n, p.fps)
+    cyc = 0.5 * (1.0 - np.cos(2.0 * np.pi * np.maximum(t, 0.0) / p.period))
     knee = p.depth_deg * D2R * cyc
     dorsi = np.minimum(0.3 * knee, 35.0 * D2R)
     down, flex = 90.0 * D2R * w, 90.0 * D2R * w
@@ -379,14 +425,15 @@ def squat(p: SquatParams, skeleton: MotionSkeleton | None = None) -> Motion:
     arms(pb, down, flex + lean)
     pb.rot("neck", "x", -0.5 * lean)
     poses = pb.axis_angle()
-    return make_motion("squat", p, poses, feet_fixed_trans(poses, skeleton))
+    return make_motion("squat", p, poses, feet_fixed_trans(poses, skeleton), lead=n)
 
 
 @dataclass(frozen=True)
 class JumpParams:
-    """Attributes: duration [s] (the motion is cut there; about 3 s shows it all); fps [1/s];
-    height: rise of the root during flight [m]; depth_deg: knee flexion at the bottom of the
-    countermovement [deg]; ramp: time from the T-pose to standing with arms down [s]."""
+    """Attributes: duration [s], about 2.5 s shows the whole jump from standing at t = 0 to
+    standing again; fps [1/s]; height: rise of the root during flight [m]; depth_deg: knee
+    flexion at the bottom of the countermovement [deg]; ramp: lead-in before t = 0 from the
+    T-pose to standing with the arms down [s] (played in a simulation's prelude, not part of duration)."""
 
     duration: float = 3.0
     fps: float = 30.0
@@ -424,22 +471,25 @@ def _jump_pose(vals: np.ndarray, skeleton: MotionSkeleton | None = None) -> np.n
 def jump(p: JumpParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Countermovement vertical jump: stand, crouch (arms back), push off (arms up, ankles
     plantarflexed), ballistic flight where the root follows ``y0 + v0 t - g t^2 / 2`` exactly
-    with ``v0 = sqrt(2 g height)``, landing with knee flexion, recovery to standing."""
+    with ``v0 = sqrt(2 g height)``, landing with knee flexion, recovery to standing. The clip
+    starts standing with the arms down (the lead-in comes from the T-pose); ``takeoff_time`` is
+    in clip time."""
     key = _jump_keys(p)
-    t = time_axis(p.duration, p.fps)
+    n = lead_frames(p.ramp, p.fps)
+    t = time_axis(p.duration, p.fps, n)
     v0 = np.sqrt(2.0 * GRAVITY * p.height)
     t_flight = 2.0 * v0 / GRAVITY
     # push-off time from the root rise between crouch and take-off: mean speed v0 / 2
     y_c, y_to = (float(ground_trans_y(_jump_pose(key[k][None], skeleton), skeleton)[0])
                  for k in ("crouch", "takeoff"))
     t_push = float(np.clip(2.0 * (y_to - y_c) / max(v0, 1e-3), 0.15, 0.5))
-    phases = [("tpose", "stand", p.ramp, "smooth"), ("stand", "stand", 0.2, "smooth"),
+    phases = [("tpose", "stand", n / p.fps, "smooth"), ("stand", "stand", 0.2, "smooth"),
               ("stand", "crouch", 0.45, "smooth"), ("crouch", "takeoff", t_push, "accel"),
               ("takeoff", "takeoff", t_flight, "flight"), ("takeoff", "land", 0.3, "decel"),
               ("land", "stand", 0.6, "smooth")]
     vals = np.tile(key["stand"], (t.size, 1))
     flight = np.zeros(t.size, dtype=bool)
-    t0 = 0.0
+    t0 = -n / p.fps
     t_takeoff = 0.0
     for a, b, dt, kind in phases:
         sel = (t >= t0) & (t < t0 + dt)
@@ -457,14 +507,15 @@ def jump(p: JumpParams, skeleton: MotionSkeleton | None = None) -> Motion:
     if flight.any():
         tau = t[flight] - t_takeoff
         trans[flight, 1] = y_to + v0 * tau - 0.5 * GRAVITY * tau**2
-    return make_motion("jump", p, poses, trans, takeoff_time=t_takeoff, flight_time=t_flight)
+    return make_motion("jump", p, poses, trans, lead=n, takeoff_time=t_takeoff, flight_time=t_flight)
 
 
 @dataclass(frozen=True)
 class RandomParams:
     """Attributes: duration [s]; fps [1/s]; seed: random seed (same seed, same motion);
     amplitude: fraction of each joint's range used, in (0, 1]; frequency: highest frequency of
-    the joint signals [Hz]; ramp: blend-in time from the rest pose [s]."""
+    the joint signals [Hz]; ramp: lead-in before t = 0 easing the motion in from the rest
+    pose [s] (played in a simulation's prelude, not part of duration)."""
 
     duration: float = 5.0
     fps: float = 30.0
@@ -485,10 +536,11 @@ def random_motion(p: RandomParams, skeleton: MotionSkeleton | None = None) -> Mo
 
     Each axis-angle component is ``w(t) * amplitude * (c + h * tanh(g(t)))`` with ``c, h`` the
     centre and half-width of its range, ``g`` a sum of 6 random sinusoids below ``frequency``
-    (unit variance) and ``w`` a smoothstep ramp from the rest pose. Since the rest pose (0) lies
-    in every range and ``amplitude <= 1``, every frame stays inside the limits.
+    (unit variance) and ``w`` the lead-in's ease from the rest pose (1 from t = 0). Since the
+    rest pose (0) lies in every range and ``amplitude <= 1``, every frame stays inside the limits.
     """
-    t = time_axis(p.duration, p.fps)
+    n = lead_frames(p.ramp, p.fps)
+    t = time_axis(p.duration, p.fps, n)
     rng = np.random.default_rng(int(p.seed))
     K = 6
     freq = rng.uniform(0.1, 1.0, size=(K, NUM_SMPL_JOINTS, 3)) * p.frequency
@@ -497,17 +549,19 @@ def random_motion(p: RandomParams, skeleton: MotionSkeleton | None = None) -> Mo
                                   + phase[None]).sum(axis=1)
     lo, hi = JOINT_LIMITS[..., 0], JOINT_LIMITS[..., 1]
     c, h = 0.5 * (lo + hi), 0.5 * (hi - lo)
-    w = smoothstep(t / p.ramp)[:, None, None]
+    w = lead_weight(t, n, p.fps)[:, None, None]
     poses = w * p.amplitude * (c + h * np.tanh(g))
     trans = np.zeros((t.size, 3))
     trans[:, 1] = ground_trans_y(poses, skeleton)
-    return make_motion("random", p, poses, trans)
+    return make_motion("random", p, poses, trans, lead=n)
 
 
 @dataclass(frozen=True)
 class IdleParams:
     """Attributes: duration [s]; fps [1/s]; sway_deg: side-to-side weight shift at the pelvis
-    [deg]; breathing: breaths per second [Hz]; ramp: time from the T-pose to arms down [s]."""
+    [deg]; breathing: breaths per second [Hz]; ramp: lead-in before t = 0 from the T-pose to
+    arms down, swaying and breathing at full amplitude [s] (played in a simulation's prelude,
+    not part of duration)."""
 
     duration: float = 5.0
     fps: float = 30.0
@@ -522,8 +576,9 @@ class IdleParams:
 def idle(p: IdleParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Standing idle: arms at the sides, breathing (spine), weight shift (pelvis roll
     compensated at the hips, feet fixed) and slow head turns."""
-    t = time_axis(p.duration, p.fps)
-    w = smoothstep(t / p.ramp)
+    n = lead_frames(p.ramp, p.fps)
+    t = time_axis(p.duration, p.fps, n)
+    w = lead_weight(t, n, p.fps)
     sway = p.sway_deg * D2R * np.sin(2.0 * np.pi * 0.2 * t) * w
     breath = 1.5 * D2R * np.sin(2.0 * np.pi * p.breathing * t) * w
     pb = PoseBuilder(t.shape)
@@ -534,13 +589,14 @@ def idle(p: IdleParams, skeleton: MotionSkeleton | None = None) -> Motion:
     pb.rot("neck", "y", 10.0 * D2R * np.sin(2.0 * np.pi * 0.1 * t) * w)
     arms(pb, 75.0 * D2R * w, 0.0, 10.0 * D2R * w)
     poses = pb.axis_angle()
-    return make_motion("idle", p, poses, feet_fixed_trans(poses, skeleton))
+    return make_motion("idle", p, poses, feet_fixed_trans(poses, skeleton), lead=n)
 
 
 @dataclass(frozen=True)
 class WaveParams:
     """Attributes: duration [s]; fps [1/s]; frequency: waves per second [Hz]; amplitude_deg:
-    forearm swing either side [deg]; ramp: time to raise the hand [s]."""
+    forearm swing either side [deg]; ramp: lead-in before t = 0 in which the hand is raised
+    and the wave grows to its full amplitude [s] (played in a simulation's prelude, not part of duration)."""
 
     duration: float = 4.0
     fps: float = 30.0
@@ -554,13 +610,14 @@ class WaveParams:
 
 def wave(p: WaveParams, skeleton: MotionSkeleton | None = None) -> Motion:
     """Right hand raised beside the head (upper arm 10 deg above horizontal, rotated so the
-    forearm points up) waving at the elbow; the left arm hangs."""
-    t = time_axis(p.duration, p.fps)
-    w = smoothstep(t / p.ramp)
-    osc = p.amplitude_deg * D2R * np.sin(2.0 * np.pi * p.frequency * np.maximum(t - p.ramp, 0.0))
+    forearm points up) waving at the elbow, at full amplitude from t = 0; the left arm hangs."""
+    n = lead_frames(p.ramp, p.fps)
+    t = time_axis(p.duration, p.fps, n)
+    w = lead_weight(t, n, p.fps)
+    osc = p.amplitude_deg * D2R * np.sin(2.0 * np.pi * p.frequency * t)
     pb = PoseBuilder(t.shape)
     pb.rot("right_shoulder", "x", -90.0 * D2R * w)   # external rotation: flexion plane upward
     pb.rot("right_shoulder", "z", -10.0 * D2R * w)   # right arm slightly above horizontal
-    pb.rot("right_elbow", "y", 100.0 * D2R * w - osc * w)
+    pb.rot("right_elbow", "y", (100.0 * D2R - osc) * w)
     pb.rot("left_shoulder", "z", -75.0 * D2R * w)
-    return make_motion("wave", p, pb.axis_angle(), np.zeros((t.size, 3)))
+    return make_motion("wave", p, pb.axis_angle(), np.zeros((t.size, 3)), lead=n)

@@ -4,7 +4,9 @@ A motion of ``T`` frames at ``fps`` covers ``T / fps`` seconds (each frame owns 
 ``Motion.duration``). Resampling to ``fps_new`` keeps that duration: it gives
 ``round(T * fps_new / fps)`` frames at times ``k / fps_new``; a time past the last source frame
 holds the last frame. Where a new time coincides with a source frame, the source values are
-copied exactly (no round trip through quaternions).
+copied exactly (no round trip through quaternions). A procedural motion's lead-in
+(``extra["lead_in"]``, the frames before t = 0) is resampled with it at times ``-k / fps_new``,
+interpolated up to the clip's first frame, from the rest pose on.
 """
 
 from __future__ import annotations
@@ -21,6 +23,10 @@ from sim.rotations import (
     quaternion_to_axis_angle,
 )
 from sim.types import Motion
+
+LEAD_IN = "lead_in"
+"""The key of ``Motion.extra`` holding a procedural motion's lead-in, a ``Motion`` of the frames
+before its t = 0 (``sim.motions.procedural``)."""
 
 #: a new time closer than this to a source frame [frames] counts as that frame (float noise).
 _SHARED_TIME_TOL = 1e-6
@@ -127,7 +133,36 @@ def resample_motion(motion: Motion, fps: float) -> Motion:
             extra[key] = resample_rotations(val, idx, frac).astype(val.dtype)
         else:  # other per-frame numbers (e.g. a gait phase): linear
             extra[key] = resample_linear(val, idx, frac).astype(val.dtype)
+    if isinstance(motion.extra.get(LEAD_IN), Motion):
+        extra[LEAD_IN] = resample_lead_in(motion, fps)
     return dataclasses.replace(motion, poses=poses, trans=trans, fps=float(fps), extra=extra)
+
+
+def lead_in_frames(num_frames: int, fps: float, fps_new: float) -> int:
+    """Frames of a lead-in of ``num_frames`` frames at ``fps`` resampled to ``fps_new``
+    (``resample_lead_in``): ``ceil(num_frames * fps_new / fps)``, at least one."""
+    return max(1, int(np.ceil(num_frames * fps_new / fps - _SHARED_TIME_TOL)))
+
+
+def resample_lead_in(motion: Motion, fps: float) -> Motion:
+    """The lead-in of ``motion`` (``extra["lead_in"]``, N frames at times ``(k - N) / motion.fps``)
+    at ``fps``: ``M = ceil(N * fps / motion.fps)`` frames at times ``(k - M) / fps``, interpolated
+    over the lead-in and the clip's first frame (t = 0). A time before the lead-in's first frame
+    (the rest pose) holds it, so the resampled lead-in starts at rest too. Its per-frame extras
+    are not carried."""
+    lead = motion.extra[LEAD_IN]
+    n = lead.num_frames
+    m = lead_in_frames(n, motion.fps, fps)
+    u = np.maximum(n + (np.arange(m) - m) * (motion.fps / fps), 0.0)  # in frames of lead + clip
+    idx = np.floor(u + _SHARED_TIME_TOL).astype(np.int64)
+    frac = u - idx
+    frac[np.abs(frac) < _SHARED_TIME_TOL] = 0.0
+    frac = np.clip(frac, 0.0, 1.0)
+    poses = np.concatenate([lead.poses, motion.poses[:1]])
+    trans = np.concatenate([lead.trans, motion.trans[:1]])
+    return dataclasses.replace(lead, poses=resample_rotations(poses, idx, frac).astype(np.float32),
+                               trans=resample_linear(trans, idx, frac).astype(np.float32), fps=float(fps),
+                               extra={})
 
 
 def trim_motion(motion: Motion, duration: float) -> Motion:

@@ -1,17 +1,20 @@
-"""The sequence driver: dress a garment on a body, settle it, blend the body in from rest, play
-the motion, and return a ``GarmentSequence`` with its quality report.
+"""The sequence driver: dress a garment on a body, settle it, bring the body from rest into the
+motion, play it, and return a ``GarmentSequence`` with its quality report.
 
 Timeline of one run at ``fps`` (one solver step of ``1/fps`` per frame, ``substeps`` inside)::
 
     frame 0            the garment placed on the body in rest pose (``sim.dressing``)
     settle_seconds     body static at rest; garment falls onto it and comes to rest (a garment
                        built on another shape: the body morphs to the job's shape first)
-    blend_seconds      body slerped from rest into the motion's first pose (``blend_from_rest``)
+    way in             body from rest into the motion: a procedural motion's lead-in (its
+                       ``ramp`` before t = 0, up to full motion), else ``blend_seconds`` slerped
+                       from rest into the motion's first pose (``enter_from_rest``)
     motion             the motion, frame by frame
 
-The settle and blend frames are the *prelude*; by default they are dropped, so a sequence
-starts at the motion's first frame with the garment at rest and collision-free
-(``SimulationConfig.keep_prelude`` keeps them). Attachment sets named in
+The settle and the way in are the *prelude*; by default they are dropped, so a sequence
+starts at the motion's first frame (a procedural motion already in full motion) with the
+garment settled on the body and carried into the motion (``SimulationConfig.keep_prelude`` keeps
+them). Attachment sets named in
 ``SimulationConfig.pinned`` follow the skin (``sim.dressing.AttachmentPins``); the rest is
 free. Every frame is checked for NaN and explosion (``SimulationError`` naming the frame and
 the cause); every sequence gets a ``QualityReport`` judged against ``SimulationConfig.gates``.
@@ -24,7 +27,7 @@ Modules:
     config: ``SimulationConfig``, the job's solver defaults (``vbd_config``), the retry ladder
         and ``simulator_defaults``.
     jobs: ``SimulationJob``, the shape a job resolves to, the driver's per-job ``Track``.
-    prelude: the settle / morph / blend timeline and the garment's placement (``prepare_track``).
+    prelude: the settle / morph / way-in timeline and the garment's placement (``prepare_track``).
     screening: per-frame NaN / explosion tests (``SimulationError``).
     results: ``SimulationResult`` and the sequence's provenance.
     driver: ``simulate``, ``simulate_batch`` and the per-frame loop.

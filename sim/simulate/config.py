@@ -30,12 +30,13 @@ from sim.cloth.config import (
 )
 from sim.errors import WrinklesInputError
 from sim.quality import QualityGates
+from sim.types import Motion
 
 DEFAULT_PINNED: tuple[str, ...] = ("waistband",)
 """Attachment sets pinned to the body by default: an elastic waistband grips the waist. Tops
 hang on the shoulders by contact and friction: pinning their shoulder line to the skin drags
-it with the deltoid, whose skin stretches and folds as the arm moves (edge strain up to 0.9 on
-the walk's T-pose-to-arms-down ramp against 0.6 free). Hems and cuffs stay free."""
+it with the deltoid, whose skin stretches and folds as the arm moves (edge strain up to 0.9 while
+the walk's arms come down from the T-pose against 0.6 free). Hems and cuffs stay free."""
 
 # ---------------------------------------------------------------------------------- retries
 
@@ -86,8 +87,10 @@ def simulator_defaults(cuda: bool = False) -> dict:
     under other physics: a dataset is resumed only where the record it began with is equal to
     this one. Recorded: the automatic substeps and sweeps, the fine garments' coarse exclusion,
     the job's coarse guard, the retry ladders (a dataset's own ``[simulation] retry_factors`` is
-    in its config), the templates' hems and every template's default parameters, and the
-    procedural gaits' rule (``sim.motions.gait.gait_record``). On CUDA (``cuda``) also the
+    in its config), the templates' hems and every template's default parameters, the
+    procedural gaits' rule (``sim.motions.gait.gait_record``) and how procedural motions begin
+    (``procedural_start``: ``"lead_in"``, in full motion at t = 0 after a lead-in played in the
+    prelude, ``sim.motions.procedural``). On CUDA (``cuda``) also the
     colouring (``CUDA_COLORS``) and the early coarse system (``CUDA_COARSE_EARLY``); the CPU uses
     neither and records neither, so a dataset begun on one kind of device is not continued on
     the other.
@@ -104,7 +107,7 @@ def simulator_defaults(cuda: bool = False) -> dict:
            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
            "retry_factors": {"default": list(RETRY_FACTORS), "fine": list(FINE_RETRY_FACTORS)},
            "templates": {name: dataclasses.asdict(make_params(name)) for name in TEMPLATES},
-           "gait": gait_record()}
+           "gait": gait_record(), "procedural_start": "lead_in"}
     if cuda:
         out["max_colors"] = CUDA_COLORS
         out["coarse_early"] = CUDA_COARSE_EARLY
@@ -139,11 +142,14 @@ class SimulationConfig:
             ``VBDConfig.coarse.levels``).
         settle_seconds: time [s] the garment settles on the static rest body before the body
             moves.
-        blend_seconds: time [s] of the eased transition from rest into the motion's first pose.
+        blend_seconds: time [s] of the eased transition from rest into the first pose of a
+            motion without a lead-in of its own (motion files); a procedural motion enters
+            through its lead-in instead, its ``ramp`` parameter long
+            (``sim.motions.blend.enter_from_rest``).
         settle_relax: zero the garment's velocities after every settle frame (kinetic damping:
             the settle converges to static equilibrium instead of swinging).
-        keep_prelude: keep the settle and blend frames in the output (default: the sequence
-            starts at the motion's first frame).
+        keep_prelude: keep the settle and blend (or lead-in) frames in the output (default: the
+            sequence starts at the motion's first frame).
         pinned: attachment sets pinned to the body (names a garment does not define are
             skipped; an imported garment has none).
         ground: stand the body on the floor (y = 0) at the motion's first frame.
@@ -234,12 +240,32 @@ class SimulationConfig:
 
     @property
     def blend_frames(self) -> int:
-        """Frames of the blend from rest (as ``blend_from_rest`` rounds them)."""
+        """Frames of the blend from rest of a motion without a lead-in (as ``blend_from_rest``
+        rounds them)."""
         return int(round(self.blend_seconds * self.fps))
 
-    def solver_steps(self, motion_frames: int) -> int:
-        """Solver steps (one per frame) of a run over a motion of ``motion_frames`` frames."""
-        return self.settle_frames + self.blend_frames + int(motion_frames) - 1
+    def entry_frames(self, motion: Motion) -> int:
+        """Frames between the settle and ``motion``'s first frame at this config's fps: its
+        lead-in's (resampled to ``fps``, ``resample_lead_in``), else ``blend_frames``."""
+        from sim.motions.blend import lead_in
+        from sim.motions.resample import lead_in_frames
+
+        lead = lead_in(motion)
+        if lead is None:
+            return self.blend_frames
+        if abs(float(lead.fps) - float(self.fps)) <= 1e-9:
+            return lead.num_frames
+        return lead_in_frames(lead.num_frames, lead.fps, self.fps)
+
+    def solver_steps(self, motion: Motion | int) -> int:
+        """Solver steps (one per frame) of a run over ``motion`` at this config's fps, or over a
+        motion of that many frames without a lead-in."""
+        if isinstance(motion, Motion):
+            frames = motion.num_frames
+            if abs(float(motion.fps) - float(self.fps)) > 1e-9:
+                frames = max(1, int(round(frames * self.fps / motion.fps)))
+            return self.settle_frames + self.entry_frames(motion) + frames - 1
+        return self.settle_frames + self.blend_frames + int(motion) - 1
 
     # --- solver settings -----------------------------------------------------------------
     def substeps_for(self, vertices: int) -> int:

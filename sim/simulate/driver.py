@@ -172,13 +172,12 @@ class _Batch:
         """Screen timeline ``frame`` (positions ``x``, the frame before ``x_prev``); an instance that
         fails raises (``failures="raise"``) or is frozen at ``x_prev`` with its error in ``errors``."""
         tracks = self.tracks
-        n_prelude = tracks[0].n_settle + tracks[0].n_blend
         roots = np.stack([tr.frames.joints[min(frame, tr.length - 1), 0] for tr in tracks])
         flagged = self.screen(x, x_prev, roots)
         for k, (tr, check) in enumerate(zip(tracks, self.checkers, strict=True)):
             if frame >= tr.length or not flagged[k] or k in errors:
                 continue
-            phase = phase_label(tr, frame, n_prelude, len(tracks) > 1)
+            phase = phase_label(tr, frame, tr.n_settle + tr.n_blend, len(tracks) > 1)
             try:
                 check(x[tr.span], x_prev[tr.span], roots[k], frame - tr.first_out, phase)
             except SimulationError as e:

@@ -1,5 +1,7 @@
 """The prelude of a run: the garment placed on the body at rest, the settle (with the body's
-morph from the garment's shape to the job's) and the blend into the motion (``prepare_track``).
+morph from the garment's shape to the job's) and the way into the motion (``prepare_track``):
+the motion's own lead-in (procedural motions) or a blend from rest into its first frame
+(``sim.motions.blend.enter_from_rest``).
 
 Reference-shape dressing: a garment built on one shape (``SimulationJob.garment_betas``, e.g.
 the mean shape) worn by a body of another (``betas``) keeps its topology; the body morphs from
@@ -75,7 +77,8 @@ def morph_settle(frames_ref: BodyFrames, frames_target: BodyFrames, n_settle: in
 
 
 def prepare_track(job: SimulationJob, cfg: SimulationConfig, device: str, cache: dict) -> Track:
-    """The timeline of ``job`` (its motion at ``cfg.fps`` after the settle and blend), its body
+    """The timeline of ``job`` (its motion at ``cfg.fps`` after the settle and the way in from
+    rest: the motion's lead-in, else a blend of ``cfg.blend_seconds``), its body
     posed over it (shared through ``cache`` by jobs of equal ``shared_body_key``: grounded, morphed from
     the garment's shape), the garment's placement and pinned vertices, and its output buffer.
 
@@ -84,14 +87,14 @@ def prepare_track(job: SimulationJob, cfg: SimulationConfig, device: str, cache:
     """
     from sim.bodies.placement import floor_offset, translate_frames
     from sim.dressing import attachment_vertices, place_garment
-    from sim.motions.blend import blend_from_rest
+    from sim.motions.blend import enter_from_rest
     from sim.motions.resample import resample_motion
 
     motion = job.motion
     if abs(float(motion.fps) - float(cfg.fps)) > 1e-9:
         motion = resample_motion(motion, cfg.fps)
     betas = resolve_betas(job.body, motion, job.betas)
-    timeline, n_prelude = blend_from_rest(motion, cfg.blend_seconds, hold=cfg.settle_seconds)
+    timeline, n_prelude = enter_from_rest(motion, cfg.blend_seconds, hold=cfg.settle_seconds)
     n_settle = cfg.settle_frames
     gbetas = None
     if job.garment_betas is not None:
@@ -114,8 +117,8 @@ def prepare_track(job: SimulationJob, cfg: SimulationConfig, device: str, cache:
             frames = translate_frames(frames, np.array([0.0, dy, 0.0]))
         cache[key] = (frames, dy)
     frames, dy = cache[key]
-    # timeline frame 0 is the rest pose at the motion's first root translation (pose() of zero
-    # rotations is rest_mesh + trans), so the garment built on the rest mesh moves by the same;
+    # timeline frame 0 is the rest pose at the root translation the way in starts from (pose() of
+    # zero rotations is rest_mesh + trans), so the garment built on the rest mesh moves by the same;
     # with a garment shape, frame 0 is that shape's rest mesh (morph_settle)
     placement = timeline.trans[0].astype(np.float64) + np.array([0.0, dy, 0.0])
     x0 = place_garment(job.garment.rest_vertices, placement)

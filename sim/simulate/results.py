@@ -39,7 +39,11 @@ class SimulationResult:
 def provenance(tr: Track, cfg: SimulationConfig, vbd, device: str, seed: int, graph: bool) -> dict:
     """What produced the sequence of ``tr``: the config and resolved ``VBDConfig`` ``vbd``, seed,
     device, whether the step ran from a CUDA graph, package versions, garment, body, motion, the
-    frame counts of the timeline and the garment's placement."""
+    frame counts of the timeline (``blend``: the frames from rest into the motion, its lead-in's
+    where ``entry`` is ``"lead_in"``, a slerp's where it is ``"blend"``) and the garment's
+    placement."""
+    from sim.motions.blend import lead_in
+
     g = tr.job.garment
     body = tr.job.body
     out = {
@@ -57,6 +61,7 @@ def provenance(tr: Track, cfg: SimulationConfig, vbd, device: str, seed: int, gr
                  "betas": [float(b) for b in tr.betas]},
         "motion": {"name": tr.motion.name, "source": tr.motion.source, "frames": tr.motion.num_frames},
         "frames": {"output": int(tr.out.shape[0]), "settle": tr.n_settle, "blend": tr.n_blend,
+                   "entry": "blend" if lead_in(tr.motion) is None else "lead_in",
                    "prelude_kept": bool(cfg.keep_prelude), "first_output_timeline_frame": tr.first_out},
         "ground_offset_m": tr.ground_dy,
         "placement_m": [float(v) for v in tr.placement],

@@ -82,7 +82,7 @@ def phase_label(tr: Track, frame: int, n_prelude: int, batched: bool) -> str:
     (``n_prelude`` frames), and the job's label in a batch of several (``batched``)."""
     phase = ""
     if frame <= n_prelude:
-        phase = "while settling: " if frame <= tr.n_settle else "while blending from rest: "
+        phase = "while settling: " if frame <= tr.n_settle else "while moving from rest into the motion: "
     if batched:
         phase = f"{tr.job.label}: {phase}"
     return phase
