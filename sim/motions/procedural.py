@@ -3,19 +3,19 @@
 Every generator takes a frozen params dataclass and returns a ``Motion`` at ``params.fps``
 lasting ``params.duration`` (``round(duration * fps)`` frames), in full motion from its first
 frame (t = 0). The way in from the rest T-pose is the motion's *lead-in*: the same motion
-evaluated before t = 0 over its ``ramp`` (``round(ramp * fps)`` frames), every amplitude and
-the gaits' speed eased from zero by a smootherstep (:func:`lead_weight`), so it starts at rest
-(poses 0) with zero velocity and reaches t = 0 at full motion with continuous velocity and
-acceleration. It is returned beside the
-clip as ``extra["lead_in"]`` (a ``Motion`` of the frames before t = 0, ``LEAD_IN``), not in it:
-a simulation plays it in its prelude after the garment settles on the rest body
-(``sim.motions.blend.enter_from_rest``), and every output starts at t = 0. ``rest_to_apose``,
-whose content is that transition, has none. ``trans`` is relative to standing at rest: the feet
-stay on the rest floor level (sole contact points found by forward kinematics on a
-``MotionSkeleton``: the body's own joints and soles via ``MotionSkeleton.from_body``, or SMPL's
-approximate skeleton ``sim.motions.retarget.SMPL_REST_JOINTS`` with heel/toe points when no
-skeleton is given); no height offset is added; the gaits reach z = 0 at t = 0 (their lead-in
-walks up from z < 0). Every generator takes ``skeleton=None``.
+evaluated before t = 0 over its ``ramp`` (``round(ramp * fps)`` frames), its amplitudes and
+the gaits' speed eased up from zero (:func:`lead_weight`; the jump goes from the T-pose to
+standing), so it starts at rest (poses 0) with zero velocity and joins the clip at t = 0
+without a velocity jump. It is returned beside the clip as ``extra["lead_in"]`` (a ``Motion``
+of the frames before t = 0, ``LEAD_IN``), not in it: a simulation plays it in its prelude after
+the garment settles on the rest body (``sim.motions.blend.enter_from_rest``), and every output
+starts at t = 0. ``rest_to_apose``, whose content is that transition, has none. ``trans`` is
+relative to standing at rest: the feet stay on the rest floor level (sole contact points found
+by forward kinematics on a ``MotionSkeleton``: the body's own joints and soles via
+``MotionSkeleton.from_body``, or SMPL's approximate skeleton
+``sim.motions.retarget.SMPL_REST_JOINTS`` with heel/toe points when no skeleton is given); no
+height offset is added; the gaits reach z = 0 at t = 0 (their lead-in walks up from z < 0).
+Every generator takes ``skeleton=None``.
 
 Signs of SMPL joint rotations are listed in ``sim.motions.limits``. Angles in params are in
 degrees (``*_deg``), times in seconds, lengths in metres.
