@@ -345,3 +345,33 @@ def test_help_documents_rest_and_motion_param(capsys):
                   "tpose: SMPL's T-pose as it is", "file: every bone", "BVH files only",
                   "default: out/body.usdc"):
         assert words in out, words
+
+
+def test_dataset_sequences_pose_files_on_their_body(tmp_path, body):
+    """The dataset generator builds a BVH sequence's rest alignment on the sequence's own body
+    shape, and an AMASS sequence's Z-up translation exact for that body's pelvis."""
+    from sim.datasets.config import load_config
+    from sim.datasets.generate import sequence_inputs
+    from sim.datasets.sampling import SequenceSpec
+    from sim.motions.amass import place_pelvis
+
+    cfg = load_config("sample")
+    betas = (1.0, -0.5)
+    full = body.full_betas(np.array(betas))
+    joints = MotionSkeleton.from_body(body, full).rest_joints
+    bvh = write_bvh(tmp_path / "cmu.bvh", cmu_skeleton(), CMU_FRAMES * 30, root_height=16.0)
+    sp = SequenceSpec(index=0, id="seq-00000", seed=1, category="t_shirt", betas=betas, motion=str(bvh))
+    _, m = sequence_inputs(cfg, sp, body)
+    want = load_motion(bvh, fps=cfg.fps, duration=cfg.seconds, rest_joints=joints)
+    np.testing.assert_array_equal(m.poses, want.poses)
+    assert np.abs(m.poses - load_motion(bvh, fps=cfg.fps, duration=cfg.seconds).poses).max() > 1e-4
+    T = round(cfg.seconds * 120) + 2
+    np.savez(tmp_path / "a.npz", poses=np.zeros((T, 156)), trans=np.zeros((T, 3)), mocap_framerate=120.0)
+    sp = SequenceSpec(index=1, id="seq-00001", seed=2, category="t_shirt", betas=betas,
+                      motion=str(tmp_path / "a.npz"))
+    _, m = sequence_inputs(cfg, sp, body)
+    raw = load_motion(tmp_path / "a.npz", fps=cfg.fps, duration=cfg.seconds)
+    assert raw.extra["pelvis_exact"] is False and m.extra["pelvis_exact"] is True
+    placed = place_pelvis(raw, body.rest_joints(full)[body.body_joint_map[0]])
+    np.testing.assert_allclose(m.trans, placed.trans, atol=1e-6)
+    assert np.abs(m.trans - raw.trans).max() > 0.01

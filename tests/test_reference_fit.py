@@ -101,17 +101,18 @@ def test_mean_shape_garment_dressed_on_another_shape(morphed_run, body, skirt):
     res, cfg, motion = morphed_run
     seq = res.sequence
     n = cfg.settle_frames
+    k = cfg.entry_frames(motion)
     assert seq.vertices.shape[1:] == (skirt.num_vertices, 3)
-    assert seq.vertices.shape[0] == n + cfg.blend_frames + motion.num_frames
+    assert seq.vertices.shape[0] == n + k + motion.num_frames
     assert np.isfinite(seq.vertices).all()
     # the body: the garment's (mean) rest mesh at frame 0, the target's at the end of the settle
     dy = seq.provenance["ground_offset_m"]
-    off = motion.trans[0] + np.array([0.0, dy, 0.0], np.float32)
+    off = motion.extra["lead_in"].trans[0] + np.array([0.0, dy, 0.0], np.float32)
     np.testing.assert_allclose(seq.body.vertices[0], body.rest_mesh(body.full_betas(None)) + off, atol=1e-5)
     np.testing.assert_allclose(seq.body.vertices[n], body.rest_mesh(body.full_betas(TARGET)) + off,
                                atol=1e-5)
     # grounded on the target shape at the motion's first frame
-    assert abs(float(seq.body.vertices[n + cfg.blend_frames, :, 1].min())) < 1e-5
+    assert abs(float(seq.body.vertices[n + k, :, 1].min())) < 1e-5
     # the garment came to rest outside the bigger body
     assert res.quality.inside_fraction[n] <= cfg.gates.max_inside_fraction
     # without the morph, the mean-shape skirt starts inside the bigger body

@@ -215,13 +215,19 @@ def _write_rejections(root: Path) -> None:
 
 
 def sequence_inputs(cfg: DatasetConfig, sp: SequenceSpec, body):
-    """The body shape (padded betas) and the motion of one sequence, built for that body."""
+    """The body shape (padded betas) and the motion of one sequence, built for that body: a
+    procedural motion on its joints and soles, a BVH file's rest aligned to its joints, an AMASS
+    file's Z-up translation exact for its pelvis."""
     from sim.motions import MotionSkeleton, load_motion
+    from sim.motions.amass import place_pelvis
 
     betas = body.full_betas(sp.betas)
-    motion = load_motion(sp.motion, fps=cfg.fps, duration=cfg.seconds,
-                         skeleton=MotionSkeleton.from_body(body, betas), **sp.motion_params)
-    return betas, motion
+    skeleton = MotionSkeleton.from_body(body, betas)
+    params = dict(sp.motion_params)
+    if str(sp.motion).lower().endswith(".bvh"):
+        params.setdefault("rest_joints", skeleton.rest_joints)
+    motion = load_motion(sp.motion, fps=cfg.fps, duration=cfg.seconds, skeleton=skeleton, **params)
+    return betas, place_pelvis(motion, body.rest_joints(betas)[body.body_joint_map[0]])
 
 
 def garment_betas(cfg: DatasetConfig, body, betas: np.ndarray) -> np.ndarray:
