@@ -37,9 +37,10 @@ def add_batch_arguments(ap: argparse.ArgumentParser) -> None:
     """``--batch`` sizes of the garment-frames/s runs and their ``--batch-prelude``."""
     ap.add_argument("--batch", default="", help="batch sizes for garment-frames/s, e.g. 1,16,64,256,1024")
     ap.add_argument("--batch-prelude", type=float, default=None,
-                    help="settle and blend seconds (each) of the batched runs (default: the config's "
-                    "1 s; shorter keeps 1,024-sequence runs within minutes, the timed motion frames "
-                    "are the same)")
+                    help="seconds of the batched runs' settle and of their way into the motion (a "
+                         "procedural motion's ramp, a file's blend) (default: the config's and the "
+                         "motion's; shorter keeps 1,024-sequence runs within minutes, the timed motion "
+                         "frames are the same)")
 
 
 def option_error(option: str, e: Exception) -> None:
@@ -162,6 +163,9 @@ def run_batches(garment, body, motion, cfg, args: argparse.Namespace) -> dict:
     """{batch size: figures} of ``args.batch`` sequences of ``motion`` in one model."""
     if args.batch_prelude is not None:
         cfg = dataclasses.replace(cfg, settle_seconds=args.batch_prelude, blend_seconds=args.batch_prelude)
+        if "lead_in" in motion.extra:  # a procedural motion enters through its lead-in (its ramp)
+            motion = benchmark_motion(motion.source.removeprefix("procedural:"), body, args.seconds,
+                                      ramp=args.batch_prelude)
     out = {}
     for nb in [int(s) for s in args.batch.split(",")]:
         out[str(nb)], _ = run_ours(garment, body, motion, cfg, batch=nb)

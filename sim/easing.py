@@ -2,7 +2,8 @@
 
 ``smoothstep`` (cubic, C1) eases procedural motions, the body's shape morph and the garment
 templates' blends between rows; ``smootherstep`` (quintic, C2: zero acceleration at the ends
-too) eases a motion in from the rest pose (``sim.motions.blend``).
+too) eases a motion in from the rest pose: a motion file's blend (``sim.motions.blend``) and the
+procedural motions' lead-ins.
 """
 
 from __future__ import annotations

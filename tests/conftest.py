@@ -60,8 +60,8 @@ def random_body(num_vertices: int = 400, *, seed: int = 0, posedirs: bool = True
 @pytest.fixture(scope="session")
 def sample_dataset(tmp_path_factory):
     """The shipped sample dataset (``wrinkles dataset generate --config sample``), made once per
-    test session on CPU (~20 s): 8 sequences of t-shirts and skirts (one topology per category),
-    18 frames each, 64² images."""
+    test session on CPU (about 2 minutes on 2 cores): 8 sequences of t-shirts and skirts (one
+    topology per category), 18 frames each, 64² images."""
     from sim.datasets.config import load_config
     from sim.datasets.generate import generate
 
