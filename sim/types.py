@@ -53,6 +53,48 @@ class BodyFrames:
 
 
 @dataclass(frozen=True)
+class BodyRig:
+    """A shaped body as a skeleton and a skin: what a DCC needs to pose it as we do (LBS).
+
+    Posed vertices (``sim.skinning.lbs``) are
+    ``sum_k weight_values[v, k] * A[weight_indices[v, k]] @ (rest_vertices[v] + pose offsets)``
+    with ``A_j = G_j @ inverse(bind_j)``, ``G_j`` the joint's world transform
+    (``BodyFrames.transforms``) and ``bind_j`` the translation to ``rest_joints[j]``; the pose
+    offsets are ``sum_p feature[p] * pose_blend_shapes[p]`` with
+    ``feature[9 (j - 1) + 3 r + c] = R_j[r, c] - I[r, c]`` of each non-root joint's rotation
+    relative to its parent (SMPL Eq. 9).
+
+    Attributes:
+        rest_vertices: shaped rest-pose vertices [m], shape (V, 3), float32.
+        faces: triangles, shape (F, 3), int32.
+        joint_names: J names.
+        parents: parent joint index, shape (J,), int32, -1 for the root; parents[j] < j.
+        rest_joints: rest joint positions [m], shape (J, 3), float32.
+        weight_indices: the joints influencing each vertex, shape (V, K), int32 (padding 0).
+        weight_values: their weights, shape (V, K), float32 (padding 0; rows sum to 1).
+        pose_blend_shapes: pose-corrective offsets [m per unit feature], shape (9 (J - 1), V, 3),
+            float32, or None for a body without them.
+    """
+
+    rest_vertices: np.ndarray
+    faces: np.ndarray
+    joint_names: tuple[str, ...]
+    parents: np.ndarray
+    rest_joints: np.ndarray
+    weight_indices: np.ndarray
+    weight_values: np.ndarray
+    pose_blend_shapes: np.ndarray | None = None
+
+    @property
+    def num_joints(self) -> int:
+        return int(self.parents.shape[0])
+
+    @property
+    def num_vertices(self) -> int:
+        return int(self.rest_vertices.shape[0])
+
+
+@dataclass(frozen=True)
 class Motion:
     """A body motion in SMPL's convention.
 

@@ -252,7 +252,7 @@ def test_read_errors_name_the_file(tmp_path: Path) -> None:
         read_stage(junk_c)
     empty = tmp_path / "empty.usda"
     Usd.Stage.CreateNew(str(empty)).Save()
-    with pytest.raises(WrinklesInputError, match=r"empty\.usda: no /World/Body mesh"):
+    with pytest.raises(WrinklesInputError, match=r"empty\.usda: no /World/Body or /World/BodyRig/Body mesh"):
         read_stage(empty)
 
 

@@ -11,7 +11,11 @@ import numpy as np
 from pxr import Tf, Usd, UsdGeom
 
 from sim.errors import WrinklesInputError
-from usd_io.write import BODY_PATH, FABRIC_LAYERS, JOINTS_PATH, METADATA_KEY
+from usd_io.skel import is_skinned, skinned_points
+from usd_io.write import BODY_PATH, FABRIC_LAYERS, JOINTS_PATH, METADATA_KEY, SKEL_BODY_PATH
+
+#: where a body mesh is looked for: the point cache, then the rig's skinned mesh.
+BODY_PATHS = (BODY_PATH, SKEL_BODY_PATH)
 
 
 @dataclass(frozen=True)
@@ -23,7 +27,8 @@ class MeshData:
         path: prim path, e.g. ``/World/Garments/shirt``.
         faces: triangle indices, shape (F, 3), int32 (polygons fan-triangulated).
         points: positions [stage units; m for our stages] at each of the stage's time codes,
-            shape (T, V, 3), float32 (static points are repeated).
+            shape (T, V, 3), float32 (static points are repeated; a mesh bound to a UsdSkel
+            skeleton is posed by UsdSkel: blend shapes, then skinning).
         uvs: ``primvars:st`` values, shape (U, 2), float32, or None.
         uv_faces: per-corner indices into ``uvs``, shape (F, 3), int32, or None (None with
             ``uvs`` means per-vertex UVs).
@@ -56,7 +61,8 @@ class StageData:
         end_time_code: last time code.
         time_codes: the time codes sampled, shape (T,), float64.
         meshes: every mesh prim by path, in stage traversal order.
-        joints: body joint positions [m], shape (T, J, 3), float32, or None.
+        joints: body joint positions [m], shape (T, J, 3), float32 (the guide points of a
+            point cache, the skeleton's joints of a rig), or None.
         metadata: the provenance dict stored by ``write_stage`` ({} when absent).
     """
 
@@ -74,8 +80,8 @@ class StageData:
 
     @property
     def body(self) -> MeshData | None:
-        """The mesh at ``/World/Body``, or None."""
-        return self.meshes.get(BODY_PATH)
+        """The body mesh (``/World/Body``, or ``/World/BodyRig/Body`` of a rig), or None."""
+        return next((self.meshes[p] for p in BODY_PATHS if p in self.meshes), None)
 
     @property
     def garments(self) -> dict[str, MeshData]:
@@ -127,7 +133,9 @@ def _samples(attr: Usd.Attribute, times: list[Usd.TimeCode], n: int) -> np.ndarr
     return out
 
 
-def _read_mesh(mesh: UsdGeom.Mesh, times: list[Usd.TimeCode], file: Path) -> MeshData:
+def _read_mesh(mesh: UsdGeom.Mesh, times: list[Usd.TimeCode], file: Path,
+               posed: np.ndarray | None = None) -> MeshData:
+    """One mesh; ``posed`` (T, V, 3) replaces its authored points (a skinned mesh)."""
     prim = mesh.GetPrim()
     where = f"mesh {prim.GetPath()}"
     counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
@@ -136,9 +144,8 @@ def _read_mesh(mesh: UsdGeom.Mesh, times: list[Usd.TimeCode], file: Path) -> Mes
         raise WrinklesInputError(f"{where} has inconsistent faceVertexCounts / "
                                  "faceVertexIndices", path=file)
     corners = _fan(counts, indices)
-    first = mesh.GetPointsAttr().Get(times[0]) or []
-    n = len(first)
-    points = _samples(mesh.GetPointsAttr(), times, n)
+    n = len(mesh.GetPointsAttr().Get(times[0]) or [])
+    points = _samples(mesh.GetPointsAttr(), times, n) if posed is None else posed
     if points is None:
         raise WrinklesInputError(f"{where} has no points or a changing point count", path=file)
     if indices.size and (indices.min() < 0 or indices.max() >= n):
@@ -174,22 +181,22 @@ def read_stage(path: str | os.PathLike, *, require_body: bool = True) -> StageDa
 
     Args:
         path: a ``.usda`` / ``.usdc`` / ``.usd`` / ``.usdz`` file.
-        require_body: raise when there is no ``/World/Body`` mesh.
+        require_body: raise when there is no body mesh (``BODY_PATHS``).
 
     Returns:
         The stage's timing, units and meshes. Frames are the integer time codes from
         ``startTimeCode`` to ``endTimeCode`` (one sample at the default time when the stage
-        has no time range).
+        has no time range). A skinned mesh's points are UsdSkel's posed points.
 
     Raises:
-        WrinklesInputError: missing file, not USD, no ``/World/Body`` (when required), or
+        WrinklesInputError: missing file, not USD, no body mesh (when required), or
             malformed mesh topology; the message names the file.
     """
     file = Path(path)
     stage = open_stage(file)
-    body_prim = stage.GetPrimAtPath(BODY_PATH)
-    if require_body and not (body_prim and body_prim.IsA(UsdGeom.Mesh)):
-        raise WrinklesInputError(f"no {BODY_PATH} mesh in the stage", path=file)
+    if require_body and not any((prim := stage.GetPrimAtPath(p)) and prim.IsA(UsdGeom.Mesh)
+                                for p in BODY_PATHS):
+        raise WrinklesInputError(f"no {' or '.join(BODY_PATHS)} mesh in the stage", path=file)
     if stage.HasAuthoredTimeCodeRange():
         start, end = stage.GetStartTimeCode(), stage.GetEndTimeCode()
         codes = np.arange(start, end + 0.5, 1.0, dtype=np.float64)
@@ -199,10 +206,15 @@ def read_stage(path: str | os.PathLike, *, require_body: bool = True) -> StageDa
         codes = np.zeros(1)
         times = [Usd.TimeCode.Default()]
     meshes: dict[str, MeshData] = {}
+    joints = None
     for prim in stage.Traverse():
         if prim.IsA(UsdGeom.Mesh):
-            meshes[str(prim.GetPath())] = _read_mesh(UsdGeom.Mesh(prim), times, file)
-    joints = None
+            skinned = skinned_points(stage, prim, times) if is_skinned(prim) else None
+            path = str(prim.GetPath())
+            meshes[path] = _read_mesh(UsdGeom.Mesh(prim), times, file,
+                                      None if skinned is None else skinned[0])
+            if skinned is not None and path == SKEL_BODY_PATH:
+                joints = skinned[1]
     joint_prim = stage.GetPrimAtPath(JOINTS_PATH)
     if joint_prim and joint_prim.IsA(UsdGeom.Points):
         attr = UsdGeom.Points(joint_prim).GetPointsAttr()
@@ -228,4 +240,4 @@ def read_stage(path: str | os.PathLike, *, require_body: bool = True) -> StageDa
     )
 
 
-__all__ = ["MeshData", "StageData", "open_stage", "read_stage"]
+__all__ = ["BODY_PATHS", "MeshData", "StageData", "open_stage", "read_stage"]

@@ -8,7 +8,10 @@ Error / Warn / Info.
 
 None of the stock validators look at mesh topology, so we add ``UsdGeom.Mesh.ValidateTopology``
 at every time sample of ``points`` and a range check of indexed ``primvars:st``; those issues
-are reported as errors with the identifier ``wrinkles:MeshTopology``.
+are reported as errors with the identifier ``wrinkles:MeshTopology``. The usdSkel validators
+check only that the binding API is applied, so skinned meshes get ``wrinkles:SkelBinding``:
+a valid joint hierarchy, one influence set per point with joint indices in range, and one
+blend-shape target per blend-shape name.
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Usd, UsdGeom, UsdValidation
+from pxr import Usd, UsdGeom, UsdSkel, UsdValidation
 
 from usd_io.read import open_stage
 
@@ -104,6 +107,52 @@ def _mesh_topology(stage: Usd.Stage) -> list[str]:
     return out
 
 
+def _skel_bindings(stage: Usd.Stage) -> list[str]:
+    """Each skinned mesh's joint influences and blend shapes against its skeleton."""
+    out = []
+    for prim in stage.Traverse():
+        if not (prim.IsA(UsdGeom.Mesh) and prim.HasAPI(UsdSkel.BindingAPI)):
+            continue
+        where = f"wrinkles:SkelBinding: {prim.GetPath()}"
+        binding = UsdSkel.BindingAPI(prim)
+        skel = binding.GetInheritedSkeleton()
+        if not skel:
+            continue  # not skinned: drawn as authored
+        joints = skel.GetJointsAttr().Get() or []
+        ok, reason = UsdSkel.Topology(joints).Validate()
+        if not ok:
+            out.append(f"{where}: skeleton {skel.GetPath()}: {reason}")
+            continue
+        out += [f"{where}: {p}" for p in _influence_problems(binding, prim, len(joints))]
+        names = binding.GetBlendShapesAttr().Get() or []
+        targets = binding.GetBlendShapeTargetsRel().GetTargets()
+        if len(names) != len(targets):
+            out.append(f"{where}: {len(names)} skel:blendShapes for {len(targets)} "
+                       "skel:blendShapeTargets")
+    return out
+
+
+def _influence_problems(binding: UsdSkel.BindingAPI, prim: Usd.Prim, n_joints: int) -> list[str]:
+    """Joint indices / weights of a vertex-interpolated skin against the point count."""
+    idx_pv, w_pv = binding.GetJointIndicesPrimvar(), binding.GetJointWeightsPrimvar()
+    if not (idx_pv and idx_pv.HasAuthoredValue() and w_pv and w_pv.HasAuthoredValue()):
+        return ["primvars:skel:jointIndices / jointWeights not authored"]
+    idx = np.asarray(idx_pv.Get(), dtype=np.int64)
+    weights = np.asarray(w_pv.Get(), dtype=np.float64)
+    k = idx_pv.GetElementSize()
+    n_points = len(UsdGeom.Mesh(prim).GetPointsAttr().Get() or [])
+    problems = []
+    if idx.size != weights.size:
+        problems.append(f"{idx.size} joint indices for {weights.size} joint weights")
+    if idx_pv.GetInterpolation() == UsdGeom.Tokens.vertex and idx.size != n_points * k:
+        problems.append(f"{idx.size} joint indices for {n_points} points x {k} influences")
+    if idx.size and (idx.min() < 0 or idx.max() >= n_joints):
+        problems.append(f"joint indices outside [0, {n_joints})")
+    if not np.isfinite(weights).all():
+        problems.append("joint weights contain NaN or inf")
+    return problems
+
+
 def validation_report(path: str | os.PathLike) -> ValidationReport:
     """Validate a USD file with ``UsdValidation`` and our mesh checks.
 
@@ -118,7 +167,8 @@ def validation_report(path: str | os.PathLike) -> ValidationReport:
     """
     stage = open_stage(Path(path))
     found = _usd_validation(stage)
-    errors = [line for level, line in found if level == "error"] + _mesh_topology(stage)
+    errors = ([line for level, line in found if level == "error"] + _mesh_topology(stage)
+              + _skel_bindings(stage))
     return ValidationReport(errors=errors,
                             warnings=[line for level, line in found if level == "warning"],
                             infos=[line for level, line in found if level == "info"])

@@ -3,8 +3,13 @@
 Stage layout::
 
     /World                      Xform, default prim
-    /World/Body                 Mesh, time-sampled points + extent, skin material
-    /World/BodyJoints           Points (purpose "guide"), time-sampled joint positions
+    /World/BodyRig              the body as a UsdSkel rig (``body_as="skel"``, usd_io/skel.py):
+                                SkelRoot with Skeleton, SkelAnimation and the skinned mesh
+                                /World/BodyRig/Body (skin material)
+    /World/Body                 or the body as a point cache (``body_as="points"``): Mesh,
+                                time-sampled points + extent, skin material
+    /World/BodyJoints           Points (purpose "guide"), time-sampled joint positions (point
+                                cache only; the skeleton carries them in a rig)
     /World/Garments/<name>      Mesh, time-sampled points, primvars:st, cloth material,
                                 primvars:fabricLayers (uniform float, per face) where it has hems
     /World/Looks/<name>Material UsdPreviewSurface materials
@@ -19,6 +24,7 @@ only when complete (written in a temporary directory beside it, then renamed).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -31,10 +37,15 @@ import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdShade, UsdUtils, Vt
 
 from sim.errors import WrinklesInputError
-from sim.types import BodyFrames, face_layers_array
+from sim.types import BodyFrames, BodyRig, face_layers_array
+from usd_io.skel import RIG_SUFFIX, check_rig, define_skel_body
 
 WORLD_PATH = "/World"
 BODY_PATH = "/World/Body"
+#: the body mesh of a rig (``body_as="skel"``), under its SkelRoot.
+SKEL_BODY_PATH = f"/World/Body{RIG_SUFFIX}/Body"
+#: ways ``write_stage`` writes the body.
+BODY_AS = ("skel", "points")
 JOINTS_PATH = "/World/BodyJoints"
 GARMENTS_PATH = "/World/Garments"
 LOOKS_PATH = "/World/Looks"
@@ -216,24 +227,32 @@ def write_stage(
     start_time_code: int = 0,
     write_joints: bool = True,
     progress: ProgressFn | None = None,
+    rig: BodyRig | None = None,
+    body_as: str | None = None,
 ) -> Path:
     """Write an animated body and garments to a USD file, atomically.
 
     Args:
         path: output file; ``.usda`` (text), ``.usdc`` / ``.usd`` (binary crate) or ``.usdz``
             (package). Parent directories are created.
-        body: the body over time (vertices [m] (T, V, 3), joints [m] (T, J, 3), faces (F, 3)),
-            or None for garments only.
+        body: the body over time (vertices [m] (T, V, 3), joints [m] (T, J, 3), world joint
+            transforms (T, J, 4, 4), faces (F, 3)), or None for garments only.
         fps: frames per second [1/s]; becomes ``timeCodesPerSecond`` and ``framesPerSecond``.
         garments: garment tracks; each must have the same T as the body (and each other).
         body_name: prim name of the body under ``/World`` (default ``Body``; readers look
-            for ``/World/Body``).
+            for ``/World/Body`` and ``/World/BodyRig/Body``).
         metadata: provenance (command, config, versions ...), JSON-serialisable; stored as a
             JSON string in the root layer's ``customLayerData["wrinkles:metadata"]``.
         start_time_code: time code of frame 0.
-        write_joints: also write the body joints as a guide ``UsdGeom.Points``.
+        write_joints: with the point cache, also write the body joints as a guide
+            ``UsdGeom.Points`` (a rig's skeleton holds them).
         progress: called as ``progress(frames_done, frames_total)`` after each frame; an
             exception raised from it aborts the write and leaves no file behind.
+        rig: the body's skeleton and skin (``BodyModel.rig(betas)`` with the betas ``body``
+            was posed with); it must reproduce ``body.vertices`` (``usd_io.skel.check_rig``).
+        body_as: ``"skel"``: the body as a UsdSkel rig (needs ``rig``), a few hundred bytes of
+            joint animation per frame; ``"points"``: a point cache, every vertex every frame.
+            None: ``"skel"`` when a rig is given, else ``"points"``.
 
     Returns:
         The path written.
@@ -241,27 +260,41 @@ def write_stage(
     Raises:
         WrinklesInputError: unknown suffix.
         ValueError: bad shapes, NaN/inf, mismatched frame counts, duplicate garment names,
-            non-JSON metadata, non-positive fps.
+            non-JSON metadata, non-positive fps, an unknown ``body_as``, ``"skel"`` without a
+            rig, or a rig that does not reproduce the body.
     """
     final, fmt = _stage_path(Path(path))
     if not (np.isfinite(fps) and fps > 0):
         raise ValueError(f"write_stage fps must be positive, got {fps}")
-    c = _content(body, garments, body_name, write_joints)
+    as_skel = _body_as_skel(body_as, rig)
+    c = _content(body, garments, body_name, write_joints and not as_skel)
+    if as_skel and body is not None:
+        c = dataclasses.replace(c, rig=check_rig(rig, dataclasses.replace(
+            body, vertices=c.body_verts, faces=c.body_faces)))
     meta_json = _metadata_json(metadata)
 
     def author(stage: Usd.Stage) -> None:
-        _author(stage, body_verts=c.body_verts, body_faces=c.body_faces, body_name=body_name,
-                joints=c.joints, tracks=c.tracks, names=c.names, fps=float(fps),
-                start=int(start_time_code), n_frames=c.n_frames, meta_json=meta_json,
-                progress=progress)
+        _author(stage, c, body=body, body_name=body_name, fps=float(fps),
+                start=int(start_time_code), meta_json=meta_json, progress=progress)
 
     _write_layer(final, fmt, author)
     return final
 
 
+def _body_as_skel(body_as: str | None, rig: BodyRig | None) -> bool:
+    """Whether the body is written as a rig (``write_stage``'s ``body_as``)."""
+    if body_as is None:
+        return rig is not None
+    if body_as not in BODY_AS:
+        raise ValueError(f"body_as must be one of {BODY_AS}, got {body_as!r}")
+    if body_as == "skel" and rig is None:
+        raise ValueError("body_as='skel' needs the body's rig (BodyModel.rig(betas))")
+    return body_as == "skel"
+
+
 @dataclass(frozen=True)
 class _Content:
-    """The checked arrays of a stage (see ``write_stage``)."""
+    """The checked arrays of a stage (see ``write_stage``); ``rig`` set for a rigged body."""
 
     body_verts: np.ndarray | None
     body_faces: np.ndarray | None
@@ -269,6 +302,7 @@ class _Content:
     tracks: list[GarmentTrack]
     names: list[str]
     n_frames: int
+    rig: BodyRig | None = None
 
 
 def _content(body: BodyFrames | None, garments: Sequence[GarmentTrack], body_name: str,
@@ -325,17 +359,21 @@ def _write_layer(final: Path, fmt: str, author: Callable[[Usd.Stage], None]) -> 
         shutil.rmtree(tmp_dir, ignore_errors=True)
 
 
-def _author(stage: Usd.Stage, *, body_verts: np.ndarray | None, body_faces: np.ndarray | None,
-            body_name: str, joints: np.ndarray | None, tracks: list[GarmentTrack],
-            names: list[str], fps: float, start: int, n_frames: int, meta_json: str,
-            progress: ProgressFn | None) -> None:
+
+
+#: per-frame values to author: (attribute, values (T, ...), Vt array constructor).
+_Samples = list[tuple[Usd.Attribute, np.ndarray, Callable]]
+
+
+def _author(stage: Usd.Stage, c: _Content, *, body: BodyFrames | None, body_name: str, fps: float,
+            start: int, meta_json: str, progress: ProgressFn | None) -> None:
     """Author everything into ``stage`` (see ``write_stage``)."""
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
     stage.SetTimeCodesPerSecond(fps)
     stage.SetFramesPerSecond(fps)
     stage.SetStartTimeCode(start)
-    stage.SetEndTimeCode(start + n_frames - 1)
+    stage.SetEndTimeCode(start + c.n_frames - 1)
     layer_data = {METADATA_KEY: meta_json, "wrinkles:usdVersion": ".".join(
         str(v) for v in Usd.GetVersion())}
     stage.GetRootLayer().customLayerData = layer_data
@@ -344,51 +382,69 @@ def _author(stage: Usd.Stage, *, body_verts: np.ndarray | None, body_faces: np.n
     stage.SetDefaultPrim(world.GetPrim())
     UsdGeom.Scope.Define(stage, LOOKS_PATH)
 
-    # (points attribute, extent attribute, vertices (T, V, 3), extents (T, 2, 3))
-    animated: list[tuple[Usd.Attribute, Usd.Attribute | None, np.ndarray, np.ndarray | None]] = []
-    if body_verts is not None:
-        mat = _define_material(stage, f"{body_name}Material", SKIN_COLOR, roughness=0.6)
-        mesh = _define_mesh(stage, f"{WORLD_PATH}/{body_name}", body_faces, SKIN_COLOR, mat,
-                            double_sided=False)
-        animated.append((mesh.CreatePointsAttr(), mesh.CreateExtentAttr(), body_verts,
-                         _extents(body_verts)))
-    if joints is not None:
+    samples: _Samples = []
+    if c.body_verts is not None:
+        samples += _author_body(stage, c, body, body_name)
+    if c.tracks:
+        UsdGeom.Scope.Define(stage, GARMENTS_PATH)
+    for g, name in zip(c.tracks, c.names, strict=True):
+        samples += _author_garment(stage, g, name)
+
+    for k in range(c.n_frames):
+        t = Usd.TimeCode(start + k)
+        with Sdf.ChangeBlock():
+            for attr, values, make in samples:
+                attr.Set(make(values[k]), t)
+        if progress is not None:
+            progress(k + 1, c.n_frames)
+
+
+def _author_body(stage: Usd.Stage, c: _Content, body: BodyFrames, body_name: str) -> _Samples:
+    """The body as a rig (``c.rig``) or a point cache, and its joints; returns the samples."""
+    mat = _define_material(stage, f"{body_name}Material", SKIN_COLOR, roughness=0.6)
+
+    def define(path: str) -> UsdGeom.Mesh:
+        return _define_mesh(stage, path, c.body_faces, SKIN_COLOR, mat, double_sided=False)
+
+    if c.rig is not None:
+        rigged = dataclasses.replace(body, vertices=c.body_verts)
+        return define_skel_body(stage, f"{WORLD_PATH}/{body_name}{RIG_SUFFIX}", body_name, c.rig,
+                                rigged, define).samples
+    mesh = define(f"{WORLD_PATH}/{body_name}")
+    samples: _Samples = [(mesh.CreatePointsAttr(), c.body_verts, Vt.Vec3fArray.FromNumpy),
+                         (mesh.CreateExtentAttr(), _extents(c.body_verts), Vt.Vec3fArray.FromNumpy)]
+    if c.joints is not None:
         pts = UsdGeom.Points.Define(stage, f"{WORLD_PATH}/{body_name}Joints")
         pts.CreatePurposeAttr(UsdGeom.Tokens.guide)
         pts.CreateWidthsAttr(Vt.FloatArray([JOINT_WIDTH]))
         pts.SetWidthsInterpolation(UsdGeom.Tokens.constant)
         half = np.float32(JOINT_WIDTH / 2)
-        ext = _extents(joints) + np.array([-half, half], np.float32)[None, :, None]
-        animated.append((pts.CreatePointsAttr(), pts.CreateExtentAttr(), joints, ext))
-    if tracks:
-        UsdGeom.Scope.Define(stage, GARMENTS_PATH)
-    for g, name in zip(tracks, names, strict=True):
-        mat = _define_material(stage, f"{name}Material", g.color, roughness=0.9)
-        mesh = _define_mesh(stage, f"{GARMENTS_PATH}/{name}", g.faces, g.color, mat,
-                            double_sided=True)
-        if name != g.name:
-            mesh.GetPrim().SetCustomDataByKey("wrinkles:name", g.name)
-        _author_uvs(mesh, g)
-        if g.face_layers is not None and (g.face_layers > 1.0).any():
-            layers = UsdGeom.PrimvarsAPI(mesh.GetPrim()).CreatePrimvar(
-                FABRIC_LAYERS, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.uniform)
-            layers.Set(Vt.FloatArray.FromNumpy(g.face_layers))
-        animated.append((mesh.CreatePointsAttr(), mesh.CreateExtentAttr(), g.vertices,
-                         _extents(g.vertices)))
-        if g.normals is not None:
-            mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-            normals = mesh.CreateNormalsAttr()
-            if g.normals.ndim == 2:
-                normals.Set(Vt.Vec3fArray.FromNumpy(g.normals))
-            else:
-                animated.append((normals, None, g.normals, None))
+        ext = _extents(c.joints) + np.array([-half, half], np.float32)[None, :, None]
+        samples += [(pts.CreatePointsAttr(), c.joints, Vt.Vec3fArray.FromNumpy),
+                    (pts.CreateExtentAttr(), ext, Vt.Vec3fArray.FromNumpy)]
+    return samples
 
-    for k in range(n_frames):
-        t = Usd.TimeCode(start + k)
-        with Sdf.ChangeBlock():
-            for attr, ext_attr, values, exts in animated:
-                attr.Set(Vt.Vec3fArray.FromNumpy(values[k]), t)
-                if ext_attr is not None:
-                    ext_attr.Set(Vt.Vec3fArray.FromNumpy(exts[k]), t)
-        if progress is not None:
-            progress(k + 1, n_frames)
+
+def _author_garment(stage: Usd.Stage, g: GarmentTrack, name: str) -> _Samples:
+    """A garment mesh (material, UVs, fabric layers, normals); returns its samples."""
+    mat = _define_material(stage, f"{name}Material", g.color, roughness=0.9)
+    mesh = _define_mesh(stage, f"{GARMENTS_PATH}/{name}", g.faces, g.color, mat,
+                        double_sided=True)
+    if name != g.name:
+        mesh.GetPrim().SetCustomDataByKey("wrinkles:name", g.name)
+    _author_uvs(mesh, g)
+    if g.face_layers is not None and (g.face_layers > 1.0).any():
+        layers = UsdGeom.PrimvarsAPI(mesh.GetPrim()).CreatePrimvar(
+            FABRIC_LAYERS, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.uniform)
+        layers.Set(Vt.FloatArray.FromNumpy(g.face_layers))
+    samples: _Samples = [
+        (mesh.CreatePointsAttr(), g.vertices, Vt.Vec3fArray.FromNumpy),
+        (mesh.CreateExtentAttr(), _extents(g.vertices), Vt.Vec3fArray.FromNumpy)]
+    if g.normals is not None:
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        normals = mesh.CreateNormalsAttr()
+        if g.normals.ndim == 2:
+            normals.Set(Vt.Vec3fArray.FromNumpy(g.normals))
+        else:
+            samples.append((normals, g.normals, Vt.Vec3fArray.FromNumpy))
+    return samples

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim.errors import WrinklesInputError
-from sim.types import NUM_SMPL_JOINTS, SMPL_JOINT_NAMES, BodyFrames, Motion
+from sim.types import NUM_SMPL_JOINTS, SMPL_JOINT_NAMES, BodyFrames, BodyRig, Motion
 
 
 @dataclass(frozen=True, eq=False)
@@ -212,3 +212,18 @@ class BodyModel:
     def rest_joints(self, betas: np.ndarray | None = None) -> np.ndarray:
         """Rest joint positions [m], (J, 3), float32."""
         return (self.j_regressor @ self.rest_mesh(betas)).astype(np.float32)
+
+    def rig(self, betas: np.ndarray | None = None) -> BodyRig:
+        """The body shaped by ``betas`` as a skeleton and skin (``BodyRig``): what ``pose``
+        skins, for writing the body as a ``UsdSkel`` rig. Weights keep every non-zero
+        (``sparse_weights``); the pose blend shapes are ``posedirs`` per pose-feature entry."""
+        from sim.skinning.lbs import sparse_weights
+
+        idx, val = sparse_weights(self.weights)
+        shapes = None
+        if self.posedirs is not None:
+            shapes = np.ascontiguousarray(np.transpose(self.posedirs, (2, 0, 1)), dtype=np.float32)
+        return BodyRig(rest_vertices=self.rest_mesh(betas), faces=self.faces,
+                       joint_names=self.joint_names, parents=self.parents.copy(),
+                       rest_joints=self.rest_joints(betas), weight_indices=idx, weight_values=val,
+                       pose_blend_shapes=shapes)
