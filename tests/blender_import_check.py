@@ -7,13 +7,18 @@ the project venv: it needs only ``bpy`` and ``numpy``::
 
 ``EXPECTED.npz`` (written by tests/test_blender_import.py) holds ``fps``, ``start``, ``end``,
 ``names`` (Blender object names = USD prim names) and per name ``points__<name>`` (T, V, 3)
-[m, Y up], ``faces__<name>`` (F, 3) and optionally ``corner_uvs__<name>`` (F, 3, 2).
+[m, Y up], ``faces__<name>`` (F, 3) and optionally ``corner_uvs__<name>`` (F, 3, 2); for a
+body written as a UsdSkel rig ``skinned`` (its name), ``joints`` (the skeleton's joint names)
+and ``shape_keys`` (how many pose blend shapes it has).
 
 Checks, each within ``TOL`` [m]:
-  * every named mesh object exists and carries a Mesh Sequence Cache modifier;
+  * every named mesh object exists and carries a Mesh Sequence Cache modifier (time-sampled
+    points), except the skinned body: it has an Armature modifier on an Armature object whose
+    bones are the joints, a vertex group per joint, and a shape key per blend shape;
   * the scene frame range is the stage's time-code range;
-  * at every frame k the evaluated, world-space vertices equal our points at time code k,
-    converted Y up -> Z up as Blender does on import ((x, y, z) -> (x, -z, y));
+  * at every frame k the evaluated, world-space vertices (the skinned body posed by its
+    armature and shape keys) equal our points at time code k, converted Y up -> Z up as
+    Blender does on import ((x, y, z) -> (x, -z, y));
   * two different frames really differ (the animation is not frozen on one sample);
   * loop topology and face-varying UVs (seams) equal ours.
 
@@ -32,7 +37,8 @@ import bpy
 import numpy as np
 
 #: position tolerance [m]: float32 points through Blender's float32 mesh and a 90 degree
-#: rotation matrix (exact up to rounding) stay far below this.
+#: rotation matrix (exact up to rounding) stay far below this; so does Blender's armature
+#: deform of a rig (float32 bone matrices: ~1e-6 m on a walking body, Blender 4.5).
 TOL = 1e-4
 #: UV tolerance: float32 UVs are copied unchanged.
 UV_TOL = 1e-6
@@ -81,6 +87,77 @@ def check_topology(name: str, faces: np.ndarray, corner_uvs: np.ndarray | None) 
     return out
 
 
+def check_skin(ob, joints: list[str], shape_keys: int, problems: list[str]) -> dict:
+    """The skinned body: an Armature modifier on an Armature object whose bones are the
+    joints, a vertex group per joint, ``shape_keys`` shape keys besides the basis."""
+    arm_mods = [m for m in ob.modifiers if m.type == "ARMATURE"]
+    arm = arm_mods[0].object if arm_mods else None
+    keys = ob.data.shape_keys
+    info = {"armature": None if arm is None else f"{arm.name}:{arm.type}",
+            "bones": [] if arm is None or arm.type != "ARMATURE" else [b.name for b in arm.data.bones],
+            "vertex_groups": sorted(g.name for g in ob.vertex_groups),
+            "shape_keys": 0 if keys is None else len(keys.key_blocks) - 1,
+            "animated": arm is not None and arm.animation_data is not None
+            and arm.animation_data.action is not None}
+    if arm is None or arm.type != "ARMATURE":
+        problems.append(f"{ob.name}: no Armature modifier on an Armature object")
+    elif sorted(info["bones"]) != sorted(joints):
+        problems.append(f"{ob.name}: armature bones {info['bones']} are not the joints {joints}")
+    if info["vertex_groups"] != sorted(joints):
+        problems.append(f"{ob.name}: vertex groups {info['vertex_groups']} are not the joints")
+    if info["shape_keys"] != shape_keys:
+        problems.append(f"{ob.name}: {info['shape_keys']} shape keys, expected {shape_keys}")
+    if not info["animated"]:
+        problems.append(f"{ob.name}: the armature has no action")
+    return info
+
+
+def check_positions(name: str, ours: np.ndarray, start: int, end: int,
+                    problems: list[str]) -> dict:
+    """Evaluated world positions at every frame against ours (Blender axes), (T, V, 3)."""
+    errs, frames = [], {}
+    for k in range(start, end + 1):
+        frames[k] = world_vertices(name, k)
+        if frames[k].shape != ours[k - start].shape:
+            problems.append(f"{name}: frame {k} has {frames[k].shape[0]} vertices, "
+                            f"expected {ours.shape[1]}")
+            break
+        errs.append(float(np.abs(frames[k] - ours[k - start]).max()))
+    info: dict = {"max_err_per_frame": errs}
+    if len(errs) == end - start + 1:
+        info["first_last_max_diff"] = float(np.abs(frames[end] - frames[start]).max())
+        if max(errs) > TOL:
+            problems.append(f"{name}: positions differ by {max(errs):.3g} m > {TOL}")
+        if info["first_last_max_diff"] <= TOL:
+            problems.append(f"{name}: frames {start} and {end} are identical in Blender")
+    return info
+
+
+def check_mesh(exp, name: str, start: int, end: int, problems: list[str]) -> dict | None:
+    """One named mesh: how it is animated, its positions per frame, topology and UVs."""
+    ob = bpy.data.objects.get(name)
+    if ob is None or ob.type != "MESH":
+        problems.append(f"no mesh object {name!r} after import")
+        return None
+    mat = ob.active_material
+    info: dict = {"modifiers": [m.type for m in ob.modifiers],
+                  "material": None if mat is None else mat.name}
+    if "skinned" in exp and name == str(exp["skinned"]):
+        info["skin"] = check_skin(ob, [str(j) for j in exp["joints"]], int(exp["shape_keys"]),
+                                  problems)
+    elif "MESH_SEQUENCE_CACHE" not in info["modifiers"]:
+        problems.append(f"{name}: no Mesh Sequence Cache modifier")
+    info.update(check_positions(name, y_up_to_blender(exp[f"points__{name}"]), start, end,
+                                problems))
+    corner = exp[f"corner_uvs__{name}"] if f"corner_uvs__{name}" in exp else None
+    info.update(check_topology(name, exp[f"faces__{name}"], corner))
+    if not info["topology_ok"]:
+        problems.append(f"{name}: loop topology differs from our faces")
+    if corner is not None and (info["uv_max_err"] is None or info["uv_max_err"] > UV_TOL):
+        problems.append(f"{name}: UVs differ ({info['uv_max_err']})")
+    return info
+
+
 def main(stage_path: str, expected_path: str) -> int:
     exp = np.load(expected_path)
     names = [str(n) for n in exp["names"]]
@@ -100,38 +177,9 @@ def main(stage_path: str, expected_path: str) -> int:
     if res["frame_range"] != [start, end]:
         problems.append(f"frame range {res['frame_range']} != [{start}, {end}]")
     for name in names:
-        ob = bpy.data.objects.get(name)
-        if ob is None or ob.type != "MESH":
-            problems.append(f"no mesh object {name!r} after import")
-            continue
-        mat = ob.active_material
-        info: dict = {"modifiers": [m.type for m in ob.modifiers],
-                      "material": None if mat is None else mat.name}
-        if "MESH_SEQUENCE_CACHE" not in info["modifiers"]:
-            problems.append(f"{name}: no Mesh Sequence Cache modifier")
-        ours = y_up_to_blender(exp[f"points__{name}"])
-        errs, frames = [], {}
-        for k in range(start, end + 1):
-            frames[k] = world_vertices(name, k)
-            if frames[k].shape != ours[k - start].shape:
-                problems.append(f"{name}: frame {k} has {frames[k].shape[0]} vertices, "
-                                f"expected {ours.shape[1]}")
-                break
-            errs.append(float(np.abs(frames[k] - ours[k - start]).max()))
-        info["max_err_per_frame"] = errs
-        if len(errs) == end - start + 1:
-            info["first_last_max_diff"] = float(np.abs(frames[end] - frames[start]).max())
-            if max(errs) > TOL:
-                problems.append(f"{name}: positions differ by {max(errs):.3g} m > {TOL}")
-            if info["first_last_max_diff"] <= TOL:
-                problems.append(f"{name}: frames {start} and {end} are identical in Blender")
-        corner = exp[f"corner_uvs__{name}"] if f"corner_uvs__{name}" in exp else None
-        info.update(check_topology(name, exp[f"faces__{name}"], corner))
-        if not info["topology_ok"]:
-            problems.append(f"{name}: loop topology differs from our faces")
-        if corner is not None and (info["uv_max_err"] is None or info["uv_max_err"] > UV_TOL):
-            problems.append(f"{name}: UVs differ ({info['uv_max_err']})")
-        res["meshes"][name] = info
+        info = check_mesh(exp, name, start, end, problems)
+        if info is not None:
+            res["meshes"][name] = info
     # Blender keeps its own fps; set the stage's and make sure time code k stays on frame k.
     scene.render.fps, scene.render.fps_base = round(fps), round(fps) / fps
     res["fps_after_setting"] = scene.render.fps / scene.render.fps_base

@@ -1,4 +1,5 @@
-"""Our USD stages import into Blender 4.5 with the right frames, positions and UVs.
+"""Our USD stages import into Blender 4.5 with the right frames, positions and UVs; a body
+written as a UsdSkel rig comes in as an armature with a skinned mesh posed as our LBS.
 
 Runs tests/blender_import_check.py in Blender's Python (PyPI ``bpy``), found at
 ``$WRINKLES_BLENDER_PYTHON`` or ``.venv-blender/bin/python`` (make it with
@@ -16,7 +17,10 @@ import numpy as np
 import pytest
 import trimesh
 
+from sim.bodies import load_body
+from sim.motions import procedural_motion
 from sim.types import BodyFrames
+from tests import smpl_synth
 from usd_io import GarmentTrack, write_stage
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,22 +66,16 @@ def make_scene() -> tuple[BodyFrames, GarmentTrack]:
     return body, GarmentTrack("sheet", g_verts, faces, uvs=uvs, uv_faces=uv_faces)
 
 
-@pytest.mark.parametrize("suffix", [".usdc", ".usda"])
-def test_blender_imports_our_stage(tmp_path: Path, suffix: str) -> None:
+def run_check(tmp_path: Path, stage: Path, expected: dict) -> dict:
+    """Run the check script on ``stage`` in Blender; its result (asserted free of problems)."""
     python = blender_python()
     if python is None:
         pytest.skip("Blender's Python not found: run scripts/setup-blender-venv.sh or set "
                     "WRINKLES_BLENDER_PYTHON")
-    body, garment = make_scene()
-    stage = write_stage(tmp_path / f"anim{suffix}", body=body, fps=FPS, garments=[garment],
-                        start_time_code=START)
-    expected = tmp_path / "expected.npz"
-    np.savez(expected, fps=FPS, start=START, end=START + T - 1, names=np.array(["Body", "sheet"]),
-             points__Body=body.vertices, faces__Body=body.faces,
-             points__sheet=garment.vertices, faces__sheet=garment.faces,
-             corner_uvs__sheet=garment.uvs[garment.uv_faces])
+    path = tmp_path / "expected.npz"
+    np.savez(path, **expected)
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
-    proc = subprocess.run([str(python), str(CHECK_SCRIPT), str(stage), str(expected)],
+    proc = subprocess.run([str(python), str(CHECK_SCRIPT), str(stage), str(path)],
                           cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=TIMEOUT_S)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("WRINKLES_CHECK_RESULT ")]
@@ -85,6 +83,22 @@ def test_blender_imports_our_stage(tmp_path: Path, suffix: str) -> None:
     res = json.loads(lines[-1].split(" ", 1)[1])
     assert res["problems"] == [], json.dumps(res, indent=1)
     assert proc.returncode == 0
+    return res
+
+
+@pytest.mark.parametrize("suffix", [".usdc", ".usda"])
+def test_blender_imports_our_stage(tmp_path: Path, suffix: str) -> None:
+    if blender_python() is None:
+        pytest.skip("Blender's Python not found: run scripts/setup-blender-venv.sh or set "
+                    "WRINKLES_BLENDER_PYTHON")
+    body, garment = make_scene()
+    stage = write_stage(tmp_path / f"anim{suffix}", body=body, fps=FPS, garments=[garment],
+                        start_time_code=START)
+    res = run_check(tmp_path, stage, {
+        "fps": FPS, "start": START, "end": START + T - 1, "names": np.array(["Body", "sheet"]),
+        "points__Body": body.vertices, "faces__Body": body.faces,
+        "points__sheet": garment.vertices, "faces__sheet": garment.faces,
+        "corner_uvs__sheet": garment.uvs[garment.uv_faces]})
     assert res["frame_range"] == [START, START + T - 1]
     assert res["fps_after_setting"] == pytest.approx(FPS)
     for name in ("Body", "sheet"):
@@ -95,3 +109,50 @@ def test_blender_imports_our_stage(tmp_path: Path, suffix: str) -> None:
         assert info["first_last_max_diff"] > 1e-2
         assert info["topology_ok"]
     assert res["meshes"]["sheet"]["uv_max_err"] <= 1e-6
+
+
+def posed_body(which: str, tmp_path: Path):
+    """(model, betas, frames): the default body walking T frames, or a synthetic SMPL model
+    (tests/smpl_synth.py, pose correctives) in random poses (rotations past 90 degrees)."""
+    rng = np.random.default_rng(SEED)
+    if which == "default":
+        model = load_body()
+        betas = np.zeros(model.num_betas, np.float32)
+        betas[:2] = [0.6, -0.4]
+        motion = procedural_motion("walk", duration=T / FPS, fps=FPS)
+        return model, betas, model.pose_motion(motion, betas, device="cpu")
+    model = load_body(smpl_synth.write_model(tmp_path, "smpl", "npz", seed=SEED))
+    betas = rng.normal(size=4).astype(np.float32)
+    poses = rng.normal(scale=1.0, size=(T, 24, 3)).astype(np.float32)
+    trans = rng.normal(scale=0.3, size=(T, 3)).astype(np.float32)
+    return model, betas, model.pose(betas, poses, trans, device="cpu")
+
+
+@pytest.mark.parametrize("which", ["default", "correctives"])
+def test_blender_imports_the_rig_as_an_armature(tmp_path: Path, which: str) -> None:
+    """The body as a UsdSkel rig: an Armature object with a bone per joint, the body mesh with
+    an Armature modifier, a vertex group per joint and a shape key per pose blend shape, posed
+    by Blender at each frame as our LBS; the garment stays a time-sampled mesh."""
+    if blender_python() is None:
+        pytest.skip("Blender's Python not found: run scripts/setup-blender-venv.sh or set "
+                    "WRINKLES_BLENDER_PYTHON")
+    model, betas, frames = posed_body(which, tmp_path)
+    _, garment = make_scene()
+    stage = write_stage(tmp_path / "rig.usdc", body=frames, fps=FPS, garments=[garment],
+                        start_time_code=START, rig=model.rig(betas))
+    n_shapes = 0 if model.posedirs is None else 15 * (model.num_joints - 1)
+    res = run_check(tmp_path, stage, {
+        "fps": FPS, "start": START, "end": START + T - 1, "names": np.array(["Body", "sheet"]),
+        "points__Body": frames.vertices, "faces__Body": frames.faces,
+        "points__sheet": garment.vertices, "faces__sheet": garment.faces,
+        "corner_uvs__sheet": garment.uvs[garment.uv_faces],
+        "skinned": "Body", "joints": np.array(model.joint_names), "shape_keys": n_shapes})
+    assert "Skeleton:ARMATURE" in res["objects"]
+    skin = res["meshes"]["Body"]["skin"]
+    assert skin["armature"] == "Skeleton:ARMATURE" and len(skin["bones"]) == 24
+    assert skin["shape_keys"] == n_shapes
+    assert "ARMATURE" in res["meshes"]["Body"]["modifiers"]
+    assert "MESH_SEQUENCE_CACHE" not in res["meshes"]["Body"]["modifiers"]
+    assert max(res["meshes"]["Body"]["max_err_per_frame"]) <= 1e-4
+    assert res["meshes"]["Body"]["first_last_max_diff"] > 1e-2
+    assert "MESH_SEQUENCE_CACHE" in res["meshes"]["sheet"]["modifiers"]
