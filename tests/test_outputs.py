@@ -112,3 +112,32 @@ def test_a_reader_that_left_ends_the_command_quietly_with_buffered_output():
     finally:
         os.close(w)
     assert proc.returncode == 141 and proc.stderr == b"", proc.stderr.decode()
+
+
+def test_stage_rig_is_the_shaped_body_unless_points_are_asked_or_the_shape_changes():
+    """``stage_rig``: the body model's rig for the frames' betas; None (a point cache) with
+    ``--body-points`` or for frames whose body changes shape (no one rig poses them)."""
+    import argparse
+    import dataclasses
+
+    import numpy as np
+
+    from pipelines.outputs import add_body_points_option, stage_rig
+    from tests.conftest import random_body
+
+    body = random_body(120, seed=1, posedirs=False)
+    betas = np.linspace(-1.0, 1.0, body.num_betas).astype(np.float32)
+    poses = np.random.default_rng(0).normal(scale=0.3, size=(4, 24, 3)).astype(np.float32)
+    frames = body.pose(betas, poses, device="cpu")
+    rig = stage_rig(body, betas, frames, points=False)
+    np.testing.assert_array_equal(rig.rest_vertices, body.rest_mesh(betas))
+    assert stage_rig(body, betas, frames, points=True) is None
+    morphed = body.pose(None, poses, device="cpu")  # frame 1 posed on the mean shape
+    mixed = dataclasses.replace(frames, vertices=frames.vertices.copy(),
+                                transforms=frames.transforms.copy())
+    mixed.vertices[1], mixed.transforms[1] = morphed.vertices[1], morphed.transforms[1]
+    assert stage_rig(body, betas, mixed, points=False) is None
+    parser = argparse.ArgumentParser()
+    add_body_points_option(parser)
+    assert parser.parse_args(["--body-points"]).body_points
+    assert not parser.parse_args([]).body_points

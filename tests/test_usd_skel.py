@@ -8,6 +8,7 @@ our bodies fails here.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
 
@@ -30,7 +31,7 @@ from usd_io import (
     validation_report,
     write_stage,
 )
-from usd_io.skel import lbs_vertices, pose_shapes
+from usd_io.skel import lbs_vertices, pose_shapes, rig_error, rig_fits
 
 FPS = 30.0
 #: UsdSkel (double-precision transforms from float32 quaternions) against our float32 LBS.
@@ -74,7 +75,7 @@ def usdskel_points(path: Path, mesh_path: str) -> tuple[np.ndarray, int]:
     return np.stack(out), n_shapes
 
 
-@pytest.mark.parametrize("suffix", [".usdc", ".usda"])
+@pytest.mark.parametrize("suffix", [".usdc", ".usda", ".usdz"])
 def test_usdskel_skins_the_default_body_as_our_lbs(tmp_path, walk, suffix):
     body, betas, frames = walk
     path = write_stage(tmp_path / f"walk{suffix}", body=frames, fps=FPS, rig=body.rig(betas))
@@ -189,7 +190,7 @@ def test_points_on_request_and_without_a_rig(tmp_path, walk):
 
 def test_a_rig_that_is_not_the_bodys_is_refused(tmp_path, walk):
     body, betas, frames = walk
-    with pytest.raises(ValueError, match=r"rig's skinning differs from the body vertices"):
+    with pytest.raises(ValueError, match=r"the rig's bones differ from the body's by 0.0\d+ m at frame"):
         write_stage(tmp_path / "a.usdc", body=frames, fps=FPS, rig=body.rig(None))
     with pytest.raises(ValueError, match=r"body_as='skel' needs the body's rig"):
         write_stage(tmp_path / "a.usdc", body=frames, fps=FPS, body_as="skel")
@@ -199,6 +200,20 @@ def test_a_rig_that_is_not_the_bodys_is_refused(tmp_path, walk):
     with pytest.raises(ValueError, match=r"rig has 300 vertices"):
         write_stage(tmp_path / "a.usdc", body=frames, fps=FPS, rig=other.rig())
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_body_that_changes_shape_does_not_fit_one_rig(walk):
+    """Frames posed with other shape coefficients in the middle of the clip (a settle that
+    morphs the body) are found at every frame, not only at the sampled ones."""
+    body, betas, frames = walk
+    other = body.pose(np.zeros_like(betas), np.zeros((frames.num_frames, 24, 3)), device="cpu")
+    mixed = dataclasses.replace(frames, transforms=frames.transforms.copy())
+    mixed.transforms[2, :, :3, 3] = other.transforms[2, :, :3, 3]  # frame 2 of 0..7: not sampled
+    rig = body.rig(betas)
+    assert rig_fits(rig, frames)
+    assert not rig_fits(rig, mixed)
+    err, frame, what = rig_error(rig, mixed)
+    assert (frame, what) == (2, "bones") and err > 1e-3
 
 
 def test_rig_with_garments_keeps_garments_time_sampled(tmp_path, walk):

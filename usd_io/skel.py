@@ -78,13 +78,32 @@ class PoseShape:
 
 
 def check_rig(rig: BodyRig, body: BodyFrames) -> BodyRig:
-    """``rig`` with arrays as float32 / int32, checked against ``body``'s shapes and vertices.
+    """``rig`` with arrays as float32 / int32, checked against ``body``'s shapes and poses.
 
     Raises:
-        ValueError: shapes that do not fit the body, bad parents or weights, or a rig whose
-            skinning differs from ``body.vertices`` by more than ``RIG_MATCH_TOL`` (a rig made
-            with other shape coefficients or from another body model).
+        ValueError: shapes that do not fit the body, bad parents or weights, or a rig that
+            does not pose as ``body`` (``rig_error`` over ``RIG_MATCH_TOL``: a rig made with
+            other shape coefficients or from another body model, or frames whose body changes
+            shape).
     """
+    out = rig_arrays(rig, body)
+    err, frame, what = rig_error(out, body)
+    if err > RIG_MATCH_TOL:
+        raise ValueError(f"the rig's {what} differ from the body's by {err:.3g} m at frame {frame} "
+                         f"(> {RIG_MATCH_TOL} m): a rig of other shape coefficients or another "
+                         "body model, or a body that changes shape?")
+    return out
+
+
+def rig_fits(rig: BodyRig, body: BodyFrames) -> bool:
+    """Whether ``rig`` poses as ``body`` within ``RIG_MATCH_TOL`` (shapes are checked:
+    ``ValueError`` as ``rig_arrays``)."""
+    return rig_error(rig_arrays(rig, body), body)[0] <= RIG_MATCH_TOL
+
+
+def rig_arrays(rig: BodyRig, body: BodyFrames) -> BodyRig:
+    """``rig`` with arrays as float32 / int32, its shapes checked against ``body``'s
+    (``ValueError`` naming what does not fit)."""
     V, J = body.vertices.shape[1], body.transforms.shape[1]
     parents = np.asarray(rig.parents, np.int32).reshape(-1)
     rest_v = np.ascontiguousarray(rig.rest_vertices, np.float32)
@@ -109,9 +128,7 @@ def check_rig(rig: BodyRig, body: BodyFrames) -> BodyRig:
         if shapes.shape != (9 * (J - 1), V, 3) or not np.isfinite(shapes).all():
             raise ValueError(f"rig pose_blend_shapes must be finite with shape "
                              f"({9 * (J - 1)}, {V}, 3), got {shapes.shape}")
-    out = BodyRig(rest_v, body.faces, tuple(rig.joint_names), parents, rest_j, idx, val, shapes)
-    _check_reproduces(out, body)
-    return out
+    return BodyRig(rest_v, body.faces, tuple(rig.joint_names), parents, rest_j, idx, val, shapes)
 
 
 def local_rotations(transforms: np.ndarray, parents: np.ndarray) -> np.ndarray:
@@ -144,15 +161,25 @@ def lbs_vertices(rig: BodyRig, transforms: np.ndarray) -> np.ndarray:
     return np.einsum("tvab,tvb->tva", M[..., :3, :3], v) + M[..., :3, 3]
 
 
-def _check_reproduces(rig: BodyRig, body: BodyFrames) -> None:
-    T = body.vertices.shape[0]
+def rig_error(rig: BodyRig, body: BodyFrames) -> tuple[float, int, str]:
+    """How far the rig's pose is from ``body``: (largest difference [m], its frame, ``"bones"``
+    or ``"vertices"``). Bones at every frame (each joint against its parent's frame moved by
+    the rig's rest offset: a body whose shape changes over the clip fails there); skinned
+    vertices at ``RIG_CHECK_FRAMES`` frames spread over the clip."""
+    G = np.asarray(body.transforms, np.float64)
+    rest = rig.rest_joints.astype(np.float64)
+    child = np.arange(1, rig.num_joints)
+    par = rig.parents[child]
+    offsets = rest[child] - rest[par]
+    pos, rot = G[..., :3, 3], G[..., :3, :3]
+    bones = pos[:, par] + np.einsum("tjab,jb->tja", rot[:, par], offsets)
+    bone_err = np.abs(bones - pos[:, child]).max(axis=(1, 2)) if child.size else np.zeros(1)
+    T = G.shape[0]
     frames = np.unique(np.linspace(0, T - 1, RIG_CHECK_FRAMES).round().astype(int))
-    err = np.abs(lbs_vertices(rig, body.transforms[frames]) - body.vertices[frames]).max(axis=(1, 2))
-    if err.max() > RIG_MATCH_TOL:
-        k = int(np.argmax(err))
-        raise ValueError(f"the rig's skinning differs from the body vertices by {err[k]:.3g} m "
-                         f"at frame {int(frames[k])} (> {RIG_MATCH_TOL} m): a rig of other shape "
-                         "coefficients or another body model?")
+    vert_err = np.abs(lbs_vertices(rig, G[frames]) - body.vertices[frames]).max(axis=(1, 2))
+    if bone_err.max() >= vert_err.max():
+        return float(bone_err.max()), int(np.argmax(bone_err)), "bones"
+    return float(vert_err.max()), int(frames[np.argmax(vert_err)]), "vertices"
 
 
 def skel_pose(rig: BodyRig, transforms: np.ndarray) -> SkelPose:
@@ -373,4 +400,4 @@ def is_skinned(prim: Usd.Prim) -> bool:
 
 __all__ = ["ANIMATION_NAME", "RIG_SUFFIX", "SKELETON_NAME", "PoseShape", "SkelPose", "check_rig",
            "define_skel_body", "is_skinned", "joint_paths", "lbs_vertices", "pose_shape_weights",
-           "pose_shapes", "skel_pose", "skinned_points"]
+           "pose_shapes", "rig_arrays", "rig_error", "rig_fits", "skel_pose", "skinned_points"]
