@@ -7,7 +7,14 @@ import json
 import time
 from pathlib import Path
 
-from pipelines.outputs import OutputSet, check_stage_outputs, command_line, write_previews
+from pipelines.outputs import (
+    OutputSet,
+    add_body_points_option,
+    check_stage_outputs,
+    command_line,
+    stage_rig,
+    write_previews,
+)
 from pipelines.progress import progress_bar
 
 HELP = "pose a body with a motion; write an animated USD stage and a preview"
@@ -38,6 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=False, default="out/body.usdc",
                    help="USD stage to write: .usdc or .usd (binary, compact), .usda (text) "
                         "(default: %(default)s)")
+    add_body_points_option(p)
     p.add_argument("--preview", default=None, help="preview video to write (.mp4 or .gif)")
     p.add_argument("--sheet", default=None, help="contact sheet PNG to write (8 frames)")
     p.add_argument("--camera", default="three_quarter", choices=("front", "side", "three_quarter"),
@@ -91,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
     if crossings is not None:
         metadata["self_crossings"] = crossings
     with OutputSet() as outputs:
-        write_body_usd(outputs.temp(paths.usd), frames, motion.fps, body.name, metadata, quiet=args.quiet)
+        write_body_usd(outputs.temp(paths.usd), frames, motion.fps, body.name, metadata, quiet=args.quiet,
+                       rig=stage_rig(body, betas, frames, points=args.body_points))
         write_previews(outputs, paths, lambda: frames_to_preview_meshes(frames), num_frames=frames.num_frames,
                        fps=motion.fps, camera=args.camera, quiet=args.quiet)
     if not args.quiet:
@@ -117,10 +126,11 @@ def describe_self_crossings(c: dict) -> str:
             "the quality gates for the body's sake")
 
 
-def write_body_usd(path: Path, frames, fps: float, name: str, metadata: dict, *, quiet: bool) -> None:
+def write_body_usd(path: Path, frames, fps: float, name: str, metadata: dict, *, quiet: bool,
+                   rig=None) -> None:
     from usd_io import write_stage
 
     with progress_bar(frames.num_frames, "writing USD", quiet=quiet) as advance:
         write_stage(path, body=frames, fps=fps, body_name="Body",
                     metadata=json.loads(json.dumps(metadata)),
-                    progress=advance)
+                    progress=advance, rig=rig)
