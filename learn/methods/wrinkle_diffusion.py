@@ -305,7 +305,7 @@ class WrinkleDiffusionMethod(Method):
         device = torch.device(device)
         if device.type == "cpu":
             # channels-last convolutions: 111 against 144 ms per 128² frame and step on a 2-core
-            # EPYC (torch 2.13, docs/BENCHMARKS.md)
+            # EPYC (torch 2.13, docs/DECISIONS.md)
             model = model.to(memory_format=torch.channels_last)
         steps = steps or cfg.sample_steps
         scale = cfg.guidance_scale if guidance_scale is None else guidance_scale
