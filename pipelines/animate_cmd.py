@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipelines.outputs import OutputSet, check_stage_outputs, command_line, write_previews
+from pipelines.outputs import DEFAULT_USD_SUFFIX, OutputSet, check_stage_outputs, command_line, write_previews
 from pipelines.progress import progress_bar
 from sim.errors import WrinklesInputError
 
@@ -27,14 +27,14 @@ mean-shape template they were trained on), worn by the body --shape gives. --ste
 for detail (50 = the paper's setting; 10-20 is a good preview on a CPU). Frames share one initial
 noise and are guided toward their neighbours while denoising, so the wrinkles do not flicker.
 
---body/--shape/--motion/--param/--duration/--fps are those of 'wrinkles body'.
+--body/--shape/--motion/--motion-param/--rest/--duration/--fps are those of 'wrinkles body'.
 
 examples:
-  wrinkles animate --garment tshirt --motion walk --duration 2 --out out/tshirt_walk.usda \\
+  wrinkles animate --garment tshirt --motion walk --duration 2 --out out/tshirt_walk.usdc \\
       --preview out/tshirt_walk.mp4
   wrinkles animate --garment skirt --motion squat --shape 1.0,-0.5 --steps 20 --out skirt.usdc
   wrinkles animate --garment tshirt --motion CMU_01_01.npz --fps 30 --steps 50 --device cuda \\
-      --out walk.usda --sheet walk.png
+      --out walk.usdc --sheet walk.png
   wrinkles animate --coarse runs/coarse/checkpoints/last.pt --wrinkles runs/wr/checkpoints/last.pt \\
       --motion run --out mine.usda
 """
@@ -72,8 +72,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_body_arguments(m)
     o = p.add_argument_group("outputs")
     o.add_argument(
-        "--out", help="USD stage to write (.usda text, or .usdc/.usd binary: about 3x smaller and quicker "
-        "to open; default: out/<garment>_<motion>.usda)"
+        "--out", help="USD stage to write: .usdc or .usd (binary crate) or .usda (text: larger and slower "
+        "to open, for reading and diffing) (default: out/<garment>_<motion>.usdc)"
     )
     o.add_argument("--preview", help="preview video to write (.mp4 or .gif)")
     o.add_argument("--sheet", help="contact sheet PNG to write (8 frames)")
@@ -168,8 +168,8 @@ def run(args: argparse.Namespace) -> int:
     _check_options(args)
     coarse, wrinkles = _model_paths(args)
     label = Path(args.garment).stem if not args.coarse else coarse.stem
-    paths = check_stage_outputs(args.out or f"out/{label}_{Path(args.motion).stem}.usda", args.preview,
-                                args.sheet, sidecar=".animate.json")
+    out = args.out or f"out/{label}_{Path(args.motion).stem}{DEFAULT_USD_SUFFIX}"
+    paths = check_stage_outputs(out, args.preview, args.sheet, sidecar=".animate.json")
     dev = resolve_torch_device(args.device)
     wdev = resolve_device(args.device)
     torch.manual_seed(args.seed)
@@ -181,7 +181,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: the models were trained on body model {body_name!r}", file=sys.stderr)
     frames, trans = _grounded_frames(bm, wdev)
     T = len(trans)
-    with progress_bar(T, "wrinkles", quiet=args.quiet) as advance:
+    steps = args.steps or (pipe.wrinkles.config.sample_steps if pipe.wrinkles else 0)
+    # the diffusion is nearly all of the time (the coarse stage, strain and decoding take ~1 %)
+    stage = f"wrinkle sampling ({steps} DDIM steps)"
+    with progress_bar(T, stage, quiet=args.quiet or wrinkles is None) as advance:
         res = pipe(
             bm.motion.poses,
             trans,
@@ -190,13 +193,12 @@ def run(args: argparse.Namespace) -> int:
             material=args.material,
             seed=args.seed,
             sample_latent=args.sample_latent,
-            progress=lambda done, total: advance(done),
+            progress=advance,
             body_vertices=frames.vertices,
             body_faces=frames.faces,
             clearance=args.clearance,
         )
     garment = _garment(pipe, args.material)
-    steps = args.steps or (pipe.wrinkles.config.sample_steps if pipe.wrinkles else 0)
     provenance = {
         "command": command_line(),
         "coarse_model": str(coarse),

@@ -117,7 +117,7 @@ def run_generate(args: argparse.Namespace) -> int:
     n = len(select_indices(sample_sequences(cfg), shard, shards, args.splits))
     t0 = time.perf_counter()
     try:
-        with progress_bar(n, f"dataset shard {shard}/{shards}", quiet=args.quiet, unit="seq") as advance:
+        with progress_bar(n, f"dataset shard {shard}/{shards}", quiet=args.quiet, unit="sequence") as advance:
             summary = generate(cfg, args.out, shard=shard, shards=shards, resume=args.resume,
                                batch=args.batch, device=device, progress=advance, splits=args.splits,
                                log=None if args.quiet else (lambda s: print(s, file=sys.stderr)))

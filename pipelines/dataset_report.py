@@ -747,13 +747,10 @@ def run_report(args: argparse.Namespace) -> int:
     device = getattr(args, "device", "cpu")
     from pipelines.progress import LazyProgressBar
 
-    bar = LazyProgressBar("dataset report", getattr(args, "quiet", False))
-    try:
+    with LazyProgressBar("dataset report", getattr(args, "quiet", False)) as bar:
         written = write_report(args.dataset, args.out, sequences=args.sequences,
                                frames_per_sequence=args.frames_per_sequence, seed=args.seed,
                                progress=bar, device=None if device == "auto" else device)
-    finally:
-        bar.close()
     if not args.quiet:
         for p in written:
             print(f"  wrote {p}")

@@ -13,7 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from pipelines.outputs import OutputSet, StageOutputs, check_stage_outputs, command_line, write_previews
+from pipelines.outputs import (
+    DEFAULT_USD_SUFFIX,
+    OutputSet,
+    StageOutputs,
+    check_stage_outputs,
+    command_line,
+    write_previews,
+)
 from pipelines.progress import progress_bar
 from sim.errors import WrinklesInputError
 
@@ -47,17 +54,18 @@ shape, or a garment file (.obj/.ply/.glb/.gltf/.off/.stl/.usd*) with UVs, in met
 around the body in its rest pose in the body's own frame (Y up, the pelvis near the origin, not
 the floor-standing frame of the output stages): 'wrinkles garments --export NAME --body-out
 body.obj' writes a template and that body to start from. A file far from the body or in other
-units is refused. --body/--shape/--motion/--param/--duration/--fps are those of 'wrinkles body'.
+units is refused. --body/--shape/--motion/--motion-param/--rest/--duration/--fps are those of
+'wrinkles body'.
 
 examples:
-  wrinkles simulate --garment tshirt --motion walk --material cotton --out tshirt_walk.usda \\
+  wrinkles simulate --garment tshirt --motion walk --material cotton --out tshirt_walk.usdc \\
       --preview tshirt_walk.mp4
   wrinkles simulate --garment straight_skirt --garment-param length=0.45 --motion squat \\
       --shape height=0.6,weight=0.3 --resolution fine --out skirt.usdc --sheet skirt.png
   wrinkles simulate --garment trousers --material denim --motion run --duration 2 \\
       --substeps 20 --out jeans_run.usda
   wrinkles simulate --garment my_dress.obj --material silk --motion CMU_01_01.npz \\
-      --fps 30 --out dress.usda --allow-failed-gates
+      --fps 30 --out dress.usdc --allow-failed-gates
 """
 
 CLOTH_PREVIEW_COLOR: tuple[float, float, float] = (0.22, 0.38, 0.72)
@@ -138,9 +146,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default: on)")
     o = p.add_argument_group("outputs")
     o.add_argument("--out", default=None,
-                   help="USD stage to write: .usda (text), .usdc or .usd (binary: about 3x smaller, as the "
-                        "body's ~13k vertices are stored every frame, and quicker to open) (default: "
-                        "out/GARMENT_MOTION.usda); the quality report goes beside it as <stem>.quality.json")
+                   help="USD stage to write: .usdc or .usd (binary crate) or .usda (text: larger and "
+                        "slower to open, for reading and diffing) (default: out/GARMENT_MOTION.usdc); "
+                        "the quality report goes beside it as <stem>.quality.json")
     o.add_argument("--preview", default=None, help="preview video to write (.mp4 or .gif)")
     o.add_argument("--sheet", default=None, help="contact sheet PNG to write (8 frames)")
     o.add_argument("--camera", default="three_quarter", choices=("front", "side", "three_quarter"),
@@ -328,7 +336,7 @@ def simulate_with_retries(args: argparse.Namespace, garment, bm, config) -> Runs
     from sim.quality import SimulationError
     from sim.simulate import simulate
 
-    total = config.solver_steps(bm.motion.num_frames)
+    total = config.solver_steps(bm.motion)
     runs = Runs(counts=[config.substeps_for(garment.num_vertices)])
     if args.retry:
         runs.counts += config.retry_substeps(garment.num_vertices)
@@ -432,8 +440,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     check_fps(args.fps)
     garment_label = Path(args.garment).stem if is_garment_file(args.garment) else args.garment
-    paths = check_stage_outputs(args.out or f"out/{garment_label}_{Path(args.motion).stem}.usda",
-                                args.preview, args.sheet, sidecar=".quality.json")
+    out = args.out or f"out/{garment_label}_{Path(args.motion).stem}{DEFAULT_USD_SUFFIX}"
+    paths = check_stage_outputs(out, args.preview, args.sheet, sidecar=".quality.json")
     check_garment_spec(args)
     device = resolve_device(args.device)
     config = build_config(args, device)

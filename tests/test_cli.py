@@ -51,7 +51,7 @@ def test_motions_lists_library(capsys):
     out = capsys.readouterr().out
     for name in ("walk", "run", "jump", "squat", "arm_raise", "torso_twist", "random", "rest_to_apose"):
         assert name in out
-    assert "--param" in out
+    assert "--motion-param" in out
 
 
 @pytest.mark.slow
@@ -219,3 +219,32 @@ def test_every_documented_shape_parses_and_the_help_states_the_ranges():
         assert re.search(rf"{name} {lo:.2g}-{hi:.2g}", SHAPE_RANGES_HELP), name
     for name in ("height", "weight", "muscle"):
         assert f"{phenotype_mean()[name]:.2f}" in SHAPE_RANGES_HELP, name
+
+
+@pytest.mark.parametrize("command, want", [
+    (["simulate", "--garment", "skirt", "--motion", "squat"], "out/skirt_squat.usdc"),
+    (["animate", "--garment", "tshirt", "--motion", "walk"], "out/tshirt_walk.usdc"),
+])
+def test_stages_are_binary_usd_unless_asked(monkeypatch, capsys, command, want):
+    """Without --out, simulate and animate write a binary .usdc stage; the help says so, and
+    names the motion's parameters --motion-param."""
+    from pipelines import animate_cmd, simulate_cmd
+    from sim.errors import WrinklesInputError
+
+    asked = []
+
+    def stop(out, *args, **kwargs):
+        asked.append(out)
+        raise WrinklesInputError("stopped by the test")
+
+    for mod in (animate_cmd, simulate_cmd):
+        monkeypatch.setattr(mod, "check_stage_outputs", stop)
+    assert main([*command, "--device", "cpu", "--quiet"]) == 2
+    assert asked == [want]
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        main([command[0], "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(default: out/" in text and ".usdc)" in text and "--motion-param" in text
+    described = (simulate_cmd if command[0] == "simulate" else animate_cmd).DESCRIPTION
+    assert "--motion-param" in described and "/--param/" not in described and ".usda \\" not in described
