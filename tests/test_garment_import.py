@@ -6,6 +6,8 @@ USD through ``usd_io``, the rest through ``sim.garments.load_garment``).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -176,7 +178,8 @@ def test_repairs_duplicates_collapsed_faces_and_specks(tmp_path):
     from sim.garments.io import describe_drops
 
     assert g.repairs == {"merged_vertices": len(soup_v) - len(points) - 3, "collapsed_faces_dropped": 1,
-                         "tiny_piece_faces_dropped": 1, "tiny_pieces_dropped": 1}
+                         "tiny_piece_faces_dropped": 1, "tiny_pieces_dropped": 1,
+                         "unused_vertices_removed": 3}
     assert describe_drops(g.repairs) == ("dropped 1 collapsed (zero-area) faces; dropped 1 stray piece(s) of "
                                          "1 faces (each under 5 % of the mesh)")
     assert load_garment_file(tmp_path / "soup.obj").repairs == g.repairs
@@ -233,16 +236,112 @@ def test_refuses_missing_uvs(tmp_path):
     _refused(_write_obj(tmp_path / "flatuv.obj", points, faces, np.zeros_like(uvs), uv_faces), "collapsed")
 
 
-def test_refuses_degenerate_triangle(tmp_path):
+def _grid_vertex(i: int, j: int, n: int = 6) -> int:
+    """The index of the ``_seamed_grid`` vertex in row i, column j (column 3 is the UV seam)."""
+    return i * n + j
+
+
+def _moved(points, vertex, a, b, t=0.5):
+    """``points`` with ``vertex`` moved onto the segment a-b, at ``t`` from a."""
+    out = points.copy()
+    out[vertex] = (1.0 - t) * points[a] + t * points[b]
+    return out
+
+
+def _heights(g):
+    from sim.garments.repair import height_ratios
+
+    return height_ratios(g.rest_vertices.astype(np.float64), g.faces)
+
+
+def _repairs(g) -> dict:
+    """What reading ``g`` repaired, less the UV seams' split vertices merged back (every OBJ)."""
+    return {k: v for k, v in g.repairs.items() if k != "merged_vertices"}
+
+
+def _check_cloth(g, faces_expected):
+    """A usable cloth mesh: the face count, no sliver, every edge in one or two faces, and every
+    face of the UV layout with area."""
+    from sim.garments.repair import MIN_HEIGHT_RATIO
+
+    assert g.num_faces == faces_expected
+    assert _heights(g).min() > MIN_HEIGHT_RATIO
+    edges = np.sort(g.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    assert np.unique(edges, axis=0, return_counts=True)[1].max() == 2
+    uv = g.uvs[g.uv_faces]
+    d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    assert np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]).min() > 0
+
+
+def test_an_extra_flat_face_on_an_edge_is_dropped(tmp_path):
+    """A needle over an edge (the edge's midpoint joined to both ends, a face of no area on an
+    edge that two faces hold) covers nothing: it is dropped with its vertex, and the mesh is the
+    one without it."""
     points, faces, uvs, uv_faces = _seamed_grid()
-    # a needle: the midpoint of an edge joined to both ends of that edge (a T-junction)
     a, b = faces[0, 0], faces[0, 1]
-    points = np.concatenate([points, [0.5 * (points[a] + points[b])]])
-    uvs = np.concatenate([uvs, [0.5 * (uvs[a] + uvs[b])]])
-    faces = np.concatenate([faces, [[a, len(points) - 1, b]]])
-    uv_faces = np.concatenate([uv_faces, [[a, len(uvs) - 1, b]]])
-    msg = _refused(_write_obj(tmp_path / "needle.obj", points, faces, uvs, uv_faces), "degenerate triangle")
-    assert f"face {len(faces) - 1}" in msg
+    more = np.concatenate([points, [0.5 * (points[a] + points[b])]])
+    more_uvs = np.concatenate([uvs, [0.5 * (uvs[a] + uvs[b])]])
+    more_faces = np.concatenate([faces, [[a, len(points), b]]])
+    more_uv_faces = np.concatenate([uv_faces, [[a, len(uvs), b]]])
+    g = load_garment_file(_write_obj(tmp_path / "needle.obj", more, more_faces, more_uvs, more_uv_faces))
+    assert _repairs(g) == {"slivers_dropped": 1, "unused_vertices_removed": 1}
+    _check_same(g, points, faces, uvs, uv_faces)
+
+
+@pytest.mark.parametrize("column", [1, 2])
+def test_a_flat_triangle_inside_the_mesh_is_flipped_away(tmp_path, column):
+    """A vertex moved onto the opposite edge of one of its faces (a T-junction) leaves that face
+    flat: the edge is flipped, the two faces across it become two with area, and the surface
+    is kept. Beside the UV seam (column 2: the flat face's long edge is the seam) the moved
+    vertex gets a UV in the other side's chart, on the seam edge where it lies in 3D."""
+    from sim.garments.io import describe_drops
+
+    points, faces, uvs, uv_faces = _seamed_grid()
+    v, a, b = ((_grid_vertex(2, 2), _grid_vertex(2, 1), _grid_vertex(3, 2)) if column == 1
+               else (_grid_vertex(2, 2), _grid_vertex(2, 3), _grid_vertex(3, 3)))
+    flat = _moved(points, v, a, b)
+    g = load_garment_file(_write_obj(tmp_path / "flat.obj", flat, faces, uvs, uv_faces))
+    assert _repairs(g) == {"sliver_edges_flipped": 1}
+    assert describe_drops(g.repairs) == "flipped the long edge of 1 sliver triangles"
+    _check_cloth(g, len(faces))
+    assert len(g.uvs) == len(uvs) + (column == 2)
+    if column == 2:  # the new UV: the midpoint of the seam edge in the right-hand chart
+        right = [k for k, f in enumerate(faces) if {a, b} <= set(f.tolist()) and v not in f][0]
+        ua, ub = (uvs[uv_faces[right][list(faces[right]).index(x)]] for x in (a, b))
+        np.testing.assert_allclose(g.uvs[-1], 0.5 * (ua + ub), atol=1e-6)
+    tri = g.rest_vertices[g.faces].astype(np.float64)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    given = flat[faces]
+    want = 0.5 * np.linalg.norm(np.cross(given[:, 1] - given[:, 0], given[:, 2] - given[:, 0]), axis=1).sum()
+    np.testing.assert_allclose(area, want, rtol=1e-3)  # the same surface (the quad is near planar)
+
+
+def test_vertices_a_hair_apart_are_merged(tmp_path):
+    """Three vertices 3 µm from a neighbour (over the 1 µm of exporters' duplicates, under 1 % of
+    the 8 cm edges) make needles: their edges are collapsed and the faces on them dropped."""
+    from sim.garments.io import describe_drops
+
+    points, faces, uvs, uv_faces = _seamed_grid()
+    moved = points.copy()
+    for i, j in ((1, 1), (2, 4), (4, 2)):
+        moved[_grid_vertex(i, j)] = points[_grid_vertex(i, j + 1)] + 3e-6
+    g = load_garment_file(_write_obj(tmp_path / "hair.obj", moved, faces, uvs, uv_faces))
+    assert _repairs(g) == {"short_edges_collapsed": 3, "collapsed_faces_dropped": 6,
+                           "unused_vertices_removed": 3}
+    assert describe_drops(g.repairs).startswith("collapsed 3 needle edges")
+    _check_cloth(g, len(faces) - 6)
+
+
+def test_refuses_flat_triangles_that_only_the_modelling_tool_can_fix(tmp_path):
+    """Two flat faces back to back (both far corners of a quad moved onto its diagonal): no flip
+    gives them area and dropping them would open a crack, so the file is refused in one line,
+    naming the file, the count and where."""
+    points, faces, uvs, uv_faces = _seamed_grid()
+    a, b = _grid_vertex(2, 1), _grid_vertex(3, 2)
+    squashed = _moved(_moved(points, _grid_vertex(2, 2), a, b, 1 / 3), _grid_vertex(3, 1), a, b, 2 / 3)
+    msg = _refused(_write_obj(tmp_path / "squashed.obj", squashed, faces, uvs, uv_faces),
+                   "2 degenerate triangle")
+    assert "no repair fixes" in msg and "fix the mesh" in msg
 
 
 def test_refuses_unreadable_missing_and_unknown(tmp_path):
@@ -325,3 +424,95 @@ def test_simulate_cli_passes_hem_parameters_to_a_garment_file(tmp_path):
     assert g.face_layers.min() == 1.0 and g.face_layers.max() == 2.0
     with pytest.raises(WrinklesInputError, match="--garment-param length.*hem_width and hem_layers only"):
         load_garment_arg(args("length=0.5"), body, None)
+
+
+# ------------------------------------------------------------------ through `wrinkles simulate`
+
+SIM_FAST = ["--motion", "walk", "--duration", "0.2", "--settle", "0.4", "--blend", "0.1", "--substeps", "4",
+            "--iterations", "4", "--device", "cpu"]
+
+
+def _skirt_file_parts():
+    """A 5 cm skirt fitted to the default body: (points, faces, uvs, uv_faces, boundary mask)."""
+    from sim.bodies import load_body
+    from sim.garments import make_garment
+
+    g = make_garment("straight_skirt", load_body(), np.zeros(10), resolution=0.05)
+    points = g.rest_vertices.astype(np.float64)
+    edges = np.sort(g.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    uniq, counts = np.unique(edges, axis=0, return_counts=True)
+    border = np.zeros(len(points), bool)
+    border[uniq[counts == 1].ravel()] = True
+    return points, g.faces.astype(np.int64), g.uvs.astype(np.float64), g.uv_faces.astype(np.int64), border
+
+
+def _normals(points, faces):
+    tri = points[faces]
+    return np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+
+
+def _flat_caps(points, faces, border, count):
+    """``points`` with ``count`` interior vertices moved onto the opposite edge of one of their
+    faces (T-junctions: that face flat, every other face turned by less than 90°), away from
+    each other."""
+    out, used, moved_count = points.copy(), set(), 0
+    for f, (v, a, b) in enumerate(faces.tolist()):
+        around = np.flatnonzero((faces == v).any(axis=1))
+        if border[[v, a, b]].any() or used & {v, a, b}:
+            continue
+        moved = _moved(out, v, a, b)
+        others = around[around != f]
+        if (np.sum(_normals(moved, faces[others]) * _normals(out, faces[others]), axis=1) > 0).all():
+            out = moved
+            used |= set(faces[np.isin(faces, faces[around]).any(axis=1)].ravel().tolist())
+            moved_count += 1
+            if moved_count == count:
+                return out
+    raise AssertionError("no room for the flat faces")
+
+
+@pytest.mark.slow
+def test_simulate_repairs_degenerate_triangles_and_runs(tmp_path, capsys):
+    """A garment file with two flat triangles (T-junctions) and a vertex 3 µm from its
+    neighbour, which unrepaired turn the simulation NaN at every substep count, is repaired (the
+    repair told on stderr, recorded in the quality report) and simulated."""
+    from pipelines.cli import main
+
+    points, faces, uvs, uv_faces, border = _skirt_file_parts()
+    broken = _flat_caps(points, faces, border, 2)
+    v = int(np.flatnonzero(~border)[-1])
+    w = int(next(x for x in faces[(faces == v).any(axis=1)].ravel() if x != v))
+    broken[v] = broken[w] + 3e-6
+    path = _write_obj(tmp_path / "skirt.obj", broken, faces, uvs, uv_faces)
+    out = tmp_path / "s.usdc"
+    assert main(["simulate", "--garment", str(path), "--out", str(out), *SIM_FAST]) == 0
+    err = capsys.readouterr().err
+    assert "repaired: collapsed 1 needle edges" in err, err
+    assert "flipped the long edge of 2 sliver triangles" in err, err
+    report = json.loads((tmp_path / "s.quality.json").read_text())
+    assert report["passed"] and report["garment_repairs"]["sliver_edges_flipped"] == 2
+
+
+def test_simulate_refuses_unrepairable_triangles_before_simulating(tmp_path, capsys, monkeypatch):
+    """Flat triangles that no repair fixes are refused when the file is read: one line naming
+    the file, exit 2, no simulation started and nothing written."""
+    import sim.simulate
+    from pipelines.cli import main
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("simulated a garment that should have been refused")
+
+    monkeypatch.setattr(sim.simulate, "simulate", no_simulation)
+    points, faces, uvs, uv_faces, border = _skirt_file_parts()
+    # a quad squashed onto its diagonal: both far corners on the shared edge
+    f = next(k for k, tri in enumerate(faces) if not border[tri].any())
+    a, b, m = faces[f]
+    g = next(k for k, tri in enumerate(faces) if k != f and {a, b} <= set(tri.tolist()))
+    c = int(next(x for x in faces[g] if x not in (a, b)))
+    squashed = _moved(_moved(points, m, a, b, 1 / 3), c, a, b, 2 / 3)
+    path = _write_obj(tmp_path / "squashed.obj", squashed, faces, uvs, uv_faces)
+    assert main(["simulate", "--garment", str(path), "--out", str(tmp_path / "s.usdc"), *SIM_FAST]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"wrinkles simulate: error: {path}:"), err
+    assert "degenerate triangle" in err and "no repair fixes" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["squashed.obj"]

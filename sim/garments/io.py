@@ -1,10 +1,11 @@
 """Import a user garment mesh (OBJ / PLY / GLB / glTF / OFF / STL via trimesh) with its UVs.
 
-Repairs what is safe to repair (duplicate vertices merged while UV seams are kept, faces that
-collapse to an edge or a point once duplicates are merged dropped, faces given twice dropped,
-tiny disconnected pieces dropped) and refuses the rest with a one-line ``WrinklesInputError``
-naming the file: no UVs, non-manifold edges, degenerate triangles (three distinct vertices, no
-area: removing one leaves a crack, so the mesh needs fixing in the modelling tool).
+Repairs what can be repaired without changing the surface (``sim.garments.repair``: duplicate
+vertices merged while UV seams are kept, needle edges collapsed, collapsed faces and faces
+given twice dropped, slivers flipped or dropped, tiny disconnected pieces and unused vertices
+removed) and refuses the rest with a one-line ``WrinklesInputError`` naming the file: no UVs,
+non-manifold edges, slivers that only the modelling tool can fix. A file that loads has faces
+a simulation can use.
 
 USD files are read above ``sim`` (``pipelines.garment_files.load_garment_file``, through
 ``usd_io``), which hands its reader to ``load_garment``.
@@ -23,17 +24,9 @@ from sim.errors import WrinklesInputError
 from sim.garments.hems import HEM_LAYERS, hem_face_layers
 from sim.garments.materials import Material, get_material
 from sim.garments.parameters import HEM_SPECS, check_parameter
+from sim.garments.repair import SHORT_EDGE, TINY_COMPONENT, repair_mesh
 from sim.garments.types import Garment
 
-MERGE_TOL = 1e-6
-"""Vertices closer than 1 µm are one vertex (exporters split them along UV seams) [m]."""
-TINY_COMPONENT = 0.05
-"""Components with fewer than 5 % of the faces are stray pieces and are dropped."""
-DEGENERATE_AREA = 1e-12
-"""Faces below 1e-12 m² (1 µm × 1 µm) have no usable normal [m²]."""
-DEGENERATE_ASPECT = 1e-6
-"""A face whose height is below 2e-6 × its longest edge (area / longest² < 1e-6) is a
-needle with a vertex on the opposite edge (a T-junction) [-]."""
 MESH_SUFFIXES = (".obj", ".ply", ".glb", ".gltf", ".off", ".stl")
 """Garment files ``read_mesh`` reads."""
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
@@ -82,11 +75,6 @@ def read_mesh(path: Path) -> GarmentMesh:
     return GarmentMesh(points, faces, np.asarray(uv, np.float64), faces.copy())
 
 
-def _edge_counts(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    return np.unique(e, axis=0, return_counts=True)
-
-
 def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton", name: str | None = None,
                  require_uvs: bool = True, hem_width: float = 0.0, hem_layers: float = HEM_LAYERS,
                  read: Callable[[Path], GarmentMesh] = read_mesh) -> Garment:
@@ -107,47 +95,24 @@ def load_garment(path: str | os.PathLike, *, material: str | Material = "cotton"
     Returns:
         Garment with category "imported", all faces in one panel (``"mesh"``; UV islands are
         not turned into panels), no attachments, and what was repaired in ``repairs``
-        (duplicate positions merged, collapsed faces, faces given twice and stray pieces
-        dropped).
+        (``sim.garments.repair.repair_mesh``'s counts).
 
     Raises:
         WrinklesInputError: unreadable, empty, no UVs (when required), non-manifold edges,
-            degenerate triangles.
+            degenerate triangles that no repair fixes.
     """
     path = Path(path)
     for key, value in (("hem_width", hem_width), ("hem_layers", hem_layers)):
         check_parameter(key, value, HEM_SPECS[key], "load_garment", path=path)
     if not path.is_file():
         raise WrinklesInputError("no such file", path=path)
-    points, faces, uvs, uv_faces = _checked(read(path), require_uvs, path)
-    n_read = len(points)
-    points, faces = _merge_duplicates(points, faces)
-    faces, uv_faces, n_degenerate = _drop_collapsed(points, faces, uv_faces, path)
-    # faces given twice (the same three vertices, either winding: an exporter's double) would
-    # otherwise read as non-manifold edges
-    _, first_face = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
-    unique = np.zeros(len(faces), bool)
-    unique[first_face] = True
-    n_duplicate = int((~unique).sum())
-    faces, uv_faces = faces[unique], uv_faces[unique]
-    edges = _manifold_edges(points, faces, n_degenerate, path)
-    faces, uv_faces, tiny = _drop_tiny_pieces(len(points), faces, uv_faces, edges)
-    repairs = {"merged_vertices": int(n_read - len(points)), "collapsed_faces_dropped": n_degenerate,
-               "duplicate_faces_dropped": n_duplicate, **tiny}
-    # compact vertices and UVs
-    used = np.unique(faces)
-    remap = np.full(len(points), -1, np.int64)
-    remap[used] = np.arange(len(used))
-    used_uv = np.unique(uv_faces)
-    remap_uv = np.full(len(uvs), -1, np.int64)
-    remap_uv[used_uv] = np.arange(len(used_uv))
-    rest, tris = points[used].astype(np.float32), remap[faces].astype(np.int32)
-    return Garment(rest_vertices=rest, faces=tris,
-                   uvs=uvs[used_uv].astype(np.float32), uv_faces=remap_uv[uv_faces].astype(np.int32),
-                   material=get_material(material), attachments={}, category="imported",
-                   name=name or path.stem, panel_ids=np.zeros(len(faces), np.int32), panel_names=("mesh",),
-                   face_layers=hem_face_layers(rest, tris, hem_width, hem_layers),
-                   repairs={k: v for k, v in repairs.items() if v})
+    mesh = repair_mesh(*_checked(read(path), require_uvs, path), path=path)
+    rest, tris = mesh.points.astype(np.float32), mesh.faces.astype(np.int32)
+    return Garment(rest_vertices=rest, faces=tris, uvs=mesh.uvs.astype(np.float32),
+                   uv_faces=mesh.uv_faces.astype(np.int32), material=get_material(material), attachments={},
+                   category="imported", name=name or path.stem, panel_ids=np.zeros(len(tris), np.int32),
+                   panel_names=("mesh",), face_layers=hem_face_layers(rest, tris, hem_width, hem_layers),
+                   repairs=mesh.repairs)
 
 
 def _checked(mesh: GarmentMesh, require_uvs: bool, path: Path) -> GarmentMesh:
@@ -171,78 +136,14 @@ def _checked(mesh: GarmentMesh, require_uvs: bool, path: Path) -> GarmentMesh:
     return GarmentMesh(points, faces, uvs, uv_faces)
 
 
-def _merge_duplicates(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Positions within ``MERGE_TOL`` merged into their first occurrence, in reading order (UV
-    seams stay: uv_faces keep their own indices)."""
-    key = np.round(points / MERGE_TOL).astype(np.int64)
-    _, first, inv = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first, kind="stable")
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    return points[first[order]], rank[inv.reshape(-1)][faces]
-
-
-def _drop_collapsed(points: np.ndarray, faces: np.ndarray, uv_faces: np.ndarray, path: Path):
-    """Faces that collapsed to an edge or a point dropped (a repair); flat ones with three
-    distinct vertices refused (removing them would open a crack along their longest edge).
-
-    Returns:
-        (faces, uv_faces, number dropped).
-    """
-    same = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 2] == faces[:, 0])
-    tri = points[faces]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    longest = np.linalg.norm(tri - np.roll(tri, -1, axis=1), axis=2).max(axis=1)
-    flat = ~same & ((area <= DEGENERATE_AREA) | (area <= DEGENERATE_ASPECT * longest ** 2))
-    if flat.any():
-        k = int(np.flatnonzero(flat)[0])
-        x, y, z = tri[k].mean(axis=0)
-        raise WrinklesInputError(
-            f"{int(flat.sum())} degenerate triangle(s) with three distinct vertices and no area, e.g. "
-            f"face {k} at ({x:.4g}, {y:.4g}, {z:.4g}); fix the mesh (merge the vertex that lies on "
-            "the opposite edge, or flip that edge)", path=path)
-    faces, uv_faces = faces[~same], uv_faces[~same]
-    if len(faces) == 0:
-        raise WrinklesInputError("every face is degenerate (zero area)", path=path)
-    return faces, uv_faces, int(same.sum())
-
-
-def _manifold_edges(points: np.ndarray, faces: np.ndarray, n_degenerate: int, path: Path) -> np.ndarray:
-    """The mesh's unique edges (E, 2); refused when one is in more than two faces."""
-    edges, counts = _edge_counts(faces)
-    bad = counts > 2
-    if bad.any():
-        a, b = edges[bad][0]
-        x, y, z = 0.5 * (points[a] + points[b])
-        extra = f" (after removing {n_degenerate} collapsed faces)" if n_degenerate else ""
-        raise WrinklesInputError(f"{int(bad.sum())} non-manifold edges (in more than 2 faces){extra}, "
-                                 f"e.g. the edge at ({x:.4g}, {y:.4g}, {z:.4g})", path=path)
-    return edges
-
-
-def _drop_tiny_pieces(n: int, faces: np.ndarray, uv_faces: np.ndarray, edges: np.ndarray):
-    """Connected pieces with fewer than ``TINY_COMPONENT`` of the faces dropped.
-
-    Returns:
-        (faces, uv_faces, repair counts ``tiny_piece_faces_dropped``, ``tiny_pieces_dropped``).
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    adj = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    _, label = connected_components(adj, directed=False)
-    face_label = label[faces[:, 0]]
-    sizes = np.bincount(face_label)
-    keep = sizes[face_label] >= TINY_COMPONENT * len(faces)
-    counts = {"tiny_piece_faces_dropped": int((~keep).sum()),
-              "tiny_pieces_dropped": int(len(np.unique(face_label[~keep])))}
-    return faces[keep], uv_faces[keep], counts
-
-
 def describe_drops(repairs: dict[str, int]) -> str:
-    """The faces a garment file lost in its repair (``Garment.repairs``), in words ('' if none;
-    merged duplicate vertices, e.g. split along UV seams, are no loss and not told)."""
+    """What a garment file's repair changed in its surface (``Garment.repairs``), in words (''
+    if nothing; merged duplicate vertices, e.g. split along UV seams, and unused vertices are
+    no change and not told)."""
     parts = []
+    if repairs.get("short_edges_collapsed"):
+        parts.append(f"collapsed {repairs['short_edges_collapsed']} needle edges (under "
+                     f"{100 * SHORT_EDGE:g} % of the median edge)")
     if repairs.get("collapsed_faces_dropped"):
         parts.append(f"dropped {repairs['collapsed_faces_dropped']} collapsed (zero-area) faces")
     if repairs.get("duplicate_faces_dropped"):
@@ -251,6 +152,10 @@ def describe_drops(repairs: dict[str, int]) -> str:
         parts.append(f"dropped {repairs['tiny_pieces_dropped']} stray piece(s) of "
                      f"{repairs['tiny_piece_faces_dropped']} faces (each under {100 * TINY_COMPONENT:g} % "
                      "of the mesh)")
+    if repairs.get("sliver_edges_flipped"):
+        parts.append(f"flipped the long edge of {repairs['sliver_edges_flipped']} sliver triangles")
+    if repairs.get("slivers_dropped"):
+        parts.append(f"dropped {repairs['slivers_dropped']} sliver triangles that covered nothing")
     return "; ".join(parts)
 
 
