@@ -142,3 +142,53 @@ def test_train_help_lists_every_registered_method():
     block = train_cmd.DESCRIPTION.split("Methods:")[1].split("\n\n")[0]
     listed = {line.split()[0] for line in block.splitlines() if line.strip()}
     assert listed == set(METHODS)
+
+
+class _Stranger:
+    """A class a checkpoint may not hold (pickling it stores a reference to code)."""
+
+
+def _pickled_object_files(tmp_path: Path) -> dict[str, Path]:
+    """Files a user may pass as a checkpoint that hold pickled objects or are no checkpoint."""
+    import pickle
+
+    files = {name: tmp_path / f"{name}.pt" for name in ("object", "pickle", "bytes", "truncated", "text")}
+    torch.save({"format": "wrinkles-checkpoint", "model": {}, "hook": _Stranger()}, files["object"])
+    files["pickle"].write_bytes(pickle.dumps({"model": _Stranger()}, protocol=4))
+    files["bytes"].write_bytes(np.random.default_rng(0).bytes(1000))
+    torch.save({"model": torch.zeros(3)}, files["truncated"])
+    data = files["truncated"].read_bytes()
+    files["truncated"].write_bytes(data[: len(data) // 2])
+    files["text"].write_text("hello\n")
+    return files
+
+
+UNSAFE_ADVICE = ("weights_only", "allow_pickle", "unsafe", "safe_globals", "torch.load", "pickle.load",
+                 "trust")
+
+
+@pytest.mark.parametrize("case, says", [
+    ("object", "pickled Python object (tests.test_train_evaluate._Stranger)"),
+    ("pickle", "not tensors and plain containers"),
+    ("bytes", "not tensors and plain containers"),
+    ("truncated", "truncated or corrupted"),
+    ("text", "not in PyTorch's format"),
+])
+def test_checkpoint_refusals_say_what_is_wrong_without_unsafe_advice(tmp_path, capsys, case, says):
+    """A file that is no checkpoint, or one with pickled objects in it, is refused in one line
+    (exit 2) that says what the file holds and that wrinkles never unpickles objects; torch's
+    advice to load it with weights_only=False or to allow its classes is not passed on, nor its
+    warnings."""
+    path = _pickled_object_files(tmp_path)[case]
+    out = tmp_path / "o.usdc"
+    assert run_cli("animate", "--coarse", path, "--wrinkles", path, "--out", out, "--device", "cpu",
+                   "-q") == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith(f"wrinkles animate: error: {path}: not a readable checkpoint: "), err
+    assert says in err, err
+    if case in ("object", "pickle", "bytes"):
+        assert "wrinkles never loads pickled Python objects" in err, err
+    for advice in UNSAFE_ADVICE:
+        assert advice not in err.lower(), (advice, err)
+    assert not out.exists()

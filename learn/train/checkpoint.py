@@ -11,20 +11,24 @@ A checkpoint file (``torch.save`` zip) holds plain containers and tensors only:
 - ``versions``: package versions (``sim.versions.package_versions``), for the model card.
 
 It is loaded with ``torch.load(..., weights_only=True)``, which refuses anything that would run
-code. Writing goes to a temporary name in the same directory, then ``os.replace`` (atomic), so a
-kill never leaves a truncated checkpoint behind.
+code; a refusal says what the file holds, never torch's advice to load it unsafely. Writing goes
+to a temporary name in the same directory, then ``os.replace`` (atomic), so a kill never leaves
+a truncated checkpoint behind.
 """
 
 from __future__ import annotations
 
 import os
+import pickle
+import re
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from sim.errors import WrinklesInputError
+from sim.errors import NEVER_UNPICKLED, WrinklesInputError
 
 FORMAT = "wrinkles-checkpoint"
 VERSION = 1
@@ -57,11 +61,11 @@ def load_checkpoint(path: str | os.PathLike, *, map_location: str | torch.device
     if not path.is_file():
         raise WrinklesInputError("checkpoint not found", path=path)
     try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+        with warnings.catch_warnings():  # torch warns about pickle protocols of files it refuses
+            warnings.simplefilter("ignore")
+            ckpt = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as e:  # zip errors, unpickling refusals, truncated files
-        lines = [ln.strip() for ln in str(e).splitlines() if ln.strip()] or [type(e).__name__]
-        first = next((ln for ln in lines if ln.startswith("WeightsUnpickler error")), lines[0])
-        raise WrinklesInputError(f"not a readable checkpoint ({first[:200]})", path=path) from None
+        raise WrinklesInputError(f"not a readable checkpoint: {_load_failure(e)}", path=path) from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise WrinklesInputError("not a wrinkles checkpoint (no 'format' marker)", path=path)
     if ckpt.get("version") != VERSION:
@@ -71,6 +75,22 @@ def load_checkpoint(path: str | os.PathLike, *, map_location: str | torch.device
         if key not in ckpt:
             raise WrinklesInputError(f"checkpoint lacks '{key}'", path=path)
     return ckpt
+
+
+def _load_failure(e: Exception) -> str:
+    """What ``torch.load(weights_only=True)``'s exception says is wrong with a file, in our words:
+    torch's own text advises loading it with ``weights_only=False`` or allowing its classes."""
+    text = str(e)
+    name = re.search(r"Unsupported global: GLOBAL ([\w.]+)", text)
+    if name:
+        return (f"it holds a pickled Python object ({name.group(1)}), where a wrinkles checkpoint holds "
+                f"tensors and plain containers only; {NEVER_UNPICKLED}")
+    if isinstance(e, pickle.UnpicklingError) or "Unpickler" in text or "weights_only" in text:
+        return ("its contents are not tensors and plain containers (another program's file, or pickled "
+                f"Python objects); {NEVER_UNPICKLED}")
+    if "zip archive" in text or "PytorchStreamReader" in text:
+        return "the archive is truncated or corrupted (an interrupted copy or download?)"
+    return "the file is not in PyTorch's format"
 
 
 def check_state_dict(model: torch.nn.Module, state: dict[str, torch.Tensor], *, path: str | os.PathLike,
