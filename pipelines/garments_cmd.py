@@ -17,8 +17,8 @@ from sim.errors import WrinklesInputError
 HELP = "list the garment templates (parameters, attachments, sizes); export one as a mesh with UVs"
 DESCRIPTION = """\
 List the garment templates: each is a sewing pattern fitted to a body in its rest pose, with
-UVs laid out as the flattened panels. 'wrinkles simulate --garment NAME' uses them; its
-parameters are set with '--garment-param KEY=VALUE' there and '--param KEY=VALUE' here.
+UVs laid out as the flattened panels. 'wrinkles simulate --garment NAME' uses them; their
+parameters are set with '--garment-param KEY=VALUE' here and there.
 Resolutions: 'coarse' (about 3,000 vertices on the default body) and 'fine' (about 20,000),
 or an edge length in metres; each template has its own edge lengths, fixed across body shapes.
 
@@ -35,7 +35,7 @@ examples:
   wrinkles garments --json > garments.json
   wrinkles garments --export t_shirt --out tee.obj --uv-image tee_uv.png --body-out body.obj
   wrinkles garments --export trousers --shape height=0.6,weight=0.3 --resolution fine \\
-      --param length=0.95 --out trousers.usda
+      --garment-param length=0.95 --out trousers.usda
 """
 
 EXPORT_SUFFIXES = (".obj", ".ply", ".glb", ".usda", ".usdc", ".usd")
@@ -56,7 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--export", metavar="NAME", default=None,
                    help="template to write (needs --out); a USD file carries the hems' layers as the "
                    "per-face primvar fabricLayers, an OBJ/PLY/GLB file does not; an import makes hems "
-                   "only with --garment-param hem_width=0.02")
+                   "only with 'simulate --garment-param hem_width=0.02'")
     e.add_argument("--out", default=None, help=f"mesh file to write: {', '.join(EXPORT_SUFFIXES)}")
     e.add_argument("--uv-image", default=None, metavar="PNG", help="also draw the UV layout to this PNG")
     e.add_argument("--body-out", default=None, metavar="FILE",
@@ -67,8 +67,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="UV picture size [px] (default: %(default)s)")
     e.add_argument("--resolution", default="coarse",
                    help="coarse, fine or an edge length in metres (default: %(default)s)")
-    e.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                   help="a template parameter, e.g. --param length=0.5 (repeatable; see --params)")
+    e.add_argument("--garment-param", "--param", dest="garment_param", action="append", default=[],
+                   metavar="KEY=VALUE",
+                   help="a template parameter, e.g. --garment-param length=0.5 (repeatable; see --params); "
+                        "--param is the same option")
     e.add_argument("--material", default="cotton", help="material preset (default: %(default)s)")
     add_body_arguments(e)
 
@@ -109,7 +111,7 @@ def print_listing(cat: dict, *, params: bool) -> None:
         if params:
             for p in t["parameters"]:
                 unit = f" [{p['unit']}]" if p["unit"] and p["unit"] != "-" else ""
-                line = f"--param {p['name']}={p['default']:g}{unit}  {p['meaning']}"
+                line = f"--garment-param {p['name']}={p['default']:g}{unit}  {p['meaning']}"
                 text = textwrap.fill(line, 100 - w - 4, subsequent_indent="    ")
                 print(textwrap.indent(text, " " * (w + 4)))
     print("\nvertices: on the default body (mean shape) with the default parameters; the edge length "
@@ -214,7 +216,7 @@ def export(args: argparse.Namespace) -> int:
     if not 64 <= args.uv_image_size <= 8192:
         raise WrinklesInputError(f"--uv-image-size must lie in [64, 8192], got {args.uv_image_size}")
     category = template_name(args.export)
-    params = parse_numbers(args.param, "--param")
+    params = parse_numbers(args.garment_param, "--garment-param")
     body = load_body(args.body)
     betas = parse_body_shape(body, args.shape)
     g = make_garment(category, body, betas, resolution=parse_resolution(args.resolution),

@@ -27,7 +27,7 @@ def test_lists_every_template_with_counts_and_attachments(capsys):
 def test_params_and_json(capsys):
     assert main(["garments", "--params"]) == 0
     out = capsys.readouterr().out
-    assert "--param sleeve_length=0.2 [m]" in out and "--param crotch_ease=0.02 [m]" in out
+    assert "--garment-param sleeve_length=0.2 [m]" in out and "--garment-param crotch_ease=0.02 [m]" in out
     assert main(["garments", "--json"]) == 0
     cat = json.loads(capsys.readouterr().out)
     assert [t["name"] for t in cat["templates"]] == list(TEMPLATES)
@@ -60,7 +60,7 @@ def test_export_loads_back_with_the_same_mesh_and_uvs(tmp_path, capsys, suffix):
 
     out, png = tmp_path / f"skirt{suffix}", tmp_path / "skirt_uv.png"
     args = ["garments", "--export", "flared-skirt", "--out", str(out), "--resolution", "0.04",
-            "--shape", "weight=0.7", "--param", "length=0.5"]
+            "--shape", "weight=0.7", "--garment-param", "length=0.5"]
     assert main(args + (["--uv-image", str(png), "--uv-image-size", "256"] if suffix == ".obj" else [])) == 0
     assert "flared_skirt:" in capsys.readouterr().out
     want = make_garment("flared_skirt", load_body(), parse_shape("weight=0.7"), resolution=0.04, length=0.5)
@@ -89,6 +89,7 @@ def test_export_loads_back_with_the_same_mesh_and_uvs(tmp_path, capsys, suffix):
     (["--out", "x.obj"], ["need --export"]),
     (["--body-out", "b.obj"], ["need --export"]),
     (["--export", "t_shirt", "--out", "x.obj", "--body-out", "b.usda"], ["b.usda", "--body-out must end in"]),
+    (["--export", "t_shirt", "--out", "x.obj", "--garment-param", "lenght=0.4"], ["unknown parameter", "length"]),
     (["--export", "t_shirt", "--out", "x.obj", "--param", "lenght=0.4"], ["unknown parameter", "length"]),
     (["--export", "t_shirt", "--out", "x.obj", "--resolution", "ultra"], ["--resolution 'ultra'"]),
     (["--export", "t_shirt", "--out", "x.obj", "--material", "tweed"], ["unknown material", "denim"]),
