@@ -25,7 +25,8 @@ numbers are not comparable).
 Writes into --out (default: <checkpoint dir>/../eval-<split>):
   metrics.json       summary, units, notes and per-sequence metrics
   uv_examples.png    predicted vs simulated UV normal and wrinkle maps of a few frames
-  renders.png        predicted vs simulated garment, coloured by the per-vertex error
+  renders.png        predicted vs simulated garment, coloured by the per-vertex error, with a
+                     colour bar in mm
 
 Guo et al.'s two stages: --model is the wrinkle model (wrinkle_diffusion or the
 displacement_regressor baseline) and --coarse the skeleton_cvae that makes the base from the body
@@ -185,33 +186,50 @@ def write_example_images(examples: list[dict], out_dir: Path) -> list[Path]:
     return written
 
 
+ERROR_CMAP = "magma"
+"""Colour map of the per-vertex error in ``renders.png`` (0 at its dark end)."""
+
+
 def _renders(examples: list[dict], path: Path) -> Path:
-    """Predicted (left) and simulated (right) garments side by side, error-coloured."""
+    """Predicted (left) and simulated (right) garments side by side, the prediction coloured by
+    its per-vertex error, with a colour bar in mm from 0 to the frame's 99th percentile. The
+    bars' places and ranges are in the PNG's text chunk ``colour_bars`` (JSON: one per tile,
+    ``box`` in sheet pixels)."""
     from PIL import Image, ImageDraw
+    from PIL.PngImagePlugin import PngInfo
 
-    from pipelines.preview import PreviewMesh, render_frames
+    from pipelines.preview import PreviewMesh, add_colour_bar, render_frames
 
-    tiles = []
+    tiles, bars = [], []
     for e in examples:
         vmax = float(np.percentile(e["error"], 99)) or 1e-3
         width = float(np.ptp(np.asarray(e["gt"])[:, 0]))
         offset = np.float32([1.2 * width + 0.05, 0.0, 0.0])  # side by side, a gap between
         meshes = [PreviewMesh(name="predicted", vertices=np.asarray(e["pred"], np.float32) - offset / 2,
-                              faces=e["faces"], scalars=e["error"], cmap="magma", clim=(0.0, vmax)),
+                              faces=e["faces"], scalars=e["error"], cmap=ERROR_CMAP, clim=(0.0, vmax)),
                   PreviewMesh(name="simulated", vertices=np.asarray(e["gt"], np.float32) + offset / 2,
                               faces=e["faces"])]
         frames = render_frames(meshes, [0], size=(640, 400))
         try:
-            img = Image.fromarray(next(frames))
+            rendered = next(frames)
         finally:
             frames.close()
-        ImageDraw.Draw(img).text((8, 8), f"{e['sequence']} t={e['frame']}: predicted (error, max "
-                                         f"{vmax * 1000:.0f} mm) | simulated", fill=(0, 0, 0))
+        rgb, bar = add_colour_bar(rendered, cmap=ERROR_CMAP, clim=(0.0, vmax * 1000.0), units="mm",
+                                  label="error")
+        img = Image.fromarray(rgb)
+        title = f"{e['sequence']} t={e['frame']}: predicted (coloured by its error) | simulated"
+        ImageDraw.Draw(img).text((8, 8), title, fill=(0, 0, 0))
+        y = sum(t.height for t in tiles)
+        x0, y0, x1, y1 = bar.box
+        bars.append({**bar.to_json(sequence=str(e["sequence"]), frame=int(e["frame"])),
+                     "box": [x0, y0 + y, x1, y1 + y]})
         tiles.append(img)
     sheet = Image.new("RGB", (tiles[0].width, sum(t.height for t in tiles)), "white")
     y = 0
     for t in tiles:
         sheet.paste(t, (0, y))
         y += t.height
-    sheet.save(path)
+    info = PngInfo()
+    info.add_text("colour_bars", json.dumps(bars))
+    sheet.save(path, pnginfo=info)
     return path

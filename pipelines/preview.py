@@ -661,3 +661,79 @@ def write_video(meshes: Sequence[PreviewMesh], path: str | os.PathLike, *, fps: 
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+# --------------------------------------------------------------------------- colour bars
+
+
+COLOUR_BAR_SIZE = (96, 18)
+"""Width [px] of the strip a colour bar adds to the right of an image, and of its ramp."""
+COLOUR_BAR_TICKS = 5
+"""Labelled values on a colour bar, its two ends included."""
+
+
+@dataclass(frozen=True)
+class ColourBar:
+    """Where a colour bar is in an image and what it means.
+
+    Attributes:
+        box: the ramp's pixels, (left, top, right, bottom), right and bottom exclusive; the
+            top row is ``high``, the bottom row ``low``.
+        low, high: the values at the ends [``units``].
+        units: e.g. "mm".
+        cmap: the matplotlib colour map of the ramp (and of the scalars it explains).
+    """
+
+    box: tuple[int, int, int, int]
+    low: float
+    high: float
+    units: str
+    cmap: str
+
+    def to_json(self, **more) -> dict:
+        return {"box": list(self.box), "low": self.low, "high": self.high, "units": self.units,
+                "cmap": self.cmap, **more}
+
+
+def colour_ramp(cmap: str, n: int) -> np.ndarray:
+    """``n`` colours of the matplotlib colour map ``cmap``, low end first, (n, 3) uint8 (the
+    map pyvista draws ``PreviewMesh.scalars`` with)."""
+    try:
+        import matplotlib
+    except ImportError as exc:  # pragma: no cover
+        raise WrinklesInputError(f"colour bars need matplotlib ({exc}); {_INSTALL_HINT}") from None
+    rgba = np.asarray(matplotlib.colormaps[cmap](np.linspace(0.0, 1.0, n)))
+    return np.round(255.0 * rgba[:, :3]).astype(np.uint8)
+
+
+def add_colour_bar(image: np.ndarray, *, cmap: str, clim: tuple[float, float], units: str,
+                   label: str = "") -> tuple[np.ndarray, ColourBar]:
+    """``image`` (H, W, 3) uint8 with a vertical colour bar to its right: the ramp of ``cmap``
+    from ``clim[0]`` (bottom) to ``clim[1]`` (top), ``COLOUR_BAR_TICKS`` values labelled, and
+    "``label`` [``units``]" above it.
+
+    Returns:
+        The wider image, (H, W + ``COLOUR_BAR_SIZE[0]``, 3) uint8, and where the bar is.
+    """
+    Image, ImageDraw, ImageFont = _import_pil()
+    h, w = image.shape[:2]
+    strip, ramp_w = COLOUR_BAR_SIZE
+    top, bottom = 28, h - 14
+    out = Image.new("RGB", (w + strip, h), "white")
+    out.paste(Image.fromarray(np.ascontiguousarray(image[..., :3])), (0, 0))
+    x0 = w + 8
+    ramp = colour_ramp(cmap, bottom - top)[::-1]  # top row = high end
+    out.paste(Image.fromarray(np.repeat(ramp[:, None, :], ramp_w, axis=1)), (x0, top))
+    draw = ImageDraw.Draw(out)
+    font = _label_font(ImageFont, 11)
+    draw.rectangle([x0 - 1, top - 1, x0 + ramp_w, bottom], outline=(60, 62, 66))
+    low, high = (float(v) for v in clim)
+    for k in range(COLOUR_BAR_TICKS):
+        f = k / (COLOUR_BAR_TICKS - 1)
+        y = round(bottom - 1 - f * (bottom - top - 1))
+        draw.line([(x0 + ramp_w, y), (x0 + ramp_w + 3, y)], fill=(60, 62, 66))
+        draw.text((x0 + ramp_w + 5, y), f"{low + f * (high - low):.3g}", fill=(30, 30, 30), font=font,
+                  anchor="lm")
+    draw.text((w + strip // 2, 4), f"{label} [{units}]".strip(), fill=(30, 30, 30), font=font, anchor="ma")
+    bar = ColourBar(box=(x0, top, x0 + ramp_w, bottom), low=low, high=high, units=units, cmap=cmap)
+    return np.asarray(out), bar

@@ -230,3 +230,49 @@ def test_module_import_is_lazy():
             "bad = [m for m in ('pyvista', 'vtk', 'imageio', 'imageio_ffmpeg') if m in sys.modules]; "
             "assert not bad, bad")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_colour_bar_is_the_ramp_of_the_map_with_its_range():
+    """The bar added right of an image holds the colour map's ramp, low end at the bottom,
+    and says its range and units; the image itself is untouched."""
+    img = np.full((200, 120, 3), 77, np.uint8)
+    out, bar = preview.add_colour_bar(img, cmap="magma", clim=(0.0, 12.5), units="mm", label="error")
+    assert out.shape == (200, 120 + preview.COLOUR_BAR_SIZE[0], 3)
+    np.testing.assert_array_equal(out[:, :120], img)
+    x0, y0, x1, y1 = bar.box
+    assert 120 <= x0 < x1 <= out.shape[1] and 0 <= y0 < y1 <= 200
+    assert (bar.low, bar.high, bar.units, bar.cmap) == (0.0, 12.5, "mm", "magma")
+    ramp = preview.colour_ramp("magma", y1 - y0)
+    column = out[y0:y1, (x0 + x1) // 2].astype(int)
+    np.testing.assert_allclose(column[::-1], ramp, atol=1)  # bottom row = low end
+    assert column[-1].sum() < 60 and column[0].sum() > 500  # magma: black at 0, pale at the top
+
+
+def test_error_renders_carry_a_colour_bar_in_mm(tmp_path):
+    """``wrinkles evaluate``'s renders.png: each tile's colour bar shows the error map's ramp
+    from 0 to the frame's 99th-percentile error, in mm, recorded in the PNG's metadata; the
+    predicted garment is drawn in the bar's colours."""
+    import json
+
+    from pipelines.evaluate_cmd import ERROR_CMAP, _renders
+
+    v, f = _icosphere()
+    examples = []
+    for k, scale in enumerate((0.004, 0.02)):
+        error = scale * (v[:, 1] - v[:, 1].min()) / np.ptp(v[:, 1])  # 0 at the bottom .. scale [m]
+        examples.append({"sequence": f"seq{k}", "frame": 3 * k, "pred": v, "gt": v, "faces": f,
+                         "error": error})
+    path = _renders(examples, tmp_path / "renders.png")
+    with Image.open(path) as im:
+        bars = json.loads(im.text["colour_bars"])
+        pixels = np.asarray(im.convert("RGB"))
+    assert [(b["sequence"], b["frame"], b["units"], b["cmap"]) for b in bars] == [
+        ("seq0", 0, "mm", ERROR_CMAP), ("seq1", 3, "mm", ERROR_CMAP)]
+    for b, e in zip(bars, examples, strict=True):
+        assert b["low"] == 0.0
+        np.testing.assert_allclose(b["high"], 1000.0 * np.percentile(e["error"], 99), rtol=1e-6)
+        x0, y0, x1, y1 = b["box"]
+        column = pixels[y0:y1, (x0 + x1) // 2].astype(int)
+        np.testing.assert_allclose(column[::-1], preview.colour_ramp(ERROR_CMAP, y1 - y0), atol=1)
+    # the two tiles' bars are stacked, each inside its own tile
+    assert bars[0]["box"][3] <= bars[1]["box"][1] and pixels.shape[0] == 2 * 400
