@@ -11,7 +11,15 @@ from pathlib import Path
 
 import numpy as np
 
-from pipelines.outputs import DEFAULT_USD_SUFFIX, OutputSet, check_stage_outputs, command_line, write_previews
+from pipelines.outputs import (
+    DEFAULT_USD_SUFFIX,
+    OutputSet,
+    add_body_points_option,
+    check_stage_outputs,
+    command_line,
+    stage_rig,
+    write_previews,
+)
 from pipelines.progress import progress_bar
 from sim.errors import WrinklesInputError
 
@@ -75,6 +83,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--out", help="USD stage to write: .usdc or .usd (binary crate) or .usda (text: larger and slower "
         "to open, for reading and diffing) (default: out/<garment>_<motion>.usdc)"
     )
+    add_body_points_option(o)
     o.add_argument("--preview", help="preview video to write (.mp4 or .gif)")
     o.add_argument("--sheet", help="contact sheet PNG to write (8 frames)")
     o.add_argument(
@@ -214,7 +223,8 @@ def run(args: argparse.Namespace) -> int:
     betas = [float(b) for b in np.asarray(bm.betas).ravel()]
     metadata = json.loads(json.dumps({**provenance, "motion_params": bm.params, "betas": betas}))
     with OutputSet() as outputs:
-        write_sequence_usd(outputs.temp(paths.usd), seq, metadata, quiet=args.quiet)
+        write_sequence_usd(outputs.temp(paths.usd), seq, metadata, quiet=args.quiet,
+                           rig=stage_rig(bm.body, bm.betas, frames, points=args.body_points))
         outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
         write_previews(outputs, paths, lambda: preview_meshes(seq), num_frames=T, fps=seq.fps,
                        camera=args.camera, quiet=args.quiet)

@@ -21,10 +21,10 @@ GARMENT_SUFFIXES = MESH_SUFFIXES + USD_SUFFIXES
 def read_usd_mesh(path: Path) -> GarmentMesh:
     """The first garment mesh of a USD stage at frame 0: under /World/Garments, else any mesh
     but the body; the stage's metersPerUnit and upAxis applied (metres, Y up)."""
-    from usd_io import BODY_PATH, read_stage
+    from usd_io import BODY_PATHS, read_stage
 
     stage = read_stage(path, require_body=False)  # a garment file has no body
-    meshes = list(stage.garments.values()) or [m for m in stage.meshes.values() if m.path != BODY_PATH]
+    meshes = list(stage.garments.values()) or [m for m in stage.meshes.values() if m.path not in BODY_PATHS]
     if not meshes:
         raise WrinklesInputError("no garment mesh in the stage", path=path)
     m = meshes[0]

@@ -17,8 +17,10 @@ from pipelines.outputs import (
     DEFAULT_USD_SUFFIX,
     OutputSet,
     StageOutputs,
+    add_body_points_option,
     check_stage_outputs,
     command_line,
+    stage_rig,
     write_previews,
 )
 from pipelines.progress import progress_bar
@@ -149,6 +151,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="USD stage to write: .usdc or .usd (binary crate) or .usda (text: larger and "
                         "slower to open, for reading and diffing) (default: out/GARMENT_MOTION.usdc); "
                         "the quality report goes beside it as <stem>.quality.json")
+    add_body_points_option(o)
     o.add_argument("--preview", default=None, help="preview video to write (.mp4 or .gif)")
     o.add_argument("--sheet", default=None, help="contact sheet PNG to write (8 frames)")
     o.add_argument("--camera", default="three_quarter", choices=("front", "side", "three_quarter"),
@@ -469,7 +472,8 @@ def run(args: argparse.Namespace) -> int:
     metadata = stage_metadata(args, result, config, garment, bm, attempts, crossings)
     seq = result.sequence
     with OutputSet() as outputs:
-        write_sequence_usd(outputs.temp(paths.usd), seq, metadata, quiet=args.quiet)
+        write_sequence_usd(outputs.temp(paths.usd), seq, metadata, quiet=args.quiet,
+                           rig=stage_rig(bm.body, bm.betas, seq.body, points=args.body_points))
         outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
         write_previews(outputs, paths, lambda: preview_meshes(seq), num_frames=seq.num_frames, fps=seq.fps,
                        camera=args.camera, quiet=args.quiet)
@@ -478,8 +482,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def write_sequence_usd(path: Path, seq, metadata: dict, *, quiet: bool) -> None:
-    """Body and garment (UVs, per-frame normals) in one stage."""
+def write_sequence_usd(path: Path, seq, metadata: dict, *, quiet: bool, rig=None) -> None:
+    """Body (a UsdSkel rig when ``rig`` is given, else a point cache) and garment (UVs,
+    per-frame normals) in one stage."""
     from pipelines.preview import vertex_normals
     from usd_io import GarmentTrack, write_stage
 
@@ -489,7 +494,7 @@ def write_sequence_usd(path: Path, seq, metadata: dict, *, quiet: bool) -> None:
                          normals=normals, face_layers=g.face_layers)
     with progress_bar(seq.num_frames, "writing USD", quiet=quiet) as advance:
         write_stage(path, body=seq.body, fps=seq.fps, garments=[track], body_name="Body", metadata=metadata,
-                    progress=advance)
+                    progress=advance, rig=rig)
 
 
 def preview_meshes(seq) -> list:
