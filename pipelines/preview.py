@@ -530,7 +530,7 @@ def _label_font(ImageFont, px: int):
 def write_contact_sheet(meshes: Sequence[PreviewMesh], path_png: str | os.PathLike, *,
                         n_frames: int = 8, cols: int = 4, size: tuple[int, int] = (320, 400),
                         labels: bool = True, fps: float | None = None, camera: str = "front",
-                        floor: bool = True) -> Path:
+                        floor: bool = True, progress: ProgressCallback | None = None) -> Path:
     """Tile evenly spaced frames into one PNG, written atomically.
 
     The sheet is ``cols * W`` by ``rows * H`` pixels for tiles of ``size`` = (W, H), with
@@ -546,6 +546,7 @@ def write_contact_sheet(meshes: Sequence[PreviewMesh], path_png: str | os.PathLi
         fps: frame rate [1/s] of the sequence, for time labels.
         camera: a name from ``CAMERA_VIEWS``.
         floor: draw the floor.
+        progress: called as ``progress(tiles_done, tiles_total)`` after each tile.
 
     Returns:
         The written path.
@@ -572,6 +573,8 @@ def write_contact_sheet(meshes: Sequence[PreviewMesh], path_png: str | os.PathLi
             if fps:
                 text += f"   {frames[k] / fps:.2f} s"
             draw.text((x0 + 8, y0 + 6), text, fill=(60, 62, 66), font=font)
+        if progress is not None:
+            progress(k + 1, len(frames))
     # thin separators between tiles
     for c in range(1, cols):
         draw.line([(c * w, 0), (c * w, rows * h)], fill=(200, 202, 206), width=1)

@@ -65,9 +65,11 @@ def _red_mask(img: np.ndarray) -> np.ndarray:
 
 def test_contact_sheet_size_content_and_motion(tmp_path):
     out = tmp_path / "sheet.png"
+    calls = []
     written = preview.write_contact_sheet([_moving_sphere()], out, n_frames=6, cols=3,
-                                          size=TILE, fps=FPS)
+                                          size=TILE, fps=FPS, progress=lambda d, t: calls.append((d, t)))
     assert written == out and out.is_file()
+    assert calls == [(k, 6) for k in range(1, 7)]
     img = np.asarray(Image.open(out).convert("RGB"))
     w, h = TILE
     assert img.shape == (2 * h, 3 * w, 3)
