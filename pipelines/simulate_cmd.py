@@ -146,7 +146,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "--allow-failed-gates the last run that finished is written if none passes (up to "
                         "4.7x the time of one run, 7.7x for a fine garment) "
                         "(default: on)")
-    o = p.add_argument_group("outputs")
+    add_output_arguments(p.add_argument_group("outputs"))
+    add_common_arguments(p)
+
+
+def add_output_arguments(o) -> None:
+    """``--out``, ``--body-points``, ``--preview``, ``--sheet``, ``--camera``."""
     o.add_argument("--out", default=None,
                    help="USD stage to write: .usdc or .usd (binary crate) or .usda (text: larger and "
                         "slower to open, for reading and diffing) (default: out/GARMENT_MOTION.usdc); "
@@ -156,7 +161,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o.add_argument("--sheet", default=None, help="contact sheet PNG to write (8 frames)")
     o.add_argument("--camera", default="three_quarter", choices=("front", "side", "three_quarter"),
                    help="preview camera, fitted once to the whole sequence (default: %(default)s)")
-    add_common_arguments(p)
 
 
 # ------------------------------------------------------------------------------- parsing
