@@ -69,6 +69,7 @@ class ProgressLines:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._closed_stream = False
 
     def __enter__(self) -> ProgressLines:
         self._start = self._last_line = self.clock()
@@ -149,7 +150,12 @@ class ProgressLines:
         self._write(self.line())
 
     def _write(self, text: str) -> None:
-        print(text, file=self.stream or sys.stderr, flush=True)
+        if self._closed_stream:
+            return
+        try:
+            print(text, file=self.stream or sys.stderr, flush=True)
+        except (OSError, ValueError):  # the reader of the pipe left, or the log was closed: go quiet
+            self._closed_stream = True
 
     def _beat(self) -> None:
         while True:

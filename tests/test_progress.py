@@ -168,3 +168,14 @@ def test_animate_on_a_pipe_reports_every_stage(tmp_path, monkeypatch, capsys):
                 and " 0/6" not in ln]
     assert sampling and all(re.search(r"\d+/6 frames \(\d+%\), [\d.]+ (s/frame|frames/s), \d+:\d\d elapsed, "
                                       r"ETA \d+:\d\d", ln) for ln in sampling), sampling
+
+
+def test_a_closed_stream_silences_the_lines_not_the_work():
+    class Gone(io.StringIO):
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+    with P.ProgressLines(3, "preview", stream=Gone(), interval=0.0, heartbeat=False) as progress:
+        for k in range(1, 4):
+            progress(k, 3)
+    assert progress.done == 3
