@@ -210,14 +210,15 @@ def write_previews(outputs: OutputSet, paths: StageOutputs, meshes: Callable[[],
     makes (called only when there is one to write)."""
     if not (paths.preview or paths.sheet):
         return
-    from pipelines.preview import write_contact_sheet, write_video
+    from pipelines.preview import contact_sheet_frames, write_contact_sheet, write_video
 
     drawn = meshes()
     if paths.preview:
         with progress_bar(num_frames, "preview", quiet=quiet) as advance:
             write_video(drawn, outputs.temp(paths.preview), fps=fps, camera=camera, progress=advance)
     if paths.sheet:
-        write_contact_sheet(drawn, outputs.temp(paths.sheet), fps=fps, camera=camera)
+        with progress_bar(len(contact_sheet_frames(num_frames, 8)), "contact sheet", quiet=quiet) as advance:
+            write_contact_sheet(drawn, outputs.temp(paths.sheet), fps=fps, camera=camera, progress=advance)
 
 
 def add_body_points_option(parser: argparse.ArgumentParser) -> None:

@@ -66,7 +66,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     p.add_argument("--device", help="torch device: auto, cpu, cuda, cuda:N (train.device)")
     p.add_argument("--seed", type=int, help="run seed (train.seed)")
-    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress (bar or lines)")
 
 
 def resolve_config(args: argparse.Namespace):
@@ -94,11 +94,15 @@ def resolve_config(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from learn.train.trainer import Trainer, describe
+    from pipelines.progress import progress_bar
     from sim.datasets.storage import read_manifest
 
     cfg = resolve_config(args)
     read_manifest(args.data)  # a missing or broken dataset fails here, before anything is written
-    summary = Trainer(cfg, args.data, args.out, resume=args.resume, quiet=args.quiet).fit()
-    if int(os.environ.get("RANK", "0")) == 0:
+    main_process = int(os.environ.get("RANK", "0")) == 0
+    with progress_bar(cfg.train.steps, f"train {cfg.method}", quiet=args.quiet or not main_process,
+                      unit="step") as advance:
+        summary = Trainer(cfg, args.data, args.out, resume=args.resume, progress=advance).fit()
+    if main_process:
         print(describe(summary), file=sys.stderr)
     return 130 if summary.interrupted else 0

@@ -278,3 +278,28 @@ def test_bvh_frame_line_number_is_reported(tmp_path):
     p.write_text("\n".join(lines) + "\n")
     with pytest.raises(WrinklesInputError, match=f"line {m + 6}:"):
         load_bvh(p)
+
+
+@pytest.mark.parametrize("case", ["pickle", "object_array"])
+def test_pickled_motion_files_are_refused_without_unsafe_advice(tmp_path, capsys, case):
+    """A motion file that is a pickle, or a single object array saved as .npz: one line, exit 2,
+    saying what the file is and that wrinkles never unpickles objects; numpy's advice to load it
+    with allow_pickle is not passed on."""
+    import pickle
+
+    from pipelines.cli import main
+
+    path = tmp_path / "motion.npz"
+    if case == "pickle":
+        path.write_bytes(pickle.dumps({"poses": np.zeros((3, 72))}))
+    else:
+        with open(path, "wb") as fh:
+            np.save(fh, np.array([{"poses": 1}], dtype=object))
+    out = tmp_path / "o.usdc"
+    assert main(["body", "--motion", str(path), "--out", str(out), "--device", "cpu", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"wrinkles body: error: {path}: "), err
+    assert "wrinkles never loads pickled Python objects" in err, err
+    for advice in ("allow_pickle", "unsafe", "pickle.load", "trust"):
+        assert advice not in err.lower(), (advice, err)
+    assert not out.exists()

@@ -98,7 +98,7 @@ def toy_config(schedule: str = "cosine", **train) -> RunConfig:
 
 
 def fit(cfg: RunConfig, run, **kw):
-    return Trainer(cfg, run, run, methods=METHODS, quiet=True, **kw).fit()
+    return Trainer(cfg, run, run, methods=METHODS, **kw).fit()
 
 
 def state(run):
@@ -294,3 +294,19 @@ def test_keeps_only_the_newest_numbered_checkpoints(tmp_path):
     fit(toy_config(steps=12, checkpoint_every=2, keep_checkpoints=2), tmp_path / "k")
     names = sorted(p.name for p in (tmp_path / "k" / "checkpoints").iterdir())
     assert names == ["last.pt", "step-0000010.pt", "step-0000012.pt"]
+
+
+def test_progress_is_called_after_every_step_with_the_loss(tmp_path):
+    """``progress(step, steps, note=...)`` after each optimizer step (what ``wrinkles train``
+    shows as a bar or as progress lines); a resumed run counts on from its checkpoint."""
+    calls = []
+
+    def progress(done, total, *, note=None):
+        calls.append((done, total, note))
+
+    fit(toy_config(steps=6), tmp_path, progress=progress)
+    assert [(d, t) for d, t, _ in calls] == [(k, 6) for k in range(1, 7)]
+    assert all(n.startswith("loss ") and float(n.split()[1]) > 0 for _, _, n in calls)
+    calls.clear()
+    fit(toy_config(steps=8), tmp_path, resume=True, progress=progress)
+    assert [d for d, _, _ in calls] == [7, 8]

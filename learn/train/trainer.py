@@ -25,6 +25,7 @@ import math
 import os
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -157,19 +158,22 @@ class Trainer:
         run_dir: output directory of the run.
         resume: continue from ``run_dir/checkpoints/last.pt`` (start fresh when there is none).
             Without it, a ``run_dir`` that already holds checkpoints is refused.
-        quiet: no progress bar.
         methods: the method registry (default ``learn.methods.METHODS``).
+        progress: called on the main process after each optimizer step as
+            ``progress(step, steps, note="loss 0.0123")`` (the CLI passes
+            ``pipelines.progress.progress_bar``'s callback); None: nothing is shown.
     """
 
     def __init__(self, config: RunConfig, data_root: str | os.PathLike, run_dir: str | os.PathLike, *,
-                 resume: bool = False, quiet: bool = False, methods: dict | None = None):
+                 resume: bool = False, methods: dict | None = None,
+                 progress: Callable[..., None] | None = None):
         if methods is None:
             from learn.methods import METHODS as methods
         self.config = config
         self.data_root = Path(data_root)
         self.run_dir = Path(run_dir)
         self.resume = resume
-        self.quiet = quiet
+        self.progress = progress
         self.method: Method = methods[config.method](config.model)
         self.ckpt_dir = self.run_dir / CHECKPOINT_DIR
         if not resume and (self.ckpt_dir / LAST).exists():
@@ -222,7 +226,6 @@ class Trainer:
             atomic_write_json(self.run_dir / "config.json",
                               {**self.config_dict(), "data": os.fspath(self.data_root.resolve())})
         logger = MetricLogger(self.run_dir, enabled=ctx.is_main, resume_step=step if self.resume else None)
-        bar = self._bar(ctx, step, tc.steps)
         last_loss, ckpt_path, interrupted = float("nan"), None, False
         try:
             with _StopFlag() as stop:
@@ -231,9 +234,8 @@ class Trainer:
                     loss = out.loss
                     step += 1
                     last_loss = float(loss.detach())
-                    if bar is not None:
-                        bar.update(1)
-                        bar.set_postfix(loss=f"{last_loss:.4g}")
+                    if self.progress is not None and ctx.is_main:
+                        self.progress(step, tc.steps, note=f"loss {last_loss:.4g}")
                     if step % tc.log_every == 0 or step == tc.steps:
                         scalars = {"loss": last_loss, "lr": optimizer.param_groups[0]["lr"],
                                    "grad_norm": float(gnorm)}
@@ -248,8 +250,6 @@ class Trainer:
                         interrupted = step < tc.steps
                         break
         finally:
-            if bar is not None:
-                bar.close()
             logger.plot()
             logger.close()
         if ckpt_path is None and (self.ckpt_dir / LAST).exists():
@@ -295,14 +295,6 @@ class Trainer:
         if ema is not None:
             ema.update(model)
         return out, gnorm
-
-    def _bar(self, ctx: D.DistContext, start: int, stop: int):
-        if self.quiet or not ctx.is_main:
-            return None
-        from tqdm import tqdm
-
-        return tqdm(total=stop, initial=start, desc=f"train {self.config.method}", unit="step",
-                    dynamic_ncols=True, disable=None)
 
     def _save(self, ctx: D.DistContext, model, optimizer, scaler, ema, step: int) -> Path:
         last = self.ckpt_dir / LAST

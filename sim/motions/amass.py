@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.errors import WrinklesInputError
+from sim.errors import NEVER_UNPICKLED, WrinklesInputError
 from sim.rotations import axis_angle_to_matrix, matrix_to_axis_angle
 from sim.types import NUM_SMPL_JOINTS, Motion
 
@@ -100,6 +100,9 @@ def _read_npz(path: str) -> dict[str, np.ndarray]:
     except FileNotFoundError:
         raise WrinklesInputError("file not found", path=path) from None
     except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
+        if "pickle" in str(e):  # numpy's text advises loading the file with allow_pickle
+            raise WrinklesInputError("cannot read as an .npz archive: it is a pickle (Python objects), not "
+                                     f"arrays; {NEVER_UNPICKLED}", path=path) from None
         raise WrinklesInputError(f"cannot read as an .npz archive ({e.__class__.__name__}: {e})",
                                  path=path) from None
 
