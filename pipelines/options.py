@@ -217,7 +217,6 @@ def load_body_and_motion(args: argparse.Namespace) -> BodyAndMotion:
     alignment uses the body's own joints too, and an AMASS file's Z-up to Y-up translation the
     body's pelvis at the shape it is posed with.
     """
-    from pathlib import Path
 
     from sim.bodies import load_body
     from sim.motions import MotionSkeleton, accepts_parameter, load_motion
@@ -231,10 +230,7 @@ def load_body_and_motion(args: argparse.Namespace) -> BodyAndMotion:
     if accepts_parameter(args.motion, "seed"):
         params.setdefault("seed", args.seed)
     skeleton = MotionSkeleton.from_body(body, shape)
-    options = dict(params)
-    if Path(str(args.motion)).suffix.lower() == ".bvh":
-        options.setdefault("rest_joints", skeleton.rest_joints)
-    motion = load_motion(args.motion, fps=args.fps, duration=args.duration, skeleton=skeleton, **options)
+    motion = load_motion(args.motion, fps=args.fps, duration=args.duration, skeleton=skeleton, **params)
     betas = resolve_betas(body, motion, shape)
     motion = place_pelvis(motion, body.rest_joints(betas)[body.body_joint_map[0]])
     return BodyAndMotion(body, betas, motion, params)

@@ -222,11 +222,8 @@ def sequence_inputs(cfg: DatasetConfig, sp: SequenceSpec, body):
     from sim.motions.amass import place_pelvis
 
     betas = body.full_betas(sp.betas)
-    skeleton = MotionSkeleton.from_body(body, betas)
-    params = dict(sp.motion_params)
-    if str(sp.motion).lower().endswith(".bvh"):
-        params.setdefault("rest_joints", skeleton.rest_joints)
-    motion = load_motion(sp.motion, fps=cfg.fps, duration=cfg.seconds, skeleton=skeleton, **params)
+    motion = load_motion(sp.motion, fps=cfg.fps, duration=cfg.seconds,
+                         skeleton=MotionSkeleton.from_body(body, betas), **sp.motion_params)
     return betas, place_pelvis(motion, body.rest_joints(betas)[body.body_joint_map[0]])
 
 

@@ -116,8 +116,9 @@ def load_motion(spec: str | os.PathLike, *, fps: float | None = None,
         duration: length [s]; procedural motions are generated for it (their lead-in comes
             before it), files are cut to it (error when the file is shorter). None keeps the
             default / the whole file.
-        skeleton: procedural motions are built on it (see :func:`procedural_motion`);
-            ignored for files.
+        skeleton: procedural motions are built on it (see :func:`procedural_motion`); a BVH
+            file's rest alignment uses its joints unless ``rest_joints`` is given; ignored for
+            AMASS files.
         **params: procedural params fields, or the file loader's keyword options
             (``load_amass``: pelvis_offset, up_axis, source_fps; ``load_bvh``: joint_map,
             scale, rest, rest_joints).
@@ -140,6 +141,8 @@ def load_motion(spec: str | os.PathLike, *, fps: float | None = None,
         bad = [k for k in params if k not in allowed]
         if bad:
             raise _unknown(f"option(s) for {ext} files", bad, allowed, text)
+        if ext == ".bvh" and skeleton is not None:
+            params.setdefault("rest_joints", skeleton.rest_joints)
         motion = loader(text, **params)
         if fps is not None:
             motion = resample_motion(motion, fps)
