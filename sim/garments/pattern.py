@@ -190,8 +190,9 @@ class Seam:
     """Two edges sewn together along their whole length.
 
     ``a`` and ``b`` are (panel name, edge index). With ``reverse`` (the default) the start of
-    ``a`` meets the end of ``b``, as on two panels both seen from outside; a dart joins two
-    edges of one panel (``dart`` True).
+    ``a`` meets the end of ``b``, as on two panels both seen from outside. A seam may join two
+    edges of one panel (a sleeve's underarm seam closes it into a tube); a dart (``dart`` True)
+    is such a seam that closes a notch cut into the outline.
     """
 
     a: tuple[str, int]
@@ -232,9 +233,8 @@ class Pattern:
                 if ref in used:
                     raise ValueError(f"pattern {self.name!r}: edge {ref} is in two seams")
                 used.add(ref)
-            if s.dart != (s.a[0] == s.b[0]):
-                raise ValueError(f"pattern {self.name!r}: a dart joins two edges of one panel, "
-                                 f"a seam two panels: {s}")
+            if s.dart and s.a[0] != s.b[0]:
+                raise ValueError(f"pattern {self.name!r}: a dart joins two edges of one panel: {s}")
         for p in self.panels:
             if p.area() <= 0:
                 raise ValueError(f"pattern {self.name!r}: panel {p.name!r} is not counter-clockwise")
