@@ -1,0 +1,1 @@
+"""Sewing patterns drafted from body measurements, with their panels placed around the body."""

@@ -1,0 +1,86 @@
+"""Where panels go around the rest body before sewing: cylinders around the torso, arms and legs.
+
+A torso panel wraps a vertical cylinder around the torso's centre at chest height, wide enough
+that the panel's half width reaches the body's side and clears it (``torso_cylinder``). A sleeve
+wraps a cylinder around the arm's axis (shoulder to elbow joint), a trouser leg one around the
+leg's axis (hip to knee joint).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.garments.pattern import Placement
+
+CLEARANCE = 0.02
+"""Least gap [m] between a placed panel and the body it wraps (sewing pulls it in)."""
+SMPL = {"pelvis": 0, "left_hip": 1, "right_hip": 2, "left_knee": 4, "right_knee": 5, "neck": 12,
+        "left_shoulder": 16, "right_shoulder": 17, "left_elbow": 18, "right_elbow": 19,
+        "left_wrist": 20, "right_wrist": 21}
+"""SMPL joint indices the placements read."""
+
+
+@dataclass(frozen=True)
+class TorsoSection:
+    """A horizontal section of the torso at one height [m]: centre (x, z), half width (x) and
+    half depth (z) of the body there, arms left out."""
+
+    y: float
+    cx: float
+    cz: float
+    half_width: float
+    half_depth: float
+
+
+def torso_section(vertices: np.ndarray, torso_mask: np.ndarray, y: float, half: float = 0.02) -> TorsoSection:
+    """The torso's extent within ``half`` [m] of height ``y``."""
+    sel = torso_mask & (np.abs(vertices[:, 1] - y) <= half)
+    xz = vertices[sel][:, [0, 2]]
+    lo, hi = xz.min(axis=0), xz.max(axis=0)
+    c = 0.5 * (lo + hi)
+    half_w, half_d = 0.5 * (hi - lo)
+    return TorsoSection(float(y), float(c[0]), float(c[1]), float(half_w), float(half_d))
+
+
+def torso_cylinder(section: TorsoSection, panel_half_width: float, front: bool, hem_y: float) -> Placement:
+    """Placement of a front (``front``) or back torso panel whose x = 0 is the centre line and
+    y = 0 the hem at height ``hem_y``: a vertical cylinder around the section's centre, a
+    quarter turn per ``panel_half_width`` unless the body needs a wider one."""
+    r = max(2.0 * panel_half_width / np.pi, section.half_width + CLEARANCE,
+            section.half_depth + CLEARANCE)
+    sign = 1.0 if front else -1.0
+    return Placement(anchor=(section.cx, hem_y, section.cz + sign * r), u_dir=(sign, 0.0, 0.0),
+                     v_dir=(0.0, 1.0, 0.0), curvature=1.0 / r, origin=(0.0, 0.0))
+
+
+def limb_cylinder(root: np.ndarray, toward: np.ndarray, start: float, circumference: float,
+                  limb_radius: float, top: tuple[float, float], up: np.ndarray) -> Placement:
+    """Placement of a tube panel (sleeve, trouser leg) around the limb from joint ``root``
+    toward joint ``toward``: the panel's y axis points back up the limb to the root, its point
+    ``top`` lands ``start`` [m] from the root along the limb axis on the side ``up`` (the
+    panel's centre line: the top of the arm, the front of the leg), and it wraps the axis at
+    radius ``circumference`` / 2π (at least the limb's radius plus ``CLEARANCE``)."""
+    axis = np.asarray(toward, np.float64) - np.asarray(root, np.float64)
+    axis /= np.linalg.norm(axis)
+    v = -axis
+    n = np.asarray(up, np.float64) - np.dot(up, v) * v
+    n /= np.linalg.norm(n)
+    u = np.cross(v, n)
+    r = max(circumference / (2 * np.pi), limb_radius + CLEARANCE)
+    anchor = np.asarray(root, np.float64) + axis * start + n * r
+    return Placement(anchor=tuple(anchor), u_dir=tuple(u), v_dir=tuple(v), curvature=1.0 / r,
+                     origin=(float(top[0]), float(top[1])))
+
+
+def limb_radius(vertices: np.ndarray, mask: np.ndarray, root: np.ndarray, toward: np.ndarray) -> float:
+    """Largest distance [m] of the masked body vertices from the limb axis, between its ends."""
+    axis = np.asarray(toward, np.float64) - np.asarray(root, np.float64)
+    length = float(np.linalg.norm(axis))
+    axis /= length
+    d = vertices[mask] - root
+    t = d @ axis
+    keep = (t >= 0.1 * length) & (t <= length)
+    radial = d[keep] - np.outer(t[keep], axis)
+    return float(np.linalg.norm(radial, axis=1).max()) if keep.any() else 0.05

@@ -1,0 +1,203 @@
+"""Tops drafted from body measurements: t-shirt, long sleeve, tank top, dress.
+
+The bodice block as pattern books draft it (e.g. Aldrich, *Metric Pattern Cutting*, the
+"easy-fitting" jersey and shirt blocks): a front and a back panel from the hem up the side seam to
+the underarm, the armhole curving up to the shoulder point, the shoulder line sloping up to the
+side neck point and the neckline (round: a scoop, V: two straight lines to a point on the centre
+front; the back neck is 2 cm deep). Widths are a quarter of each girth plus a quarter of its
+ease; heights are the body's landmarks. A set-in sleeve is a tube whose cap (the crown over the
+shoulder) is as long as the armhole it is sewn into plus the cap ease; its height is solved for
+that length.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.garments.drafting.body_frame import SMPL, limb_cylinder, limb_radius, torso_cylinder, torso_section
+from sim.garments.pattern import Edge, Panel, Pattern, Placement, Seam
+
+FITS = {"tight": 0, "regular": 1, "loose": 2}
+"""Fit names and their column in ``EASE``."""
+EASE = {
+    "chest": (0.03, 0.10, 0.20), "waist": (0.04, 0.14, 0.26), "hip": (0.04, 0.10, 0.20),
+    "bicep": (0.03, 0.08, 0.14), "wrist": (0.05, 0.08, 0.12), "armhole_drop": (0.015, 0.03, 0.05),
+    "shoulder": (0.0, 0.01, 0.03),
+}
+"""Ease [m] per girth (added to the whole girth) and per placement, by fit (tight, regular,
+loose): Aldrich's jersey block takes ~4 cm at the chest, the shirt block ~10 cm, oversized
+cuts 20 cm and more."""
+STRAIGHT = (0.0, 0.92, 1.0)
+"""The side seam's half width at waist and hip is at least this share of the chest's, by fit:
+a regular tee falls nearly straight from the underarm, a tight one follows the waist."""
+CAP_EASE = 0.03
+"""A sleeve cap is this much longer than its armhole (relative): the ease sewn into the crown."""
+
+
+@dataclass(frozen=True)
+class TopDesign:
+    """Design parameters of a top.
+
+    Attributes:
+        fit: "tight", "regular" or "loose" (``EASE``).
+        hem_drop: hem below the natural waist [m] (negative: a cropped top above it).
+        neckline: "round" or "v".
+        neck_depth: front neck depth below the side neck point [m].
+        neck_width: extra neck width on each side beyond the neck's [m].
+        sleeve_length: from the shoulder point along the arm [m]; 0: sleeveless.
+        strap_width: a sleeveless top's shoulder width beyond the neck [m] (0: to the shoulder point).
+        flare: the hem's extra half width over the hip's, relative to the hip's (dresses).
+    """
+
+    fit: str = "regular"
+    hem_drop: float = 0.22
+    neckline: str = "round"
+    neck_depth: float = 0.08
+    neck_width: float = 0.01
+    sleeve_length: float = 0.2
+    strap_width: float = 0.0
+    flare: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.fit not in FITS:
+            raise ValueError(f"fit {self.fit!r} is not one of {', '.join(FITS)}")
+        if self.neckline not in ("round", "v"):
+            raise ValueError(f"neckline {self.neckline!r} is not 'round' or 'v'")
+
+
+def ease(name: str, fit: str) -> float:
+    return EASE[name][FITS[fit]]
+
+
+def side_points(m, d: TopDesign, hem_y: float, armpit_y: float) -> list[tuple[float, float]]:
+    """The side seam's corners (height above the hem, half width) from the hem up to the
+    underarm: the hem, the hip and waist where the hem is below them, the underarm."""
+    chest = (m.chest + ease("chest", d.fit)) / 4
+    floor = STRAIGHT[FITS[d.fit]] * chest
+    waist = max((m.waist + ease("waist", d.fit)) / 4, floor)
+    hip = max((m.hip + ease("hip", d.fit)) / 4, floor)
+    pts = []
+    if hem_y < m.hip_height - 0.02:
+        pts.append((m.hip_height - hem_y, hip))
+    if hem_y < m.waist_height - 0.02:
+        pts.append((m.waist_height - hem_y, waist))
+    pts.append((armpit_y - hem_y, chest))
+    if hem_y < m.hip_height - 0.02:  # below the hip the skirt part flares
+        drop = m.hip_height - hem_y
+        hem_hw = hip * (1.0 + d.flare) + 0.15 * drop * d.flare
+    elif hem_y < m.waist_height - 0.02:  # between waist and hip: the body's width there
+        t = (m.waist_height - hem_y) / max(m.waist_height - m.hip_height, 1e-6)
+        hem_hw = waist + t * (hip - waist)
+    else:
+        hem_hw = chest
+    return [(0.0, hem_hw)] + pts
+
+
+def bodice_panel(name: str, m, d: TopDesign, front: bool, hem_y: float, placement: Placement) -> Panel:
+    """A front or back panel: x = 0 on the centre line, y = 0 at the hem, counter-clockwise
+    seen from outside. Edge labels: hem, side, armhole, shoulder, neckline."""
+    armpit_y = m.armpit_height - ease("armhole_drop", d.fit)
+    side = side_points(m, d, hem_y, armpit_y)
+    neck_hw = m.neck_base / (2 * np.pi) + d.neck_width
+    hps_y = m.neck_base_height + 0.005 - hem_y
+    if d.strap_width > 0:
+        sp_x = neck_hw + d.strap_width
+    else:
+        sp_x = 0.5 * m.shoulder_width + ease("shoulder", d.fit)
+    sp_y = m.shoulder_height + 0.012 - hem_y
+    ua_y, ua_x = side[-1]
+    depth = d.neck_depth if front else 0.02
+    scoop = 0.018 if front else 0.008  # the armhole's hollow, deeper in front
+    right = [(x, y) for y, x in side]  # hem to underarm, right half
+    corners = [(-right[0][0], 0.0)] + right + [(sp_x, sp_y), (neck_hw, hps_y)]
+    edges = [Edge(label="hem")] + [Edge(label="side")] * (len(right) - 1)
+    armhole = Edge("cubic", ((ua_x - 0.6 * (ua_x - sp_x + scoop), ua_y),
+                             (sp_x - scoop, ua_y + 0.55 * (sp_y - ua_y))), "armhole")
+    edges += [armhole, Edge(label="shoulder")]
+    if d.neckline == "v" and front:
+        corners += [(0.0, hps_y - depth), (-neck_hw, hps_y)]
+        edges += [Edge(label="neckline"), Edge(label="neckline")]
+    else:
+        corners += [(-neck_hw, hps_y)]
+        k = 4.0 / 3.0 * depth
+        edges += [Edge("cubic", ((neck_hw, hps_y - k), (-neck_hw, hps_y - k)), "neckline")]
+    corners += [(-sp_x, sp_y), (-ua_x, ua_y)] + [(-x, y) for x, y in right[-2:0:-1]]
+    c1, c2 = armhole.controls
+    edges += [Edge(label="shoulder"),
+              Edge("cubic", ((-c2[0], c2[1]), (-c1[0], c1[1])), "armhole")]
+    edges += [Edge(label="side")] * (len(right) - 1)
+    return Panel(name, np.array(corners), tuple(edges), placement)
+
+
+def cap_height(half_width: float, target: float) -> float:
+    """Sleeve cap height [m] whose half cap (``cap_edge``) is ``target`` [m] long."""
+    lo, hi = 0.01, 0.3
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        p = Panel("cap", np.array([[half_width, 0.0], [0.0, mid], [0.0, 0.0]]),
+                  (cap_edge(half_width, mid), Edge(), Edge()))
+        lo, hi = (mid, hi) if p.edge_length(0) < target else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def cap_edge(half_width: float, height: float, base: float = 0.0, left: bool = False) -> Edge:
+    """Half a sleeve cap from the underarm (±half_width, base) to the crown (0, base + height)
+    (``left``: from the crown down to the left underarm): a cubic, flat at the crown."""
+    c1 = (0.75 * half_width, base + 0.1 * height)
+    c2 = (0.45 * half_width, base + height)
+    if left:
+        return Edge("cubic", ((-c2[0], c2[1]), (-c1[0], c1[1])), "sleeve_cap")
+    return Edge("cubic", (c1, c2), "sleeve_cap")
+
+
+def sleeve_panel(name: str, m, d: TopDesign, armhole: float, placement_of) -> Panel:
+    """A set-in sleeve: cuff at y = 0, underarm seam edges 1 and 4, cap edges 2 and 3, its cap
+    ``armhole`` × (1 + ``CAP_EASE``) long on each side. ``placement_of(top)`` places it with its
+    crown ``top`` at the shoulder point."""
+    bw = (m.bicep + ease("bicep", d.fit)) / 2
+    ch = cap_height(bw, armhole * (1 + CAP_EASE))
+    length = max(d.sleeve_length, ch + 0.03)
+    t = np.clip((length - ch) / max(m.arm_length, 1e-6), 0.0, 1.0)
+    girth = float(np.interp(t, [0.0, 0.5, 1.0], [m.bicep, m.elbow, m.wrist]))
+    cw = min(bw, (girth + ease("wrist", d.fit) + 0.03 * (1 - t)) / 2)
+    base = length - ch
+    corners = np.array([[-cw, 0.0], [cw, 0.0], [bw, base], [0.0, length], [-bw, base]])
+    edges = (Edge(label="cuff"), Edge(label="underarm"), cap_edge(bw, ch, base),
+             cap_edge(bw, ch, base, left=True), Edge(label="underarm"))
+    return Panel(name, corners, edges, placement_of((0.0, length)))
+
+
+def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, joints: np.ndarray,
+              d: TopDesign, name: str = "top") -> Pattern:
+    """A top's pattern for a body: measurements ``m``, rest vertices and joints for placement."""
+    hem_y = m.waist_height - d.hem_drop
+    section = torso_section(vertices, torso_mask, m.chest_height)
+    half = (m.chest + ease("chest", d.fit)) / 4
+    front = bodice_panel("front", m, d, True, hem_y, torso_cylinder(section, half, True, hem_y))
+    back = bodice_panel("back", m, d, False, hem_y, torso_cylinder(section, half, False, hem_y))
+    k = len(side_points(m, d, hem_y, 0.0)) - 1  # side edges per side
+    arm_f = k + 1
+    seams = [Seam(("front", 1 + i), ("back", len(back.edges) - 1 - i)) for i in range(k)]
+    nf, nb = len(front.edges), len(back.edges)
+    seams += [Seam(("front", arm_f + 1), ("back", nb - k - 2)),  # right-hand shoulders
+              Seam(("front", nf - k - 2), ("back", arm_f + 1))]
+    panels = [front, back]
+    if d.sleeve_length > 0:
+        armholes = [front.edge_length(arm_f), back.edge_length(arm_f)]
+        for side, sign in (("l", 1.0), ("r", -1.0)):
+            js, je = joints[SMPL[f"{'left' if sign > 0 else 'right'}_shoulder"]], \
+                joints[SMPL[f"{'left' if sign > 0 else 'right'}_elbow"]]
+            start = abs(sign * 0.5 * m.shoulder_width - js[0])
+            radius = limb_radius(vertices, arm_mask[side], js, je)
+
+            def place(top, js=js, je=je, start=start, radius=radius):
+                bw = m.bicep + ease("bicep", d.fit)
+                return limb_cylinder(js, je, start, bw, radius, top, np.array([0.0, 1.0, 0.0]))
+            panels.append(sleeve_panel(f"sleeve_{side}", m, d, float(np.mean(armholes)), place))
+        # sleeve_l (+x arm): its edge 2 is on the back, edge 3 on the front (see limb_cylinder)
+        seams += [Seam(("sleeve_l", 1), ("sleeve_l", 4)), Seam(("sleeve_r", 1), ("sleeve_r", 4)),
+                  Seam(("sleeve_l", 2), ("back", nb - k - 1)), Seam(("sleeve_l", 3), ("front", arm_f)),
+                  Seam(("sleeve_r", 2), ("front", nf - k - 1)), Seam(("sleeve_r", 3), ("back", arm_f))]
+    return Pattern(name, tuple(panels), tuple(seams), {"design": d.__dict__.copy()})

@@ -1,0 +1,164 @@
+"""Sewing a pattern onto the rest body with the cloth solver (``sew_pattern``).
+
+1. The flat mesh (``sim.garments.pattern_mesh``) is placed around the body: each panel on its
+   cylinder (``Placement``); cylinders are developable, so the placed panels are unstretched
+   and serve as the rest shape of this stage. Points that land inside the body are pushed out.
+2. *Closing*: the seam vertices are pinned and their pins travel, over ``close_frames`` frames
+   (smoothstep), from where they were placed to the mean of their seam group (kept outside the
+   body); the solver drags the rest of each panel along, with body contact and self-contact
+   on and no gravity, as a virtual sewing machine pulls the seam lines together.
+3. The seam groups are merged into one vertex each (the gaps are 0 by then), and the sewn
+   garment *settles* for ``settle_frames`` frames under gravity on the body, pinned only along
+   the edges labelled ``HELD`` (an elastic waistband grips the waist; everything else hangs).
+
+The merged mesh keeps the pattern's UV seams: each face keeps its panel's flat corners.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.easing import smoothstep
+from sim.garments.pattern import Pattern
+from sim.garments.pattern_mesh import PatternMesh, mesh_pattern
+
+HELD = ("waistband",)
+"""Edge labels whose vertices stay where sewing left them while the garment settles."""
+PUSH_EPS = 0.002
+"""Step [m] of the finite differences that give the body's outward normal from its distance."""
+
+
+@dataclass(frozen=True)
+class SewingConfig:
+    """How a pattern is sewn.
+
+    Attributes:
+        close_frames: frames (at ``fps``) over which the seams are pulled closed.
+        settle_frames: frames the sewn garment hangs under gravity afterwards.
+        fps: frame rate of the sewing simulation [1/s].
+        substeps, iterations: the solver's per frame (``VBDConfig.stepping``).
+        clearance: gap [m] kept between a seam line and the body, on top of the cloth thickness.
+    """
+
+    close_frames: int = 30
+    settle_frames: int = 20
+    fps: float = 30.0
+    substeps: int = 8
+    iterations: int = 5
+    clearance: float = 0.004
+
+
+@dataclass(frozen=True)
+class SewnPattern:
+    """A sewn garment mesh.
+
+    Attributes:
+        vertices: rest positions [m] on the body, (G, 3); faces: int32 (F, 3) into them.
+        mesh: the unsewn pattern mesh (flat corners, panels, seam pairs; ``mesh.groups`` maps
+            its vertices to ``vertices``).
+        seam_gap: largest distance [m] between the two sides of a seam when they were merged.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    mesh: PatternMesh
+    seam_gap: float
+
+
+def push_outside(collider, x: np.ndarray, distance: float, rounds: int = 3) -> np.ndarray:
+    """``x`` (N, 3) [m] with every point nearer than ``distance`` to the body (or inside it)
+    moved along the body's outward normal until it is ``distance`` away."""
+    x = np.array(x, np.float64)
+    for _ in range(rounds):
+        d = collider.signed_distance(x)
+        near = d < distance
+        if not near.any():
+            break
+        p = x[near]
+        grad = np.zeros_like(p)
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = PUSH_EPS
+            grad[:, k] = (collider.signed_distance(p + e) - collider.signed_distance(p - e)) / (2 * PUSH_EPS)
+        grad /= np.maximum(np.linalg.norm(grad, axis=1, keepdims=True), 1e-9)
+        x[near] = p + grad * (distance - d[near])[:, None]
+    return x
+
+
+def _solver(vertices, faces, material, *, rest, pinned, gravity: bool, cfg: SewingConfig, device: str):
+    from sim.cloth import ClothModelBuilder, SolverVBD
+    from sim.cloth.config import Stepping, VBDConfig
+
+    builder = ClothModelBuilder(gravity=(0.0, -9.81 if gravity else 0.0, 0.0))
+    builder.add_cloth(vertices, faces, material, pinned=pinned, rest_vertices=rest)
+    model = builder.finalize(device)
+    vbd = VBDConfig(stepping=Stepping(substeps=cfg.substeps, iterations=cfg.iterations))
+    return model, SolverVBD(model, vbd)
+
+
+def _run(model, solver, collider, frames: int, fps: float, targets=None) -> np.ndarray:
+    """Step ``frames`` frames; ``targets(t)`` (N, 3) gives the pins' positions at frame t + 1."""
+    from sim.device import warp
+
+    wp = warp()
+    control = model.control()
+    control.set_body(0, collider)
+    state = model.state()
+    for t in range(frames):
+        if targets is not None:
+            control.pin_targets.assign(wp.array(targets(t).astype(np.float32), dtype=wp.vec3,
+                                                device=model.device))
+        solver.step(state, state, control, 1.0 / fps)
+    return state.positions.numpy().astype(np.float64)
+
+
+def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndarray, h: float,
+                material, *, config: SewingConfig | None = None, device: str | None = None) -> SewnPattern:
+    """Mesh ``pattern`` at edge length ``h`` [m], sew it on the rest body and let it settle.
+
+    Args:
+        pattern: the sewing pattern, panels placed around the body.
+        body_vertices: the rest body [m], (Vb, 3); body_faces: its triangles.
+        h: target edge length [m].
+        material: the cloth (``Material`` or solver parameters; its thickness is kept from the body).
+        config: sewing settings.
+        device: Warp device (None: cuda when present, else cpu).
+    """
+    from sim.cloth import BodyCollider
+    from sim.cloth.model import as_cloth_params
+    from sim.device import resolve_device
+
+    cfg = config or SewingConfig()
+    dev = resolve_device(device)
+    mesh = mesh_pattern(pattern, h)
+    body = np.asarray(body_vertices, np.float32)
+    collider = BodyCollider(body, np.asarray(body_faces, np.int32), device=dev)
+    collider.set_frame(body, body)
+    keep = float(as_cloth_params(material).thickness) + cfg.clearance
+    x0 = push_outside(collider, mesh.placed, keep)
+    seam = np.zeros(len(x0), bool)
+    seam[mesh.pairs.ravel()] = True
+    goal = push_outside(collider, mesh.merge(x0)[mesh.groups], keep)
+    model, solver = _solver(x0, mesh.triangles, material, rest=mesh.placed, pinned=seam, gravity=False,
+                            cfg=cfg, device=dev)
+
+    def targets(t: int) -> np.ndarray:
+        w = float(smoothstep(np.array((t + 1) / cfg.close_frames)))
+        out = x0.copy()
+        out[seam] = (1 - w) * x0[seam] + w * goal[seam]
+        return out
+
+    x = _run(model, solver, collider, cfg.close_frames, cfg.fps, targets)
+    gap = float(np.linalg.norm(x[mesh.pairs[:, 0]] - x[mesh.pairs[:, 1]], axis=1).max(initial=0.0))
+    merged = mesh.merge(x)
+    faces = mesh.sewn_faces()
+    if cfg.settle_frames > 0:
+        held = np.zeros(len(merged), bool)
+        for ref in (r for label in HELD for r in pattern.labelled(label)):
+            held[mesh.groups[mesh.edge_vertices[ref]]] = True
+        model, solver = _solver(merged, faces, material, rest=merged, pinned=held, gravity=True, cfg=cfg,
+                                device=dev)
+        merged = _run(model, solver, collider, cfg.settle_frames, cfg.fps)
+    return SewnPattern(vertices=merged.astype(np.float32), faces=faces, mesh=mesh, seam_gap=gap)
