@@ -102,6 +102,30 @@ def triangle_rest_data(rest: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray,
     return np.linalg.inv(dm), 0.5 * twice_area
 
 
+def flat_rest_data(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rest ``Dm^-1`` (F, 2, 2) and area (F,) [m^2] of triangles given by their flat corners
+    (F, 3, 2) [m], counter-clockwise (the frame differs from ``triangle_rest_data``'s by a
+    rotation, which the co-rotated membrane does not see)."""
+    c = np.asarray(corners, np.float64)
+    dm = np.stack([c[:, 1] - c[:, 0], c[:, 2] - c[:, 0]], axis=2)  # columns e1, e2
+    det = dm[:, 0, 0] * dm[:, 1, 1] - dm[:, 0, 1] * dm[:, 1, 0]
+    if np.any(det < 1e-14):
+        bad = int(np.argmin(det))
+        raise ValueError(f"cloth mesh: face {bad} has zero or negative flat rest area (corners must be "
+                         "counter-clockwise)")
+    return np.linalg.inv(dm), 0.5 * det
+
+
+def hinge_rest_angles(ins: _Instance) -> np.ndarray:
+    """Rest dihedral angle of each hinge: of the rest shape, or 0 (flat) inside one pattern
+    panel when the instance has flat rest corners."""
+    angles = dihedral_angles(ins.rest, ins.hinges)
+    if ins.flat is not None:
+        t_a, t_b = hinge_faces(ins.faces, ins.hinges)
+        angles[ins.panels[t_a] == ins.panels[t_b]] = 0.0
+    return angles
+
+
 def build_hinges(faces: np.ndarray) -> np.ndarray:
     """Interior edges as hinges ``(o0, o1, a, b)`` (layout in ``sim.cloth.energies``).
 
@@ -157,6 +181,8 @@ class _Instance:
     material: Any
     colors: np.ndarray
     layers: np.ndarray
+    flat: np.ndarray | None = None
+    panels: np.ndarray | None = None
 
 
 _TOPOLOGY: collections.OrderedDict = collections.OrderedDict()
@@ -199,7 +225,8 @@ class ClothModelBuilder:
 
     def add_cloth(self, vertices: np.ndarray, faces: np.ndarray, material: ClothMaterialLike, *,
                   pinned: np.ndarray | None = None, rest_vertices: np.ndarray | None = None,
-                  face_layers: np.ndarray | None = None) -> int:
+                  face_layers: np.ndarray | None = None, rest_corners: np.ndarray | None = None,
+                  face_panels: np.ndarray | None = None) -> int:
         """Add one cloth instance.
 
         Args:
@@ -214,6 +241,12 @@ class ClothModelBuilder:
                 material's area density, membrane moduli and bending stiffness (layers that bend
                 and stretch side by side, not bonded into one sheet); a hinge takes the mean of
                 its two faces.
+            rest_corners: each face's corners in its flat sewing-pattern panel [m], (F, 3, 2),
+                counter-clockwise (a garment's ``flat_corners()``): the membrane's rest metric and
+                the rest areas come from the pattern instead of ``rest_vertices``, and hinges
+                inside one panel (``face_panels``) rest flat, as cloth cut from a flat bolt
+                does; hinges across a seam keep ``rest_vertices``' angle.
+            face_panels: panel of each face, (F,), with ``rest_corners``.
 
         Returns:
             The instance index.
@@ -238,8 +271,15 @@ class ClothModelBuilder:
             else:
                 mask[p.astype(np.int64)] = True
         layers = face_layers_array(face_layers, len(f), "cloth mesh")
+        flat = panels = None
+        if rest_corners is not None:
+            flat = np.asarray(rest_corners, np.float64)
+            panels = np.zeros(len(f), np.int64) if face_panels is None else np.asarray(face_panels, np.int64)
+            if flat.shape != (len(f), 3, 2) or panels.shape != (len(f),):
+                raise ValueError(f"cloth mesh: rest_corners must be ({len(f)}, 3, 2) and face_panels "
+                                 f"({len(f)},), got {flat.shape} and {panels.shape}")
         hinges, colors = mesh_topology(len(v), f, self.max_colors)
-        self._instances.append(_Instance(v, rest, f, hinges, mask, material, colors, layers))
+        self._instances.append(_Instance(v, rest, f, hinges, mask, material, colors, layers, flat, panels))
         return len(self._instances) - 1
 
     def finalize(self, device: str | None = None) -> ClothModel:
@@ -282,7 +322,7 @@ def _stack_instances(instances: list[_Instance]) -> dict[str, Any]:
         m = ins.material
         nv = len(ins.vertices)
         cols["starts"].append(offset)
-        dinv, a = triangle_rest_data(ins.rest, ins.faces)
+        dinv, a = triangle_rest_data(ins.rest, ins.faces) if ins.flat is None else flat_rest_data(ins.flat)
         cols["particle_q"].append(ins.vertices)
         cols["particle_rest"].append(ins.rest)
         cols["particle_mass"].append(m.density * lumped_areas(nv, ins.faces, a, ins.layers))
@@ -296,7 +336,7 @@ def _stack_instances(instances: list[_Instance]) -> dict[str, Any]:
         cols["tri_damping"].append(np.full(len(a), m.damping))
         if len(ins.hinges):
             cols["hinges"].append(ins.hinges + offset)
-            cols["edge_rest_angle"].append(dihedral_angles(ins.rest, ins.hinges))
+            cols["edge_rest_angle"].append(hinge_rest_angles(ins))
             cols["edge_stiffness"].append(hinge_factors(ins.rest, ins.faces, ins.hinges, a, ins.layers,
                                                         m.bending))
             cols["edge_damping"].append(np.full(len(ins.hinges), m.damping))

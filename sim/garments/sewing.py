@@ -8,7 +8,8 @@
    body); the solver drags the rest of each panel along, with body contact and self-contact
    on and no gravity, as a virtual sewing machine pulls the seam lines together.
 3. The seam groups are merged into one vertex each (the gaps are 0 by then), and the sewn
-   garment *settles* for ``settle_frames`` frames under gravity on the body, pinned only along
+   garment, its rest shape now the flat pattern (``ClothModelBuilder.add_cloth``'s
+   ``rest_corners``), *settles* for ``settle_frames`` frames under gravity on the body, pinned only along
    the edges labelled ``HELD`` (an elastic waistband grips the waist; everything else hangs).
 
 The merged mesh keeps the pattern's UV seams: each face keeps its panel's flat corners.
@@ -87,12 +88,15 @@ def push_outside(collider, x: np.ndarray, distance: float, rounds: int = 3) -> n
     return x
 
 
-def _solver(vertices, faces, material, *, rest, pinned, gravity: bool, cfg: SewingConfig, device: str):
+def _solver(vertices, faces, material, *, rest, pinned, gravity: bool, cfg: SewingConfig, device: str,
+            mesh: PatternMesh | None = None):
     from sim.cloth import ClothModelBuilder, SolverVBD
     from sim.cloth.config import Stepping, VBDConfig
 
     builder = ClothModelBuilder(gravity=(0.0, -9.81 if gravity else 0.0, 0.0))
-    builder.add_cloth(vertices, faces, material, pinned=pinned, rest_vertices=rest)
+    flat = None if mesh is None else mesh.flat[mesh.triangles]
+    builder.add_cloth(vertices, faces, material, pinned=pinned, rest_vertices=rest, rest_corners=flat,
+                      face_panels=None if mesh is None else mesh.face_panel)
     model = builder.finalize(device)
     vbd = VBDConfig(stepping=Stepping(substeps=cfg.substeps, iterations=cfg.iterations))
     return model, SolverVBD(model, vbd)
@@ -159,6 +163,6 @@ def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndar
         for ref in (r for label in HELD for r in pattern.labelled(label)):
             held[mesh.groups[mesh.edge_vertices[ref]]] = True
         model, solver = _solver(merged, faces, material, rest=merged, pinned=held, gravity=True, cfg=cfg,
-                                device=dev)
+                                device=dev, mesh=mesh)
         merged = _run(model, solver, collider, cfg.settle_frames, cfg.fps)
     return SewnPattern(vertices=merged.astype(np.float32), faces=faces, mesh=mesh, seam_gap=gap)

@@ -33,6 +33,10 @@ class Garment:
         repairs: what reading a garment file repaired (``load_garment``), as counts: vertices
             merged, collapsed faces, faces given twice and faces of tiny pieces dropped; empty
             for a template.
+        uv_scale: metres of flat cloth per UV unit when the UVs are the garment's flat sewing
+            pattern (every panel at one scale, unmirrored: a sewn design); the simulator then
+            takes the cloth's rest shape from the pattern (``flat_corners``). None: the UVs are
+            only a texture layout and ``rest_vertices`` is the rest shape.
     """
 
     rest_vertices: np.ndarray
@@ -47,6 +51,7 @@ class Garment:
     panel_names: tuple[str, ...] = ()
     face_layers: np.ndarray | None = None
     repairs: dict[str, int] = field(default_factory=dict)
+    uv_scale: float | None = None
 
     def __post_init__(self) -> None:
         v = np.ascontiguousarray(self.rest_vertices, dtype=np.float32)
@@ -77,8 +82,16 @@ class Garment:
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "attachments", att)
+        if self.uv_scale is not None and not float(self.uv_scale) > 0.0:
+            raise WrinklesInputError(f"{where}: uv_scale must be > 0 m per UV unit, got {self.uv_scale}")
         names = tuple(self.panel_names) or tuple(f"panel{i}" for i in range(int(pid.max()) + 1))
         object.__setattr__(self, "panel_names", names)
+
+    def flat_corners(self) -> np.ndarray | None:
+        """Each face's corners in its flat pattern panel [m], (F, 3, 2); None without ``uv_scale``."""
+        if self.uv_scale is None:
+            return None
+        return self.uvs[self.uv_faces].astype(np.float64) * float(self.uv_scale)
 
     @property
     def num_vertices(self) -> int:

@@ -63,7 +63,7 @@ def _build_model(tracks: list[Track], vbd, device: str):
         g = tr.job.garment
         x0 = place_garment(g.rest_vertices, tr.placement)
         builder.add_cloth(x0, g.faces, g.material, pinned=tr.pinned, rest_vertices=g.rest_vertices,
-                          face_layers=g.face_layers)
+                          face_layers=g.face_layers, rest_corners=g.flat_corners(), face_panels=g.panel_ids)
         try:
             bindings.append(bind_to_surface(x0, tr.frames.vertices[0], tr.job.body.faces, vertices=tr.pinned,
                                             device=device))
