@@ -309,10 +309,10 @@ def test_pinned_vertices_stay_exactly_put(device):
     assert x[-1, :, 1].min() < -0.2  # the rest swings down
 
 
-def drop_on_sphere(device, steps: int = 30):
+def drop_on_sphere(device, steps: int = 30, contact_offset: float = 0.0):
     v, f = grid(13, 13, 0.6, 0.6, plane="xz")
     v = v + np.array([-0.3, 0.25, -0.3], dtype=np.float32)
-    b = ClothModelBuilder()
+    b = ClothModelBuilder(contact_offset=contact_offset)
     b.add_cloth(v, f, ClothMaterialParams(bending=1e-5, friction=0.5, thickness=0.005))
     m = b.finalize(device)
     sv, sf = uv_sphere(0.2)
@@ -321,6 +321,18 @@ def drop_on_sphere(device, steps: int = 30):
     control.set_body(0, body)
     solver = SolverVBD(m, plain_config(5, 5))
     return m, solver, control, body, sv
+
+
+def test_contact_offset_keeps_the_cloth_that_much_farther_from_the_body(device):
+    rest = {}
+    for offset in (0.0, 0.006):
+        m, solver, control, body, _ = drop_on_sphere(device, contact_offset=offset)
+        np.testing.assert_allclose(m.instance_thickness.numpy(), 0.005 + offset, rtol=1e-6)
+        x = simulate(m, solver, control, 30, 1.0 / 30.0)[-1]
+        top = np.abs(x[:, 0]) + np.abs(x[:, 2]) < 0.05
+        rest[offset] = body.signed_distance(x[top]).mean()
+    # the penalty contact rests a little inside its distance; the offset shifts it by itself
+    assert rest[0.006] - rest[0.0] == pytest.approx(0.006, abs=0.0015)
 
 
 def test_cloth_dropped_on_sphere_settles_outside(device):

@@ -214,10 +214,14 @@ class ClothModelBuilder:
         max_colors: colours of each instance's vertex colouring (``compact_coloring``): 0 (default)
             as few as a proper colouring needs; fewer leaves some neighbours same-coloured, and
             the solve couples those by a Jacobi step (``vertex_tri_local``'s mask).
+        contact_offset: distance [m] kept from the body on top of each material's thickness
+            (``BodyContact.offset``): ``instance_thickness`` holds their sum.
     """
 
-    def __init__(self, *, gravity: tuple[float, float, float] = (0.0, -9.81, 0.0), max_colors: int = 0):
+    def __init__(self, *, gravity: tuple[float, float, float] = (0.0, -9.81, 0.0), max_colors: int = 0,
+                 contact_offset: float = 0.0):
         self.gravity = tuple(float(g) for g in gravity)
+        self.contact_offset = float(contact_offset)
         if max_colors < 0 or max_colors == 1:
             raise ValueError(f"ClothModelBuilder: max_colors must be 0 (proper) or >= 2, got {max_colors}")
         self.max_colors = int(max_colors)
@@ -288,7 +292,7 @@ class ClothModelBuilder:
             raise ValueError("ClothModelBuilder.finalize: no cloth instances were added")
         wp = warp()
         d = resolve_device(device)
-        parts = _stack_instances(self._instances)
+        parts = _stack_instances(self._instances, self.contact_offset)
         n = parts.pop("particle_count")
         faces, hinges = parts["faces"], parts["hinges"]
         colors = np.concatenate([ins.colors for ins in self._instances])
@@ -312,7 +316,7 @@ class ClothModelBuilder:
         )
 
 
-def _stack_instances(instances: list[_Instance]) -> dict[str, Any]:
+def _stack_instances(instances: list[_Instance], contact_offset: float = 0.0) -> dict[str, Any]:
     """The instances' per-particle, per-triangle, per-hinge and per-instance arrays, stacked in
     instance order (float32 / int32 numpy), with ``particle_count``, ``instance_starts`` and the
     stacked ``faces`` and ``hinges`` (global vertex indices)."""
@@ -340,7 +344,7 @@ def _stack_instances(instances: list[_Instance]) -> dict[str, Any]:
             cols["edge_stiffness"].append(hinge_factors(ins.rest, ins.faces, ins.hinges, a, ins.layers,
                                                         m.bending))
             cols["edge_damping"].append(np.full(len(ins.hinges), m.damping))
-        cols["instance_thickness"].append(m.thickness)
+        cols["instance_thickness"].append(m.thickness + contact_offset)
         cols["instance_friction"].append(m.friction)
         offset += nv
     cat = np.concatenate

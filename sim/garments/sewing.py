@@ -41,6 +41,8 @@ class SewingConfig:
         fps: frame rate of the sewing simulation [1/s].
         substeps, iterations: the solver's per frame (``VBDConfig.stepping``).
         clearance: gap [m] kept between a seam line and the body, on top of the cloth thickness.
+        contact_offset: distance [m] the cloth keeps from the body on top of its thickness
+            (``BodyContact.offset``).
     """
 
     close_frames: int = 30
@@ -49,6 +51,7 @@ class SewingConfig:
     substeps: int = 8
     iterations: int = 5
     clearance: float = 0.004
+    contact_offset: float = 0.003
 
 
 @dataclass(frozen=True)
@@ -91,14 +94,16 @@ def push_outside(collider, x: np.ndarray, distance: float, rounds: int = 3) -> n
 def _solver(vertices, faces, material, *, rest, pinned, gravity: bool, cfg: SewingConfig, device: str,
             mesh: PatternMesh | None = None):
     from sim.cloth import ClothModelBuilder, SolverVBD
-    from sim.cloth.config import Stepping, VBDConfig
+    from sim.cloth.config import BodyContact, Stepping, VBDConfig
 
-    builder = ClothModelBuilder(gravity=(0.0, -9.81 if gravity else 0.0, 0.0))
+    builder = ClothModelBuilder(gravity=(0.0, -9.81 if gravity else 0.0, 0.0),
+                                contact_offset=cfg.contact_offset)
     flat = None if mesh is None else mesh.flat[mesh.triangles]
     builder.add_cloth(vertices, faces, material, pinned=pinned, rest_vertices=rest, rest_corners=flat,
                       face_panels=None if mesh is None else mesh.face_panel)
     model = builder.finalize(device)
-    vbd = VBDConfig(stepping=Stepping(substeps=cfg.substeps, iterations=cfg.iterations))
+    vbd = VBDConfig(stepping=Stepping(substeps=cfg.substeps, iterations=cfg.iterations),
+                    body_contact=BodyContact(offset=cfg.contact_offset))
     return model, SolverVBD(model, vbd)
 
 

@@ -57,7 +57,7 @@ def _build_model(tracks: list[Track], vbd, device: str):
     from sim.cloth import ClothModelBuilder
     from sim.dressing import bind_to_surface, place_garment
 
-    builder = ClothModelBuilder(max_colors=vbd.layout.max_colors)
+    builder = ClothModelBuilder(max_colors=vbd.layout.max_colors, contact_offset=vbd.body_contact.offset)
     bindings = []
     for tr in tracks:
         g = tr.job.garment
