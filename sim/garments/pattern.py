@@ -101,7 +101,10 @@ class Placement:
     The panel point ``origin`` lands on ``anchor``; the panel's y axis runs along ``v_dir``;
     its x axis wraps around a cylinder of radius 1 / ``curvature`` whose axis is parallel to
     ``v_dir`` and lies behind the panel (flat when ``curvature`` is 0). The panel's outside
-    faces ``u_dir x v_dir`` at the anchor.
+    faces ``u_dir x v_dir`` at the anchor. With ``radius_slope`` the cylinder is a cone whose
+    radius changes by that much per metre of panel y (a sleeve narrowing to its cuff); a
+    cylinder and a cone are developable, so a panel wrapped on either is not stretched (a cone
+    by a small shear where its slope is large).
     """
 
     anchor: tuple[float, float, float]
@@ -109,6 +112,7 @@ class Placement:
     v_dir: tuple[float, float, float] = (0.0, 1.0, 0.0)
     curvature: float = 0.0
     origin: tuple[float, float] = (0.0, 0.0)
+    radius_slope: float = 0.0
 
     def place(self, xy: np.ndarray) -> np.ndarray:
         """3D positions [m] of panel points ``xy`` (P, 2), shape (P, 3)."""
@@ -117,13 +121,16 @@ class Placement:
         u, v = u / np.linalg.norm(u), v / np.linalg.norm(v)
         n = np.cross(u, v)
         d = xy[:, 0] - self.origin[0]
-        k = float(self.curvature)
-        if abs(k) < 1e-9:
-            across, inward = d, np.zeros_like(d)
-        else:
-            across, inward = np.sin(k * d) / k, (1.0 - np.cos(k * d)) / k
-        return (np.asarray(self.anchor, np.float64) + across[:, None] * u
-                + (xy[:, 1] - self.origin[1])[:, None] * v - inward[:, None] * n)
+        along = xy[:, 1] - self.origin[1]
+        anchor = np.asarray(self.anchor, np.float64)
+        if abs(float(self.curvature)) < 1e-9:
+            return anchor + d[:, None] * u + along[:, None] * v
+        r0 = 1.0 / float(self.curvature)
+        r = np.maximum(r0 + float(self.radius_slope) * along, 0.05 * abs(r0))
+        a = d / r
+        axis = anchor - r0 * n
+        return (axis + along[:, None] * v + (r * np.sin(a))[:, None] * u
+                + (r * np.cos(a))[:, None] * n)
 
 
 @dataclass(frozen=True)

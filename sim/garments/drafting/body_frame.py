@@ -56,12 +56,15 @@ def torso_cylinder(section: TorsoSection, panel_half_width: float, front: bool, 
 
 
 def limb_cylinder(root: np.ndarray, toward: np.ndarray, start: float, circumference: float,
-                  limb_radius: float, top: tuple[float, float], up: np.ndarray) -> Placement:
+                  limb_radius: float, top: tuple[float, float], up: np.ndarray,
+                  bottom: tuple[float, float] | None = None) -> Placement:
     """Placement of a tube panel (sleeve, trouser leg) around the limb from joint ``root``
     toward joint ``toward``: the panel's y axis points back up the limb to the root, its point
     ``top`` lands ``start`` [m] from the root along the limb axis on the side ``up`` (the
     panel's centre line: the top of the arm, the front of the leg), and it wraps the axis at
-    radius ``circumference`` / 2π (at least the limb's radius plus ``CLEARANCE``)."""
+    radius ``circumference`` / 2π (at least the limb's radius plus ``CLEARANCE``). With
+    ``bottom`` = (circumference, limb radius) at the panel's y = 0 row (a cuff), it wraps a cone
+    that narrows or widens to that row's own radius."""
     axis = np.asarray(toward, np.float64) - np.asarray(root, np.float64)
     axis /= np.linalg.norm(axis)
     v = -axis
@@ -69,18 +72,26 @@ def limb_cylinder(root: np.ndarray, toward: np.ndarray, start: float, circumfere
     n /= np.linalg.norm(n)
     u = np.cross(v, n)
     r = max(circumference / (2 * np.pi), limb_radius + CLEARANCE)
+    slope = 0.0
+    if bottom is not None and top[1] > 0:
+        r_end = max(bottom[0] / (2 * np.pi), bottom[1] + CLEARANCE)
+        slope = (r - r_end) / top[1]
     anchor = np.asarray(root, np.float64) + axis * start + n * r
     return Placement(anchor=tuple(anchor), u_dir=tuple(u), v_dir=tuple(v), curvature=1.0 / r,
-                     origin=(float(top[0]), float(top[1])))
+                     origin=(float(top[0]), float(top[1])), radius_slope=slope)
 
 
-def limb_radius(vertices: np.ndarray, mask: np.ndarray, root: np.ndarray, toward: np.ndarray) -> float:
-    """Largest distance [m] of the masked body vertices from the limb axis, between its ends."""
+def limb_radius(vertices: np.ndarray, mask: np.ndarray, root: np.ndarray, toward: np.ndarray,
+                span: tuple[float, float] | None = None) -> float:
+    """Largest distance [m] of the masked body vertices from the limb axis (``root`` to
+    ``toward``) between distances ``span`` [m] from the root along it (default: from a tenth
+    of the way to the end)."""
     axis = np.asarray(toward, np.float64) - np.asarray(root, np.float64)
     length = float(np.linalg.norm(axis))
     axis /= length
+    lo, hi = span if span is not None else (0.1 * length, length)
     d = vertices[mask] - root
     t = d @ axis
-    keep = (t >= 0.1 * length) & (t <= length)
+    keep = (t >= lo) & (t <= hi)
     radial = d[keep] - np.outer(t[keep], axis)
     return float(np.linalg.norm(radial, axis=1).max()) if keep.any() else 0.05

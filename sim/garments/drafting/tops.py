@@ -166,7 +166,24 @@ def sleeve_panel(name: str, m, d: TopDesign, armhole: float, placement_of) -> Pa
     corners = np.array([[-cw, 0.0], [cw, 0.0], [bw, base], [0.0, length], [-bw, base]])
     edges = (Edge(label="cuff"), Edge(label="underarm"), cap_edge(bw, ch, base),
              cap_edge(bw, ch, base, left=True), Edge(label="underarm"))
-    return Panel(name, corners, edges, placement_of((0.0, length)))
+    return Panel(name, corners, edges, placement_of((0.0, length), 2 * cw))
+
+
+def sleeve_placement(m, d: TopDesign, vertices: np.ndarray, mask: np.ndarray, joints: np.ndarray, limb: str):
+    """``placement_of(top, cuff)`` of a sleeve on the ``limb`` ("left"/"right") arm: a cone
+    around the arm's axis (shoulder to wrist joint) from the bicep's girth at the crown (``top``,
+    at the shoulder point) to the cuff's girth ``cuff`` [m] at the cuff."""
+    js, jw = joints[SMPL[f"{limb}_shoulder"]], joints[SMPL[f"{limb}_wrist"]]
+    start = abs(np.sign(js[0]) * 0.5 * m.shoulder_width - js[0])
+    arm = float(np.linalg.norm(jw - js))
+
+    def place(top, cuff):
+        cuff_at = min(start + top[1], arm)
+        r_top = limb_radius(vertices, mask, js, jw, (start, start + 0.15))
+        r_cuff = limb_radius(vertices, mask, js, jw, (cuff_at - 0.03, cuff_at + 0.01))
+        return limb_cylinder(js, jw, start, m.bicep + ease("bicep", d.fit), r_top, top,
+                             np.array([0.0, 1.0, 0.0]), bottom=(cuff, r_cuff))
+    return place
 
 
 def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, joints: np.ndarray,
@@ -179,23 +196,17 @@ def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, j
     back = bodice_panel("back", m, d, False, hem_y, torso_cylinder(section, half, False, hem_y))
     k = len(side_points(m, d, hem_y, 0.0)) - 1  # side edges per side
     arm_f = k + 1
-    seams = [Seam(("front", 1 + i), ("back", len(back.edges) - 1 - i)) for i in range(k)]
     nf, nb = len(front.edges), len(back.edges)
+    seams = [Seam(("front", 1 + i), ("back", nb - 1 - i)) for i in range(k)]  # side seams at +x
+    seams += [Seam(("front", nf - 1 - i), ("back", 1 + i)) for i in range(k)]  # and at -x
     seams += [Seam(("front", arm_f + 1), ("back", nb - k - 2)),  # right-hand shoulders
               Seam(("front", nf - k - 2), ("back", arm_f + 1))]
     panels = [front, back]
     if d.sleeve_length > 0:
-        armholes = [front.edge_length(arm_f), back.edge_length(arm_f)]
-        for side, sign in (("l", 1.0), ("r", -1.0)):
-            js, je = joints[SMPL[f"{'left' if sign > 0 else 'right'}_shoulder"]], \
-                joints[SMPL[f"{'left' if sign > 0 else 'right'}_elbow"]]
-            start = abs(sign * 0.5 * m.shoulder_width - js[0])
-            radius = limb_radius(vertices, arm_mask[side], js, je)
-
-            def place(top, js=js, je=je, start=start, radius=radius):
-                bw = m.bicep + ease("bicep", d.fit)
-                return limb_cylinder(js, je, start, bw, radius, top, np.array([0.0, 1.0, 0.0]))
-            panels.append(sleeve_panel(f"sleeve_{side}", m, d, float(np.mean(armholes)), place))
+        armholes = float(np.mean([front.edge_length(arm_f), back.edge_length(arm_f)]))
+        for side, limb in (("l", "left"), ("r", "right")):
+            panels.append(sleeve_panel(f"sleeve_{side}", m, d, armholes,
+                                       sleeve_placement(m, d, vertices, arm_mask[side], joints, limb)))
         # sleeve_l (+x arm): its edge 2 is on the back, edge 3 on the front (see limb_cylinder)
         seams += [Seam(("sleeve_l", 1), ("sleeve_l", 4)), Seam(("sleeve_r", 1), ("sleeve_r", 4)),
                   Seam(("sleeve_l", 2), ("back", nb - k - 1)), Seam(("sleeve_l", 3), ("front", arm_f)),
