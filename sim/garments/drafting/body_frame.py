@@ -16,7 +16,7 @@ from sim.garments.pattern import Placement
 
 CLEARANCE = 0.02
 """Least gap [m] between a placed panel and the body it wraps (sewing pulls it in)."""
-SMPL = {"pelvis": 0, "left_hip": 1, "right_hip": 2, "left_knee": 4, "right_knee": 5, "neck": 12,
+SMPL = {"pelvis": 0, "head": 15, "left_hip": 1, "right_hip": 2, "left_knee": 4, "right_knee": 5, "neck": 12,
         "left_shoulder": 16, "right_shoulder": 17, "left_elbow": 18, "right_elbow": 19,
         "left_wrist": 20, "right_wrist": 21}
 """SMPL joint indices the placements read."""

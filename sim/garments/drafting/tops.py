@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.garments.drafting.body_frame import SMPL, limb_cylinder, limb_radius, torso_cylinder, torso_section
+from sim.garments.drafting.hood import hood_panels
 from sim.garments.pattern import Edge, Panel, Pattern, Placement, Seam
 
 FITS = {"tight": 0, "regular": 1, "loose": 2}
@@ -49,6 +50,7 @@ class TopDesign:
         sleeve_length: from the shoulder point along the arm [m]; 0: sleeveless.
         strap_width: a sleeveless top's shoulder width beyond the neck [m] (0: to the shoulder point).
         flare: the hem's extra half width over the hip's, relative to the hip's (dresses).
+        hood: a two-piece hood sewn into the neckline (``sim.garments.drafting.hood``).
     """
 
     fit: str = "regular"
@@ -59,6 +61,7 @@ class TopDesign:
     sleeve_length: float = 0.2
     strap_width: float = 0.0
     flare: float = 0.0
+    hood: bool = False
 
     def __post_init__(self) -> None:
         if self.fit not in FITS:
@@ -97,7 +100,8 @@ def side_points(m, d: TopDesign, hem_y: float, armpit_y: float) -> list[tuple[fl
 
 def bodice_panel(name: str, m, d: TopDesign, front: bool, hem_y: float, placement: Placement) -> Panel:
     """A front or back panel: x = 0 on the centre line, y = 0 at the hem, counter-clockwise
-    seen from outside. Edge labels: hem, side, armhole, shoulder, neckline."""
+    seen from outside. Edge labels: hem, side, armhole, shoulder, neckline (two edges, meeting at
+    the centre line)."""
     armpit_y = m.armpit_height - ease("armhole_drop", d.fit)
     side = side_points(m, d, hem_y, armpit_y)
     neck_hw = m.neck_base / (2 * np.pi) + d.neck_width
@@ -116,13 +120,13 @@ def bodice_panel(name: str, m, d: TopDesign, front: bool, hem_y: float, placemen
     armhole = Edge("cubic", ((ua_x - 0.6 * (ua_x - sp_x + scoop), ua_y),
                              (sp_x - scoop, ua_y + 0.55 * (sp_y - ua_y))), "armhole")
     edges += [armhole, Edge(label="shoulder")]
+    corners += [(0.0, hps_y - depth), (-neck_hw, hps_y)]  # the neckline in halves at the centre
     if d.neckline == "v" and front:
-        corners += [(0.0, hps_y - depth), (-neck_hw, hps_y)]
         edges += [Edge(label="neckline"), Edge(label="neckline")]
-    else:
-        corners += [(-neck_hw, hps_y)]
-        k = 4.0 / 3.0 * depth
-        edges += [Edge("cubic", ((neck_hw, hps_y - k), (-neck_hw, hps_y - k)), "neckline")]
+    else:  # a scoop: vertical at the side neck points, level at the centre
+        low = hps_y - depth
+        edges += [Edge("cubic", ((neck_hw, hps_y - 0.55 * depth), (0.55 * neck_hw, low)), "neckline"),
+                  Edge("cubic", ((-0.55 * neck_hw, low), (-neck_hw, hps_y - 0.55 * depth)), "neckline")]
     corners += [(-sp_x, sp_y), (-ua_x, ua_y)] + [(-x, y) for x, y in right[-2:0:-1]]
     c1, c2 = armhole.controls
     edges += [Edge(label="shoulder"),
@@ -211,4 +215,21 @@ def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, j
         seams += [Seam(("sleeve_l", 1), ("sleeve_l", 4)), Seam(("sleeve_r", 1), ("sleeve_r", 4)),
                   Seam(("sleeve_l", 2), ("back", nb - k - 1)), Seam(("sleeve_l", 3), ("front", arm_f)),
                   Seam(("sleeve_r", 2), ("front", nf - k - 1)), Seam(("sleeve_r", 3), ("back", arm_f))]
+    if d.hood:
+        hood, hood_seams = hood_panels(front.edge_length(arm_f + 2), back.edge_length(arm_f + 3),
+                                       *head_geometry(vertices, joints, m.neck_base_height))
+        panels += hood
+        # the left half's neck edges meet the +x halves of the necklines, the right half's the -x
+        seams += hood_seams + [
+            Seam(("hood_l", 0), ("front", arm_f + 2)), Seam(("hood_l", 1), ("back", arm_f + 3)),
+            Seam(("hood_r", 4), ("front", arm_f + 3)), Seam(("hood_r", 3), ("back", arm_f + 2))]
     return Pattern(name, tuple(panels), tuple(seams), {"design": d.__dict__.copy()})
+
+
+def head_geometry(vertices: np.ndarray, joints: np.ndarray, neck_y: float):
+    """(head centre (x, z), neck base height, head top height, head radius) [m] for a hood."""
+    centre = joints[SMPL["head"]][[0, 2]]
+    head = vertices[(vertices[:, 1] > joints[SMPL["head"]][1] - 0.05)
+                    & (np.abs(vertices[:, 0] - centre[0]) < 0.15)]
+    radius = float(np.linalg.norm(head[:, [0, 2]] - centre, axis=1).max())
+    return centre, neck_y, float(head[:, 1].max()), radius

@@ -1,0 +1,74 @@
+"""A two-piece hood sewn into a top's neckline (hoodies, jackets).
+
+Each half is drafted as pattern books draft the hood block: its neck edge as long as half the
+neckline it is sewn into (front half to the side neck point, then the back half), rising 3 cm
+at the centre back; the back seam up to the back of the head; the crown curving over the head
+to the face opening, whose height is the distance from the neck base to the top of the head
+plus ease. The halves are joined by the back and crown seams; their face edges are free.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.garments.pattern import Edge, Panel, Placement, Seam
+
+HOOD_EASE = 0.06
+"""Height [m] the hood stands above the head, and its depth beyond the head's."""
+
+
+def hood_outline(front_neck: float, back_neck: float, height: float,
+                 depth: float) -> tuple[np.ndarray, tuple]:
+    """The left half's corners and edges, x from the face backwards and y up [m]: neck front
+    (0), neck back (1), back seam (2), crown (3), face opening (4)."""
+    neck = front_neck + back_neck
+    corners = np.array([[0.0, 0.0], [front_neck, 0.0], [neck, 0.03],
+                        [max(depth, neck) + 0.01, 0.45 * height], [0.03, height]])
+    back, top = corners[3], corners[4]
+    edges = (Edge(label="hood_neck"), Edge(label="hood_neck"), Edge(label="hood_back"),
+             Edge("cubic", ((back[0] + 0.01, back[1] + 0.45 * height),
+                            (top[0] + 0.55 * back[0], top[1] + 0.02)), "hood_crown"),
+             Edge("quadratic", ((-0.02, 0.5 * height),), "hood_edge"))
+    return corners, edges
+
+
+def mirror_panel(name: str, corners: np.ndarray, edges: tuple, placement: Placement) -> Panel:
+    """The mirror image of an outline (x -> -x), still counter-clockwise: edge i of the
+    original is edge (K - 1 - i) of the mirror, traversed the other way."""
+    k = len(corners)
+    mc = corners * np.array([-1.0, 1.0])
+    order = [0] + list(range(k - 1, 0, -1))
+    out = []
+    for i in range(k - 1, -1, -1):
+        e = edges[i]
+        # a Bezier's control points mirror and reverse; an arc mirrored and reversed bulges
+        # to the same side of its direction, so its parameters stay
+        ctl = e.controls if e.kind == "arc" else tuple((-c[0], c[1]) for c in e.controls[::-1])
+        out.append(Edge(e.kind, ctl, e.label))
+    return Panel(name, mc[order], tuple(out), placement)
+
+
+def hood_panels(front_neck: float, back_neck: float, head_centre: np.ndarray, neck_y: float,
+                head_top: float, head_radius: float) -> tuple[list[Panel], list[Seam]]:
+    """The two hood halves around the head and their back and crown seams.
+
+    Args:
+        front_neck, back_neck: lengths [m] of the front and back neckline halves (centre to
+            side neck point) the hood is sewn into.
+        head_centre: (x, z) of the head's vertical axis [m]; neck_y: the neck base's height;
+        head_top: the top of the head's height; head_radius: the head's largest horizontal
+            radius [m].
+    """
+    height = head_top - neck_y + HOOD_EASE
+    depth = 2.0 * head_radius + HOOD_EASE
+    corners, edges = hood_outline(front_neck, back_neck, height, depth)
+    r = head_radius + 0.04
+    mid = 0.5 * max(depth, front_neck + back_neck)
+    cx, cz = float(head_centre[0]), float(head_centre[1])
+    left = Placement(anchor=(cx + r, neck_y, cz), u_dir=(0.0, 0.0, -1.0), curvature=1.0 / r,
+                     origin=(mid, 0.0))
+    right = Placement(anchor=(cx - r, neck_y, cz), u_dir=(0.0, 0.0, 1.0), curvature=1.0 / r,
+                      origin=(-mid, 0.0))
+    panels = [Panel("hood_l", corners, edges, left), mirror_panel("hood_r", corners, edges, right)]
+    seams = [Seam(("hood_l", 2), ("hood_r", 2)), Seam(("hood_l", 3), ("hood_r", 1))]
+    return panels, seams
