@@ -351,7 +351,7 @@ def _crossed_edges(xy: list, tris: np.ndarray, nbr: np.ndarray, a: int, b: int):
 
 
 def recover_segment(xy: list, tris: np.ndarray, nbr: np.ndarray, a: int, b: int) -> None:
-    """Make a-b an edge by flipping the edges it crosses (Sloan 1993, section 3)."""
+    """Make a-b an edge by flipping the edges it crosses (Sloan 1993)."""
     queue, cand = _crossed_edges(xy, tris, nbr, a, b)
     budget = 50 * len(queue) ** 2 + 100
     while queue:
