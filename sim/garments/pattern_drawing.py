@@ -142,6 +142,14 @@ def _midpoint(panel: Panel, i: int) -> tuple[np.ndarray, np.ndarray]:
     return pts[SAMPLES], t / max(float(np.linalg.norm(t)), 1e-12)
 
 
+def _centroid(panel: Panel) -> np.ndarray:
+    """Area centroid of a panel's outline [m], where its name is written."""
+    p = panel.outline(SAMPLES)
+    q = np.roll(p, -1, axis=0)
+    cross = p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]
+    return ((p + q) * cross[:, None]).sum(axis=0) / (3.0 * cross.sum())
+
+
 def _text(parent, xy, text: str, size: float, angle: float = 0.0, **attrs) -> None:
     el = ET.SubElement(parent, "text", {"x": _fmt(xy[0]), "y": _fmt(xy[1]), "font-size": _fmt(size),
                                         "font-family": "sans-serif", "text-anchor": "middle",
@@ -174,7 +182,9 @@ def _panel_marks(g, pattern: Pattern, layout: PatternLayout, i: int, marks: dict
                                       "x2": _fmt(ends[1, 0]), "y2": _fmt(ends[1, 1]),
                                       "stroke": "#c0392b", "stroke-width": "0.6"})
         at = layout.to_sheet(i, mid + inward * (NOTCH_MM + LABEL_MM) / MM)[0]
-        _text(g, at, text, LABEL_MM, _upright(np.array([t[0], -t[1]])),
+        # a label runs along its edge: smaller on a short edge (sans-serif is ~0.6 em a letter)
+        size = float(np.clip(0.9 * p.edge_length(k) * MM / (0.6 * len(text)), 2.5, LABEL_MM))
+        _text(g, at, text, size, _upright(np.array([t[0], -t[1]])),
               fill="#c0392b" if mark else "#1f4e79")
     for s in pattern.darts:
         a, b = sorted((s.a[1], s.b[1]))
@@ -221,7 +231,7 @@ def pattern_svg(pattern: Pattern, path: str | os.PathLike, *, seam_allowance: fl
                                       "stroke": "#333333", "stroke-width": "0.5",
                                       "stroke-dasharray": "3 1.5" if seam_allowance > 0 else "none"})
         _panel_marks(g, pattern, layout, i, marks)
-        centre = layout.to_sheet(i, p.outline(SAMPLES).mean(axis=0))[0]
+        centre = layout.to_sheet(i, _centroid(p))[0]
         _text(g, centre, p.name, 2 * LABEL_MM, fill="#222222", **{"font-weight": "bold"})
     ET.indent(root)
     ET.ElementTree(root).write(os.fspath(path), encoding="utf-8", xml_declaration=True)
@@ -259,7 +269,7 @@ def draw_pattern_png(pattern: Pattern, path: str | os.PathLike, *, width_px: int
                 at = layout.to_sheet(i, mid + np.array([-t[1], t[0]]) * (NOTCH_MM + LABEL_MM) / MM)[0]
                 ax.text(at[0], at[1], marks[(p.name, k)], color="#c0392b", fontsize=font,
                         ha="center", va="center")
-        c = layout.to_sheet(i, p.outline(SAMPLES).mean(axis=0))[0]
+        c = layout.to_sheet(i, _centroid(p))[0]
         ax.text(c[0], c[1], p.name, fontsize=2 * font, ha="center", va="center", weight="bold")
     fig.savefig(os.fspath(path), dpi=dpi)
     return layout
