@@ -9,10 +9,12 @@ are the ``hem_width`` bands along its openings, as for every garment (``sim.garm
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from sim.errors import WrinklesInputError
 from sim.garments.hems import HEM_LAYERS, HEM_WIDTH, hem_face_layers
 from sim.garments.materials import Material, get_material
 from sim.garments.pattern import Pattern
@@ -93,3 +95,100 @@ def sew_garment(pattern: Pattern, parts: BodyParts, *, resolution: str | float =
     sewn = sew_pattern(pattern, parts.vertices, parts.faces, edge_length(resolution), mat, config=config,
                        device=device)
     return garment_of(pattern, sewn, mat, category=category or pattern.name, name=name or pattern.name)
+
+
+@dataclass(frozen=True)
+class Design:
+    """A registry entry: a design's parameters (a frozen dataclass whose fields carry their
+    ``Parameter``), this design's defaults over them, its drafting function
+    ``draft(parts, params) -> Pattern`` and one line for listings."""
+
+    params: type
+    defaults: dict
+    draft: Callable
+    description: str
+
+
+def _top(parts: BodyParts, d, name: str) -> Pattern:
+    from sim.garments.drafting.tops import draft_top
+
+    return draft_top(parts.measurements, parts.vertices, parts.torso_mask, parts.arm_masks, parts.joints, d,
+                     name)
+
+
+def _tops() -> dict[str, Design]:
+    from sim.garments.drafting.tops import TopDesign
+
+    def top(name: str, description: str, **defaults) -> Design:
+        return Design(TopDesign, defaults, lambda parts, d: _top(parts, d, name), description)
+
+    return {
+        "t_shirt": top("t_shirt", "t-shirt: set-in short sleeves, round neck (neckline=v for a V neck)"),
+        "long_sleeve": top("long_sleeve", "long-sleeved shirt, cuffs before the wrists", sleeve_length=0.58),
+        "tank_top": top("tank_top", "sleeveless top with shoulder straps", sleeve_length=0.0,
+                        strap_width=0.06, neck_depth=0.12),
+        "hoodie": top("hoodie", "loose long-sleeved pullover with a two-piece hood", fit="loose",
+                      sleeve_length=0.58, hood="yes", neck_depth=0.06, hem_drop=0.25),
+        "dress": top("dress", "sleeveless fitted dress flaring below the hips to the knee", fit="tight",
+                     sleeve_length=0.0, strap_width=0.05, hem_drop=0.6, flare=0.35),
+    }
+
+
+def designs() -> dict[str, Design]:
+    """Every design by name."""
+    return _tops()
+
+
+def design_params(name: str, **params):
+    """The frozen params of design ``name``: its defaults overridden by ``params`` (checked)."""
+    from sim.garments.parameters import parameter_specs
+
+    table = designs()
+    if name not in table:
+        raise WrinklesInputError(f"unknown design {name!r}; expected one of {', '.join(table)}")
+    d = table[name]
+    unknown = set(params) - set(parameter_specs(d.params))
+    if unknown:
+        raise WrinklesInputError(f"{name}: unknown parameter(s) {sorted(unknown)}; expected "
+                                 f"{', '.join(parameter_specs(d.params))}")
+    try:
+        return d.params(**{**d.defaults, **params})
+    except ValueError as e:
+        raise WrinklesInputError(f"{name}: {e}") from None
+
+
+def make_pattern(name: str, body, betas: np.ndarray | None = None, **params) -> Pattern:
+    """Design ``name``'s pattern drafted for ``body`` with shape ``betas``."""
+    p = design_params(name, **params)
+    return designs()[name].draft(BodyParts.of(body, betas), p)
+
+
+def make_design_garment(name: str, body, betas: np.ndarray | None = None, *,
+                        resolution: str | float = "coarse", material: str | Material = "cotton",
+                        garment_name: str | None = None, device: str | None = None,
+                        hem_width: float = HEM_WIDTH, hem_layers: float = HEM_LAYERS, **params) -> Garment:
+    """Design ``name`` drafted for ``body`` (shape ``betas``), sewn on it at ``resolution`` and
+    kept in the garment cache (``sim.garments.garment_cache``)."""
+    import dataclasses
+    import hashlib
+
+    from sim.device import resolve_device
+    from sim.garments.garment_cache import cached_garment
+
+    p = design_params(name, **params)
+    mat = get_material(material)
+    dev = resolve_device(device)
+    rest = np.ascontiguousarray(body.rest_mesh(betas), np.float32)
+    spec = {"design": name, "params": dataclasses.asdict(p),
+            "body": hashlib.sha256(rest.tobytes()).hexdigest(),
+            "resolution": edge_length(resolution), "material": dataclasses.asdict(mat),
+            "device": "cuda" if dev.startswith("cuda") else "cpu", "hems": [hem_width, hem_layers],
+            "name": garment_name or name}
+
+    def build() -> Garment:
+        pattern = designs()[name].draft(BodyParts.of(body, betas), p)
+        sewn = sew_pattern(pattern, np.asarray(body.rest_mesh(betas)), np.asarray(body.faces),
+                           edge_length(resolution), mat, device=dev)
+        return garment_of(pattern, sewn, mat, category=name, name=garment_name or name,
+                          hem_width=hem_width, hem_layers=hem_layers)
+    return cached_garment(spec, build)

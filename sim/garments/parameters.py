@@ -20,20 +20,28 @@ class Parameter:
     """What a template parameter means.
 
     Attributes:
-        unit: "m" for lengths, "-" for ratios and counts.
-        low, high: accepted range, both ends included.
+        unit: "m" for lengths, "-" for ratios and counts, "choice" for a named option.
+        low, high: accepted range, both ends included (numbers).
         description: one sentence for users, without the unit.
+        choices: the accepted names of a "choice" parameter.
     """
 
     unit: str
     low: float
     high: float
     description: str
+    choices: tuple[str, ...] = ()
 
 
 def parameter(default: float, unit: str, low: float, high: float, description: str):
     """A dataclass field with ``default`` whose metadata holds its ``Parameter``."""
     return field(default=default, metadata={"parameter": Parameter(unit, low, high, description)})
+
+
+def choice(default: str, choices: tuple[str, ...], description: str):
+    """A dataclass field with ``default`` that takes one of ``choices`` (names)."""
+    return field(default=default, metadata={"parameter": Parameter("choice", 0.0, 0.0, description,
+                                                                   tuple(choices))})
 
 
 def parameter_specs(params_class: type) -> dict[str, Parameter]:
@@ -57,9 +65,14 @@ HEM_SPECS = parameter_specs(HemParams)
 
 def check_parameter(name: str, value, spec: Parameter, where: str, path=None) -> None:
     """Raise ``WrinklesInputError`` (prefixed ``where: ``, or naming ``path``) unless ``value``
-    is a finite number within ``spec``'s range."""
+    is a finite number within ``spec``'s range, or one of a choice parameter's names."""
     number = isinstance(value, (int, float, np.floating, np.integer)) and not isinstance(value, bool)
     prefix = f"{where}: " if path is None else ""
+    if spec.choices:
+        if value not in spec.choices:
+            raise WrinklesInputError(f"{prefix}parameter {name} = {value!r} is not one of "
+                                     f"{', '.join(spec.choices)}", path=path)
+        return
     if not number or not np.isfinite(value):
         raise WrinklesInputError(f"{prefix}parameter {name} must be a number [{spec.unit}], got {value!r}",
                                  path=path)

@@ -18,6 +18,7 @@ import numpy as np
 
 from sim.garments.drafting.body_frame import SMPL, limb_cylinder, limb_radius, torso_cylinder, torso_section
 from sim.garments.drafting.hood import hood_panels
+from sim.garments.parameters import check_parameter, choice, parameter, parameter_specs
 from sim.garments.pattern import Edge, Panel, Pattern, Placement, Seam
 
 FITS = {"tight": 0, "regular": 1, "loose": 2}
@@ -39,35 +40,22 @@ CAP_EASE = 0.03
 
 @dataclass(frozen=True)
 class TopDesign:
-    """Design parameters of a top.
+    """Design parameters of a top (units and ranges on each field, ``wrinkles garments --params``)."""
 
-    Attributes:
-        fit: "tight", "regular" or "loose" (``EASE``).
-        hem_drop: hem below the natural waist [m] (negative: a cropped top above it).
-        neckline: "round" or "v".
-        neck_depth: front neck depth below the side neck point [m].
-        neck_width: extra neck width on each side beyond the neck's [m].
-        sleeve_length: from the shoulder point along the arm [m]; 0: sleeveless.
-        strap_width: a sleeveless top's shoulder width beyond the neck [m] (0: to the shoulder point).
-        flare: the hem's extra half width over the hip's, relative to the hip's (dresses).
-        hood: a two-piece hood sewn into the neckline (``sim.garments.drafting.hood``).
-    """
-
-    fit: str = "regular"
-    hem_drop: float = 0.22
-    neckline: str = "round"
-    neck_depth: float = 0.08
-    neck_width: float = 0.01
-    sleeve_length: float = 0.2
-    strap_width: float = 0.0
-    flare: float = 0.0
-    hood: bool = False
+    fit: str = choice("regular", tuple(FITS), "ease over the body's girths (EASE)")
+    hem_drop: float = parameter(0.22, "m", -0.1, 0.9, "hem below the natural waist (negative: cropped)")
+    neckline: str = choice("round", ("round", "v"), "neckline shape")
+    neck_depth: float = parameter(0.08, "m", 0.01, 0.3, "front neck depth below the side neck point")
+    neck_width: float = parameter(0.01, "m", 0.0, 0.1, "neck width beyond the neck's, each side")
+    sleeve_length: float = parameter(0.2, "m", 0.0, 0.8, "sleeve from the shoulder point (0: sleeveless)")
+    strap_width: float = parameter(0.0, "m", 0.0, 0.2,
+                                   "a sleeveless top's shoulder beyond the neck (0: to the shoulder point)")
+    flare: float = parameter(0.0, "-", 0.0, 1.5, "the hem's extra width over the hip's, relative (dresses)")
+    hood: str = choice("no", ("no", "yes"), "a two-piece hood sewn into the neckline")
 
     def __post_init__(self) -> None:
-        if self.fit not in FITS:
-            raise ValueError(f"fit {self.fit!r} is not one of {', '.join(FITS)}")
-        if self.neckline not in ("round", "v"):
-            raise ValueError(f"neckline {self.neckline!r} is not 'round' or 'v'")
+        for name, spec in parameter_specs(type(self)).items():
+            check_parameter(name, getattr(self, name), spec, "top")
 
 
 def ease(name: str, fit: str) -> float:
@@ -215,7 +203,7 @@ def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, j
         seams += [Seam(("sleeve_l", 1), ("sleeve_l", 4)), Seam(("sleeve_r", 1), ("sleeve_r", 4)),
                   Seam(("sleeve_l", 2), ("back", nb - k - 1)), Seam(("sleeve_l", 3), ("front", arm_f)),
                   Seam(("sleeve_r", 2), ("front", nf - k - 1)), Seam(("sleeve_r", 3), ("back", arm_f))]
-    if d.hood:
+    if d.hood == "yes":
         hood, hood_seams = hood_panels(front.edge_length(arm_f + 2), back.edge_length(arm_f + 3),
                                        *head_geometry(vertices, joints, m.neck_base_height))
         panels += hood

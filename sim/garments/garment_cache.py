@@ -1,0 +1,106 @@
+"""Sewn garments kept on disk: sewing a design runs the cloth solver (tens of seconds for a
+coarse garment on a CPU), and the same design on the same body at the same resolution is the
+same garment, so it is sewn once (``cached_garment``).
+
+Files: ``$WRINKLES_CACHE/garments/<key>.npz`` (default ``~/.cache/wrinkles``), arrays plus a
+JSON header, no pickles; written to a temporary name and renamed, so an interrupted write leaves
+nothing half-written. ``WRINKLES_CACHE=off`` sews every time.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from sim.garments.materials import Material
+from sim.garments.types import Garment
+
+CACHE_VERSION = 1
+"""Part of every key: raise it when sewing or drafting changes the garments they make."""
+_MEMORY: dict[str, Garment] = {}
+
+
+def cache_dir() -> Path | None:
+    """The garment cache folder, None when ``WRINKLES_CACHE=off``."""
+    root = os.environ.get("WRINKLES_CACHE", "")
+    if root.lower() == "off":
+        return None
+    return (Path(root) if root else Path.home() / ".cache" / "wrinkles") / "garments"
+
+
+def cache_key(spec: dict) -> str:
+    """A file-name-safe digest of a JSON-able description of how a garment is made."""
+    text = json.dumps({"version": CACHE_VERSION, **spec}, sort_keys=True, default=_jsonable)
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def _jsonable(x):
+    if isinstance(x, np.ndarray):
+        return [round(float(v), 9) for v in x.ravel()]
+    if isinstance(x, np.generic):
+        return x.item()
+    raise TypeError(f"not JSON-able: {type(x).__name__}")
+
+
+def save_garment(g: Garment, path: Path) -> None:
+    """Write ``g`` to ``path`` (.npz, atomically)."""
+    header = {"material": dataclasses.asdict(g.material), "category": g.category, "name": g.name,
+              "panel_names": list(g.panel_names), "attachments": sorted(g.attachments),
+              "uv_scale": g.uv_scale}
+    arrays = {"rest_vertices": g.rest_vertices, "faces": g.faces, "uvs": g.uvs, "uv_faces": g.uv_faces,
+              "panel_ids": g.panel_ids, "face_layers": g.face_layers,
+              **{f"attachment/{k}": v for k, v in g.attachments.items()},
+              "header": np.array(json.dumps(header))}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp.npz")
+    os.close(fd)
+    try:
+        np.savez(tmp, **arrays)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def load_cached(path: Path) -> Garment:
+    """The garment ``save_garment`` wrote to ``path``."""
+    with np.load(path, allow_pickle=False) as z:
+        header = json.loads(str(z["header"]))
+        att = {k: z[f"attachment/{k}"] for k in header["attachments"]}
+        return Garment(rest_vertices=z["rest_vertices"], faces=z["faces"], uvs=z["uvs"],
+                       uv_faces=z["uv_faces"], material=Material(**header["material"]), attachments=att,
+                       category=header["category"], name=header["name"], panel_ids=z["panel_ids"],
+                       panel_names=tuple(header["panel_names"]), face_layers=z["face_layers"],
+                       uv_scale=header["uv_scale"])
+
+
+def cached_garment(spec: dict, build: Callable[[], Garment]) -> Garment:
+    """The garment ``spec`` describes: from memory, from the cache folder, or ``build()`` (then
+    kept in both). A cache file that cannot be read is rebuilt and replaced."""
+    key = cache_key(spec)
+    if key in _MEMORY:
+        return _MEMORY[key]
+    folder = cache_dir()
+    path = None if folder is None else folder / f"{key}.npz"
+    g = None
+    if path is not None and path.is_file():
+        try:
+            g = load_cached(path)
+        except (OSError, ValueError, KeyError, TypeError):
+            g = None
+    if g is None:
+        g = build()
+        if path is not None:
+            try:
+                save_garment(g, path)
+            except OSError:
+                pass  # a read-only home: sew again next time
+    _MEMORY[key] = g
+    return g
