@@ -35,6 +35,8 @@ examples:
   wrinkles body --motion capture.bvh --shape 1.0,-0.5 --out capture.usdc --sheet capture.png
   wrinkles body --motion capture.bvh --rest tpose --out capture.usdc
   wrinkles body --motion squat --self-crossings --out squat.usda
+  wrinkles body --measurements --shape height=0.6,weight=0.8
+  wrinkles body --measurements-json body.json --shape gender=1
 """
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -57,6 +59,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "blend skinning folds the skin through itself at deep flexion: knee pits, "
                         "groin, armpits; a garment caught there may fail the quality gates for the "
                         "body's sake), by joint; printed and kept in the stage's metadata")
+    m = p.add_argument_group("measurements")
+    m.add_argument("--measurements", action="store_true",
+                   help="print the rest body's tailor's measurements instead of posing it: girths "
+                        "(tape around the section's convex hull), lengths and landmark heights, in "
+                        "cm, with how each is taken; no motion is loaded and no stage is written")
+    m.add_argument("--measurements-json", default=None, metavar="FILE",
+                   help="write the rest body's measurements to this .json file (metres, the rest "
+                        "mesh's frame) instead of posing it; with --measurements the table is "
+                        "printed too")
     add_common_arguments(p)
 
 
@@ -67,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
     from sim.device import resolve_device
     from sim.versions import package_versions
 
+    if args.measurements or args.measurements_json:
+        return run_measurements(args)
     t0 = time.perf_counter()
     paths = check_stage_outputs(args.out, args.preview, args.sheet)
     check_fps(args.fps)
@@ -112,6 +125,61 @@ def run(args: argparse.Namespace) -> int:
         for p in paths.written():
             print(f"  wrote {p}")
     return 0
+
+
+def run_measurements(args: argparse.Namespace) -> int:
+    """``--measurements`` / ``--measurements-json``: the rest body's measurements, table and/or JSON."""
+    from pipelines.options import parse_body_shape
+    from pipelines.outputs import OutputSet, check_output_path
+    from sim.bodies import load_body
+    from sim.garments.body_measurements import measure_body, measurement_notes
+
+    path = check_output_path(args.measurements_json, (".json",), "--measurements-json") \
+        if args.measurements_json else None
+    body = load_body(args.body)
+    betas = parse_body_shape(body, args.shape)
+    m = measure_body(body, betas)
+    if args.measurements:
+        print(f"body {body.name}, shape {args.shape or 'mean'}: tailor's measurements at rest [cm]; "
+              "heights and points in the rest mesh's frame (Y up, facing +Z, left at +x)")
+        print(measurement_table(m.to_dict(), measurement_notes()))
+    if path is not None:
+        record = {"body": body.name, "body_source": body.source, "shape": args.shape,
+                  "betas": [float(b) for b in body.full_betas(betas)], "units": "m",
+                  "frame": "rest mesh: T-pose, Y up, facing +Z, the body's left at +x",
+                  "measurements": m.to_dict(), "how": measurement_notes()}
+        with OutputSet() as outputs:
+            outputs.temp(path).write_text(json.dumps(record, indent=1) + "\n")
+        if not args.quiet:
+            print(f"wrote {path}")
+    return 0
+
+
+def measurement_table(values: dict, notes: dict, width: int = 100) -> str:
+    """Rows of name, value in cm and how it is taken (wrapped to ``width`` columns)."""
+    import textwrap
+
+    def cm(v) -> str:
+        if isinstance(v, dict) and "center" in v:
+            return f"centre {cm(v['center'])} width {cm(v['width'])} depth {cm(v['depth'])}"
+        if isinstance(v, dict):
+            return ", ".join(f"{k} {cm(a)}/{cm(b)}" for k, (a, b) in v.items())
+        if isinstance(v, list):
+            return ("(" + ", ".join(cm(x) for x in v) + ")") if not isinstance(v[0], list) \
+                else " ".join(cm(x) for x in v)
+        return f"{round(100 * v, 1) + 0.0:.1f}"  # + 0.0: no "-0.0"
+
+    rows = []
+    for name, v in values.items():
+        text = cm(v)
+        note = textwrap.wrap(notes.get(name, ""), width - 38) or [""]
+        if len(text) > 10:  # points and sections: the value on its own line
+            rows.append(f"{name:<18} {text}")
+            rows += [f"{'':<38}{line}" for line in note]
+        else:
+            rows.append(f"{name:<18} {text:>10}         {note[0]}")
+            rows += [f"{'':<38}{line}" for line in note[1:]]
+    return "\n".join(rows)
 
 
 def describe_self_crossings(c: dict) -> str:
