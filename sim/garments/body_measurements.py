@@ -36,6 +36,9 @@ THIGH_DROP = 0.02
 """Thigh girth is taken this far below the crotch [m], just under the gluteal fold."""
 SIDES = ("left", "right")
 UP = (0.0, 1.0, 0.0)
+JOINTS_READ = ("pelvis", "spine2", "neck", "head") + tuple(
+    f"{s}_{j}" for s in SIDES for j in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"))
+"""SMPL joints the measurements read (SMPL-H and SMPL-X share them)."""
 
 
 @dataclass(frozen=True)
@@ -149,7 +152,7 @@ class BodyMeasurements:
     waist_extent: TorsoExtent
     """Torso section at the waist height."""
     hip_extent: TorsoExtent
-    """Section at the hip height."""
+    """Section at the hip height (both legs in)."""
     sides: dict
     """Each limb girth (bicep, elbow, wrist, thigh, knee, calf, ankle) and ``arm_length`` per
     side: name -> (left, right)."""
@@ -172,7 +175,10 @@ class BodyMeasurements:
 @cache
 def measurement_notes() -> dict[str, str]:
     """How each ``BodyMeasurements`` field is taken: its docstring, by field name."""
-    node = ast.parse(inspect.getsource(BodyMeasurements)).body[0]
+    try:
+        node = ast.parse(inspect.getsource(BodyMeasurements)).body[0]
+    except (OSError, TypeError):  # installed without its sources
+        return {}
     notes = {}
     for a, b in zip(node.body, node.body[1:], strict=False):
         if (isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr)
@@ -360,9 +366,7 @@ class RestBody:
         w = np.asarray(body.weights, np.float64)
         parents = np.asarray(body.parents)
         names = {n: i for i, n in enumerate(body.joint_names)}
-        missing = [n for n in ("left_shoulder", "right_shoulder", "left_hip", "right_hip", "neck",
-                               "head", "pelvis", "spine2", "left_elbow", "left_wrist",
-                               "left_knee", "left_ankle") if n not in names]
+        missing = [n for n in JOINTS_READ if n not in names]
         if missing:
             raise WrinklesInputError(f"body {body.name!r} has no joint {missing[0]!r}; measuring "
                                      "needs SMPL's joint names", path=body.source or None)
@@ -391,17 +395,22 @@ class Levels:
 
     ys: np.ndarray  # (L,) [m]
     hulls: list  # L convex hulls (K, 2) in (x, z), counter-clockwise
+    girth: np.ndarray  # (L,) the hulls' perimeters [m]
     midline: np.ndarray  # (L, 2) front and back z where each hull crosses x = 0 [m]
 
     @classmethod
     def scan(cls, rest: RestBody, lo: float, hi: float) -> Levels:
         ys = np.arange(lo, hi + STEP, STEP)
         sl = rest.slicer(rest.torso)
-        hulls = [hull_2d(sl.points(float(y))[:, [0, 2]]) for y in ys]
-        return cls(ys, hulls, np.array([midline_crossings(h) for h in hulls]))
-
-    def girths(self) -> np.ndarray:
-        return np.array([np.linalg.norm(h - np.roll(h, 1, axis=0), axis=1).sum() for h in self.hulls])
+        hulls = []
+        for y in ys:
+            p = sl.points(float(y))[:, [0, 2]]
+            if len(p) < 3 or np.ptp(p[:, 0]) <= 0 or np.ptp(p[:, 1]) <= 0:
+                raise WrinklesInputError(f"cannot measure this body: its torso has no section at "
+                                         f"height {y:.3f} m")
+            hulls.append(hull_2d(p))
+        girth = np.array([np.linalg.norm(h - np.roll(h, 1, axis=0), axis=1).sum() for h in hulls])
+        return cls(ys, hulls, girth, np.array([midline_crossings(h) for h in hulls]))
 
     def index(self, y: float) -> int:
         return int(np.clip(np.rint((y - self.ys[0]) / STEP), 0, len(self.ys) - 1))
@@ -413,7 +422,6 @@ class Levels:
     def extent(self, i: int) -> TorsoExtent:
         lo, hi = self.hulls[i].min(axis=0), self.hulls[i].max(axis=0)
         return TorsoExtent(0.5 * (lo + hi), float(hi[0] - lo[0]), float(hi[1] - lo[1]))
-
 
 
 def midline_crossings(hull: np.ndarray) -> tuple[float, float]:
@@ -493,7 +501,7 @@ def neck_landmarks(rest: RestBody, lv: Levels, armpit_y: float) -> Neck:
     nape on the back's centre line at their height; the jugular notch, the deepest point of the
     front's centre line below them; and the neck base girth through all four."""
     yn, yh = rest.j("neck")[1], rest.j("head")[1]
-    g = lv.girths()
+    g = lv.girth
     top = lv.span(yn, 0.5 * (yn + yh))
     i_neck = int(top[np.argmin(g[top])])
     down = np.arange(i_neck, lv.index(armpit_y) - 1, -1)
@@ -541,9 +549,9 @@ def extremum(f, lo: float, hi: float, largest: bool) -> tuple[float, float]:
     """(where, value) of the largest or smallest ``f`` on [lo, hi]: a scan every 4 ``STEP``, then
     every ``STEP`` around the best (girths along a limb are smooth at that scale)."""
     pick = np.argmax if largest else np.argmin
-    xs = np.arange(lo, hi + 1e-9, 4 * STEP)
+    xs = np.arange(lo, max(lo, hi) + 1e-9, 4 * STEP)
     k = int(pick([f(x) for x in xs]))
-    xs = np.arange(max(lo, xs[k] - 3 * STEP), min(hi, xs[k] + 3 * STEP) + 1e-9, STEP)
+    xs = np.arange(max(lo, xs[k] - 3 * STEP), max(lo, min(hi, xs[k] + 3 * STEP)) + 1e-9, STEP)
     vals = [f(x) for x in xs]
     k = int(pick(vals))
     return float(xs[k]), float(vals[k])
@@ -599,7 +607,7 @@ def measure_body(body, betas: np.ndarray | None = None) -> BodyMeasurements:
     pits = np.array([armpit_point(rest, k) for k in (0, 1)])
     pit_y = float(pits[:, 1].mean())
     lv = Levels.scan(rest, crotch + STEP, 0.5 * (rest.j("neck")[1] + rest.j("head")[1]) + STEP)
-    g = lv.girths()
+    g = lv.girth
     i_chest = (s := lv.span(pit_y - 0.10, pit_y - 0.02))[np.argmax(g[s])]
     i_waist = (s := lv.span(rest.j("pelvis")[1], rest.j("spine2")[1]))[np.argmin(g[s])]
     i_hip = (s := lv.span(crotch + STEP, lv.ys[i_waist]))[np.argmax(g[s])]
