@@ -295,7 +295,11 @@ class RowPlacement(Placement):
     linearly in y), each row places the point at that share of its own span, and the two
     positions blend linearly in y: the centre line and the side seam run straight from row to
     row, and a panel that narrows between rows (a skirt's hip curve) does not wrap past its
-    side at the narrower row.
+    side at the narrower row. Not an isometry: on the default body the placed edges of a
+    straight skirt are within 1.9 % of their flat lengths for 90 % of them (up to 17 % by the
+    side seams under the waist), a pair of trousers' within 5.5 % (up to ~100 % at the top of
+    the crotch curve, which the blend carries from the seat to between the legs); sewing
+    settles the garment on its flat rest shape.
     """
 
     rows: tuple = ()

@@ -68,11 +68,12 @@ TROUSER_DARTS = (0.07, 0.11)
 CROTCH_CURVE = (0.6, 0.45)
 """The crotch curve's shape: its first control point this share of the way down the centre line
 from the hip line to the crotch line, its second this share of the extension in from the fork."""
-LEG_ROUNDS = 0
 LEG_CLEARANCE = 0.005
+"""Least gap [m] between a leg's cone and the leg where it is placed: the thighs leave little
+room between them."""
 LEG_GAP = 0.004
-"""Least distance [m] of a leg cone's inner side from the body's mid-plane (x = 0) where it is
-placed: the two legs start apart."""
+"""Least distance [m] of a leg cone's inner side from the body's mid-plane (x = 0) at the crotch
+line: the two legs start apart."""
 
 
 @dataclass(frozen=True)
@@ -223,7 +224,8 @@ def leg_placements(m, vertices: np.ndarray, torso_mask: np.ndarray, f: PantsFram
                    lines: tuple[LegLines, LegLines]):
     """Placements of one leg's (``sign`` +1: left, -1: right) front and back panels: a cone
     around the leg's axis from the crotch line (the crotch line's widths) to the hem (the hem's),
-    at least ``CLEARANCE`` off the leg, its inner side ``LEG_GAP`` off the mid-plane."""
+    at least ``LEG_CLEARANCE`` off the leg, its inner side ``LEG_GAP`` off the mid-plane (the
+    axis tilts out at the crotch line where the legs are close)."""
     leg = torso_mask & (vertices[:, 0] * sign > 0) & (vertices[:, 1] < m.crotch_height)
     root = leg_section_centre(vertices, leg, min(f.crotch, m.crotch_height - 0.03))
     root[1] = f.crotch
@@ -232,11 +234,9 @@ def leg_placements(m, vertices: np.ndarray, torso_mask: np.ndarray, f: PantsFram
     top = 2 * (lines[0].half + lines[1].half)
     hem = 2 * (lines[0].rows[1][1] + lines[1].rows[1][1])
     span = float(np.linalg.norm(toward - root))
-    for _ in range(LEG_ROUNDS):  # the inner side clear of the mid-plane
+    for _ in range(2):  # the inner side clear of the mid-plane (the radius grows as the axis moves)
         r = max(top / (2 * np.pi), limb_radius(vertices, leg, root, toward, (0.0, 0.1)) + LEG_CLEARANCE)
-        out = max(r + LEG_GAP - abs(root[0]), 0.0) * sign
-        root[0] += out
-        toward[0] += out
+        root[0] += max(r + LEG_GAP - abs(root[0]), 0.0) * sign
     extra = LEG_CLEARANCE - CLEARANCE  # limb_cylinder adds CLEARANCE
     near_top = limb_radius(vertices, leg, root, toward, (0.0, 0.1)) + extra
     near_hem = limb_radius(vertices, leg, root, toward, (span - 0.05, span + 0.02)) + extra
