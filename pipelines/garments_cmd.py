@@ -110,8 +110,9 @@ def print_listing(cat: dict, *, params: bool) -> None:
         print(" " * (w + 2) + t["description"])
         if params:
             for p in t["parameters"]:
-                unit = f" [{p['unit']}]" if p["unit"] and p["unit"] != "-" else ""
-                line = f"--garment-param {p['name']}={p['default']:g}{unit}  {p['meaning']}"
+                unit = f" [{p['unit']}]" if p["unit"] not in ("", "-", "choice") else ""
+                value = p["default"] if isinstance(p["default"], str) else f"{p['default']:g}"
+                line = f"--garment-param {p['name']}={value}{unit}  {p['meaning']}"
                 text = textwrap.fill(line, 100 - w - 4, subsequent_indent="    ")
                 print(textwrap.indent(text, " " * (w + 4)))
     print("\nvertices: on the default body (mean shape) with the default parameters; the edge length "
@@ -201,7 +202,7 @@ def template_name(name: str) -> str:
 
 
 def export(args: argparse.Namespace) -> int:
-    from pipelines.options import parse_body_shape, parse_numbers, parse_resolution
+    from pipelines.options import parse_body_shape, parse_params, parse_resolution
     from pipelines.outputs import OutputSet, check_output_path
     from sim.bodies import load_body
     from sim.garments import make_garment
@@ -216,7 +217,7 @@ def export(args: argparse.Namespace) -> int:
     if not 64 <= args.uv_image_size <= 8192:
         raise WrinklesInputError(f"--uv-image-size must lie in [64, 8192], got {args.uv_image_size}")
     category = template_name(args.export)
-    params = parse_numbers(args.garment_param, "--garment-param")
+    params = parse_params(args.garment_param, "--garment-param")
     body = load_body(args.body)
     betas = parse_body_shape(body, args.shape)
     g = make_garment(category, body, betas, resolution=parse_resolution(args.resolution),

@@ -269,11 +269,11 @@ def material_arg(args: argparse.Namespace):
 
 def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
     """The garment ``--garment`` names, with ``--material`` (+ overrides) and its parameters."""
-    from pipelines.options import parse_numbers, parse_resolution
+    from pipelines.options import parse_params, parse_resolution
     from sim.garments import make_garment
 
     material = material_arg(args)
-    params = parse_numbers(args.garment_param, "--garment-param")
+    params = parse_params(args.garment_param, "--garment-param")
     if is_garment_file(args.garment):
         return garment_file_arg(args, material, params, body, betas)
     category = resolve_template(args.garment)

@@ -101,12 +101,14 @@ def sew_garment(pattern: Pattern, parts: BodyParts, *, resolution: str | float =
 class Design:
     """A registry entry: a design's parameters (a frozen dataclass whose fields carry their
     ``Parameter``), this design's defaults over them, its drafting function
-    ``draft(parts, params) -> Pattern`` and one line for listings."""
+    ``draft(parts, params) -> Pattern``, one line for listings and the attachment sets its
+    garments have (``ATTACHMENT_LABELS``)."""
 
     params: type
     defaults: dict
     draft: Callable
     description: str
+    attachments: tuple[str, ...] = ()
 
 
 def _top(parts: BodyParts, d, name: str) -> Pattern:
@@ -120,7 +122,9 @@ def _tops() -> dict[str, Design]:
     from sim.garments.drafting.tops import TopDesign
 
     def top(name: str, description: str, **defaults) -> Design:
-        return Design(TopDesign, defaults, lambda parts, d: _top(parts, d, name), description)
+        sleeves = defaults.get("sleeve_length", 0.2) > 0
+        sets = ("shoulders", "hem", "neckline") + (("cuffs",) if sleeves else ())
+        return Design(TopDesign, defaults, lambda parts, d: _top(parts, d, name), description, sets)
 
     return {
         "t_shirt": top("t_shirt", "t-shirt: set-in short sleeves, round neck (neckline=v for a V neck)"),

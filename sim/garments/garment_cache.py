@@ -10,6 +10,7 @@ nothing half-written. ``WRINKLES_CACHE=off`` sews every time.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
@@ -22,9 +23,22 @@ import numpy as np
 from sim.garments.materials import Material
 from sim.garments.types import Garment
 
-CACHE_VERSION = 1
-"""Part of every key: raise it when sewing or drafting changes the garments they make."""
+SOURCES = ("sim/garments", "sim/cloth", "sim/bodies")
+"""Packages whose code makes a sewn garment (drafting, meshing, sewing, the solver, the body):
+every key holds a digest of their source, so changed code never reads an older garment."""
 _MEMORY: dict[str, Garment] = {}
+
+
+@functools.lru_cache(maxsize=1)
+def source_digest() -> str:
+    """SHA-256 of the ``SOURCES`` packages' Python files (paths and contents, sorted)."""
+    root = Path(__file__).resolve().parents[2]
+    h = hashlib.sha256()
+    for folder in SOURCES:
+        for f in sorted((root / folder).rglob("*.py")):
+            h.update(str(f.relative_to(root)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
 
 
 def cache_dir() -> Path | None:
@@ -37,7 +51,7 @@ def cache_dir() -> Path | None:
 
 def cache_key(spec: dict) -> str:
     """A file-name-safe digest of a JSON-able description of how a garment is made."""
-    text = json.dumps({"version": CACHE_VERSION, **spec}, sort_keys=True, default=_jsonable)
+    text = json.dumps({"code": source_digest(), **spec}, sort_keys=True, default=_jsonable)
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 

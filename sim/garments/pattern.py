@@ -101,10 +101,11 @@ class Placement:
     The panel point ``origin`` lands on ``anchor``; the panel's y axis runs along ``v_dir``;
     its x axis wraps around a cylinder of radius 1 / ``curvature`` whose axis is parallel to
     ``v_dir`` and lies behind the panel (flat when ``curvature`` is 0). The panel's outside
-    faces ``u_dir x v_dir`` at the anchor. With ``radius_slope`` the cylinder is a cone whose
-    radius changes by that much per metre of panel y (a sleeve narrowing to its cuff); a
-    cylinder and a cone are developable, so a panel wrapped on either is not stretched (a cone
-    by a small shear where its slope is large).
+    faces ``u_dir x v_dir`` at the anchor. With ``radius_slope`` the cylinder becomes a cone
+    below the origin (panel y under ``origin``'s), its radius changing by that much per metre
+    down the panel (a sleeve narrowing to its cuff, a skirt widening to its hem); cylinders and
+    cones are developable, so a panel wrapped on them is not stretched (on a cone, but for a
+    small shear where its slope is large).
     """
 
     anchor: tuple[float, float, float]
@@ -126,7 +127,7 @@ class Placement:
         if abs(float(self.curvature)) < 1e-9:
             return anchor + d[:, None] * u + along[:, None] * v
         r0 = 1.0 / float(self.curvature)
-        r = np.maximum(r0 + float(self.radius_slope) * along, 0.05 * abs(r0))
+        r = np.maximum(r0 + float(self.radius_slope) * np.minimum(along, 0.0), 0.05 * abs(r0))
         a = d / r
         axis = anchor - r0 * n
         return (axis + along[:, None] * v + (r * np.sin(a))[:, None] * u

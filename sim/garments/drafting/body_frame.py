@@ -44,15 +44,22 @@ def torso_section(vertices: np.ndarray, torso_mask: np.ndarray, y: float, half: 
     return TorsoSection(float(y), float(c[0]), float(c[1]), float(half_w), float(half_d))
 
 
-def torso_cylinder(section: TorsoSection, panel_half_width: float, front: bool, hem_y: float) -> Placement:
+def torso_cylinder(section: TorsoSection, panel_half_width: float, front: bool, hem_y: float,
+                   hem_half_width: float | None = None) -> Placement:
     """Placement of a front (``front``) or back torso panel whose x = 0 is the centre line and
     y = 0 the hem at height ``hem_y``: a vertical cylinder around the section's centre, a
-    quarter turn per ``panel_half_width`` unless the body needs a wider one."""
+    quarter turn per ``panel_half_width`` unless the body needs a wider one. With
+    ``hem_half_width`` (a skirt or dress widening below the section) it becomes a cone below the
+    section's height, wide enough that the hem also turns at most a quarter."""
     r = max(2.0 * panel_half_width / np.pi, section.half_width + CLEARANCE,
             section.half_depth + CLEARANCE)
     sign = 1.0 if front else -1.0
-    return Placement(anchor=(section.cx, hem_y, section.cz + sign * r), u_dir=(sign, 0.0, 0.0),
-                     v_dir=(0.0, 1.0, 0.0), curvature=1.0 / r, origin=(0.0, 0.0))
+    height = section.y - hem_y
+    slope = 0.0
+    if hem_half_width is not None and height > 0:
+        slope = min(0.0, (r - 2.0 * hem_half_width / np.pi) / height)
+    return Placement(anchor=(section.cx, section.y, section.cz + sign * r), u_dir=(sign, 0.0, 0.0),
+                     v_dir=(0.0, 1.0, 0.0), curvature=1.0 / r, origin=(0.0, height), radius_slope=slope)
 
 
 def limb_cylinder(root: np.ndarray, toward: np.ndarray, start: float, circumference: float,

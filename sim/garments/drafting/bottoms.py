@@ -331,12 +331,23 @@ class SkirtLines:
     hem: float  # hem half width
     rise: float  # the hem's rise at the side seams over its centre
     hip: tuple[float, float]  # (half width, height) of the side seam's hip point
-    waist: tuple[float, float]  # (half width, height) of the side seam's waist point, darts open
+    waist: tuple[float, float]  # (half width at the side seam, height at the centre) of the waist
+    waist_rise: float  # the waist's rise at the side seams over its centre
+
+
+def parabola_length(half: float, rise: float) -> float:
+    """Length [m] of the parabola y = rise (x / half)² from x = -half to half."""
+    x = np.linspace(-half, half, 257)
+    y = rise * (x / half) ** 2
+    return float(np.hypot(np.diff(x), np.diff(y)).sum())
 
 
 def skirt_lines(shaping: WaistShaping, flare: float, hip_y: float, waist_y: float) -> SkirtLines:
     """Where the side seam runs: straight down from the hip (flare 0) or slanting out, through
-    the hip point or outside it on the line from the waist to the hem."""
+    the hip point or outside it on the line from the waist to the hem. A flared skirt's hem and
+    waist curve up toward the sides (parabolas) to meet the slanted side seam at right angles,
+    as pattern books' A-line blocks do once the darts are rotated into the hem; the waist keeps
+    its length."""
     hip = shaping.hip[0]
     waist = hip - shaping.side
     hem = hip + flare * FLARE_SLOPE * hip_y
@@ -345,7 +356,38 @@ def skirt_lines(shaping: WaistShaping, flare: float, hip_y: float, waist_y: floa
     rise = 0.0
     for _ in range(3):  # the hem meets the side seam at a right angle
         rise = hem * (hem - hip_x) / (hip_y - rise / 2)
-    return SkirtLines(hem, rise, (hip_x, hip_y), (waist, waist_y))
+    half, lift = waist, 0.0
+    for _ in range(4):  # the waist meets it too, as long as it is straight
+        lift = half * (hem - hip_x) / (2.0 * hip_y)
+        half *= 2.0 * waist / parabola_length(half, lift)
+    return SkirtLines(hem, rise, (hip_x, hip_y), (half, waist_y), lift)
+
+
+def add_waist_curve(out: Outline, half: float, y: float, rise: float, darts) -> None:
+    """A skirt's waist from the right side (half, y + rise) toward the left side (added next)
+    along the parabola y + rise (x / half)², with V darts (centre x, width, length) [m] from the
+    right. Pieces join group "waist", dart legs "dart"; each piece is the parabola's exact
+    quadratic Bézier."""
+
+    def at(x: float) -> np.ndarray:
+        return np.array([x, y + rise * (x / half) ** 2])
+
+    def piece(x1: float, x2: float) -> Edge:
+        if rise <= 1e-6:
+            return Edge(label="waist")
+        return Edge("quadratic", (((x1 + x2) / 2, y + rise * x1 * x2 / half ** 2),), "waist")
+
+    x = half
+    for centre, width, length in darts:
+        if width <= 0.0:
+            continue
+        right, left = at(centre + width / 2), at(centre - width / 2)
+        out.add(at(x), piece(x, centre + width / 2), "waist")
+        d = (left - right) / np.linalg.norm(left - right)
+        out.add(right, Edge(label="dart"), "dart")
+        out.add(0.5 * (right + left) + length * np.array([-d[1], d[0]]), Edge(label="dart"), "dart")
+        x = centre - width / 2
+    out.add(at(x), piece(x, -half), "waist")
 
 
 def skirt_panel(name: str, lines: SkirtLines, dart: float, dart_length: float,
@@ -354,16 +396,17 @@ def skirt_panel(name: str, lines: SkirtLines, dart: float, dart_length: float,
     waist with a dart each side, the side seam down the left."""
     hx, k = lines.hem, lines.rise
     (xh, yh), (xw, yw) = lines.hip, lines.waist
+    top = yw + lines.waist_rise
     slope = (xh - hx) / (yh - k / 2)  # the side seam's run per rise below the hip
-    ctl = (xh + slope * 0.5 * (yw - yh), yh + 0.5 * (yw - yh))
+    ctl = (xh + slope * 0.5 * (top - yh), yh + 0.5 * (top - yh))
     out = Outline()
     hem = Edge("quadratic", ((0.0, -k / 2),), "hem") if k > 1e-4 else Edge(label="hem")
     out.add((-hx, k / 2), hem, "hem")
     out.add((hx, k / 2), Edge(label="side"), "side_r")
     out.add((xh, yh), Edge("quadratic", (ctl,), "side"), "side_r")
-    at = xw - DART_AT * xw
-    out.add_notched((xw, yw), (-xw, yw), [(at, dart, dart_length), (2 * xw - at, dart, dart_length)])
-    out.add((-xw, yw), Edge("quadratic", ((-ctl[0], ctl[1]),), "side"), "side_l")
+    darts = [(DART_AT * xw, dart, dart_length), (-DART_AT * xw, dart, dart_length)]
+    add_waist_curve(out, xw, yw, lines.waist_rise, darts)
+    out.add((-xw, top), Edge("quadratic", ((-ctl[0], ctl[1]),), "side"), "side_l")
     out.add((-xh, yh), Edge(label="side"), "side_l")
     return out.piece(name, placement)
 

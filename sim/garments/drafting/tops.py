@@ -184,8 +184,9 @@ def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, j
     hem_y = m.waist_height - d.hem_drop
     section = torso_section(vertices, torso_mask, m.chest_height)
     half = (m.chest + ease("chest", d.fit)) / 4
-    front = bodice_panel("front", m, d, True, hem_y, torso_cylinder(section, half, True, hem_y))
-    back = bodice_panel("back", m, d, False, hem_y, torso_cylinder(section, half, False, hem_y))
+    hem_half = side_points(m, d, hem_y, m.armpit_height)[0][1]
+    front = bodice_panel("front", m, d, True, hem_y, torso_cylinder(section, half, True, hem_y, hem_half))
+    back = bodice_panel("back", m, d, False, hem_y, torso_cylinder(section, half, False, hem_y, hem_half))
     k = len(side_points(m, d, hem_y, 0.0)) - 1  # side edges per side
     arm_f = k + 1
     nf, nb = len(front.edges), len(back.edges)
