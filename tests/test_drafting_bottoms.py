@@ -106,14 +106,38 @@ def test_skirt_girths_are_the_body_plus_ease(parts, fit):
     # darts closed: the waist edges between the darts, and the band sewn to them
     np.testing.assert_allclose(waist_length(pat, ("front", "back")), waist, atol=GIRTH_TOL)
     np.testing.assert_allclose(waist_length(pat, ("band_front", "band_back")), waist, atol=GIRTH_TOL)
-    legs = [s for s in pat.darts]
-    assert len(legs) == 4
+    assert len(pat.darts) == 4
     # the back darts are wider and longer than the front ones
     front = pat.panel("front")
     back = pat.panel("back")
     df = min(front.corners[[i for i, e in enumerate(front.edges) if e.label == "dart"]][:, 1])
     db = min(back.corners[[i for i, e in enumerate(back.edges) if e.label == "dart"]][:, 1])
     assert db < df
+
+
+@pytest.mark.parametrize("flare", [0.5, 1.0])
+def test_flared_skirts_keep_the_waist_and_clear_the_hips(parts, flare):
+    m = parts.measurements
+    d = SkirtDesign(flare=flare, length=0.7)
+    pat = skirt(parts, flare=flare, length=0.7)
+    waist = m.waist + bottom_ease("waist", "regular")
+    np.testing.assert_allclose(waist_length(pat, ("front", "back")), waist, atol=GIRTH_TOL)
+    hem_y = m.waist_height - d.length
+    hip = sum(width_at(pat.panel(n), m.hip_height - hem_y) for n in ("front", "back"))
+    assert hip >= m.hip + bottom_ease("hip", "regular") - 1e-9
+    # darts shrink with flare and vanish at 1; the hem widens
+    assert len(pat.darts) == (0 if flare == 1.0 else 4)
+    hem = sum(pat.panel(n).edge_length(0) for n in ("front", "back"))
+    assert hem > hip + 0.1 * flare
+    # the hem meets the side seams at right angles (it hangs level), and at flare 1 the waist too
+    front = pat.panel("front")
+    for i in (0, 2) if flare == 1.0 else (0,):  # the hem's end, the waist's side end (edge 2's end)
+        side = front.edge_curve(1 if i == 0 else 2, 64)
+        curve = front.edge_curve(0, 64) if i == 0 else front.edge_curve(3, 64)
+        a = side[1] - side[0] if i == 0 else side[-1] - side[-2]
+        b = curve[-1] - curve[-2] if i == 0 else curve[1] - curve[0]
+        cos = abs(a @ b) / np.linalg.norm(a) / np.linalg.norm(b)
+        assert cos < 0.08, (i, cos)
 
 
 @pytest.mark.parametrize("fit", ["tight", "regular", "loose"])

@@ -333,6 +333,7 @@ class SkirtLines:
     hip: tuple[float, float]  # (half width, height) of the side seam's hip point
     waist: tuple[float, float]  # (half width at the side seam, height at the centre) of the waist
     waist_rise: float  # the waist's rise at the side seams over its centre
+    side_control: tuple[float, float]  # the hip-to-waist side seam's Bézier control point
 
 
 def parabola_length(half: float, rise: float) -> float:
@@ -344,10 +345,11 @@ def parabola_length(half: float, rise: float) -> float:
 
 def skirt_lines(shaping: WaistShaping, flare: float, hip_y: float, waist_y: float) -> SkirtLines:
     """Where the side seam runs: straight down from the hip (flare 0) or slanting out, through
-    the hip point or outside it on the line from the waist to the hem. A flared skirt's hem and
-    waist curve up toward the sides (parabolas) to meet the slanted side seam at right angles,
-    as pattern books' A-line blocks do once the darts are rotated into the hem; the waist keeps
-    its length."""
+    the hip point or outside it on the line from the waist to the hem; from the hip it curves
+    in to the waist (a quadratic leaving the hip along the seam below). The hem curves up toward
+    the sides to meet the side seams at right angles, and so, by ``flare``'s share, does the
+    waist (a parabola, as pattern books' A-line blocks once the darts are rotated into the hem),
+    keeping its length."""
     hip = shaping.hip[0]
     waist = hip - shaping.side
     hem = hip + flare * FLARE_SLOPE * hip_y
@@ -356,11 +358,17 @@ def skirt_lines(shaping: WaistShaping, flare: float, hip_y: float, waist_y: floa
     rise = 0.0
     for _ in range(3):  # the hem meets the side seam at a right angle
         rise = hem * (hem - hip_x) / (hip_y - rise / 2)
+    slope = (hip_x - hem) / (hip_y - rise / 2)  # the side seam's run per rise below the hip
     half, lift = waist, 0.0
-    for _ in range(4):  # the waist meets it too, as long as it is straight
-        lift = half * (hem - hip_x) / (2.0 * hip_y)
+    for _ in range(6):
+        top = waist_y + lift
+        ctl = (hip_x + slope * 0.5 * (top - hip_y), hip_y + 0.5 * (top - hip_y))
+        # the parabola's slope 2 lift / half at the side, square to the seam's end tangent
+        lift = flare * half * (ctl[0] - half) / (top - ctl[1]) / 2.0
         half *= 2.0 * waist / parabola_length(half, lift)
-    return SkirtLines(hem, rise, (hip_x, hip_y), (half, waist_y), lift)
+    top = waist_y + lift
+    ctl = (hip_x + slope * 0.5 * (top - hip_y), hip_y + 0.5 * (top - hip_y))
+    return SkirtLines(hem, rise, (hip_x, hip_y), (half, waist_y), lift, ctl)
 
 
 def add_waist_curve(out: Outline, half: float, y: float, rise: float, darts) -> None:
@@ -397,8 +405,7 @@ def skirt_panel(name: str, lines: SkirtLines, dart: float, dart_length: float,
     hx, k = lines.hem, lines.rise
     (xh, yh), (xw, yw) = lines.hip, lines.waist
     top = yw + lines.waist_rise
-    slope = (xh - hx) / (yh - k / 2)  # the side seam's run per rise below the hip
-    ctl = (xh + slope * 0.5 * (top - yh), yh + 0.5 * (top - yh))
+    ctl = lines.side_control
     out = Outline()
     hem = Edge("quadratic", ((0.0, -k / 2),), "hem") if k > 1e-4 else Edge(label="hem")
     out.add((-hx, k / 2), hem, "hem")
