@@ -214,6 +214,11 @@ def test_row_placement_is_each_rows_at_its_height_and_keeps_the_span_share_betwe
     mid = rows.place(np.array([[0.15, 0.15]]))[0]
     ends = 0.5 * (low.place(np.array([[0.2, 0.0]]))[0] + high.place(np.array([[0.1, 0.3]]))[0])
     np.testing.assert_allclose(mid, ends, atol=1e-12)
+    # a curved row (a flared skirt's waist) is placed level: its ends at the row's height
+    curved = placement_rows([PanelRow(0.0, low, 0.0, 0.2), PanelRow(0.3, high, 0.0, 0.1, rise=0.04)])
+    ends = curved.place(np.array([[0.1, 0.34], [-0.1, 0.34], [0.0, 0.3], [0.1, 0.35]]))
+    np.testing.assert_allclose(ends, high.place(np.array([[0.1, 0.3], [-0.1, 0.3], [0.0, 0.3], [0.1, 0.31]])),
+                               atol=1e-12)
 
 
 def test_placed_panels_stay_near_their_flat_lengths_and_legs_apart(parts):

@@ -269,12 +269,19 @@ def torso_wrap(section: TorsoSection, front: bool, y0: float, half0: float, hem_
 @dataclass(frozen=True)
 class PanelRow:
     """One row of a ``RowPlacement``: at panel height ``y`` the panel's span from ``x0`` to
-    ``x1`` [m] (its centre line to its side, say) is placed by ``placement``."""
+    ``x1`` [m] (its centre line to its side, say) is placed by ``placement``. With ``rise`` the
+    row is the parabola y + rise s² across the span (s: the share of the span, 0 at x0, ±1 at
+    ±x1 about x0), a curved waist, and is placed level, as it is when sewn to a straight band."""
 
     y: float
     placement: Placement
     x0: float
     x1: float
+    rise: float = 0.0
+
+    def height(self, x: np.ndarray) -> np.ndarray:
+        """The row's panel height at panel x [m]."""
+        return self.y + self.rise * ((x - self.x0) / (self.x1 - self.x0)) ** 2
 
 
 def placement_rows(rows: list[PanelRow]) -> RowPlacement:
@@ -306,16 +313,18 @@ class RowPlacement(Placement):
 
     def place(self, xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, np.float64).reshape(-1, 2)
-        ys = np.array([r.y for r in self.rows])
-        out = self.rows[0].placement.place(xy)
-        above = xy[:, 1] >= ys[-1]
-        out[above] = self.rows[-1].placement.place(xy[above])
-        for k in range(len(ys) - 1):
-            sel = (xy[:, 1] >= ys[k]) & (xy[:, 1] < ys[k + 1])
+        heights = np.stack([r.height(xy[:, 0]) for r in self.rows])  # (rows, P)
+        first, last = self.rows[0], self.rows[-1]
+        out = first.placement.place(xy - np.stack([0.0 * xy[:, 0], heights[0] - first.y], axis=1))
+        above = xy[:, 1] >= heights[-1]
+        out[above] = last.placement.place(xy[above] - np.stack(
+            [0.0 * xy[above, 0], heights[-1, above] - last.y], axis=1))
+        for k in range(len(self.rows) - 1):
+            sel = (xy[:, 1] >= heights[k]) & (xy[:, 1] < heights[k + 1])
             if not sel.any():
                 continue
             a, b = self.rows[k], self.rows[k + 1]
-            t = (xy[sel, 1] - a.y) / (b.y - a.y)
+            t = (xy[sel, 1] - heights[k, sel]) / (heights[k + 1, sel] - heights[k, sel])
             x0, x1 = a.x0 + t * (b.x0 - a.x0), a.x1 + t * (b.x1 - a.x1)
             share = (xy[sel, 0] - x0) / (x1 - x0)
             lo = a.placement.place(np.stack([a.x0 + share * (a.x1 - a.x0), np.full_like(t, a.y)], axis=1))
@@ -439,7 +448,7 @@ def draft_skirt(m, vertices: np.ndarray, torso_mask: np.ndarray, joints: np.ndar
         hip = torso_wrap(hips, part == "front", lines.hip[1], lines.hip[0], hem_y, 0.0, lines.hem)
         top = torso_wrap(waist_line, part == "front", lines.waist[1], lines.waist[0], hem_y)
         place = placement_rows([PanelRow(lines.hip[1], hip, 0.0, lines.hip[0]),
-                                PanelRow(lines.waist[1], top, 0.0, lines.waist[0])])
+                                PanelRow(lines.waist[1], top, 0.0, lines.waist[0], lines.waist_rise)])
         pieces[part] = skirt_panel(part, lines, shaping.darts[k], SKIRT_DARTS[k], place)
     front, back = pieces["front"], pieces["back"]
     fw, bw = front.edges("waist")[::-1], back.edges("waist")[::-1]  # left to right
