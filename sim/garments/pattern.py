@@ -106,6 +106,10 @@ class Placement:
     down the panel (a sleeve narrowing to its cuff, a skirt widening to its hem); cylinders and
     cones are developable, so a panel wrapped on them is not stretched (on a cone, but for a
     small shear where its slope is large).
+
+    ``hold`` weighs the panel's side of its seams in the point they are sewn together: 1 for
+    the panels that fit the body (the meeting point is the mean of the sides), 0 for a piece
+    sewn onto another where that one lies (a hood onto the neckline).
     """
 
     anchor: tuple[float, float, float]
@@ -114,6 +118,7 @@ class Placement:
     curvature: float = 0.0
     origin: tuple[float, float] = (0.0, 0.0)
     radius_slope: float = 0.0
+    hold: float = 1.0
 
     def place(self, xy: np.ndarray) -> np.ndarray:
         """3D positions [m] of panel points ``xy`` (P, 2), shape (P, 3)."""
@@ -267,3 +272,40 @@ class Pattern:
     def labelled(self, label: str) -> list[tuple[str, int]]:
         """Edges carrying ``label``."""
         return [(p.name, i) for p in self.panels for i, e in enumerate(p.edges) if e.label == label]
+
+
+def split_edge(panel: Panel, i: int, t: float) -> Panel:
+    """``panel`` with edge ``i`` cut in two at curve parameter ``t`` in (0, 1): a new corner
+    there, edges ``i`` and ``i + 1`` the two pieces (same kind and label; de Casteljau for
+    Béziers, the split angle for arcs). Edge indices after ``i`` shift by one."""
+    p0, p1 = panel.edge_ends(i)
+    e = panel.edges[i]
+    mid = e.points(p0, p1, np.array([t]))[0]
+    if e.kind == "line":
+        parts = (Edge(label=e.label), Edge(label=e.label))
+    elif e.kind == "arc":
+        _, _, sweep, r = arc_geometry(p0, p1, *e.controls[0])
+        a, b = sweep * t, sweep * (1 - t)
+        parts = tuple(Edge("arc", ((r, float(abs(s) > np.pi), e.controls[0][2]),), e.label) for s in (a, b))
+    else:
+        pts = [np.asarray(p0)] + [np.asarray(c) for c in e.controls] + [np.asarray(p1)]
+        left, right = [pts[0]], [pts[-1]]
+        while len(pts) > 1:  # de Casteljau: the first and last points of each level
+            pts = [(1 - t) * a + t * b for a, b in zip(pts[:-1], pts[1:], strict=True)]
+            left.append(pts[0])
+            right.append(pts[-1])
+        right = right[::-1]
+        parts = (Edge(e.kind, tuple(map(tuple, left[1:-1])), e.label),
+                 Edge(e.kind, tuple(map(tuple, right[1:-1])), e.label))
+    corners = np.insert(panel.corners, i + 1, mid, axis=0)
+    edges = panel.edges[:i] + parts + panel.edges[i + 1:]
+    return Panel(panel.name, corners, edges, panel.placement)
+
+
+def parameter_at_length(panel: Panel, i: int, length: float) -> float:
+    """Curve parameter of edge ``i`` at arc length ``length`` [m] from its start."""
+    p0, p1 = panel.edge_ends(i)
+    t = np.linspace(0.0, 1.0, DENSE * 8 + 1)
+    pts = panel.edges[i].points(p0, p1, t)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    return float(np.interp(length, s, t))

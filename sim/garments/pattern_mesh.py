@@ -50,12 +50,16 @@ class PatternMesh:
         """Faces of the sewn mesh: ``groups[triangles]``, int32 (F, 3)."""
         return self.groups[self.triangles].astype(np.int32)
 
-    def merge(self, x: np.ndarray) -> np.ndarray:
-        """Per-group mean of per-vertex values ``x`` (N, k): the sewn mesh's (G, k)."""
+    def merge(self, x: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+        """Per-group mean of per-vertex values ``x`` (N, k): the sewn mesh's (G, k); with
+        ``weights`` (N,) >= 0 the weighted mean (a group of zero weights: the plain mean)."""
         x = np.asarray(x, np.float64)
+        w = np.ones(len(x)) if weights is None else np.asarray(weights, np.float64)
+        total = np.bincount(self.groups, weights=w, minlength=self.group_count)
+        w = np.where(total[self.groups] > 0, w, 1.0)
         out = np.zeros((self.group_count, x.shape[1]))
-        np.add.at(out, self.groups, x)
-        return out / np.bincount(self.groups, minlength=self.group_count)[:, None]
+        np.add.at(out, self.groups, x * w[:, None])
+        return out / np.bincount(self.groups, weights=w, minlength=self.group_count)[:, None]
 
 
 def edge_segments(pattern: Pattern, h: float) -> dict[tuple[str, int], int]:

@@ -4,9 +4,10 @@
    cylinder (``Placement``); cylinders are developable, so the placed panels are unstretched
    and serve as the rest shape of this stage. Points that land inside the body are pushed out.
 2. *Closing*: the seam vertices are pinned and their pins travel, over ``close_frames`` frames
-   (smoothstep), from where they were placed to the mean of their seam group (kept outside the
-   body); the solver drags the rest of each panel along, with body contact and self-contact
-   on and no gravity, as a virtual sewing machine pulls the seam lines together.
+   (smoothstep), from where they were placed to the mean of their seam group, weighted by
+   their panels' ``Placement.hold`` (kept outside the body); the solver drags the rest of each
+   panel along, with body contact and self-contact on and no gravity, as a virtual sewing
+   machine pulls the seam lines together.
 3. The seam groups are merged into one vertex each (the gaps are 0 by then), and the sewn
    garment, its rest shape now the flat pattern (``ClothModelBuilder.add_cloth``'s
    ``rest_corners``), *settles* for ``settle_frames`` frames under gravity on the body, pinned only along
@@ -149,7 +150,8 @@ def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndar
     x0 = push_outside(collider, mesh.placed, keep)
     seam = np.zeros(len(x0), bool)
     seam[mesh.pairs.ravel()] = True
-    goal = push_outside(collider, mesh.merge(x0)[mesh.groups], keep)
+    hold = np.array([p.placement.hold for p in pattern.panels])[mesh.vertex_panel]
+    goal = push_outside(collider, mesh.merge(x0, hold)[mesh.groups], keep)
     model, solver = _solver(x0, mesh.triangles, material, rest=mesh.placed, pinned=seam, gravity=False,
                             cfg=cfg, device=dev)
 

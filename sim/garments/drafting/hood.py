@@ -66,9 +66,9 @@ def hood_panels(front_neck: float, back_neck: float, head_centre: np.ndarray, ne
     mid = 0.5 * max(depth, front_neck + back_neck)
     cx, cz = float(head_centre[0]), float(head_centre[1])
     left = Placement(anchor=(cx + r, neck_y, cz), u_dir=(0.0, 0.0, -1.0), curvature=1.0 / r,
-                     origin=(mid, 0.0))
+                     origin=(mid, 0.0), hold=0.0)
     right = Placement(anchor=(cx - r, neck_y, cz), u_dir=(0.0, 0.0, 1.0), curvature=1.0 / r,
-                      origin=(-mid, 0.0))
+                      origin=(-mid, 0.0), hold=0.0)
     panels = [Panel("hood_l", corners, edges, left), mirror_panel("hood_r", corners, edges, right)]
     seams = [Seam(("hood_l", 2), ("hood_r", 2)), Seam(("hood_l", 3), ("hood_r", 1))]
     return panels, seams

@@ -19,7 +19,7 @@ import numpy as np
 from sim.garments.drafting.body_frame import SMPL, limb_cylinder, limb_radius, torso_cylinder, torso_section
 from sim.garments.drafting.hood import hood_panels
 from sim.garments.parameters import check_parameter, choice, parameter, parameter_specs
-from sim.garments.pattern import Edge, Panel, Pattern, Placement, Seam
+from sim.garments.pattern import Edge, Panel, Pattern, Placement, Seam, parameter_at_length, split_edge
 
 FITS = {"tight": 0, "regular": 1, "loose": 2}
 """Fit names and their column in ``EASE``."""
@@ -34,6 +34,9 @@ cuts 20 cm and more."""
 STRAIGHT = (0.0, 0.92, 1.0)
 """The side seam's half width at waist and hip is at least this share of the chest's, by fit:
 a regular tee falls nearly straight from the underarm, a tight one follows the waist."""
+HOOD_GAP = 0.045
+"""The hood's halves end this far [m] from the centre front along the neckline: a small opening
+between them at the throat, where they would otherwise lie on each other."""
 CAP_EASE = 0.03
 """A sleeve cap is this much longer than its armhole (relative): the ease sewn into the crown."""
 
@@ -189,6 +192,10 @@ def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, j
     back = bodice_panel("back", m, d, False, hem_y, torso_cylinder(section, half, False, hem_y, hem_half))
     k = len(side_points(m, d, hem_y, 0.0)) - 1  # side edges per side
     arm_f = k + 1
+    if d.hood == "yes":  # the hood's halves start HOOD_GAP from the centre front: no overlap there
+        i = arm_f + 2
+        front = split_edge(front, i, parameter_at_length(front, i, front.edge_length(i) - HOOD_GAP))
+        front = split_edge(front, i + 2, parameter_at_length(front, i + 2, HOOD_GAP))
     nf, nb = len(front.edges), len(back.edges)
     seams = [Seam(("front", 1 + i), ("back", nb - 1 - i)) for i in range(k)]  # side seams at +x
     seams += [Seam(("front", nf - 1 - i), ("back", 1 + i)) for i in range(k)]  # and at -x
@@ -211,7 +218,7 @@ def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, j
         # the left half's neck edges meet the +x halves of the necklines, the right half's the -x
         seams += hood_seams + [
             Seam(("hood_l", 0), ("front", arm_f + 2)), Seam(("hood_l", 1), ("back", arm_f + 3)),
-            Seam(("hood_r", 4), ("front", arm_f + 3)), Seam(("hood_r", 3), ("back", arm_f + 2))]
+            Seam(("hood_r", 4), ("front", arm_f + 5)), Seam(("hood_r", 3), ("back", arm_f + 2))]
     return Pattern(name, tuple(panels), tuple(seams), {"design": d.__dict__.copy()})
 
 
