@@ -138,9 +138,30 @@ def _tops() -> dict[str, Design]:
     }
 
 
+def _bottoms() -> dict[str, Design]:
+    from sim.garments.drafting.bottoms import SkirtDesign, draft_skirt
+    from sim.garments.drafting.trousers import PantsDesign, draft_pants
+
+    def bottom(params: type, draft, name: str, description: str, **defaults) -> Design:
+        return Design(params, defaults, lambda parts, d: draft(
+            parts.measurements, parts.vertices, parts.torso_mask, parts.joints, d, name), description,
+            ("waistband", "hem"))
+
+    return {
+        "straight_skirt": bottom(SkirtDesign, draft_skirt, "straight_skirt",
+                                 "straight skirt with waist darts and a waistband, to the knee"),
+        "flared_skirt": bottom(SkirtDesign, draft_skirt, "flared_skirt",
+                               "A-line skirt flaring from the hips, waistband", flare=0.6, length=0.6),
+        "shorts": bottom(PantsDesign, draft_pants, "shorts", "shorts: crotch curves, waistband, legs "
+                         "above the knee", length=0.3),
+        "trousers": bottom(PantsDesign, draft_pants, "trousers", "full-length trousers: crotch curves, "
+                           "waistband, hem above the ankle"),
+    }
+
+
 def designs() -> dict[str, Design]:
     """Every design by name."""
-    return _tops()
+    return {**_tops(), **_bottoms()}
 
 
 def design_params(name: str, **params):
