@@ -8,8 +8,15 @@ of its ease at the waist; the difference is taken up by the side seam's hip curv
 each side of front and back (the back's wider and longer, ``DART_SHARE``, ``SKIRT_DARTS``). An
 A-line skirt (``flare`` > 0) closes the darts by that share, the side seams taking the rest, and
 widens the hem; the hem curves up at the sides to meet the slanted side seams at right angles,
-so that it hangs level. A straight waistband (front and back halves) is sewn to the waist; its
-top edge ("waistband") holds the garment while it settles.
+so that it hangs level, and so does the waist, so that the flare falls along the whole hem. A
+straight waistband (front and back halves) is sewn to the waist; its top edge ("waistband")
+holds the garment while it settles.
+
+Placement (``RowPlacement``): each panel wraps the torso's front (back) arc at the hip line,
+widening as a cone to the hem, and the narrower arc at the waist seam (``torso_wrap``: two
+arcs, front and back, that meet at the body's sides and stand off it equally there and at the
+centre); the band wraps the same arcs at its height. Panel and band then start where they are
+sewn, around the body, with their seams nearly closed.
 """
 
 from __future__ import annotations
@@ -64,7 +71,7 @@ def check_design(design, what: str) -> None:
 
 @dataclass(frozen=True)
 class SkirtDesign:
-    """Design parameters of a skirt (units and ranges on each field, ``wrinkles garments --params``)."""
+    """Design parameters of a skirt (units and ranges on each field)."""
 
     fit: str = choice("regular", tuple(FITS), "ease over the waist and hip girths (BOTTOM_EASE)")
     length: float = parameter(0.55, "m", 0.3, 1.1, "from the top of the waistband to the hem")
@@ -206,20 +213,16 @@ def band_seams(front: Piece, back: Piece, front_waist: list, back_waist: list) -
     return seams
 
 
-def band_pieces(m, vertices: np.ndarray, torso_mask: np.ndarray, top_y: float, height: float,
+def band_pieces(vertices: np.ndarray, torso_mask: np.ndarray, top_y: float, height: float,
                 front_waist: list[float], back_waist: list[float]) -> tuple[Piece, Piece]:
     """The front and back waistband halves from ``top_y`` down by ``height`` [m], their lower
-    edges as long as the waist pieces they are sewn to (left to right), on torso cylinders."""
+    edges as long as the waist pieces they are sewn to (left to right), on the torso's arcs
+    (``torso_wrap``) at the band's height."""
     section = torso_section(vertices, torso_mask, top_y - height / 2)
     out = []
     for name, front, pieces in (("band_front", True, front_waist), ("band_back", False, back_waist)):
         half = sum(pieces) / 2
-        sign = 1.0 if front else -1.0
-        radius = 2.0 * half / np.pi  # front and back halves meet on one circle: no corner at the sides
-        place = Placement(anchor=(section.cx, top_y - height, section.cz + sign * radius),
-                          u_dir=(sign, 0.0, 0.0), curvature=1.0 / radius)
-        place = torso_wrap(section, front, 0.0, half, top_y - height)
-        out.append(waistband(name, pieces, height, place))
+        out.append(waistband(name, pieces, height, torso_wrap(section, front, 0.0, half, top_y - height)))
     return out[0], out[1]
 
 
@@ -453,7 +456,7 @@ def draft_skirt(m, vertices: np.ndarray, torso_mask: np.ndarray, joints: np.ndar
     front, back = pieces["front"], pieces["back"]
     fw, bw = front.edges("waist")[::-1], back.edges("waist")[::-1]  # left to right
     length = [[front.panel.edge_length(i) for _, i in fw], [back.panel.edge_length(i) for _, i in bw]]
-    band_f, band_b = band_pieces(m, vertices, torso_mask, top_y, d.waistband, *length)
+    band_f, band_b = band_pieces(vertices, torso_mask, top_y, d.waistband, *length)
     seams = [Seam(a, b) for a, b in zip(front.edges("side_r"), back.edges("side_l")[::-1], strict=True)]
     seams += [Seam(a, b) for a, b in zip(front.edges("side_l"), back.edges("side_r")[::-1], strict=True)]
     seams += front.dart_seams() + back.dart_seams() + band_seams(band_f, band_b, fw, bw)

@@ -14,10 +14,15 @@ outseam is the front's moved sideways, and its fork dropped so that the inseams 
 Waist suppression as for the skirt (``sim.garments.drafting.bottoms``): a dart in each panel,
 the centre seams' take and the side seams; a straight waistband joins the four waist edges.
 
-Each leg's panels wrap a cone around the leg's axis (the thigh's centre below the crotch to the
-leg's centre above the hem), front on the +Z side, back on the -Z side; the cone meets itself at
-the inseam and the outseam, so those seams start closed. The seat above the crotch line wraps
-the same cone; sewing pulls its centre seams together between the legs.
+Placement (``RowPlacement``): up to the crotch line each leg's panels wrap a cone around the
+leg's axis (the thigh's centre below the crotch to the leg's centre above the hem), front on
+the +Z side, back on the -Z side, as wide as the two panels together, so the inseam and outseam
+start closed; the two legs' cones stay ``LEG_GAP`` apart. Above it the seat is placed on the
+torso: at the hip line and the waist seam each panel wraps the torso's front (back) arc from
+the centre line to the side (``torso_wrap``), as the skirt does, so the centre seams and the
+waist seam start closed too and the waist lands on the body's waist, where the band holds it.
+A cone around the leg alone would leave the waist's side points 4-9 cm out from the body and
+the held band stretched toward them.
 """
 
 from __future__ import annotations
@@ -289,7 +294,7 @@ def draft_pants(m, vertices: np.ndarray, torso_mask: np.ndarray, joints: np.ndar
     bw = back_l.edges("waist") + back_r.edges("waist")[::-1]
     by_name = {pc.panel.name: pc.panel for pc in (front_l, front_r, back_l, back_r)}
     length = [[by_name[n].edge_length(i) for n, i in w] for w in (fw, bw)]
-    band_f, band_b = band_pieces(m, vertices, torso_mask, f.top_y, d.waistband, *length)
+    band_f, band_b = band_pieces(vertices, torso_mask, f.top_y, d.waistband, *length)
     seams += band_seams(band_f, band_b, fw, bw)
     panels = (front_l, front_r, back_l, back_r, band_f, band_b)
     return Pattern(name, tuple(p.panel for p in panels), tuple(seams), {"design": dict(d.__dict__), "ease": {
