@@ -112,13 +112,16 @@ def unique_edges(faces: np.ndarray, *, counts: bool = False):
 
 
 def edge_strain(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray, *,
-                device: str | None = None) -> np.ndarray:
+                device: str | None = None, rest_lengths: np.ndarray | None = None) -> np.ndarray:
     """Engineering strain l/l0 - 1 of every edge in every frame.
 
     Args:
         vertices: positions [m], shape (T, V, 3).
         rest_vertices: rest positions [m], shape (V, 3).
         faces: (F, 3) int.
+        rest_lengths: the edges' rest lengths l0 [m] (E,), in :func:`unique_edges` order, where
+            the rest shape is not ``rest_vertices`` (a sewn garment's flat pattern:
+            ``Garment.rest_edge_lengths``).
 
     Returns:
         (T, E) float32, edges as in :func:`unique_edges`.
@@ -128,7 +131,8 @@ def edge_strain(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarr
 
     d = resolve_device(device)
     edges = unique_edges(faces)
-    rest = np.linalg.norm(rest_vertices[edges[:, 1]] - rest_vertices[edges[:, 0]], axis=1)
+    rest = (np.linalg.norm(rest_vertices[edges[:, 1]] - rest_vertices[edges[:, 0]], axis=1)
+            if rest_lengths is None else np.asarray(rest_lengths, np.float64))
     x = wp.array(np.ascontiguousarray(vertices, np.float32), dtype=wp.vec3, device=d)
     out = wp.empty((vertices.shape[0], edges.shape[0]), dtype=float, device=d)
     wp.launch(K.edge_strain_kernel, dim=out.shape,
@@ -384,7 +388,7 @@ def short_crossings(c: dict) -> dict:
 
 def evaluate_sequence(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray,
                       body_vertices: np.ndarray | None = None, body_faces: np.ndarray | None = None,
-                      *, device: str | None = None) -> QualityReport:
+                      *, device: str | None = None, rest_lengths: np.ndarray | None = None) -> QualityReport:
     """All quality statistics of a garment sequence.
 
     Args:
@@ -393,6 +397,7 @@ def evaluate_sequence(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np
         faces: garment triangles (F, 3).
         body_vertices: body positions [m], (T, Vb, 3) or (Vb, 3); None skips the inside test.
         body_faces: body triangles (Fb, 3).
+        rest_lengths: edge rest lengths [m] where they are not ``rest_vertices``' (``edge_strain``).
     """
     vertices = np.asarray(vertices, np.float32)
     T = vertices.shape[0]
@@ -401,7 +406,7 @@ def evaluate_sequence(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np
         nan = np.full(T, np.nan)
         return QualityReport(float("inf"), float("inf"), float("inf"), float("inf"), nan,
                              np.full(T, -1), False)
-    s = edge_strain(vertices, rest_vertices, faces, device=device)
+    s = edge_strain(vertices, rest_vertices, faces, device=device, rest_lengths=rest_lengths)
     inside = (inside_fraction(vertices, body_vertices, body_faces, device=device)
               if body_vertices is not None else np.zeros(T))
     si = self_intersections(vertices, faces, device=device)

@@ -117,3 +117,23 @@ def test_sewing_is_deterministic():
     runs = [sew_pattern(pat, body_v, body_f, 0.03, get_material("cotton"), config=cfg, device="cpu")
             for _ in range(2)]
     np.testing.assert_array_equal(runs[0].vertices, runs[1].vertices)
+
+
+def test_rest_edge_lengths_are_the_patterns_for_a_sewn_garment_and_the_meshs_otherwise(sewn_tube):
+    import dataclasses
+
+    from sim.quality import unique_edges
+
+    pat, _, sewn = sewn_tube
+    g = garment_of(pat, sewn, get_material("cotton"), category="tube", name="tube")
+    lengths = g.rest_edge_lengths()
+    edges = unique_edges(g.faces)
+    flat = sewn.mesh.flat
+    # an edge inside a panel: its length in the flat pattern, whatever the sewn shape
+    tri = sewn.mesh.triangles[0]
+    a, b = sorted(g.faces[0][:2])
+    k = np.flatnonzero((edges[:, 0] == a) & (edges[:, 1] == b))[0]
+    assert lengths[k] == pytest.approx(np.linalg.norm(flat[tri[1]] - flat[tri[0]]), rel=1e-5)
+    plain = dataclasses.replace(g, uv_scale=None)
+    sewn_lengths = np.linalg.norm(np.diff(g.rest_vertices[edges], axis=1)[:, 0], axis=1)
+    np.testing.assert_allclose(plain.rest_edge_lengths(), sewn_lengths, rtol=1e-6)

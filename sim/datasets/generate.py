@@ -431,7 +431,8 @@ def _sequence_arrays(run: _Run, item: dict) -> dict[str, np.ndarray]:
     # body.pose(betas, poses, trans) gives the simulated body back
     posed = body.pose(item["betas"], poses[:1], trans[:1])
     trans = trans + (seq.body.joints[0, 0] - posed.joints[0, 0]).astype(np.float32)
-    fine_strain = edge_strain(seq.vertices, fine_g.rest_vertices, fine_g.faces, device=device)
+    fine_strain = edge_strain(seq.vertices, fine_g.rest_vertices, fine_g.faces, device=device,
+                              rest_lengths=fine_g.rest_edge_lengths())
     arrays.update({"body/poses": poses, "body/trans": trans,
                    "body/joints": np.asarray(seq.body.joints, np.float32),
                    "body/betas": np.asarray(item["betas"], np.float32),

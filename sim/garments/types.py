@@ -93,6 +93,27 @@ class Garment:
             return None
         return self.uvs[self.uv_faces].astype(np.float64) * float(self.uv_scale)
 
+    def rest_edge_lengths(self) -> np.ndarray:
+        """Rest length [m] of every edge (``sim.quality.unique_edges`` order), float64 (E,): in
+        the flat pattern when there is one (``flat_corners``; a seam edge takes the mean of its
+        two sides), else between the ``rest_vertices``."""
+        from sim.quality import unique_edges
+
+        edges = unique_edges(self.faces)
+        flat = self.flat_corners()
+        if flat is None:
+            return np.linalg.norm(self.rest_vertices[edges[:, 1]] - self.rest_vertices[edges[:, 0]],
+                                  axis=1).astype(np.float64)
+        a = self.faces.astype(np.int64)
+        pairs = np.concatenate([a[:, [0, 1]], a[:, [1, 2]], a[:, [2, 0]]])
+        lengths = np.concatenate([np.linalg.norm(flat[:, j] - flat[:, i], axis=1)
+                                  for i, j in ((0, 1), (1, 2), (2, 0))])
+        n = len(self.rest_vertices)
+        key = np.sort(pairs, axis=1) @ np.array([n, 1])
+        order = np.searchsorted(edges[:, 0].astype(np.int64) * n + edges[:, 1], key)
+        total = np.bincount(order, weights=lengths, minlength=len(edges))
+        return total / np.bincount(order, minlength=len(edges))
+
     @property
     def num_vertices(self) -> int:
         return int(self.rest_vertices.shape[0])

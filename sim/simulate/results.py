@@ -85,6 +85,7 @@ def finish_track(tr: Track, cfg: SimulationConfig, vbd, device: str, seed: int, 
     motion = tr.motion if f0 == tr.n_settle + tr.n_blend else replace(
         tr.timeline, poses=tr.timeline.poses[f0:], trans=tr.timeline.trans[f0:])
     quality = evaluate_sequence(tr.out, g.rest_vertices, g.faces, frames.vertices, tr.job.body.faces,
+                                rest_lengths=g.rest_edge_lengths(),
                                 device=device)
     seq = GarmentSequence(vertices=tr.out, body=frames, garment=g, motion=motion, fps=float(cfg.fps),
                           provenance=provenance(tr, cfg, vbd, device, seed, graph))

@@ -17,8 +17,7 @@ class FrameChecker:
 
     def __init__(self, garment: Garment, cfg: SimulationConfig):
         self.edges = unique_edges(garment.faces)
-        rest = garment.rest_vertices
-        self.rest_len = np.linalg.norm(rest[self.edges[:, 1]] - rest[self.edges[:, 0]], axis=1)
+        self.rest_len = garment.rest_edge_lengths()
         self.mean_edge = float(self.rest_len.mean())
         self.cfg = cfg
 
