@@ -153,6 +153,10 @@ class SimulationConfig:
         pinned: attachment sets pinned to the body (names a garment does not define are
             skipped; an imported garment has none).
         ground: stand the body on the floor (y = 0) at the motion's first frame.
+        separate_body_parts: move the skinned body's parts out of each other, frame by frame,
+            before the cloth meets it (``sim.bodies.intersections``): linear blend skinning
+            sinks the upper arms into the chest, the thighs into the belly and the calves into
+            the thighs at deep flexion, and cloth caught there is crushed and overstretched.
         self_contact: cloth self-contact on/off in the solver (default on: without it every
             fine garment folds through itself and fails the self-intersection gate); None: as the
             ``solver`` overrides leave it (on).
@@ -182,6 +186,7 @@ class SimulationConfig:
     keep_prelude: bool = False
     pinned: tuple[str, ...] = DEFAULT_PINNED
     ground: bool = True
+    separate_body_parts: bool = True
     self_contact: bool | None = True
     solver: dict = field(default_factory=dict)
     gates: QualityGates = field(default_factory=QualityGates)

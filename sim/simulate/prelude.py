@@ -80,11 +80,13 @@ def prepare_track(job: SimulationJob, cfg: SimulationConfig, device: str, cache:
     """The timeline of ``job`` (its motion at ``cfg.fps`` after the settle and the way in from
     rest: the motion's lead-in, else a blend of ``cfg.blend_seconds``), its body
     posed over it (shared through ``cache`` by jobs of equal ``shared_body_key``: grounded, morphed from
-    the garment's shape), the garment's placement and pinned vertices, and its output buffer.
+    the garment's shape, its parts moved out of each other with ``cfg.separate_body_parts``), the
+    garment's placement and pinned vertices, and its output buffer.
 
     Raises:
         WrinklesInputError: a garment of another shape with a settle too short to morph in.
     """
+    from sim.bodies.intersections import parts_of, separate_body_frames
     from sim.bodies.placement import floor_offset, translate_frames
     from sim.dressing import attachment_vertices, place_garment
     from sim.motions.blend import enter_from_rest
@@ -113,6 +115,8 @@ def prepare_track(job: SimulationJob, cfg: SimulationConfig, device: str, cache:
             ref = job.body.pose(gbetas, timeline.poses[:n_settle + 1], timeline.trans[:n_settle + 1],
                                 device=device)
             frames = morph_settle(ref, frames, n_settle)
+        if cfg.separate_body_parts:  # the collider the cloth meets has no overlapping parts
+            frames = separate_body_frames(frames, parts_of(job.body), device=device)
         if dy:
             frames = translate_frames(frames, np.array([0.0, dy, 0.0]))
         cache[key] = (frames, dy)
