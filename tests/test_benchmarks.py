@@ -156,3 +156,48 @@ def test_newton_drops_a_sheet_onto_a_sphere(tmp_path):
     fig = r["figures"]
     assert r["newton_version"].startswith("1.") and fig["finite"]
     assert fig["min_radius_m"] > 0.198 and fig["lowest_m"] < 0.15
+
+
+@pytest.mark.slow
+def test_garments_table_and_population(tmp_path):
+    r = single_result("bench_garments", "--device", "cpu", "--designs", "t_shirt", "--shapes", "mean",
+                      "--motions", "walk", "--resolution", "0.06", "--seconds", "0.2", "--prelude", "0.2",
+                      "--population", "2", "--seed", "3", "--population-resolution", "0.07",
+                      "--smoothing", "cg", tmp_path=tmp_path)
+    assert r["benchmark"] == "garments_cpu" and r["sizes"]["edge_m"] == 0.06
+    (garment,) = r["table"]["garments"]
+    (row,) = r["table"]["rows"]
+    assert (row["design"], row["shape"], row["motion"]) == ("t_shirt", "mean", "walk")
+    assert row["vertices"] == garment["vertices"] and 100 < row["vertices"] < 400
+    assert garment["seam_gap_mm"] <= 1.0 and garment["sewing_s"] > 0 and row["substeps"] == [12]
+    # 0.2 s at 30 fps from the motion's first frame: 6 frames
+    assert row["frames"] == 6 and row["max_edge_strain"] == row["quality"]["max_edge_strain"]
+    assert row["passed"] == (not row["failed_gates"])
+    assert 0 < row["wrinkle_rms_mm"] < 50 and 0 < row["wrinkle_p99_mm"] < 100
+    assert 0 < row["covered_body_vertices"] < r["sizes"]["body_vertices"]
+    assert 0 <= row["skin_through_1mm_max_pct"] <= row["skin_through_max_pct"] <= 100
+    assert row["skin_through_mean_pct"] <= row["skin_through_max_pct"]
+    summary = r["table"]["summary"]
+    assert summary["sequences"] == summary["simulated"] == 1 and summary["passed"] == int(row["passed"])
+    assert summary["wrinkle_rms_mm"]["median"] == row["wrinkle_rms_mm"]
+    assert r["smoothing_check_mm"] < 1e-3  # conjugate gradients against the sparse LU
+    pop = r["population"]
+    assert pop["size"] == len(pop["members"]) == 2 and pop["seed"] == 3
+    assert pop["passing"] == sum(m["passed"] for m in pop["members"])
+    assert pop["pass_rate"] == pop["passing"] / 2
+    for m in pop["members"]:
+        assert m["motion"] in r["sizes"]["population_motions"]
+        if "error" in m and "substeps" not in m:
+            continue  # not sewn: reported, not simulated
+        ladder = [12, 20, 24]
+        assert m["substeps"] == ladder[:len(m["substeps"])]
+        assert m["passed"] == (not m.get("failed_gates", ["stopped"]))
+        assert m["passed"] or len(m["substeps"]) == 3  # a failing member went through the whole ladder
+
+
+def test_garments_refuses_an_unknown_shape(tmp_path):
+    proc, found = run_benchmark("bench_garments", "--device", "cpu", "--shapes", "mean,giant",
+                                results=tmp_path)
+    assert proc.returncode == 2 and not found
+    assert proc.stderr.strip().splitlines()[-1].endswith(
+        "error: --shapes: unknown 'giant'; expected mean, plus2, minus2, heavy, slim")
