@@ -4,6 +4,8 @@ pushed into each other, and the default body's rest pose left as it is."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -292,3 +294,38 @@ def test_cloth_caught_between_parts_that_pass_through_each_other_keeps_its_lengt
     # penalty contact lets it a fraction of a millimetre into the torso)
     np.testing.assert_allclose(arm[-1, :, 0].min(), 0.004, atol=1e-6)
     assert x[-1, :, 0].min() > -0.001
+
+
+def test_the_simulation_separates_its_body_when_its_config_says_so(monkeypatch):
+    """``prepare_track`` hands the skinned body to ``separate_body_frames`` with
+    ``separate_body_parts`` on (the default) and uses what it returns; off, the body is as
+    skinned. The dataset record names the separation's settings."""
+    from types import SimpleNamespace
+
+    import sim.bodies.intersections as intersections
+    from sim.bodies import load_body
+    from sim.motions import load_motion
+    from sim.simulate import SimulationConfig, simulator_defaults
+    from sim.simulate.jobs import SimulationJob
+    from sim.simulate.prelude import prepare_track
+
+    calls = []
+
+    def marked(frames, parts, *, device):
+        calls.append(parts)
+        return dataclasses.replace(frames, vertices=frames.vertices + np.float32(1.0))
+
+    monkeypatch.setattr(intersections, "separate_body_frames", marked)
+    body = load_body()
+    garment = SimpleNamespace(rest_vertices=body.rest_mesh()[:4], attachments={}, num_vertices=4)
+    job = SimulationJob(garment, body, load_motion("walk", duration=0.2))
+    fast = dict(settle_seconds=0.1, blend_seconds=0.1, device="cpu")
+    on = prepare_track(job, SimulationConfig(**fast), "cpu", {})
+    off = prepare_track(job, SimulationConfig(**fast, separate_body_parts=False), "cpu", {})
+    assert len(calls) == 1 and calls[0].names == tuple(PART_JOINTS)
+    np.testing.assert_allclose(on.frames.vertices, off.frames.vertices + 1.0, atol=1e-5)
+    cfg = SimulationConfig(separate_body_parts=False)
+    assert SimulationConfig.from_dict(cfg.to_dict()) == cfg
+    record = simulator_defaults()["body_separation"]
+    assert record["on"] is True and ["left_thigh", "torso"] in record["separations"]
+    assert record["clearance_m"] == intersections.CLEARANCE and record["rounds"] == intersections.ROUNDS

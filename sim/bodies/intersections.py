@@ -218,6 +218,14 @@ def body_parts(faces: np.ndarray, weights: np.ndarray, joint_names, parents) -> 
                      loop_starts=np.concatenate([[0], np.cumsum(sizes)]).astype(np.int32))
 
 
+def separation_record() -> dict:
+    """The separation's settings, for the simulator's record (``sim.simulate.simulator_defaults``:
+    a dataset is not continued under other ones)."""
+    return {"parts": {k: list(v) for k, v in PART_JOINTS.items()},
+            "separations": [list(pair) for pair in SEPARATIONS], "rounds": ROUNDS,
+            "max_depth_m": MAX_DEPTH, "clearance_m": CLEARANCE}
+
+
 @functools.lru_cache(maxsize=8)
 def parts_of(body) -> BodyParts:
     """``body_parts`` of a ``sim.bodies.BodyModel`` (cached per model object)."""

@@ -90,11 +90,14 @@ def simulator_defaults(cuda: bool = False) -> dict:
     in its config), the templates' hems and every template's default parameters, the
     procedural gaits' rule (``sim.motions.gait.gait_record``) and how procedural motions begin
     (``procedural_start``: ``"lead_in"``, in full motion at t = 0 after a lead-in played in the
-    prelude, ``sim.motions.procedural``). On CUDA (``cuda``) also the
+    prelude, ``sim.motions.procedural``) and the separation of the body's parts
+    (``body_separation``: whether ``SimulationConfig.separate_body_parts`` is on by default, and
+    ``sim.bodies.intersections.separation_record``). On CUDA (``cuda``) also the
     colouring (``CUDA_COLORS``) and the early coarse system (``CUDA_COARSE_EARLY``); the CPU uses
     neither and records neither, so a dataset begun on one kind of device is not continued on
     the other.
     """
+    from sim.bodies.intersections import separation_record
     from sim.garments.hems import HEM_LAYERS, HEM_RULE, HEM_WIDTH
     from sim.garments.templates import TEMPLATES, make_params
     from sim.motions.gait import gait_record
@@ -107,7 +110,9 @@ def simulator_defaults(cuda: bool = False) -> dict:
            "hems": {"width_m": HEM_WIDTH, "layers": HEM_LAYERS, "rule": HEM_RULE},
            "retry_factors": {"default": list(RETRY_FACTORS), "fine": list(FINE_RETRY_FACTORS)},
            "templates": {name: dataclasses.asdict(make_params(name)) for name in TEMPLATES},
-           "gait": gait_record(), "procedural_start": "lead_in"}
+           "gait": gait_record(), "procedural_start": "lead_in",
+           "body_separation": {"on": SimulationConfig.__dataclass_fields__["separate_body_parts"].default,
+                               **separation_record()}}
     if cuda:
         out["max_colors"] = CUDA_COLORS
         out["coarse_early"] = CUDA_COARSE_EARLY
