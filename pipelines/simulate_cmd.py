@@ -392,7 +392,7 @@ def stage_metadata(args: argparse.Namespace, result, config, garment, bm, attemp
                    crossings: dict | None) -> dict:
     """The quality report, the resolved config and the provenance, as stored in the stage and
     its ``.quality.json`` sidecar (JSON types only)."""
-    from pipelines.options import parse_numbers
+    from pipelines.options import parse_params
     from sim.versions import package_versions
 
     report = {
@@ -416,7 +416,7 @@ def stage_metadata(args: argparse.Namespace, result, config, garment, bm, attemp
         **report,
         "provenance": {**result.sequence.provenance, "versions": package_versions("usd-core")},
         "motion_params": bm.params,
-        "garment_params": parse_numbers(args.garment_param, "--garment-param"),
+        "garment_params": parse_params(args.garment_param, "--garment-param"),
         "material": dataclasses.asdict(garment.material),
     }
     if garment.repairs:  # what reading the garment file repaired

@@ -139,9 +139,9 @@ def test_simulator_defaults_record_the_templates_and_the_device_kind():
     """A dataset records every template's default parameters, and the colouring and early coarse
     system only on CUDA (the CPU uses neither); the rest of the record is the same on both."""
     templates = simulator_defaults()["templates"]
-    assert templates["tank_top"]["armhole_fillet"] == 0.08 and templates["t_shirt"]["armhole_fillet"] == 0.0
-    assert templates["tank_top"]["armhole_depth"] == 0.05 and templates["t_shirt"]["armhole_depth"] == 0.03
-    assert templates["t_shirt"]["sleeve_length"] == 0.2 and len(templates) == 8
+    assert templates["tank_top"]["strap_width"] == 0.06 and templates["t_shirt"]["strap_width"] == 0.0
+    assert templates["hoodie"]["hood"] == "yes" and templates["t_shirt"]["fit"] == "regular"
+    assert templates["t_shirt"]["sleeve_length"] == 0.2 and len(templates) == 9
     on_cuda = simulator_defaults(cuda=True)
     assert on_cuda["max_colors"] == 3 and "max_colors" not in simulator_defaults()
     assert on_cuda["coarse_early"] is True and "coarse_early" not in simulator_defaults()
@@ -260,8 +260,9 @@ def test_the_hems_reach_the_cloth_model(body, skirt, monkeypatch):
     monkeypatch.setattr(ClothModelBuilder, "finalize", keep)
     cfg = SimulationConfig(**{**FAST, "settle_seconds": 0.1, "blend_seconds": 0.0})
     simulate(skirt, body, walk(body, 0.1), config=cfg)
-    tri = skirt.rest_vertices[skirt.faces].astype(np.float64)
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    flat = skirt.flat_corners()  # the sewn skirt's rest shape is its pattern
+    e1, e2 = flat[:, 1] - flat[:, 0], flat[:, 2] - flat[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
     mass = built[0].particle_mass.numpy().sum()
     assert (skirt.face_layers > 1).sum() > 0
     np.testing.assert_allclose(mass, skirt.material.density * (area * skirt.face_layers).sum(), rtol=1e-5)
@@ -635,8 +636,8 @@ def test_cli_bad_input_is_one_line_exit_2_no_output(tmp_path, capsys, case):
         args += ["--garment-param", "wings=2"]
         needles = ("wings", "sleeve_length")
     elif case == "bad_garment_param":
-        args += ["--garment-param", "length=long"]
-        needles = ("--garment-param", "length")
+        args += ["--garment-param", "hem_drop=long"]
+        needles = ("hem_drop", "number")
     elif case == "bad_suffix":
         args[args.index("--out") + 1] = str(tmp_path / "o.abc")
         needles = ("o.abc", "--out")
