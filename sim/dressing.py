@@ -1,7 +1,7 @@
 """Dressing: placing a garment on the body in rest pose and binding its attachments to the skin.
 
-A template garment is built around the body's rest (T-pose) mesh with a clearance
-(``sim.garments.templates``), so placing it is a rigid translation: the body's root
+A template garment is sewn on the body's rest (T-pose) mesh and settles there, clear of the
+skin (``sim.garments.sewing``), so placing it is a rigid translation: the body's root
 translation at the first frame of the run plus the grounding offset (``place_garment``).
 
 Attachments ("waistband", "shoulders", ...) are pinned to the body: each pinned vertex is

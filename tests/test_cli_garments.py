@@ -27,14 +27,17 @@ def test_lists_every_template_with_counts_and_attachments(capsys):
 def test_params_and_json(capsys):
     assert main(["garments", "--params"]) == 0
     out = capsys.readouterr().out
-    assert "--garment-param sleeve_length=0.2 [m]" in out and "--garment-param crotch_ease=0.02 [m]" in out
+    assert "--garment-param sleeve_length=0.2 [m]" in out and "--garment-param waist_drop=0.02 [m]" in out
+    assert "--garment-param hood=no  a two-piece hood sewn into the neckline (no | yes)" in out
     assert main(["garments", "--json"]) == 0
     cat = json.loads(capsys.readouterr().out)
     assert [t["name"] for t in cat["templates"]] == list(TEMPLATES)
     for t in cat["templates"]:
         assert t["resolutions"]["fine"]["edge_m"] < t["resolutions"]["coarse"]["edge_m"]
-        for p in t["parameters"]:  # every parameter documented: a unit and a meaning
-            assert p["unit"] in ("m", "-") and len(p["meaning"]) > 10, p
+        for p in t["parameters"]:  # every parameter documented: a unit (or its choices) and a meaning
+            assert p["unit"] in ("m", "-", "choice") and len(p["meaning"]) > 10, p
+            if p["unit"] == "choice":  # the meaning ends with the choices, the default among them
+                assert p["default"] in p["meaning"].rsplit("(", 1)[1].rstrip(")").split(" | "), p
     assert {m["name"] for m in cat["materials"]} == set(MATERIALS)
     # every numeric material field has its unit, in the JSON and in the table --params prints
     numeric = {k for k, v in cat["materials"][0].items() if isinstance(v, float)}
@@ -44,12 +47,12 @@ def test_params_and_json(capsys):
     for field, unit in cat["material_units"].items():
         assert f"{field} [{unit}]" in table
     # each parameter's line is its description as written, without markup or code names
+    from sim.garments.drafting.tops import TopDesign
     from sim.garments.parameters import parameter_specs
-    from sim.garments.tops import TopParams
 
     for word in ("``", "armhole_inset", "sim.garments"):
         assert word not in table
-    assert parameter_specs(TopParams)["strap_width"].description in table
+    assert parameter_specs(TopDesign)["neck_depth"].description in table
 
 
 @pytest.mark.parametrize("suffix", [".obj", ".ply", ".glb", ".usda"])

@@ -1,11 +1,11 @@
-"""UV functions: distortion measures on exact cases, ARAP flattening of developable panels, packing."""
+"""UV functions: distortion measures on exact cases, packing charts into the unit square."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from sim.garments.uv import arap_flatten, pack_uvs, uv_stats
+from sim.garments.uv import pack_uvs, uv_stats
 
 
 def _grid(n: int, m: int):
@@ -37,37 +37,6 @@ def test_uv_stats_exact_on_an_affine_map():
     flip = v[:, :2].copy()
     flip[f[0, 0]] = [0.2, 0.2]  # folds the first triangle over its neighbours
     assert uv_stats(v, f, flip, f).flipped >= 1
-
-
-@pytest.mark.parametrize("surface", ["cylinder", "cone"])
-def test_arap_flattens_developable_panels_isometrically(surface):
-    n, m = 12, 20
-    th, y = np.meshgrid(np.linspace(0, 2.0, m), np.linspace(0, 0.5, n))
-    r = 0.15 if surface == "cylinder" else 0.1 + 0.3 * y  # a cone widening downwards
-    v = np.stack([(r * np.cos(th)).ravel(), (-y).ravel(), (r * np.sin(th)).ravel()], 1)
-    f = _grid(n, m)
-    uv0 = np.stack([th.ravel() * 0.1, -y.ravel()], 1)  # a poor start: angle for u (not arc length)
-    before = uv_stats(v, f, uv0, f)
-    uv = arap_flatten(v, f, uv0)
-    after = uv_stats(v, f, uv, f)
-    assert before.angle_p95 > 1.2
-    assert after.angle_max < 1.01 and after.area_p5 > 0.99 and after.area_p95 < 1.01 and after.flipped == 0
-    e = f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    np.testing.assert_allclose(np.linalg.norm(uv[e[:, 0]] - uv[e[:, 1]], axis=1),
-                               np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1), rtol=0.01)  # metres kept
-    # kept upright (Procrustes onto the start): the top row stays above the bottom row
-    assert uv[:m, 1].mean() > uv[-m:, 1].mean() + 0.45
-
-
-def test_arap_keeps_a_mirrored_layout_mirrored():
-    s, t = np.meshgrid(np.linspace(0, 0.3, 6), np.linspace(0, 0.2, 4))
-    v = np.stack([s.ravel(), t.ravel(), np.zeros(s.size)], 1)
-    f = _grid(4, 6)
-    uv0 = np.stack([-s.ravel() * 1.3, t.ravel()], 1)  # mirror image of the faces' winding
-    uv = arap_flatten(v, f, uv0)
-    st = uv_stats(v, f, uv, f)
-    assert st.flipped == 0 and st.angle_max < 1.001
-    np.testing.assert_allclose(uv[:, 0], -s.ravel() * 1.0 + uv[0, 0], atol=1e-6)  # same mirror, true size
 
 
 def test_pack_keeps_one_scale_margins_and_no_box_overlap():

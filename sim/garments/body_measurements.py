@@ -23,7 +23,6 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from sim.errors import WrinklesInputError
-from sim.garments.measure import midplane_crossings, polar_hits
 
 STEP = 0.004
 """Height step of the horizontal scans that find girth extrema and landmarks [m]; an extremum's
@@ -39,6 +38,9 @@ UP = (0.0, 1.0, 0.0)
 JOINTS_READ = ("pelvis", "spine2", "neck", "head") + tuple(
     f"{s}_{j}" for s in SIDES for j in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle"))
 """SMPL joints the measurements read (SMPL-H and SMPL-X share them)."""
+ARM_JOINTS = tuple(range(16, 24))
+"""SMPL shoulders, elbows, wrists and hands (even: left, odd: right): a vertex these carry most
+of the skinning weight of is an arm's, the rest is the torso's (drafting's region masks)."""
 
 
 @dataclass(frozen=True)
@@ -433,6 +435,20 @@ def midline_crossings(hull: np.ndarray) -> tuple[float, float]:
     return float(z.max()), float(z.min())
 
 
+def midplane_crossings(vertices: np.ndarray, faces: np.ndarray,
+                       y_range: tuple[float, float] | None = None) -> np.ndarray:
+    """Points (K, 3) where the mesh's edges cross the mid-sagittal plane x = 0, interpolated
+    along the edge; with ``y_range`` (lo, hi) only edges whose both ends lie strictly within it."""
+    e = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    a, b = vertices[e[:, 0]], vertices[e[:, 1]]
+    cross = a[:, 0] * b[:, 0] < 0
+    if y_range is not None:
+        cross &= (np.minimum(a[:, 1], b[:, 1]) > y_range[0]) & (np.maximum(a[:, 1], b[:, 1]) < y_range[1])
+    a, b = a[cross], b[cross]
+    t = a[:, 0] / (a[:, 0] - b[:, 0])
+    return a + t[:, None] * (b - a)
+
+
 def crotch_level(rest: RestBody) -> float:
     """Lowest point where the surface crosses x = 0 between the knees and the hips [m]."""
     lo, hi = rest.j("left_knee")[1], rest.j("left_hip")[1] + 0.05
@@ -517,6 +533,27 @@ def neck_landmarks(rest: RestBody, lv: Levels, armpit_y: float) -> Neck:
     i_notch = lv.index(float(lv.ys[flat].mean()))
     front = np.array([0.0, float(lv.ys[i_notch]), lv.midline[i_notch, 0]])
     return Neck(sides, nape, front, neck_base_girth(lv, i_side, front[1]))
+
+
+def polar_hits(poly_xz: np.ndarray, center: np.ndarray, theta: np.ndarray):
+    """Ray casts from ``center`` at angles ``theta`` against the closed polygon ``poly_xz``.
+
+    Returns:
+        (r, edge, s): distance to the nearest hit, the polygon edge hit and the parameter
+        along it (edge k runs from vertex k to k + 1, cyclically).
+    """
+    d = np.stack([np.cos(theta), np.sin(theta)], axis=1)
+    a = poly_xz - center
+    e = np.roll(a, -1, axis=0) - a
+    den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (a[None, :, 0] * e[None, :, 1] - a[None, :, 1] * e[None, :, 0]) / den
+        s = (a[None, :, 0] * d[:, None, 1] - a[None, :, 1] * d[:, None, 0]) / den
+    ok = (s >= -1e-9) & (s <= 1 + 1e-9) & (t > 0)
+    tt = np.where(ok, t, np.inf)
+    edge = tt.argmin(axis=1)
+    rows = np.arange(len(theta))
+    return tt[rows, edge], edge, np.clip(s[rows, edge], 0.0, 1.0)
 
 
 def neck_base_girth(lv: Levels, i_side: int, y_front: float, n: int = 180) -> float:

@@ -42,8 +42,7 @@ class BodyParts:
 
     @classmethod
     def of(cls, body, betas: np.ndarray | None = None) -> BodyParts:
-        from sim.garments.body_measurements import measure_body
-        from sim.garments.measure import ARM_JOINTS
+        from sim.garments.body_measurements import ARM_JOINTS, measure_body
 
         w = np.asarray(body.weights)
         left = [j for j in ARM_JOINTS if j % 2 == 0]

@@ -1,13 +1,9 @@
-"""UV layout of sewing-pattern panels: flattening (ARAP), packing into [0, 1]², distortion.
+"""UV layout of sewing-pattern panels: packing flat panels into [0, 1]² and measuring distortion.
 
-A panel's rows give a first flattening (u = arc length along the row, v = distance between
-rows, ``sim.garments.panels.sew``). It is close to isometric where the rows are parallel, but
-shears where rows converge or have different lengths (a sleeve cap, a flared hem). Each panel
-is then relaxed with the local/global *as-rigid-as-possible* parameterisation (Liu, Zhang, Xu,
-Gotsman, Gortler 2008, "A Local/Global Approach to Mesh Parameterization", Eqs. 3-8), started
-from the row layout, and turned back to the row layout's orientation (v = up the garment, the
-grain line). Packing keeps one common scale for every panel (one texel covers the same cloth
-area everywhere).
+A sewn garment's UVs are its flat pattern (``sim.garments.pattern_mesh``): every panel is one
+chart in its own plane, in metres. ``pack_uvs`` places the charts side by side in the unit square
+with one common scale (one texel covers the same cloth area everywhere); ``uv_stats`` measures how
+far a layout is from the 3D surface (angles, areas, flips, texel density).
 """
 
 from __future__ import annotations
@@ -16,13 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-ARAP_ITERATIONS = 25
-"""Local/global iterations from the row layout. Measured on shorts, t-shirt, flared skirt
-(coarse): conformal p95 1.10 / 1.12 / 1.06 after 5, 1.065 / 1.075 / 1.035 after 25, 1.062 /
-1.071 / 1.036 after 50; 25 is within 1 % of converged at ~0.1 s per 3k vertices."""
-COT_MIN = 0.01
-"""Half-edge cotangent weights are clamped to >= 0.01 so the Laplacian stays an M-matrix
-(obtuse angles give negative cotangents; none of our triangles is near-degenerate)."""
 UV_MARGIN = 0.02
 """Gap between charts and around the border, fraction of the unit square (5 px at 256²)."""
 
@@ -37,100 +26,6 @@ def _local_frames(x3: np.ndarray) -> np.ndarray:
     out[:, 1, 0] = np.linalg.norm(e1, axis=1)
     out[:, 2, 0] = (e2 * ex).sum(1)
     out[:, 2, 1] = (e2 * ey).sum(1)
-    return out
-
-
-def arap_flatten(points: np.ndarray, faces: np.ndarray, uv0: np.ndarray, *,
-                 iterations: int = ARAP_ITERATIONS) -> np.ndarray:
-    """As-rigid-as-possible flattening of one disk-like panel, started from ``uv0``.
-
-    Liu et al. 2008: alternate the best rotation per triangle (local step, closed form of the
-    2×2 polar decomposition) and a cotangent-Laplacian solve for the UVs (global step, factorised
-    once). The result is then rotated and translated (no scaling) onto ``uv0``
-    (Procrustes), so a panel keeps its upright orientation.
-
-    Args:
-        points: 3D positions of the panel's UV vertices [m], shape (N, 3) (seam vertices
-            that coincide in 3D are distinct here).
-        faces: triangles into ``points``, shape (F, 3).
-        uv0: initial UVs [m], shape (N, 2); its orientation (mirror or not) is kept.
-        iterations: local/global iterations.
-
-    Returns:
-        UVs [m], shape (N, 2), float64.
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.linalg import factorized
-
-    n = len(points)
-    x = _local_frames(points[faces])
-    t0 = uv0[faces]
-    a0 = (t0[:, 1, 0] - t0[:, 0, 0]) * (t0[:, 2, 1] - t0[:, 0, 1]) \
-        - (t0[:, 1, 1] - t0[:, 0, 1]) * (t0[:, 2, 0] - t0[:, 0, 0])
-    if np.sum(a0) < 0:  # the layout is a mirror image of the faces' winding: mirror the frames
-        x[..., 1] *= -1
-    # half-edge (i, j) opposite corner k, cotangent of the angle at k
-    ii, jj, kk = (np.array([1, 2, 0]), np.array([2, 0, 1]), np.array([0, 1, 2]))
-    a = x[:, ii] - x[:, kk]
-    b = x[:, jj] - x[:, kk]
-    cross = np.abs(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0])
-    w = np.clip((a * b).sum(-1) / np.maximum(cross, 1e-30), COT_MIN, 1.0 / COT_MIN)  # (F, 3)
-    vi, vj = faces[:, ii].ravel(), faces[:, jj].ravel()
-    wf = w.ravel()
-    lap = coo_matrix((np.concatenate([wf, wf, -wf, -wf]),
-                      (np.concatenate([vi, vj, vi, vj]), np.concatenate([vi, vj, vj, vi]))),
-                     shape=(n, n)).tocsc()
-    pin = 0  # translation is free: pin one vertex, put the panel back with Procrustes below
-    keep = np.arange(1, n)
-    solve = factorized(lap[keep][:, keep].tocsc())
-    dx = x[:, ii] - x[:, jj]  # (F, 3, 2) rest edge vectors
-    uv = uv0.astype(np.float64).copy()
-    for _ in range(iterations):
-        du = uv[faces[:, ii]] - uv[faces[:, jj]]
-        # local step: the rotation closest to S = Σ w (u_i − u_j)(x_i − x_j)ᵀ maximises
-        # tr(Rᵀ S); in 2D its angle is atan2(S10 − S01, S00 + S11) (no SVD needed)
-        s00 = (w * du[..., 0] * dx[..., 0]).sum(1)
-        s01 = (w * du[..., 0] * dx[..., 1]).sum(1)
-        s10 = (w * du[..., 1] * dx[..., 0]).sum(1)
-        s11 = (w * du[..., 1] * dx[..., 1]).sum(1)
-        ang = np.arctan2(s10 - s01, s00 + s11)
-        c, sn = np.cos(ang)[:, None], np.sin(ang)[:, None]
-        rhs_e = np.stack([w * (c * dx[..., 0] - sn * dx[..., 1]), w * (sn * dx[..., 0] + c * dx[..., 1])], -1)
-        rhs = np.zeros((n, 2))
-        for k in range(2):  # Σ over half-edges of ± w R (x_i − x_j), into vertices i and j
-            rhs[:, k] = np.bincount(vi, rhs_e[..., k].ravel(), n) - np.bincount(vj, rhs_e[..., k].ravel(), n)
-        rhs -= lap[:, [pin]].toarray() * uv[pin]  # the pinned vertex moves to the right side
-        uv[keep] = np.stack([solve(rhs[keep, 0]), solve(rhs[keep, 1])], axis=1)
-    # Procrustes: rotation + translation onto the initial layout
-    ca, cb = uv.mean(0), uv0.mean(0)
-    u, _, vt = np.linalg.svd((uv - ca).T @ (uv0 - cb))
-    rot = u @ vt
-    if np.linalg.det(rot) < 0:
-        u[:, 1] *= -1
-        rot = u @ vt
-    return (uv - ca) @ rot + cb
-
-
-def flatten_panels(points: np.ndarray, uv_faces: np.ndarray, uvs_m: np.ndarray, uv_panel: np.ndarray, *,
-                   iterations: int = ARAP_ITERATIONS) -> np.ndarray:
-    """``arap_flatten`` every panel of a sewn pattern.
-
-    Args:
-        points: 3D position of every UV vertex [m], shape (U, 3).
-        uv_faces: (F, 3) into the UV vertices; uvs_m: row-layout UVs [m], (U, 2);
-        uv_panel: panel id of every UV vertex, (U,).
-
-    Returns:
-        UVs [m], shape (U, 2), each panel in its own frame (pack them with ``pack_uvs``).
-    """
-    out = uvs_m.astype(np.float64).copy()
-    face_panel = uv_panel[uv_faces[:, 0]]
-    for pid in np.unique(uv_panel):
-        idx = np.flatnonzero(uv_panel == pid)
-        local = np.full(len(uv_panel), -1, np.int64)
-        local[idx] = np.arange(len(idx))
-        f = local[uv_faces[face_panel == pid]]
-        out[idx] = arap_flatten(points[idx], f, uvs_m[idx], iterations=iterations)
     return out
 
 
