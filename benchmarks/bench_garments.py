@@ -1,9 +1,9 @@
 """Sewn garments on body shapes in motion: how they sew, how they wrinkle, whether the skin stays
 under the cloth, and how many random garments pass the quality gates.
 
-    python -m benchmarks.bench_garments --device cuda --resolution fine --workers 8
+    python -m benchmarks.bench_garments --device cuda --shapes mean --workers 8 --time-limit 420
     python -m benchmarks.bench_garments --device cuda --no-table --population 100 --seed 0 \\
-        --population-resolution coarse --workers 8
+        --population-resolution coarse --workers 8 --time-limit 420 --tag _population
     python -m benchmarks.bench_garments --device cpu --designs t_shirt --shapes mean --motions walk \\
         --resolution 0.06 --seconds 0.2 --prelude 0.2
 
@@ -26,8 +26,10 @@ again at more substeps), counting those that pass.
 
 Run time: ``--workers`` sews in that many processes at once; ``--batch`` /
 ``--population-batch`` sequences share one batched cloth model; ``--prelude`` shortens the
-settle and the lead-in; ``--time-limit`` starts no new batch, rung or sewing round past that
-many seconds and lists what it skipped, so a run ends within a device call.
+settle and the lead-in; ``--time-limit`` starts no new batch, rung or sewing past that many
+seconds and lists what it skipped, so a run ends within a device call. The JSON is written after
+every batch (``complete``: false until the run ends), so a run stopped from outside leaves what
+it measured.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ import dataclasses
 import json
 import multiprocessing
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
@@ -310,16 +313,18 @@ def sim_config(args: argparse.Namespace, device: str):
     return cfg
 
 
-def simulate_ladder(jobs: list, cfg, clock: Clock, *, ladder: bool, batch: int, label: str) -> list[dict]:
+def simulate_ladder(jobs: list, cfg, clock: Clock, *, ladder: bool, batch: int, label: str,
+                    figures: Callable, save: Callable) -> list[dict]:
     """Every job simulated in batches of ``batch`` (``simulate_batch``, a failing sequence frozen
     while the others run on), then, with ``ladder``, those that fail their gates or stop again,
-    batched together, at each of the retry ladder's substeps until they pass. Per job:
-    ``{"result": SimulationResult | None, "error": str, "substeps": [tried], "ms_per_frame"}``."""
+    batched together, at each of the retry ladder's substeps until they pass. Per job, the
+    figures of its last run: ``run_figures`` and, of a run that finished, ``figures(k, result)``,
+    taken as its batch ends (the results are not kept); ``save(runs)`` after every batch."""
     from sim.simulate import simulate_batch
 
     largest = max(j.garment.num_vertices for j in jobs)
     counts = [cfg.substeps_for(largest), *(cfg.retry_substeps(largest) if ladder else ())]
-    out = [{"result": None, "error": "", "substeps": []} for _ in jobs]
+    out: list[dict] = [{"substeps": [], "passed": False} for _ in jobs]
     todo = list(range(len(jobs)))
     for n in counts:
         chunks = [todo[i:i + batch] for i in range(0, len(todo), batch)]
@@ -335,80 +340,83 @@ def simulate_ladder(jobs: list, cfg, clock: Clock, *, ladder: bool, batch: int, 
                                      failures="return")
             except Exception as e:  # the whole batch failed: each of its jobs says why
                 res = [e] * len(chunk)
-            clock.batch_s = last = time.perf_counter() - t0
+            wall = time.perf_counter() - t0
             for k, r in zip(chunk, res, strict=True):
-                out[k]["substeps"].append(n)
-                ok = hasattr(r, "sequence")
-                out[k].update(result=r if ok else None, error="" if ok else f"{type(r).__name__}: {r}",
-                              batch=len(chunk), batch_wall_s=last)
-                if ok:
-                    out[k]["ms_per_frame"] = float(r.step_ms.mean()) if r.step_ms.size else None
-            passed = sum(1 for k in chunk if out[k]["result"] is not None and out[k]["result"].passed)
-            clock.log(f"{label}: {passed} of {len(chunk)} pass at {n} substeps ({last:.1f} s)")
-        todo = [k for k in todo if "skipped" not in out[k]
-                and not (out[k]["result"] is not None and out[k]["result"].passed)]
+                out[k] = run_figures(r, [*out[k]["substeps"], n], len(chunk), wall)
+                if hasattr(r, "sequence"):
+                    out[k].update(figures(k, r))
+            clock.batch_s = time.perf_counter() - t0
+            ms = [out[k]["ms_per_frame"] for k in chunk if out[k].get("ms_per_frame")]
+            clock.log(f"{label}: {sum(out[k]['passed'] for k in chunk)} of {len(chunk)} pass at {n} substeps "
+                      f"(simulated in {wall:.1f} s, {max(ms, default=0.0):.1f} ms per batched frame; "
+                      f"figures {clock.batch_s - wall:.1f} s)")
+            save(out)
+        todo = [k for k in todo if "skipped" not in out[k] and not out[k]["passed"]]
         if not todo:
             break
     return out
 
 
-def run_figures(run: dict) -> dict:
-    """The JSON-ready figures of one ``simulate_ladder`` entry: gates, strain, substeps, timing."""
-    r = run["result"]
-    out = {"substeps": run["substeps"], "passed": bool(r is not None and r.passed)}
-    for key in ("error", "skipped", "batch", "batch_wall_s", "ms_per_frame"):
-        if run.get(key) not in (None, ""):
-            out[key] = run[key]
-    if r is not None:
-        out.update(frames=int(r.sequence.num_frames), failed_gates=list(r.failed_gates),
-                   max_edge_strain=float(r.quality.max_edge_strain), quality=quality_dict(r.quality))
+def run_figures(r, substeps: list[int], batch: int, wall: float) -> dict:
+    """The JSON-ready figures of one run, a ``SimulationResult`` or the error that stopped it:
+    gates, strain, the substeps tried so far, the batch's size and wall time [s]."""
+    out = {"substeps": substeps, "passed": False, "batch": batch, "batch_wall_s": wall}
+    if not hasattr(r, "sequence"):
+        out["error"] = f"{type(r).__name__}: {r}"
+        return out
+    out.update(passed=bool(r.passed), frames=int(r.sequence.num_frames), failed_gates=list(r.failed_gates),
+               max_edge_strain=float(r.quality.max_edge_strain), quality=quality_dict(r.quality),
+               ms_per_frame=float(r.step_ms.mean()) if r.step_ms.size else None)
     return out
+
+
+def guarded(take: Callable[[], dict]) -> dict:
+    """``take()``, or its error as ``figures_error``: one sequence's figures stand alone."""
+    try:
+        return take()
+    except Exception as e:
+        return {"figures_error": f"{type(e).__name__}: {e}"}
 
 
 # ------------------------------------------------------------------------------- the table
 
 
-def table(args: argparse.Namespace, body, device: str, clock: Clock, smoothing: Smoothing) -> dict:
+def table(args: argparse.Namespace, body, device: str, clock: Clock, smoothing: Smoothing,
+          report: Report) -> None:
     """Every design sewn on every shape (``garments``) and simulated in every motion (``rows``),
-    ``args.batch`` sequences at a time, each batch's figures taken before the next starts."""
+    into ``report.result["table"]``, saved after every batch."""
     from sim.simulate import SimulationJob
 
     shapes = {s: shape_betas(body, SHAPES[s]) for s in args.shapes}
     specs = [GarmentSpec(d, s, tuple(float(b) for b in shapes[s]), resolution=args.resolution)
              for s in args.shapes for d in args.designs]
     sewn = sew_all(specs, device, args.workers, clock)
+    out = report.result["table"] = {"garments": [info for _, info in sewn], "rows": []}
+    report.save()
     motions = {(s, m): motion_of(m, body, shapes[s], args) for s in args.shapes for m in args.motions}
-    jobs, meta = [], []
+    jobs, heads = [], []
     for spec, (g, _) in zip(specs, sewn, strict=True):  # by shape: a batch's jobs share its bodies
         for m in args.motions if g is not None else ():
             jobs.append(SimulationJob(g, body, motions[(spec.shape, m)], betas=shapes[spec.shape],
                                       name=f"{spec.design}/{spec.shape}/{m}"))
-            meta.append((spec, g, m))
-    cfg = sim_config(args, device)
-    rows = []
-    for start in range(0, len(jobs), args.batch):
-        t0 = time.perf_counter()
-        runs = simulate_ladder(jobs[start:start + args.batch], cfg, clock, ladder=args.table_retries,
-                               batch=args.batch, label="table")
-        for (spec, g, m), run in zip(meta[start:start + args.batch], runs, strict=True):
-            rows.append(table_row(spec, g, m, run, body, shapes[spec.shape], device, smoothing))
-            clock.log(table_line(rows[-1]))
-        clock.batch_s = time.perf_counter() - t0
-    return {"garments": [info for _, info in sewn], "rows": rows, "summary": table_summary(sewn, rows)}
+            heads.append({"design": spec.design, "shape": spec.shape, "motion": m,
+                          "vertices": g.num_vertices})
 
+    def figures(k: int, r) -> dict:
+        g = jobs[k].garment
+        return guarded(lambda: {**wrinkle_field(r.sequence.vertices, g, smoothing),
+                                **skin_figures(r, g, body, jobs[k].betas, device)})
 
-def table_row(spec: GarmentSpec, garment, motion: str, run: dict, body, betas: np.ndarray, device: str,
-              smoothing: Smoothing) -> dict:
-    """The figures of one sequence of the table (a failure to take them is reported in the row)."""
-    row = {"design": spec.design, "shape": spec.shape, "motion": motion, "vertices": garment.num_vertices,
-           **run_figures(run)}
-    if run["result"] is not None:
-        try:
-            row.update(wrinkle_field(run["result"].sequence.vertices, garment, smoothing))
-            row.update(skin_figures(run["result"], garment, body, betas, device))
-        except Exception as e:  # reported in the row: the other sequences stand alone
-            row["figures_error"] = f"{type(e).__name__}: {e}"
-    return row
+    def save(runs: list[dict]) -> None:
+        out["rows"] = [{**h, **run} for h, run in zip(heads, runs, strict=True) if run["substeps"]]
+        report.save()
+
+    runs = simulate_ladder(jobs, sim_config(args, device), clock, ladder=args.table_retries, batch=args.batch,
+                           label="table", figures=figures, save=save) if jobs else []
+    out["rows"] = [{**h, **run} for h, run in zip(heads, runs, strict=True)]
+    for row in out["rows"]:
+        clock.log(table_line(row))
+    out["summary"] = table_summary(sewn, out["rows"])
 
 
 def table_line(row: dict) -> str:
@@ -469,12 +477,21 @@ def draw_population(n: int, seed: int, body, resolution: str | float) -> list[tu
     return out
 
 
-def population(args: argparse.Namespace, body, device: str, clock: Clock) -> dict:
-    """The drawn population sewn, simulated through the retry ladder and counted."""
+def population(args: argparse.Namespace, body, device: str, clock: Clock, report: Report) -> None:
+    """The drawn population sewn, simulated through the retry ladder and counted, into
+    ``report.result["population"]``, saved after every batch."""
     from sim.simulate import SimulationJob
 
     draws = draw_population(args.population, args.seed, body, args.population_resolution)
     sewn = sew_all([s for s, _ in draws], device, args.workers, clock)
+    members = []
+    for (spec, m), (_, info) in zip(draws, sewn, strict=True):
+        members.append({"design": spec.design, "fit": dict(spec.params).get("fit"), "shape": spec.shape,
+                        "material": spec.material, "motion": m, "passed": False,
+                        **{k: info[k] for k in ("vertices", "sewing_s", "seam_gap_mm", "rest_strain_max",
+                                                "error", "skipped") if k in info}})
+    out = report.result["population"] = {"size": len(members), "seed": args.seed,
+                                         "resolution": args.population_resolution}
     jobs, index = [], []
     for k, ((spec, m), (g, _)) in enumerate(zip(draws, sewn, strict=True)):
         if g is not None:
@@ -482,25 +499,59 @@ def population(args: argparse.Namespace, body, device: str, clock: Clock) -> dic
             jobs.append(SimulationJob(g, body, motion_of(m, body, betas, args), betas=betas,
                                       name=f"member {k}: {spec.design} {m}"))
             index.append(k)
+
+    def save(runs: list[dict]) -> None:
+        for k, run in zip(index, runs, strict=True):
+            if run["substeps"] or "skipped" in run:
+                members[k].update(run)
+        passing = sum(m["passed"] for m in members)
+        out.update(passing=passing, pass_rate=passing / max(len(members), 1),
+                   not_sewn=sum(1 for g, _ in sewn if g is None), by=pass_counts(members), members=members)
+        report.save()
+
+    def figures(k: int, r) -> dict:
+        return guarded(lambda: skin_figures(r, jobs[k].garment, body, jobs[k].betas, device))
+
     runs = simulate_ladder(jobs, sim_config(args, device), clock, ladder=True, batch=args.population_batch,
-                           label="population") if jobs else []
-    members = []
-    for (spec, m), (_, info) in zip(draws, sewn, strict=True):
-        members.append({"design": spec.design, "fit": dict(spec.params).get("fit"), "shape": spec.shape,
-                        "material": spec.material, "motion": m, "passed": False,
-                        **{k: info[k] for k in ("vertices", "sewing_s", "seam_gap_mm", "error", "skipped")
-                           if k in info}})
-    for k, job, run in zip(index, jobs, runs, strict=True):
-        members[k].update(run_figures(run))
-        if run["result"] is not None:
-            members[k].update(skin_figures(run["result"], job.garment, body, job.betas, device))
-    passing = sum(m["passed"] for m in members)
-    by = {key: {v: f"{sum(m['passed'] for m in members if m[key] == v)} of "
-                   f"{sum(1 for m in members if m[key] == v)}" for v in sorted({m[key] for m in members})}
-          for key in ("design", "motion", "material")}
-    return {"size": len(members), "seed": args.seed, "resolution": args.population_resolution,
-            "passing": passing, "pass_rate": passing / max(len(members), 1),
-            "not_sewn": sum(1 for g, _ in sewn if g is None), "by": by, "members": members}
+                           label="population", figures=figures, save=save) if jobs else []
+    save(runs)
+
+
+def pass_counts(members: list[dict]) -> dict:
+    """``{"design" | "motion" | "material": {value: "passing of drawn"}}``."""
+    out = {}
+    for key in ("design", "motion", "material"):
+        values = sorted({m[key] for m in members})
+        out[key] = {v: f"{sum(m['passed'] for m in members if m[key] == v)} of "
+                       f"{sum(1 for m in members if m[key] == v)}" for v in values}
+    return out
+
+
+class Report:
+    """The result being written: ``save()`` after every batch (silently, ``complete`` false), so a
+    run stopped from outside leaves what it measured; ``finish()`` writes and prints it whole."""
+
+    def __init__(self, name: str, folder, result: dict):
+        self.name, self.folder, self.result = name, folder, result
+
+    def save(self) -> None:
+        import datetime as dt
+        import os
+        from pathlib import Path
+
+        from benchmarks.common import command_line
+
+        text = json.dumps({"benchmark": self.name, "date": dt.datetime.now(dt.timezone.utc).isoformat(
+            timespec="seconds"), "command": command_line(), **self.result, "complete": False}, indent=2)
+        folders = [Path(self.folder)] + ([Path(os.environ["OUT"])] if os.environ.get("OUT") else [])
+        for f in folders:
+            f.mkdir(parents=True, exist_ok=True)
+            tmp = f / f"{self.name}.json.tmp"
+            tmp.write_text(text + "\n")
+            os.replace(tmp, f / f"{self.name}.json")
+
+    def finish(self) -> None:
+        write_result(self.name, {**self.result, "complete": True}, self.folder)
 
 
 # ------------------------------------------------------------------------------- the command
@@ -554,9 +605,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, default=0, help="the population's seed (default: %(default)s)")
     ap.add_argument("--population-resolution", default="coarse",
                     help="the population's garments (default: %(default)s)")
-    ap.add_argument("--batch", type=int, default=27, help="table sequences per batched model (default: "
+    ap.add_argument("--batch", type=int, default=9, help="table sequences per batched model (default: "
                     "%(default)s)")
-    ap.add_argument("--population-batch", type=int, default=100,
+    ap.add_argument("--population-batch", type=int, default=25,
                     help="population sequences per batched model (default: %(default)s)")
     ap.add_argument("--workers", type=int, default=0, help="processes that sew garments at once (default 0: "
                     "sew in this one)")
@@ -601,17 +652,18 @@ def main(argv: list[str] | None = None) -> None:
              "edge_m": edge_length(args.resolution),
              "smoothing": {"length_m": SMOOTHING_LENGTH, "solver": method},
              "workers": args.workers, "time_limit_s": args.time_limit}
-    result: dict = {"machine": machine(device), "sizes": sizes, "config": cfg.to_dict()}
-    if not args.no_table:
-        result["table"] = table(args, body, device, clock, smoothing)
+    report = Report(f"garments_{device.split(':')[0]}{args.tag}", args.results,
+                    {"machine": machine(device), "sizes": sizes, "config": cfg.to_dict()})
     if args.population:
         sizes.update(population_motions=list(POPULATION_MOTIONS), shape_components=SHAPE_COMPONENTS,
                      shape_clip=SHAPE_CLIP, population_edge_m=edge_length(args.population_resolution))
-        result["population"] = population(args, body, device, clock)
-    result["smoothing_check_mm"] = smoothing.check_mm
-    result["wall_s"] = clock.elapsed
-    write_result(f"garments_{device.split(':')[0]}{args.tag}", result, args.results)
-    print_summary(result)
+    if not args.no_table:
+        table(args, body, device, clock, smoothing, report)
+    if args.population:
+        population(args, body, device, clock, report)
+    report.result.update(smoothing_check_mm=smoothing.check_mm, wall_s=clock.elapsed)
+    report.finish()
+    print_summary(report.result)
 
 
 def print_summary(result: dict) -> None:

@@ -164,7 +164,7 @@ def test_garments_table_and_population(tmp_path):
                       "--motions", "walk", "--resolution", "0.06", "--seconds", "0.2", "--prelude", "0.2",
                       "--population", "2", "--seed", "3", "--population-resolution", "0.07",
                       "--smoothing", "cg", tmp_path=tmp_path)
-    assert r["benchmark"] == "garments_cpu" and r["sizes"]["edge_m"] == 0.06
+    assert r["benchmark"] == "garments_cpu" and r["sizes"]["edge_m"] == 0.06 and r["complete"]
     (garment,) = r["table"]["garments"]
     (row,) = r["table"]["rows"]
     assert (row["design"], row["shape"], row["motion"]) == ("t_shirt", "mean", "walk")
