@@ -19,7 +19,10 @@ from sim.simulate import SimulationConfig, SimulationJob, simulate, simulate_bat
 RES = 0.05  # template edge length [m]: ~300 (skirt) to ~450 (t-shirt) vertices
 # The CLI writes USD: usd-core (pxr) is a project dependency, absent only on a bare GPU machine.
 needs_usd = pytest.mark.skipif(importlib.util.find_spec("pxr") is None, reason="usd-core (pxr) not installed")
-FAST = dict(fps=30.0, substeps=4, iterations=4, settle_seconds=0.6, blend_seconds=0.2, device="cpu")
+FAST = dict(fps=30.0, substeps=4, iterations=4, settle_seconds=0.6, blend_seconds=0.2, device="cpu",
+            solver={"body_contact.offset": 0.002})
+"""Few substeps and sweeps: 2 mm of contact offset keep the coarse sewn skirt's settle outside
+the belly (2.3 % of its vertices inside at 0)."""
 
 
 @pytest.fixture(scope="module")

@@ -109,15 +109,15 @@ class BodyContact:
             cloth's thickness (``ClothModelBuilder(contact_offset=)``): the body's surface bulges
             between the particles (a 2 cm triangle over a 5 cm arm is 1 mm deep at its middle), and
             a particle kept only 0.3 mm off the skin (a shirting's thickness) lets the skin show
-            through the triangles around it. 2 mm: a sewn straight skirt of 5 cm edges settling
-            with 4 x 4 substeps and sweeps has 2.3 % of its vertices inside the belly at 0, none
-            at 2 mm.
+            through the triangles around it. The job keeps 0: on an H200 the sewn 5k t-shirt's
+            1 s walk has 129 self-intersection crossings per frame at 2 mm against 15 at 0
+            (sewing keeps 3 mm, ``SewingConfig.contact_offset``).
     """
 
     stiffness: float = 1.0e5
     margin: float = 0.015
     friction_epsilon: float = 1.0e-2
-    offset: float = 0.002
+    offset: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("stiffness", "margin", "friction_epsilon"):
