@@ -113,7 +113,7 @@ def sew_one(spec: GarmentSpec, device: str):
         mat = get_material(spec.material)
         pattern = make_pattern(spec.design, body, betas, **dict(spec.params))
         sewn = sew_pattern(pattern, np.asarray(body.rest_mesh(betas)), np.asarray(body.faces),
-                           edge_length(spec.resolution), mat, device=device)
+                           edge_length(spec.resolution, spec.design), mat, device=device)
         g = garment_of(pattern, sewn, mat, category=spec.design, name=spec.design)
     except Exception as e:  # reported per garment: the other garments stand alone
         info.update(error=f"{type(e).__name__}: {e}", sewing_s=time.perf_counter() - t0)
@@ -633,10 +633,19 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return args
 
 
+def edge_lengths(resolution: str | float, names) -> float | dict[str, float]:
+    """The edge length [m] of a resolution in metres, or each design's at a named one."""
+    from sim.garments.designs import edge_length
+
+    if not isinstance(resolution, str):
+        return float(resolution)
+    return {n: edge_length(resolution, n) for n in names}
+
+
 def main(argv: list[str] | None = None) -> None:
     from sim.bodies.default import load_default_body
     from sim.device import resolve_device
-    from sim.garments.designs import edge_length
+    from sim.garments.designs import designs
 
     args = parse_args(argv)
     clock = Clock(args.time_limit)
@@ -649,14 +658,15 @@ def main(argv: list[str] | None = None) -> None:
              "settle_s": cfg.settle_seconds, "designs": list(args.designs),
              "shapes": {s: {str(k): v for k, v in SHAPES[s].items()} for s in args.shapes},
              "motions": list(args.motions), "resolution": args.resolution,
-             "edge_m": edge_length(args.resolution),
+             "edge_m": edge_lengths(args.resolution, args.designs),
              "smoothing": {"length_m": SMOOTHING_LENGTH, "solver": method},
              "workers": args.workers, "time_limit_s": args.time_limit}
     report = Report(f"garments_{device.split(':')[0]}{args.tag}", args.results,
                     {"machine": machine(device), "sizes": sizes, "config": cfg.to_dict()})
     if args.population:
         sizes.update(population_motions=list(POPULATION_MOTIONS), shape_components=SHAPE_COMPONENTS,
-                     shape_clip=SHAPE_CLIP, population_edge_m=edge_length(args.population_resolution))
+                     shape_clip=SHAPE_CLIP,
+                     population_edge_m=edge_lengths(args.population_resolution, list(designs())))
     if not args.no_table:
         table(args, body, device, clock, smoothing, report)
     if args.population:

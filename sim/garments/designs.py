@@ -1,5 +1,5 @@
 """Garment designs: a sewing pattern drafted from the body's measurements, meshed, sewn on the
-rest body and turned into a ``Garment`` (``sew_garment``).
+rest body and turned into a ``Garment`` (``make_design_garment``).
 
 The garment's UVs are its flat pattern (every panel one chart, one common scale, packed into
 [0, 1]², ``sim.garments.uv.pack_uvs``); ``Garment.panel_ids`` names the panel of each face; its
@@ -9,6 +9,7 @@ are the ``hem_width`` bands along its openings, as for every garment (``sim.garm
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -18,15 +19,26 @@ from sim.errors import WrinklesInputError
 from sim.garments.hems import HEM_LAYERS, HEM_WIDTH, hem_face_layers
 from sim.garments.materials import Material, get_material
 from sim.garments.pattern import Pattern
-from sim.garments.sewing import SewingConfig, SewnPattern, sew_pattern
+from sim.garments.sewing import SewnPattern, sew_pattern
 from sim.garments.types import Garment
 from sim.garments.uv import pack_uvs
 
 ATTACHMENT_LABELS = {"hem": "hem", "cuff": "cuffs", "waistband": "waistband", "neckline": "neckline",
                      "shoulder": "shoulders"}
 """Pattern edge label -> the garment attachment set its vertices join."""
-EDGE_LENGTHS = {"coarse": 0.018, "fine": 0.0065}
-"""Target edge lengths [m] of the named resolutions (coarse ~15-20 mm, fine ~6-7 mm)."""
+SIZES = {
+    "t_shirt": (0.017, 0.0065, (2909, 19815)),
+    "long_sleeve": (0.0195, 0.007, (2884, 22378)),
+    "tank_top": (0.015, 0.006, (2787, 17187)),
+    "hoodie": (0.02, 0.0075, (3620, 25872)),
+    "dress": (0.02, 0.007, (2827, 22922)),
+    "straight_skirt": (0.015, 0.006, (2897, 17786)),
+    "flared_skirt": (0.016, 0.0065, (2991, 18129)),
+    "shorts": (0.015, 0.006, (2803, 17429)),
+    "trousers": (0.019, 0.007, (3109, 23100)),
+}
+"""Each design's edge lengths (coarse, fine) [m], chosen for about 3,000 and 20,000 vertices on the
+default body, and the vertex counts they give there (``Template.vertices``)."""
 
 
 @dataclass(frozen=True)
@@ -53,12 +65,13 @@ class BodyParts:
                    {"l": w[:, left].sum(axis=1) > 0.5, "r": w[:, right].sum(axis=1) > 0.5})
 
 
-def edge_length(resolution: str | float) -> float:
-    """Target edge length [m] of "coarse", "fine" or a number of metres."""
+def edge_length(resolution: str | float, design: str) -> float:
+    """Target edge length [m] of design ``design`` at "coarse", "fine" (``SIZES``) or a number of
+    metres."""
     if isinstance(resolution, str):
-        if resolution not in EDGE_LENGTHS:
+        if resolution not in ("coarse", "fine"):
             raise ValueError(f"unknown resolution {resolution!r}; expected coarse, fine or metres")
-        return EDGE_LENGTHS[resolution]
+        return SIZES[design][0 if resolution == "coarse" else 1]
     return float(resolution)
 
 
@@ -84,16 +97,6 @@ def garment_of(pattern: Pattern, sewn: SewnPattern, material: Material, *, categ
                    name=name, panel_ids=mesh.face_panel, panel_names=tuple(p.name for p in pattern.panels),
                    face_layers=hem_face_layers(sewn.vertices, sewn.faces, hem_width, hem_layers),
                    uv_scale=scale)
-
-
-def sew_garment(pattern: Pattern, parts: BodyParts, *, resolution: str | float = "coarse",
-                material: str | Material = "cotton", category: str | None = None, name: str | None = None,
-                config: SewingConfig | None = None, device: str | None = None) -> Garment:
-    """Mesh ``pattern`` at ``resolution``, sew it on the body of ``parts`` and return the garment."""
-    mat = get_material(material)
-    sewn = sew_pattern(pattern, parts.vertices, parts.faces, edge_length(resolution), mat, config=config,
-                       device=device)
-    return garment_of(pattern, sewn, mat, category=category or pattern.name, name=name or pattern.name)
 
 
 @dataclass(frozen=True)
@@ -158,6 +161,7 @@ def _bottoms() -> dict[str, Design]:
     }
 
 
+@functools.lru_cache(maxsize=1)
 def designs() -> dict[str, Design]:
     """Every design by name."""
     return {**_tops(), **_bottoms()}
@@ -203,16 +207,16 @@ def make_design_garment(name: str, body, betas: np.ndarray | None = None, *,
     mat = get_material(material)
     dev = resolve_device(device)
     rest = np.ascontiguousarray(body.rest_mesh(betas), np.float32)
+    h = edge_length(resolution, name)
     spec = {"design": name, "params": dataclasses.asdict(p),
             "body": hashlib.sha256(rest.tobytes()).hexdigest(),
-            "resolution": edge_length(resolution), "material": dataclasses.asdict(mat),
+            "resolution": h, "material": dataclasses.asdict(mat),
             "device": "cuda" if dev.startswith("cuda") else "cpu", "hems": [hem_width, hem_layers],
             "name": garment_name or name}
 
     def build() -> Garment:
         pattern = designs()[name].draft(BodyParts.of(body, betas), p)
-        sewn = sew_pattern(pattern, np.asarray(body.rest_mesh(betas)), np.asarray(body.faces),
-                           edge_length(resolution), mat, device=dev)
+        sewn = sew_pattern(pattern, rest, np.asarray(body.faces), h, mat, device=dev)
         return garment_of(pattern, sewn, mat, category=name, name=garment_name or name,
                           hem_width=hem_width, hem_layers=hem_layers)
     return cached_garment(spec, build)

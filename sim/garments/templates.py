@@ -17,7 +17,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from sim.errors import WrinklesInputError
-from sim.garments.designs import designs, make_design_garment
+from sim.garments.designs import SIZES, designs, make_design_garment
 from sim.garments.hems import HEM_LAYERS, HEM_WIDTH
 from sim.garments.materials import Material
 from sim.garments.parameters import HEM_SPECS, HemParams, check_parameter, parameter_specs
@@ -56,24 +56,10 @@ class Template:
     vertices: tuple[int, int]
 
 
-_SIZES = {
-    "t_shirt": (0.017, 0.0065, (2909, 19815)),
-    "long_sleeve": (0.0195, 0.007, (2884, 22378)),
-    "tank_top": (0.015, 0.006, (2787, 17187)),
-    "hoodie": (0.02, 0.0075, (3620, 25872)),
-    "dress": (0.02, 0.007, (2827, 22922)),
-    "straight_skirt": (0.015, 0.006, (2897, 17786)),
-    "flared_skirt": (0.016, 0.0065, (2991, 18129)),
-    "shorts": (0.015, 0.006, (2803, 17429)),
-    "trousers": (0.019, 0.007, (3109, 23100)),
-}
-"""Edge lengths (coarse, fine) [m] and the vertex counts they give on the default body."""
-
-
 def _catalogue() -> dict[str, Template]:
     out = {}
     for name, d in designs().items():
-        coarse, fine, counts = _SIZES[name]
+        coarse, fine, counts = SIZES[name]
         out[name] = Template(d.params, d.defaults, d.attachments, d.description, coarse, fine, counts)
     return out
 
