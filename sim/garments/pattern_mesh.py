@@ -124,3 +124,50 @@ def join_groups(n: int, pairs: np.ndarray) -> np.ndarray:
     _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
     order = np.argsort(np.argsort(first))  # number groups by their first vertex
     return order[inverse].astype(np.int64)
+
+
+def transfer(source: PatternMesh, x: np.ndarray, target: PatternMesh) -> np.ndarray:
+    """Positions (N_t, 3) for the vertices of ``target`` from positions ``x`` (N_s, 3) of
+    ``source``, another mesh of the same pattern: a piecewise-linear map of each panel's plane.
+
+    Edge vertices go to the same arc-length fraction of the same edge of ``source`` (both sides
+    of a seam get the same fraction, so a sewn ``x`` stays sewn); inside a panel, each vertex
+    takes the barycentric mean over the source triangle of its panel that holds it (or, for the
+    few outside every one where a curved edge bulges past its chords, the nearest, barycentrics
+    clamped to it).
+    """
+    from scipy.spatial import cKDTree
+
+    x = np.asarray(x, np.float64)
+    out = np.zeros((len(target.flat), 3))
+    for k in np.unique(target.vertex_panel):
+        tri = source.triangles[source.face_panel == k]
+        corners = source.flat[tri]  # (F, 3, 2)
+        tree = cKDTree(corners.mean(axis=1))
+        ids = np.flatnonzero(target.vertex_panel == k)
+        p = target.flat[ids]
+        _, near = tree.query(p, k=min(8, len(tri)))
+        near = near.reshape(len(p), -1)
+        bary = _barycentric(corners[near], p[:, None, :])  # (n, k, 3)
+        best = bary.min(axis=2).argmax(axis=1)
+        row = np.arange(len(p))
+        b = np.clip(bary[row, best], 0.0, None)
+        b /= b.sum(axis=1, keepdims=True)
+        out[ids] = np.einsum("nj,njc->nc", b, x[tri[near[row, best]]])
+    for key, dst in target.edge_vertices.items():
+        src = source.edge_vertices[key]
+        t = np.linspace(0.0, len(src) - 1.0, len(dst))
+        j = np.minimum(t.astype(int), len(src) - 2)
+        f = (t - j)[:, None]
+        out[dst] = (1 - f) * x[src[j]] + f * x[src[j + 1]]
+    return out
+
+
+def _barycentric(tri: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates (..., 3) of 2D points ``p`` (..., 2) in triangles ``tri`` (..., 3, 2)."""
+    a, b, c = tri[..., 0, :], tri[..., 1, :], tri[..., 2, :]
+    v0, v1, v2 = b - a, c - a, p - a
+    den = v0[..., 0] * v1[..., 1] - v1[..., 0] * v0[..., 1]
+    s = (v2[..., 0] * v1[..., 1] - v1[..., 0] * v2[..., 1]) / den
+    t = (v0[..., 0] * v2[..., 1] - v2[..., 0] * v0[..., 1]) / den
+    return np.stack([1 - s - t, s, t], axis=-1)

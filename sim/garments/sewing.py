@@ -13,6 +13,9 @@
    ``rest_corners``), *settles* for ``settle_frames`` frames under gravity on the body, pinned only along
    the edges labelled ``HELD`` (an elastic waistband grips the waist; everything else hangs).
 
+4. A garment finer than ``SewingConfig.closing_edge`` goes through steps 1-3 at that edge length;
+   the result is carried onto the fine mesh through the flat pattern and settles again there.
+
 The merged mesh keeps the pattern's UV seams: each face keeps its panel's flat corners.
 """
 
@@ -24,7 +27,7 @@ import numpy as np
 
 from sim.easing import smoothstep
 from sim.garments.pattern import Pattern
-from sim.garments.pattern_mesh import PatternMesh, mesh_pattern
+from sim.garments.pattern_mesh import PatternMesh, mesh_pattern, transfer
 
 HELD = ("waistband",)
 """Edge labels whose vertices stay where sewing left them while the garment settles."""
@@ -44,6 +47,8 @@ class SewingConfig:
         clearance: gap [m] kept between a seam line and the body, on top of the cloth thickness.
         contact_offset: distance [m] the cloth keeps from the body on top of its thickness
             (``BodyContact.offset``).
+        closing_edge: edge length [m] the seams are closed at; a finer garment is sewn at this
+            one and carried over (``sew_pattern``).
     """
 
     close_frames: int = 30
@@ -53,6 +58,7 @@ class SewingConfig:
     iterations: int = 5
     clearance: float = 0.004
     contact_offset: float = 0.003
+    closing_edge: float = 0.02
 
 
 @dataclass(frozen=True)
@@ -128,6 +134,12 @@ def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndar
                 material, *, config: SewingConfig | None = None, device: str | None = None) -> SewnPattern:
     """Mesh ``pattern`` at edge length ``h`` [m], sew it on the rest body and let it settle.
 
+    Below ``config.closing_edge`` the pattern is sewn and settled at that edge length, carried
+    onto the mesh at ``h`` through the flat pattern (``pattern_mesh.transfer``) and settled again
+    there: how far the closing drags the cloth does not depend on the resolution, but how many
+    solver sweeps the cloth needs to follow does (a stretch wave crosses a panel in a number of
+    sweeps that grows with its vertex count).
+
     Args:
         pattern: the sewing pattern, panels placed around the body.
         body_vertices: the rest body [m], (Vb, 3); body_faces: its triangles.
@@ -137,15 +149,28 @@ def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndar
         device: Warp device (None: cuda when present, else cpu).
     """
     from sim.cloth import BodyCollider
-    from sim.cloth.model import as_cloth_params
     from sim.device import resolve_device
 
     cfg = config or SewingConfig()
     dev = resolve_device(device)
-    mesh = mesh_pattern(pattern, h)
     body = np.asarray(body_vertices, np.float32)
     collider = BodyCollider(body, np.asarray(body_faces, np.int32), device=dev)
     collider.set_frame(body, body)
+    mesh = mesh_pattern(pattern, h)
+    closing = mesh if h >= cfg.closing_edge else mesh_pattern(pattern, cfg.closing_edge)
+    x, gap = _close(pattern, closing, collider, material, cfg, dev)
+    x = _settle(pattern, closing, closing.merge(x), collider, material, cfg, dev)
+    if closing is not mesh:
+        x = _settle(pattern, mesh, mesh.merge(transfer(closing, x[closing.groups], mesh)), collider,
+                    material, cfg, dev)
+    return SewnPattern(vertices=x.astype(np.float32), faces=mesh.sewn_faces(), mesh=mesh, seam_gap=gap)
+
+
+def _close(pattern: Pattern, mesh: PatternMesh, collider, material, cfg: SewingConfig, dev: str):
+    """The closing stage: positions of ``mesh``'s (unsewn) vertices once the seams are pulled
+    together, and the largest seam gap left."""
+    from sim.cloth.model import as_cloth_params
+
     keep = float(as_cloth_params(material).thickness) + cfg.clearance
     x0 = push_outside(collider, mesh.placed, keep)
     seam = np.zeros(len(x0), bool)
@@ -163,13 +188,18 @@ def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndar
 
     x = _run(model, solver, collider, cfg.close_frames, cfg.fps, targets)
     gap = float(np.linalg.norm(x[mesh.pairs[:, 0]] - x[mesh.pairs[:, 1]], axis=1).max(initial=0.0))
-    merged = mesh.merge(x)
-    faces = mesh.sewn_faces()
-    if cfg.settle_frames > 0:
-        held = np.zeros(len(merged), bool)
-        for ref in (r for label in HELD for r in pattern.labelled(label)):
-            held[mesh.groups[mesh.edge_vertices[ref]]] = True
-        model, solver = _solver(merged, faces, material, rest=merged, pinned=held, gravity=True, cfg=cfg,
-                                device=dev, mesh=mesh)
-        merged = _run(model, solver, collider, cfg.settle_frames, cfg.fps)
-    return SewnPattern(vertices=merged.astype(np.float32), faces=faces, mesh=mesh, seam_gap=gap)
+    return x, gap
+
+
+def _settle(pattern: Pattern, mesh: PatternMesh, merged: np.ndarray, collider, material, cfg: SewingConfig,
+            dev: str) -> np.ndarray:
+    """The sewn garment ``merged`` (G, 3) after ``cfg.settle_frames`` frames under gravity with the
+    flat pattern as its rest shape, pinned along the ``HELD`` edges."""
+    if cfg.settle_frames == 0:
+        return merged
+    held = np.zeros(len(merged), bool)
+    for ref in (r for label in HELD for r in pattern.labelled(label)):
+        held[mesh.groups[mesh.edge_vertices[ref]]] = True
+    model, solver = _solver(merged, mesh.sewn_faces(), material, rest=merged, pinned=held, gravity=True,
+                            cfg=cfg, device=dev, mesh=mesh)
+    return _run(model, solver, collider, cfg.settle_frames, cfg.fps)
