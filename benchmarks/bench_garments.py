@@ -307,7 +307,11 @@ def motion_of(name: str, body, betas: np.ndarray, args: argparse.Namespace):
 def sim_config(args: argparse.Namespace, device: str):
     from sim.simulate import SimulationConfig
 
-    cfg = SimulationConfig(fps=FPS, device=device)
+    solver = {}
+    for item in args.solver_param:
+        key, _, value = item.partition("=")
+        solver[key] = json.loads(value)
+    cfg = SimulationConfig(fps=FPS, device=device, solver=solver)
     if args.prelude is not None:
         cfg = dataclasses.replace(cfg, settle_seconds=args.prelude, blend_seconds=args.prelude)
     return cfg
@@ -611,6 +615,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     help="population sequences per batched model (default: %(default)s)")
     ap.add_argument("--workers", type=int, default=0, help="processes that sew garments at once (default 0: "
                     "sew in this one)")
+    ap.add_argument("--solver-param", action="append", default=[], metavar="KEY=VALUE",
+                    help="a solver setting over the job's, e.g. body_contact.offset=0.001 (repeatable)")
     ap.add_argument("--smoothing", choices=("auto", "lu", "cg"), default="auto", help="the smooth base's "
                     "solver: lu (sparse LU, CPU), cg (conjugate gradients with torch on the device), auto: "
                     "cg on CUDA, else lu (default: %(default)s)")

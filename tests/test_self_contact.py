@@ -190,3 +190,28 @@ def test_neighbours_near_at_rest_leave_the_coarse_correction_of_a_fine_sheet_alo
     held, held_share = _hanging_fine_sheet(device, 12, coarse_exclusion=0.0)
     assert held_share > 0.9
     assert np.abs(held - off).max() > 0.005, held - off
+
+
+def test_a_fold_close_in_the_rest_shape_but_far_along_the_pattern_keeps_the_full_radius(device):
+    """The folded sheet (arms 1 mm apart) as a sewn garment's rest shape, its flat pattern the
+    unfolded sheet: its facing pairs are 2 to 12 columns apart along the cloth, so detection
+    stores them with the full radius (no radius code), where the same fold without a pattern
+    codes them (``test_pairs_close_at_rest_get_half_their_rest_distance_...``)."""
+    flat, folded, f, _ = folded_sheet(13, 5, 0.02, 6, 0.001)
+    params = ClothMaterialParams(mu=300.0, lam=100.0, thickness=0.001)
+    cfg = VBDConfig(stepping=Stepping(substeps=1, iterations=2),
+                    self_contact=SelfContactConfig(radius=0.003), coarse=CoarseConfig(sweeps=()))
+    codes = {}
+    for pattern in (False, True):
+        b = ClothModelBuilder()
+        corners = flat[f][:, :, [2, 0]] if pattern else None  # counter-clockwise
+        b.add_cloth(folded.astype(np.float32), f, params, rest_corners=corners,
+                    face_panels=np.zeros(len(f), np.int64) if pattern else None)
+        m = b.finalize(device)
+        solver = SolverVBD(m, cfg)
+        state = m.state()
+        solver.self_contact.detect(state.positions, state.velocities, 1.0 / 300.0)
+        recs, role, _ = _coded_records(solver.self_contact.data)
+        assert len(recs) > 0
+        codes[pattern] = (role[recs] >> 8) & 255
+    assert (codes[False] > 0).any() and not (codes[True] > 0).any(), codes

@@ -28,6 +28,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from sim.cloth.coloring import compact_coloring, vertex_adjacency
+from sim.cloth.pattern_distance import pattern_positions
 from sim.device import resolve_device, warp
 from sim.types import face_layers_array
 
@@ -329,6 +330,9 @@ def _stack_instances(instances: list[_Instance], contact_offset: float = 0.0) ->
         dinv, a = triangle_rest_data(ins.rest, ins.faces) if ins.flat is None else flat_rest_data(ins.flat)
         cols["particle_q"].append(ins.vertices)
         cols["particle_rest"].append(ins.rest)
+        panel, flat = pattern_positions(nv, ins.faces, ins.flat)
+        cols["particle_panel"].append(panel)
+        cols["particle_flat"].append(flat)
         cols["particle_mass"].append(m.density * lumped_areas(nv, ins.faces, a, ins.layers))
         cols["particle_flags"].append(ins.pinned.astype(np.int32))
         cols["particle_instance"].append(np.full(nv, k, dtype=np.int32))
@@ -350,8 +354,9 @@ def _stack_instances(instances: list[_Instance], contact_offset: float = 0.0) ->
     cat = np.concatenate
     out: dict[str, Any] = {name: cat(cols[name]).astype(np.float32) for name in (
         "particle_q", "particle_rest", "particle_mass", "tri_dm_inv", "tri_area", "tri_mu", "tri_lam",
-        "tri_damping")}
+        "tri_damping", "particle_flat")}
     out["particle_flags"] = cat(cols["particle_flags"])
+    out["particle_panel"] = cat(cols["particle_panel"])
     out["particle_instance"] = cat(cols["particle_instance"])
     for name in ("edge_rest_angle", "edge_stiffness", "edge_damping"):
         out[name] = cat(cols[name]).astype(np.float32) if cols[name] else np.zeros(0, np.float32)
@@ -395,7 +400,8 @@ def _adjacency(n: int, faces: np.ndarray, hinges: np.ndarray, colors: np.ndarray
 def _warp_dtypes() -> dict[str, Any]:
     """The Warp dtype of each ``ClothModel`` array ``_stack_instances`` makes."""
     wp = warp()
-    return {"particle_q": wp.vec3, "particle_rest": wp.vec3, "particle_mass": float,
+    return {"particle_q": wp.vec3, "particle_rest": wp.vec3, "particle_panel": wp.int32,
+            "particle_flat": wp.vec3, "particle_mass": float,
             "particle_flags": wp.int32, "particle_instance": wp.int32, "tri_indices": wp.vec3i,
             "tri_dm_inv": wp.mat22, "tri_area": float, "tri_mu": float, "tri_lam": float,
             "tri_damping": float, "edge_indices": wp.vec4i, "edge_rest_angle": float, "edge_stiffness": float,
@@ -467,7 +473,9 @@ class ClothModel:
     """Static cloth data on one device (build with ``ClothModelBuilder``).
 
     Per particle (``particle_count``): ``particle_q`` initial positions [m], ``particle_rest``
-    rest positions [m], ``particle_mass`` lumped mass [kg], ``particle_flags`` (1: pinned,
+    rest positions [m], ``particle_panel`` / ``particle_flat`` the particle's panel and (u, v,
+    seam distance) [m] in its sewing pattern (``sim.cloth.pattern_distance``; panel -1 without
+    one), ``particle_mass`` lumped mass [kg], ``particle_flags`` (1: pinned,
     follows ``ClothControl.pin_targets``), ``particle_instance`` instance id.
     Per triangle: ``tri_indices``, ``tri_dm_inv`` (rest ``Dm^-1``, 1/m), ``tri_area`` [m^2],
     ``tri_mu``/``tri_lam`` [N/m], ``tri_damping`` [s]. Per hinge: ``edge_indices``
@@ -496,6 +504,8 @@ class ClothModel:
     color_offsets: list[int]
     particle_q: Any
     particle_rest: Any
+    particle_panel: Any
+    particle_flat: Any
     particle_mass: Any
     particle_flags: Any
     particle_instance: Any

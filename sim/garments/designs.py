@@ -28,9 +28,9 @@ ATTACHMENT_LABELS = {"hem": "hem", "cuff": "cuffs", "waistband": "waistband", "n
 """Pattern edge label -> the garment attachment set its vertices join."""
 SIZES = {
     "t_shirt": (0.017, 0.0065, (2909, 19815)),
-    "long_sleeve": (0.0195, 0.007, (2884, 22378)),
+    "long_sleeve": (0.0195, 0.007, (2712, 21086)),
     "tank_top": (0.015, 0.006, (2787, 17187)),
-    "hoodie": (0.02, 0.0075, (3620, 25872)),
+    "hoodie": (0.02, 0.0075, (3432, 24558)),
     "dress": (0.02, 0.007, (2827, 22922)),
     "straight_skirt": (0.015, 0.006, (2897, 17786)),
     "flared_skirt": (0.016, 0.0065, (2991, 18129)),
@@ -130,11 +130,11 @@ def _tops() -> dict[str, Design]:
 
     return {
         "t_shirt": top("t_shirt", "t-shirt: set-in short sleeves, round neck (neckline=v for a V neck)"),
-        "long_sleeve": top("long_sleeve", "long-sleeved shirt, cuffs before the wrists", sleeve_length=0.58),
+        "long_sleeve": top("long_sleeve", "long-sleeved shirt, cuffs at the wrists", sleeve_length=0.8),
         "tank_top": top("tank_top", "sleeveless top with shoulder straps", sleeve_length=0.0,
                         strap_width=0.06, neck_depth=0.12),
         "hoodie": top("hoodie", "loose long-sleeved pullover with a two-piece hood", fit="loose",
-                      sleeve_length=0.58, hood="yes", neck_depth=0.06, hem_drop=0.25),
+                      sleeve_length=0.8, hood="yes", neck_depth=0.06, hem_drop=0.25),
         "dress": top("dress", "sleeveless fitted dress flaring below the hips to the knee", fit="tight",
                      sleeve_length=0.0, strap_width=0.05, hem_drop=0.6, flare=0.35),
     }

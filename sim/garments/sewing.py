@@ -13,9 +13,6 @@
    ``rest_corners``), *settles* for ``settle_frames`` frames under gravity on the body, pinned only along
    the edges labelled ``HELD`` (an elastic waistband grips the waist; everything else hangs).
 
-4. A garment finer than ``SewingConfig.closing_edge`` goes through steps 1-3 at that edge length;
-   the result is carried onto the fine mesh through the flat pattern and settles again there.
-
 The merged mesh keeps the pattern's UV seams: each face keeps its panel's flat corners.
 """
 
@@ -27,7 +24,7 @@ import numpy as np
 
 from sim.easing import smoothstep
 from sim.garments.pattern import Pattern
-from sim.garments.pattern_mesh import PatternMesh, mesh_pattern, transfer
+from sim.garments.pattern_mesh import PatternMesh, mesh_pattern
 
 HELD = ("waistband",)
 """Edge labels whose vertices stay where sewing left them while the garment settles."""
@@ -47,8 +44,6 @@ class SewingConfig:
         clearance: gap [m] kept between a seam line and the body, on top of the cloth thickness.
         contact_offset: distance [m] the cloth keeps from the body on top of its thickness
             (``BodyContact.offset``).
-        closing_edge: edge length [m] the seams are closed at; a finer garment is sewn at this
-            one and carried over (``sew_pattern``).
     """
 
     close_frames: int = 30
@@ -58,7 +53,6 @@ class SewingConfig:
     iterations: int = 5
     clearance: float = 0.004
     contact_offset: float = 0.003
-    closing_edge: float = 0.02
 
 
 @dataclass(frozen=True)
@@ -134,12 +128,6 @@ def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndar
                 material, *, config: SewingConfig | None = None, device: str | None = None) -> SewnPattern:
     """Mesh ``pattern`` at edge length ``h`` [m], sew it on the rest body and let it settle.
 
-    Below ``config.closing_edge`` the pattern is sewn and settled at that edge length, carried
-    onto the mesh at ``h`` through the flat pattern (``pattern_mesh.transfer``) and settled again
-    there: how far the closing drags the cloth does not depend on the resolution, but how many
-    solver sweeps the cloth needs to follow does (a stretch wave crosses a panel in a number of
-    sweeps that grows with its vertex count).
-
     Args:
         pattern: the sewing pattern, panels placed around the body.
         body_vertices: the rest body [m], (Vb, 3); body_faces: its triangles.
@@ -157,12 +145,8 @@ def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndar
     collider = BodyCollider(body, np.asarray(body_faces, np.int32), device=dev)
     collider.set_frame(body, body)
     mesh = mesh_pattern(pattern, h)
-    closing = mesh if h >= cfg.closing_edge else mesh_pattern(pattern, cfg.closing_edge)
-    x, gap = _close(pattern, closing, collider, material, cfg, dev)
-    x = _settle(pattern, closing, closing.merge(x), collider, material, cfg, dev)
-    if closing is not mesh:
-        x = _settle(pattern, mesh, mesh.merge(transfer(closing, x[closing.groups], mesh)), collider,
-                    material, cfg, dev)
+    x, gap = _close(pattern, mesh, collider, material, cfg, dev)
+    x = _settle(pattern, mesh, mesh.merge(x), collider, material, cfg, dev)
     return SewnPattern(vertices=x.astype(np.float32), faces=mesh.sewn_faces(), mesh=mesh, seam_gap=gap)
 
 

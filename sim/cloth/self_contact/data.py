@@ -30,7 +30,9 @@ class SelfContactData:
     thread block each when their colour has at most ``heavy_cap`` of them (0: off).
     ``particle_color`` / ``color_start``: each particle's colour, each colour's first slot in the
     model's ``color_vertices``. ``rest`` / ``component``: rest positions and connected piece of
-    every particle (pairs of one piece close at rest get a reduced radius). ``coarse_pairs``: per
+    every particle (pairs of one piece close at rest get a reduced radius); ``panel`` / ``flat``:
+    where it lies in its sewing pattern, for the rest distance along the cloth
+    (``sim.cloth.pattern_distance``). ``coarse_pairs``: per
     particle the pairs that hold back the coarse correction (``has_pairs``). ``reference``: each
     instance's reference velocity, the frame the detection searches in."""
 
@@ -81,6 +83,8 @@ class SelfContactData:
     vertex_edge_ids: wp.array(dtype=wp.int32)
     vertex_edge_local: wp.array(dtype=wp.int32)
     rest: wp.array(dtype=wp.vec3)
+    panel: wp.array(dtype=wp.int32)
+    flat: wp.array(dtype=wp.vec3)
     component: wp.array(dtype=wp.int32)
     coarse_exclusion: float
     coarse_pairs: wp.array(dtype=wp.int32)
@@ -296,6 +300,8 @@ def self_contact_data(model, *, radius: float, stiffness: float, friction: float
     sc.vertex_edge_ids = model.vertex_mesh_edge_ids
     sc.vertex_edge_local = model.vertex_mesh_edge_local
     sc.rest = model.particle_rest
+    sc.panel = model.particle_panel
+    sc.flat = model.particle_flat
     sc.component = w.array(connected_components(model), dtype=w.int32, device=d)
     sc.coarse_exclusion = float(coarse_exclusion)
     sc.coarse_pairs = w.zeros(model.particle_count, dtype=w.int32, device=d)

@@ -23,22 +23,43 @@ off wherever the code is read."""
 
 
 @wp.func
+def flat_point(sc: SelfContactData, v: int) -> wp.vec3:
+    """Particle ``v`` in the plane of its flat panel."""
+    f = sc.flat[v]
+    return wp.vec3(f[0], f[1], 0.0)
+
+
+@wp.func
 def rest_distance_triangle(sc: SelfContactData, v: int, tri: wp.vec3i) -> float:
-    """Distance of vertex ``v`` from triangle ``tri`` in the rest shape where both are of one
-    connected piece of cloth, else ``FAR`` (separate pieces have no rest distance)."""
+    """Distance along the cloth at rest of vertex ``v`` from triangle ``tri`` where both are of
+    one connected piece, else ``FAR`` (separate pieces have no rest distance): in the flat panel
+    when all four lie inside one, else the rest shape's distance, at least the way from each
+    side to a seam (``sim.cloth.pattern_distance``)."""
     if sc.component[v] != sc.component[tri[0]]:
         return FAR
-    return point_triangle_distance(sc.rest[v], sc.rest[tri[0]], sc.rest[tri[1]], sc.rest[tri[2]])
+    p = sc.panel[v]
+    if p >= 0 and sc.panel[tri[0]] == p and sc.panel[tri[1]] == p and sc.panel[tri[2]] == p:
+        return point_triangle_distance(flat_point(sc, v), flat_point(sc, tri[0]), flat_point(sc, tri[1]),
+                                       flat_point(sc, tri[2]))
+    d = point_triangle_distance(sc.rest[v], sc.rest[tri[0]], sc.rest[tri[1]], sc.rest[tri[2]])
+    seams = sc.flat[v][2] + wp.min(sc.flat[tri[0]][2], wp.min(sc.flat[tri[1]][2], sc.flat[tri[2]][2]))
+    return wp.max(d, seams)
 
 
 @wp.func
 def rest_distance_edges(sc: SelfContactData, ea: wp.vec2i, eb: wp.vec2i) -> float:
-    """Distance of edges ``ea`` and ``eb`` in the rest shape where both are of one connected
-    piece, else ``FAR``."""
+    """Distance along the cloth at rest of edges ``ea`` and ``eb`` where both are of one
+    connected piece, else ``FAR`` (as ``rest_distance_triangle``)."""
     if sc.component[ea[0]] != sc.component[eb[0]]:
         return FAR
+    p = sc.panel[ea[0]]
+    if p >= 0 and sc.panel[ea[1]] == p and sc.panel[eb[0]] == p and sc.panel[eb[1]] == p:
+        st = wp.closest_point_edge_edge(flat_point(sc, ea[0]), flat_point(sc, ea[1]), flat_point(sc, eb[0]),
+                                        flat_point(sc, eb[1]), 1.0e-12)
+        return st[2]
     st = wp.closest_point_edge_edge(sc.rest[ea[0]], sc.rest[ea[1]], sc.rest[eb[0]], sc.rest[eb[1]], 1.0e-12)
-    return st[2]
+    seams = wp.min(sc.flat[ea[0]][2], sc.flat[ea[1]][2]) + wp.min(sc.flat[eb[0]][2], sc.flat[eb[1]][2])
+    return wp.max(st[2], seams)
 
 
 @wp.func

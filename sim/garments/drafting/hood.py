@@ -48,13 +48,14 @@ def mirror_panel(name: str, corners: np.ndarray, edges: tuple, placement: Placem
     return Panel(name, mc[order], tuple(out), placement)
 
 
-def hood_panels(front_neck: float, back_neck: float, head_centre: np.ndarray, neck_y: float,
+def hood_panels(front_neck: float, back_neck: float, gap: float, head_centre: np.ndarray, neck_y: float,
                 head_top: float, head_radius: float) -> tuple[list[Panel], list[Seam]]:
     """The two hood halves around the head and their back and crown seams.
 
     Args:
         front_neck, back_neck: lengths [m] of the front and back neckline halves (centre to
-            side neck point) the hood is sewn into.
+            side neck point) the hood is sewn into; the front one starts ``gap`` [m] from the
+            centre front.
         head_centre: (x, z) of the head's vertical axis [m]; neck_y: the neck base's height;
         head_top: the top of the head's height; head_radius: the head's largest horizontal
             radius [m].
@@ -62,13 +63,20 @@ def hood_panels(front_neck: float, back_neck: float, head_centre: np.ndarray, ne
     height = head_top - neck_y + HOOD_EASE
     depth = 2.0 * head_radius + HOOD_EASE
     corners, edges = hood_outline(front_neck, back_neck, height, depth)
-    r = head_radius + 0.04
-    mid = 0.5 * max(depth, front_neck + back_neck)
+    neck = front_neck + back_neck
+    # each half on a cone around the head's axis: at the neck its neck edge runs half round from
+    # the front corner (``gap`` from the centre front of a neckline of radius ``rn``) to the
+    # centre back; from ear height up a cylinder clear of the head; the centre back at the back
+    rn = (neck + gap) / np.pi
+    r_neck = neck / (np.pi - gap / rn)
+    r_head = head_radius + 0.03
+    ear = 0.5 * (head_top - neck_y)
+    x0 = neck - 0.5 * np.pi * r_neck
     cx, cz = float(head_centre[0]), float(head_centre[1])
-    left = Placement(anchor=(cx + r, neck_y, cz), u_dir=(0.0, 0.0, -1.0), curvature=1.0 / r,
-                     origin=(mid, 0.0), hold=0.0)
-    right = Placement(anchor=(cx - r, neck_y, cz), u_dir=(0.0, 0.0, 1.0), curvature=1.0 / r,
-                      origin=(-mid, 0.0), hold=0.0)
+    cone = dict(curvature=1.0 / r_head, radius_slope=(r_head - r_neck) / ear, hold=0.0)
+    y = neck_y + ear
+    left = Placement(anchor=(cx + r_head, y, cz), u_dir=(0.0, 0.0, -1.0), origin=(x0, ear), **cone)
+    right = Placement(anchor=(cx - r_head, y, cz), u_dir=(0.0, 0.0, 1.0), origin=(-x0, ear), **cone)
     panels = [Panel("hood_l", corners, edges, left), mirror_panel("hood_r", corners, edges, right)]
     seams = [Seam(("hood_l", 2), ("hood_r", 2)), Seam(("hood_l", 3), ("hood_r", 1))]
     return panels, seams

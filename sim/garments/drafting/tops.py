@@ -50,7 +50,8 @@ class TopDesign:
     neckline: str = choice("round", ("round", "v"), "neckline shape")
     neck_depth: float = parameter(0.08, "m", 0.01, 0.3, "front neck depth below the side neck point")
     neck_width: float = parameter(0.01, "m", 0.0, 0.1, "neck width beyond the neck's, each side")
-    sleeve_length: float = parameter(0.2, "m", 0.0, 0.8, "sleeve from the shoulder point (0: sleeveless)")
+    sleeve_length: float = parameter(0.2, "m", 0.0, 0.8, "sleeve from the shoulder point, ending at the "
+                                     "wrist at most (0: sleeveless)")
     strap_width: float = parameter(0.0, "m", 0.0, 0.2,
                                    "a sleeveless top's shoulder beyond the neck (0: to the shoulder point)")
     flare: float = parameter(0.0, "-", 0.0, 1.5, "the hem's extra width over the hip's, relative (dresses)")
@@ -153,7 +154,7 @@ def sleeve_panel(name: str, m, d: TopDesign, armhole: float, placement_of) -> Pa
     crown ``top`` at the shoulder point."""
     bw = (m.bicep + ease("bicep", d.fit)) / 2
     ch = cap_height(bw, armhole * (1 + CAP_EASE))
-    length = max(d.sleeve_length, ch + 0.03)
+    length = max(min(d.sleeve_length, m.arm_length), ch + 0.03)  # a cuff past the wrist grips the hand
     t = np.clip((length - ch) / max(m.arm_length, 1e-6), 0.0, 1.0)
     girth = float(np.interp(t, [0.0, 0.5, 1.0], [m.bicep, m.elbow, m.wrist]))
     cw = min(bw, (girth + ease("wrist", d.fit) + 0.03 * (1 - t)) / 2)
@@ -212,7 +213,7 @@ def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, j
                   Seam(("sleeve_l", 2), ("back", nb - k - 1)), Seam(("sleeve_l", 3), ("front", arm_f)),
                   Seam(("sleeve_r", 2), ("front", nf - k - 1)), Seam(("sleeve_r", 3), ("back", arm_f))]
     if d.hood == "yes":
-        hood, hood_seams = hood_panels(front.edge_length(arm_f + 2), back.edge_length(arm_f + 3),
+        hood, hood_seams = hood_panels(front.edge_length(arm_f + 2), back.edge_length(arm_f + 3), HOOD_GAP,
                                        *head_geometry(vertices, joints, m.neck_base_height))
         panels += hood
         # the left half's neck edges meet the +x halves of the necklines, the right half's the -x
