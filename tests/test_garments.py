@@ -34,11 +34,10 @@ FAST = ("t_shirt", "trousers")
 TOPS = ("t_shirt", "long_sleeve", "tank_top", "hoodie", "dress")
 PANTS = ("shorts", "trousers")
 CROSSING = {
-    "hoodie": "5 edges cross where the right hood half, the front and the back meet at the side neck point",
-    "straight_skirt": "8 edges cross where the side seams fold, 9 cm below the waist on both sides",
+    "hoodie": "39 edges of the right hood half cross at the back of the hood, 6-11 cm above the neck",
 }
 """Designs whose sewn rest shape crosses itself on the default body, and where."""
-INSIDE = {"hoodie": "a vertex of the hood's front edge lies 4 mm inside the chin"}
+INSIDE: dict[str, str] = {}
 """Designs with vertices inside the default body at rest, and where."""
 CLEARANCE = 0.001
 """Least distance [m] of a sewn garment's vertices from the body at rest (sewing keeps the
