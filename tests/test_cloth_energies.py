@@ -12,10 +12,9 @@ from sim.cloth.energies import (
     bending_damped_vertex_force_hessian,
     corotated_damped_vertex_force_hessian,
     corotated_energy,
-    grain_damped_vertex_force_hessian,
     green_strain,
 )
-from sim.cloth.model import dihedral_angles, flat_rest_data, triangle_rest_data
+from sim.cloth.model import dihedral_angles, triangle_rest_data
 from sim.device import warp
 from sim.losses.loss_kernels import bending_energy_kernel, membrane_energy_kernel
 
@@ -42,26 +41,6 @@ def corotated_vertex_derivatives_kernel(
     force_out[k] = f
     hessian_out[k] = h
     energy_out[k] = corotated_energy(x[0], x[1], x[2], dm_inv, area, mu, lam)
-
-
-@wp.kernel
-def grain_vertex_derivatives_kernel(
-    x: wp.array(dtype=wp.vec3),
-    dm_inv: wp.mat22,
-    area: float,
-    stretch: float,
-    shear: float,
-    strain_prev: wp.vec3,
-    kd_over_h: float,
-    force_out: wp.array(dtype=wp.vec3),
-    hessian_out: wp.array(dtype=wp.mat33),
-):
-    """Grain-aligned membrane force and Hessian block of one triangle ``x[0..2]`` per vertex."""
-    k = wp.tid()
-    f, h = grain_damped_vertex_force_hessian(x[0], x[1], x[2], dm_inv, area, stretch, shear, strain_prev,
-                                             kd_over_h, k)
-    force_out[k] = f
-    hessian_out[k] = h
 
 
 @wp.kernel
@@ -230,73 +209,3 @@ def test_a_hinge_folded_at_rest_resists_folding_past_flat_the_short_way(device):
     # the wing o1 is pushed back towards 170 degrees: along d x1 / d phi with phi decreasing
     back = -(hinge_folded(np.radians(190.0) + 1e-6)[1] - x[1])
     assert np.dot(f_out.numpy()[1], back) > 0.0
-
-
-def grain_energy_np(x: np.ndarray, dm_inv: np.ndarray, area: float, stretch: float, shear: float) -> float:
-    """A (stretch/2 ((|f0| - 1)^2 + (|f1| - 1)^2) + shear/2 (f0 . f1)^2), float64 reference."""
-    F = np.stack([x[1] - x[0], x[2] - x[0]], axis=1) @ dm_inv
-    f0, f1 = F[:, 0], F[:, 1]
-    return area * (0.5 * stretch * ((np.linalg.norm(f0) - 1) ** 2 + (np.linalg.norm(f1) - 1) ** 2)
-                   + 0.5 * shear * (f0 @ f1) ** 2)
-
-
-def _grain(device, x, dm_inv, area, stretch, shear, prev, kd_over_h):
-    out = [wp.zeros(3, dtype=t, device=device) for t in (wp.vec3, wp.mat33)]
-    wp.launch(grain_vertex_derivatives_kernel, dim=3,
-              inputs=[wp.array(x.astype(np.float32), dtype=wp.vec3, device=device),
-                      wp.mat22(*dm_inv.astype(np.float32).ravel()), float(area), stretch, shear,
-                      wp.vec3(*np.asarray(prev, np.float32)), kd_over_h], outputs=out, device=device)
-    return (o.numpy() for o in out)
-
-
-@pytest.mark.parametrize("scale", [(1.08, 0.97, 0.2), (0.9, 1.05, -0.3), (1.02, 1.02, 0.05)])
-def test_grain_membrane_force_is_the_gradient_of_its_energy(device, scale):
-    """A pattern triangle stretched along its weft, compressed along its warp and sheared, turned
-    in space: the force is minus the gradient of ``A (stretch/2 sum (|f| - 1)^2 + shear/2
-    (f0.f1)^2)`` (finite differences) and the Hessian block is symmetric positive semi-definite."""
-    flat = np.array([[[0.0, 0.0], [0.1, 0.0], [0.03, 0.08]]])
-    dm_inv, area = flat_rest_data(flat)
-    sx, sy, shear_xy = scale
-    rng = np.random.default_rng(7)
-    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
-    a = np.array([[sx, shear_xy * sy], [0.0, sy]])  # weft stretch sx, warp sy, sheared
-    x = np.c_[flat[0] @ a.T, np.zeros(3)] @ q.T
-    F = np.stack([x[1] - x[0], x[2] - x[0]], axis=1) @ dm_inv[0]
-    strain = 0.5 * (F.T @ F - np.eye(2))
-    forces, hessians = _grain(device, x, dm_inv[0], area[0], 4000.0, 56.0, (strain[0, 0], strain[1, 1],
-                                                                            strain[0, 1]), 0.0)
-
-    def energy(y):
-        return grain_energy_np(y, dm_inv[0], area[0], 4000.0, 56.0)
-
-    for k in range(3):
-        grad, _ = fd_gradient_hessian(energy, x, k)
-        np.testing.assert_allclose(forces[k], -grad, rtol=2e-3, atol=2e-3 * np.abs(grad).max() + 1e-9)
-        h = hessians[k].astype(np.float64)
-        np.testing.assert_allclose(h, h.T, atol=1e-6 * np.abs(h).max())
-        assert np.linalg.eigvalsh(h).min() > -1e-6 * np.abs(h).max()
-
-
-def test_grain_membrane_resists_the_bias_far_less_than_the_threads(device):
-    """Woven cloth pulled 1 % in one direction, free to narrow across it: along its warp it
-    needs ``stretch`` per width; along the bias (45 degrees) its threads scissor and it needs
-    ``4 shear stretch / (stretch + 4 shear)`` (small strain), about 4 G: 19x less for cotton."""
-    from scipy.optimize import minimize_scalar
-
-    flat = np.array([[[0.0, 0.0], [0.1, 0.0], [0.0, 0.1]]])
-    dm_inv, area = flat_rest_data(flat)
-    stretch, shear, eps = 4000.0, 56.0, 0.01
-
-    def modulus(direction):
-        d = np.array(direction, float) / np.linalg.norm(direction)
-        p = np.array([-d[1], d[0]])
-
-        def energy(lateral):
-            a = np.eye(2) + eps * np.outer(d, d) + lateral * np.outer(p, p)
-            return grain_energy_np(np.c_[flat[0] @ a.T, np.zeros(3)], dm_inv[0], area[0], stretch, shear)
-
-        best = minimize_scalar(energy, bounds=(-0.05, 0.05), method="bounded", options={"xatol": 1e-10})
-        return 2 * best.fun / (area[0] * eps**2)
-
-    np.testing.assert_allclose(modulus((0, 1)), stretch, rtol=0.02)
-    np.testing.assert_allclose(modulus((1, 1)), 4 * shear * stretch / (stretch + 4 * shear), rtol=0.05)

@@ -204,67 +204,6 @@ def corotated_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3,
 
 
 @wp.func
-def grain_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22,
-                                      area: float, stretch: float, shear: float, strain_prev: wp.vec3,
-                                      kd_over_h: float, local: int):
-    """Grain-aligned (orthotropic) membrane of a triangle cut from a flat pattern, force and
-    Gauss-Newton Hessian block plus strain-rate damping.
-
-    ``F``'s columns ``f0``, ``f1`` are the pattern's u (weft) and v (warp, the grain line)
-    directions on the cloth. Woven cloth resists stretch along its threads (``stretch``, the
-    material's Young's modulus per width [N/m]) one to two orders of magnitude more than the
-    shearing of the angle between them (``shear`` [N/m per radian], Kawabata's G), which is why
-    it drapes into folds of double curvature (Baraff & Witkin 1998, Sec. 4.2; Clyde et al.
-    2017): ``E = A (stretch/2 ((|f0| - 1)^2 + (|f1| - 1)^2) + shear/2 (f0 . f1)^2)``.
-
-    The Hessian block is ``A (stretch g_u^2 (u u^T + max(0, 1 - 1/|f_u|) (I - u u^T)) + ... +
-    shear c c^T + 2 shear |(f0 . f1) g0 g1| I)`` with ``u`` the unit thread direction and
-    ``c = d(f0 . f1)/dx`` (the shear's indefinite second-derivative term by its magnitude:
-    positive semi-definite); a compressed thread has no
-    stiffness across it and buckles. Damping: the viscous second Piola stress of the Green strain
-    rate with the same moduli (``stretch`` on G00 and G11, ``2 shear`` on G01) times ``k_d/h``.
-    """
-    f0, f1 = deformation_gradient(x0, x1, x2, dm_inv)
-    g = shape_row(dm_inv, local)
-    l0 = wp.max(wp.length(f0), 1.0e-12)
-    l1 = wp.max(wp.length(f1), 1.0e-12)
-    u0 = f0 / l0
-    u1 = f1 / l1
-    c = wp.dot(f0, f1)
-    cg = f1 * g[0] + f0 * g[1]
-    elastic = stretch * ((l0 - 1.0) * g[0] * u0 + (l1 - 1.0) * g[1] * u1) + shear * c * cg
-    strain = green_strain(x0, x1, x2, dm_inv)
-    v00 = kd_over_h * stretch * (strain[0] - strain_prev[0])
-    v11 = kd_over_h * stretch * (strain[1] - strain_prev[1])
-    v01 = kd_over_h * 2.0 * shear * (strain[2] - strain_prev[2])
-    viscous = f0 * (v00 * g[0] + v01 * g[1]) + f1 * (v01 * g[0] + v11 * g[1])
-    force = -area * (elastic + viscous)
-    eye = wp.identity(n=3, dtype=float)
-    h0 = wp.outer(u0, u0) + wp.max(1.0 - 1.0 / l0, 0.0) * (eye - wp.outer(u0, u0))
-    h1 = wp.outer(u1, u1) + wp.max(1.0 - 1.0 / l1, 0.0) * (eye - wp.outer(u1, u1))
-    # the shear's second-derivative term 2 c g0 g1 I is indefinite: its magnitude stands in for
-    # it, so a sheared, stretched triangle's Newton step does not overshoot
-    hess = (stretch * (g[0] * g[0] * h0 + g[1] * g[1] * h1) + shear * wp.outer(cg, cg)
-            + (2.0 * shear * wp.abs(c * g[0] * g[1])) * eye)
-    return force, area * (1.0 + kd_over_h) * hess
-
-
-@wp.func
-def membrane_damped_vertex_force_hessian(x0: wp.vec3, x1: wp.vec3, x2: wp.vec3, dm_inv: wp.mat22,
-                                         area: float, mu: float, lam: float, shear: float,
-                                         strain_prev: wp.vec3, kd_over_h: float, local: int):
-    """A triangle's membrane at one of its vertices: grain-aligned (``shear`` > 0, a triangle of
-    a flat pattern; its thread stiffness is the Young's modulus of ``mu``, ``lam``) or else
-    co-rotated isotropic."""
-    if shear > 0.0:
-        stretch = 4.0 * mu * (lam + mu) / (lam + 2.0 * mu)
-        return grain_damped_vertex_force_hessian(x0, x1, x2, dm_inv, area, stretch, shear, strain_prev,
-                                                 kd_over_h, local)
-    return corotated_damped_vertex_force_hessian(x0, x1, x2, dm_inv, area, mu, lam, strain_prev, kd_over_h,
-                                                 local)
-
-
-@wp.func
 def dihedral_angle(xo0: wp.vec3, xo1: wp.vec3, xa: wp.vec3, xb: wp.vec3) -> float:
     """Signed dihedral angle [rad] of the hinge ``(o0, o1, a, b)``; 0 when flat."""
     e = xb - xa

@@ -38,8 +38,7 @@ class ClothMaterialLike(Protocol):
 
     density [kg/m^2], mu and lam (2D Lame parameters) [N/m], bending [N m], damping
     (Rayleigh stiffness-proportional coefficient) [s], friction (Coulomb, cloth vs body) [-],
-    thickness (collision distance kept from the body) [m]; optionally shear (in-plane shear
-    stiffness of woven cloth) [N/m per radian].
+    thickness (collision distance kept from the body) [m].
     """
 
     density: float
@@ -62,24 +61,21 @@ class ClothMaterialParams:
     damping: float = 1.0e-3
     friction: float = 0.3
     thickness: float = 0.004
-    shear: float = 0.0
 
 
 def as_cloth_params(material: Any) -> Any:
     """Solver parameters from a ``sim.garments.Material`` (E, nu, B in SI) or anything that
     already has ``density, mu, lam, bending, damping, friction, thickness``.
 
-    mu, lam are the plane-stress Lame parameters of the material's (E, nu), the co-rotated
-    isotropic membrane of a mesh without a pattern; ``shear`` is its in-plane shear stiffness, the
-    grain-aligned membrane's of a garment with a flat pattern (``add_cloth``'s ``rest_corners``).
+    The solver's membrane is isotropic (co-rotated linear): mu, lam are the plane-stress Lame
+    parameters of the material's (E, nu); its separate in-plane shear stiffness is not used.
     """
     if hasattr(material, "mu") or not hasattr(material, "lame_mu"):
         return material
     return ClothMaterialParams(
         density=float(material.density), mu=float(material.lame_mu), lam=float(material.lame_lambda),
         bending=float(material.bending_stiffness), damping=float(material.damping),
-        friction=float(material.friction), thickness=float(material.thickness),
-        shear=float(material.shear_modulus))
+        friction=float(material.friction), thickness=float(material.thickness))
 
 
 def triangle_rest_data(rest: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -345,10 +341,6 @@ def _stack_instances(instances: list[_Instance], contact_offset: float = 0.0) ->
         cols["tri_area"].append(a)
         cols["tri_mu"].append(m.mu * ins.layers)
         cols["tri_lam"].append(m.lam * ins.layers)
-        # a pattern's triangles know their grain: the orthotropic membrane where the cloth has a
-        # shear modulus (``energies.membrane_damped_vertex_force_hessian``)
-        shear = float(getattr(m, "shear", 0.0)) if ins.flat is not None else 0.0
-        cols["tri_shear"].append(shear * ins.layers)
         cols["tri_damping"].append(np.full(len(a), m.damping))
         if len(ins.hinges):
             cols["hinges"].append(ins.hinges + offset)
@@ -362,7 +354,7 @@ def _stack_instances(instances: list[_Instance], contact_offset: float = 0.0) ->
     cat = np.concatenate
     out: dict[str, Any] = {name: cat(cols[name]).astype(np.float32) for name in (
         "particle_q", "particle_rest", "particle_mass", "tri_dm_inv", "tri_area", "tri_mu", "tri_lam",
-        "tri_shear", "tri_damping", "particle_flat")}
+        "tri_damping", "particle_flat")}
     out["particle_flags"] = cat(cols["particle_flags"])
     out["particle_panel"] = cat(cols["particle_panel"])
     out["particle_instance"] = cat(cols["particle_instance"])
@@ -412,9 +404,8 @@ def _warp_dtypes() -> dict[str, Any]:
             "particle_flat": wp.vec3, "particle_mass": float,
             "particle_flags": wp.int32, "particle_instance": wp.int32, "tri_indices": wp.vec3i,
             "tri_dm_inv": wp.mat22, "tri_area": float, "tri_mu": float, "tri_lam": float,
-            "tri_shear": float, "tri_damping": float, "edge_indices": wp.vec4i, "edge_rest_angle": float,
-            "edge_stiffness": float, "edge_damping": float, "instance_thickness": float,
-            "instance_friction": float}
+            "tri_damping": float, "edge_indices": wp.vec4i, "edge_rest_angle": float, "edge_stiffness": float,
+            "edge_damping": float, "instance_thickness": float, "instance_friction": float}
 
 
 def local_packed(colors: np.ndarray, prims: np.ndarray, csr: tuple[np.ndarray, ...]) -> np.ndarray:
@@ -487,8 +478,7 @@ class ClothModel:
     one), ``particle_mass`` lumped mass [kg], ``particle_flags`` (1: pinned,
     follows ``ClothControl.pin_targets``), ``particle_instance`` instance id.
     Per triangle: ``tri_indices``, ``tri_dm_inv`` (rest ``Dm^-1``, 1/m), ``tri_area`` [m^2],
-    ``tri_mu``/``tri_lam`` [N/m], ``tri_shear`` [N/m per radian] (> 0: the grain-aligned
-    membrane of a pattern's triangle), ``tri_damping`` [s]. Per hinge: ``edge_indices``
+    ``tri_mu``/``tri_lam`` [N/m], ``tri_damping`` [s]. Per hinge: ``edge_indices``
     (o0, o1, a, b), ``edge_rest_angle`` [rad], ``edge_stiffness`` k_e [N m], ``edge_damping`` [s].
     Per instance: ``instance_thickness`` [m], ``instance_friction``; ``instance_starts`` (host,
     (I+1,)) slices the particle range of each instance. ``color_vertices`` lists particles by
@@ -524,7 +514,6 @@ class ClothModel:
     tri_area: Any
     tri_mu: Any
     tri_lam: Any
-    tri_shear: Any
     tri_damping: Any
     edge_indices: Any
     edge_rest_angle: Any

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from sim.cloth.energies import bending_damped_vertex_force_hessian, membrane_damped_vertex_force_hessian
+from sim.cloth.energies import bending_damped_vertex_force_hessian, corotated_damped_vertex_force_hessian
 from sim.cloth.self_contact import (
     SelfContactData,
     SolveContactArrays,
@@ -75,7 +75,6 @@ class SolveArrays:
     tri_area: Span
     tri_mu: Span
     tri_lam: Span
-    tri_shear: Span
     tri_damping: Span
     tri_strain_prev: Span
     edge_indices: Span
@@ -100,7 +99,7 @@ class SolveArrays:
 
 SOLVE_ARRAYS = (
     "color_vertices", "x_prev", "y", "mass", "flags", "particle_instance", "tri_indices", "tri_dm_inv",
-    "tri_area", "tri_mu", "tri_lam", "tri_shear", "tri_damping", "tri_strain_prev", "edge_indices",
+    "tri_area", "tri_mu", "tri_lam", "tri_damping", "tri_strain_prev", "edge_indices",
     "edge_rest_angle", "edge_stiffness", "edge_damping", "edge_angle_prev", "vertex_tri_offsets",
     "vertex_tri_ids", "vertex_tri_local", "vertex_edge_offsets", "vertex_edge_ids", "vertex_edge_local",
     "contact_point", "contact_normal", "contact_body_velocity", "contact_active", "instance_thickness",
@@ -245,15 +244,15 @@ def jacobi_scale(t_packed: int) -> float:
 @wp.func
 def triangle_term(a: SolveArrays, k: int, inv_h: float, x: wp.array(dtype=wp.vec3),
                   snap: wp.array(dtype=wp.vec3)):
-    """Damped membrane force and Jacobi-scaled Hessian block of entry ``k`` of the
+    """Damped co-rotated membrane force and Jacobi-scaled Hessian block of entry ``k`` of the
     vertex -> triangle adjacency at the vertex it belongs to."""
     t = load_int(ints(a.vertex_tri_ids), k)
     tri = load_vec3i(vec3is(a.tri_indices), t)
     t_packed = load_int(ints(a.vertex_tri_local), k)
     ta, tb, tc = read_triangle(x, snap, tri, t_packed >> 2)
-    fe, he = membrane_damped_vertex_force_hessian(
+    fe, he = corotated_damped_vertex_force_hessian(
         ta, tb, tc, load_mat22(mat22s(a.tri_dm_inv), t), load_float(floats(a.tri_area), t),
-        load_float(floats(a.tri_mu), t), load_float(floats(a.tri_lam), t), load_float(floats(a.tri_shear), t),
+        load_float(floats(a.tri_mu), t), load_float(floats(a.tri_lam), t),
         load_vec3(vec3s(a.tri_strain_prev), t), load_float(floats(a.tri_damping), t) * inv_h, t_packed & 3)
     return fe, he * jacobi_scale(t_packed)
 
@@ -323,7 +322,6 @@ def fused_item(r: int, tri_k: int, tri_n: int, edge_k: int, edge_n: int, rec_k: 
     area = load_float(floats(a.tri_area), t)
     mu = load_float(floats(a.tri_mu), t)
     lam = load_float(floats(a.tri_lam), t)
-    shear = load_float(floats(a.tri_shear), t)
     t_damp = load_float(floats(a.tri_damping), t)
     strain_prev = load_vec3(vec3s(a.tri_strain_prev), t)
     hinge = load_vec4i(vec4is(a.edge_indices), e)
@@ -339,8 +337,8 @@ def fused_item(r: int, tri_k: int, tri_n: int, edge_k: int, edge_n: int, rec_k: 
     z2 = load_vec3(x_prev, q[2])
     z3 = load_vec3(x_prev, q[3])
     if r < tri_n:
-        fe, he = membrane_damped_vertex_force_hessian(xa, xb, xc, dm_inv, area, mu, lam, shear, strain_prev,
-                                                      t_damp * inv_h, t_local & 3)
+        fe, he = corotated_damped_vertex_force_hessian(xa, xb, xc, dm_inv, area, mu, lam, strain_prev,
+                                                       t_damp * inv_h, t_local & 3)
         f = f + fe
         H = H + he * jacobi_scale(t_local)
     if r < edge_n:

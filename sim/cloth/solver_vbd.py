@@ -224,7 +224,7 @@ class SolverVBD:
         a = S.SolveArrays()
         arrays = [m.color_vertices, self._x_prev, self._y, m.particle_mass, m.particle_flags,
                   m.particle_instance, m.tri_indices, m.tri_dm_inv, m.tri_area, m.tri_mu, m.tri_lam,
-                  m.tri_shear, m.tri_damping, self._tri_strain_prev, *self._hinges, self._edge_angle_prev,
+                  m.tri_damping, self._tri_strain_prev, *self._hinges, self._edge_angle_prev,
                   m.vertex_tri_offsets, m.vertex_tri_ids, m.vertex_tri_local, *self._vertex_hinges,
                   self._contact_point, self._contact_normal, self._contact_body_velocity,
                   self._contact_active, m.instance_thickness, m.instance_friction]

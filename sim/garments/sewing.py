@@ -18,7 +18,6 @@ The merged mesh keeps the pattern's UV seams: each face keeps its panel's flat c
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,15 +96,11 @@ def _solver(vertices, faces, material, *, rest, pinned, gravity: bool, cfg: Sewi
             mesh: PatternMesh | None = None):
     from sim.cloth import ClothModelBuilder, SolverVBD
     from sim.cloth.config import BodyContact, Stepping, VBDConfig
-    from sim.cloth.model import as_cloth_params
 
     builder = ClothModelBuilder(gravity=(0.0, -9.81 if gravity else 0.0, 0.0),
                                 contact_offset=cfg.contact_offset)
     flat = None if mesh is None else mesh.flat[mesh.triangles]
-    # sewing drags the cloth far from its rest; the isotropic membrane (no ``shear``) brings it
-    # back, where the grain-aligned one of the simulation diverges from such strains
-    params = dataclasses.replace(as_cloth_params(material), shear=0.0)
-    builder.add_cloth(vertices, faces, params, pinned=pinned, rest_vertices=rest, rest_corners=flat,
+    builder.add_cloth(vertices, faces, material, pinned=pinned, rest_vertices=rest, rest_corners=flat,
                       face_panels=None if mesh is None else mesh.face_panel)
     model = builder.finalize(device)
     vbd = VBDConfig(stepping=Stepping(substeps=cfg.substeps, iterations=cfg.iterations),
