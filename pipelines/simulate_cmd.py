@@ -56,8 +56,9 @@ shape, or a garment file (.obj/.ply/.glb/.gltf/.off/.stl/.usd*) with UVs, in met
 around the body in its rest pose in the body's own frame (Y up, the pelvis near the origin, not
 the floor-standing frame of the output stages): 'wrinkles garments --export NAME --body-out
 body.obj' writes a template and that body to start from. A file far from the body or in other
-units is refused. --body/--shape/--motion/--motion-param/--rest/--duration/--fps are those of
-'wrinkles body'.
+units is refused. A GarmentCode / GarmentCodeData pattern file (.json) is sewn on the body at
+--resolution first, as 'wrinkles garments --pattern FILE.json' does.
+--body/--shape/--motion/--motion-param/--rest/--duration/--fps are those of 'wrinkles body'.
 
 examples:
   wrinkles simulate --garment tshirt --motion walk --material cotton --out tshirt_walk.usdc \\
@@ -71,6 +72,8 @@ examples:
 """
 
 CLOTH_PREVIEW_COLOR: tuple[float, float, float] = (0.22, 0.38, 0.72)
+PATTERN_SUFFIX = ".json"
+"""A ``--garment`` file with this suffix is a GarmentCode pattern, sewn before simulating."""
 PREVIEW_CLOTH_LIFT = 0.003
 """Previews draw the garment this far out along its normals [m] so skin a fraction of a
 millimetre below the cloth does not show through it (display only; USD holds the true points)."""
@@ -81,7 +84,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     g = p.add_argument_group("garment")
     g.add_argument("--garment", default="t_shirt",
-                   help="template name or alias, or a garment mesh file with UVs (default: %(default)s)")
+                   help="template name or alias, a garment mesh file with UVs, or a GarmentCode pattern "
+                        "file (.json) to sew (default: %(default)s)")
     g.add_argument("--garment-param", action="append", default=[], metavar="KEY=VALUE",
                    help="a template parameter [m or -], e.g. length=0.5, ease=0.02, sleeve_length=0.5 "
                         "(repeatable; an unknown key lists the template's parameters); every template "
@@ -90,7 +94,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--resolution", default=None,
                    help="template mesh resolution: coarse (about 3,000 vertices; edges of 14.5-23.5 mm "
                         "by template, 'wrinkles garments' lists them), fine (about 20,000; 5.5-9 mm) or "
-                        "an edge length in metres (default: coarse; a garment file keeps its own mesh)")
+                        "an edge length in metres (default: coarse; a garment mesh file keeps its own mesh, "
+                        "a pattern file .json is meshed at about the same vertex counts)")
     g.add_argument("--material", default="cotton",
                    help="material preset: cotton, denim, silk, polyester, jersey_knit, leather "
                         "(default: %(default)s)")
@@ -181,7 +186,13 @@ def resolve_template(name: str) -> str:
 def is_garment_file(spec: str) -> bool:
     from sim.garments.io import MESH_SUFFIXES, USD_SUFFIXES
 
-    return Path(spec).suffix.lower() in MESH_SUFFIXES + USD_SUFFIXES or os.sep in spec or "/" in spec
+    suffixes = MESH_SUFFIXES + USD_SUFFIXES + (PATTERN_SUFFIX,)
+    return Path(spec).suffix.lower() in suffixes or os.sep in spec or "/" in spec
+
+
+def is_pattern_file(spec: str) -> bool:
+    """``--garment`` names a GarmentCode pattern file, sewn before it is simulated."""
+    return Path(spec).suffix.lower() == PATTERN_SUFFIX
 
 
 def parse_pins(spec: str | None) -> tuple[str, ...]:
@@ -274,6 +285,11 @@ def load_garment_arg(args: argparse.Namespace, body, betas: np.ndarray):
 
     material = material_arg(args)
     params = parse_params(args.garment_param, "--garment-param")
+    if is_pattern_file(args.garment):
+        from pipelines.garments_cmd import pattern_file_garment
+
+        return pattern_file_garment(args.garment, body, betas, material=material, params=params,
+                                    resolution=parse_resolution(args.resolution or "coarse"))
     if is_garment_file(args.garment):
         return garment_file_arg(args, material, params, body, betas)
     category = resolve_template(args.garment)
@@ -306,7 +322,11 @@ def check_garment_spec(args: argparse.Namespace) -> None:
     """``--garment`` names a template, or a file without ``--resolution`` (before loading anything)."""
     from pipelines.options import parse_resolution
 
-    if not is_garment_file(args.garment):
+    if is_pattern_file(args.garment):
+        from sim.garments.garmentcode import read_garmentcode
+
+        read_garmentcode(args.garment)  # a bad file is refused before anything is loaded
+    elif not is_garment_file(args.garment):
         resolve_template(args.garment)
     elif args.resolution is not None:
         raise WrinklesInputError(f"--resolution applies to templates; a garment file ({args.garment}) "

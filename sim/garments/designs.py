@@ -39,6 +39,9 @@ SIZES = {
 }
 """Each design's edge lengths (coarse, fine) [m], chosen for about 3,000 and 20,000 vertices on the
 default body, and the vertex counts they give there (``Template.vertices``)."""
+PATTERN_VERTICES = {"coarse": 3000, "fine": 20000}
+"""Vertex counts "coarse" and "fine" aim at for a pattern that is no design (a pattern file):
+the designs' ``SIZES`` targets."""
 
 
 @dataclass(frozen=True)
@@ -218,5 +221,66 @@ def make_design_garment(name: str, body, betas: np.ndarray | None = None, *,
         pattern = designs()[name].draft(BodyParts.of(body, betas), p)
         sewn = sew_pattern(pattern, rest, np.asarray(body.faces), h, mat, device=dev)
         return garment_of(pattern, sewn, mat, category=name, name=garment_name or name,
+                          hem_width=hem_width, hem_layers=hem_layers)
+    return cached_garment(spec, build)
+
+
+def pattern_edge_length(pattern: Pattern, resolution: str | float) -> float:
+    """Target edge length [m] of a pattern that is no design (a pattern file): for "coarse" and
+    "fine" the one that gives ``PATTERN_VERTICES`` vertices over the panels' area A (a vertex of
+    a mesh of equilateral triangles of side h owns √3/2 h², so h = sqrt(2 A / (√3 N)): the
+    designs' ``SIZES`` give their vertex counts this way within 3 %), else ``resolution`` metres."""
+    if isinstance(resolution, str):
+        if resolution not in PATTERN_VERTICES:
+            raise WrinklesInputError(f"unknown resolution {resolution!r}; expected coarse, fine or metres")
+        area = sum(p.area() for p in pattern.panels)
+        h = float(np.sqrt(2.0 * area / (np.sqrt(3.0) * PATTERN_VERTICES[resolution])))
+        return float(np.clip(h, 0.003, 0.2))
+    h = float(resolution)
+    if not 0.003 <= h <= 0.2:
+        raise WrinklesInputError(f"resolution {resolution} m is outside [0.003, 0.2] m")
+    return h
+
+
+def make_pattern_garment(pattern: Pattern, body, betas: np.ndarray | None = None, *,
+                         resolution: str | float = "coarse", material: str | Material = "cotton",
+                         category: str = "pattern", name: str | None = None, device: str | None = None,
+                         hem_width: float = HEM_WIDTH, hem_layers: float = HEM_LAYERS) -> Garment:
+    """Any sewing pattern (a pattern file's, its panels placed around the rest body of ``body``
+    with shape ``betas``) sewn on that body at ``resolution`` (``pattern_edge_length``), as
+    ``make_design_garment`` sews a design, and kept in the garment cache.
+
+    Raises:
+        WrinklesInputError: a panel that cannot be meshed (its outline crosses itself), or a
+            pattern the solver does not sew (positions not finite).
+    """
+    import dataclasses
+    import hashlib
+
+    from sim.device import resolve_device
+    from sim.garments.garment_cache import cached_garment
+    from sim.garments.garmentcode import pattern_to_spec
+    from sim.garments.pattern_mesh import mesh_pattern
+
+    mat = get_material(material)
+    dev = resolve_device(device)
+    rest = np.ascontiguousarray(body.rest_mesh(betas), np.float32)
+    h = pattern_edge_length(pattern, resolution)
+    spec = {"pattern": pattern_to_spec(pattern), "body": hashlib.sha256(rest.tobytes()).hexdigest(),
+            "resolution": h, "material": dataclasses.asdict(mat),
+            "device": "cuda" if dev.startswith("cuda") else "cpu", "hems": [hem_width, hem_layers],
+            "category": category, "name": name or pattern.name}
+
+    def build() -> Garment:
+        try:
+            mesh = mesh_pattern(pattern, h)  # an outline that cannot be meshed is the file's problem
+        except ValueError as e:
+            raise WrinklesInputError(str(e)) from None
+        sewn = sew_pattern(pattern, rest, np.asarray(body.faces), h, mat, device=dev)
+        if not np.all(np.isfinite(sewn.vertices)):
+            apart = np.linalg.norm(np.diff(mesh.placed[mesh.pairs], axis=1), axis=2).max(initial=0.0)
+            raise WrinklesInputError(f"pattern {pattern.name!r} did not sew: the cloth solver's positions "
+                                     f"are not finite (its seams start up to {apart:.2f} m apart)")
+        return garment_of(pattern, sewn, mat, category=category, name=name or pattern.name,
                           hem_width=hem_width, hem_layers=hem_layers)
     return cached_garment(spec, build)

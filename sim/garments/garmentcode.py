@@ -50,19 +50,27 @@ How each part maps onto ``sim.garments.pattern``:
 - ``properties.normalize_panel_translation`` True moves each panel's vertices by their mean and
   its translation by the same 2D offset, as GarmentCode does on loading.
 
+Frames: GarmentCodeData places its panels around a body standing on the floor (y = 0 at the
+soles); the Garment-Pattern-Generator's files and ours around the body in its own rest frame (Y
+up, the pelvis near the origin, as ``BodyModel.rest_mesh``). ``place_on_body`` moves a pattern
+onto a rest body: "floor" raises every panel by the height of the body's soles (a negative
+number: it lowers them), "body" keeps it, "auto" takes the one of the two in which the pattern's
+height span lies more inside the body's (``pattern_frame``).
+
 Writing emits the same format in centimetres with relative coordinates and ``{"type",
 "params"}`` curvatures, every stitch as above, and ``normalized_edge_loops`` True so that
 GarmentCode keeps our edge order (and so every edge index) instead of starting each loop at its
 lowest-left vertex. A curved ``Placement`` (a panel wrapped on a
 cylinder) is written as the plane tangent to it at the anchor; the top-level ``"wrinkles"``
 section keeps what GarmentCode has no field for (placement origin, curvature and slope [m],
-darts, the pattern's name and parameters), so reading our own file gives the pattern back.
+its ``hold``, darts, the pattern's name and parameters), so reading our own file gives the pattern back.
 """
 
 from __future__ import annotations
 
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +84,8 @@ RIGHT_WRONG = "right_wrong"
 """The stitch flag that joins its two edges start to start."""
 EXTENSION = "wrinkles"
 """Top-level key of what wrinkles writes beyond GarmentCode's fields (values in metres)."""
+FRAMES = ("auto", "floor", "body")
+"""Frames a pattern file's panels may be placed in (``place_on_body``)."""
 
 
 class _SpecError(Exception):
@@ -250,7 +260,7 @@ def _panel(name: str, raw, scale: float, relative: bool, centre: bool, extra) ->
     origin = _vec(extra.get("origin", [0, 0]), 2, f"{EXTENSION}.placements.{name}.origin")
     placement = dict(anchor=anchor + r @ np.append(origin, 0.0), origin=origin,
                      curvature=float(extra.get("curvature", 0.0)),
-                     radius_slope=float(extra.get("radius_slope", 0.0)))
+                     radius_slope=float(extra.get("radius_slope", 0.0)), hold=float(extra.get("hold", 1.0)))
     panel = Panel(name, corners, tuple(edges), _placement(r[:, 0], r[:, 1], **placement))
     if panel.area() >= 0:
         return panel
@@ -260,9 +270,9 @@ def _panel(name: str, raw, scale: float, relative: bool, centre: bool, extra) ->
                  _placement(-r[:, 0], r[:, 1], **placement))
 
 
-def _placement(u, v, *, anchor, origin, curvature: float, radius_slope: float) -> Placement:
+def _placement(u, v, *, anchor, origin, curvature: float, radius_slope: float, hold: float) -> Placement:
     return Placement(tuple(float(x) for x in anchor), tuple(float(x) for x in u), tuple(float(x) for x in v),
-                     curvature, (float(origin[0]), float(origin[1])), radius_slope)
+                     curvature, (float(origin[0]), float(origin[1])), radius_slope, hold)
 
 
 def _endpoints(name: str, k: int, edge, n: int) -> tuple[int, int]:
@@ -393,9 +403,9 @@ def pattern_to_spec(pattern: Pattern, *, units_in_meter: float = UNITS_IN_METER)
             spec["label"] = labels[p.name]
         panels[p.name] = spec
         pl = p.placement
-        if pl.curvature or pl.radius_slope or any(pl.origin):
+        if pl.curvature or pl.radius_slope or any(pl.origin) or pl.hold != 1.0:
             extra[p.name] = {"origin": [float(x) for x in pl.origin], "curvature": float(pl.curvature),
-                             "radius_slope": float(pl.radius_slope)}
+                             "radius_slope": float(pl.radius_slope), "hold": float(pl.hold)}
     stitches = [[{"panel": sm.a[0], "edge": int(sm.a[1])}, {"panel": sm.b[0], "edge": int(sm.b[1])}]
                 + ([] if sm.reverse else [RIGHT_WRONG]) for sm in pattern.seams]
     return {
@@ -453,3 +463,39 @@ def _json_default(value):
     if isinstance(value, tuple):
         return list(value)
     raise TypeError(f"pattern parameter {value!r} is not JSON-able")
+
+
+# ----------------------------------------------------------------------------- frames
+
+
+def height_span(pattern: Pattern) -> tuple[float, float]:
+    """Lowest and highest y [m] of the pattern's panels where their placements put them."""
+    ys = np.concatenate([p.placement.place(p.outline(8))[:, 1] for p in pattern.panels])
+    return float(ys.min()), float(ys.max())
+
+
+def pattern_frame(pattern: Pattern, body_vertices: np.ndarray) -> str:
+    """"floor" or "body": the frame in which more of the pattern's height span lies inside the
+    rest body's (``body_vertices`` (V, 3) [m]); "body" on a tie."""
+    y = np.asarray(body_vertices, np.float64)[:, 1]
+    lo, hi = height_span(pattern)
+
+    def inside(shift: float) -> float:
+        return max(0.0, min(hi + shift, y.max()) - max(lo + shift, y.min())) / max(hi - lo, 1e-9)
+
+    return "floor" if inside(float(y.min())) > inside(0.0) else "body"
+
+
+def place_on_body(pattern: Pattern, body_vertices: np.ndarray, frame: str = "auto") -> Pattern:
+    """``pattern`` with its panels moved from the file's ``frame`` (``FRAMES``; see the module)
+    into the frame of the rest body ``body_vertices`` (V, 3) [m]."""
+    if frame not in FRAMES:
+        raise ValueError(f"unknown pattern frame {frame!r}; expected one of {', '.join(FRAMES)}")
+    if frame == "auto":
+        frame = pattern_frame(pattern, body_vertices)
+    if frame == "body":
+        return pattern
+    lift = np.array([0.0, float(np.min(np.asarray(body_vertices)[:, 1])), 0.0])
+    panels = tuple(replace(p, placement=replace(p.placement, anchor=tuple(
+        float(a) for a in np.asarray(p.placement.anchor) + lift))) for p in pattern.panels)
+    return replace(pattern, panels=panels)
