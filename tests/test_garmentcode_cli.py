@@ -274,6 +274,33 @@ def test_garments_pattern_outputs_need_a_garment(tmp_path, capsys, monkeypatch):
     assert not list(tmp_path.iterdir())
 
 
+def test_simulate_sews_a_pattern_file(tmp_path, monkeypatch):
+    """simulate's --garment FILE.json is the garment 'garments --pattern' sews: at --resolution,
+    hems from --garment-param (extra layers along the waist and hem by default, none
+    with hem_width=0), template parameters refused."""
+    import argparse
+
+    from pipelines.simulate_cmd import check_garment_spec, load_garment_arg
+    from sim.errors import WrinklesInputError
+
+    monkeypatch.chdir(tmp_path)
+    write_json(tmp_path / "skirt.json", floor_skirt_spec())
+
+    def args(*params):
+        return argparse.Namespace(garment="skirt.json", material="cotton", material_param=[],
+                                  garment_param=list(params), resolution="0.1", quiet=True)
+
+    check_garment_spec(args())  # --resolution applies to a pattern file
+    body = default_body()
+    g = load_garment_arg(args(), body, None)
+    assert g.category == "garmentcode" and g.name == "skirt"
+    assert g.panel_names == ("skirt_front", "skirt_back") and set(g.attachments) == {"hem", "waistband"}
+    assert 1.0 < g.face_layers.max() <= 3.0  # faces along the openings: part of each in the hem
+    assert (load_garment_arg(args("hem_width=0"), body, None).face_layers == 1.0).all()
+    with pytest.raises(WrinklesInputError, match="--garment-param length.*hem_width and hem_layers only"):
+        load_garment_arg(args("length=0.5"), body, None)
+
+
 def test_simulate_refuses_a_bad_pattern_file_before_loading_anything(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "p.json").write_text("[1, 2]")
