@@ -1,4 +1,5 @@
-"""Garments: the ``Garment`` type, procedural templates fitted to a body, import, materials."""
+"""Garments: the ``Garment`` type, sewing patterns drafted from the body's measurements and sewn on it
+(``make_garment`` over the designs), import, materials."""
 
 from sim.garments.io import load_garment
 from sim.garments.materials import MATERIALS, Material, get_material
