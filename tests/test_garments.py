@@ -35,6 +35,7 @@ TOPS = ("t_shirt", "long_sleeve", "tank_top", "hoodie", "dress")
 PANTS = ("shorts", "trousers")
 CROSSING = {
     "hoodie": "39 edges of the right hood half cross at the back of the hood, 6-11 cm above the neck",
+    "straight_skirt": "8 edges cross at both side seams, 8-10 cm below the waist, at the front",
 }
 """Designs whose sewn rest shape crosses itself on the default body, and where."""
 INSIDE: dict[str, str] = {}
