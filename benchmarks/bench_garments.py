@@ -74,7 +74,7 @@ class GarmentSpec:
     shape: str
     betas: tuple[float, ...]
     material: str = "cotton"
-    params: tuple[tuple[str, str], ...] = ()
+    params: tuple[tuple[str, object], ...] = ()
     resolution: str | float = "fine"
 
 
@@ -392,7 +392,8 @@ def table(args: argparse.Namespace, body, device: str, clock: Clock, smoothing: 
     from sim.simulate import SimulationJob
 
     shapes = {s: shape_betas(body, SHAPES[s]) for s in args.shapes}
-    specs = [GarmentSpec(d, s, tuple(float(b) for b in shapes[s]), resolution=args.resolution)
+    specs = [GarmentSpec(d, s, tuple(float(b) for b in shapes[s]), args.material,
+                         design_overrides(d, args.design_param), args.resolution)
              for s in args.shapes for d in args.designs]
     sewn = sew_all(specs, device, args.workers, clock)
     out = report.result["table"] = {"garments": [info for _, info in sewn], "rows": []}
@@ -403,8 +404,8 @@ def table(args: argparse.Namespace, body, device: str, clock: Clock, smoothing: 
         for m in args.motions if g is not None else ():
             jobs.append(SimulationJob(g, body, motions[(spec.shape, m)], betas=shapes[spec.shape],
                                       name=f"{spec.design}/{spec.shape}/{m}"))
-            heads.append({"design": spec.design, "shape": spec.shape, "motion": m,
-                          "vertices": g.num_vertices})
+            heads.append({"design": spec.design, "shape": spec.shape, "motion": m, "material": spec.material,
+                          **dict(spec.params), "vertices": g.num_vertices})
 
     def figures(k: int, r) -> dict:
         g = jobs[k].garment
@@ -421,6 +422,24 @@ def table(args: argparse.Namespace, body, device: str, clock: Clock, smoothing: 
     for row in out["rows"]:
         clock.log(table_line(row))
     out["summary"] = table_summary(sewn, out["rows"])
+
+
+def design_overrides(design: str, items: list[str]) -> tuple[tuple[str, object], ...]:
+    """The ``--design-param KEY=VALUE`` settings that ``design`` has (a JSON number or a word)."""
+    from sim.garments.designs import designs
+    from sim.garments.parameters import parameter_specs
+
+    known = parameter_specs(designs()[design].params)
+    out = []
+    for item in items:
+        key, _, text = item.partition("=")
+        if key in known:
+            try:
+                value = json.loads(text)
+            except json.JSONDecodeError:
+                value = text
+            out.append((key, value))
+    return tuple(out)
 
 
 def table_line(row: dict) -> str:
@@ -617,6 +636,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                     "sew in this one)")
     ap.add_argument("--solver-param", action="append", default=[], metavar="KEY=VALUE",
                     help="a solver setting over the job's, e.g. body_contact.offset=0.001 (repeatable)")
+    ap.add_argument("--material", default="cotton", help="the table's material preset (default: %(default)s)")
+    ap.add_argument("--design-param", action="append", default=[], metavar="KEY=VALUE",
+                    help="a design parameter over the defaults, for the designs that have it, e.g. "
+                         "fit=loose (repeatable)")
     ap.add_argument("--smoothing", choices=("auto", "lu", "cg"), default="auto", help="the smooth base's "
                     "solver: lu (sparse LU, CPU), cg (conjugate gradients with torch on the device), auto: "
                     "cg on CUDA, else lu (default: %(default)s)")
@@ -629,6 +652,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args.shapes = names(args.shapes, tuple(SHAPES), "--shapes")
     args.motions = names(args.motions, tuple(PROCEDURAL_MOTIONS), "--motions")
     args.resolution = resolution(args.resolution, "--resolution")
+    check_table_garments(args)
     args.population_resolution = resolution(args.population_resolution, "--population-resolution")
     for option in ("seconds", "batch", "population_batch"):
         if not getattr(args, option) > 0:
@@ -637,6 +661,27 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         option_error("--population/--workers/--prelude",
                      ValueError("counts must be >= 0, the prelude >= 0.04 s"))
     return args
+
+
+def check_table_garments(args: argparse.Namespace) -> None:
+    """``--material`` is a preset; every ``--design-param`` is KEY=VALUE, a parameter of one of
+    the table's designs with a valid value (else the option's error, exit 2)."""
+    from sim.garments.designs import design_params
+    from sim.garments.materials import MATERIALS
+
+    if args.material not in MATERIALS:
+        option_error("--material", ValueError(f"unknown preset {args.material!r}; expected one of "
+                                              f"{', '.join(sorted(MATERIALS))}"))
+    for item in args.design_param:
+        key = item.partition("=")[0]
+        if "=" not in item or not any(k == key for d in args.designs for k, _ in design_overrides(d, [item])):
+            option_error("--design-param", ValueError(f"{item!r}: expected KEY=VALUE with KEY a parameter "
+                                                      "of one of the table's designs"))
+    for d in args.designs:
+        try:
+            design_params(d, **dict(design_overrides(d, args.design_param)))
+        except Exception as e:
+            option_error("--design-param", e)
 
 
 def edge_lengths(resolution: str | float, names) -> float | dict[str, float]:
@@ -666,6 +711,7 @@ def main(argv: list[str] | None = None) -> None:
              "motions": list(args.motions), "resolution": args.resolution,
              "edge_m": edge_lengths(args.resolution, args.designs),
              "smoothing": {"length_m": SMOOTHING_LENGTH, "solver": method},
+             "material": args.material, "design_params": list(args.design_param),
              "workers": args.workers, "time_limit_s": args.time_limit}
     report = Report(f"garments_{device.split(':')[0]}{args.tag}", args.results,
                     {"machine": machine(device), "sizes": sizes, "config": cfg.to_dict()})

@@ -163,11 +163,14 @@ def test_garments_table_and_population(tmp_path):
     r = single_result("bench_garments", "--device", "cpu", "--designs", "t_shirt", "--shapes", "mean",
                       "--motions", "walk", "--resolution", "0.06", "--seconds", "0.2", "--prelude", "0.2",
                       "--population", "2", "--seed", "3", "--population-resolution", "0.07",
-                      "--smoothing", "cg", tmp_path=tmp_path)
+                      "--smoothing", "cg", "--material", "denim", "--design-param", "fit=loose",
+                      "--design-param", "sleeve_length=0.3", tmp_path=tmp_path)
     assert r["benchmark"] == "garments_cpu" and r["sizes"]["edge_m"] == 0.06 and r["complete"]
     (garment,) = r["table"]["garments"]
     (row,) = r["table"]["rows"]
     assert (row["design"], row["shape"], row["motion"]) == ("t_shirt", "mean", "walk")
+    assert (garment["material"], garment["fit"], garment["sleeve_length"]) == ("denim", "loose", 0.3)
+    assert (row["material"], row["fit"], r["sizes"]["material"]) == ("denim", "loose", "denim")
     assert row["vertices"] == garment["vertices"] and 100 < row["vertices"] < 400
     assert garment["seam_gap_mm"] <= 1.0 and garment["sewing_s"] > 0 and row["substeps"] == [12]
     # 0.2 s at 30 fps from the motion's first frame: 6 frames
@@ -193,6 +196,19 @@ def test_garments_table_and_population(tmp_path):
         assert m["substeps"] == ladder[:len(m["substeps"])]
         assert m["passed"] == (not m.get("failed_gates", ["stopped"]))
         assert m["passed"] or len(m["substeps"]) == 3  # a failing member went through the whole ladder
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--material", "tweed"], "--material: unknown preset 'tweed'; expected one of "),
+    (["--design-param", "inseam=0.7"],
+     "--design-param: 'inseam=0.7': expected KEY=VALUE with KEY a parameter of one of the table's designs"),
+    (["--design-param", "fit=baggy"], "--design-param: t_shirt: "),
+])
+def test_garments_refuses_a_bad_material_or_design_parameter(tmp_path, args, message):
+    proc, found = run_benchmark("bench_garments", "--device", "cpu", "--designs", "t_shirt", *args,
+                                results=tmp_path)
+    assert proc.returncode == 2 and not found
+    assert message in proc.stderr.strip().splitlines()[-1]
 
 
 def test_garments_refuses_an_unknown_shape(tmp_path):
