@@ -33,10 +33,7 @@ FAST = ("t_shirt", "trousers")
 """Designs the fast tier sews: a top with sleeves and a bottom with two legs."""
 TOPS = ("t_shirt", "long_sleeve", "tank_top", "hoodie", "dress")
 PANTS = ("shorts", "trousers")
-CROSSING = {
-    "hoodie": "39 edges of the right hood half cross at the back of the hood, 6-11 cm above the neck",
-    "straight_skirt": "8 edges cross at both side seams, 8-10 cm below the waist, at the front",
-}
+CROSSING: dict[str, str] = {}
 """Designs whose sewn rest shape crosses itself on the default body, and where."""
 INSIDE: dict[str, str] = {}
 """Designs with vertices inside the default body at rest, and where."""

@@ -83,3 +83,22 @@ def test_pattern_validates_seams_and_winding():
     p = Pattern("ok", (a, b), (Seam(("a", 1), ("b", 3)),))
     assert p.free_edges() == [("a", 0), ("a", 2), ("a", 3), ("b", 0), ("b", 1), ("b", 2)]
     assert p.labelled("top") == [("a", 2), ("b", 2)]
+
+
+def test_hood_halves_meet_at_the_centre_back_without_wrapping_past_it():
+    """The back seam of each hood half is placed on the head's mid-plane at every height, and
+    neither half reaches past that plane below its crown (where the halves would cross when
+    sewn)."""
+    from sim.garments.drafting.hood import hood_panels
+    from sim.garments.pattern_mesh import mesh_pattern
+
+    cx = 0.01
+    panels, seams = hood_panels(0.11, 0.09, 0.045, np.array([cx, 0.0]), 1.5, 1.75, 0.1)
+    mesh = mesh_pattern(Pattern("hood", tuple(panels), tuple(seams)), 0.01)
+    for ref in (("hood_l", 2), ("hood_r", 2)):
+        pts = mesh.placed[mesh.edge_vertices[ref]]
+        np.testing.assert_allclose(pts[:, 0], cx, atol=2e-3)
+    crown_start = panels[0].corners[3][1] + 1.5
+    for k, sign in ((0, 1.0), (1, -1.0)):  # hood_l on +x, hood_r on -x
+        x = mesh.placed[(mesh.vertex_panel == k) & (mesh.placed[:, 1] < crown_start - 0.01), 0]
+        assert np.all(sign * (x - cx) > -2e-3)

@@ -9,12 +9,34 @@ plus ease. The halves are joined by the back and crown seams; their face edges a
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from sim.garments.pattern import Edge, Panel, Placement, Seam
 
 HOOD_EASE = 0.06
 """Height [m] the hood stands above the head, and its depth beyond the head's."""
+
+
+@dataclass(frozen=True)
+class HoodPlacement(Placement):
+    """A hood half's cone (``Placement``) turned at each height so that its back seam lies at
+    the centre back: the seam runs straight from panel point (``seam`` x0, y0) to (x1, y1) and
+    slants backwards up the panel faster than the cone widens, so on the plain cone the halves
+    wrapped past the centre back 6-11 cm above the neck and crossed each other when sewn."""
+
+    seam: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+
+    def place(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, np.float64).reshape(-1, 2)
+        r0 = 1.0 / float(self.curvature)
+        r = np.maximum(r0 + float(self.radius_slope) * np.minimum(xy[:, 1] - self.origin[1], 0.0), 0.05 * r0)
+        x0, y0, x1, y1 = self.seam
+        seam_x = x0 + np.clip((xy[:, 1] - y0) / (y1 - y0), 0.0, 1.0) * (x1 - x0)
+        side = np.sign(x1 - self.origin[0])  # +1: the seam lies along +x from the side (a left half)
+        turn = seam_x - side * 0.5 * np.pi * r - self.origin[0]  # the seam a quarter turn from the side
+        return super().place(xy - np.stack([turn, np.zeros_like(turn)], axis=1))
 
 
 def hood_outline(front_neck: float, back_neck: float, height: float,
@@ -75,8 +97,11 @@ def hood_panels(front_neck: float, back_neck: float, gap: float, head_centre: np
     cx, cz = float(head_centre[0]), float(head_centre[1])
     cone = dict(curvature=1.0 / r_head, radius_slope=(r_head - r_neck) / ear, hold=0.0)
     y = neck_y + ear
-    left = Placement(anchor=(cx + r_head, y, cz), u_dir=(0.0, 0.0, -1.0), origin=(x0, ear), **cone)
-    right = Placement(anchor=(cx - r_head, y, cz), u_dir=(0.0, 0.0, 1.0), origin=(-x0, ear), **cone)
+    (sx0, sy0), (sx1, sy1) = corners[2], corners[3]
+    left = HoodPlacement(anchor=(cx + r_head, y, cz), u_dir=(0.0, 0.0, -1.0), origin=(x0, ear),
+                         seam=(sx0, sy0, sx1, sy1), **cone)
+    right = HoodPlacement(anchor=(cx - r_head, y, cz), u_dir=(0.0, 0.0, 1.0), origin=(-x0, ear),
+                          seam=(-sx0, sy0, -sx1, sy1), **cone)
     panels = [Panel("hood_l", corners, edges, left), mirror_panel("hood_r", corners, edges, right)]
     seams = [Seam(("hood_l", 2), ("hood_r", 2)), Seam(("hood_l", 3), ("hood_r", 1))]
     return panels, seams
