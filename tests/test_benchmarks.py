@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -164,13 +165,24 @@ def test_garments_table_and_population(tmp_path):
                       "--motions", "walk", "--resolution", "0.06", "--seconds", "0.2", "--prelude", "0.2",
                       "--population", "2", "--seed", "3", "--population-resolution", "0.07",
                       "--smoothing", "cg", "--material", "denim", "--design-param", "fit=loose",
-                      "--design-param", "sleeve_length=0.3", tmp_path=tmp_path)
+                      "--design-param", "sleeve_length=0.3", "--frames-out", str(tmp_path / "frames"),
+                      "--frames-every", "4", tmp_path=tmp_path)
     assert r["benchmark"] == "garments_cpu" and r["sizes"]["edge_m"] == 0.06 and r["complete"]
     (garment,) = r["table"]["garments"]
     (row,) = r["table"]["rows"]
     assert (row["design"], row["shape"], row["motion"]) == ("t_shirt", "mean", "walk")
     assert (garment["material"], garment["fit"], garment["sleeve_length"]) == ("denim", "loose", 0.3)
     assert (row["material"], row["fit"], r["sizes"]["material"]) == ("denim", "loose", "denim")
+    with np.load(tmp_path / "frames" / "t_shirt_mean_walk.npz") as z:  # every 4th frame and the last
+        assert z["frames"].tolist() == [0, 4, 5] and z["garment"].dtype == np.float32
+        assert z["garment"].shape == (3, row["vertices"], 3)
+        assert z["body"].shape == (3, r["sizes"]["body_vertices"], 3)
+        assert z["garment_faces"].max() == row["vertices"] - 1
+        assert len(z["panel_ids"]) == len(z["garment_faces"])
+        # the garment is worn in every frame: its centre within 10 cm of the body's, across
+        g, b = z["garment"].astype(np.float32), z["body"].astype(np.float32)
+        assert np.isfinite(g).all()
+        assert np.linalg.norm(g.mean(1)[:, [0, 2]] - b.mean(1)[:, [0, 2]], axis=1).max() < 0.1
     assert row["vertices"] == garment["vertices"] and 100 < row["vertices"] < 400
     assert garment["seam_gap_mm"] <= 1.0 and garment["sewing_s"] > 0 and row["substeps"] == [12]
     # 0.2 s at 30 fps from the motion's first frame: 6 frames
