@@ -45,8 +45,11 @@ How each part maps onto ``sim.garments.pattern``:
   joins start to start (the right side of one panel to the wrong side of the other),
   ``reverse`` False. A stitch between two consecutive edges of one panel, end to start around
   their shared corner, is a dart.
-- Edge ``label``s become ``Edge.label``; panel ``label``s ("body", "arm", "leg") go to
-  ``Pattern.parameters["panel_labels"]``; ``panel_order`` orders ``Pattern.panels``.
+- Edge ``label``s become ``Edge.label``, GarmentCode's own named as ours (``our_label``);
+  the openings a file does not label are named "cuff" and "hem" by where they are
+  (``labelled_openings``; not in files wrinkles wrote, which keep their labels); panel
+  ``label``s ("body", "arm", "leg") go to ``Pattern.parameters["panel_labels"]``;
+  ``panel_order`` orders ``Pattern.panels``.
 - ``properties.normalize_panel_translation`` True moves each panel's vertices by their mean and
   its translation by the same 2D offset, as GarmentCode does on loading.
 
@@ -55,7 +58,9 @@ soles); the Garment-Pattern-Generator's files and ours around the body in its ow
 up, the pelvis near the origin, as ``BodyModel.rest_mesh``). ``place_on_body`` moves a pattern
 onto a rest body: "floor" raises every panel by the height of the body's soles (a negative
 number: it lowers them), "body" keeps it, "auto" takes the one of the two in which the pattern's
-height span lies more inside the body's (``pattern_frame``).
+height span lies more inside the body's (``pattern_frame``). GarmentCodeData's bodies stand in an
+A-pose, ours in a T-pose: ``place_on_body`` then turns the sleeves onto the body's arms
+(``sim.garments.sleeve_pose``).
 
 Writing emits the same format in centimetres with relative coordinates and ``{"type",
 "params"}`` curvatures, every stitch as above, and ``normalized_edge_loops`` True so that
@@ -84,6 +89,15 @@ RIGHT_WRONG = "right_wrong"
 """The stitch flag that joins its two edges start to start."""
 EXTENSION = "wrinkles"
 """Top-level key of what wrinkles writes beyond GarmentCode's fields (values in metres)."""
+GARMENTCODE_LABELS = {"lower_interface": "waistband", "strapless_top": "waistband"}
+"""GarmentCode's edge labels with another name here: the top of a skirt or trousers (the waist
+seam of a dress or jumpsuit) and of a strapless top, which GarmentCodeData's simulator holds
+at the body's waist and under the arms (``assets/Sim_props/default_sim_props.yaml``
+``attachment_label_names``, ``pygarment/meshgen/garment.py``), are our "waistband" (held while
+the sewn garment settles, ``sewing.HELD``)."""
+HEM_SLOPE_DEG = 30.0
+"""An opening of a file without labels for it is a hem when it runs within this angle [deg] of
+the horizontal below its panel's centre (a bottom edge; side openings and slits are steeper)."""
 FRAMES = ("auto", "floor", "body")
 """Frames a pattern file's panels may be placed in (``place_on_body``)."""
 
@@ -188,7 +202,8 @@ def _pattern(spec, name: str) -> Pattern:
     params = dict(ext.get("parameters") or {})
     if labels:
         params["panel_labels"] = labels
-    return Pattern(str(ext.get("name") or name), tuple(panels.values()), seams, params)
+    pattern = Pattern(str(ext.get("name") or name), tuple(panels.values()), seams, params)
+    return pattern if EXTENSION in spec else labelled_openings(pattern)
 
 
 def _panel_order(body: dict, raw: dict) -> list[str]:
@@ -286,10 +301,47 @@ def _endpoints(name: str, k: int, edge, n: int) -> tuple[int, int]:
     return ends[0], ends[1]
 
 
+def our_label(label: str) -> str:
+    """Our edge label (``sim.garments.designs.ATTACHMENT_LABELS``, ``sewing.HELD``) of a
+    GarmentCode edge label (``GARMENTCODE_LABELS``; "{side}_collar" -> "neckline",
+    "{side}_armhole" -> "armhole"); any other label stays as it is."""
+    if label in GARMENTCODE_LABELS:
+        return GARMENTCODE_LABELS[label]
+    if label.endswith("_collar"):
+        return "neckline"
+    return "armhole" if label.endswith("_armhole") else label
+
+
+def labelled_openings(pattern: Pattern) -> Pattern:
+    """``pattern`` with its unlabelled openings (edges in no seam) named as ours are: "cuff" on an
+    arm panel (``sleeve_pose.arm_panels``), "hem" where the edge runs within ``HEM_SLOPE_DEG`` of
+    the horizontal below the centre of its panel (where the placements put them)."""
+    from sim.garments.sleeve_pose import arm_panels
+
+    arms = {n for names in arm_panels(pattern).values() for n in names}
+    free: dict[str, set[int]] = {}
+    for name, i in pattern.free_edges():
+        free.setdefault(name, set()).add(i)
+    panels = []
+    for p in pattern.panels:
+        centre_y = float(p.placement.place(p.outline(8))[:, 1].mean())
+        edges = list(p.edges)
+        for i in sorted(free.get(p.name, ())):
+            if edges[i].label:
+                continue
+            pts = p.placement.place(p.edge_curve(i, 8))
+            chord = pts[-1] - pts[0]
+            flat = abs(chord[1]) <= np.sin(np.deg2rad(HEM_SLOPE_DEG)) * np.linalg.norm(chord)
+            label = "cuff" if p.name in arms else "hem" if flat and pts[:, 1].mean() < centre_y else ""
+            edges[i] = replace(edges[i], label=label)
+        panels.append(replace(p, edges=tuple(edges)))
+    return replace(pattern, panels=tuple(panels))
+
+
 def _edge(name: str, k: int, raw: dict, p0: np.ndarray, p1: np.ndarray, scale: float,
           relative: bool) -> Edge:
     label = raw.get("label", "")
-    label = label if isinstance(label, str) else str(label)
+    label = our_label(label if isinstance(label, str) else str(label))
     curve = raw.get("curvature")
     where = f"panel {name!r} edge {k}"
     if curve is None:
@@ -488,14 +540,16 @@ def pattern_frame(pattern: Pattern, body_vertices: np.ndarray) -> str:
 
 def place_on_body(pattern: Pattern, body_vertices: np.ndarray, frame: str = "auto") -> Pattern:
     """``pattern`` with its panels moved from the file's ``frame`` (``FRAMES``; see the module)
-    into the frame of the rest body ``body_vertices`` (V, 3) [m]."""
+    into the frame of the rest body ``body_vertices`` (V, 3) [m] and its sleeves turned onto the
+    body's arms (``sleeve_pose.pose_sleeves``)."""
     if frame not in FRAMES:
         raise ValueError(f"unknown pattern frame {frame!r}; expected one of {', '.join(FRAMES)}")
+    from sim.garments.sleeve_pose import pose_sleeves
+
     if frame == "auto":
         frame = pattern_frame(pattern, body_vertices)
-    if frame == "body":
-        return pattern
-    lift = np.array([0.0, float(np.min(np.asarray(body_vertices)[:, 1])), 0.0])
-    panels = tuple(replace(p, placement=replace(p.placement, anchor=tuple(
-        float(a) for a in np.asarray(p.placement.anchor) + lift))) for p in pattern.panels)
-    return replace(pattern, panels=panels)
+    if frame == "floor":
+        lift = np.array([0.0, float(np.min(np.asarray(body_vertices)[:, 1])), 0.0])
+        pattern = replace(pattern, panels=tuple(replace(p, placement=replace(p.placement, anchor=tuple(
+            float(a) for a in np.asarray(p.placement.anchor) + lift))) for p in pattern.panels))
+    return pose_sleeves(pattern, body_vertices)
