@@ -160,7 +160,15 @@ def test_sleeves_along_the_arms_stay_where_they_are(body):
     rest = np.asarray(body.rest_mesh(None), np.float64)
     p = pattern_from_spec(top_spec(angle=5.0))
     assert pose_sleeves(p, rest) is p
-    assert pose_sleeves(pattern_from_spec(top_spec(angle=12.0)), rest) is not None
+    tilted = pattern_from_spec(top_spec(angle=12.0))
+    turned = pose_sleeves(tilted, rest)
+    assert turned.panel("left_sleeve_f").placement != tilted.panel("left_sleeve_f").placement
+    from sim.garments.designs import make_pattern
+
+    for design in ("t_shirt", "long_sleeve"):  # our sleeves, wrapped on the arms, 1-2.3° off them
+        ours = make_pattern(design, body, None)
+        assert set(arm_panels(ours)) == {1, -1}
+        assert pose_sleeves(ours, rest) is ours
     _, d = body_arm(rest, 1)
     np.testing.assert_allclose(d, [1, 0, 0], atol=0.01)
 
