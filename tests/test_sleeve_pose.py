@@ -182,6 +182,11 @@ def test_garmentcode_labels_become_our_attachment_labels():
     for name, k in cuffs:  # the free end of each sleeve: x = ±45 cm
         a, b = p.panel(name).edge_ends(k)
         np.testing.assert_allclose(np.abs([a[0], b[0]]), 0.45, atol=1e-9)
+    sewn_waist = top_spec()  # a waist sewn to another edge (a dress's) is a seam, not held
+    sewn_waist["pattern"]["stitches"].append([{"panel": "ftorso", "edge": 0}, {"panel": "btorso", "edge": 4}])
+    p = pattern_from_spec(sewn_waist)
+    assert p.labelled("waistband") == []
+    assert sorted(p.labelled("waist")) == [("btorso", 4), ("ftorso", 0)]
     unlabelled = pattern_from_spec(top_spec(labels=False))
     assert sorted(unlabelled.labelled("hem")) == [("btorso", 4), ("ftorso", 0)]
     assert unlabelled.labelled("waistband") == []
