@@ -27,11 +27,11 @@ ATTACHMENT_LABELS = {"hem": "hem", "cuff": "cuffs", "waistband": "waistband", "n
                      "shoulder": "shoulders"}
 """Pattern edge label -> the garment attachment set its vertices join."""
 SIZES = {
-    "t_shirt": (0.017, 0.0065, (2909, 19815)),
-    "long_sleeve": (0.0195, 0.007, (2712, 21086)),
-    "tank_top": (0.015, 0.006, (2787, 17187)),
-    "hoodie": (0.02, 0.0075, (3432, 24558)),
-    "dress": (0.02, 0.007, (2827, 22922)),
+    "t_shirt": (0.017, 0.0065, (2833, 19237)),
+    "long_sleeve": (0.0195, 0.007, (2703, 20996)),
+    "tank_top": (0.015, 0.006, (2745, 16942)),
+    "hoodie": (0.02, 0.0075, (3416, 24414)),
+    "dress": (0.02, 0.007, (2811, 22810)),
     "straight_skirt": (0.015, 0.006, (2897, 17786)),
     "flared_skirt": (0.016, 0.0065, (2991, 18129)),
     "shorts": (0.015, 0.006, (2803, 17429)),
