@@ -211,9 +211,9 @@ def prolong_kernel(
     ``SELF_CONTACT_CAP`` contact radii; at a particle of an instance with a body but off it
     (further than the contact margin as the substep began) to half the margin's room, so the body
     contact found at the substep's start still covers it; at a particle on the body to the
-    margin's room (a sewn tank top's first correction threw a particle on the shoulder 13 cm at
-    a 1.3 mm contact distance and the run blew up; in a coarse t-shirt's walk the largest such
-    move is 11 mm) and no deeper into the body than it is or than its thickness shell."""
+    margin's room (unlimited, a sewn tank top's first correction throws a particle on the shoulder
+    13 cm at a 1.3 mm contact distance and the run blows up; in a coarse t-shirt's walk the
+    largest such move is 11 mm) and no deeper into the body than it is or than its thickness shell."""
     i = wp.tid()
     xi = x_inout[i]
     if flags[i] != PINNED:

@@ -308,8 +308,8 @@ class RowPlacement(Placement):
     row, and a panel that narrows between rows (a skirt's hip curve) does not wrap past its
     side at the narrower row. A side seam that curves between the rows gives ``side``: samples
     (y, x1) of it, from which a point's span ends at its own height, so the curve is placed
-    where the rows place their sides (with the linear blend a skirt's convex hip curve wrapped
-    ~1 cm past the side seam on both panels, and the front and back crossed there when sewn).
+    where the rows place their sides (with the linear blend a skirt's convex hip curve wraps
+    ~1 cm past the side seam on both panels, and the front and back cross there when sewn).
     Not an isometry: on the default body the placed edges of a
     straight skirt are within 1.9 % of their flat lengths for 90 % of them (up to 17 % by the
     side seams under the waist), a pair of trousers' within 5.5 % (up to ~100 % at the top of

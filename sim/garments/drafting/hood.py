@@ -24,7 +24,7 @@ class HoodPlacement(Placement):
     """A hood half's cone (``Placement``) turned at each height so that its back seam lies at
     the centre back: the seam runs straight from panel point (``seam`` x0, y0) to (x1, y1) and
     slants backwards up the panel faster than the cone widens, so on the plain cone the halves
-    wrapped past the centre back 6-11 cm above the neck and crossed each other when sewn."""
+    wrap past the centre back 6-11 cm above the neck and cross each other when sewn."""
 
     seam: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
 
