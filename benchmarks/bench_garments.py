@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import add_results_argument, machine, write_result
-from benchmarks.scene import FPS, option_error, quality_dict
+from benchmarks.scene import FPS, numbers, option_error, quality_dict
 
 SHAPES = {"mean": {}, "plus2": {0: 2.0}, "minus2": {0: -2.0}, "heavy": {2: -2.0}, "slim": {2: 2.0}}
 """Named body shapes of the default body, as {beta index: value} in standard deviations: ``plus2``
@@ -77,6 +77,7 @@ class GarmentSpec:
     material: str = "cotton"
     params: tuple[tuple[str, object], ...] = ()
     resolution: str | float = "fine"
+    material_changes: tuple[tuple[str, float], ...] = ()
 
 
 def shape_betas(body, spec: dict[int, float]) -> np.ndarray:
@@ -108,10 +109,11 @@ def sew_one(spec: GarmentSpec, device: str):
 
     body = load_default_body()
     betas = np.asarray(spec.betas, np.float32)
-    info = {"design": spec.design, "shape": spec.shape, "material": spec.material, **dict(spec.params)}
+    info = {"design": spec.design, "shape": spec.shape, "material": spec.material, **dict(spec.params),
+            **dict(spec.material_changes)}
     t0 = time.perf_counter()
     try:
-        mat = get_material(spec.material)
+        mat = get_material(spec.material).with_(**dict(spec.material_changes))
         pattern = make_pattern(spec.design, body, betas, **dict(spec.params))
         sewn = sew_pattern(pattern, np.asarray(body.rest_mesh(betas)), np.asarray(body.faces),
                            edge_length(spec.resolution, spec.design), mat, device=device)
@@ -394,7 +396,8 @@ def table(args: argparse.Namespace, body, device: str, clock: Clock, smoothing: 
 
     shapes = {s: shape_betas(body, SHAPES[s]) for s in args.shapes}
     specs = [GarmentSpec(d, s, tuple(float(b) for b in shapes[s]), args.material,
-                         design_overrides(d, args.design_param), args.resolution)
+                         design_overrides(d, args.design_param), args.resolution,
+                         tuple(args.material_changes.items()))
              for s in args.shapes for d in args.designs]
     sewn = sew_all(specs, device, args.workers, clock)
     out = report.result["table"] = {"garments": [info for _, info in sewn], "rows": []}
@@ -431,7 +434,9 @@ def table(args: argparse.Namespace, body, device: str, clock: Clock, smoothing: 
 def save_frames(path, sequence, garment, every: int) -> None:
     """Every ``every``-th frame of a sequence (and its last) as .npz, written atomically:
     ``garment`` (T, V, 3) and ``body`` (T, Vb, 3) positions [m], ``garment_faces``, ``body_faces``,
-    ``panel_ids`` and ``frames`` (their indices in the motion), for pictures (tools/render_closeups.py).
+    ``panel_ids`` and ``frames`` (their indices in the motion), for pictures (tools/render_closeups.py),
+    and ``rest`` (V, 3) with ``rest_edge_lengths`` (``Garment.rest_edge_lengths``: the flat
+    pattern's, in ``sim.quality.unique_edges`` order) for the edge strain.
     Positions stay float32: float16 steps ~1 mm at 1-2 m, and the skin would show through the
     cloth in the pictures."""
     import os
@@ -447,7 +452,9 @@ def save_frames(path, sequence, garment, every: int) -> None:
                             body=np.asarray(sequence.body.vertices, np.float32)[idx],
                             garment_faces=np.asarray(garment.faces, np.int32),
                             body_faces=np.asarray(sequence.body.faces, np.int32),
-                            panel_ids=np.asarray(garment.panel_ids, np.int32), frames=idx.astype(np.int32))
+                            panel_ids=np.asarray(garment.panel_ids, np.int32), frames=idx.astype(np.int32),
+                            rest=np.asarray(garment.rest_vertices, np.float32),
+                            rest_edge_lengths=np.asarray(garment.rest_edge_lengths(), np.float32))
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -667,6 +674,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--solver-param", action="append", default=[], metavar="KEY=VALUE",
                     help="a solver setting over the job's, e.g. body_contact.offset=0.001 (repeatable)")
     ap.add_argument("--material", default="cotton", help="the table's material preset (default: %(default)s)")
+    ap.add_argument("--material-param", action="append", default=[], metavar="KEY=VALUE",
+                    help="a field of the table's material over its preset (sim.garments.materials.Material), "
+                         "e.g. friction=0.2 (repeatable)")
     ap.add_argument("--design-param", action="append", default=[], metavar="KEY=VALUE",
                     help="a design parameter over the defaults, for the designs that have it, e.g. "
                          "fit=loose (repeatable)")
@@ -698,14 +708,17 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def check_table_garments(args: argparse.Namespace) -> None:
-    """``--material`` is a preset; every ``--design-param`` is KEY=VALUE, a parameter of one of
-    the table's designs with a valid value (else the option's error, exit 2)."""
+    """``--material`` is a preset, every ``--material-param`` KEY=NUMBER a field of it; every
+    ``--design-param`` is KEY=VALUE, a parameter of one of the table's designs with a valid value
+    (else the option's error, exit 2)."""
     from sim.garments.designs import design_params
-    from sim.garments.materials import MATERIALS
+    from sim.garments.materials import MATERIALS, get_material
 
     if args.material not in MATERIALS:
         option_error("--material", ValueError(f"unknown preset {args.material!r}; expected one of "
                                               f"{', '.join(sorted(MATERIALS))}"))
+    args.material_changes = numbers(args.material_param, "--material-param",
+                                    lambda out: get_material(args.material).with_(**out))
     for item in args.design_param:
         key = item.partition("=")[0]
         if "=" not in item or not any(k == key for d in args.designs for k, _ in design_overrides(d, [item])):
@@ -745,7 +758,8 @@ def main(argv: list[str] | None = None) -> None:
              "motions": list(args.motions), "resolution": args.resolution,
              "edge_m": edge_lengths(args.resolution, args.designs),
              "smoothing": {"length_m": SMOOTHING_LENGTH, "solver": method},
-             "material": args.material, "design_params": list(args.design_param),
+             "material": args.material, "material_params": list(args.material_param),
+             "design_params": list(args.design_param),
              "workers": args.workers, "time_limit_s": args.time_limit}
     report = Report(f"garments_{device.split(':')[0]}{args.tag}", args.results,
                     {"machine": machine(device), "sizes": sizes, "config": cfg.to_dict()})
