@@ -27,11 +27,11 @@ ATTACHMENT_LABELS = {"hem": "hem", "cuff": "cuffs", "waistband": "waistband", "n
                      "shoulder": "shoulders"}
 """Pattern edge label -> the garment attachment set its vertices join."""
 SIZES = {
-    "t_shirt": (0.017, 0.0065, (2833, 19237)),
-    "long_sleeve": (0.0195, 0.007, (2703, 20996)),
-    "tank_top": (0.015, 0.006, (2745, 16942)),
-    "hoodie": (0.02, 0.0075, (3416, 24414)),
-    "dress": (0.02, 0.007, (2811, 22810)),
+    "t_shirt": (0.017, 0.0065, (2898, 19714)),
+    "long_sleeve": (0.0195, 0.007, (2802, 21709)),
+    "tank_top": (0.015, 0.006, (2896, 17867)),
+    "hoodie": (0.02, 0.0075, (3507, 25104)),
+    "dress": (0.02, 0.007, (2894, 23444)),
     "straight_skirt": (0.015, 0.006, (2897, 17786)),
     "flared_skirt": (0.016, 0.0065, (2991, 18129)),
     "shorts": (0.015, 0.006, (2803, 17429)),
@@ -120,7 +120,7 @@ def _top(parts: BodyParts, d, name: str) -> Pattern:
     from sim.garments.drafting.tops import draft_top
 
     return draft_top(parts.measurements, parts.vertices, parts.torso_mask, parts.arm_masks, parts.joints, d,
-                     name)
+                     name, parts.faces)
 
 
 def _tops() -> dict[str, Design]:

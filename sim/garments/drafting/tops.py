@@ -16,7 +16,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.garments.drafting.body_frame import SMPL, limb_cylinder, limb_radius, torso_cylinder, torso_section
+from sim.garments.drafting.body_frame import (
+    SMPL,
+    limb_cylinder,
+    limb_radius,
+    over_shoulder,
+    torso_cylinder,
+    torso_section,
+)
 from sim.garments.drafting.hood import hood_panels
 from sim.garments.parameters import check_parameter, choice, parameter, parameter_specs
 from sim.garments.pattern import Edge, Panel, Pattern, Placement, Seam, parameter_at_length, split_edge
@@ -30,20 +37,25 @@ EASE = {
 }
 """Ease [m] per girth (added to the whole girth) and per placement, by fit (tight, regular,
 loose): Aldrich's jersey block takes ~4 cm at the chest, the shirt block ~10 cm, oversized
-cuts 20 cm and more. The armhole drops 3 / 5 / 7 cm below the armpit: that makes each armhole
-long enough for a sleeve cap 6-8.4 cm high around the upper arm plus its ease, as a tee's set-in
-sleeve has (default body and +-2 sigma shapes). At 1.5 / 3 / 5 cm the regular and loose caps are
-flat (1 cm): sleeves that stand out from the shoulder as in the T-pose they are sewn in and fold
-into the armpit when the arm comes down (coarse t-shirt, CPU: arm raise strain 0.64 and 16
-crossings against 0.19 and none at 3 / 5 / 7 cm; walk 0.33 against 0.11)."""
+cuts 20 cm and more. The armhole drops 3 / 5 / 7 cm below the armpit and its top, the shoulder
+point, stands as high as the bodice's length over the shoulder reaches (``over_shoulder``): each
+armhole is long enough for a sleeve cap 11-16 cm high around the upper arm plus its ease, a
+shirt's set-in sleeve that hangs along the lowered arm (default body and +-2 sigma shapes). Fine
+t-shirt and long sleeve on an H200 (walk / arm raise, worst strain): 0.78 / 0.39 and 0.17 / 0.65
+with these caps, 0.72 / 1.36 and 0.65 / 1.69 with 6-8.4 cm caps (the shoulder point not raised).
+At 1.5 / 3 / 5 cm drops the caps are flat (1 cm): sleeves that stand out from the shoulder as in
+the T-pose they are sewn in and fold into the armpit when the arm comes down (coarse t-shirt,
+CPU: arm raise strain 0.64 and 16 crossings against 0.19 and none at 3 / 5 / 7 cm)."""
 STRAIGHT = (0.0, 0.92, 1.0)
 """The side seam's half width at waist and hip is at least this share of the chest's, by fit:
 a regular tee falls nearly straight from the underarm, a tight one follows the waist."""
 HOOD_GAP = 0.045
 """The hood's halves end this far [m] from the centre front along the neckline: a small opening
 between them at the throat, where they would otherwise lie on each other."""
-CAP_EASE = 0.03
-"""A sleeve cap is this much longer than its armhole (relative): the ease sewn into the crown."""
+CAP_EASE = 0.01
+"""A sleeve cap is this much longer than its armhole (relative): the ease sewn into the crown. A
+12-17 cm cap with 3 % eased in puckers at the crown: the coarse t-shirt's sewn rest shape crossed
+itself there (2 edges, rest strain 0.22 against none and 0.07 at 1 %, CPU)."""
 
 
 @dataclass(frozen=True)
@@ -95,19 +107,23 @@ def side_points(m, d: TopDesign, hem_y: float, armpit_y: float) -> list[tuple[fl
     return [(0.0, hem_hw)] + pts
 
 
-def bodice_panel(name: str, m, d: TopDesign, front: bool, hem_y: float, placement: Placement) -> Panel:
+def bodice_panel(name: str, m, d: TopDesign, front: bool, hem_y: float, placement: Placement,
+                 over=lambda x, top_y: 0.0) -> Panel:
     """A front or back panel: x = 0 on the centre line, y = 0 at the hem, counter-clockwise
     seen from outside. Edge labels: hem, side, armhole, shoulder, neckline (two edges, meeting at
-    the centre line)."""
+    the centre line). ``over(x, top_y)``: the length [m] the panel needs beyond the rise from
+    chest level to reach its shoulder seam at height ``top_y``, ``x`` off the centre line
+    (``body_frame.over_shoulder``); the side neck and shoulder points stand that much higher."""
     armpit_y = m.armpit_height - ease("armhole_drop", d.fit)
     side = side_points(m, d, hem_y, armpit_y)
     neck_hw = m.neck_base / (2 * np.pi) + d.neck_width
-    hps_y = m.neck_base_height + 0.005 - hem_y
     if d.strap_width > 0:
         sp_x = neck_hw + d.strap_width
     else:
         sp_x = 0.5 * m.shoulder_width + ease("shoulder", d.fit)
-    sp_y = m.shoulder_height + 0.012 - hem_y
+    hps_y = m.neck_base_height + 0.005 + over(neck_hw, m.neck_base_height + 0.005) - hem_y
+    sp_top = m.shoulder_height + 0.012
+    sp_y = sp_top + over(min(sp_x, 0.5 * m.shoulder_width), sp_top) - hem_y
     ua_y, ua_x = side[-1]
     depth = d.neck_depth if front else 0.02
     scoop = 0.018 if front else 0.008  # the armhole's hollow, deeper in front
@@ -188,14 +204,18 @@ def sleeve_placement(m, d: TopDesign, vertices: np.ndarray, mask: np.ndarray, jo
 
 
 def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, joints: np.ndarray,
-              d: TopDesign, name: str = "top") -> Pattern:
-    """A top's pattern for a body: measurements ``m``, rest vertices and joints for placement."""
+              d: TopDesign, name: str = "top", faces: np.ndarray | None = None) -> Pattern:
+    """A top's pattern for a body: measurements ``m``, rest vertices and joints for placement;
+    with the body's ``faces`` the bodice reaches over the shoulders (``over_shoulder``)."""
     hem_y = m.waist_height - d.hem_drop
     section = torso_section(vertices, torso_mask, m.chest_height)
     half = (m.chest + ease("chest", d.fit)) / 4
     hem_half = side_points(m, d, hem_y, m.armpit_height)[0][1]
-    front = bodice_panel("front", m, d, True, hem_y, torso_cylinder(section, half, True, hem_y, hem_half))
-    back = bodice_panel("back", m, d, False, hem_y, torso_cylinder(section, half, False, hem_y, hem_half))
+    over = over_of(vertices, faces, torso_mask, m.chest_height)
+    front, back = (bodice_panel(side, m, d, side == "front", hem_y,
+                                torso_cylinder(section, half, side == "front", hem_y, hem_half),
+                                over)
+                   for side in ("front", "back"))
     k = len(side_points(m, d, hem_y, 0.0)) - 1  # side edges per side
     arm_f = k + 1
     if d.hood == "yes":  # the hood's halves start HOOD_GAP from the centre front: no overlap there
@@ -226,6 +246,16 @@ def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, j
             Seam(("hood_l", 0), ("front", arm_f + 2)), Seam(("hood_l", 1), ("back", arm_f + 3)),
             Seam(("hood_r", 4), ("front", arm_f + 5)), Seam(("hood_r", 3), ("back", arm_f + 2))]
     return Pattern(name, tuple(panels), tuple(seams), {"design": d.__dict__.copy()})
+
+
+def over_of(vertices: np.ndarray, faces: np.ndarray | None, torso_mask: np.ndarray, chest_y: float):
+    """``over(x, top_y)`` of both bodice panels (``bodice_panel``): the mean of the front's and
+    the back's ``over_shoulder``, so the two armholes stay alike for the sleeve cap and the
+    seam lies where the two lengths meet over the shoulder; nothing without faces."""
+    if faces is None:
+        return lambda x, top_y: 0.0
+    return lambda x, top_y: 0.5 * sum(over_shoulder(vertices, faces, torso_mask, chest_y, x, top_y, f)
+                                      for f in (True, False))
 
 
 def head_geometry(vertices: np.ndarray, joints: np.ndarray, neck_y: float):
