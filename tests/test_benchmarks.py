@@ -164,7 +164,8 @@ def test_garments_table_and_population(tmp_path):
     r = single_result("bench_garments", "--device", "cpu", "--designs", "t_shirt", "--shapes", "mean",
                       "--motions", "walk", "--resolution", "0.06", "--seconds", "0.2", "--prelude", "0.2",
                       "--population", "2", "--seed", "3", "--population-resolution", "0.07",
-                      "--smoothing", "cg", "--material", "denim", "--design-param", "fit=loose",
+                      "--smoothing", "cg", "--material", "denim", "--material-param", "friction=0.25",
+                      "--design-param", "fit=loose",
                       "--design-param", "sleeve_length=0.3", "--frames-out", str(tmp_path / "frames"),
                       "--frames-every", "4", tmp_path=tmp_path)
     assert r["benchmark"] == "garments_cpu" and r["sizes"]["edge_m"] == 0.06 and r["complete"]
@@ -172,6 +173,7 @@ def test_garments_table_and_population(tmp_path):
     (row,) = r["table"]["rows"]
     assert (row["design"], row["shape"], row["motion"]) == ("t_shirt", "mean", "walk")
     assert (garment["material"], garment["fit"], garment["sleeve_length"]) == ("denim", "loose", 0.3)
+    assert garment["friction"] == 0.25 and r["sizes"]["material_params"] == ["friction=0.25"]
     assert (row["material"], row["fit"], r["sizes"]["material"]) == ("denim", "loose", "denim")
     with np.load(tmp_path / "frames" / "t_shirt_mean_walk.npz") as z:  # every 4th frame and the last
         assert z["frames"].tolist() == [0, 4, 5] and z["garment"].dtype == np.float32
@@ -179,6 +181,12 @@ def test_garments_table_and_population(tmp_path):
         assert z["body"].shape == (3, r["sizes"]["body_vertices"], 3)
         assert z["garment_faces"].max() == row["vertices"] - 1
         assert len(z["panel_ids"]) == len(z["garment_faces"])
+        # the rest shape and the flat pattern's edge lengths give the strain the gates read
+        from sim.quality import edge_strain
+
+        worst = np.abs(edge_strain(z["garment"], z["rest"], z["garment_faces"], device="cpu",
+                                   rest_lengths=z["rest_edge_lengths"])).max()
+        assert 0 < worst <= row["quality"]["max_edge_strain"] + 1e-5  # the stored frames are some of them
         # the garment is worn in every frame: its centre within 10 cm of the body's, across
         g, b = z["garment"].astype(np.float32), z["body"].astype(np.float32)
         assert np.isfinite(g).all()
@@ -215,6 +223,8 @@ def test_garments_table_and_population(tmp_path):
     (["--design-param", "inseam=0.7"],
      "--design-param: 'inseam=0.7': expected KEY=VALUE with KEY a parameter of one of the table's designs"),
     (["--design-param", "fit=baggy"], "--design-param: t_shirt: "),
+    (["--material-param", "stiffness=2"],
+     "--material-param: material 'cotton': unknown field(s) ['stiffness']"),
 ])
 def test_garments_refuses_a_bad_material_or_design_parameter(tmp_path, args, message):
     proc, found = run_benchmark("bench_garments", "--device", "cpu", "--designs", "t_shirt", *args,

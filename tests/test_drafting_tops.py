@@ -76,7 +76,9 @@ def test_bodices_reach_over_the_shoulders_of_the_body():
     extra = np.mean([over_shoulder(parts.vertices, parts.faces, parts.torso_mask, m.chest_height, hps, top, s)
                      for s in (True, False)])
     assert 0.02 < extra < 0.08
-    for panel in (front, back):
+    hem_y = m.waist_height - 0.22  # the t-shirt's hem_drop
+    for panel, depth in ((front, 0.08), (back, 0.02)):  # the design's neck depths
         rise = panel.corners[:, 1].max() - panel.corners[:, 1].min()
-        hem_y = m.waist_height - 0.22  # the t-shirt's hem_drop
         assert rise == pytest.approx(top + extra - hem_y, abs=1e-9)
+        centre = panel.corners[panel.corners[:, 0] == 0.0]  # the neckline's centre goes over no shoulder
+        assert centre[:, 1].max() == pytest.approx(top - hem_y - depth, abs=1e-9)

@@ -27,11 +27,11 @@ ATTACHMENT_LABELS = {"hem": "hem", "cuff": "cuffs", "waistband": "waistband", "n
                      "shoulder": "shoulders"}
 """Pattern edge label -> the garment attachment set its vertices join."""
 SIZES = {
-    "t_shirt": (0.017, 0.0065, (2898, 19714)),
-    "long_sleeve": (0.0195, 0.007, (2802, 21709)),
-    "tank_top": (0.015, 0.006, (2896, 17867)),
-    "hoodie": (0.02, 0.0075, (3507, 25104)),
-    "dress": (0.02, 0.007, (2894, 23444)),
+    "t_shirt": (0.017, 0.0065, (2861, 19423)),
+    "long_sleeve": (0.0195, 0.007, (2776, 21453)),
+    "tank_top": (0.015, 0.006, (2840, 17515)),
+    "hoodie": (0.02, 0.0075, (3507, 25070)),
+    "dress": (0.02, 0.007, (2868, 23191)),
     "straight_skirt": (0.015, 0.006, (2897, 17786)),
     "flared_skirt": (0.016, 0.0065, (2991, 18129)),
     "shorts": (0.015, 0.006, (2803, 17429)),

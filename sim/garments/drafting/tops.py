@@ -121,7 +121,8 @@ def bodice_panel(name: str, m, d: TopDesign, front: bool, hem_y: float, placemen
         sp_x = neck_hw + d.strap_width
     else:
         sp_x = 0.5 * m.shoulder_width + ease("shoulder", d.fit)
-    hps_y = m.neck_base_height + 0.005 + over(neck_hw, m.neck_base_height + 0.005) - hem_y
+    hps_body = m.neck_base_height + 0.005 - hem_y  # the side neck point's rise from the hem
+    hps_y = hps_body + over(neck_hw, m.neck_base_height + 0.005)
     sp_top = m.shoulder_height + 0.012
     sp_y = sp_top + over(min(sp_x, 0.5 * m.shoulder_width), sp_top) - hem_y
     ua_y, ua_x = side[-1]
@@ -133,13 +134,16 @@ def bodice_panel(name: str, m, d: TopDesign, front: bool, hem_y: float, placemen
     armhole = Edge("cubic", ((ua_x - 0.6 * (ua_x - sp_x + scoop), ua_y),
                              (sp_x - scoop, ua_y + 0.55 * (sp_y - ua_y))), "armhole")
     edges += [armhole, Edge(label="shoulder")]
-    corners += [(0.0, hps_y - depth), (-neck_hw, hps_y)]  # the neckline in halves at the centre
+    # the neckline in halves at the centre, ``depth`` below the side neck point on the body: the
+    # centre front and back go over no shoulder
+    low = hps_body - depth
+    drop = 0.55 * (hps_y - low)
+    corners += [(0.0, low), (-neck_hw, hps_y)]
     if d.neckline == "v" and front:
         edges += [Edge(label="neckline"), Edge(label="neckline")]
     else:  # a scoop: vertical at the side neck points, level at the centre
-        low = hps_y - depth
-        edges += [Edge("cubic", ((neck_hw, hps_y - 0.55 * depth), (0.55 * neck_hw, low)), "neckline"),
-                  Edge("cubic", ((-0.55 * neck_hw, low), (-neck_hw, hps_y - 0.55 * depth)), "neckline")]
+        edges += [Edge("cubic", ((neck_hw, hps_y - drop), (0.55 * neck_hw, low)), "neckline"),
+                  Edge("cubic", ((-0.55 * neck_hw, low), (-neck_hw, hps_y - drop)), "neckline")]
     corners += [(-sp_x, sp_y), (-ua_x, ua_y)] + [(-x, y) for x, y in right[-2:0:-1]]
     c1, c2 = armhole.controls
     edges += [Edge(label="shoulder"),
