@@ -453,8 +453,6 @@ def test_simulate_help_explains_itself(capsys):
 
 @pytest.mark.slow
 @needs_usd
-@pytest.mark.xfail(reason="the sewn t-shirt at 4 substeps crosses itself (12 edges) at the walk's "
-                          "first output frame", strict=False)
 def test_cli_writes_body_and_garment_with_uvs_and_quality(tmp_path):
     from usd_io import read_stage, validate_stage
 
