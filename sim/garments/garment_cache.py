@@ -4,7 +4,9 @@ same garment, so it is sewn once (``cached_garment``).
 
 Files: ``$WRINKLES_CACHE/garments/<key>.npz`` (default ``~/.cache/wrinkles``), arrays plus a
 JSON header, no pickles; written to a temporary name and renamed, so an interrupted write leaves
-nothing half-written. ``WRINKLES_CACHE=off`` sews every time.
+nothing half-written. A process sewing a garment holds a lock on ``<key>.lock`` beside it (POSIX
+``flock``), so processes sharing the folder (test workers, dataset shards) sew each garment once:
+the others wait and read the file. ``WRINKLES_CACHE=off`` sews every time.
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ import hashlib
 import json
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -95,26 +98,62 @@ def load_cached(path: Path) -> Garment:
                        uv_scale=header["uv_scale"])
 
 
+@contextmanager
+def _locked(path: Path | None) -> Iterator[None]:
+    """Hold an exclusive lock on ``path`` with ``.lock`` for a suffix while the block runs (no
+    lock without a path, without ``fcntl`` or where the folder cannot be written)."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no lock, at worst two processes sew the same garment
+        fcntl = None
+    fd = None
+    if path is not None and fcntl is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(path.with_suffix(".lock"), os.O_RDWR | os.O_CREAT, 0o644)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError:  # a read-only cache folder: sew without the lock
+            if fd is not None:
+                os.close(fd)
+            fd = None
+    try:
+        yield
+    finally:
+        if fd is not None:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+
+
+def _read(path: Path | None) -> Garment | None:
+    """The garment at ``path``, None when there is none or it cannot be read."""
+    if path is None or not path.is_file():
+        return None
+    try:
+        return load_cached(path)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def cached_garment(spec: dict, build: Callable[[], Garment]) -> Garment:
     """The garment ``spec`` describes: from memory, from the cache folder, or ``build()`` (then
-    kept in both). A cache file that cannot be read is rebuilt and replaced."""
+    kept in both). A cache file that cannot be read is rebuilt and replaced. Building holds the
+    key's lock (``_locked``): another process building the same key at the same time waits for
+    this one and reads its file."""
     key = cache_key(spec)
     if key in _MEMORY:
         return _MEMORY[key]
     folder = cache_dir()
     path = None if folder is None else folder / f"{key}.npz"
-    g = None
-    if path is not None and path.is_file():
-        try:
-            g = load_cached(path)
-        except (OSError, ValueError, KeyError, TypeError):
-            g = None
+    g = _read(path)
     if g is None:
-        g = build()
-        if path is not None:
-            try:
-                save_garment(g, path)
-            except OSError:
-                pass  # a read-only home: sew again next time
+        with _locked(path):
+            g = _read(path)  # made by another process while this one waited for the lock
+            if g is None:
+                g = build()
+                if path is not None:
+                    try:
+                        save_garment(g, path)
+                    except OSError:
+                        pass  # a read-only home: sew again next time
     _MEMORY[key] = g
     return g

@@ -1,0 +1,66 @@
+"""The garment cache (``sim.garments.garment_cache``): a garment written and read back is the same
+garment, and processes sharing the folder build a key once (the others wait for its lock)."""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+
+import numpy as np
+import pytest
+
+from sim.garments import garment_cache as gc
+from sim.garments.materials import get_material
+from sim.garments.types import Garment
+from tests.test_cloth_solver import grid
+
+
+def small_garment() -> Garment:
+    v, f = grid(4, 5, 0.2, 0.3)
+    uv = v[:, :2] * 2 + 0.5
+    layers = np.linspace(1.0, 3.0, len(f)).astype(np.float32)
+    return Garment(v, f, uv, f, get_material("denim"), attachments={"hem": np.array([0, 1, 2])},
+                   category="sheet", name="sheet", face_layers=layers)
+
+
+def test_a_saved_garment_loads_back_the_same(tmp_path):
+    g = small_garment()
+    gc.save_garment(g, tmp_path / "g.npz")
+    back = gc.load_cached(tmp_path / "g.npz")
+    for field in ("rest_vertices", "faces", "uvs", "uv_faces", "panel_ids", "face_layers"):
+        np.testing.assert_array_equal(getattr(back, field), getattr(g, field), err_msg=field)
+    np.testing.assert_array_equal(back.attachments["hem"], g.attachments["hem"])
+    assert (back.material, back.category, back.name) == (g.material, g.category, g.name)
+    assert [p.name for p in tmp_path.iterdir()] == ["g.npz"]  # no temporary file left
+
+
+def _build_in_child(folder: str, log: str, out) -> None:
+    import os
+
+    os.environ["WRINKLES_CACHE"] = folder
+
+    def build() -> Garment:
+        with open(log, "a") as f:
+            f.write(f"{os.getpid()}\n")
+        time.sleep(0.5)  # long enough for the other process to find no file and wait for the lock
+        return small_garment()
+
+    g = gc.cached_garment({"test": "garment-cache-lock"}, build)
+    out.put(g.rest_vertices.tolist())
+
+
+@pytest.mark.skipif("fork" not in multiprocessing.get_all_start_methods(), reason="no fork here")
+def test_processes_sharing_the_folder_build_a_garment_once(tmp_path):
+    ctx = multiprocessing.get_context("fork")
+    log, out = tmp_path / "builds.txt", ctx.Queue()
+    procs = [ctx.Process(target=_build_in_child, args=(str(tmp_path), str(log), out)) for _ in range(2)]
+    for p in procs:
+        p.start()
+    got = [out.get(timeout=60) for _ in procs]
+    for p in procs:
+        p.join(timeout=60)
+        assert p.exitcode == 0
+    assert len(log.read_text().split()) == 1  # one build, the other process read its file
+    for v in got:
+        np.testing.assert_array_equal(np.float32(v), small_garment().rest_vertices)
+    assert len(list((tmp_path / "garments").glob("*.npz"))) == 1
