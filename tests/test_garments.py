@@ -400,14 +400,21 @@ def test_drafting_meshing_and_sewing_are_deterministic(body, parts):
 @pytest.mark.parametrize("name", list(TEMPLATES))
 def test_sewing_closes_every_seam_on_three_body_shapes(body, name, shape):
     """Pulled together over the closing frames, both sides of every seam meet within 1 mm on
-    each body shape, and the closed garment lies outside that body."""
+    each body shape, and the closed garment lies outside that body.
+
+    The default body's garments are sewn at the catalogue's coarse edge length; the other shapes'
+    at twice it (a quarter of the vertices, a fifth of the time): what they test is the pattern
+    drafted for that shape, its seams' lengths and its placement around that body, not the
+    mesh (at twice the edge length the seams of all nine designs meet within 0.001 mm on both
+    shapes and the closed garments keep 2.7-3.3 mm, the contact offset, from the body)."""
     from sim.garments.materials import get_material
     from sim.garments.sewing import SewingConfig, sew_pattern
 
     betas = parse_shape(SHAPES[shape])
     parts = BodyParts.of(body, betas)
     pattern = designs()[name].draft(parts, design_params(name))
-    s = sew_pattern(pattern, parts.vertices, parts.faces, TEMPLATES[name].coarse, get_material("cotton"),
+    h = TEMPLATES[name].coarse * (1.0 if shape == "default" else 2.0)
+    s = sew_pattern(pattern, parts.vertices, parts.faces, h, get_material("cotton"),
                     config=SewingConfig(settle_frames=0), device="cpu")
     assert s.seam_gap <= 1e-3
     assert len(s.vertices) == s.mesh.group_count
