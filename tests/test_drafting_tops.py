@@ -43,28 +43,28 @@ def box_body(depth: float = 0.2, height: float = 0.3, width: float = 0.4):
 
 @pytest.mark.parametrize("top_y", [0.3, 0.25])
 @pytest.mark.parametrize("front", [True, False])
-def test_over_shoulder_is_the_tape_over_a_box_top_to_its_middle(top_y, front):
+def test_shoulder_tape_is_the_tape_over_a_box_top_to_its_middle(top_y, front):
     """A box torso 0.2 m deep: from chest level (0.1 m) the tape runs up the front (back) to the
     seam's height, then half the depth across the top to the seam: 0.1 m beyond the rise, short
     by at most an edge length (the tape cuts the top corner between its last crossings)."""
-    from sim.garments.drafting.body_frame import over_shoulder
+    from sim.garments.drafting.body_frame import ShoulderTape
 
     v, f = box_body()
-    extra = over_shoulder(v, f, np.ones(len(v), bool), 0.1, 0.1, top_y, front)
+    extra = ShoulderTape(v, f, np.ones(len(v), bool), 0.1).over(0.1, top_y, front)
     assert 0.1 - 0.0125 <= extra <= 0.1 + 1e-9  # short by at most an edge (1.25 cm)
 
 
-def test_over_shoulder_is_nothing_beside_the_body():
-    from sim.garments.drafting.body_frame import over_shoulder
+def test_shoulder_tape_is_nothing_beside_the_body():
+    from sim.garments.drafting.body_frame import ShoulderTape
 
     v, f = box_body()
-    assert over_shoulder(v, f, np.ones(len(v), bool), 0.1, 0.3, 0.3, True) == 0.0
+    assert ShoulderTape(v, f, np.ones(len(v), bool), 0.1).over(0.3, 0.3, True) == 0.0
 
 
 def test_bodices_reach_over_the_shoulders_of_the_body():
     """The front and back panels stand taller than the body's rise from the hem to the side neck
     point by the mean of their over-shoulder lengths, 2-8 cm on the default body."""
-    from sim.garments.drafting.body_frame import over_shoulder
+    from sim.garments.drafting.body_frame import ShoulderTape
 
     body = load_body()
     parts = BodyParts.of(body)
@@ -73,8 +73,8 @@ def test_bodices_reach_over_the_shoulders_of_the_body():
     front, back = pattern.panel("front"), pattern.panel("back")
     top = m.neck_base_height + 0.005
     hps = m.neck_base / (2 * np.pi) + 0.01  # the design's neck_width
-    extra = np.mean([over_shoulder(parts.vertices, parts.faces, parts.torso_mask, m.chest_height, hps, top, s)
-                     for s in (True, False)])
+    tape = ShoulderTape(parts.vertices, parts.faces, parts.torso_mask, m.chest_height)
+    extra = np.mean([tape.over(hps, top, s) for s in (True, False)])
     assert 0.02 < extra < 0.08
     hem_y = m.waist_height - 0.22  # the t-shirt's hem_drop
     for panel, depth in ((front, 0.08), (back, 0.02)):  # the design's neck depths

@@ -104,32 +104,43 @@ def limb_radius(vertices: np.ndarray, mask: np.ndarray, root: np.ndarray, toward
     return float(np.linalg.norm(radial, axis=1).max()) if keep.any() else 0.05
 
 
-def over_shoulder(vertices: np.ndarray, faces: np.ndarray, torso_mask: np.ndarray, chest_y: float,
-                  x: float, top_y: float, front: bool) -> float:
-    """Length [m] a front (``front``) or back bodice panel needs above chest level beyond the
-    rise ``top_y - chest_y`` to reach its shoulder seam at height ``top_y``, ``x`` [m] off the
-    centre line: a taut tape in the body's section by the planes x = +-``x`` (torso faces, both
-    sides pooled) from the front (back) of the chest up the body and over to the
-    seam on top, midway between front and back; the section's crossings of the mesh's edges
-    stand for the surface, so the tape may cut the corner where it turns over the top by up to
-    an edge length (the body's ~1 cm: up to 9 mm short over a 0.2 m deep box with such edges).
-    A panel only as tall as the rise reaches the seam stretched: over the default body the
-    front and back fall 2.4 and 6.5 cm short at the side neck point, 6.6 and 0.7 cm at the
-    shoulder point, which a sewn dress's straps carried as 85 % strain (fine, H200)."""
-    from sim.garments.body_measurements import Slicer, taut_length
+class ShoulderTape:
+    """Lengths a bodice panel needs over the shoulder, read off the body at rest: its torso faces
+    are sliced by planes across x once per body (``body_measurements.Slicer``)."""
 
-    keep = torso_mask[faces].all(axis=1)
-    sl = Slicer(np.asarray(vertices, np.float64), np.asarray(faces, np.int64)[keep], (1.0, 0.0, 0.0))
-    p = np.concatenate([sl.points(x), sl.points(-x)])[:, 1:]  # (y, z): the section's crossings
-    if len(p) < 3:
-        return 0.0
-    s = 1.0 if front else -1.0
-    band = p[np.abs(p[:, 0] - chest_y) < 0.012]
-    if not len(band) or p[:, 0].max() <= chest_y:
-        return 0.0
-    top = p[p[:, 0] >= min(top_y, p[:, 0].max()) - 0.01]
-    seam = 0.5 * (top[:, 1].max() + top[:, 1].min())
-    mid = p[(p[:, 0] > chest_y) & (p[:, 0] < top_y)]
-    ys = np.concatenate([[chest_y], mid[:, 0], [top_y]])
-    out = np.concatenate([[(s * band[:, 1]).max()], s * mid[:, 1], [s * seam]])
-    return max(0.0, taut_length(ys, out) - (top_y - chest_y))
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, torso_mask: np.ndarray,
+                 chest_y: float) -> None:
+        from sim.garments.body_measurements import Slicer
+
+        keep = torso_mask[faces].all(axis=1)
+        torso = np.asarray(faces, np.int64)[keep]
+        self.slicer = Slicer(np.asarray(vertices, np.float64), torso, (1.0, 0.0, 0.0))
+        self.chest_y = float(chest_y)
+
+    def over(self, x: float, top_y: float, front: bool) -> float:
+        """Length [m] a front (``front``) or back bodice panel needs above chest level beyond the
+        rise ``top_y - chest_y`` to reach its shoulder seam at height ``top_y``, ``x`` [m] off the
+        centre line: a taut tape in the body's section by the planes x = +-``x`` (torso faces,
+        both sides pooled) from the front (back) of the chest up the body and over to the seam on
+        top, midway between front and back; the section's crossings of the mesh's edges stand for
+        the surface, so the tape may cut the corner where it turns over the top by up to an edge
+        length (the body's ~1 cm: up to 9 mm short over a 0.2 m deep box with such edges). A
+        panel only as tall as the rise reaches the seam stretched: over the default body the
+        front and back fall 2.4 and 6.5 cm short at the side neck point, 6.6 and 0.7 cm at the
+        shoulder point, which a sewn dress's straps carried as 85 % strain (fine, H200)."""
+        from sim.garments.body_measurements import taut_length
+
+        chest_y = self.chest_y
+        p = np.concatenate([self.slicer.points(x), self.slicer.points(-x)])[:, 1:]  # (y, z) crossings
+        if len(p) < 3:
+            return 0.0
+        s = 1.0 if front else -1.0
+        band = p[np.abs(p[:, 0] - chest_y) < 0.012]
+        if not len(band) or p[:, 0].max() <= chest_y:
+            return 0.0
+        top = p[p[:, 0] >= min(top_y, p[:, 0].max()) - 0.01]
+        seam = 0.5 * (top[:, 1].max() + top[:, 1].min())
+        mid = p[(p[:, 0] > chest_y) & (p[:, 0] < top_y)]
+        ys = np.concatenate([[chest_y], mid[:, 0], [top_y]])
+        out = np.concatenate([[(s * band[:, 1]).max()], s * mid[:, 1], [s * seam]])
+        return max(0.0, taut_length(ys, out) - (top_y - chest_y))

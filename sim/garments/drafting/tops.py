@@ -12,15 +12,17 @@ that length.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from sim.garments.drafting.body_frame import (
     SMPL,
+    ShoulderTape,
     limb_cylinder,
     limb_radius,
-    over_shoulder,
     torso_cylinder,
     torso_section,
 )
@@ -38,7 +40,7 @@ EASE = {
 """Ease [m] per girth (added to the whole girth) and per placement, by fit (tight, regular,
 loose): Aldrich's jersey block takes ~4 cm at the chest, the shirt block ~10 cm, oversized
 cuts 20 cm and more. The armhole drops 3 / 5 / 7 cm below the armpit and its top, the shoulder
-point, stands as high as the bodice's length over the shoulder reaches (``over_shoulder``): each
+point, stands as high as the bodice's length over the shoulder reaches (``ShoulderTape.over``): each
 armhole is long enough for a sleeve cap 11-16 cm high around the upper arm plus its ease, a
 shirt's set-in sleeve that hangs along the lowered arm (default body and +-2 sigma shapes). Fine
 t-shirt and long sleeve on an H200 (walk / arm raise, worst strain): 0.78 / 0.39 and 0.17 / 0.65
@@ -108,12 +110,12 @@ def side_points(m, d: TopDesign, hem_y: float, armpit_y: float) -> list[tuple[fl
 
 
 def bodice_panel(name: str, m, d: TopDesign, front: bool, hem_y: float, placement: Placement,
-                 over=lambda x, top_y: 0.0) -> Panel:
+                 over: Callable[[float, float], float]) -> Panel:
     """A front or back panel: x = 0 on the centre line, y = 0 at the hem, counter-clockwise
     seen from outside. Edge labels: hem, side, armhole, shoulder, neckline (two edges, meeting at
     the centre line). ``over(x, top_y)``: the length [m] the panel needs beyond the rise from
     chest level to reach its shoulder seam at height ``top_y``, ``x`` off the centre line
-    (``body_frame.over_shoulder``); the side neck and shoulder points stand that much higher."""
+    (``over_of``); the side neck and shoulder points stand that much higher."""
     armpit_y = m.armpit_height - ease("armhole_drop", d.fit)
     side = side_points(m, d, hem_y, armpit_y)
     neck_hw = m.neck_base / (2 * np.pi) + d.neck_width
@@ -208,9 +210,9 @@ def sleeve_placement(m, d: TopDesign, vertices: np.ndarray, mask: np.ndarray, jo
 
 
 def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, joints: np.ndarray,
-              d: TopDesign, name: str = "top", faces: np.ndarray | None = None) -> Pattern:
-    """A top's pattern for a body: measurements ``m``, rest vertices and joints for placement;
-    with the body's ``faces`` the bodice reaches over the shoulders (``over_shoulder``)."""
+              d: TopDesign, name: str, faces: np.ndarray) -> Pattern:
+    """A top's pattern for a body: measurements ``m``, rest vertices, faces and joints for
+    placement and for the bodice's length over the shoulders (``over_of``)."""
     hem_y = m.waist_height - d.hem_drop
     section = torso_section(vertices, torso_mask, m.chest_height)
     half = (m.chest + ease("chest", d.fit)) / 4
@@ -252,14 +254,18 @@ def draft_top(m, vertices: np.ndarray, torso_mask: np.ndarray, arm_mask: dict, j
     return Pattern(name, tuple(panels), tuple(seams), {"design": d.__dict__.copy()})
 
 
-def over_of(vertices: np.ndarray, faces: np.ndarray | None, torso_mask: np.ndarray, chest_y: float):
+def over_of(vertices: np.ndarray, faces: np.ndarray, torso_mask: np.ndarray,
+            chest_y: float) -> Callable[[float, float], float]:
     """``over(x, top_y)`` of both bodice panels (``bodice_panel``): the mean of the front's and
-    the back's ``over_shoulder``, so the two armholes stay alike for the sleeve cap and the
-    seam lies where the two lengths meet over the shoulder; nothing without faces."""
-    if faces is None:
-        return lambda x, top_y: 0.0
-    return lambda x, top_y: 0.5 * sum(over_shoulder(vertices, faces, torso_mask, chest_y, x, top_y, f)
-                                      for f in (True, False))
+    the back's ``ShoulderTape.over``, so the two armholes stay alike for the sleeve cap and the
+    seam lies where the two lengths meet over the shoulder; each (x, top_y) measured once for
+    both panels."""
+    tape = ShoulderTape(vertices, faces, torso_mask, chest_y)
+
+    @functools.cache
+    def over(x: float, top_y: float) -> float:
+        return 0.5 * (tape.over(x, top_y, True) + tape.over(x, top_y, False))
+    return over
 
 
 def head_geometry(vertices: np.ndarray, joints: np.ndarray, neck_y: float):
