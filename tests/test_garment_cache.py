@@ -64,3 +64,29 @@ def test_processes_sharing_the_folder_build_a_garment_once(tmp_path):
     for v in got:
         np.testing.assert_array_equal(np.float32(v), small_garment().rest_vertices)
     assert len(list((tmp_path / "garments").glob("*.npz"))) == 1
+
+
+def test_hems_and_names_share_one_sewing(tmp_path, monkeypatch):
+    """Hems only set the faces' layers after sewing: a design asked for with other hems or
+    another name is sewn once, and each gets the layers of its own hems on the same mesh."""
+    from sim.bodies.default import load_default_body
+    from sim.garments import designs
+    from sim.garments.hems import hem_face_layers
+    from sim.garments.templates import make_garment
+
+    monkeypatch.setenv("WRINKLES_CACHE", str(tmp_path))
+    monkeypatch.setattr(gc, "_MEMORY", {})
+    sewn = []
+    real = designs.sew_pattern
+    monkeypatch.setattr(designs, "sew_pattern", lambda *a, **k: sewn.append(1) or real(*a, **k))
+    body = load_default_body()
+    plain = make_garment("straight_skirt", body, resolution=0.06, device="cpu")
+    wide = make_garment("straight_skirt", body, resolution=0.06, device="cpu", hem_width=0.04, hem_layers=2.0)
+    bare = make_garment("straight_skirt", body, resolution=0.06, device="cpu", name="skirt", hem_width=0.0)
+    assert len(sewn) == 1
+    np.testing.assert_array_equal(wide.rest_vertices, plain.rest_vertices)
+    hems = hem_face_layers(plain.rest_vertices, plain.faces, 0.04, 2.0)
+    np.testing.assert_array_equal(wide.face_layers, hems)
+    assert (bare.face_layers == 1.0).all() and plain.face_layers.max() > 1.0
+    assert (plain.name, bare.name) == ("straight_skirt", "skirt")
+    assert len(list((tmp_path / "garments").glob("*.npz"))) == 1

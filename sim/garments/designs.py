@@ -214,15 +214,25 @@ def make_design_garment(name: str, body, betas: np.ndarray | None = None, *,
     spec = {"design": name, "params": dataclasses.asdict(p),
             "body": hashlib.sha256(rest.tobytes()).hexdigest(),
             "resolution": h, "material": dataclasses.asdict(mat),
-            "device": "cuda" if dev.startswith("cuda") else "cpu", "hems": [hem_width, hem_layers],
-            "name": garment_name or name}
+            "device": "cuda" if dev.startswith("cuda") else "cpu"}
 
     def build() -> Garment:
         pattern = designs()[name].draft(BodyParts.of(body, betas), p)
         sewn = sew_pattern(pattern, rest, np.asarray(body.faces), h, mat, device=dev)
-        return garment_of(pattern, sewn, mat, category=name, name=garment_name or name,
-                          hem_width=hem_width, hem_layers=hem_layers)
-    return cached_garment(spec, build)
+        return garment_of(pattern, sewn, mat, category=name, name=name)
+    return hemmed(cached_garment(spec, build), garment_name or name, hem_width, hem_layers)
+
+
+def hemmed(g: Garment, name: str, hem_width: float, hem_layers: float) -> Garment:
+    """A cached sewn garment with its name and hems: the cache keeps garments as sewn, with the
+    default hems (``garment_of``), since hems only set the faces' layers after sewing, so one
+    sewing serves every hem."""
+    import dataclasses
+
+    if (hem_width, hem_layers) != (HEM_WIDTH, HEM_LAYERS):
+        layers = hem_face_layers(g.rest_vertices, g.faces, hem_width, hem_layers)
+        g = dataclasses.replace(g, face_layers=layers)
+    return g if g.name == name else dataclasses.replace(g, name=name)
 
 
 def pattern_edge_length(pattern: Pattern, resolution: str | float) -> float:
@@ -268,8 +278,7 @@ def make_pattern_garment(pattern: Pattern, body, betas: np.ndarray | None = None
     h = pattern_edge_length(pattern, resolution)
     spec = {"pattern": pattern_to_spec(pattern), "body": hashlib.sha256(rest.tobytes()).hexdigest(),
             "resolution": h, "material": dataclasses.asdict(mat),
-            "device": "cuda" if dev.startswith("cuda") else "cpu", "hems": [hem_width, hem_layers],
-            "category": category, "name": name or pattern.name}
+            "device": "cuda" if dev.startswith("cuda") else "cpu", "category": category}
 
     def build() -> Garment:
         try:
@@ -281,6 +290,5 @@ def make_pattern_garment(pattern: Pattern, body, betas: np.ndarray | None = None
             apart = np.linalg.norm(np.diff(mesh.placed[mesh.pairs], axis=1), axis=2).max(initial=0.0)
             raise WrinklesInputError(f"pattern {pattern.name!r} did not sew: the cloth solver's positions "
                                      f"are not finite (its seams start up to {apart:.2f} m apart)")
-        return garment_of(pattern, sewn, mat, category=category, name=name or pattern.name,
-                          hem_width=hem_width, hem_layers=hem_layers)
-    return cached_garment(spec, build)
+        return garment_of(pattern, sewn, mat, category=category, name=pattern.name)
+    return hemmed(cached_garment(spec, build), name or pattern.name, hem_width, hem_layers)

@@ -108,8 +108,9 @@ class Placement:
     small shear where its slope is large).
 
     ``hold`` weighs the panel's side of its seams in the point they are sewn together: 1 for
-    the panels that fit the body (the meeting point is the mean of the sides), 0 for a piece
-    sewn onto another where that one lies (a hood onto the neckline).
+    the panels that fit the body (the meeting point is the mean of the sides), more for a piece
+    placed where the seam belongs (a hood round the neck, ``HOOD_HOLD``), 0 for a piece sewn onto
+    another where that one lies.
     """
 
     anchor: tuple[float, float, float]

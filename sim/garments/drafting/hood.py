@@ -18,6 +18,14 @@ from sim.garments.pattern import Edge, Panel, Placement, Seam
 HOOD_EASE = 0.06
 """Height [m] the hood stands above the head, and its depth beyond the head's."""
 
+HOOD_HOLD = 4.0
+"""The hood's ``Placement.hold`` against the bodices' 1: its neck seam meets near the hood's neck
+edge, drafted round the neck, rather than on the bodices' neckline, which is placed on the
+torso's cylinder up to 18 cm off the neck. Sewn on the default body (CPU): rest strain 0.058
+coarse / 0.24 fine and no crossing at rest; at 1 (the mean of the sides) the coarse hood crosses
+itself (2 edges), at 0 (sewn where the neckline is placed) the fine hood's throat edges stay
+stretched 11 times their length and it explodes while settling."""
+
 
 @dataclass(frozen=True)
 class HoodPlacement(Placement):
@@ -95,7 +103,7 @@ def hood_panels(front_neck: float, back_neck: float, gap: float, head_centre: np
     ear = 0.5 * (head_top - neck_y)
     x0 = neck - 0.5 * np.pi * r_neck
     cx, cz = float(head_centre[0]), float(head_centre[1])
-    cone = dict(curvature=1.0 / r_head, radius_slope=(r_head - r_neck) / ear, hold=0.0)
+    cone = dict(curvature=1.0 / r_head, radius_slope=(r_head - r_neck) / ear, hold=HOOD_HOLD)
     y = neck_y + ear
     (sx0, sy0), (sx1, sy1) = corners[2], corners[3]
     left = HoodPlacement(anchor=(cx + r_head, y, cz), u_dir=(0.0, 0.0, -1.0), origin=(x0, ear),
