@@ -4,8 +4,10 @@ frame on disk, for fine garments, coarse garments, and the default fine + coarse
 Each case generates a fresh dataset from one config (t-shirts and straight skirts on sampled
 bodies, walk / arm_raise / squat, cotton and jersey, self-contact on, the job's solver defaults
 and retries, 256^2 UV images) with ``sim.datasets.generate`` in a temporary folder, and reports
-the wall time of the whole job: simulation (settle, blend and motion), derivation (smoothing,
-frames, strain, images), and writing.
+the wall time of the whole job and where it goes (``sim.profiling``: garments; per rung of the
+retry ladder the simulation's prelude with the body's part separation, model building, steps
+and results; judging; derivation per field; writing). Phases wait for the device at their ends
+so GPU work counts where it is launched; ``--no-phases`` times the job without those waits.
 
     python -m benchmarks.bench_dataset --device cuda --sequences 8 --seconds 1 --batch 8
     python -m benchmarks.bench_dataset --device cpu --sequences 1 --seconds 0.1 --batch 1 --cases coarse \
@@ -55,9 +57,10 @@ coarse = {coarse}
 """
 
 
-def generate_in_temp(text: str, source: str, batch: int, device: str):
+def generate_in_temp(text: str, source: str, batch: int, device: str, phases: bool = True):
     """Generate a dataset from the config TOML ``text`` in a temporary folder, removed after:
-    (``GenerateSummary``, wall time [s] of the whole job, manifest), each generated line printed."""
+    (``GenerateSummary``, wall time [s] of the whole job, manifest, phases: ``PHASES.report()``
+    or None), each generated line printed."""
     from sim.datasets import storage as S
     from sim.datasets.config import parse_config
     from sim.datasets.generate import generate
@@ -67,14 +70,30 @@ def generate_in_temp(text: str, source: str, batch: int, device: str):
     except ModuleNotFoundError:  # pragma: no cover
         import tomli as tomllib
     cfg = parse_config(tomllib.loads(text), source=source)
+    from sim.profiling import PHASES
+
     root = tempfile.mkdtemp(prefix="wrinkles-bench-")
     try:
+        if phases:
+            PHASES.start(device)
         t0 = time.perf_counter()
         s = generate(cfg, root, batch=batch, device=device, log=lambda m: print(m, flush=True))
         wall = time.perf_counter() - t0
-        return s, wall, S.read_manifest(root)
+        return s, wall, S.read_manifest(root), (PHASES.report() if phases else None)
     finally:
+        PHASES.stop()
         shutil.rmtree(root, ignore_errors=True)
+
+
+def print_phases(name: str, phases: dict, wall: float) -> None:
+    """A table of ``phases`` (``PHASES.report()``): seconds, own seconds, share of ``wall``."""
+    print(f"{name}: where {wall:.1f} s went (phase: s, outside nested phases, share of the wall time)")
+    for path, p in phases.items():
+        print(f"  {path:<48} {p['s']:9.2f} s {p['self_s']:9.2f} s {100.0 * p['self_s'] / wall:6.1f} %"
+              f"  x{p['calls']}")
+    inside = sum(p["self_s"] for p in phases.values())
+    rest = wall - inside
+    print(f"  {'(outside every phase)':<48} {rest:9.2f} s {'':11} {100.0 * rest / wall:6.1f} %")
 
 
 def main() -> None:
@@ -87,6 +106,8 @@ def main() -> None:
     ap.add_argument("--resolution", type=float, default=None,
                     help="edge length [m] of every case's garments instead of the templates' coarse / fine "
                     "size (the coarse twin keeps the templates' coarse size)")
+    ap.add_argument("--no-phases", action="store_true",
+                    help="time the job without waiting for the device at every phase (no phase table)")
     add_results_argument(ap)
     args = ap.parse_args()
 
@@ -101,7 +122,8 @@ def main() -> None:
         fine = fine if args.resolution is None else args.resolution
         text = CONFIG.format(sequences=args.sequences, seconds=args.seconds, fine=json.dumps(fine),
                              coarse=coarse)
-        s, wall, manifest = generate_in_temp(text, f"bench_dataset:{name}", args.batch, device)
+        s, wall, manifest, phases = generate_in_temp(text, f"bench_dataset:{name}", args.batch, device,
+                                                     phases=not args.no_phases)
         seqs = list(manifest["sequences"].values())
         frames = sum(e["frames"] for e in seqs)
         made = s.accepted + s.rejected
@@ -113,8 +135,11 @@ def main() -> None:
             "bytes_per_frame": s.bytes / max(frames, 1),
             "vertices": sorted({e["vertices"] for e in seqs}),
             "coarse_vertices": sorted({e["coarse_vertices"] for e in seqs if e.get("coarse_vertices")}),
+            "phases": phases,
         }
-        print(name, json.dumps(fig[name]), flush=True)
+        print(name, json.dumps({k: v for k, v in fig[name].items() if k != "phases"}), flush=True)
+        if phases:
+            print_phases(name, phases, wall)
     write_result(f"dataset_{device.split(':')[0]}", {
         "machine": machine(device),
         "sizes": {"sequences": args.sequences, "seconds": args.seconds, "batch": args.batch, "fps": 30.0,

@@ -106,6 +106,11 @@ def test_dataset_generation(tmp_path):
     assert all(v < 400 for v in case["vertices"])  # 7 cm edges: a few hundred vertices
     assert case["sequences"] == 1 and case["accepted"] + case["rejected"] == 1
     assert case["sequences_per_hour"] > 0
+    phases = case["phases"]  # where the time went, the simulation's parts under its rung
+    for path in ("garments", "simulation rung 1/prelude/body separation", "simulation rung 1/steps", "judge",
+                 "derive/base", "derive/wrinkle", "write"):
+        assert phases[path]["calls"] >= 1 and phases[path]["s"] >= 0.0, path
+    assert 0.0 < sum(p["self_s"] for p in phases.values()) <= case["wall_s"]
 
 
 @pytest.mark.slow

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from pipelines.cli import main
+from sim.garments.drafting.hood import HOOD_HOLD
 from sim.garments.garmentcode import place_on_body, read_garmentcode
 from tests.test_garmentcode import assert_same_pattern
 
@@ -113,8 +114,8 @@ def test_pattern_out_writes_the_design_without_sewing(tmp_path, capsys, monkeypa
 
 
 def test_hoodie_json_keeps_how_its_hood_is_sewn(tmp_path, capsys):
-    """The hood sews onto the neckline where the body panels put it (``Placement.hold`` 0): our
-    JSON keeps that, so the file sews as the design does."""
+    """The hood's neck seam meets near the hood's own neck edge (``Placement.hold`` of the hood
+    ``HOOD_HOLD``, the body panels' 1): our JSON keeps that, so the file sews as the design does."""
     from sim.garments.designs import make_pattern
 
     path = tmp_path / "hoodie.json"
@@ -123,7 +124,8 @@ def test_hoodie_json_keeps_how_its_hood_is_sewn(tmp_path, capsys):
     got = read_garmentcode(path)
     assert_same_pattern(got, want, tol=1e-6)
     holds = {p.name: p.placement.hold for p in want.panels}
-    assert {p.name: p.placement.hold for p in got.panels} == holds and 0.0 in holds.values()
+    assert {p.name: p.placement.hold for p in got.panels} == holds
+    assert holds["hood_l"] == holds["hood_r"] == HOOD_HOLD != 1.0 and holds["front"] == 1.0
 
 
 def test_pattern_out_svg_and_png(tmp_path, capsys):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim.datasets.config import DeriveConfig
+from sim.profiling import phase
 
 CHUNK = 64
 
@@ -62,14 +63,25 @@ class Deriver:
         return out
 
     def _chunk(self, fine: np.ndarray) -> dict[str, np.ndarray]:
-        base = self.smoother.smooth(fine)
-        wrinkle = self.frames.encode(fine, base)
-        st = self.strain.compute(base)
-        normals = self.frames.normals(fine)
+        with phase("base"):
+            base = self.smoother.smooth(fine)
+        with phase("wrinkle"):
+            wrinkle = self.frames.encode(fine, base)
+        with phase("strain"):
+            st = self.strain.compute(base)
+        with phase("normals"):
+            normals = self.frames.normals(fine)
         out = {"fine/vertices": fine, "fine/base": base.astype(np.float32), "fine/wrinkle": wrinkle,
                "fine/strain": st.face, "fine/strain_norm": st.face_norm, "fine/normals": normals}
         if self.raster is None:
             return out
+        with phase("images"):
+            out.update(self._images(base, wrinkle, st, normals))
+        return out
+
+    def _images(self, base: np.ndarray, wrinkle: np.ndarray, st, normals: np.ndarray) -> dict:
+        """``images/*`` of a chunk: strain, wrinkle and normals rasterised in UV space (f16)."""
+        out = {}
         uvv = np.maximum(self.uv_vertex, 0)
         fr = self.frames.frames(base)  # (T, U, 3, 3): columns t1, t2, n
         n = _unit(fr[..., 2])

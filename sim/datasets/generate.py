@@ -25,6 +25,7 @@ from sim.datasets import storage as S
 from sim.datasets.config import DatasetConfig
 from sim.datasets.sampling import SequenceSpec, sample_sequences, select_indices
 from sim.errors import WrinklesInputError
+from sim.profiling import phase
 
 Log = Callable[[str], None]
 
@@ -256,13 +257,16 @@ def _make_group(run: _Run, sim_cfg, group: list[SequenceSpec], wanted: set[str],
 
     sim_cfg = replace(sim_cfg, device=run.device)
     attempts = attempts or {}
-    jobs, meta = _group_jobs(run.cfg, run.body, group)
-    results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
+    with phase("garments"):
+        jobs, meta = _group_jobs(run.cfg, run.body, group)
+    with phase(f"simulation rung {len(tried) + 1}"):
+        results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
     largest = max(j.garment.num_vertices for j in jobs)
     substeps = sim_cfg.substeps_for(largest)
     if retries is None:
         retries = sim_cfg.retry_substeps(largest)
-    by_seq, reasons_of = _judge(group, meta, results, substeps)
+    with phase("judge"):
+        by_seq, reasons_of = _judge(group, meta, results, substeps)
     # every failing sequence of the group is retried, wanted or not (one that is done, or not in
     # --splits): a retry batch is then the same on a resumed or split run, and so are its floats
     retried = [sp for sp in group if reasons_of[sp.id]] if retries else []
@@ -379,7 +383,8 @@ def _accept(run: _Run, sp: SequenceSpec, item: dict, failed_attempts: list[dict]
     cfg = run.cfg
     fine_g, fine_r = item["fine"]
     seq = fine_r.sequence
-    arrays = _sequence_arrays(run, item)
+    with phase("derive"):
+        arrays = _sequence_arrays(run, item)
     T = seq.vertices.shape[0]
     entry = {"file": f"{S.SEQUENCE_DIR}/{sp.id}{S.SUFFIX}", "frames": int(T), "split": sp.split,
              "index": sp.index, "seed": sp.seed, "garment": sp.category,
@@ -401,7 +406,8 @@ def _accept(run: _Run, sp: SequenceSpec, item: dict, failed_attempts: list[dict]
                  "provenance": json.dumps(_stable(prov), sort_keys=True, default=str),
                  "body": json.dumps({"model": cfg.bodies.model, "name": getattr(run.body, "name", "body")})}
     path = S.sequence_path(run.root, sp.id)
-    sha = S.write_sequence(path, arrays, meta_json)
+    with phase("write"):
+        sha = S.write_sequence(path, arrays, meta_json)
     entry.update(sha256=sha, bytes=path.stat().st_size)
     run.part.data["sequences"][sp.id] = entry
     run.part.save()
@@ -421,18 +427,22 @@ def _sequence_arrays(run: _Run, item: dict) -> dict[str, np.ndarray]:
     body, device = run.body, run.device
     fine_g, fine_r = item["fine"]
     seq = fine_r.sequence
-    arrays = Deriver(fine_g, run.cfg.derive, device=device)(seq.vertices)
+    with phase("setup"):
+        deriver = Deriver(fine_g, run.cfg.derive, device=device)
+    arrays = deriver(seq.vertices)
     if "coarse" in item:
         coarse_g, coarse_r = item["coarse"]
-        arrays.update(coarse_arrays(coarse_g, coarse_r.sequence.vertices, device=device))
+        with phase("coarse"):
+            arrays.update(coarse_arrays(coarse_g, coarse_r.sequence.vertices, device=device))
     poses = np.asarray(seq.motion.poses, np.float32)
     trans = np.asarray(seq.motion.trans, np.float32)
     # the simulated body may stand on the floor by a constant offset: fold it into trans so
     # body.pose(betas, poses, trans) gives the simulated body back
     posed = body.pose(item["betas"], poses[:1], trans[:1])
     trans = trans + (seq.body.joints[0, 0] - posed.joints[0, 0]).astype(np.float32)
-    fine_strain = edge_strain(seq.vertices, fine_g.rest_vertices, fine_g.faces, device=device,
-                              rest_lengths=fine_g.rest_edge_lengths())
+    with phase("edge strain"):
+        fine_strain = edge_strain(seq.vertices, fine_g.rest_vertices, fine_g.faces, device=device,
+                                  rest_lengths=fine_g.rest_edge_lengths())
     arrays.update({"body/poses": poses, "body/trans": trans,
                    "body/joints": np.asarray(seq.body.joints, np.float32),
                    "body/betas": np.asarray(item["betas"], np.float32),

@@ -17,6 +17,7 @@ import numpy as np
 
 from sim.errors import WrinklesInputError
 from sim.garments.types import Garment
+from sim.profiling import phase
 from sim.quality import SimulationError
 from sim.simulate.config import SimulationConfig
 from sim.simulate.jobs import SimulationJob, Track
@@ -177,9 +178,9 @@ class _Batch:
         for k, (tr, check) in enumerate(zip(tracks, self.checkers, strict=True)):
             if frame >= tr.length or not flagged[k] or k in errors:
                 continue
-            phase = phase_label(tr, frame, tr.n_settle + tr.n_blend, len(tracks) > 1)
+            label = phase_label(tr, frame, tr.n_settle + tr.n_blend, len(tracks) > 1)
             try:
-                check(x[tr.span], x_prev[tr.span], roots[k], frame - tr.first_out, phase)
+                check(x[tr.span], x_prev[tr.span], roots[k], frame - tr.first_out, label)
             except SimulationError as e:
                 if failures == "raise":
                     raise
@@ -276,9 +277,13 @@ def simulate_batch(jobs: Sequence[SimulationJob], *, config: SimulationConfig | 
     vbd = solver if solver is not None else cfg.vbd_config(max(j.garment.num_vertices for j in jobs),
                                                            cuda=wp.get_device(device).is_cuda)
     skinned: dict = {}
-    tracks = [prepare_track(j, cfg, device, skinned) for j in jobs]
-    batch = _Batch(tracks, cfg, vbd, device)
-    step_ms, errors = batch.run(progress, failures)
+    with phase("prelude"):
+        tracks = [prepare_track(j, cfg, device, skinned) for j in jobs]
+    with phase("model"):
+        batch = _Batch(tracks, cfg, vbd, device)
+    with phase("steps"):
+        step_ms, errors = batch.run(progress, failures)
     graph = batch.graph is not None
-    return [errors[k] if k in errors else finish_track(tr, cfg, vbd, device, seed, graph, step_ms)
-            for k, tr in enumerate(tracks)]
+    with phase("results"):
+        return [errors[k] if k in errors else finish_track(tr, cfg, vbd, device, seed, graph, step_ms)
+                for k, tr in enumerate(tracks)]

@@ -18,6 +18,7 @@ import numpy as np
 
 from sim.easing import smoothstep
 from sim.errors import WrinklesInputError
+from sim.profiling import phase
 from sim.simulate.config import SimulationConfig
 from sim.simulate.jobs import SimulationJob, Track, resolve_betas, shared_body_key
 from sim.types import BodyFrames
@@ -116,7 +117,8 @@ def prepare_track(job: SimulationJob, cfg: SimulationConfig, device: str, cache:
                                 device=device)
             frames = morph_settle(ref, frames, n_settle)
         if cfg.separate_body_parts:  # the collider the cloth meets has no overlapping parts
-            frames = separate_body_frames(frames, parts_of(job.body), device=device)
+            with phase("body separation"):
+                frames = separate_body_frames(frames, parts_of(job.body), device=device)
         if dy:
             frames = translate_frames(frames, np.array([0.0, dy, 0.0]))
         cache[key] = (frames, dy)
