@@ -25,6 +25,7 @@ from sim.cloth.coloring import (
     greedy_coloring,
     validate_coloring,
     vertex_adjacency,
+    wheel_bound,
 )
 from sim.cloth.model import build_hinges, dihedral_angles
 from sim.device import warp
@@ -159,6 +160,29 @@ def test_colourings_with_fewer_colours_mark_their_same_coloured_corners():
         assert (packed >> 2).any() == (max_colors == 3)
     with pytest.raises(ValueError, match="max_colors"):
         ClothModelBuilder(max_colors=1)
+
+
+def _fan(n: int) -> np.ndarray:
+    """A closed fan of n triangles round vertex 0 (rim 1..n): vertex 0's link is an n-cycle."""
+    return np.array([(0, 1 + i, 1 + (i + 1) % n) for i in range(n)], np.int64)
+
+
+def test_wheel_bound_is_a_lower_bound_and_met_by_compact_colouring():
+    """An interior vertex of odd valence is the hub of an odd wheel: 4 colours, as the exact
+    search (TabuCol) confirms by failing at 3; even wheels, open fans and a grid whose interior
+    vertices all have valence 6 are 3-colourable; stopping at the bound changes no colouring."""
+    assert wheel_bound(6, _fan(5)) == 4
+    assert _tabu_recolor(vertex_adjacency(6, _fan(5), np.zeros((0, 4))), np.zeros(6, np.int32), 3,
+                         max_moves=5000, seed=0) is None
+    assert wheel_bound(7, _fan(6)) == 3
+    assert compact_coloring(vertex_adjacency(7, _fan(6), np.zeros((0, 4)))).max() + 1 == 3
+    assert wheel_bound(6, _fan(5)[:4]) == 3  # open: vertex 0 is on the border
+    v, f = grid(8, 6, 1.0, 1.0)
+    assert wheel_bound(len(v), f) == 3 and wheel_bound(3, np.array([[0, 1, 2]])) == 3
+    odd = np.concatenate([f, _fan(5) + len(v)])  # a grid beside an odd wheel
+    nb = vertex_adjacency(len(v) + 6, odd, np.zeros((0, 4)))
+    np.testing.assert_array_equal(compact_coloring(nb, floor=wheel_bound(len(v) + 6, odd)),
+                                  compact_coloring(nb))
 
 
 def test_tabu_recolor_repairs_a_colouring_down_to_the_chromatic_number():

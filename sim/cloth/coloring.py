@@ -33,6 +33,24 @@ def vertex_adjacency(num_vertices: int, faces: np.ndarray, hinges: np.ndarray) -
     return [p[starts[v]:starts[v + 1], 1] for v in range(num_vertices)]
 
 
+def wheel_bound(num_vertices: int, faces: np.ndarray) -> int:
+    """A lower bound on the colours of a triangle mesh's edge graph: 4 when a vertex whose every
+    edge borders two of its faces has an odd number of neighbours (its link is a union of cycles
+    of odd total length, so one is an odd cycle, which needs 3 colours, and the vertex a 4th: an
+    odd wheel); else 3 with a triangle, 2 with an edge, 1 with a vertex. Garments have such
+    vertices at seams and panel corners, so ``compact_coloring`` need not search for 3."""
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return 1 if num_vertices else 0
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    edges, count = np.unique(e, axis=0, return_counts=True)
+    valence = np.bincount(edges.ravel(), minlength=num_vertices)
+    open_edge = np.zeros(num_vertices, bool)
+    open_edge[edges[count != 2].ravel()] = True
+    odd_wheel = (valence % 2 == 1) & ~open_edge & (valence >= 3)
+    return 4 if odd_wheel.any() else 3
+
+
 def greedy_coloring(neighbours: list[np.ndarray]) -> np.ndarray:
     """Greedy colouring, vertices by decreasing degree (ties by index): deterministic.
 
@@ -142,7 +160,7 @@ def _tabu_recolor(neighbours: list[np.ndarray], colors: np.ndarray, k: int, max_
 
 
 def compact_coloring(neighbours: list[np.ndarray], max_moves: int = 5000, seed: int = 0,
-                     max_colors: int = 0) -> np.ndarray:
+                     max_colors: int = 0, floor: int = 0) -> np.ndarray:
     """A colouring with few colours: DSATUR, then TabuCol removes one colour at a time while
     it finds a conflict-free colouring within ``max_moves`` moves. Every colour is one solve
     launch per Gauss-Seidel sweep, so one fewer colour is one fewer launch in each of the
@@ -162,12 +180,14 @@ def compact_coloring(neighbours: list[np.ndarray], max_moves: int = 5000, seed: 
         max_moves: TabuCol's move budget per attempt.
         seed: random seed of the moves.
         max_colors: most colours to use, conflicts allowed (0: a proper colouring).
+        floor: colours known to be needed (``wheel_bound``): the search for fewer stops there
+            instead of spending ``max_moves`` on an attempt that cannot succeed.
 
     Returns:
         int32 (V,) colour per vertex, colours 0..C-1.
     """
     colors = dsatur_coloring(neighbours)
-    while len(colors) and colors.max() > 0:
+    while len(colors) and colors.max() > 0 and colors.max() + 1 > floor:
         fewer = _tabu_recolor(neighbours, colors, int(colors.max()), max_moves, seed)
         if fewer is None:
             break

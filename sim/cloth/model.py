@@ -27,7 +27,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from sim.cloth.coloring import compact_coloring, vertex_adjacency
+from sim.cloth.coloring import compact_coloring, vertex_adjacency, wheel_bound
 from sim.cloth.pattern_distance import pattern_positions
 from sim.device import resolve_device, warp
 from sim.types import face_layers_array
@@ -199,8 +199,9 @@ def mesh_topology(vertex_count: int, faces: np.ndarray, max_colors: int = 0) -> 
     if key not in _TOPOLOGY:
         hinges = build_hinges(faces)
         no_hinges = np.zeros((0, 4), np.int64)
-        _TOPOLOGY[key] = (hinges, compact_coloring(vertex_adjacency(vertex_count, faces, no_hinges),
-                                                   max_colors=max_colors))
+        colors = compact_coloring(vertex_adjacency(vertex_count, faces, no_hinges), max_colors=max_colors,
+                                  floor=wheel_bound(vertex_count, faces))
+        _TOPOLOGY[key] = (hinges, colors)
         if len(_TOPOLOGY) > 64:
             _TOPOLOGY.popitem(last=False)
     hinges, colors = _TOPOLOGY[key]
