@@ -269,6 +269,8 @@ def test_boxes_pushed_into_each_other_come_apart_and_the_rest_stays(device):
     # it, 3.3 mm out) go 4 mm off a's side; a stays
     np.testing.assert_array_equal(moved, np.r_[np.zeros(len(va), bool), vb[:, 0] < 0.004])
     np.testing.assert_allclose(yb[moved[len(va):], 0], 0.004, atol=1e-6)
+    none = x[None][:0]  # no frames: nothing to do
+    assert sep.separate(none).shape == (0, len(x), 3) and sep.penetration(none).shape == (0, 1, 2)
 
 
 def caught_curtain(separate: bool, overlap: float = 0.03, frames: int = 20):

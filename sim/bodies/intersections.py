@@ -375,6 +375,8 @@ class PartSeparator:
         wp, d = self.wp, self.device
         v = np.ascontiguousarray(vertices, np.float32)
         out = np.zeros((v.shape[0], len(self.separations), 2), np.float32)
+        if not len(v):
+            return out
         space = self._space(v)
         active = wp.ones(space.frames, dtype=wp.int32, device=d)
         for a, n, x in self._chunks(v, space):
@@ -414,6 +416,8 @@ class PartSeparator:
         """
         v = np.ascontiguousarray(vertices, np.float32)
         out = np.empty_like(v)
+        if not len(v):
+            return out
         space = self._space(v)
         for a, n, x in self._chunks(v, space):
             self._separate_chunk(space, x, n, rounds)
