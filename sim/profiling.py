@@ -22,17 +22,14 @@ class Phases:
     def __init__(self) -> None:
         self.on = False
         self.device: str | None = None
-        self._stack: list[str] = []
-        self._child: list[float] = []
-        self.seconds: dict[str, float] = {}
-        self.self_seconds: dict[str, float] = {}
-        self.calls: dict[str, int] = {}
-        self.order: dict[str, int] = {}  # the order the paths first began in
+        self._stack: list[str] = []  # the names of the phases now running, outermost first
+        self._child: list[float] = []  # per running phase, the seconds of the phases it ran
+        self._paths: dict[str, list] = {}  # path -> [s, self_s, calls], in the order paths began
 
     def start(self, device: str | None = None) -> None:
         """Forget what was recorded and record from now on, waiting for ``device`` (a Warp
         device; None: no wait) at every phase's start and end."""
-        self.__init__()
+        self._stack, self._child, self._paths = [], [], {}
         self.on, self.device = True, device
 
     def stop(self) -> None:
@@ -50,7 +47,7 @@ class Phases:
         """Time the block as phase ``name`` under the phases it runs in."""
         self._wait()
         path = "/".join([*self._stack, name])
-        self.order.setdefault(path, len(self.order))
+        entry = self._paths.setdefault(path, [0.0, 0.0, 0])
         self._stack.append(name)
         self._child.append(0.0)
         t0 = time.perf_counter()
@@ -63,15 +60,14 @@ class Phases:
             inner = self._child.pop()
             if self._child:
                 self._child[-1] += dt
-            self.seconds[path] = self.seconds.get(path, 0.0) + dt
-            self.self_seconds[path] = self.self_seconds.get(path, 0.0) + dt - inner
-            self.calls[path] = self.calls.get(path, 0) + 1
+            entry[0] += dt
+            entry[1] += dt - inner
+            entry[2] += 1
 
     def report(self) -> dict[str, dict]:
         """Per phase path, in the order the paths first began (a phase before those inside it):
         ``{"s", "self_s", "calls"}``."""
-        return {p: {"s": self.seconds[p], "self_s": self.self_seconds[p], "calls": self.calls[p]}
-                for p in sorted(self.seconds, key=self.order.__getitem__)}
+        return {p: {"s": s, "self_s": own, "calls": n} for p, (s, own, n) in self._paths.items()}
 
 
 PHASES = Phases()

@@ -266,7 +266,7 @@ class _Space:
         cells = np.stack([i, j, (i + j) % n], axis=1).astype(np.float64)
         self.offsets = wp.array((cells * spacing - lo).astype(np.float32), dtype=wp.vec3, device=device)
         self.points = wp.zeros(frames * self.stride, dtype=wp.vec3, device=device)
-        self.wp, self.parts, self.device, self.meshes = wp, parts, device, {}
+        self.wp, self.parts, self.device, self.meshes, self._ids = wp, parts, device, {}, {}
 
     def refit(self, name: str) -> None:
         """Fit solid ``name``'s tree to the points; the first time, build it on them (a tree
@@ -279,6 +279,13 @@ class _Space:
         tiled = (self.parts.solids[self.parts.index(name)][None].astype(np.int64) + shift).reshape(-1)
         self.meshes[name] = self.wp.Mesh(points=self.points, indices=self.wp.array(
             tiled.astype(np.int32), dtype=self.wp.int32, device=self.device))
+
+    def ids(self, obstacles: tuple[str, ...]):
+        """Mesh ids of ``obstacles`` (built by ``refit``), uint64 (P,), made once per tuple."""
+        if obstacles not in self._ids:
+            self._ids[obstacles] = self.wp.array([self.meshes[o].id for o in obstacles], dtype=self.wp.uint64,
+                                                 device=self.device)
+        return self._ids[obstacles]
 
 
 class PartSeparator:
@@ -384,18 +391,13 @@ class PartSeparator:
                 self._place(space, x, st)
                 depth = wp.zeros((space.frames, st.movers.shape[0]), dtype=float, device=d)
                 wp.launch(K.penetration_kernel, dim=depth.shape,
-                          inputs=[self._solids(space, st), st.skin_faces, st.solid_faces, st.movers, st.pair,
+                          inputs=[space.ids(st.obstacles), st.skin_faces, st.solid_faces, st.movers, st.pair,
                                   space.points, space.stride, active, self.max_depth],
                           outputs=[depth], device=d)
                 deepest = np.zeros((space.frames, len(self.separations)), np.float32)
                 np.maximum.at(deepest.T, st.columns, depth.numpy().T)
                 out[a:a + n, :, side] = deepest[:n]
         return out
-
-    def _solids(self, space: _Space, stage: _Stage):
-        """Mesh ids of ``stage``'s pairs' obstacles in ``space``, uint64 (P,)."""
-        ids = [space.meshes[o].id for o in stage.obstacles]
-        return self.wp.array(ids, dtype=self.wp.uint64, device=self.device)
 
     def separate(self, vertices: np.ndarray, *, rounds: int = ROUNDS) -> np.ndarray:
         """The body's frames with its parts moved out of each other.
@@ -436,7 +438,7 @@ class PartSeparator:
                 self._place(space, x, st)
                 delta = wp.zeros((space.frames, st.movers.shape[0]), dtype=wp.vec3, device=d)
                 wp.launch(K.displacement_kernel, dim=delta.shape,
-                          inputs=[self._solids(space, st), st.skin_faces, st.solid_faces, st.movers, st.pair,
+                          inputs=[space.ids(st.obstacles), st.skin_faces, st.solid_faces, st.movers, st.pair,
                                   space.points, space.stride, active, self.max_depth, self.clearance,
                                   TOLERANCE],
                           outputs=[delta], device=d)

@@ -220,10 +220,10 @@ def make_design_garment(name: str, body, betas: np.ndarray | None = None, *,
         pattern = designs()[name].draft(BodyParts.of(body, betas), p)
         sewn = sew_pattern(pattern, rest, np.asarray(body.faces), h, mat, device=dev)
         return garment_of(pattern, sewn, mat, category=name, name=name)
-    return hemmed(cached_garment(spec, build), garment_name or name, hem_width, hem_layers)
+    return _hemmed(cached_garment(spec, build), garment_name or name, hem_width, hem_layers)
 
 
-def hemmed(g: Garment, name: str, hem_width: float, hem_layers: float) -> Garment:
+def _hemmed(g: Garment, name: str, hem_width: float, hem_layers: float) -> Garment:
     """A cached sewn garment with its name and hems: the cache keeps garments as sewn, with the
     default hems (``garment_of``), since hems only set the faces' layers after sewing, so one
     sewing serves every hem."""
@@ -291,4 +291,4 @@ def make_pattern_garment(pattern: Pattern, body, betas: np.ndarray | None = None
             raise WrinklesInputError(f"pattern {pattern.name!r} did not sew: the cloth solver's positions "
                                      f"are not finite (its seams start up to {apart:.2f} m apart)")
         return garment_of(pattern, sewn, mat, category=category, name=pattern.name)
-    return hemmed(cached_garment(spec, build), name or pattern.name, hem_width, hem_layers)
+    return _hemmed(cached_garment(spec, build), name or pattern.name, hem_width, hem_layers)
