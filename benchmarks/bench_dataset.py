@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import tempfile
 import time
@@ -25,7 +26,7 @@ import time
 from benchmarks.common import add_results_argument, machine, write_result
 
 CONFIG = """\
-seed = 0
+seed = {seed}
 sequences = {sequences}
 fps = 30.0
 seconds = {seconds}
@@ -60,7 +61,7 @@ coarse = {coarse}
 def generate_in_temp(text: str, source: str, batch: int, device: str, phases: bool = True):
     """Generate a dataset from the config TOML ``text`` in a temporary folder, removed after:
     (``GenerateSummary``, wall time [s] of the whole job, manifest, phases: ``PHASES.report()``
-    or None), each generated line printed."""
+    or None, the reader's derivation afterwards: ``{"s", "bytes"}``), each generated line printed."""
     from sim.datasets import storage as S
     from sim.datasets.config import parse_config
     from sim.datasets.generate import generate
@@ -79,10 +80,26 @@ def generate_in_temp(text: str, source: str, batch: int, device: str, phases: bo
         t0 = time.perf_counter()
         s = generate(cfg, root, batch=batch, device=device, log=lambda m: print(m, flush=True))
         wall = time.perf_counter() - t0
-        return s, wall, S.read_manifest(root), (PHASES.report() if phases else None)
+        report = PHASES.report() if phases else None
+        PHASES.stop()
+        return s, wall, S.read_manifest(root), report, _derive_on_read(root, device)
     finally:
         PHASES.stop()
         shutil.rmtree(root, ignore_errors=True)
+
+
+def _derive_on_read(root: str, device: str) -> dict:
+    """What a reader's derivation of the stored dataset costs (``wrinkles dataset derive``):
+    wall seconds on ``device`` and the bytes the cache of derived fields takes."""
+    from pathlib import Path
+
+    from sim.datasets.fields import DERIVED_DIR, derive_dataset
+
+    t0 = time.perf_counter()
+    derive_dataset(root, device=device)
+    seconds = time.perf_counter() - t0
+    folder = Path(root) / DERIVED_DIR
+    return {"s": seconds, "bytes": sum(p.stat().st_size for p in folder.glob("*")) if folder.is_dir() else 0}
 
 
 def print_phases(name: str, phases: dict, wall: float) -> None:
@@ -106,6 +123,10 @@ def main() -> None:
     ap.add_argument("--resolution", type=float, default=None,
                     help="edge length [m] of every case's garments instead of the templates' coarse / fine "
                     "size (the coarse twin keeps the templates' coarse size)")
+    ap.add_argument("--warmup", type=int, default=1, choices=(0, 1),
+                    help="1: first generate one short fine + coarse sequence of another seed, untimed, so "
+                    "that Warp's kernel compilation (once per machine: its kernel cache keeps them) "
+                    "counts apart, as warmup_s")
     ap.add_argument("--no-phases", action="store_true",
                     help="time the job without waiting for the device at every phase (no phase table)")
     add_results_argument(ap)
@@ -117,12 +138,23 @@ def main() -> None:
     device = resolve_device(args.device)
     cases = {"coarse": ("coarse", "false"), "fine": ("fine", "false"), "fine+coarse": ("fine", "true")}
     fig = {}
+    # every case sews its garments: a garment cache from earlier runs would hide that cost
+    cache = os.environ["WRINKLES_CACHE"] = tempfile.mkdtemp(prefix="wrinkles-bench-cache-")
+    warmup_s = None
+    if args.warmup:
+        t0 = time.perf_counter()
+        generate_in_temp(CONFIG.format(seed=1000, sequences=1, seconds=0.2,
+                                       fine=json.dumps(args.resolution or "fine"), coarse="true"),
+                         "bench_dataset:warmup", 1, device, phases=False)
+        warmup_s = time.perf_counter() - t0
+        print(f"warm-up (kernel compilation, untimed): {warmup_s:.1f} s", flush=True)
     for name in args.cases.split(","):
         fine, coarse = cases[name]
         fine = fine if args.resolution is None else args.resolution
-        text = CONFIG.format(sequences=args.sequences, seconds=args.seconds, fine=json.dumps(fine),
+        text = CONFIG.format(seed=0, sequences=args.sequences, seconds=args.seconds, fine=json.dumps(fine),
                              coarse=coarse)
-        s, wall, manifest, phases = generate_in_temp(text, f"bench_dataset:{name}", args.batch, device,
+        s, wall, manifest, phases, derive = generate_in_temp(text, f"bench_dataset:{name}", args.batch,
+                                                             device,
                                                      phases=not args.no_phases)
         seqs = list(manifest["sequences"].values())
         frames = sum(e["frames"] for e in seqs)
@@ -133,6 +165,8 @@ def main() -> None:
             "wall_s": wall, "sequences_per_hour": 3600.0 * made / wall,
             "garment_frames_per_s": frames / wall if frames else 0.0,
             "bytes_per_frame": s.bytes / max(frames, 1),
+            # the fields a reader derives from the stored ones, all at once, with their cache
+            "derive_on_read_s": derive["s"], "derived_bytes_per_frame": derive["bytes"] / max(frames, 1),
             "vertices": sorted({e["vertices"] for e in seqs}),
             "coarse_vertices": sorted({e["coarse_vertices"] for e in seqs if e.get("coarse_vertices")}),
             "phases": phases,
@@ -146,8 +180,10 @@ def main() -> None:
                   "image_resolution": 256, "resolution": args.resolution,
                   "edge_m": {c: {"coarse": TEMPLATES[c].coarse, "fine": TEMPLATES[c].fine}
                              for c in ("t_shirt", "straight_skirt")}},
+        "warmup_s": warmup_s,
         "figures": fig,
     }, args.results)
+    shutil.rmtree(cache, ignore_errors=True)
 
 
 if __name__ == "__main__":

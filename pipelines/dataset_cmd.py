@@ -10,25 +10,31 @@ from pathlib import Path
 
 from sim.errors import WrinklesInputError
 
-HELP = "generate a synthetic garment dataset (resumable, sharded); info, report, combine"
+HELP = "generate a synthetic garment dataset (resumable, sharded); info, report, derive, combine"
 DESCRIPTION = """\
 Synthetic garment datasets for the wrinkle models (sim.datasets; layout in sim/datasets/storage.py,
 arrays in sim/datasets/schema.py).
 
   generate  sample garments, materials, body shapes and motions from a TOML config, simulate
             each sequence at fine (and coarse) resolution, reject those that fail the quality
-            gates (logged with why in rejections.jsonl), derive the base surface, wrinkle field,
-            Green-Lagrange strain, normals and UV images, and store one file per sequence.
+            gates (logged with why in rejections.jsonl), and store one file per sequence: the
+            positions, the rest garments, the body's motion and the quality record (the base
+            surface, wrinkle field, strain, normals and UV images are derived from them where
+            they are read, and cached: 'derive').
             Resumable (--resume) and sharded (--shard i/n); the same config and seed give
             byte-identical sequence files on the same device.
   info      counts and statistics of a dataset
   report    PNGs: contact sheet of renders, example UV images, histograms
+  derive    derive every sequence's base, wrinkle, strain, normals and UV images into the cache
+            (DIR/derived/) ahead of training; readers derive them on first use otherwise
   combine   rebuild manifest.json from the shard parts (after copying shards together)
 
 examples:
   wrinkles dataset generate --config sample --out data/sample
   wrinkles dataset generate --config my.toml --out data/big --shard 0/4 --device cuda:0
   wrinkles dataset generate --config my.toml --out data/big --shard 0/4 --resume
+  wrinkles dataset generate --config my.toml --out data/big --batch 64 --workers 4 --device cuda
+  wrinkles dataset generate --config my.toml --out /shared/big --batch 64 --scheduler tcp://head:8786
   wrinkles dataset generate --config my.toml --out data/big-test --splits test_id,test_ood --device cuda
   wrinkles dataset info data/sample
   wrinkles dataset report data/sample
@@ -65,6 +71,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--batch", type=int, default=1,
                    help="sequences simulated together in one batched model (GPU throughput; "
                         "default: %(default)s)")
+    g.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="spread the batches over a local Dask cluster of N worker processes (with several "
+                        "GPUs, worker i uses GPU i mod GPUs); needs pip install 'wrinkles[distributed]'")
+    g.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                   help="spread the batches over a running Dask cluster (dask-jobqueue on Slurm/PBS, "
+                        "dask-kubernetes, dask scheduler + dask worker): every worker must see --out")
     g.add_argument("--splits", type=_splits, default=None, metavar="S[,S]",
                    help="make only the sequences of these splits (train, test_id, test_ood), e.g. the "
                         "test sets again on another machine (default: all)")
@@ -83,6 +95,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_report_arguments(r)
     r.set_defaults(_action=_run_report)
 
+    d = sub.add_parser("derive", help="derive every sequence's derived fields into the cache, ahead of "
+                       "training",
+                       description="Sequence files store positions, rest garments, the body's motion and "
+                       "quality; the base surface, wrinkle field, strain, normals and UV images are derived "
+                       "from them on first read and cached in DIR/derived/ (sim/datasets/fields.py). This "
+                       "derives them all now, on --device (a GPU is much faster than the CPU a data "
+                       "loader would use).")
+    d.add_argument("root", help="dataset directory")
+    d.add_argument("--split", default=None, help="only this split (train, test_id, test_ood; default: all)")
+    add_common_arguments(d, seed=False)
+    d.set_defaults(_action=run_derive)
+
     c = sub.add_parser("combine", help="rebuild manifest.json from parts/ (shards copied together)")
     c.add_argument("root", help="dataset directory")
     c.add_argument("--verify", action="store_true", help="re-hash every sequence file")
@@ -92,7 +116,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     action = getattr(args, "_action", None)
     if action is None:
-        print("wrinkles dataset: choose an action: generate, info, report, combine "
+        print("wrinkles dataset: choose an action: generate, info, report, derive, combine "
               "(wrinkles dataset --help)", file=sys.stderr)
         return 2
     return action(args)
@@ -112,15 +136,29 @@ def run_generate(args: argparse.Namespace) -> int:
     from sim.device import resolve_device
 
     cfg = load_config(args.config)  # every check, user motion files included, before simulating
-    device = resolve_device(args.device)
+    device = resolve_device(args.device) if args.scheduler is None else args.device  # the workers' GPUs
     shard, shards = args.shard
+    distributed = args.workers is not None or args.scheduler is not None
+    if distributed and (shards != 1 or args.workers is not None and args.scheduler is not None):
+        raise WrinklesInputError("--workers / --scheduler: one of them, and without --shard (the cluster "
+                                 "job makes every shard)")
+    if distributed:
+        shard, shards = 0, 1  # the progress bar's name: all of it
     n = len(select_indices(sample_sequences(cfg), shard, shards, args.splits))
     t0 = time.perf_counter()
+    log = None if args.quiet else (lambda s: print(s, file=sys.stderr))
     try:
         with progress_bar(n, f"dataset shard {shard}/{shards}", quiet=args.quiet, unit="sequence") as advance:
-            summary = generate(cfg, args.out, shard=shard, shards=shards, resume=args.resume,
-                               batch=args.batch, device=device, progress=advance, splits=args.splits,
-                               log=None if args.quiet else (lambda s: print(s, file=sys.stderr)))
+            if distributed:
+                from sim.datasets.cluster import generate_on_cluster
+
+                summary = generate_on_cluster(cfg, args.out, workers=args.workers, scheduler=args.scheduler,
+                                              batch=args.batch, device=args.device, resume=args.resume,
+                                              splits=args.splits, progress=advance, log=log)
+            else:
+                summary = generate(cfg, args.out, shard=shard, shards=shards, resume=args.resume,
+                                   batch=args.batch, device=device, progress=advance, splits=args.splits,
+                                   log=log)
     except KeyboardInterrupt as e:
         from pipelines.interrupts import interruption
 
@@ -145,6 +183,24 @@ def run_combine(args: argparse.Namespace) -> int:
         raise WrinklesInputError("no config.json: not a dataset directory", path=root)
     m = S.combine_parts(root, config=json.loads(cfg_path.read_text()), verify=args.verify)
     print(f"{root / S.MANIFEST}: {len(m['sequences'])} sequences, {len(m['rejected'])} rejected")
+    return 0
+
+
+def run_derive(args: argparse.Namespace) -> int:
+    from pipelines.progress import progress_bar
+    from sim.datasets.fields import derive_dataset
+    from sim.datasets.schema import SPLITS
+    from sim.datasets.storage import read_manifest
+    from sim.device import resolve_device
+
+    if args.split is not None and args.split not in SPLITS:
+        raise WrinklesInputError(f"--split {args.split!r}: choose one of {', '.join(SPLITS)}")
+    device = resolve_device(args.device)
+    entries = read_manifest(args.root)["sequences"].values()
+    n = sum(1 for e in entries if args.split is None or e.get("split") == args.split)
+    with progress_bar(n, f"derive {args.root}", quiet=args.quiet, unit="sequence") as advance:
+        made, current = derive_dataset(args.root, device=device, split=args.split, progress=advance)
+    print(f"{args.root}: derived {made} sequences, {current} were current ({device})")
     return 0
 
 

@@ -106,6 +106,9 @@ def test_dataset_generation(tmp_path):
     assert all(v < 400 for v in case["vertices"])  # 7 cm edges: a few hundred vertices
     assert case["sequences"] == 1 and case["accepted"] + case["rejected"] == 1
     assert case["sequences_per_hour"] > 0
+    assert r["warmup_s"] > 0  # an untimed first job compiled the kernels
+    # the file stores positions; a reader's derivation (timed apart) makes the rest
+    assert case["derive_on_read_s"] > 0 and case["derived_bytes_per_frame"] > case["bytes_per_frame"]
     phases = case["phases"]  # where the time went, the simulation's parts under its rung
     for path in ("garments", "simulation rung 1/prelude/body separation", "simulation rung 1/steps", "judge",
                  "derive/base", "derive/wrinkle", "write"):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import signal
@@ -175,7 +176,9 @@ def test_sequence_file_round_trip_and_damage(tmp_path):
     assert sha == S.file_sha256(p)
     assert not list(tmp_path.glob(".*tmp*"))
     f = S.SequenceFile(p)
-    assert f.keys() == sorted(arrays) and f.metadata == {"k": "v"}
+    assert f.keys() == sorted(arrays) and f.metadata["k"] == "v"
+    # the file carries the checksum of its arrays (the bytes after the header)
+    assert f.metadata["data_sha256"] == hashlib.sha256(p.read_bytes()[f.data_offset:]).hexdigest()
     for k, a in arrays.items():
         assert f[k].dtype == a.dtype and np.array_equal(np.asarray(f[k]), a)
     # same arrays, same bytes
@@ -231,6 +234,10 @@ def test_generated_dataset_holds_the_schema(reference):
         assert S.file_sha256(out / e["file"]) == e["sha256"]
         for k in (*FINE_KEYS, *IMAGE_KEYS, *COARSE_KEYS, *BODY_KEYS, *QUALITY_KEYS):
             assert k in f, (sid, k)
+        # the file stores what the simulation gave; the rest is derived where it is read
+        from sim.datasets.fields import DERIVED_KEYS
+
+        assert f.has_stored("fine/vertices") and not any(f.has_stored(k) for k in DERIVED_KEYS)
         T, V = e["frames"], e["vertices"]
         assert f.shape("fine/vertices") == (T, V, 3) and f.shape("images/wrinkle") == (T, 32, 32, 3)
         layers = np.asarray(f["fine/face_layers"])  # the template's hems (up to 3 layers), the rest 1
@@ -269,6 +276,12 @@ def test_generated_dataset_holds_the_schema(reference):
     stats = json.loads(info.stdout)
     assert stats["sequences"] == len(m["sequences"])
     assert stats["frames"] == sum(e["frames"] for e in m["sequences"].values())
+    # the dataset card: storage, gates passed, share accepted
+    assert stats["schema_version"] == S.SCHEMA_VERSION and stats["positions"] == "f32"
+    assert stats["gates"] == {"max_edge_strain": 5.0, "max_inside_fraction": 1.0,
+                              "max_self_intersections": 1000}
+    assert stats["accepted_share"] == len(m["sequences"]) / 4
+    assert stats["derived_cached"] == len(m["sequences"])  # the loop above read derived fields
 
 
 @pytest.mark.slow

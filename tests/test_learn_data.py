@@ -344,4 +344,4 @@ def test_manifest_statistics(dataset):
     assert full["sequences"] == 4 and full["root"] == str(root)
     assert full["bytes_per_frame"] == full["bytes"] / full["frames"]
     text = format_statistics(full)
-    assert "4 sequences (1 rejected)" in text and "t_shirt 2" in text
+    assert "4 sequences (1 rejected, 80 % accepted)" in text and "t_shirt 2" in text

@@ -54,6 +54,7 @@ shipped one)::
     smoothing_length = 0.04  # base surface: wrinkles shorter than ~this [m] are removed
     image_resolution = 256   # UV images (0: none)
     coarse = true            # also simulate the coarse garment
+    positions = "f32"        # stored positions: "f32" exact, "i16" half the bytes (~9 µm grid)
 """
 
 from __future__ import annotations
@@ -159,17 +160,24 @@ class SplitConfig:
     ood_shape_norm: float = float("inf")
 
 
+POSITION_FORMATS = ("f32", "i16")
+"""Allowed values of ``[derive] positions``."""
+
+
 @dataclass(frozen=True)
 class DeriveConfig:
     """Attributes:
         smoothing_length: base-surface smoothing length [m].
         image_resolution: UV image side [px] (0: no images).
         coarse: also simulate each sequence with the coarse garment.
+        positions: how sequence files store positions: "f32" (exact) or "i16" (half the bytes,
+            on a per-frame grid of the bounding box / 65534, ``sim.datasets.quantize``).
     """
 
     smoothing_length: float = 0.04
     image_resolution: int = 256
     coarse: bool = True
+    positions: str = "f32"
 
 
 @dataclass(frozen=True)
@@ -208,6 +216,8 @@ class DatasetConfig:
             d["split"]["ood_shape_norm"] = None
         if d["garments"]["fit"] == "body":  # the default is left out: a manifest without the key
             d["garments"].pop("fit")         # is a "body" fit, and compares equal on --resume
+        if d["derive"]["positions"] == "f32":  # likewise
+            d["derive"].pop("positions")
         return _jsonable(d)
 
     def simulation_config(self):
@@ -508,3 +518,6 @@ def _check_derive(cfg: DatasetConfig, err) -> None:
         raise err(f"[derive] image_resolution must be 0 or an integer in 16..4096, got {res!r}")
     if not isinstance(d.coarse, bool):
         raise err(f"[derive] coarse must be true or false, got {d.coarse!r}")
+    if d.positions not in POSITION_FORMATS:
+        raise err(f"[derive] positions must be one of {', '.join(map(repr, POSITION_FORMATS))}, "
+                  f"got {d.positions!r}")

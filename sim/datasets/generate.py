@@ -12,6 +12,7 @@ give byte-identical sequence files however often the run was interrupted.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import time
@@ -23,6 +24,7 @@ import numpy as np
 
 from sim.datasets import storage as S
 from sim.datasets.config import DatasetConfig
+from sim.datasets.fields import DERIVE_META
 from sim.datasets.sampling import SequenceSpec, sample_sequences, select_indices
 from sim.errors import WrinklesInputError
 from sim.profiling import phase
@@ -118,7 +120,8 @@ class _Run:
 def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shards: int = 1,
              resume: bool = False, batch: int = 1, device: str | None = None,
              progress: Callable[[int, int], None] | None = None,
-             log: Log | None = None, splits: Sequence[str] | None = None) -> GenerateSummary:
+             log: Log | None = None, splits: Sequence[str] | None = None,
+             combine: bool = True) -> GenerateSummary:
     """Make (or continue) shard ``shard`` of ``shards`` of the dataset in ``out``.
 
     Args:
@@ -132,13 +135,14 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
         log: one line per accepted / rejected sequence.
         splits: make only the sequences of these splits (e.g. the test splits again on another
             machine); None: all. A sequence's split comes from the config, not from this run.
+        combine: rebuild ``out/manifest.json`` from every part at the end (a task of a cluster
+            job leaves that to the driver, ``sim.datasets.cluster``).
 
     Returns:
-        counts and timings; ``out/manifest.json`` is rebuilt from every part at the end.
+        counts and timings.
     """
     from sim.bodies import load_body
-    from sim.device import resolve_device, warp
-    from sim.simulate import simulator_defaults
+    from sim.device import resolve_device
 
     if not (0 <= shard < shards):
         raise WrinklesInputError(f"--shard {shard}/{shards}: need 0 <= i < n")
@@ -149,7 +153,7 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
     root = Path(out)
     sim_cfg = cfg.simulation_config()
     dev = resolve_device(device if device is not None else sim_cfg.device)
-    cfg_dict = {**cfg.to_dict(), "simulator": simulator_defaults(cuda=warp().get_device(dev).is_cuda)}
+    cfg_dict = config_record(cfg, dev)
     part = _open_shard(root, cfg_dict, shard, shards, resume)
     body = load_body(cfg.bodies.model)  # once: an SMPL file is not re-read for every group
     _remove_stale_temporaries(root, part, [specs[k] for k in mine])
@@ -165,18 +169,42 @@ def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shar
         if progress is not None:
             progress(done, len(mine))
     run.summary.seconds = time.perf_counter() - t0
-    S.combine_parts(root, config=cfg_dict)
-    _write_rejections(root)
+    if combine:
+        finish_dataset(root, cfg_dict)
     return run.summary
 
 
-def _open_shard(root: Path, cfg_dict: dict, shard: int, shards: int, resume: bool) -> _Shard:
-    """The dataset's folders and ``config.json`` made where missing, and this shard's part."""
+def config_record(cfg: DatasetConfig, device: str) -> dict:
+    """The config a dataset records (``config.json``, every part): the generator config and the
+    simulator defaults of ``device``'s kind."""
+    from sim.device import warp
+    from sim.simulate import simulator_defaults
+
+    return {**cfg.to_dict(), "simulator": simulator_defaults(cuda=warp().get_device(device).is_cuda)}
+
+
+def prepare_dataset(root: Path, cfg_dict: dict, resume: bool, started: Sequence[Path] = ()) -> None:
+    """The dataset's folders and ``config.json`` made where missing. Refused: a folder of another
+    config, or (without ``resume``) a part in ``started`` that exists already."""
     _check_root(root, cfg_dict, resume)
     (root / S.SEQUENCE_DIR).mkdir(parents=True, exist_ok=True)
     (root / S.PARTS_DIR).mkdir(parents=True, exist_ok=True)
     if not (root / "config.json").exists():
         S.atomic_write_json(root / "config.json", cfg_dict)
+    if not resume and any(p.exists() for p in started):
+        raise WrinklesInputError("this dataset was already started here; pass --resume to continue it, or "
+                                 "choose another --out", path=root)
+
+
+def finish_dataset(root: Path, cfg_dict: dict) -> None:
+    """``manifest.json`` and ``rejections.jsonl`` rebuilt from every part."""
+    S.combine_parts(root, config=cfg_dict)
+    _write_rejections(root)
+
+
+def _open_shard(root: Path, cfg_dict: dict, shard: int, shards: int, resume: bool) -> _Shard:
+    """The dataset's folders and ``config.json`` made where missing, and this shard's part."""
+    prepare_dataset(root, cfg_dict, resume)
     return _Shard(root, cfg_dict, shard, shards, resume)
 
 
@@ -384,7 +412,7 @@ def _accept(run: _Run, sp: SequenceSpec, item: dict, failed_attempts: list[dict]
     fine_g, fine_r = item["fine"]
     seq = fine_r.sequence
     with phase("derive"):
-        arrays = _sequence_arrays(run, item)
+        arrays, derived = _sequence_arrays(run, item)
     T = seq.vertices.shape[0]
     entry = {"file": f"{S.SEQUENCE_DIR}/{sp.id}{S.SUFFIX}", "frames": int(T), "split": sp.split,
              "index": sp.index, "seed": sp.seed, "garment": sp.category,
@@ -396,15 +424,16 @@ def _accept(run: _Run, sp: SequenceSpec, item: dict, failed_attempts: list[dict]
              "faces": int(fine_g.num_faces), "uvs": int(len(fine_g.uvs)),
              "coarse_vertices": int(item["coarse"][0].num_vertices) if "coarse" in item else None,
              "image_resolution": [res, res] if (res := cfg.derive.image_resolution) else None,
-             "quality": _entry_quality(fine_r.quality, arrays["fine/wrinkle"],
-                                       arrays["fine/strain_norm"])}
+             "quality": _entry_quality(fine_r.quality, derived["fine/wrinkle"],
+                                       derived["fine/strain_norm"])}
     prov = {**seq.provenance, "seed": sp.seed}
     if failed_attempts:  # the rungs it failed before the one it passed at
         prov["failed_attempts"] = failed_attempts
     meta_json = {"entry": json.dumps(entry, sort_keys=True),
                  "sequence": json.dumps(sp.to_json(), sort_keys=True),
                  "provenance": json.dumps(_stable(prov), sort_keys=True, default=str),
-                 "body": json.dumps({"model": cfg.bodies.model, "name": getattr(run.body, "name", "body")})}
+                 "body": json.dumps({"model": cfg.bodies.model, "name": getattr(run.body, "name", "body")}),
+                 DERIVE_META: json.dumps(dataclasses.asdict(cfg.derive), sort_keys=True)}
     path = S.sequence_path(run.root, sp.id)
     with phase("write"):
         sha = S.write_sequence(path, arrays, meta_json)
@@ -418,22 +447,30 @@ def _accept(run: _Run, sp: SequenceSpec, item: dict, failed_attempts: list[dict]
             f"{entry['bytes'] / 2**20:.1f} MiB")
 
 
-def _sequence_arrays(run: _Run, item: dict) -> dict[str, np.ndarray]:
-    """The arrays of a sequence file (``sim.datasets.schema``): derived fine (and coarse)
-    fields, the body's motion and the per-frame quality."""
-    from sim.datasets.derive import Deriver, coarse_arrays
+def _sequence_arrays(run: _Run, item: dict) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """The arrays a sequence file stores (``sim.datasets.schema``: quantized positions, rest
+    garments, the body's motion, the per-frame quality) and the fine fields derived from the
+    stored positions (as a reader derives them, ``sim.datasets.fields``) that the manifest's
+    quality summary reads."""
+    from dataclasses import replace
+
+    from sim.datasets.derive import Deriver
+    from sim.datasets.fields import FINE_DERIVED
     from sim.quality import edge_strain
 
     body, device = run.body, run.device
     fine_g, fine_r = item["fine"]
     seq = fine_r.sequence
-    with phase("setup"):
-        deriver = Deriver(fine_g, run.cfg.derive, device=device)
-    arrays = deriver(seq.vertices)
+    arrays, fine = _positions("fine/vertices", seq.vertices, run.cfg.derive.positions)
+    with phase("setup"):  # images are derived where they are read
+        deriver = Deriver(fine_g, replace(run.cfg.derive, image_resolution=0), device=device)
+    derived = deriver(fine)
+    arrays.update({k: v for k, v in derived.items() if k not in (*FINE_DERIVED, "fine/vertices")})
     if "coarse" in item:
         coarse_g, coarse_r = item["coarse"]
-        with phase("coarse"):
-            arrays.update(coarse_arrays(coarse_g, coarse_r.sequence.vertices, device=device))
+        arrays.update(_positions("coarse/vertices", coarse_r.sequence.vertices, run.cfg.derive.positions)[0])
+        arrays.update({"coarse/rest_vertices": coarse_g.rest_vertices, "coarse/faces": coarse_g.faces,
+                       "coarse/uvs": coarse_g.uvs, "coarse/uv_faces": coarse_g.uv_faces})
     poses = np.asarray(seq.motion.poses, np.float32)
     trans = np.asarray(seq.motion.trans, np.float32)
     # the simulated body may stand on the floor by a constant offset: fold it into trans so
@@ -449,7 +486,19 @@ def _sequence_arrays(run: _Run, item: dict) -> dict[str, np.ndarray]:
                    "quality/edge_strain_max": np.abs(fine_strain).max(axis=1).astype(np.float32),
                    "quality/inside_fraction": np.asarray(fine_r.quality.inside_fraction, np.float32),
                    "quality/self_intersections": np.asarray(fine_r.quality.self_intersections, np.int32)})
-    return arrays
+    return arrays, derived
+
+
+def _positions(name: str, x: np.ndarray, form: str) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The stored arrays of positions ``x`` in ``form`` ("f32" or "i16", ``[derive] positions``)
+    and the positions a reader gets back from them."""
+    from sim.datasets.quantize import dequantize, quantized_arrays
+
+    if form == "f32":
+        x = np.asarray(x, np.float32)
+        return {name: x}, x
+    stored = quantized_arrays(name, x)
+    return stored, dequantize(*(stored[name + s] for s in ("_q", "_origin", "_step")))
 
 
 def _stable(prov: dict) -> dict:

@@ -102,7 +102,10 @@ def _kind(reason: str) -> str:
 
 def dataset_statistics(root: str | os.PathLike, *, split: str = ALL_SPLITS) -> dict:
     """:func:`manifest_statistics` of the dataset in ``root``, plus ``root``, ``bytes_per_frame``,
-    the fine / coarse vertex counts and the rejection reasons by kind."""
+    the fine / coarse vertex counts, the rejection reasons by kind, the quality ``gates`` the
+    sequences passed, ``accepted_share`` (accepted of all made), the schema version, the stored
+    ``positions`` format, and ``derived_cached``: sequences whose derived fields are in the
+    dataset's cache (``sim.datasets.fields``)."""
     m = read_manifest(root)
     s = manifest_statistics(m, split=split)
     entries = [e for e in m["sequences"].values() if split == ALL_SPLITS or e.get("split") == split]
@@ -115,13 +118,45 @@ def dataset_statistics(root: str | os.PathLike, *, split: str = ALL_SPLITS) -> d
                        "coarse": sorted({int(e["coarse_vertices"]) for e in entries
                                          if e.get("coarse_vertices")})},
              rejection_reasons=dict(reasons.most_common()))
+    made = len(m.get("sequences", {})) + s["rejected"]
+    s.update(schema_version=m.get("schema_version"), gates=_gates(m.get("config") or {}),
+             positions=((m.get("config") or {}).get("derive") or {}).get("positions", "f32"),
+             accepted_share=len(m.get("sequences", {})) / made if made else None,
+             derived_cached=_derived_cached(root, entries))
     return s
+
+
+def _gates(config: Mapping) -> dict:
+    """The quality gates of a generator config (``[simulation] gates``, defaults filled in)."""
+    import dataclasses
+
+    from sim.quality import QualityGates
+
+    given = ((config.get("simulation") or {}).get("gates") or {})
+    return {**dataclasses.asdict(QualityGates()), **given}
+
+
+def _derived_cached(root, entries: list[dict]) -> int:
+    """How many of ``entries`` have a file in the dataset's cache of derived fields (current or
+    not: checking needs each sequence's checksum; ``wrinkles dataset derive`` makes them current)."""
+    from pathlib import Path
+
+    from sim.datasets.fields import DERIVED_DIR
+
+    folder = Path(root) / DERIVED_DIR
+    return sum((folder / Path(e["file"]).name).exists() for e in entries) if folder.is_dir() else 0
 
 
 def format_statistics(s: dict) -> str:
     """A plain-text table of :func:`dataset_statistics`."""
-    lines = [f"{s['root']}: {s['sequences']} sequences ({s['rejected']} rejected), {s['frames']} frames, "
+    share = "" if s.get("accepted_share") is None else f", {100 * s['accepted_share']:.0f} % accepted"
+    lines = [f"{s['root']}: {s['sequences']} sequences ({s['rejected']} rejected{share}), "
+             f"{s['frames']} frames, "
              f"{s['bytes'] / 2**20:.1f} MiB, {s['bytes_per_frame'] / 1024:.1f} KiB per frame"]
+    if "gates" in s:
+        lines.append(f"  storage:   schema {s['schema_version']}, positions {s['positions']}, derived fields "
+                     f"cached for {s['derived_cached']} of {s['sequences']} ('wrinkles dataset derive')")
+        lines.append("  gates:     " + ", ".join(f"{k} {v}" for k, v in s["gates"].items()))
     if s["sequences"]:
         lines.append(f"  vertices: fine {s['vertices']['fine']}, coarse {s['vertices']['coarse']}")
     for key in ("splits", "garments", "materials", "motions"):

@@ -1,4 +1,24 @@
-"""What a dataset sequence file holds (schema version 1; see ``sim.datasets.storage``).
+"""What a dataset sequence file gives (schema version 2; see ``sim.datasets.storage``).
+
+A file *stores* what only the simulation gives: positions (quantized, below), the rest
+garments, the body's motion and the quality record. Every other field of the tables below is
+*derived* from those by the reader on first use and kept in a cache of derived fields
+(``sim.datasets.fields``: ``DIR/derived/<id>.safetensors``, ``wrinkles dataset derive``);
+``SequenceFile[name]`` reads stored, quantized and derived names alike. Version 1 files, which
+store every field as such, read the same.
+
+Positions ``NAME`` (``fine/vertices``, ``coarse/vertices``) are stored as float32, or, with
+``[derive] positions = "i16"``, as three arrays (``sim.datasets.quantize``): ``NAME_q``
+(T, V, 3) i16, ``NAME_origin`` (T, 3) f32 and ``NAME_step`` (T,) f32, with
+``NAME = NAME_origin[:, None, :] + NAME_step[:, None, None] * NAME_q`` (error at most step / 2:
+~9 µm on a garment 1.2 m across). The metadata entry ``data_sha256`` is the sha256 of the
+arrays' bytes (the file after its header); ``derive`` is the JSON of the derivation's settings
+(``DeriveConfig``: smoothing length, image resolution).
+
+Stored: ``fine/vertices``, ``fine/rest_vertices``, ``fine/faces``, ``fine/uvs``,
+``fine/uv_faces``, ``fine/face_layers``, ``coarse/vertices``, ``coarse/rest_vertices``,
+``coarse/faces``, ``coarse/uvs``, ``coarse/uv_faces``, ``body/*``, ``quality/*``. Derived: the
+rest (``sim.datasets.fields.DERIVED_KEYS``).
 
 T frames; the fine garment has V vertices, F faces, U UV vertices; the coarse garment Vc, Fc,
 Uc; images are H x W. Units SI, Y up, arrays little-endian.

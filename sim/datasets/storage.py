@@ -32,7 +32,10 @@ import numpy as np
 
 from sim.errors import WrinklesInputError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+"""Version 1 files store every field as such; version 2 files store positions quantized and
+leave the derived fields to the reader (``sim.datasets.schema``); both read the same."""
 MANIFEST = "manifest.json"
 SEQUENCE_DIR = "sequences"
 PARTS_DIR = "parts"
@@ -107,8 +110,13 @@ def write_sequence(path: str | os.PathLike, arrays: Mapping[str, np.ndarray],
                         "data_offsets": [offset, offset + len(raw)]}
         blobs.append(raw + b"\0" * pad)
         offset += len(raw) + pad
-    if metadata:
-        header["__metadata__"] = {str(k): str(v) for k, v in sorted(metadata.items())}
+    data = hashlib.sha256()
+    for b in blobs:
+        data.update(b)
+    # the arrays' own checksum, inside the file: a copy checks itself, and derived-field caches
+    # (sim.datasets.fields) know which data they came from
+    header["__metadata__"] = {**{str(k): str(v) for k, v in sorted((metadata or {}).items())},
+                              "data_sha256": data.hexdigest()}
     text = json.dumps(header, sort_keys=True, separators=(",", ":")).encode()
     # the data starts 64-byte aligned: pad the header with spaces (allowed by the format)
     text += b" " * ((-(8 + len(text))) % _ALIGN)
@@ -152,6 +160,8 @@ class SequenceFile:
         self.metadata: dict[str, str] = header.pop("__metadata__", {}) or {}
         self._base = 8 + n
         self._entries = header
+        self._names: tuple[tuple[str, ...], tuple[str, ...]] | None = None
+        self._derived: SequenceFile | None = None
         for name, e in header.items():
             if e.get("dtype") not in _DTYPES or len(e.get("data_offsets", ())) != 2:
                 raise WrinklesInputError(f"bad entry {name!r} in the header", path=self.path)
@@ -160,25 +170,83 @@ class SequenceFile:
             if hi - lo != count * np.dtype(_DTYPES[e["dtype"]]).itemsize or self._base + hi > size:
                 raise WrinklesInputError(f"entry {name!r} does not fit the file (truncated?)", path=self.path)
 
-    def keys(self) -> list[str]:
-        return sorted(self._entries)
+    @property
+    def data_offset(self) -> int:
+        """Byte offset of the first array (after the header)."""
+        return self._base
 
-    def __contains__(self, name: str) -> bool:
+    def has_stored(self, name: str) -> bool:
+        """Whether the file holds array ``name`` as such."""
         return name in self._entries
 
-    def shape(self, name: str) -> tuple[int, ...]:
-        return tuple(self._entries[name]["shape"])
+    def has(self, name: str) -> bool:
+        """Whether ``name`` is stored, as such or quantized (``sim.datasets.quantize``)."""
+        return name in self._entries or name + "_q" in self._entries
 
-    def __getitem__(self, name: str) -> np.ndarray:
-        """The array ``name``, memory-mapped read-only (copy what you keep)."""
+    def _virtual(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """(quantized names, derivable names) of this file."""
+        if self._names is None:
+            from sim.datasets.fields import derivable
+            from sim.datasets.quantize import SUFFIXES
+
+            quantized = tuple(n[:-2] for n in self._entries
+                              if n.endswith("_q") and all(n[:-2] + s in self._entries for s in SUFFIXES))
+            self._names = (quantized, derivable(self))
+        return self._names
+
+    def keys(self) -> list[str]:
+        """The names it gives: stored, quantized (read decoded) and derived (read from the cache
+        of derived fields, ``sim.datasets.fields``)."""
+        from sim.datasets.quantize import SUFFIXES
+
+        quantized, derived = self._virtual()
+        parts = {q + s for q in quantized for s in SUFFIXES}
+        return sorted({*(n for n in self._entries if n not in parts), *quantized, *derived})
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._entries or any(name in names for names in self._virtual())
+
+    def shape(self, name: str) -> tuple[int, ...]:
+        if name in self._entries:
+            return tuple(self._entries[name]["shape"])
+        quantized, derived = self._virtual()
+        if name in quantized:
+            return tuple(self._entries[name + "_q"]["shape"])
+        if name in derived:
+            from sim.datasets.fields import derived_shape
+
+            return derived_shape(self, name)
+        raise KeyError(f"{self.path}: no array {name!r} (has {', '.join(self.keys())})")
+
+    def stored(self, name: str) -> np.ndarray:
+        """The stored array ``name``, memory-mapped read-only (copy what you keep)."""
         if name not in self._entries:
-            raise KeyError(f"{self.path}: no array {name!r} (has {', '.join(self.keys())})")
+            raise KeyError(f"{self.path}: no stored array {name!r} (has {', '.join(sorted(self._entries))})")
         e = self._entries[name]
         dt = np.dtype(_DTYPES[e["dtype"]]).newbyteorder("<")
         shape = tuple(e["shape"])
         if int(np.prod(shape)) == 0:
             return np.zeros(shape, dt)
         return np.memmap(self.path, dtype=dt, mode="r", offset=self._base + e["data_offsets"][0], shape=shape)
+
+    def __getitem__(self, name: str):
+        """Array ``name``: a stored one memory-mapped read-only (copy what you keep); a quantized
+        one as a ``Dequantized`` view (slicing decodes only those frames); a derived one from the
+        cache of derived fields (derived and cached on first use, on the CPU)."""
+        if name in self._entries:
+            return self.stored(name)
+        quantized, derived = self._virtual()
+        if name in quantized:
+            from sim.datasets.quantize import Dequantized
+
+            return Dequantized(*(self.stored(name + s) for s in ("_q", "_origin", "_step")))
+        if name in derived:
+            if self._derived is None:
+                from sim.datasets.fields import cached_fields
+
+                self._derived = cached_fields(self, device="cpu")
+            return self._derived.stored(name)
+        raise KeyError(f"{self.path}: no array {name!r} (has {', '.join(self.keys())})")
 
     def json(self, key: str):
         """A metadata entry parsed as JSON."""
@@ -196,9 +264,9 @@ def read_manifest(root: str | os.PathLike) -> dict:
                                  path=root) from None
     except (OSError, ValueError) as e:
         raise WrinklesInputError(f"unreadable manifest ({e})", path=path) from None
-    if m.get("schema_version") != SCHEMA_VERSION:
+    if m.get("schema_version") not in READABLE_VERSIONS:
         raise WrinklesInputError(f"schema version {m.get('schema_version')!r}, this wrinkles reads "
-                                 f"{SCHEMA_VERSION}", path=path)
+                                 f"{' and '.join(map(str, READABLE_VERSIONS))}", path=path)
     return m
 
 

@@ -22,6 +22,7 @@ from sim.garments.pattern import Pattern
 from sim.garments.sewing import SewnPattern, sew_pattern
 from sim.garments.types import Garment
 from sim.garments.uv import pack_uvs
+from sim.profiling import phase
 
 ATTACHMENT_LABELS = {"hem": "hem", "cuff": "cuffs", "waistband": "waistband", "neckline": "neckline",
                      "shoulder": "shoulders"}
@@ -217,7 +218,8 @@ def make_design_garment(name: str, body, betas: np.ndarray | None = None, *,
             "device": "cuda" if dev.startswith("cuda") else "cpu"}
 
     def build() -> Garment:
-        pattern = designs()[name].draft(BodyParts.of(body, betas), p)
+        with phase("draft"):
+            pattern = designs()[name].draft(BodyParts.of(body, betas), p)
         sewn = sew_pattern(pattern, rest, np.asarray(body.faces), h, mat, device=dev)
         return garment_of(pattern, sewn, mat, category=name, name=name)
     return _hemmed(cached_garment(spec, build), garment_name or name, hem_width, hem_layers)

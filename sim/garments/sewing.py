@@ -25,6 +25,7 @@ import numpy as np
 from sim.easing import smoothstep
 from sim.garments.pattern import Pattern
 from sim.garments.pattern_mesh import PatternMesh, mesh_pattern
+from sim.profiling import phase
 
 HELD = ("waistband",)
 """Edge labels whose vertices stay where sewing left them while the garment settles."""
@@ -144,9 +145,12 @@ def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndar
     body = np.asarray(body_vertices, np.float32)
     collider = BodyCollider(body, np.asarray(body_faces, np.int32), device=dev)
     collider.set_frame(body, body)
-    mesh = mesh_pattern(pattern, h)
-    x, gap = _close(pattern, mesh, collider, material, cfg, dev)
-    x = _settle(pattern, mesh, mesh.merge(x), collider, material, cfg, dev)
+    with phase("mesh"):
+        mesh = mesh_pattern(pattern, h)
+    with phase("close"):
+        x, gap = _close(pattern, mesh, collider, material, cfg, dev)
+    with phase("settle"):
+        x = _settle(pattern, mesh, mesh.merge(x), collider, material, cfg, dev)
     return SewnPattern(vertices=x.astype(np.float32), faces=mesh.sewn_faces(), mesh=mesh, seam_gap=gap)
 
 

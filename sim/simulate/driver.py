@@ -127,14 +127,18 @@ class _Batch:
 
         self.wp = warp()
         self.tracks, self.cfg, self.device = tracks, cfg, device
-        self.model, bindings = _build_model(tracks, vbd, device)
+        with phase("cloth"):
+            self.model, bindings = _build_model(tracks, vbd, device)
         self.control = self.model.control()
-        self.colliders, self.pins = _attach_bodies(self.model, self.control, tracks, bindings, device)
-        self.solver = SolverVBD(self.model, vbd)
+        with phase("bodies"):
+            self.colliders, self.pins = _attach_bodies(self.model, self.control, tracks, bindings, device)
+        with phase("solver"):
+            self.solver = SolverVBD(self.model, vbd)
         self.state = self.model.state()
         self.dt = 1.0 / cfg.fps
-        self.checkers = [FrameChecker(tr.job.garment, cfg) for tr in tracks]
-        self.screen = BatchScreen(tracks, self.checkers, cfg)
+        with phase("screen"):
+            self.checkers = [FrameChecker(tr.job.garment, cfg) for tr in tracks]
+            self.screen = BatchScreen(tracks, self.checkers, cfg)
         self.graph = None
         self.use_graph = self.wp.get_device(device).is_cuda
         self.total = max(tr.length for tr in tracks) - 1

@@ -1,0 +1,191 @@
+"""Fields a sequence file does not store, derived from what it does and kept in a cache.
+
+A sequence file stores what only the simulation can give (positions: float32, or int16 on a
+grid, ``sim.datasets.quantize``), the garments' rest data, the body's motion and the quality
+record; the fields computed from those (``DERIVED_KEYS``: base surface, wrinkle field,
+strain, normals, UV images, coarse strain) cost seconds per sequence and would take seven
+eighths of the bytes. They are
+derived on first read (``derive_fields``, the same ``Deriver`` the generator runs) and written,
+all at once, to a cache file beside the dataset (``DIR/derived/<id>.safetensors``, or under
+``$WRINKLES_CACHE/derived/`` where the dataset is read-only), itself a plain safetensors file.
+The cache is keyed by the sequence file's data checksum and ``DERIVE_VERSION``: a sequence
+written anew, or a derivation that changes, makes it stale and it is derived again.
+``wrinkles dataset derive`` fills the cache of a whole dataset ahead of training.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sim.datasets.schema import IMAGE_KEYS
+from sim.errors import WrinklesInputError
+
+DERIVE_VERSION = 1
+"""Changes whenever a derived field would come out different: older caches are stale then."""
+FINE_DERIVED = ("fine/base", "fine/wrinkle", "fine/strain", "fine/strain_norm", "fine/normals")
+DERIVED_KEYS = (*FINE_DERIVED, *IMAGE_KEYS, "coarse/strain_norm")
+DERIVED_DIR = "derived"
+DERIVE_META = "derive"
+"""Metadata entry of a sequence file: JSON of the ``DeriveConfig`` its derived fields use."""
+
+
+@dataclass(frozen=True)
+class _RestGarment:
+    """The parts of a ``Garment`` the derivation reads, from a sequence file."""
+
+    rest_vertices: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray
+    uv_faces: np.ndarray
+    face_layers: np.ndarray
+
+    @property
+    def num_vertices(self) -> int:
+        return len(self.rest_vertices)
+
+
+def _rest_garment(sf, prefix: str) -> _RestGarment:
+    names = ("rest_vertices", "faces", "uvs", "uv_faces")
+    parts = {n: np.array(sf.stored(f"{prefix}/{n}")) for n in names}
+    fl = f"{prefix}/face_layers"
+    layers = np.array(sf.stored(fl)) if sf.has_stored(fl) else np.ones(len(parts["faces"]), np.float32)
+    return _RestGarment(face_layers=layers, **parts)
+
+
+def derive_config(sf):
+    """The ``DeriveConfig`` of a sequence file (its ``derive`` metadata), None without one."""
+    from sim.datasets.config import DeriveConfig
+
+    if DERIVE_META not in sf.metadata:
+        return None
+    d = json.loads(sf.metadata[DERIVE_META])
+    return DeriveConfig(smoothing_length=float(d["smoothing_length"]),
+                        image_resolution=int(d["image_resolution"]), coarse=bool(d.get("coarse", False)))
+
+
+def derivable(sf) -> tuple[str, ...]:
+    """The derived keys a sequence file gives (none stored: all of them can be derived)."""
+    cfg = derive_config(sf)
+    if cfg is None or not sf.has("fine/vertices"):
+        return ()
+    keys = list(FINE_DERIVED)
+    if cfg.image_resolution:
+        keys += IMAGE_KEYS
+    if sf.has("coarse/vertices") and sf.has_stored("coarse/faces"):
+        keys.append("coarse/strain_norm")
+    return tuple(k for k in keys if not sf.has_stored(k))
+
+
+def derived_shape(sf, key: str) -> tuple[int, ...]:
+    """The shape of derived field ``key`` of ``sf``, without deriving it."""
+    T, V = sf.shape("fine/vertices")[:2]
+    F, U = sf.shape("fine/faces")[0], sf.shape("fine/uvs")[0]
+    res = derive_config(sf).image_resolution
+    channels = {"images/strain_norm": 1, "images/wrinkle": 3, "images/normal_world": 3,
+                "images/normal_tangent": 3}
+    shapes = {"fine/base": (T, V, 3), "fine/normals": (T, V, 3), "fine/wrinkle": (T, U, 3),
+              "fine/strain": (T, F, 3), "fine/strain_norm": (T, F), "images/mask": (res, res),
+              **{k: (T, res, res, c) for k, c in channels.items()}}
+    if key == "coarse/strain_norm":
+        return (sf.shape("coarse/vertices")[0], sf.shape("coarse/faces")[0])
+    return shapes[key]
+
+
+def derive_fields(sf, *, device: str | None = None) -> dict[str, np.ndarray]:
+    """Every field of ``derivable(sf)``, computed from the file's stored arrays."""
+    from sim.datasets.derive import Deriver, coarse_arrays
+
+    keys = derivable(sf)
+    out: dict[str, np.ndarray] = {}
+    if any(k in keys for k in (*FINE_DERIVED, *IMAGE_KEYS)):
+        fine = np.asarray(sf["fine/vertices"], np.float32)
+        out.update(Deriver(_rest_garment(sf, "fine"), derive_config(sf), device=device)(fine))
+    if "coarse/strain_norm" in keys:
+        coarse = np.asarray(sf["coarse/vertices"], np.float32)
+        out.update(coarse_arrays(_rest_garment(sf, "coarse"), coarse, device=device))
+    return {k: np.ascontiguousarray(out[k]) for k in keys}
+
+
+def data_digest(sf) -> str:
+    """sha256 of the stored arrays' bytes (the file without its header): the ``data_sha256``
+    metadata entry the writer records, or computed from the file for one without it."""
+    if "data_sha256" in sf.metadata:
+        return sf.metadata["data_sha256"]
+    h = hashlib.sha256()
+    with open(sf.path, "rb") as f:
+        f.seek(sf.data_offset)
+        for chunk in iter(lambda: f.read(1 << 22), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def cache_path(sf) -> Path:
+    """Where the derived fields of sequence file ``sf`` are kept: ``DIR/derived/<id>`` beside a
+    dataset's ``sequences/`` folder when it is writable, else under ``$WRINKLES_CACHE/derived``
+    (default ``~/.cache/wrinkles``) by data checksum."""
+    from sim.datasets.storage import SUFFIX
+
+    folder = sf.path.parent
+    root = folder.parent if folder.name == "sequences" else folder
+    local = root / DERIVED_DIR
+    if os.access(local if local.exists() else root, os.W_OK):
+        return local / sf.path.name
+    base = Path(os.environ.get("WRINKLES_CACHE") or Path.home() / ".cache" / "wrinkles")
+    return base / DERIVED_DIR / f"{data_digest(sf)}{SUFFIX}"
+
+
+def cached_fields(sf, *, device: str | None = None):
+    """The ``SequenceFile`` of ``sf``'s derived fields, derived and written first where the
+    cache has no current one (several processes may derive the same sequence at once: each
+    writes identical bytes atomically)."""
+    from sim.datasets.storage import SequenceFile, write_sequence
+
+    path = cache_path(sf)
+    if _current(sf):
+        return SequenceFile(path)
+    arrays = derive_fields(sf, device=device)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_sequence(path, arrays, {"source": data_digest(sf), "version": str(DERIVE_VERSION)})
+    return SequenceFile(path)
+
+
+def derive_dataset(root: str | os.PathLike, *, device: str | None = None, split: str | None = None,
+                   progress=None) -> tuple[int, int]:
+    """Fill the cache of derived fields of every sequence of the dataset at ``root`` (of one
+    ``split``: None, all), each sequence's fields derived once. ``progress(done, total)`` after
+    each. Returns ``(derived now, current already)``."""
+    from sim.datasets.storage import SequenceFile, read_manifest
+
+    root = Path(root)
+    entries = [e for _, e in sorted(read_manifest(root)["sequences"].items())
+               if split is None or e.get("split") == split]
+    made = 0
+    for k, e in enumerate(entries):
+        sf = SequenceFile(root / e["file"])
+        if derivable(sf):
+            before = _current(sf)
+            cached_fields(sf, device=device)
+            made += not before
+        if progress is not None:
+            progress(k + 1, len(entries))
+    return made, len(entries) - made
+
+
+def _current(sf) -> bool:
+    """Whether the cache holds current derived fields of ``sf``."""
+    from sim.datasets.storage import SequenceFile
+
+    path = cache_path(sf)
+    if not path.exists():
+        return False
+    try:
+        meta = SequenceFile(path).metadata
+    except WrinklesInputError:
+        return False
+    return meta.get("source") == data_digest(sf) and meta.get("version") == str(DERIVE_VERSION)
