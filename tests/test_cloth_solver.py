@@ -27,7 +27,8 @@ from sim.cloth.coloring import (
     vertex_adjacency,
     wheel_bound,
 )
-from sim.cloth.model import build_hinges, dihedral_angles
+from sim.cloth.model import dihedral_angles
+from sim.cloth.topology import build_hinges
 from sim.device import warp
 from sim.geometry.primitives import uv_sphere
 

@@ -334,3 +334,30 @@ def test_sewing_on_the_default_body_closes_every_seam_into_one_manifold_garment(
     girth = ConvexHull(sewn.vertices[top][:, [0, 2]].astype(np.float64)).area
     band = sum(pat.panel(n).edge_length(i) for n, i in pat.labelled("waistband"))
     np.testing.assert_allclose(girth, band, rtol=0.05)
+
+
+@pytest.mark.slow
+def test_patterns_sewn_in_one_batch_are_those_sewn_one_by_one(parts):
+    """sew_patterns puts every pattern of a batch in one cloth model (instances never interact),
+    each on its own body: the garments are the ones sewn alone, to the bit."""
+    from sim.bodies import load_body
+    from sim.garments.designs import BodyParts
+    from sim.garments.materials import get_material
+    from sim.garments.sewing import SewingConfig, SewingJob, sew_pattern, sew_patterns
+
+    body = load_body()
+    betas = np.zeros(body.num_betas, np.float32)
+    betas[0] = 1.5
+    wide = BodyParts.of(body, betas)
+    cfg = SewingConfig(close_frames=6, settle_frames=4)
+    jobs = [SewingJob(drafted(parts, "skirt", {}), parts.vertices, parts.faces, 0.05, get_material("cotton")),
+            SewingJob(drafted(wide, "pants", {}), wide.vertices, wide.faces, 0.06, get_material("denim")),
+            SewingJob(drafted(parts, "pants", {}), parts.vertices, parts.faces, 0.05, get_material("silk"))]
+    batch = sew_patterns(jobs, config=cfg, device="cpu")
+    for job, got in zip(jobs, batch, strict=True):
+        alone = sew_pattern(job.pattern, job.body_vertices, job.body_faces, job.h, job.material, config=cfg,
+                            device="cpu")
+        np.testing.assert_array_equal(got.vertices, alone.vertices)
+        np.testing.assert_array_equal(got.faces, alone.faces)
+        assert got.seam_gap == alone.seam_gap
+    assert len(batch[1].vertices) != len(batch[2].vertices)  # another body, another garment

@@ -77,8 +77,8 @@ def test_hems_and_names_share_one_sewing(tmp_path, monkeypatch):
     monkeypatch.setenv("WRINKLES_CACHE", str(tmp_path))
     monkeypatch.setattr(gc, "_MEMORY", {})
     sewn = []
-    real = designs.sew_pattern
-    monkeypatch.setattr(designs, "sew_pattern", lambda *a, **k: sewn.append(1) or real(*a, **k))
+    real = designs.sew_patterns
+    monkeypatch.setattr(designs, "sew_patterns", lambda jobs, **k: sewn.extend(jobs) or real(jobs, **k))
     body = load_default_body()
     plain = make_garment("straight_skirt", body, resolution=0.06, device="cpu")
     wide = make_garment("straight_skirt", body, resolution=0.06, device="cpu", hem_width=0.04, hem_layers=2.0)
@@ -90,3 +90,34 @@ def test_hems_and_names_share_one_sewing(tmp_path, monkeypatch):
     assert (bare.face_layers == 1.0).all() and plain.face_layers.max() > 1.0
     assert (plain.name, bare.name) == ("straight_skirt", "skirt")
     assert len(list((tmp_path / "garments").glob("*.npz"))) == 1
+
+
+def test_garments_of_a_batch_are_sewn_together_once_each(tmp_path, monkeypatch):
+    """make_garments sews the garments the cache lacks in one sew_patterns batch (an order twice:
+    once), and each is the garment make_garment makes alone."""
+    from sim.bodies.default import load_default_body
+    from sim.garments import designs
+    from sim.garments.templates import GarmentOrder, make_garment, make_garments
+
+    monkeypatch.setenv("WRINKLES_CACHE", str(tmp_path))
+    monkeypatch.setattr(gc, "_MEMORY", {})
+    batches = []
+    real = designs.sew_patterns
+    monkeypatch.setattr(designs, "sew_patterns",
+                        lambda jobs, **k: batches.append(len(jobs)) or real(jobs, **k))
+    body = load_default_body()
+    wide = np.zeros(body.num_betas, np.float32)
+    wide[0] = 1.0
+    orders = [GarmentOrder("straight_skirt", body, None, 0.07),
+              GarmentOrder("straight_skirt", body, wide, 0.07),
+              GarmentOrder("straight_skirt", body, None, 0.07, name="again")]
+    made = make_garments(orders, device="cpu")
+    assert batches == [2] and made[2].name == "again"
+    np.testing.assert_array_equal(made[0].rest_vertices, made[2].rest_vertices)
+    monkeypatch.setenv("WRINKLES_CACHE", "off")
+    monkeypatch.setattr(gc, "_MEMORY", {})
+    alone = make_garment("straight_skirt", body, wide, resolution=0.07, device="cpu")
+    assert batches == [2, 1]
+    np.testing.assert_array_equal(made[1].rest_vertices, alone.rest_vertices)
+    assert made[1].num_vertices != made[0].num_vertices or not np.array_equal(made[1].rest_vertices,
+                                                                               made[0].rest_vertices)

@@ -96,6 +96,7 @@ def test_pattern_out_writes_the_design_without_sewing(tmp_path, capsys, monkeypa
         raise AssertionError("--pattern-out alone must not sew")
 
     monkeypatch.setattr(designs, "sew_pattern", no_sewing)
+    monkeypatch.setattr(designs, "sew_patterns", no_sewing)
     tee = tmp_path / "tee.json"
     args = ["--shape", "weight=0.6", "--garment-param", "sleeve_length=0.5",
             "--garment-param", "hem_width=0.03"]

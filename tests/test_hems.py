@@ -9,7 +9,8 @@ import pytest
 from sim.bodies import load_body
 from sim.bodies.default import parse_shape
 from sim.cloth import ClothModelBuilder
-from sim.cloth.model import ClothMaterialParams, build_hinges, hinge_faces
+from sim.cloth.model import ClothMaterialParams, hinge_faces
+from sim.cloth.topology import build_hinges
 from sim.errors import WrinklesInputError
 from sim.garments import TEMPLATES, make_garment
 from sim.garments.hems import (

@@ -280,7 +280,7 @@ def interior_edges(faces) -> np.ndarray:
     """Pairs of faces that share an edge (the hinges of the bending metric).
 
     Built once per topology. Boundary edges (one face) have no pair; non-manifold edges (more
-    than two faces) are skipped, like ``sim.cloth.model.build_hinges``.
+    than two faces) are skipped, like ``sim.cloth.topology.build_hinges``.
 
     Args:
         faces: (F, 3) int.

@@ -21,14 +21,13 @@ bending coupling between them is a Jacobi step, every other coupling Gauss-Seide
 from __future__ import annotations
 
 import collections
-import hashlib
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
 
-from sim.cloth.coloring import compact_coloring, vertex_adjacency, wheel_bound
 from sim.cloth.pattern_distance import pattern_positions
+from sim.cloth.topology import mesh_topology
 from sim.device import resolve_device, warp
 from sim.types import face_layers_array
 
@@ -127,31 +126,6 @@ def hinge_rest_angles(ins: _Instance) -> np.ndarray:
     return angles
 
 
-def build_hinges(faces: np.ndarray) -> np.ndarray:
-    """Interior edges as hinges ``(o0, o1, a, b)`` (layout in ``sim.cloth.energies``).
-
-    Edges with more than two faces (non-manifold) get no hinge.
-    """
-    f = faces.astype(np.int64)
-    a = f.reshape(-1)
-    b = np.roll(f, -1, axis=1).reshape(-1)
-    o = np.roll(f, -2, axis=1).reshape(-1)
-    key = np.minimum(a, b) * (int(a.max(initial=0)) + 1) + np.maximum(a, b)
-    order = np.argsort(key, kind="stable")
-    key_s = key[order]
-    hinges = []
-    start = 0
-    while start < len(order):
-        end = start
-        while end < len(order) and key_s[end] == key_s[start]:
-            end += 1
-        if end - start == 2:
-            h0, h1 = order[start], order[start + 1]
-            hinges.append((o[h0], o[h1], a[h0], b[h0]))
-        start = end
-    return np.asarray(hinges, dtype=np.int32).reshape(-1, 4)
-
-
 def dihedral_angles(x: np.ndarray, hinges: np.ndarray) -> np.ndarray:
     """Signed dihedral angles [rad] of hinges at positions ``x`` (numpy float64 reference)."""
     x = x.astype(np.float64)
@@ -186,28 +160,6 @@ class _Instance:
     panels: np.ndarray | None = None
 
 
-_TOPOLOGY: collections.OrderedDict = collections.OrderedDict()
-
-
-def mesh_topology(vertex_count: int, faces: np.ndarray, max_colors: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Hinges and vertex colouring (of the triangle edges: see the module docstring) of a mesh,
-    cached by topology (the last 64 meshes): a batch of one garment pattern colours it once (the
-    5k t-shirt's compact colouring takes 0.45 s, and 1024 copies of it took longer than their
-    simulation)."""
-    key = (int(vertex_count), hashlib.sha1(np.ascontiguousarray(faces, np.int32).tobytes()).hexdigest(),
-           int(max_colors))
-    if key not in _TOPOLOGY:
-        hinges = build_hinges(faces)
-        no_hinges = np.zeros((0, 4), np.int64)
-        colors = compact_coloring(vertex_adjacency(vertex_count, faces, no_hinges), max_colors=max_colors,
-                                  floor=wheel_bound(vertex_count, faces))
-        _TOPOLOGY[key] = (hinges, colors)
-        if len(_TOPOLOGY) > 64:
-            _TOPOLOGY.popitem(last=False)
-    hinges, colors = _TOPOLOGY[key]
-    return hinges.copy(), colors.copy()
-
-
 class ClothModelBuilder:
     """Collects cloth instances (numpy) and finalises them into a ``ClothModel``.
 
@@ -232,7 +184,7 @@ class ClothModelBuilder:
     def add_cloth(self, vertices: np.ndarray, faces: np.ndarray, material: ClothMaterialLike, *,
                   pinned: np.ndarray | None = None, rest_vertices: np.ndarray | None = None,
                   face_layers: np.ndarray | None = None, rest_corners: np.ndarray | None = None,
-                  face_panels: np.ndarray | None = None) -> int:
+                  face_panels: np.ndarray | None = None, topology: tuple | None = None) -> int:
         """Add one cloth instance.
 
         Args:
@@ -253,6 +205,9 @@ class ClothModelBuilder:
                 inside one panel (``face_panels``) rest flat, as cloth cut from a flat bolt
                 does; hinges across a seam keep ``rest_vertices``' angle.
             face_panels: panel of each face, (F,), with ``rest_corners``.
+            topology: ``(hinges, colors)`` of the mesh as ``mesh_topology(V, faces,
+                max_colors)`` gives them (``mesh_topologies`` makes a batch's in parallel);
+                None: computed here.
 
         Returns:
             The instance index.
@@ -284,7 +239,7 @@ class ClothModelBuilder:
             if flat.shape != (len(f), 3, 2) or panels.shape != (len(f),):
                 raise ValueError(f"cloth mesh: rest_corners must be ({len(f)}, 3, 2) and face_panels "
                                  f"({len(f)},), got {flat.shape} and {panels.shape}")
-        hinges, colors = mesh_topology(len(v), f, self.max_colors)
+        hinges, colors = topology if topology is not None else mesh_topology(len(v), f, self.max_colors)
         self._instances.append(_Instance(v, rest, f, hinges, mask, material, colors, layers, flat, panels))
         return len(self._instances) - 1
 

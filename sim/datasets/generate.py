@@ -286,7 +286,7 @@ def _make_group(run: _Run, sim_cfg, group: list[SequenceSpec], wanted: set[str],
     sim_cfg = replace(sim_cfg, device=run.device)
     attempts = attempts or {}
     with phase("garments"):
-        jobs, meta = _group_jobs(run.cfg, run.body, group)
+        jobs, meta = _group_jobs(run.cfg, run.body, group, run.device)
     with phase(f"simulation rung {len(tried) + 1}"):
         results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
     largest = max(j.garment.num_vertices for j in jobs)
@@ -321,40 +321,46 @@ def _make_group(run: _Run, sim_cfg, group: list[SequenceSpec], wanted: set[str],
                               for sp in retried})
 
 
-def _group_jobs(cfg: DatasetConfig, body, group: list[SequenceSpec]) -> tuple[list, list[tuple]]:
+def _group_jobs(cfg: DatasetConfig, body, group: list[SequenceSpec],
+                device: str) -> tuple[list, list[tuple]]:
     """The simulation jobs of a group (fine, and coarse where the config derives it, per
-    sequence) and, per job, ``(spec, garment, motion, betas, kind)``."""
+    sequence) and, per job, ``(spec, garment, motion, betas, kind)``; the group's garments are
+    made together, the new ones sewn in one batch on ``device``."""
     from dataclasses import replace
 
-    from sim.garments import make_garment
+    from sim.garments.templates import GarmentOrder, make_garments
     from sim.simulate import SimulationJob
 
     kinds = {"fine": cfg.garments.fine_resolution}
     if cfg.derive.coarse:
         kinds["coarse"] = cfg.garments.coarse_resolution
-    jobs, meta = [], []
-    garments: dict[tuple, object] = {}  # "reference" fit: one cut per category / params
     reference = cfg.garments.fit == "reference"
     if reference:  # one cut for every material: the clearance of the thickest fabric
         from sim.garments.materials import get_material
 
         cut_material = max(cfg.materials.names, key=lambda m: get_material(m).thickness)
+    orders: dict[tuple, GarmentOrder] = {}  # "reference" fit: one cut per category / params
+    wanted = []
     for sp in group:
         betas, motion = sequence_inputs(cfg, sp, body)
         gbetas = garment_betas(cfg, body, betas)
         for kind, resolution in kinds.items():
             gkey = (sp.category, kind, None if reference else sp.material,
                     json.dumps(sp.garment_params, sort_keys=True), gbetas.tobytes())
-            if gkey not in garments:
-                garments[gkey] = make_garment(sp.category, body, gbetas, resolution=resolution,
-                                              material=cut_material if reference else sp.material,
-                                              name=sp.category, **sp.garment_params)
-            garment = garments[gkey]
-            if reference:
-                garment = replace(garment, material=get_material(sp.material))
-            jobs.append(SimulationJob(garment, body, motion, betas=betas, name=f"{sp.id} {kind}",
-                                      garment_betas=None if cfg.garments.fit == "body" else gbetas))
-            meta.append((sp, garment, motion, betas, kind))
+            orders.setdefault(gkey, GarmentOrder(sp.category, body, gbetas, resolution,
+                                                 cut_material if reference else sp.material, sp.category,
+                                                 dict(sp.garment_params)))
+            wanted.append((sp, betas, motion, gbetas, kind, gkey))
+    # the group's new garments sewn in one batch
+    garments = dict(zip(orders, make_garments(list(orders.values()), device=device), strict=True))
+    jobs, meta = [], []
+    for sp, betas, motion, gbetas, kind, gkey in wanted:
+        garment = garments[gkey]
+        if reference:
+            garment = replace(garment, material=get_material(sp.material))
+        jobs.append(SimulationJob(garment, body, motion, betas=betas, name=f"{sp.id} {kind}",
+                                  garment_betas=None if cfg.garments.fit == "body" else gbetas))
+        meta.append((sp, garment, motion, betas, kind))
     return jobs, meta
 
 

@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -19,7 +20,7 @@ from sim.errors import WrinklesInputError
 from sim.garments.hems import HEM_LAYERS, HEM_WIDTH, hem_face_layers
 from sim.garments.materials import Material, get_material
 from sim.garments.pattern import Pattern
-from sim.garments.sewing import SewnPattern, sew_pattern
+from sim.garments.sewing import SewnPattern, sew_pattern, sew_patterns
 from sim.garments.types import Garment
 from sim.garments.uv import pack_uvs
 from sim.profiling import phase
@@ -195,34 +196,69 @@ def make_pattern(name: str, body, betas: np.ndarray | None = None, **params) -> 
     return designs()[name].draft(BodyParts.of(body, betas), p)
 
 
+@dataclass(frozen=True)
+class GarmentRequest:
+    """One design garment to make (``make_design_garments``); fields as ``make_design_garment``'s
+    arguments, ``params`` its ``**params``."""
+
+    name: str
+    body: Any
+    betas: np.ndarray | None = None
+    resolution: str | float = "coarse"
+    material: str | Material = "cotton"
+    garment_name: str | None = None
+    hem_width: float = HEM_WIDTH
+    hem_layers: float = HEM_LAYERS
+    params: dict = field(default_factory=dict)
+
+
 def make_design_garment(name: str, body, betas: np.ndarray | None = None, *,
                         resolution: str | float = "coarse", material: str | Material = "cotton",
                         garment_name: str | None = None, device: str | None = None,
                         hem_width: float = HEM_WIDTH, hem_layers: float = HEM_LAYERS, **params) -> Garment:
     """Design ``name`` drafted for ``body`` (shape ``betas``), sewn on it at ``resolution`` and
     kept in the garment cache (``sim.garments.garment_cache``)."""
+    request = GarmentRequest(name, body, betas, resolution, material, garment_name, hem_width, hem_layers,
+                             params)
+    return make_design_garments([request], device=device)[0]
+
+
+def make_design_garments(requests: list[GarmentRequest], *, device: str | None = None) -> list[Garment]:
+    """``make_design_garment`` of each request, those the garment cache does not hold drafted and
+    then sewn together in one batch (``sew_patterns``: a batch costs about the solver launches of
+    one garment)."""
     import dataclasses
     import hashlib
 
     from sim.device import resolve_device
-    from sim.garments.garment_cache import cached_garment
+    from sim.garments.garment_cache import cached_garments
+    from sim.garments.sewing import SewingJob
 
-    p = design_params(name, **params)
-    mat = get_material(material)
     dev = resolve_device(device)
-    rest = np.ascontiguousarray(body.rest_mesh(betas), np.float32)
-    h = edge_length(resolution, name)
-    spec = {"design": name, "params": dataclasses.asdict(p),
-            "body": hashlib.sha256(rest.tobytes()).hexdigest(),
-            "resolution": h, "material": dataclasses.asdict(mat),
-            "device": "cuda" if dev.startswith("cuda") else "cpu"}
+    made = []  # per request: (params, material, rest body, edge length)
+    specs = []
+    for r in requests:
+        p, mat = design_params(r.name, **r.params), get_material(r.material)
+        rest = np.ascontiguousarray(r.body.rest_mesh(r.betas), np.float32)
+        h = edge_length(r.resolution, r.name)
+        made.append((p, mat, rest, h))
+        specs.append({"design": r.name, "params": dataclasses.asdict(p),
+                      "body": hashlib.sha256(rest.tobytes()).hexdigest(), "resolution": h,
+                      "material": dataclasses.asdict(mat),
+                      "device": "cuda" if dev.startswith("cuda") else "cpu"})
 
-    def build() -> Garment:
+    def build(todo: list[int]) -> list[Garment]:
         with phase("draft"):
-            pattern = designs()[name].draft(BodyParts.of(body, betas), p)
-        sewn = sew_pattern(pattern, rest, np.asarray(body.faces), h, mat, device=dev)
-        return garment_of(pattern, sewn, mat, category=name, name=name)
-    return _hemmed(cached_garment(spec, build), garment_name or name, hem_width, hem_layers)
+            patterns = [designs()[requests[i].name].draft(BodyParts.of(requests[i].body, requests[i].betas),
+                                                          made[i][0]) for i in todo]
+        jobs = [SewingJob(pat, made[i][2], np.asarray(requests[i].body.faces), made[i][3], made[i][1])
+                for pat, i in zip(patterns, todo, strict=True)]
+        sewn = sew_patterns(jobs, device=dev)
+        return [garment_of(pat, sw, made[i][1], category=requests[i].name, name=requests[i].name)
+                for pat, sw, i in zip(patterns, sewn, todo, strict=True)]
+
+    return [_hemmed(g, r.garment_name or r.name, r.hem_width, r.hem_layers)
+            for g, r in zip(cached_garments(specs, build), requests, strict=True)]
 
 
 def _hemmed(g: Garment, name: str, hem_width: float, hem_layers: float) -> Garment:

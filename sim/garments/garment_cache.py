@@ -11,6 +11,7 @@ the others wait and read the file. ``WRINKLES_CACHE=off`` sews every time.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -136,24 +137,37 @@ def _read(path: Path | None) -> Garment | None:
 
 def cached_garment(spec: dict, build: Callable[[], Garment]) -> Garment:
     """The garment ``spec`` describes: from memory, from the cache folder, or ``build()`` (then
-    kept in both). A cache file that cannot be read is rebuilt and replaced. Building holds the
-    key's lock (``_locked``): another process building the same key at the same time waits for
-    this one and reads its file."""
-    key = cache_key(spec)
-    if key in _MEMORY:
-        return _MEMORY[key]
+    kept in both); ``cached_garments`` of one."""
+    return cached_garments([spec], lambda todo: [build()])[0]
+
+
+def cached_garments(specs: list[dict], build: Callable[[list[int]], list[Garment]]) -> list[Garment]:
+    """The garments ``specs`` describe, each from memory or from the cache folder, and those in
+    neither made by one call ``build(indices into specs)`` (a batch: ``sew_patterns``), then
+    kept in both. Equal specs are built once. A cache file that cannot be read is rebuilt and
+    replaced. Building holds the locks of the keys it builds (``_locked``, taken in key order):
+    another process building one of them at the same time waits and reads its file."""
+    keys = [cache_key(s) for s in specs]
     folder = cache_dir()
-    path = None if folder is None else folder / f"{key}.npz"
-    g = _read(path)
-    if g is None:
-        with _locked(path):
-            g = _read(path)  # made by another process while this one waited for the lock
-            if g is None:
-                g = build()
-                if path is not None:
+    paths = {k: None if folder is None else folder / f"{k}.npz" for k in keys}
+
+    def look(k: str) -> Garment | None:
+        if k not in _MEMORY and (g := _read(paths[k])) is not None:
+            _MEMORY[k] = g
+        return _MEMORY.get(k)
+
+    todo = sorted({k for k in keys if look(k) is None})
+    if todo:
+        with contextlib.ExitStack() as stack:
+            for k in todo:
+                stack.enter_context(_locked(paths[k]))
+            todo = [k for k in todo if look(k) is None]  # made by another process meanwhile
+            first = {k: keys.index(k) for k in todo}
+            for k, g in zip(todo, build([first[k] for k in todo]) if todo else [], strict=True):
+                _MEMORY[k] = g
+                if paths[k] is not None:
                     try:
-                        save_garment(g, path)
+                        save_garment(g, paths[k])
                     except OSError:
                         pass  # a read-only home: sew again next time
-    _MEMORY[key] = g
-    return g
+    return [_MEMORY[k] for k in keys]

@@ -19,6 +19,7 @@ The merged mesh keeps the pattern's UV seams: each face keeps its panel's flat c
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -93,36 +94,52 @@ def push_outside(collider, x: np.ndarray, distance: float, rounds: int = 3) -> n
     return x
 
 
-def _solver(vertices, faces, material, *, rest, pinned, gravity: bool, cfg: SewingConfig, device: str,
-            mesh: PatternMesh | None = None):
+@dataclass(frozen=True)
+class SewingJob:
+    """One pattern to sew (``sew_patterns``): its panels placed around the rest body
+    ``body_vertices`` [m] (Vb, 3) / ``body_faces``, meshed at edge length ``h`` [m], of
+    ``material`` (``Material`` or solver parameters)."""
+
+    pattern: Pattern
+    body_vertices: np.ndarray
+    body_faces: np.ndarray
+    h: float
+    material: Any
+
+
+def _solver(instances: list[dict], *, gravity: bool, cfg: SewingConfig, device: str):
+    """A batched cloth model of ``instances`` (``add_cloth`` keyword arguments with ``vertices``,
+    ``faces`` and ``material``) and its solver."""
     from sim.cloth import ClothModelBuilder, SolverVBD
     from sim.cloth.config import BodyContact, Stepping, VBDConfig
 
     builder = ClothModelBuilder(gravity=(0.0, -9.81 if gravity else 0.0, 0.0),
                                 contact_offset=cfg.contact_offset)
-    flat = None if mesh is None else mesh.flat[mesh.triangles]
-    builder.add_cloth(vertices, faces, material, pinned=pinned, rest_vertices=rest, rest_corners=flat,
-                      face_panels=None if mesh is None else mesh.face_panel)
+    for ins in instances:
+        builder.add_cloth(**ins)
     model = builder.finalize(device)
     vbd = VBDConfig(stepping=Stepping(substeps=cfg.substeps, iterations=cfg.iterations),
                     body_contact=BodyContact(offset=cfg.contact_offset))
     return model, SolverVBD(model, vbd)
 
 
-def _run(model, solver, collider, frames: int, fps: float, targets=None) -> np.ndarray:
-    """Step ``frames`` frames; ``targets(t)`` (N, 3) gives the pins' positions at frame t + 1."""
+def _run(model, solver, colliders: list, frames: int, fps: float, targets=None) -> list[np.ndarray]:
+    """Step ``frames`` frames, instance k on body ``colliders[k]``; ``targets(t)`` (N, 3) gives
+    the pins' positions (all instances') at frame t + 1. Returns each instance's positions."""
     from sim.device import warp
 
     wp = warp()
     control = model.control()
-    control.set_body(0, collider)
+    for k, collider in enumerate(colliders):
+        control.set_body(k, collider)
     state = model.state()
     for t in range(frames):
         if targets is not None:
             control.pin_targets.assign(wp.array(targets(t).astype(np.float32), dtype=wp.vec3,
                                                 device=model.device))
         solver.step(state, state, control, 1.0 / fps)
-    return state.positions.numpy().astype(np.float64)
+    x = state.positions.numpy().astype(np.float64)
+    return [x[model.instance_slice(k)] for k in range(len(colliders))]
 
 
 def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndarray, h: float,
@@ -137,57 +154,96 @@ def sew_pattern(pattern: Pattern, body_vertices: np.ndarray, body_faces: np.ndar
         config: sewing settings.
         device: Warp device (None: cuda when present, else cpu).
     """
-    from sim.cloth import BodyCollider
+    job = SewingJob(pattern, body_vertices, body_faces, h, material)
+    return sew_patterns([job], config=config, device=device)[0]
+
+
+def sew_patterns(jobs: list[SewingJob], *, config: SewingConfig | None = None,
+                 device: str | None = None) -> list[SewnPattern]:
+    """``sew_pattern`` of several patterns at once: each stage one batched cloth model of all of
+    them (instances never interact), each on its own body, so a batch of garments costs about
+    the solver launches of one."""
     from sim.device import resolve_device
 
     cfg = config or SewingConfig()
     dev = resolve_device(device)
-    body = np.asarray(body_vertices, np.float32)
-    collider = BodyCollider(body, np.asarray(body_faces, np.int32), device=dev)
-    collider.set_frame(body, body)
+    colliders = _colliders(jobs, dev)
     with phase("mesh"):
-        mesh = mesh_pattern(pattern, h)
+        meshes = [mesh_pattern(j.pattern, j.h) for j in jobs]
     with phase("close"):
-        x, gap = _close(pattern, mesh, collider, material, cfg, dev)
+        closed = _close(jobs, meshes, colliders, cfg, dev)
     with phase("settle"):
-        x = _settle(pattern, mesh, mesh.merge(x), collider, material, cfg, dev)
-    return SewnPattern(vertices=x.astype(np.float32), faces=mesh.sewn_faces(), mesh=mesh, seam_gap=gap)
+        merged = [mesh.merge(x) for mesh, (x, _) in zip(meshes, closed, strict=True)]
+        settled = _settle(jobs, meshes, merged, colliders, cfg, dev)
+    return [SewnPattern(vertices=x.astype(np.float32), faces=mesh.sewn_faces(), mesh=mesh, seam_gap=gap)
+            for x, mesh, (_, gap) in zip(settled, meshes, closed, strict=True)]
 
 
-def _close(pattern: Pattern, mesh: PatternMesh, collider, material, cfg: SewingConfig, dev: str):
-    """The closing stage: positions of ``mesh``'s (unsewn) vertices once the seams are pulled
-    together, and the largest seam gap left."""
+def _colliders(jobs: list[SewingJob], dev: str) -> list:
+    """Each job's rest body as a collider, one per distinct body."""
+    import hashlib
+
+    from sim.cloth import BodyCollider
+
+    made: dict[str, Any] = {}
+    out = []
+    for j in jobs:
+        body = np.ascontiguousarray(j.body_vertices, np.float32)
+        faces = np.ascontiguousarray(j.body_faces, np.int32)
+        key = hashlib.sha1(body.tobytes() + faces.tobytes()).hexdigest()
+        if key not in made:
+            made[key] = BodyCollider(body, faces, device=dev)
+            made[key].set_frame(body, body)
+        out.append(made[key])
+    return out
+
+
+def _close(jobs: list[SewingJob], meshes: list[PatternMesh], colliders: list, cfg: SewingConfig,
+           dev: str) -> list[tuple[np.ndarray, float]]:
+    """The closing stage: per job, the positions of its (unsewn) mesh's vertices once the seams
+    are pulled together, and the largest seam gap left."""
     from sim.cloth.model import as_cloth_params
 
-    keep = float(as_cloth_params(material).thickness) + cfg.clearance
-    x0 = push_outside(collider, mesh.placed, keep)
-    seam = np.zeros(len(x0), bool)
-    seam[mesh.pairs.ravel()] = True
-    hold = np.array([p.placement.hold for p in pattern.panels])[mesh.vertex_panel]
-    goal = push_outside(collider, mesh.merge(x0, hold)[mesh.groups], keep)
-    model, solver = _solver(x0, mesh.triangles, material, rest=mesh.placed, pinned=seam, gravity=False,
-                            cfg=cfg, device=dev)
+    starts, seams, goals, instances = [], [], [], []
+    for j, mesh, collider in zip(jobs, meshes, colliders, strict=True):
+        keep = float(as_cloth_params(j.material).thickness) + cfg.clearance
+        x0 = push_outside(collider, mesh.placed, keep)
+        seam = np.zeros(len(x0), bool)
+        seam[mesh.pairs.ravel()] = True
+        hold = np.array([p.placement.hold for p in j.pattern.panels])[mesh.vertex_panel]
+        goal = push_outside(collider, mesh.merge(x0, hold)[mesh.groups], keep)
+        starts.append(x0)
+        seams.append(seam)
+        goals.append(goal)
+        instances.append({"vertices": x0, "faces": mesh.triangles, "material": j.material,
+                          "rest_vertices": mesh.placed, "pinned": seam})
+    model, solver = _solver(instances, gravity=False, cfg=cfg, device=dev)
+    x0_all, seam_all, goal_all = (np.concatenate(a) for a in (starts, seams, goals))
 
     def targets(t: int) -> np.ndarray:
         w = float(smoothstep(np.array((t + 1) / cfg.close_frames)))
-        out = x0.copy()
-        out[seam] = (1 - w) * x0[seam] + w * goal[seam]
+        out = x0_all.copy()
+        out[seam_all] = (1 - w) * x0_all[seam_all] + w * goal_all[seam_all]
         return out
 
-    x = _run(model, solver, collider, cfg.close_frames, cfg.fps, targets)
-    gap = float(np.linalg.norm(x[mesh.pairs[:, 0]] - x[mesh.pairs[:, 1]], axis=1).max(initial=0.0))
-    return x, gap
+    xs = _run(model, solver, colliders, cfg.close_frames, cfg.fps, targets)
+    return [(x, float(np.linalg.norm(x[mesh.pairs[:, 0]] - x[mesh.pairs[:, 1]], axis=1).max(initial=0.0)))
+            for x, mesh in zip(xs, meshes, strict=True)]
 
 
-def _settle(pattern: Pattern, mesh: PatternMesh, merged: np.ndarray, collider, material, cfg: SewingConfig,
-            dev: str) -> np.ndarray:
-    """The sewn garment ``merged`` (G, 3) after ``cfg.settle_frames`` frames under gravity with the
-    flat pattern as its rest shape, pinned along the ``HELD`` edges."""
+def _settle(jobs: list[SewingJob], meshes: list[PatternMesh], merged: list[np.ndarray], colliders: list,
+            cfg: SewingConfig, dev: str) -> list[np.ndarray]:
+    """Each sewn garment ``merged[k]`` (G, 3) after ``cfg.settle_frames`` frames under gravity
+    with the flat pattern as its rest shape, pinned along the ``HELD`` edges."""
     if cfg.settle_frames == 0:
         return merged
-    held = np.zeros(len(merged), bool)
-    for ref in (r for label in HELD for r in pattern.labelled(label)):
-        held[mesh.groups[mesh.edge_vertices[ref]]] = True
-    model, solver = _solver(merged, mesh.sewn_faces(), material, rest=merged, pinned=held, gravity=True,
-                            cfg=cfg, device=dev, mesh=mesh)
-    return _run(model, solver, collider, cfg.settle_frames, cfg.fps)
+    instances = []
+    for j, mesh, x in zip(jobs, meshes, merged, strict=True):
+        held = np.zeros(len(x), bool)
+        for ref in (r for label in HELD for r in j.pattern.labelled(label)):
+            held[mesh.groups[mesh.edge_vertices[ref]]] = True
+        instances.append({"vertices": x, "faces": mesh.sewn_faces(), "material": j.material,
+                          "rest_vertices": x, "pinned": held, "rest_corners": mesh.flat[mesh.triangles],
+                          "face_panels": mesh.face_panel})
+    model, solver = _solver(instances, gravity=True, cfg=cfg, device=dev)
+    return _run(model, solver, colliders, cfg.settle_frames, cfg.fps)

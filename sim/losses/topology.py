@@ -17,13 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.cloth.model import (
-    build_hinges,
     dihedral_angles,
     hinge_factors,
     lumped_areas,
     mesh_edges,
     triangle_rest_data,
 )
+from sim.cloth.topology import build_hinges
 from sim.types import face_layers_array
 
 

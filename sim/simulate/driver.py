@@ -56,15 +56,20 @@ def _build_model(tracks: list[Track], vbd, device: str):
     """The batched cloth model of the tracks' garments, placed on their bodies, and the binding of
     each garment's pinned vertices to its body's surface."""
     from sim.cloth import ClothModelBuilder
+    from sim.cloth.topology import mesh_topologies
     from sim.dressing import bind_to_surface, place_garment
 
     builder = ClothModelBuilder(max_colors=vbd.layout.max_colors, contact_offset=vbd.body_contact.offset)
+    with phase("topology"):  # the new garments' colourings side by side (sim.cloth.topology)
+        topologies = mesh_topologies([(tr.job.garment.num_vertices, tr.job.garment.faces) for tr in tracks],
+                                     vbd.layout.max_colors)
     bindings = []
-    for tr in tracks:
+    for tr, topology in zip(tracks, topologies, strict=True):
         g = tr.job.garment
         x0 = place_garment(g.rest_vertices, tr.placement)
         builder.add_cloth(x0, g.faces, g.material, pinned=tr.pinned, rest_vertices=g.rest_vertices,
-                          face_layers=g.face_layers, rest_corners=g.flat_corners(), face_panels=g.panel_ids)
+                          face_layers=g.face_layers, rest_corners=g.flat_corners(), face_panels=g.panel_ids,
+                          topology=topology)
         try:
             bindings.append(bind_to_surface(x0, tr.frames.vertices[0], tr.job.body.faces, vertices=tr.pinned,
                                             device=device))
