@@ -31,7 +31,7 @@ import numpy as np
 
 from pipelines.outputs import OutputSet
 from sim.datasets.schema import IMAGE_KEYS, SPLITS
-from sim.datasets.storage import SequenceFile, body_model_name, read_manifest, sequence_path
+from sim.datasets.storage import SequenceFile, body_model_name, read_events, read_manifest, sequence_path
 from sim.errors import WrinklesInputError
 
 REPORT_HELP = "pictures and histograms of a synthetic garment dataset"
@@ -44,6 +44,8 @@ DIR/report (or --out):
   uv_examples.png    UV images of a few sequences: strain norm, wrinkle field, world and
                      tangent normals (only when the dataset stores images)
   histograms.png     base strain norm, wrinkle amplitude, penetration and stretch
+  generation.png     accepted garment-frames and sequences over the job's time (throughput),
+                     rejections by cause (when the dataset has its generation timeline)
   report.json        the files and the numbers behind every histogram
 
 Per-face and per-vertex fields are read at --frames-per-sequence evenly spaced frames of every
@@ -61,7 +63,8 @@ CONTACT_SHEET = "contact_sheet.png"
 UV_EXAMPLES = "uv_examples.png"
 HISTOGRAMS = "histograms.png"
 REPORT_JSON = "report.json"
-REPORT_FILES = (CONTACT_SHEET, UV_EXAMPLES, HISTOGRAMS, REPORT_JSON)
+GENERATION = "generation.png"
+REPORT_FILES = (CONTACT_SHEET, UV_EXAMPLES, HISTOGRAMS, GENERATION, REPORT_JSON)
 
 DEFAULT_SEQUENCES = 8
 DEFAULT_FRAMES_PER_SEQUENCE = 8
@@ -674,8 +677,10 @@ def write_report(root: str | os.PathLike, out_dir: str | os.PathLike | None = No
         "uv_examples": _uv_json(uv_rows),
         "histograms": {"file": HISTOGRAMS, "bins": HISTOGRAM_BINS, "max_values": int(max_values),
                        "quantities": stats},
+        "generation": None,  # generation_plot.generation_summary, with the picture
     }
-    written = _write_files(out_dir, tiles, clim, tile_size, uv_rows, stats, title, report, advance)
+    written = _write_files(out_dir, tiles, clim, tile_size, uv_rows, stats, title, report, advance,
+                           (read_events(root), rejected))
     for name in REPORT_FILES:
         stale = out_dir / name
         if stale not in written and stale.is_file():
@@ -691,9 +696,10 @@ def _check_counts(**counts: int) -> None:
 
 def _write_files(out_dir: Path, tiles: Sequence[_Tile], clim: tuple[float, float],
                  tile_size: tuple[int, int], uv_rows: list, stats: dict, title: str, report: dict,
-                 advance: Callable[[], None]) -> list[Path]:
+                 advance: Callable[[], None], timeline: tuple[list, dict]) -> list[Path]:
     """Render and write the report: every file under a temporary name, renamed together at the
-    end; ``report["files"]`` filled in. The files written, in order; on an error none, and the
+    end; ``report["files"]`` filled in; the generation picture where ``timeline`` (events,
+    rejected) has events. The files written, in order; on an error none, and the
     folders made for them removed."""
     created = _make_dirs(out_dir)
     written: list[Path] = []
@@ -710,6 +716,11 @@ def _write_files(out_dir: Path, tiles: Sequence[_Tile], clim: tuple[float, float
                 written.append(out_dir / UV_EXAMPLES)
             _plot_histograms(stats, out.temp(out_dir / HISTOGRAMS), title)
             written.append(out_dir / HISTOGRAMS)
+            if timeline[0]:
+                from pipelines.generation_plot import plot_generation
+
+                report["generation"] = plot_generation(*timeline, out.temp(out_dir / GENERATION), title)
+                written.append(out_dir / GENERATION)
             report["files"] = [p.name for p in written]
             out.temp(out_dir / REPORT_JSON).write_text(json.dumps(report, indent=1) + "\n")
             written.append(out_dir / REPORT_JSON)

@@ -312,7 +312,7 @@ def test_run_report_from_arguments(tmp_path, capsys):
                          "--frames-per-sequence", "2", "--device", "cpu"])
     assert dr.run_report(args) == 0
     assert "wrote" in capsys.readouterr().out
-    assert _listing(tmp_path / "rep") == sorted(dr.REPORT_FILES)
+    assert _listing(tmp_path / "rep") == sorted(set(dr.REPORT_FILES) - {dr.GENERATION})  # no timeline
     bad = p.parse_args([str(root), "--sequences", "0", "--quiet"])
     with pytest.raises(WrinklesInputError, match="sequences"):
         dr.run_report(bad)
@@ -330,3 +330,33 @@ def test_body_model_name_sources(tmp_path):
         path = tmp_path / f"{k}.safetensors"
         write_sequence(path, arrays, meta)
         assert dr.body_model_name(SequenceFile(path), manifest) == expected, meta
+
+
+def test_generation_timeline_picture_and_numbers(tmp_path):
+    """With the shards' timelines in parts/, the report draws generation.png and states the
+    throughput (accepted garment-frames between the first and the last sequence done) and the
+    rejections by cause."""
+    from sim.datasets.storage import PARTS_DIR, read_events
+
+    root = tmp_path / "data"
+    m = _make_dataset(root, specs=[("skirt", "walk", "train", False)], rejected=2)
+    m["rejected"]["seq-00001"]["reasons"] = ["fine: max edge strain 0.9 > 0.35",
+                                             "fine: 3 self-intersection crossings at frame 2 (gate 0)"]
+    m["rejected"]["seq-00002"]["reasons"] = ["fine: max edge strain 0.5 > 0.35"]
+    atomic_write_json(root / MANIFEST, m)
+    (root / PARTS_DIR).mkdir()
+    lines = [{"id": "seq-00001", "outcome": "rejected", "frames": 0, "time": 100.0, "shard": 1},
+             {"id": "seq-00000", "outcome": "accepted", "frames": 30, "time": 110.0, "shard": 0},
+             {"id": "seq-00002", "outcome": "rejected", "frames": 0, "time": 120.0, "shard": 1}]
+    (root / PARTS_DIR / "shard-0-of-2.events.jsonl").write_text(json.dumps(lines[1]) + "\n")
+    (root / PARTS_DIR / "shard-1-of-2.events.jsonl").write_text(
+        json.dumps(lines[0]) + "\n" + json.dumps(lines[2]) + "\n" + '{"id": "seq-0')  # cut short by a kill
+    assert [e["id"] for e in read_events(root)] == ["seq-00001", "seq-00000", "seq-00002"]
+    written = dr.write_report(root, tile_size=TILE)
+    assert root / "report" / dr.GENERATION in written
+    gen = json.loads((root / "report" / dr.REPORT_JSON).read_text())["generation"]
+    assert gen["sequences"] == 3 and gen["accepted"] == 1 and gen["garment_frames"] == 30
+    assert gen["garment_frames_per_s"] == pytest.approx(30 / 20.0)
+    assert gen["rejection_causes"] == {"fine: edge strain": 2, "fine: self-intersection": 1}
+    img = _image(root / "report" / dr.GENERATION)
+    assert img.shape[:2] == (400, 1100) and img.std() > 10

@@ -282,6 +282,11 @@ def test_generated_dataset_holds_the_schema(reference):
                               "max_self_intersections": 1000}
     assert stats["accepted_share"] == len(m["sequences"]) / 4
     assert stats["derived_cached"] == len(m["sequences"])  # the loop above read derived fields
+    # the job's timeline: one event per sequence, in time order, frames of the accepted ones
+    events = S.read_events(out)
+    assert sorted(e["id"] for e in events) == sorted([*m["sequences"], *m["rejected"]])
+    assert sum(e["frames"] for e in events) == stats["frames"]
+    assert [e["time"] for e in events] == sorted(e["time"] for e in events)
 
 
 @pytest.mark.slow

@@ -77,6 +77,14 @@ class _Shard:
     def save(self) -> None:
         S.atomic_write_json(self.path, self.data)
 
+    def event(self, sid: str, outcome: str, frames: int) -> None:
+        """Append when sequence ``sid`` was done, and how (``S.events_path``: the timeline of a
+        job, for ``wrinkles dataset report``; not part of the dataset's bytes)."""
+        line = {"id": sid, "outcome": outcome, "frames": int(frames), "time": round(time.time(), 3),
+                "shard": self.data["shard"]}
+        with open(S.events_path(self.path), "a") as f:
+            f.write(json.dumps(line, sort_keys=True) + "\n")
+
 
 def _refuse_other_simulator(old: dict | None, cfg_dict: dict, root: Path) -> None:
     """The error for a dataset whose config matches but whose simulator defaults do not (or that
@@ -408,6 +416,7 @@ def _reject(run: _Run, sp: SequenceSpec, item: dict, reasons: list[str], *, subs
         rejected["body_self_crossings"] = short_crossings(garment_body_crossings(
             run.body, item["betas"], fine_g, fine_r.sequence.body.vertices, device=run.device))
     run.part.save()
+    run.part.event(sp.id, "rejected", 0)
     run.summary.rejected += 1
     run.log(f"{sp.id} rejected ({sp.category}, {sp.motion_label}): {'; '.join(reasons)}")
 
@@ -446,6 +455,7 @@ def _accept(run: _Run, sp: SequenceSpec, item: dict, failed_attempts: list[dict]
     entry.update(sha256=sha, bytes=path.stat().st_size)
     run.part.data["sequences"][sp.id] = entry
     run.part.save()
+    run.part.event(sp.id, "accepted", T)
     run.summary.accepted += 1
     run.summary.garment_frames += T
     run.summary.bytes += entry["bytes"]

@@ -91,12 +91,21 @@ def manifest_statistics(manifest: Mapping, *, split: str = ALL_SPLITS) -> dict:
     }
 
 
+def rejection_kind(reason: str) -> str:
+    """A rejection reason by kind, keeping which garment failed ("fine: edge strain") or that
+    the simulation stopped ("stopped: explosion")."""
+    where = reason.split(":", 1)[0]
+    return f"{'stopped' if where.startswith('simulation failed') else where}: {_kind(reason)}"
+
+
 def _kind(reason: str) -> str:
     r = reason.lower()
-    kinds = ("self-intersection", "edge strain", "inside the body", "non-finite", "explo", "speed", "stretch")
-    for k in kinds:
+    kinds = {"self-intersection": "self-intersection", "edge strain": "edge strain",
+             "inside the body": "inside the body", "non-finite": "non-finite", "explo": "explosion",
+             "speed": "speed", "stretch": "stretch"}
+    for k, name in kinds.items():
         if k in r:
-            return k
+            return name
     return reason.split(":", 1)[-1].strip()[:40]
 
 
@@ -112,7 +121,7 @@ def dataset_statistics(root: str | os.PathLike, *, split: str = ALL_SPLITS) -> d
     reasons: Counter = Counter()
     for r in m.get("rejected", {}).values():
         for text in r.get("reasons", []):
-            reasons[f"{text.split(':', 1)[0]}: {_kind(text)}"] += 1
+            reasons[rejection_kind(text)] += 1
     s.update(root=os.fspath(root), bytes_per_frame=s["bytes"] / max(s["frames"], 1),
              vertices={"fine": sorted({int(e["vertices"]) for e in entries}),
                        "coarse": sorted({int(e["coarse_vertices"]) for e in entries

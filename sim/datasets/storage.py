@@ -5,6 +5,8 @@ A dataset is a directory::
     DIR/manifest.json               schema version, generator config, one entry per sequence
     DIR/sequences/<id>.safetensors  one file per accepted sequence, written atomically
     DIR/parts/shard-<i>-of-<n>.json what one shard has done (accepted and rejected), for resume
+    DIR/parts/shard-<i>-of-<n>.events.jsonl  when each of its sequences was done (the job's timeline)
+    DIR/derived/<id>.safetensors    derived fields, made where they are read (sim.datasets.fields)
     DIR/rejections.jsonl            one line per rejected sequence: id and why (``attempts``: each rung;
                                     ``body_self_crossings``: the body through itself near the garment)
 
@@ -276,6 +278,25 @@ def sequence_path(root: str | os.PathLike, seq_id: str) -> Path:
 
 def part_path(root: str | os.PathLike, shard: int, shards: int) -> Path:
     return Path(root) / PARTS_DIR / f"shard-{shard}-of-{shards}.json"
+
+
+def events_path(part: Path) -> Path:
+    """The timeline beside a shard's part file: one JSON line per sequence done (``id``,
+    ``outcome``, ``frames``, ``time`` [s since the epoch], ``shard``), appended as they finish."""
+    return part.with_name(part.name.removesuffix(".json") + ".events.jsonl")
+
+
+def read_events(root: str | os.PathLike) -> list[dict]:
+    """Every shard's timeline events of the dataset at ``root``, in time order (a line cut short
+    by a killed job is skipped)."""
+    events = []
+    for p in sorted((Path(root) / PARTS_DIR).glob("shard-*-of-*.events.jsonl")):
+        for line in p.read_text().splitlines():
+            try:
+                events.append(json.loads(line))
+            except ValueError:
+                continue
+    return sorted(events, key=lambda e: e.get("time", 0.0))
 
 
 def combine_parts(root: str | os.PathLike, *, config: dict, verify: bool = False) -> dict:
