@@ -94,3 +94,17 @@ def test_a_worker_killed_mid_task_loses_nothing(reference, tmp_path):
     assert _files(out) == _files(ref_out)  # nothing lost, nothing different
     assert s.accepted + s.rejected + s.skipped + s.recovered == 4
     assert set(S.read_manifest(out)["sequences"]) == set(S.read_manifest(ref_out)["sequences"])
+
+
+def test_cluster_options_are_checked_before_anything_runs(tmp_path, capsys):
+    from pipelines.cli import main
+
+    cfg = tiny_config(tmp_path)
+    out = tmp_path / "never"
+    for extra in (["--workers", "2", "--shard", "0/2"], ["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"],
+                  ["--workers", "0"]):
+        code = main(["dataset", "generate", "--config", str(cfg), "--out", str(out), "--device", "cpu", "-q",
+                     *extra])
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and len(err.splitlines()) == 1 and "--workers" in err, (extra, err)
+        assert not out.exists()
