@@ -98,8 +98,14 @@ def run(args: argparse.Namespace) -> int:
     from sim.datasets.storage import read_manifest
 
     cfg = resolve_config(args)
-    read_manifest(args.data)  # a missing or broken dataset fails here, before anything is written
+    manifest = read_manifest(args.data)  # a missing or broken dataset fails here, before anything is written
     main_process = int(os.environ.get("RANK", "0")) == 0
+    if main_process:  # the fields the files leave to the reader, derived once on the GPU if there is one
+        from sim.datasets.fields import derive_dataset
+
+        with progress_bar(len(manifest["sequences"]), "derive fields", quiet=args.quiet,
+                          unit="sequence") as advance:
+            derive_dataset(args.data, progress=advance)
     with progress_bar(cfg.train.steps, f"train {cfg.method}", quiet=args.quiet or not main_process,
                       unit="step") as advance:
         summary = Trainer(cfg, args.data, args.out, resume=args.resume, progress=advance).fit()
