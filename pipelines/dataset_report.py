@@ -677,7 +677,6 @@ def write_report(root: str | os.PathLike, out_dir: str | os.PathLike | None = No
         "uv_examples": _uv_json(uv_rows),
         "histograms": {"file": HISTOGRAMS, "bins": HISTOGRAM_BINS, "max_values": int(max_values),
                        "quantities": stats},
-        "generation": None,  # generation_plot.generation_summary, with the picture
     }
     written = _write_files(out_dir, tiles, clim, tile_size, uv_rows, stats, title, report, advance,
                            (read_events(root), rejected))
@@ -716,6 +715,7 @@ def _write_files(out_dir: Path, tiles: Sequence[_Tile], clim: tuple[float, float
                 written.append(out_dir / UV_EXAMPLES)
             _plot_histograms(stats, out.temp(out_dir / HISTOGRAMS), title)
             written.append(out_dir / HISTOGRAMS)
+            report["generation"] = None  # generation_plot.generation_summary, with the picture
             if timeline[0]:
                 from pipelines.generation_plot import plot_generation
 

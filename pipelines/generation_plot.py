@@ -60,7 +60,7 @@ def plot_generation(events: list[dict], rejected: dict, path: Path, title: str) 
         bx.set_xlabel("failed gates and stops (a rejection can have several)")
     else:
         bx.text(0.5, 0.5, "no rejections", ha="center", va="center", transform=bx.transAxes)
-    bx.set_title(f"rejections: {len(rejected)} of {len(rejected) + s['accepted']} sequences")
+    bx.set_title(f"rejections by cause: {len(rejected)} sequences rejected")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, format="png")

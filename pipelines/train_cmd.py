@@ -98,9 +98,11 @@ def run(args: argparse.Namespace) -> int:
     from sim.datasets.storage import read_manifest
 
     cfg = resolve_config(args)
-    manifest = read_manifest(args.data)  # a missing or broken dataset fails here, before anything is written
+    manifest = read_manifest(args.data)  # a missing or broken dataset fails here, before training
     main_process = int(os.environ.get("RANK", "0")) == 0
-    if main_process:  # the fields the files leave to the reader, derived once on the GPU if there is one
+    if int(os.environ.get("WORLD_SIZE", "1")) == 1:
+        # the fields the files leave to the reader, derived once on the GPU if there is one (under
+        # torchrun each rank derives what it reads: run 'wrinkles dataset derive' first)
         from sim.datasets.fields import derive_dataset
 
         with progress_bar(len(manifest["sequences"]), "derive fields", quiet=args.quiet,

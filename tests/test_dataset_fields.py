@@ -50,8 +50,12 @@ def test_dequantized_view_decodes_only_the_frames_asked():
     for got, want in ((np.asarray(view), full), (view[2:5], full[2:5]), (view[-1], full[-1]),
                       (view[1, 3], full[1, 3]), (view[1:3, :4], full[1:3, :4])):
         np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(view[np.array(2)], full[2])
     with pytest.raises(IndexError):
         view[6]
+    for bad in ((Ellipsis, 2), None, (slice(None), None)):
+        with pytest.raises(TypeError, match="frames first"):
+            view[bad]
 
 
 def _sheet(n: int, size: float = 1.2):
@@ -98,7 +102,7 @@ def test_derived_fields_of_quantized_positions_match_the_exact_ones(tmp_path):
     exact = Deriver(garment, DeriveConfig(image_resolution=16), device="cpu")(x.astype(np.float32))
     for k in FD.FINE_DERIVED:
         assert f.shape(k) == exact[k].shape, k
-    # what quantization (steps of 1.2 m / 65534 = 18 µm) costs the learners' fields: the
+    # what quantization (steps of 1.2 m / 65533 = 18 µm) costs the learners' fields: the
     # wrinkle field (3 mm ripples) to within a few micrometres, the base's strain to within ~2 %
     def rms(a):
         return float(np.sqrt(np.mean(np.square(a, dtype=np.float64))))

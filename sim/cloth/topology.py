@@ -89,11 +89,13 @@ def mesh_topology(vertex_count: int, faces: np.ndarray, max_colors: int = 0) -> 
 def mesh_topologies(meshes: Sequence[tuple[int, np.ndarray]], max_colors: int = 0) -> list[tuple]:
     """``mesh_topology`` of each ``(vertex_count, faces)``: those not cached, when they have
     ``PARALLEL_VERTICES`` or more in all, computed side by side in child processes (``python -m
-    sim.cloth.topology``, one per core at most: plain subprocesses, so this works in a daemonic
-    Dask worker and whatever the main module is). Same results as one at a time."""
+    sim.cloth.topology``, one per core this process may use, at most 16: plain subprocesses, so
+    this works in a daemonic Dask worker and whatever the main module is). Same results as one
+    at a time."""
     keys = [_key(n, f, max_colors) for n, f in meshes]
     todo = {k: m for k, m in zip(keys, meshes, strict=True) if k not in _TOPOLOGY}
-    workers = min(len(todo), os.cpu_count() or 1, 16)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    workers = min(len(todo), cores, 16)
     if sum(n for n, _ in todo.values()) >= PARALLEL_VERTICES and workers > 1:
         from concurrent.futures import ThreadPoolExecutor
 
@@ -112,33 +114,32 @@ def mesh_topologies(meshes: Sequence[tuple[int, np.ndarray]], max_colors: int = 
 
 
 def _in_child(vertex_count: int, faces: np.ndarray, max_colors: int) -> tuple[np.ndarray, np.ndarray]:
-    """``_compute`` in a child process (npz in on stdin, npz out on stdout)."""
-    import io
+    """``_compute`` in a child process (``python -m sim.cloth.topology IN OUT``, npz files)."""
     import subprocess
     import sys
+    import tempfile
 
-    buf = io.BytesIO()
-    np.savez(buf, vertex_count=vertex_count, faces=np.asarray(faces, np.int32), max_colors=max_colors)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-    r = subprocess.run([sys.executable, "-m", "sim.cloth.topology"], input=buf.getvalue(),
-                       capture_output=True, env=env, check=False)
-    if r.returncode != 0:
-        raise RuntimeError(f"sim.cloth.topology child failed: {r.stderr.decode(errors='replace')[-2000:]}")
-    with np.load(io.BytesIO(r.stdout), allow_pickle=False) as z:
-        return z["hinges"], z["colors"]
+    with tempfile.TemporaryDirectory(prefix="wrinkles-topology-") as tmp:
+        src, dst = os.path.join(tmp, "in.npz"), os.path.join(tmp, "out.npz")
+        np.savez(src, vertex_count=vertex_count, faces=np.asarray(faces, np.int32), max_colors=max_colors)
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+        r = subprocess.run([sys.executable, "-m", "sim.cloth.topology", src, dst], capture_output=True,
+                           env=env, check=False)
+        if r.returncode != 0:
+            why = r.stderr.decode(errors="replace")[-2000:]
+            raise RuntimeError(f"sim.cloth.topology child failed: {why}")
+        with np.load(dst, allow_pickle=False) as z:
+            return z["hinges"], z["colors"]
 
 
-def _serve() -> None:
+def _serve(src: str, dst: str) -> None:
     """The child's side of ``_in_child``."""
-    import io
-    import sys
-
-    with np.load(io.BytesIO(sys.stdin.buffer.read()), allow_pickle=False) as z:
+    with np.load(src, allow_pickle=False) as z:
         hinges, colors = _compute(int(z["vertex_count"]), z["faces"], int(z["max_colors"]))
-    out = io.BytesIO()
-    np.savez(out, hinges=hinges, colors=colors)
-    sys.stdout.buffer.write(out.getvalue())
+    np.savez(dst, hinges=hinges, colors=colors)
 
 
 if __name__ == "__main__":
-    _serve()
+    import sys
+
+    _serve(*sys.argv[1:3])

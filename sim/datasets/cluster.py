@@ -13,8 +13,12 @@ driver shows one progress bar over all tasks and builds the manifest at the end.
 
 ``--workers N`` starts a local cluster of N worker processes (one thread each); with several
 GPUs each worker takes GPU ``worker index mod GPUs`` (as ``dask-cuda``'s ``LocalCUDACluster``
-would pin them). ``--scheduler`` joins an existing cluster (``dask-jobqueue`` on Slurm / PBS,
-``dask-kubernetes``, or ``dask scheduler`` + ``dask worker`` by hand). Dask is an optional
+would pin them; workers of other names use the GPU their ``CUDA_VISIBLE_DEVICES`` shows first).
+A job's bytes depend on ``batch``, not on the workers; a plain run with the same ``--batch``
+groups the sequences differently (consecutive ones) and makes other bytes, and a dataset started
+on a cluster is continued on one (``--resume`` with ``--workers`` or ``--scheduler``).
+``--scheduler`` joins an existing cluster (``dask-jobqueue`` on Slurm / PBS, ``dask-kubernetes``,
+or ``dask scheduler`` + ``dask worker`` by hand). Dask is an optional
 extra: ``pip install wrinkles[distributed]``.
 """
 
@@ -54,8 +58,9 @@ def worker_device(device: str | None) -> str:
         name = get_worker().name
     except (ImportError, ValueError):  # not inside a worker
         return dev
-    index = int(name) if str(name).isdigit() else sum(map(ord, str(name)))
-    return f"cuda:{index % n}"
+    if not str(name).isdigit():  # a cluster's own naming (dask-jobqueue): it sets CUDA_VISIBLE_DEVICES
+        return dev
+    return f"cuda:{int(name) % n}"
 
 
 def _config_dict(cfg: DatasetConfig, device: str | None) -> dict:
@@ -68,11 +73,16 @@ def _config_dict(cfg: DatasetConfig, device: str | None) -> dict:
 
 def _run_task(cfg: DatasetConfig, out: str, shard: int, shards: int, batch: int, device: str | None,
               splits: Sequence[str] | None) -> dict:
-    """One task on a worker: shard ``shard`` of ``shards``, resumed from what is written."""
+    """One task on a worker: shard ``shard`` of ``shards``, resumed from what is written, under the
+    shard's lock (a copy of the task that the scheduler started again while this one still ran
+    waits, then finds the work done)."""
     import dataclasses
 
-    s = generate(cfg, out, shard=shard, shards=shards, resume=True, batch=batch,
-                 device=worker_device(device), splits=splits, combine=False)
+    from sim.garments.garment_cache import locked
+
+    with locked(S.part_path(out, shard, shards)):
+        s = generate(cfg, out, shard=shard, shards=shards, resume=True, batch=batch,
+                     device=worker_device(device), splits=splits, combine=False)
     return {**dataclasses.asdict(s), "device": worker_device(device)}
 
 
@@ -89,7 +99,11 @@ def _client(workers: int | None, scheduler: str | None):
     if not workers or workers < 1:
         raise WrinklesInputError(f"--workers must be >= 1, got {workers}")
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-    return Client(cluster)
+    try:
+        return Client(cluster)
+    except BaseException:
+        cluster.close()
+        raise
 
 
 def generate_on_cluster(cfg: DatasetConfig, out: str | os.PathLike, *, workers: int | None = None,
@@ -118,7 +132,7 @@ def generate_on_cluster(cfg: DatasetConfig, out: str | os.PathLike, *, workers: 
     shards = task_count(len(specs), batch)
     tasks = [k for k in range(shards) if select_indices(specs, k, shards, splits)]
     total = sum(len(select_indices(specs, k, shards, splits)) for k in tasks)
-    root = Path(out)
+    root = Path(out).resolve()  # the same folder for workers started elsewhere
     client = _client(workers, scheduler)
     try:
         cfg_dict = client.submit(_config_dict, cfg, device, pure=False).result()

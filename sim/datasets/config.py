@@ -171,7 +171,7 @@ class DeriveConfig:
         image_resolution: UV image side [px] (0: no images).
         coarse: also simulate each sequence with the coarse garment.
         positions: how sequence files store positions: "f32" (exact) or "i16" (half the bytes,
-            on a per-frame grid of the bounding box / 65534, ``sim.datasets.quantize``).
+            on a per-frame grid of the bounding box / 65533, ``sim.datasets.quantize``).
     """
 
     smoothing_length: float = 0.04

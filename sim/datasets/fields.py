@@ -8,8 +8,10 @@ eighths of the bytes. They are
 derived on first read (``derive_fields``, the same ``Deriver`` the generator runs) and written,
 all at once, to a cache file beside the dataset (``DIR/derived/<id>.safetensors``, or under
 ``$WRINKLES_CACHE/derived/`` where the dataset is read-only), itself a plain safetensors file.
-The cache is keyed by the sequence file's data checksum and ``DERIVE_VERSION``: a sequence
-written anew, or a derivation that changes, makes it stale and it is derived again.
+The cache is keyed by the sequence file's data checksum, its derivation settings and
+``DERIVE_VERSION``: a sequence written anew, or a derivation that changes, makes it stale and it
+is derived again. Derived on another kind of device, fields differ in float rounding: the cache
+records the device kind (``device`` metadata), and whichever derivation came first is kept.
 ``wrinkles dataset derive`` fills the cache of a whole dataset ahead of training.
 """
 
@@ -137,7 +139,15 @@ def cache_path(sf) -> Path:
     if os.access(local if local.exists() else root, os.W_OK):
         return local / sf.path.name
     base = Path(os.environ.get("WRINKLES_CACHE") or Path.home() / ".cache" / "wrinkles")
-    return base / DERIVED_DIR / f"{data_digest(sf)}{SUFFIX}"
+    return base / DERIVED_DIR / f"{_cache_key(sf)['key']}{SUFFIX}"
+
+
+def _cache_key(sf) -> dict[str, str]:
+    """What a current cache file of ``sf`` records: the data checksum, the derivation settings,
+    the version, and their digest (``key``)."""
+    record = {"source": data_digest(sf), "derive": sf.metadata.get(DERIVE_META, ""),
+              "version": str(DERIVE_VERSION)}
+    return {**record, "key": hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()[:32]}
 
 
 def cached_fields(sf, *, device: str | None = None):
@@ -149,9 +159,12 @@ def cached_fields(sf, *, device: str | None = None):
     path = cache_path(sf)
     if _current(sf):
         return SequenceFile(path)
+    from sim.device import resolve_device
+
     arrays = derive_fields(sf, device=device)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_sequence(path, arrays, {"source": data_digest(sf), "version": str(DERIVE_VERSION)})
+    kind = "cuda" if resolve_device(device).startswith("cuda") else "cpu"
+    write_sequence(path, arrays, {**_cache_key(sf), "device": kind})
     return SequenceFile(path)
 
 
@@ -159,22 +172,23 @@ def derive_dataset(root: str | os.PathLike, *, device: str | None = None, split:
                    progress=None) -> tuple[int, int]:
     """Fill the cache of derived fields of every sequence of the dataset at ``root`` (of one
     ``split``: None, all), each sequence's fields derived once. ``progress(done, total)`` after
-    each. Returns ``(derived now, current already)``."""
+    each. Returns ``(derived now, current already)`` (files with nothing to derive in neither)."""
     from sim.datasets.storage import SequenceFile, read_manifest
 
     root = Path(root)
     entries = [e for _, e in sorted(read_manifest(root)["sequences"].items())
                if split is None or e.get("split") == split]
-    made = 0
+    made = current = 0
     for k, e in enumerate(entries):
         sf = SequenceFile(root / e["file"])
-        if derivable(sf):
+        if derivable(sf):  # (a schema 1 file stores every field: nothing to derive)
             before = _current(sf)
             cached_fields(sf, device=device)
             made += not before
+            current += before
         if progress is not None:
             progress(k + 1, len(entries))
-    return made, len(entries) - made
+    return made, current
 
 
 def _current(sf) -> bool:
@@ -185,7 +199,8 @@ def _current(sf) -> bool:
     if not path.exists():
         return False
     try:
-        meta = SequenceFile(path).metadata
+        cached = SequenceFile(path)
     except WrinklesInputError:
         return False
-    return meta.get("source") == data_digest(sf) and meta.get("version") == str(DERIVE_VERSION)
+    return (cached.metadata.get("key") == _cache_key(sf)["key"]
+            and all(cached.has_stored(k) for k in derivable(sf)))

@@ -1,7 +1,7 @@
 """Simulated positions stored as 16-bit integers on a per-frame grid (``sim.datasets.schema``).
 
 A frame's positions x (V, 3) [m] are stored as ``q = round((x - origin) / step)`` (int16) with
-``origin`` the centre of the frame's bounding box and ``step`` its largest extent / 65534, so
+``origin`` the centre of the frame's bounding box and ``step`` its largest extent / 65533, so
 ``x ≈ origin + step * q`` with an error of at most step / 2 per coordinate: 9 µm for a
 garment 1.2 m across, against wrinkles of millimetres. Half the bytes of float32, and unlike
 float16 (whose spacing is 0.5 mm at 1 m from the origin) the error does not grow with the
@@ -74,7 +74,13 @@ class Dequantized:
         return self.shape[0]
 
     def __getitem__(self, index):
+        """Frames first: ``a[t]``, ``a[t0:t1]``, ``a[frame indices]``, then any index of the
+        decoded frames (``a[t0:t1, :100]``). ``...`` and ``None`` are refused."""
         frames, rest = (index[0], index[1:]) if isinstance(index, tuple) else (index, ())
+        if frames is Ellipsis or frames is None or any(i is Ellipsis or i is None for i in rest):
+            raise TypeError("Dequantized: index the frames first, without ... or None")
+        if isinstance(frames, np.ndarray) and frames.ndim == 0:
+            frames = int(frames)
         if isinstance(frames, (int, np.integer)):
             if not -self.shape[0] <= frames < self.shape[0]:
                 raise IndexError(f"frame {frames} out of range for {self.shape[0]} frames")

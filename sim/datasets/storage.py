@@ -58,11 +58,14 @@ def _dtype_name(a: np.ndarray) -> str:
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes | Iterable[bytes]) -> None:
-    """Write ``data`` to ``path`` so that the file appears complete or not at all."""
+    """Write ``data`` to ``path`` so that the file appears complete or not at all (the temporary
+    file's name is unique to this writer: hosts sharing a folder, threads of one process)."""
+    import uuid
+
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}-{uuid.uuid4().hex[:12]}")
     try:
-        with open(tmp, "wb") as f:
+        with open(tmp, "xb") as f:
             if isinstance(data, (bytes, bytearray, memoryview)):
                 f.write(data)
             else:

@@ -100,7 +100,7 @@ def load_cached(path: Path) -> Garment:
 
 
 @contextmanager
-def _locked(path: Path | None) -> Iterator[None]:
+def locked(path: Path | None) -> Iterator[None]:
     """Hold an exclusive lock on ``path`` with ``.lock`` for a suffix while the block runs (no
     lock without a path, without ``fcntl`` or where the folder cannot be written)."""
     try:
@@ -145,7 +145,7 @@ def cached_garments(specs: list[dict], build: Callable[[list[int]], list[Garment
     """The garments ``specs`` describe, each from memory or from the cache folder, and those in
     neither made by one call ``build(indices into specs)`` (a batch: ``sew_patterns``), then
     kept in both. Equal specs are built once. A cache file that cannot be read is rebuilt and
-    replaced. Building holds the locks of the keys it builds (``_locked``, taken in key order):
+    replaced. Building holds the locks of the keys it builds (``locked``, taken in key order):
     another process building one of them at the same time waits and reads its file."""
     keys = [cache_key(s) for s in specs]
     folder = cache_dir()
@@ -160,7 +160,7 @@ def cached_garments(specs: list[dict], build: Callable[[list[int]], list[Garment
     if todo:
         with contextlib.ExitStack() as stack:
             for k in todo:
-                stack.enter_context(_locked(paths[k]))
+                stack.enter_context(locked(paths[k]))
             todo = [k for k in todo if look(k) is None]  # made by another process meanwhile
             first = {k: keys.index(k) for k in todo}
             for k, g in zip(todo, build([first[k] for k in todo]) if todo else [], strict=True):

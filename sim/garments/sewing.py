@@ -165,6 +165,8 @@ def sew_patterns(jobs: list[SewingJob], *, config: SewingConfig | None = None,
     the solver launches of one."""
     from sim.device import resolve_device
 
+    if not jobs:
+        return []
     cfg = config or SewingConfig()
     dev = resolve_device(device)
     colliders = _colliders(jobs, dev)
