@@ -143,12 +143,14 @@ def run_generate(args: argparse.Namespace) -> int:
         raise WrinklesInputError("--workers / --scheduler: one of them, and without --shard (the cluster "
                                  "job makes every shard)")
     if distributed:
-        shard, shards = 0, 1  # the progress bar's name: all of it
+        shard, shards = 0, 1  # all of it
     n = len(select_indices(sample_sequences(cfg), shard, shards, args.splits))
+    where = (f"on {args.workers} workers" if args.workers else f"on {args.scheduler}") if distributed else \
+        f"shard {shard}/{shards}"
     t0 = time.perf_counter()
     log = None if args.quiet else (lambda s: print(s, file=sys.stderr))
     try:
-        with progress_bar(n, f"dataset shard {shard}/{shards}", quiet=args.quiet, unit="sequence") as advance:
+        with progress_bar(n, f"dataset {where}", quiet=args.quiet, unit="sequence") as advance:
             if distributed:
                 from sim.datasets.cluster import generate_on_cluster
 

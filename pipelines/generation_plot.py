@@ -52,7 +52,10 @@ def plot_generation(events: list[dict], rejected: dict, path: Path, title: str) 
     twin.set_ylabel("sequences")
     rate = s["garment_frames_per_s"]
     ax.set_title("throughput" + (f": {rate:.2f} accepted garment-frames/s" if rate else ""))
-    twin.legend(loc="upper left", fontsize=8)
+    ax.set_zorder(twin.get_zorder() + 1)  # the frames' line over the counts
+    ax.patch.set_visible(False)
+    lines = ax.get_lines() + twin.get_lines()
+    ax.legend(lines, [line.get_label() for line in lines], loc="upper left", fontsize=8)
     causes = s["rejection_causes"]
     if causes:
         names = list(causes)[::-1]
@@ -60,6 +63,7 @@ def plot_generation(events: list[dict], rejected: dict, path: Path, title: str) 
         bx.set_xlabel("failed gates and stops (a rejection can have several)")
     else:
         bx.text(0.5, 0.5, "no rejections", ha="center", va="center", transform=bx.transAxes)
+        bx.set_axis_off()
     bx.set_title(f"rejections by cause: {len(rejected)} sequences rejected")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
