@@ -129,6 +129,7 @@ def main() -> None:
                     "counts apart, as warmup_s")
     ap.add_argument("--no-phases", action="store_true",
                     help="time the job without waiting for the device at every phase (no phase table)")
+    ap.add_argument("--tag", default="", help="suffix of the result file's name (--tag _s4: dataset_cuda_s4.json)")
     add_results_argument(ap)
     args = ap.parse_args()
 
@@ -174,7 +175,7 @@ def main() -> None:
         print(name, json.dumps({k: v for k, v in fig[name].items() if k != "phases"}), flush=True)
         if phases:
             print_phases(name, phases, wall)
-    write_result(f"dataset_{device.split(':')[0]}", {
+    write_result(f"dataset_{device.split(':')[0]}{args.tag}", {
         "machine": machine(device),
         "sizes": {"sequences": args.sequences, "seconds": args.seconds, "batch": args.batch, "fps": 30.0,
                   "image_resolution": 256, "resolution": args.resolution,
