@@ -56,6 +56,10 @@ def test_two_workers_make_the_bytes_of_one_process(reference, tmp_path):
     with pytest.raises(WrinklesInputError, match="--resume"):
         generate_on_cluster(_config(tmp_path), out, workers=1, batch=1, device="cpu")
     assert _files(out) == _files(ref_out)
+    # resumed: every task finds its sequences done
+    again = generate_on_cluster(_config(tmp_path), out, workers=1, batch=1, device="cpu", resume=True)
+    assert (again.accepted, again.rejected, again.skipped) == (0, 0, 4)
+    assert _files(out) == _files(ref_out)
 
 
 @pytest.mark.slow
