@@ -188,20 +188,27 @@ def run_combine(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_derive(args: argparse.Namespace) -> int:
+def derive_first(root, device: str | None, *, split: str | None = None,
+                 quiet: bool = False) -> tuple[int, int]:
+    """Fill the dataset's cache of derived fields (``sim.datasets.fields.derive_dataset``) on
+    ``device`` with a progress bar, before a command reads them (a reader would derive them on
+    the CPU, one sequence at a time). Returns ``(derived now, current already)``."""
     from pipelines.progress import progress_bar
     from sim.datasets.fields import derive_dataset
+
+    what = "derive fields" if split is None else f"derive fields of {split}"
+    with progress_bar(0, what, quiet=quiet, unit="sequence") as advance:
+        return derive_dataset(root, device=device, split=split, progress=advance)
+
+
+def run_derive(args: argparse.Namespace) -> int:
     from sim.datasets.schema import SPLITS
-    from sim.datasets.storage import read_manifest
     from sim.device import resolve_device
 
     if args.split is not None and args.split not in SPLITS:
         raise WrinklesInputError(f"--split {args.split!r}: choose one of {', '.join(SPLITS)}")
     device = resolve_device(args.device)
-    entries = read_manifest(args.root)["sequences"].values()
-    n = sum(1 for e in entries if args.split is None or e.get("split") == args.split)
-    with progress_bar(n, f"derive {args.root}", quiet=args.quiet, unit="sequence") as advance:
-        made, current = derive_dataset(args.root, device=device, split=args.split, progress=advance)
+    made, current = derive_first(args.root, device, split=args.split, quiet=args.quiet)
     print(f"{args.root}: derived {made} sequences, {current} were current ({device})")
     return 0
 

@@ -756,12 +756,10 @@ def add_report_arguments(p: argparse.ArgumentParser) -> None:
 def run_report(args: argparse.Namespace) -> int:
     """``wrinkles dataset report``: write the report; print the files unless --quiet."""
     device = getattr(args, "device", "cpu")
+    from pipelines.dataset_cmd import derive_first
     from pipelines.progress import LazyProgressBar
-    from sim.datasets.fields import derive_dataset
 
-    with LazyProgressBar("derive fields", getattr(args, "quiet", False)) as bar:
-        # the fields the files leave to the reader, derived once on --device before they are read
-        derive_dataset(args.dataset, device=None if device == "auto" else device, progress=bar)
+    derive_first(args.dataset, None if device == "auto" else device, quiet=getattr(args, "quiet", False))
     with LazyProgressBar("dataset report", getattr(args, "quiet", False)) as bar:
         written = write_report(args.dataset, args.out, sequences=args.sequences,
                                frames_per_sequence=args.frames_per_sequence, seed=args.seed,

@@ -104,10 +104,9 @@ def run(args: argparse.Namespace) -> int:
     if method.name == "wrinkle_diffusion":
         opts = {"seed": args.sample_seed, **({"steps": args.steps} if args.steps else {})}
     out = Path(args.out) if args.out else _default_out(model_path, args.split)
-    from sim.datasets.fields import derive_dataset
+    from pipelines.dataset_cmd import derive_first
 
-    with progress_bar(0, f"derive fields of {args.split}", quiet=args.quiet, unit="sequence") as bar:
-        derive_dataset(args.data, device=wdev, split=args.split, progress=bar)  # once, before reading
+    derive_first(args.data, wdev, split=args.split, quiet=args.quiet)
     with progress_bar(0, f"evaluate {args.split}", quiet=args.quiet, unit="sequence") as bar:
         ev = evaluate(method, model, args.data, args.split, device=dev, warp_device=wdev,
                       max_sequences=args.max_sequences, image_resolution=args.image_resolution, progress=bar,

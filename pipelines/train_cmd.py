@@ -98,16 +98,14 @@ def run(args: argparse.Namespace) -> int:
     from sim.datasets.storage import read_manifest
 
     cfg = resolve_config(args)
-    manifest = read_manifest(args.data)  # a missing or broken dataset fails here, before training
+    read_manifest(args.data)  # a missing or broken dataset fails here, before training
     main_process = int(os.environ.get("RANK", "0")) == 0
     if int(os.environ.get("WORLD_SIZE", "1")) == 1:
-        # the fields the files leave to the reader, derived once on the GPU if there is one (under
-        # torchrun each rank derives what it reads: run 'wrinkles dataset derive' first)
-        from sim.datasets.fields import derive_dataset
+        # on the GPU if there is one (under torchrun each rank derives what it reads: run 'wrinkles
+        # dataset derive' first)
+        from pipelines.dataset_cmd import derive_first
 
-        with progress_bar(len(manifest["sequences"]), "derive fields", quiet=args.quiet,
-                          unit="sequence") as advance:
-            derive_dataset(args.data, progress=advance)
+        derive_first(args.data, None, quiet=args.quiet)
     with progress_bar(cfg.train.steps, f"train {cfg.method}", quiet=args.quiet or not main_process,
                       unit="step") as advance:
         summary = Trainer(cfg, args.data, args.out, resume=args.resume, progress=advance).fit()

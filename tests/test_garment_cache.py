@@ -97,7 +97,8 @@ def test_garments_of_a_batch_are_sewn_together_once_each(tmp_path, monkeypatch):
     once), and each is the garment make_garment makes alone."""
     from sim.bodies.default import load_default_body
     from sim.garments import designs
-    from sim.garments.templates import GarmentOrder, make_garment, make_garments
+    from sim.garments.designs import GarmentRequest
+    from sim.garments.templates import make_garment, make_garments
 
     monkeypatch.setenv("WRINKLES_CACHE", str(tmp_path))
     monkeypatch.setattr(gc, "_MEMORY", {})
@@ -108,9 +109,9 @@ def test_garments_of_a_batch_are_sewn_together_once_each(tmp_path, monkeypatch):
     body = load_default_body()
     wide = np.zeros(body.num_betas, np.float32)
     wide[0] = 1.0
-    orders = [GarmentOrder("straight_skirt", body, None, 0.07),
-              GarmentOrder("straight_skirt", body, wide, 0.07),
-              GarmentOrder("straight_skirt", body, None, 0.07, name="again")]
+    orders = [GarmentRequest("straight_skirt", body, None, 0.07),
+              GarmentRequest("straight_skirt", body, wide, 0.07),
+              GarmentRequest("straight_skirt", body, None, 0.07, garment_name="again")]
     made = make_garments(orders, device="cpu")
     assert batches == [2] and made[2].name == "again"
     np.testing.assert_array_equal(made[0].rest_vertices, made[2].rest_vertices)

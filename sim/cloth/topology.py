@@ -79,11 +79,7 @@ def mesh_topology(vertex_count: int, faces: np.ndarray, max_colors: int = 0) -> 
     cached by topology (the last ``CACHE_SIZE`` meshes): a batch of one garment pattern colours
     it once (the 5k t-shirt's compact colouring takes 0.45 s, and 1024 copies of it took longer
     than their simulation)."""
-    key = _key(vertex_count, faces, max_colors)
-    if key not in _TOPOLOGY:
-        _remember(key, _compute(vertex_count, faces, max_colors))
-    hinges, colors = _TOPOLOGY[key]
-    return hinges.copy(), colors.copy()
+    return mesh_topologies([(vertex_count, faces)], max_colors)[0]
 
 
 def mesh_topologies(meshes: Sequence[tuple[int, np.ndarray]], max_colors: int = 0) -> list[tuple]:

@@ -80,10 +80,11 @@ def _run_task(cfg: DatasetConfig, out: str, shard: int, shards: int, batch: int,
 
     from sim.garments.garment_cache import locked
 
+    dev = worker_device(device)
     with locked(S.part_path(out, shard, shards)):
-        s = generate(cfg, out, shard=shard, shards=shards, resume=True, batch=batch,
-                     device=worker_device(device), splits=splits, combine=False)
-    return {**dataclasses.asdict(s), "device": worker_device(device)}
+        s = generate(cfg, out, shard=shard, shards=shards, resume=True, batch=batch, device=dev,
+                     splits=splits, combine=False)
+    return {**dataclasses.asdict(s), "device": dev}
 
 
 def _client(workers: int | None, scheduler: str | None):
@@ -130,17 +131,16 @@ def generate_on_cluster(cfg: DatasetConfig, out: str | os.PathLike, *, workers: 
 
     specs = sample_sequences(cfg)
     shards = task_count(len(specs), batch)
-    tasks = [k for k in range(shards) if select_indices(specs, k, shards, splits)]
-    total = sum(len(select_indices(specs, k, shards, splits)) for k in tasks)
+    sizes = {k: n for k in range(shards) if (n := len(select_indices(specs, k, shards, splits)))}
     root = Path(out).resolve()  # the same folder for workers started elsewhere
     client = _client(workers, scheduler)
     try:
         cfg_dict = client.submit(_config_dict, cfg, device, pure=False).result()
-        prepare_dataset(root, cfg_dict, resume, started=[S.part_path(root, k, shards) for k in tasks])
+        prepare_dataset(root, cfg_dict, resume, started=[S.part_path(root, k, shards) for k in sizes])
         summary, t0 = GenerateSummary(), time.perf_counter()
-        _gather(client, [client.submit(_run_task, cfg, os.fspath(root), k, shards, batch, device, splits,
-                                       key=f"wrinkles-shard-{k}-of-{shards}", pure=False) for k in tasks],
-                summary, lambda k: len(select_indices(specs, k, shards, splits)), total, t0, progress, log)
+        tasks = {client.submit(_run_task, cfg, os.fspath(root), k, shards, batch, device, splits,
+                               key=f"wrinkles-shard-{k}-of-{shards}", pure=False): k for k in sizes}
+        _gather(client, tasks, summary, sizes, t0, progress, log)
     finally:
         cluster = getattr(client, "cluster", None)
         client.close()
@@ -151,25 +151,26 @@ def generate_on_cluster(cfg: DatasetConfig, out: str | os.PathLike, *, workers: 
     return summary
 
 
-def _gather(client, futures: list, summary: GenerateSummary, size_of: Callable[[int], int], total: int,
-            t0: float, progress, log) -> None:
-    """Sum the tasks' summaries into ``summary`` as they finish; the first task that fails (not a
-    worker that died: the scheduler runs its task again) cancels the rest and raises."""
+def _gather(client, tasks: dict, summary: GenerateSummary, sizes: dict[int, int], t0: float, progress,
+            log) -> None:
+    """Sum the tasks' summaries (``tasks``: future -> shard of ``sizes[shard]`` sequences) into
+    ``summary`` as they finish; the first task that fails (not a worker that died: the scheduler
+    runs its task again) cancels the rest and raises."""
     import time
 
     from distributed import as_completed
 
-    done = 0
-    for fut in as_completed(futures):
+    done, total = 0, sum(sizes.values())
+    for fut in as_completed(list(tasks)):
         try:
             s = fut.result()
         except BaseException:
-            client.cancel(futures)
+            client.cancel(list(tasks))
             raise
         for field in ("accepted", "rejected", "skipped", "recovered", "garment_frames", "bytes"):
             setattr(summary, field, getattr(summary, field) + s[field])
-        shard = int(str(fut.key).split("-")[2])
-        done += size_of(shard)
+        shard = tasks[fut]
+        done += sizes[shard]
         rate = summary.garment_frames / max(time.perf_counter() - t0, 1e-9)
         if log is not None:
             log(f"task {shard} ({s['device']}): {s['accepted']} accepted, {s['rejected']} rejected, "

@@ -153,14 +153,17 @@ def _cache_key(sf) -> dict[str, str]:
 def cached_fields(sf, *, device: str | None = None):
     """The ``SequenceFile`` of ``sf``'s derived fields, derived and written first where the
     cache has no current one (several processes may derive the same sequence at once: each
-    writes identical bytes atomically)."""
-    from sim.datasets.storage import SequenceFile, write_sequence
+    writes its file atomically, and the last one stays)."""
+    cached = _cached(sf)
+    return cached if cached is not None else _derive_into_cache(sf, device)
 
-    path = cache_path(sf)
-    if _current(sf):
-        return SequenceFile(path)
+
+def _derive_into_cache(sf, device: str | None):
+    """Derive ``sf``'s fields on ``device`` and write them to its cache file; that file opened."""
+    from sim.datasets.storage import SequenceFile, write_sequence
     from sim.device import resolve_device
 
+    path = cache_path(sf)
     arrays = derive_fields(sf, device=device)
     path.parent.mkdir(parents=True, exist_ok=True)
     kind = "cuda" if resolve_device(device).startswith("cuda") else "cpu"
@@ -182,25 +185,27 @@ def derive_dataset(root: str | os.PathLike, *, device: str | None = None, split:
     for k, e in enumerate(entries):
         sf = SequenceFile(root / e["file"])
         if derivable(sf):  # (a schema 1 file stores every field: nothing to derive)
-            before = _current(sf)
-            cached_fields(sf, device=device)
-            made += not before
-            current += before
+            if _cached(sf) is None:
+                _derive_into_cache(sf, device)
+                made += 1
+            else:
+                current += 1
         if progress is not None:
             progress(k + 1, len(entries))
     return made, current
 
 
-def _current(sf) -> bool:
-    """Whether the cache holds current derived fields of ``sf``."""
+def _cached(sf):
+    """The cache file of ``sf``'s current derived fields, opened; None where there is none."""
     from sim.datasets.storage import SequenceFile
 
     path = cache_path(sf)
     if not path.exists():
-        return False
+        return None
     try:
         cached = SequenceFile(path)
-    except WrinklesInputError:
-        return False
-    return (cached.metadata.get("key") == _cache_key(sf)["key"]
-            and all(cached.has_stored(k) for k in derivable(sf)))
+    except WrinklesInputError:  # an unreadable cache file is derived again
+        return None
+    current = (cached.metadata.get("key") == _cache_key(sf)["key"]
+               and all(cached.has_stored(k) for k in derivable(sf)))
+    return cached if current else None

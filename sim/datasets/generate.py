@@ -336,7 +336,8 @@ def _group_jobs(cfg: DatasetConfig, body, group: list[SequenceSpec],
     made together, the new ones sewn in one batch on ``device``."""
     from dataclasses import replace
 
-    from sim.garments.templates import GarmentOrder, make_garments
+    from sim.garments.designs import GarmentRequest
+    from sim.garments.templates import make_garments
     from sim.simulate import SimulationJob
 
     kinds = {"fine": cfg.garments.fine_resolution}
@@ -347,7 +348,7 @@ def _group_jobs(cfg: DatasetConfig, body, group: list[SequenceSpec],
         from sim.garments.materials import get_material
 
         cut_material = max(cfg.materials.names, key=lambda m: get_material(m).thickness)
-    orders: dict[tuple, GarmentOrder] = {}  # "reference" fit: one cut per category / params
+    orders: dict[tuple, GarmentRequest] = {}  # "reference" fit: one cut per category / params
     wanted = []
     for sp in group:
         betas, motion = sequence_inputs(cfg, sp, body)
@@ -355,9 +356,9 @@ def _group_jobs(cfg: DatasetConfig, body, group: list[SequenceSpec],
         for kind, resolution in kinds.items():
             gkey = (sp.category, kind, None if reference else sp.material,
                     json.dumps(sp.garment_params, sort_keys=True), gbetas.tobytes())
-            orders.setdefault(gkey, GarmentOrder(sp.category, body, gbetas, resolution,
-                                                 cut_material if reference else sp.material, sp.category,
-                                                 dict(sp.garment_params)))
+            orders.setdefault(gkey, GarmentRequest(sp.category, body, gbetas, resolution,
+                                                   cut_material if reference else sp.material, sp.category,
+                                                   dict(sp.garment_params)))
             wanted.append((sp, betas, motion, gbetas, kind, gkey))
     # the group's new garments sewn in one batch
     garments = dict(zip(orders, make_garments(list(orders.values()), device=device), strict=True))
@@ -464,10 +465,10 @@ def _accept(run: _Run, sp: SequenceSpec, item: dict, failed_attempts: list[dict]
 
 
 def _sequence_arrays(run: _Run, item: dict) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-    """The arrays a sequence file stores (``sim.datasets.schema``: quantized positions, rest
-    garments, the body's motion, the per-frame quality) and the fine fields derived from the
-    stored positions (as a reader derives them, ``sim.datasets.fields``) that the manifest's
-    quality summary reads."""
+    """The arrays a sequence file stores (``sim.datasets.schema``: positions, rest garments, the
+    body's motion, the per-frame quality) and the fine fields derived from the stored positions
+    (as a reader derives them, ``sim.datasets.fields``) that the manifest's quality summary
+    reads."""
     from dataclasses import replace
 
     from sim.datasets.derive import Deriver
@@ -508,13 +509,13 @@ def _sequence_arrays(run: _Run, item: dict) -> tuple[dict[str, np.ndarray], dict
 def _positions(name: str, x: np.ndarray, form: str) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """The stored arrays of positions ``x`` in ``form`` ("f32" or "i16", ``[derive] positions``)
     and the positions a reader gets back from them."""
-    from sim.datasets.quantize import dequantize, quantized_arrays
+    from sim.datasets.quantize import SUFFIXES, dequantize, quantized_arrays
 
     if form == "f32":
         x = np.asarray(x, np.float32)
         return {name: x}, x
     stored = quantized_arrays(name, x)
-    return stored, dequantize(*(stored[name + s] for s in ("_q", "_origin", "_step")))
+    return stored, dequantize(*(stored[name + s] for s in SUFFIXES))
 
 
 def _stable(prov: dict) -> dict:

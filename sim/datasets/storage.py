@@ -36,8 +36,9 @@ from sim.errors import WrinklesInputError
 
 SCHEMA_VERSION = 2
 READABLE_VERSIONS = (1, 2)
-"""Version 1 files store every field as such; version 2 files store positions quantized and
-leave the derived fields to the reader (``sim.datasets.schema``); both read the same."""
+"""Version 1 files store every field as such; version 2 files store what the simulation gives
+(positions as float32 or quantized) and leave the derived fields to the reader
+(``sim.datasets.schema``); both read the same."""
 MANIFEST = "manifest.json"
 SEQUENCE_DIR = "sequences"
 PARTS_DIR = "parts"
@@ -242,9 +243,9 @@ class SequenceFile:
             return self.stored(name)
         quantized, derived = self._virtual()
         if name in quantized:
-            from sim.datasets.quantize import Dequantized
+            from sim.datasets.quantize import SUFFIXES, Dequantized
 
-            return Dequantized(*(self.stored(name + s) for s in ("_q", "_origin", "_step")))
+            return Dequantized(*(self.stored(name + s) for s in SUFFIXES))
         if name in derived:
             if self._derived is None:
                 from sim.datasets.fields import cached_fields

@@ -19,6 +19,7 @@ import numpy as np
 from sim.errors import WrinklesInputError
 from sim.garments.hems import HEM_LAYERS, HEM_WIDTH, hem_face_layers
 from sim.garments.materials import Material, get_material
+from sim.garments.parameters import HEM_SPECS
 from sim.garments.pattern import Pattern
 from sim.garments.sewing import SewnPattern, sew_pattern, sew_patterns
 from sim.garments.types import Garment
@@ -198,8 +199,10 @@ def make_pattern(name: str, body, betas: np.ndarray | None = None, **params) -> 
 
 @dataclass(frozen=True)
 class GarmentRequest:
-    """One design garment to make (``make_design_garments``); fields as ``make_design_garment``'s
-    arguments, ``params`` its ``**params``."""
+    """One design garment to make (``make_design_garments``, ``templates.make_garments``):
+    design ``name`` for ``body`` with shape ``betas`` at ``resolution`` of ``material``, called
+    ``garment_name`` (None: the design's name); ``params`` the design's parameters and
+    ``hem_width`` / ``hem_layers``."""
 
     name: str
     body: Any
@@ -207,8 +210,6 @@ class GarmentRequest:
     resolution: str | float = "coarse"
     material: str | Material = "cotton"
     garment_name: str | None = None
-    hem_width: float = HEM_WIDTH
-    hem_layers: float = HEM_LAYERS
     params: dict = field(default_factory=dict)
 
 
@@ -218,8 +219,8 @@ def make_design_garment(name: str, body, betas: np.ndarray | None = None, *,
                         hem_width: float = HEM_WIDTH, hem_layers: float = HEM_LAYERS, **params) -> Garment:
     """Design ``name`` drafted for ``body`` (shape ``betas``), sewn on it at ``resolution`` and
     kept in the garment cache (``sim.garments.garment_cache``)."""
-    request = GarmentRequest(name, body, betas, resolution, material, garment_name, hem_width, hem_layers,
-                             params)
+    request = GarmentRequest(name, body, betas, resolution, material, garment_name,
+                             {**params, "hem_width": hem_width, "hem_layers": hem_layers})
     return make_design_garments([request], device=device)[0]
 
 
@@ -238,7 +239,8 @@ def make_design_garments(requests: list[GarmentRequest], *, device: str | None =
     made = []  # per request: (params, material, rest body, edge length)
     specs = []
     for r in requests:
-        p, mat = design_params(r.name, **r.params), get_material(r.material)
+        own = {k: v for k, v in r.params.items() if k not in HEM_SPECS}
+        p, mat = design_params(r.name, **own), get_material(r.material)
         rest = np.ascontiguousarray(r.body.rest_mesh(r.betas), np.float32)
         h = edge_length(r.resolution, r.name)
         made.append((p, mat, rest, h))
@@ -257,7 +259,8 @@ def make_design_garments(requests: list[GarmentRequest], *, device: str | None =
         return [garment_of(pat, sw, made[i][1], category=requests[i].name, name=requests[i].name)
                 for pat, sw, i in zip(patterns, sewn, todo, strict=True)]
 
-    return [_hemmed(g, r.garment_name or r.name, r.hem_width, r.hem_layers)
+    return [_hemmed(g, r.garment_name or r.name, float(r.params.get("hem_width", HEM_WIDTH)),
+                    float(r.params.get("hem_layers", HEM_LAYERS)))
             for g, r in zip(cached_garments(specs, build), requests, strict=True)]
 
 

@@ -162,8 +162,7 @@ def cached_garments(specs: list[dict], build: Callable[[list[int]], list[Garment
             for k in todo:
                 stack.enter_context(locked(paths[k]))
             todo = [k for k in todo if look(k) is None]  # made by another process meanwhile
-            first = {k: keys.index(k) for k in todo}
-            for k, g in zip(todo, build([first[k] for k in todo]) if todo else [], strict=True):
+            for k, g in zip(todo, build([keys.index(k) for k in todo]) if todo else [], strict=True):
                 _MEMORY[k] = g
                 if paths[k] is not None:
                     try:

@@ -12,13 +12,12 @@ Every parameter's unit, range (or choices) and description are data on its param
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from sim.errors import WrinklesInputError
 from sim.garments.designs import SIZES, GarmentRequest, designs, make_design_garments
-from sim.garments.hems import HEM_LAYERS, HEM_WIDTH
 from sim.garments.materials import Material
 from sim.garments.parameters import HEM_SPECS, HemParams, check_parameter, parameter_specs
 from sim.garments.types import Garment
@@ -156,32 +155,17 @@ def make_garment(category: str, body, betas: np.ndarray | None = None, *,
     Returns:
         The garment; deterministic for equal arguments on one kind of device.
     """
-    return make_garments([GarmentOrder(category, body, betas, resolution, material, name, params)],
+    return make_garments([GarmentRequest(category, body, betas, resolution, material, name, params)],
                          device=device)[0]
 
 
-@dataclass(frozen=True)
-class GarmentOrder:
-    """``make_garment``'s arguments but the device, for ``make_garments``."""
+def make_garments(requests: list[GarmentRequest], *, device: str | None = None) -> list[Garment]:
+    """``make_garment`` of each request (``name`` a category, ``params`` its parameters and
+    hems), checked; those the garment cache does not hold are sewn together in one batch
+    (``make_design_garments``), e.g. a dataset batch's garments on their bodies."""
+    import dataclasses
 
-    category: str
-    body: object
-    betas: np.ndarray | None = None
-    resolution: str | float = "coarse"
-    material: str | Material = "cotton"
-    name: str | None = None
-    params: dict = field(default_factory=dict)
-
-
-def make_garments(orders: list[GarmentOrder], *, device: str | None = None) -> list[Garment]:
-    """``make_garment`` of each order; those the garment cache does not hold are sewn together in
-    one batch (``make_design_garments``), e.g. a dataset batch's garments on their bodies."""
-    requests = []
-    for o in orders:
-        make_params(o.category, **o.params)
-        own = {k: v for k, v in o.params.items() if k not in HEM_SPECS}
-        resolution = resolve_resolution(o.resolution, o.category)
-        requests.append(GarmentRequest(o.category, o.body, o.betas, resolution, o.material, o.name,
-                                       float(o.params.get("hem_width", HEM_WIDTH)),
-                                       float(o.params.get("hem_layers", HEM_LAYERS)), own))
-    return make_design_garments(requests, device=device)
+    for r in requests:
+        make_params(r.name, **r.params)
+    return make_design_garments([dataclasses.replace(r, resolution=resolve_resolution(r.resolution, r.name))
+                                 for r in requests], device=device)
