@@ -34,6 +34,7 @@ seconds = {seconds}
 [garments]
 categories = ["t_shirt", "straight_skirt"]
 fine_resolution = {fine}
+fit = "{fit}"
 coarse_resolution = "coarse"
 
 [materials]
@@ -88,6 +89,36 @@ def generate_in_temp(text: str, source: str, batch: int, device: str, phases: bo
         shutil.rmtree(root, ignore_errors=True)
 
 
+def simulation_alone(text: str, batch: int, device: str) -> dict:
+    """The first group of the config TOML ``text`` (its first ``batch`` sequences, fine and coarse
+    jobs in one batched model, as ``generate`` simulates them) simulated again on its own: the
+    prelude and the clip, no garments made (the garment cache holds them), no judging, deriving
+    or writing. ``{"s", "fine_frames", "fine_frames_per_s"}``: the denominator of the
+    end-to-end ratio."""
+    from dataclasses import replace
+
+    from sim.bodies import load_body
+    from sim.datasets.config import parse_config
+    from sim.datasets.generate import group_jobs
+    from sim.datasets.sampling import sample_sequences
+    from sim.simulate import simulate_batch
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover
+        import tomli as tomllib
+    cfg = parse_config(tomllib.loads(text), source="bench_dataset:alone")
+    group = sample_sequences(cfg)[:batch]
+    jobs, meta = group_jobs(cfg, load_body(cfg.bodies.model), group, device)
+    t0 = time.perf_counter()
+    results = simulate_batch(jobs, config=replace(cfg.simulation_config(), device=device), seed=group[0].seed,
+                             failures="return")
+    seconds = time.perf_counter() - t0
+    frames = sum(r.sequence.vertices.shape[0] for r, m in zip(results, meta, strict=True)
+                 if m[-1] == "fine" and hasattr(r, "sequence"))
+    return {"s": seconds, "fine_frames": frames, "fine_frames_per_s": frames / seconds}
+
+
 def _derive_on_read(root: str, device: str) -> dict:
     """What a reader's derivation of the stored dataset costs (``wrinkles dataset derive``):
     wall seconds on ``device`` and the bytes the cache of derived fields takes."""
@@ -123,6 +154,12 @@ def main() -> None:
     ap.add_argument("--resolution", type=float, default=None,
                     help="edge length [m] of every case's garments instead of the templates' coarse / fine "
                     "size (the coarse twin keeps the templates' coarse size)")
+    ap.add_argument("--fit", default="body", choices=("body", "reference"),
+                    help="[garments] fit: body: a garment sewn for every sequence's shape; reference: one "
+                    "per category on the mean shape, the body morphing to the sequence's shape in the settle")
+    ap.add_argument("--alone", type=int, default=1, choices=(0, 1),
+                    help="1: also time the first group's simulation alone (prelude + clip) for the "
+                    "end-to-end ratio")
     ap.add_argument("--warmup", type=int, default=1, choices=(0, 1),
                     help="1: first generate one short fine + coarse sequence of another seed, untimed, so "
                     "that Warp's kernel compilation (once per machine: its kernel cache keeps them) "
@@ -146,7 +183,8 @@ def main() -> None:
     if args.warmup:
         t0 = time.perf_counter()
         generate_in_temp(CONFIG.format(seed=1000, sequences=1, seconds=0.2,
-                                       fine=json.dumps(args.resolution or "fine"), coarse="true"),
+                                       fine=json.dumps(args.resolution or "fine"), coarse="true",
+                                       fit=args.fit),
                          "bench_dataset:warmup", 1, device, phases=False)
         warmup_s = time.perf_counter() - t0
         print(f"warm-up (kernel compilation, untimed): {warmup_s:.1f} s", flush=True)
@@ -154,13 +192,15 @@ def main() -> None:
         fine, coarse = cases[name]
         fine = fine if args.resolution is None else args.resolution
         text = CONFIG.format(seed=0, sequences=args.sequences, seconds=args.seconds, fine=json.dumps(fine),
-                             coarse=coarse)
+                             coarse=coarse, fit=args.fit)
         s, wall, manifest, phases, derive = generate_in_temp(text, f"bench_dataset:{name}", args.batch,
                                                              device,
                                                      phases=not args.no_phases)
         seqs = list(manifest["sequences"].values())
         frames = sum(e["frames"] for e in seqs)
         made = s.accepted + s.rejected
+        clip = int(round(args.seconds * 30.0))  # every sequence's stored frames (accepted or not)
+        alone = simulation_alone(text, args.batch, device) if args.alone else None
         fig[name] = {
             "sequences": made, "accepted": s.accepted, "rejected": s.rejected,
             "rejections": {k: v["reasons"] for k, v in manifest["rejected"].items()},
@@ -171,6 +211,11 @@ def main() -> None:
             "derive_on_read_s": derive["s"], "derived_bytes_per_frame": derive["bytes"] / max(frames, 1),
             "vertices": sorted({e["vertices"] for e in seqs}),
             "coarse_vertices": sorted({e["coarse_vertices"] for e in seqs if e.get("coarse_vertices")}),
+            "simulation_alone": alone,
+            # accepted fine frames per second over the same batch's simulation alone; "made" counts
+            # every sequence's clip, accepted or not (the engine's overhead without the gates)
+            "ratio_accepted": frames / wall / alone["fine_frames_per_s"] if alone else None,
+            "ratio_made": made * clip / wall / alone["fine_frames_per_s"] if alone else None,
             "phases": phases,
         }
         print(name, json.dumps({k: v for k, v in fig[name].items() if k != "phases"}), flush=True)
@@ -179,7 +224,7 @@ def main() -> None:
     write_result(f"dataset_{device.split(':')[0]}{args.tag}", {
         "machine": machine(device),
         "sizes": {"sequences": args.sequences, "seconds": args.seconds, "batch": args.batch, "fps": 30.0,
-                  "image_resolution": 256, "resolution": args.resolution,
+                  "image_resolution": 256, "resolution": args.resolution, "fit": args.fit,
                   "edge_m": {c: {"coarse": TEMPLATES[c].coarse, "fine": TEMPLATES[c].fine}
                              for c in ("t_shirt", "straight_skirt")}},
         "warmup_s": warmup_s,

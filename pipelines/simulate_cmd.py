@@ -42,8 +42,8 @@ and the cause; when its last retry (below) stops too, that is one line, exit sta
 nothing is written. Every sequence gets a quality report (edge strain, fraction of garment
 vertices inside the body, self-intersections) judged against quality gates (--gate). A sequence
 that fails them, or stops, is simulated again at more substeps (--retry: 5/3 and then 2 times,
-20 and 24 of the automatic 12; a garment over 10k vertices also 3 times, 14 -> 23 -> 28 -> 42:
-fast motions need shorter steps than the default's); one that fails at the last is an error
+20 and 24 of the automatic 12: fast motions need shorter steps than the default's; a garment
+over 10k vertices is not retried: more substeps rescue almost none of its failures); one that fails at the last is an error
 (exit 1, nothing written) unless --allow-failed-gates. When the gates fail, the skinned body is
 checked for passing through itself within 5 cm of the garment (knee pits, groin, armpits at
 deep flexion; 'wrinkles body --self-crossings'): cloth caught there may fail the gates for the
@@ -146,10 +146,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--retry", action=argparse.BooleanOptionalAction, default=True,
                    help="a sequence that fails a quality gate or stops (NaN, explosion) is simulated "
                         "again at 5/3 and then 2 times the substeps (20 and 24 of the automatic 12; a "
-                        "garment over 10k vertices also 3 times: 23, 28 and 42 of its 14) until it passes; "
+                        "garment over 10k vertices: no retries) until it passes; "
                         "the written one's substeps and the other runs are in the quality report; with "
                         "--allow-failed-gates the last run that finished is written if none passes (up to "
-                        "4.7x the time of one run, 7.7x for a fine garment) "
+                        "4.7x the time of one run) "
                         "(default: on)")
     add_output_arguments(p.add_argument_group("outputs"))
     add_common_arguments(p)

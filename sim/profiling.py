@@ -64,6 +64,19 @@ class Phases:
             entry[1] += dt - inner
             entry[2] += 1
 
+    def add(self, name: str, seconds: float, calls: int = 1) -> None:
+        """Record ``seconds`` measured by the caller as phase ``name`` inside the phase now
+        running (e.g. the device time of a loop's solver steps inside the loop's phase: the
+        loop's own seconds are then the rest of it)."""
+        if not self.on:
+            return
+        entry = self._paths.setdefault("/".join([*self._stack, name]), [0.0, 0.0, 0])
+        entry[0] += seconds
+        entry[1] += seconds
+        entry[2] += calls
+        if self._child:
+            self._child[-1] += seconds
+
     def report(self) -> dict[str, dict]:
         """Per phase path, in the order the paths first began (a phase before those inside it):
         ``{"s", "self_s", "calls"}``."""

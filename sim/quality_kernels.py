@@ -116,3 +116,47 @@ def self_intersection_kernel(
         if a != i0 and a != i1 and b != i0 and b != i1 and c != i0 and c != i1:
             hits += segment_hits_triangle(p, q, x[a], x[b], x[c])
     edge_hit_out[e] = hits
+
+
+@wp.kernel
+def screen_particles_kernel(
+    x: wp.array(dtype=wp.vec3),
+    x_prev: wp.array(dtype=wp.vec3),
+    instance: wp.array(dtype=int),
+    roots: wp.array(dtype=wp.vec3),
+    max_distance: float,
+    fps: float,
+    max_speed: float,
+    flags_out: wp.array(dtype=int),
+):
+    """Flag a particle's instance (``flags_out[instance] = 1``) where its position is not finite,
+    farther than ``max_distance`` [m] from the instance's root ``roots[instance]``, or faster than
+    ``max_speed`` [m/s] since ``x_prev``, a frame (1 / ``fps`` [s]) before (the tests of
+    ``sim.simulate.screening.FrameChecker``)."""
+    i = wp.tid()
+    k = instance[i]
+    p = x[i]
+    bad = not (wp.isfinite(p[0]) and wp.isfinite(p[1]) and wp.isfinite(p[2]))
+    if not (wp.length(p - roots[k]) <= max_distance):
+        bad = True
+    if not (wp.length(p - x_prev[i]) * fps <= max_speed):
+        bad = True
+    if bad:
+        flags_out[k] = 1
+
+
+@wp.kernel
+def screen_edges_kernel(
+    x: wp.array(dtype=wp.vec3),
+    edges: wp.array(dtype=wp.vec2i),
+    rest_length: wp.array(dtype=float),
+    instance: wp.array(dtype=int),
+    max_stretch: float,
+    flags_out: wp.array(dtype=int),
+):
+    """Flag an edge's instance where the edge is longer than ``max_stretch`` times its rest length
+    (or its length is not finite)."""
+    e = wp.tid()
+    a = edges[e][0]
+    if not (wp.length(x[edges[e][1]] - x[a]) / rest_length[e] <= max_stretch):
+        flags_out[instance[a]] = 1

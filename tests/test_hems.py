@@ -215,3 +215,15 @@ def test_hinge_faces_hold_the_hinge_edge():
     t_a, t_b = hinge_faces(f, hinges)
     for (o0, o1, a, b), fa, fb in zip(hinges, f[t_a], f[t_b], strict=True):
         assert {a, b, o0} == set(fa) and {a, b, o1} == set(fb)
+
+
+def test_hinge_faces_match_a_directed_edge_table_on_a_garment():
+    g = make_garment("t_shirt", load_body(), None, resolution="coarse")
+    f = g.faces.astype(np.int64)
+    table = {(int(a), int(b)): t for t, row in enumerate(f) for a, b in zip(row, np.roll(row, -1))}
+    hinges = build_hinges(g.faces)
+    t_a, t_b = hinge_faces(g.faces, hinges)
+    np.testing.assert_array_equal(t_a, [table[(a, b)] for a, b in hinges[:, 2:]])
+    np.testing.assert_array_equal(t_b, [table[(b, a)] for a, b in hinges[:, 2:]])
+    with pytest.raises(KeyError, match="no triangle"):
+        hinge_faces(g.faces, np.array([[0, 1, 0, int(f.max()) + 5]]))

@@ -47,9 +47,20 @@ def test_a_phase_that_raises_is_recorded_and_unwinds(phases):
     assert list(phases.report()) == ["outer", "outer/inner", "after"]
 
 
+def test_an_added_measurement_is_a_nested_phase_taken_from_its_parent(phases):
+    with phase("steps"):
+        time.sleep(0.03)
+        phases.add("solver", 0.02, calls=5)
+    r = phases.report()
+    assert list(r) == ["steps", "steps/solver"]
+    assert r["steps/solver"] == {"s": 0.02, "self_s": 0.02, "calls": 5}
+    assert r["steps"]["self_s"] == pytest.approx(r["steps"]["s"] - 0.02)
+
+
 def test_nothing_is_recorded_while_off():
     PHASES.start()
     PHASES.stop()
     with phase("ignored"):
         pass
+    PHASES.add("ignored too", 1.0)
     assert PHASES.report() == {}

@@ -39,6 +39,19 @@ def test_unique_edges_counts():
     assert unique_edges(f).shape[0] == 2 * 4 * 3 + 9
 
 
+def test_unique_edges_match_a_row_unique_with_their_face_counts():
+    rng = np.random.default_rng(3)
+    f = rng.integers(0, 400, size=(900, 3))
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    ref, ref_counts = np.unique(e, axis=0, return_counts=True)
+    got, counts = unique_edges(f, counts=True)
+    assert got.dtype == np.int32
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(counts, ref_counts)
+    np.testing.assert_array_equal(unique_edges(f), ref)
+    assert unique_edges(np.zeros((0, 3), np.int64)).shape == (0, 2)
+
+
 def test_edge_strain_of_scaled_mesh_is_exact(device):
     v, f = grid(5)
     seq = np.stack([v, v * 1.1, v * 0.8])

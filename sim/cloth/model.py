@@ -385,10 +385,9 @@ def local_packed(colors: np.ndarray, prims: np.ndarray, csr: tuple[np.ndarray, .
 
 def mesh_edges(faces: np.ndarray) -> np.ndarray:
     """Unique undirected edges ``(a, b)``, ``a < b``, of a triangle mesh, int32 (E, 2), sorted."""
-    f = faces.astype(np.int64).reshape(-1, 3)
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    e.sort(axis=1)
-    return np.unique(e, axis=0).astype(np.int32).reshape(-1, 2)
+    from sim.quality import unique_edges
+
+    return unique_edges(faces)
 
 
 def lumped_areas(vertex_count: int, faces: np.ndarray, areas: np.ndarray, layers: np.ndarray) -> np.ndarray:
@@ -412,16 +411,26 @@ def hinge_factors(rest: np.ndarray, faces: np.ndarray, hinges: np.ndarray, areas
 def hinge_faces(faces: np.ndarray, hinges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The two triangles of each hinge (``build_hinges``' layout), found by their directed edges:
     the one with the directed edge a -> b, then the one with b -> a."""
-    n = int(faces.max()) + 1
-    keys = {}
-    for t, (i, j, k) in enumerate(faces.astype(np.int64)):
-        for a, b in ((i, j), (j, k), (k, i)):
-            keys[a * n + b] = t
-    a_idx = hinges[:, 2].astype(np.int64)
-    b_idx = hinges[:, 3].astype(np.int64)
-    t_a = np.array([keys[a * n + b] for a, b in zip(a_idx, b_idx, strict=True)])
-    t_b = np.array([keys[b * n + a] for a, b in zip(a_idx, b_idx, strict=True)])
-    return t_a, t_b
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    n = int(f.max(initial=0)) + 1
+    # every directed edge's key and its triangle; a manifold mesh has each directed edge once
+    # (a repeated one keeps its last triangle, as a dict filled in face order would)
+    keys = (f * n + np.roll(f, -1, axis=1)).reshape(-1)
+    tris = np.repeat(np.arange(len(f)), 3)
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    last = np.r_[sorted_keys[1:] != sorted_keys[:-1], True]
+    sorted_keys, owner = sorted_keys[last], tris[order][last]
+    a = np.asarray(hinges[:, 2], np.int64)
+    b = np.asarray(hinges[:, 3], np.int64)
+
+    def lookup(q: np.ndarray) -> np.ndarray:
+        i = np.searchsorted(sorted_keys, q)
+        if np.any(i >= len(sorted_keys)) or np.any(sorted_keys[np.minimum(i, len(sorted_keys) - 1)] != q):
+            raise KeyError("hinge_faces: a hinge's directed edge is on no triangle")
+        return owner[i]
+
+    return lookup(a * n + b), lookup(b * n + a)
 
 
 @dataclass

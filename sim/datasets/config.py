@@ -46,9 +46,8 @@ shipped one)::
     iterations = 0           # 0: automatic, 5 sweeps per substep (8 over 10k garment vertices)
     # retry_factors = [1.6667, 2.0]  # a sequence failing a gate: again at these x substeps
                              # ([]: never; left out: automatic, [1.6667, 2.0] up to 10k garment
-                             # vertices, [1.6667, 2.0, 3.0] above: 14 -> 23 -> 28 -> 42 accepts
-                             # 14 of 16 fine sequences against 12 of 16 with two retries,
-                             # docs/BENCHMARKS.md)
+                             # vertices, none above: more substeps rescued 0 of 27 failing
+                             # fine sequences, sim.simulate.config.FINE_RETRY_FACTORS)
 
     [derive]
     smoothing_length = 0.04  # base surface: wrinkles shorter than ~this [m] are removed

@@ -123,6 +123,31 @@ class _Run:
     device: str
     summary: GenerateSummary
     log: Log
+    derivers: dict = dataclasses.field(default_factory=dict)
+
+    def deriver(self, garment):
+        """The ``Deriver`` of ``garment``'s rest mesh (its base smoother's factorisation is ~2 s for
+        a 20k-vertex garment), made once per mesh: sequences of a reference-fit garment share it.
+        Keeps the last ``DERIVERS`` meshes."""
+        import hashlib
+
+        from sim.datasets.derive import Deriver
+
+        h = hashlib.sha1()
+        for a in (garment.rest_vertices, garment.faces, garment.uvs, garment.uv_faces, garment.face_layers):
+            h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
+        key = h.hexdigest()
+        if key not in self.derivers:
+            with phase("setup"):  # images are derived where they are read
+                self.derivers[key] = Deriver(garment, dataclasses.replace(self.cfg.derive, image_resolution=0),
+                                             device=self.device)
+            while len(self.derivers) > DERIVERS:
+                self.derivers.pop(next(iter(self.derivers)))
+        return self.derivers[key]
+
+
+DERIVERS = 4
+"""Garment meshes whose ``Deriver`` a generation keeps (``_Run.deriver``)."""
 
 
 def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shards: int = 1,
@@ -279,7 +304,7 @@ def _make_group(run: _Run, sim_cfg, group: list[SequenceSpec], wanted: set[str],
     fails (NaN / explosion) is frozen inside the batch while the others run on. The failed ones
     and those that fail a quality gate are then simulated again, batched together, at the
     substeps of the config's retries (``SimulationConfig.retry_substeps``: 20 and then 24
-    instead of 12 by default; 23, 28, 42 for a fine garment: a step too long for a fast motion
+    instead of 12 by default, none for a fine garment: a step too long for a fast motion
     fails most fast sequences that fail, and an explosion is usually a step too large for a fast
     motion or a soft fabric) until they pass; a sequence that fails at the last is rejected with
     its reasons and the substeps tried. The provenance records the substeps a sequence used.
@@ -294,7 +319,7 @@ def _make_group(run: _Run, sim_cfg, group: list[SequenceSpec], wanted: set[str],
     sim_cfg = replace(sim_cfg, device=run.device)
     attempts = attempts or {}
     with phase("garments"):
-        jobs, meta = _group_jobs(run.cfg, run.body, group, run.device)
+        jobs, meta = group_jobs(run.cfg, run.body, group, run.device)
     with phase(f"simulation rung {len(tried) + 1}"):
         results = simulate_batch(jobs, config=sim_cfg, seed=group[0].seed, failures="return")
     largest = max(j.garment.num_vertices for j in jobs)
@@ -329,7 +354,7 @@ def _make_group(run: _Run, sim_cfg, group: list[SequenceSpec], wanted: set[str],
                               for sp in retried})
 
 
-def _group_jobs(cfg: DatasetConfig, body, group: list[SequenceSpec],
+def group_jobs(cfg: DatasetConfig, body, group: list[SequenceSpec],
                 device: str) -> tuple[list, list[tuple]]:
     """The simulation jobs of a group (fine, and coarse where the config derives it, per
     sequence) and, per job, ``(spec, garment, motion, betas, kind)``; the group's garments are
@@ -469,9 +494,6 @@ def _sequence_arrays(run: _Run, item: dict) -> tuple[dict[str, np.ndarray], dict
     body's motion, the per-frame quality) and the fine fields derived from the stored positions
     (as a reader derives them, ``sim.datasets.fields``) that the manifest's quality summary
     reads."""
-    from dataclasses import replace
-
-    from sim.datasets.derive import Deriver
     from sim.datasets.fields import FINE_DERIVED
     from sim.quality import edge_strain
 
@@ -479,9 +501,7 @@ def _sequence_arrays(run: _Run, item: dict) -> tuple[dict[str, np.ndarray], dict
     fine_g, fine_r = item["fine"]
     seq = fine_r.sequence
     arrays, fine = _positions("fine/vertices", seq.vertices, run.cfg.derive.positions)
-    with phase("setup"):  # images are derived where they are read
-        deriver = Deriver(fine_g, replace(run.cfg.derive, image_resolution=0), device=device)
-    derived = deriver(fine)
+    derived = run.deriver(fine_g)(fine)
     arrays.update({k: v for k, v in derived.items() if k not in (*FINE_DERIVED, "fine/vertices")})
     if "coarse" in item:
         coarse_g, coarse_r = item["coarse"]

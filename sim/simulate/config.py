@@ -43,7 +43,7 @@ the walk's arms come down from the T-pose against 0.6 free). Hems and cuffs stay
 RETRY_FACTORS = (5.0 / 3.0, 2.0)
 """Substeps of the retries of a sequence that fails its quality gates or stops (NaN, explosion), as
 multiples of its run's substeps (``SimulationConfig.retry_factors``): 12 -> 20 -> 24 (a fine
-garment: 14 -> 23 -> 28 and a third rung, ``FINE_RETRY_FACTORS``). A step too long for a fast
+garment: none, ``FINE_RETRY_FACTORS``). A step too long for a fast
 motion, not the physics, fails most fast sequences that fail: at the fine size more sweeps or
 coarse corrections per substep do not pass the runs, more substeps do. H100, the templates'
 runs: at the coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (not the same
@@ -53,15 +53,14 @@ no count: the skinned body's own skin within 5 cm of the trousers' worst edge is
 48 % (90th percentile) and up to 78 % (linear blend skinning at the crotch), and a straight
 skirt's hem cannot span a running stride."""
 
-FINE_RETRY_FACTORS = (5.0 / 3.0, 2.0, 3.0)
+FINE_RETRY_FACTORS: tuple[float, ...] = ()
 """The retries of a garment over ``FINE_GARMENT_VERTICES`` vertices (``SimulationConfig.retry_factors``
-None, automatic): ``RETRY_FACTORS`` and a third rung at 3x, 14 -> 23 -> 28 -> 42. H100, a fine
-dataset of 8 sampled walks and runs (every template): 6 accepted with the rung against 4
-without, in 160 s against 113 s (27 s per accepted sequence against 28); the dress's and the
-straight skirt's runs pass at 42, the trousers' runs fail at every count. On the default body 42
-substeps pass the fine tank-top and long-sleeve runs. At the coarse size the rung adds nothing
-(a dataset of 32 accepts 28 either way, in 16 % more time; the trousers' runs and a straight
-skirt's fail at 36 too), so coarse garments keep ``RETRY_FACTORS``."""
+None, automatic): none. Sewn fine garments that fail do so for reasons more substeps do not
+change (cloth pinched between body parts, sleeves tangling under the arm, a reference-fit
+t-shirt torn at the start of the motion): on an H200, a dataset of 32 sampled 4 s t-shirts and
+skirts (``bench_dataset --fit reference``) rescued 0 of 27 failing sequences at 23 substeps and 0
+of 26 at 28, and one of 8 1 s clips (body fit) rescued 1 of 6 over 23, 28 and 42, for 61 s
+against 122 s of first rung. A dataset that wants them sets ``[simulation] retry_factors``."""
 
 
 def default_retry_factors(vertices: int) -> tuple[float, ...]:

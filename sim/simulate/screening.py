@@ -1,5 +1,5 @@
 """Per-frame screening of a run for NaN and explosion: ``BatchScreen`` tests every instance of a
-batch at once; ``FrameChecker`` words the ``SimulationError`` of one flagged instance (the frame,
+batch at once on the device; ``FrameChecker`` words the ``SimulationError`` of one flagged instance (the frame,
 the phase and the first vertex or edge at fault)."""
 
 from __future__ import annotations
@@ -50,30 +50,47 @@ class FrameChecker:
 
 
 class BatchScreen:
-    """The ``FrameChecker`` tests vectorised over every instance of a batch at once; the
-    per-garment checker runs only on an instance the screen flags, to word the error."""
+    """The ``FrameChecker`` tests over every instance of a batch at once, on the batch's device
+    (``sim.quality_kernels.screen_particles_kernel`` / ``screen_edges_kernel``): a frame costs
+    two launches and an (I,) read back, where the same tests in numpy on the host took ~140 ms
+    for 32 fine garments (1.9M edges), about as long as the GPU's step. The per-garment checker
+    runs only on an instance the screen flags, to word the error."""
 
-    def __init__(self, tracks: list[Track], checkers: list[FrameChecker], cfg: SimulationConfig):
-        self.cfg = cfg
+    def __init__(self, tracks: list[Track], checkers: list[FrameChecker], cfg: SimulationConfig, device: str):
+        from sim.device import warp
+
+        wp = self.wp = warp()
+        self.cfg, self.device = cfg, device
         self.count = len(tracks)
-        self.inst = np.concatenate([np.full(tr.span.stop - tr.span.start, k) for k, tr in enumerate(tracks)])
-        self.edges = np.concatenate([c.edges + tr.span.start for c, tr in zip(checkers, tracks, strict=True)])
-        self.edge_inst = self.inst[self.edges[:, 0]]
-        self.rest_len = np.concatenate([c.rest_len for c in checkers])
+        inst = np.concatenate([np.full(tr.span.stop - tr.span.start, k) for k, tr in enumerate(tracks)])
+        edges = np.concatenate([c.edges + tr.span.start for c, tr in zip(checkers, tracks, strict=True)])
+        self.inst = wp.array(inst.astype(np.int32), dtype=int, device=device)
+        self.edges = wp.array(edges.astype(np.int32), dtype=wp.vec2i, device=device)
+        self.rest_len = wp.array(np.concatenate([c.rest_len for c in checkers]).astype(np.float32), dtype=float,
+                                 device=device)
+        self.x_prev = wp.empty(len(inst), dtype=wp.vec3, device=device)
+        self.roots = wp.empty(self.count, dtype=wp.vec3, device=device)
+        self.flags = wp.zeros(self.count, dtype=int, device=device)
 
-    def __call__(self, x: np.ndarray, x_prev: np.ndarray, roots: np.ndarray) -> np.ndarray:
-        """Instances (bool (I,)) with a non-finite, too distant, too fast vertex or a too long edge."""
-        cfg = self.cfg
-        with np.errstate(invalid="ignore", over="ignore"):
-            bad = ~np.isfinite(x).all(axis=1)
-            bad |= ~(np.linalg.norm(x - roots[self.inst], axis=1) <= cfg.max_distance)
-            bad |= ~(np.linalg.norm(x - x_prev, axis=1) * cfg.fps <= cfg.max_speed)
-            ratio = np.linalg.norm(x[self.edges[:, 1]] - x[self.edges[:, 0]], axis=1) / self.rest_len
-            bad_edge = ~(ratio <= cfg.max_stretch)
-        flags = np.zeros(self.count, bool)
-        flags[self.inst[bad]] = True
-        flags[self.edge_inst[bad_edge]] = True
-        return flags
+    def remember(self, x) -> None:
+        """Keep positions ``x`` (the device's Warp array) as the frame before the next screened one."""
+        self.wp.copy(self.x_prev, x)
+
+    def __call__(self, x, roots: np.ndarray) -> np.ndarray:
+        """Instances (bool (I,)) of the positions ``x`` (the device's Warp array) with a non-finite,
+        too distant (from ``roots`` (I, 3) [m]), too fast (since ``remember``) vertex or a too long
+        edge."""
+        from sim import quality_kernels as K
+
+        wp, cfg = self.wp, self.cfg
+        self.roots.assign(np.asarray(roots, np.float32))
+        self.flags.zero_()
+        wp.launch(K.screen_particles_kernel, dim=len(self.inst), device=self.device,
+                  inputs=[x, self.x_prev, self.inst, self.roots, float(cfg.max_distance), float(cfg.fps),
+                          float(cfg.max_speed)], outputs=[self.flags])
+        wp.launch(K.screen_edges_kernel, dim=len(self.edges), device=self.device,
+                  inputs=[x, self.edges, self.rest_len, self.inst, float(cfg.max_stretch)], outputs=[self.flags])
+        return self.flags.numpy() != 0
 
 
 def phase_label(tr: Track, frame: int, n_prelude: int, batched: bool) -> str:
