@@ -43,7 +43,8 @@ nothing is written. Every sequence gets a quality report (edge strain, fraction 
 vertices inside the body, self-intersections) judged against quality gates (--gate). A sequence
 that fails them, or stops, is simulated again at more substeps (--retry: 5/3 and then 2 times,
 20 and 24 of the automatic 12: fast motions need shorter steps than the default's; a garment
-over 10k vertices is not retried: more substeps rescue almost none of its failures); one that fails at the last is an error
+over 10k vertices is not retried: more substeps rescue almost none of its failures); one that
+fails at the last is an error
 (exit 1, nothing written) unless --allow-failed-gates. When the gates fail, the skinned body is
 checked for passing through itself within 5 cm of the garment (knee pits, groin, armpits at
 deep flexion; 'wrinkles body --self-crossings'): cloth caught there may fail the gates for the

@@ -220,7 +220,8 @@ def test_hinge_faces_hold_the_hinge_edge():
 def test_hinge_faces_match_a_directed_edge_table_on_a_garment():
     g = make_garment("t_shirt", load_body(), None, resolution="coarse")
     f = g.faces.astype(np.int64)
-    table = {(int(a), int(b)): t for t, row in enumerate(f) for a, b in zip(row, np.roll(row, -1))}
+    table = {(int(a), int(b)): t for t, row in enumerate(f)
+             for a, b in zip(row, np.roll(row, -1), strict=True)}
     hinges = build_hinges(g.faces)
     t_a, t_b = hinge_faces(g.faces, hinges)
     np.testing.assert_array_equal(t_a, [table[(a, b)] for a, b in hinges[:, 2:]])

@@ -52,7 +52,8 @@ def test_each_fault_flags_its_own_instance(batch, device):
     x[1 * n + 3, 1] = np.nan                               # 1: not finite
     x[2 * n + 7] += [0.0, 5.0, 0.0]                        # 2: 6 m from its root (and fast)
     x[3 * n:4 * n] = x0[3 * n:4 * n] + [0.0, 0.0, 1.9]     # 3: all at 57 m/s, too fast
-    x[4 * n + e[5, 1]] = x[4 * n + e[5, 0]] + 3.5 * (x0[4 * n + e[5, 1]] - x0[4 * n + e[5, 0]])  # 4: one edge 3.5x
+    a, b = 4 * n + e[5]
+    x[b] = x[a] + 3.5 * (x0[b] - x0[a])                   # 4: one edge 3.5x its rest length
     live = wp.array(x0, dtype=wp.vec3, device=device)
     screen.remember(live)
     live.assign(x)

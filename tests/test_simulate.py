@@ -102,7 +102,8 @@ def test_config_defaults_scale_substeps_and_sweeps_with_the_garment_size():
     assert SimulationConfig.from_dict(SimulationConfig().to_dict()).iterations == 0
     # a retry keeps the automatic sweeps
     import dataclasses
-    retry = dataclasses.replace(SimulationConfig(), substeps=SimulationConfig(retry_factors=[5 / 3]).retry_substeps(19_542)[0])
+    first_retry = SimulationConfig(retry_factors=[5 / 3]).retry_substeps(19_542)[0]
+    retry = dataclasses.replace(SimulationConfig(), substeps=first_retry)
     fine = retry.vbd_config(19_542).stepping
     assert (fine.substeps, fine.iterations) == (23, 8)
     assert simulator_defaults()["iterations"] == {"default": 5, "fine": 8}
@@ -129,7 +130,8 @@ def test_config_retry_ladder():
     assert SimulationConfig(retry_factors=[2.0]).retry_substeps(19_542) == (28,)
     assert SimulationConfig(retry_factors=[]).retry_substeps(19_542) == ()
     assert SimulationConfig(substeps=10).retry_substeps(1000) == (17, 20)
-    assert SimulationConfig(substeps=10, retry_factors=[5 / 3, 2.0, 3.0]).retry_substeps(19_542) == (17, 20, 30)
+    three = SimulationConfig(substeps=10, retry_factors=[5 / 3, 2.0, 3.0])
+    assert three.retry_substeps(19_542) == (17, 20, 30)
     assert SimulationConfig.from_dict(SimulationConfig().to_dict()).retry_factors is None
     assert SimulationConfig.from_dict(SimulationConfig(retry_factors=[1.5]).to_dict()).retry_factors == (1.5,)
     assert simulator_defaults()["retry_factors"] == {"default": [5.0 / 3.0, 2.0],

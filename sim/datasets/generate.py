@@ -139,8 +139,8 @@ class _Run:
         key = h.hexdigest()
         if key not in self.derivers:
             with phase("setup"):  # images are derived where they are read
-                self.derivers[key] = Deriver(garment, dataclasses.replace(self.cfg.derive, image_resolution=0),
-                                             device=self.device)
+                settings = dataclasses.replace(self.cfg.derive, image_resolution=0)
+                self.derivers[key] = Deriver(garment, settings, device=self.device)
             while len(self.derivers) > DERIVERS:
                 self.derivers.pop(next(iter(self.derivers)))
         return self.derivers[key]

@@ -1,6 +1,6 @@
 """Per-frame screening of a run for NaN and explosion: ``BatchScreen`` tests every instance of a
-batch at once on the device; ``FrameChecker`` words the ``SimulationError`` of one flagged instance (the frame,
-the phase and the first vertex or edge at fault)."""
+batch at once on the device; ``FrameChecker`` words the ``SimulationError`` of one flagged
+instance (the frame, the phase and the first vertex or edge at fault)."""
 
 from __future__ import annotations
 
@@ -66,8 +66,8 @@ class BatchScreen:
         edges = np.concatenate([c.edges + tr.span.start for c, tr in zip(checkers, tracks, strict=True)])
         self.inst = wp.array(inst.astype(np.int32), dtype=int, device=device)
         self.edges = wp.array(edges.astype(np.int32), dtype=wp.vec2i, device=device)
-        self.rest_len = wp.array(np.concatenate([c.rest_len for c in checkers]).astype(np.float32), dtype=float,
-                                 device=device)
+        rest_len = np.concatenate([c.rest_len for c in checkers]).astype(np.float32)
+        self.rest_len = wp.array(rest_len, dtype=float, device=device)
         self.x_prev = wp.empty(len(inst), dtype=wp.vec3, device=device)
         self.roots = wp.empty(self.count, dtype=wp.vec3, device=device)
         self.flags = wp.zeros(self.count, dtype=int, device=device)
@@ -89,7 +89,8 @@ class BatchScreen:
                   inputs=[x, self.x_prev, self.inst, self.roots, float(cfg.max_distance), float(cfg.fps),
                           float(cfg.max_speed)], outputs=[self.flags])
         wp.launch(K.screen_edges_kernel, dim=len(self.edges), device=self.device,
-                  inputs=[x, self.edges, self.rest_len, self.inst, float(cfg.max_stretch)], outputs=[self.flags])
+                  inputs=[x, self.edges, self.rest_len, self.inst, float(cfg.max_stretch)],
+                  outputs=[self.flags])
         return self.flags.numpy() != 0
 
 
