@@ -167,7 +167,7 @@ def main() -> None:
     ap.add_argument("--no-phases", action="store_true",
                     help="time the job without waiting for the device at every phase (no phase table)")
     ap.add_argument("--tag", default="",
-                    help="suffix of the result file's name (--tag _s4: dataset_cuda_s4.json)")
+                    help="suffix of the result file's name (--tag _ref32: dataset_cuda_ref32.json)")
     add_results_argument(ap)
     args = ap.parse_args()
 
