@@ -93,8 +93,8 @@ def simulation_alone(text: str, batch: int, device: str) -> dict:
     """The first group of the config TOML ``text`` (its first ``batch`` sequences, fine and coarse
     jobs in one batched model, as ``generate`` simulates them) simulated again on its own: the
     prelude and the clip, no garments made (the garment cache holds them), no judging, deriving
-    or writing. ``{"s", "fine_frames", "fine_frames_per_s"}``: the denominator of the
-    end-to-end ratio."""
+    or writing. ``{"s", "fine_frames", "fine_frames_per_s", "stopped"}`` (every fine job's clip
+    frames, stopped ones included): the denominator of the end-to-end ratio."""
     from dataclasses import replace
 
     from sim.bodies import load_body
@@ -114,9 +114,12 @@ def simulation_alone(text: str, batch: int, device: str) -> dict:
     results = simulate_batch(jobs, config=replace(cfg.simulation_config(), device=device), seed=group[0].seed,
                              failures="return")
     seconds = time.perf_counter() - t0
-    frames = sum(r.sequence.vertices.shape[0] for r, m in zip(results, meta, strict=True)
-                 if m[-1] == "fine" and hasattr(r, "sequence"))
-    return {"s": seconds, "fine_frames": frames, "fine_frames_per_s": frames / seconds}
+    # every fine job's clip, as the end-to-end "made" counts it: a sequence that stops is frozen in
+    # the batch and costs the solver its whole length all the same
+    fine = [r for r, m in zip(results, meta, strict=True) if m[-1] == "fine"]
+    frames = len(fine) * int(round(cfg.seconds * cfg.fps))
+    stopped = sum(not hasattr(r, "sequence") for r in fine)
+    return {"s": seconds, "fine_frames": frames, "fine_frames_per_s": frames / seconds, "stopped": stopped}
 
 
 def _derive_on_read(root: str, device: str) -> dict:

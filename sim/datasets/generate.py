@@ -128,16 +128,19 @@ class _Run:
     def deriver(self, garment):
         """The ``Deriver`` of ``garment``'s rest mesh (its base smoother's factorisation is ~2 s for
         a 20k-vertex garment), made once per mesh: sequences of a reference-fit garment share it.
-        Keeps the last ``DERIVERS`` meshes."""
+        Keeps the ``DERIVERS`` meshes used last."""
         import hashlib
 
         from sim.datasets.derive import Deriver
 
         h = hashlib.sha1()
         for a in (garment.rest_vertices, garment.faces, garment.uvs, garment.uv_faces, garment.face_layers):
-            h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
+            a = None if a is None else np.ascontiguousarray(a)
+            h.update(b"-" if a is None else f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
         key = h.hexdigest()
-        if key not in self.derivers:
+        if key in self.derivers:
+            self.derivers[key] = self.derivers.pop(key)  # the most recently used last
+        else:
             with phase("setup"):  # images are derived where they are read
                 settings = dataclasses.replace(self.cfg.derive, image_resolution=0)
                 self.derivers[key] = Deriver(garment, settings, device=self.device)
@@ -146,8 +149,9 @@ class _Run:
         return self.derivers[key]
 
 
-DERIVERS = 4
-"""Garment meshes whose ``Deriver`` a generation keeps (``_Run.deriver``)."""
+DERIVERS = 16
+"""Garment meshes whose ``Deriver`` a generation keeps (``_Run.deriver``): more than the templates,
+so a reference-fit dataset of every category derives each one's mesh once."""
 
 
 def generate(cfg: DatasetConfig, out: str | os.PathLike, *, shard: int = 0, shards: int = 1,

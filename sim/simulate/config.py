@@ -43,12 +43,10 @@ the walk's arms come down from the T-pose against 0.6 free). Hems and cuffs stay
 RETRY_FACTORS = (5.0 / 3.0, 2.0)
 """Substeps of the retries of a sequence that fails its quality gates or stops (NaN, explosion), as
 multiples of its run's substeps (``SimulationConfig.retry_factors``): 12 -> 20 -> 24 (a fine
-garment: none, ``FINE_RETRY_FACTORS``). A step too long for a fast
-motion, not the physics, fails most fast sequences that fail: at the fine size more sweeps or
-coarse corrections per substep do not pass the runs, more substeps do. H100, the templates'
-runs: at the coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (not the same
-5), so 6 of 8 pass within the ladder; at the fine size (~20k) none at 14, 1 at 23 and 2 at 28.
-Walks pass at the default (8 of 8, coarse). The trousers' and the straight skirt's runs pass at
+garment: none, ``FINE_RETRY_FACTORS``). A step too long for a fast motion, not the physics,
+fails most fast coarse sequences that fail. H100, the templates' runs (hull-fitted garments): at
+the coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (not the same 5), so 6
+of 8 pass within the ladder. Walks pass at the default (8 of 8, coarse). The trousers' and the straight skirt's runs pass at
 no count: the skinned body's own skin within 5 cm of the trousers' worst edge is stretched by
 48 % (90th percentile) and up to 78 % (linear blend skinning at the crotch), and a straight
 skirt's hem cannot span a running stride."""
