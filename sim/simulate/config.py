@@ -46,10 +46,10 @@ multiples of its run's substeps (``SimulationConfig.retry_factors``): 12 -> 20 -
 garment: none, ``FINE_RETRY_FACTORS``). A step too long for a fast motion, not the physics,
 fails most fast coarse sequences that fail. H100, the templates' runs (hull-fitted garments): at
 the coarse size 2 of 8 pass at 12 substeps, 3 at 16, 5 at 20 and 5 at 24 (not the same 5), so 6
-of 8 pass within the ladder. Walks pass at the default (8 of 8, coarse). The trousers' and the straight skirt's runs pass at
-no count: the skinned body's own skin within 5 cm of the trousers' worst edge is stretched by
-48 % (90th percentile) and up to 78 % (linear blend skinning at the crotch), and a straight
-skirt's hem cannot span a running stride."""
+of 8 pass within the ladder. Walks pass at the default (8 of 8, coarse). The trousers' and the
+straight skirt's runs pass at no count: the skinned body's own skin within 5 cm of the trousers'
+worst edge is stretched by 48 % (90th percentile) and up to 78 % (linear blend skinning at the
+crotch), and a straight skirt's hem cannot span a running stride."""
 
 FINE_RETRY_FACTORS: tuple[float, ...] = ()
 """The retries of a garment over ``FINE_GARMENT_VERTICES`` vertices (``SimulationConfig.retry_factors``
