@@ -107,6 +107,24 @@ def test_smoothing_a_15k_vertex_sheet_over_100_frames():
     assert np.abs(out - v).mean() < np.abs(seq - v).mean()
 
 
+def test_the_dense_factor_solves_as_the_sparse_one():
+    """The device path (a dense float64 Cholesky factor, here torch on the CPU) gives the sparse
+    LU's base surface to round-off, over more frames than one block."""
+    from sim.geometry import smoothing
+
+    rng = np.random.default_rng(5)
+    v, f, _ = sheet(14, 0.5, jitter=0.3)
+    v[:, 2] = 0.05 * np.sin(6 * v[:, 0])
+    seq = (v + 0.003 * rng.normal(size=(smoothing.SOLVE_BLOCK + 5,) + v.shape)).astype(np.float32)
+    sparse = BaseSmoother(v, f, length=0.05)
+    dense = BaseSmoother(v, f, length=0.05, device="cpu", dense=True)
+    assert dense.dense and not sparse.dense
+    np.testing.assert_allclose(dense.smooth(seq), sparse.smooth(seq), atol=1e-6)
+    np.testing.assert_allclose(dense.smooth(seq[0]), sparse.smooth(seq[0]), atol=1e-6)
+    # automatic: only a CUDA device factorises densely
+    assert not BaseSmoother(v, f, device="cpu").dense and not smoothing._dense_fits(len(v), None)
+
+
 def test_smoothing_input_errors():
     v, f, _ = sheet(5, 1.0)
     with pytest.raises(WrinklesInputError, match="positive"):

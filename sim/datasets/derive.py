@@ -36,7 +36,8 @@ class Deriver:
 
         self.garment = garment
         self.config = config
-        self.smoother = BaseSmoother(garment.rest_vertices, garment.faces, length=config.smoothing_length)
+        self.smoother = BaseSmoother(garment.rest_vertices, garment.faces, length=config.smoothing_length,
+                                     device=device)
         self.frames = SurfaceFrames.from_garment(garment, device=device)
         self.strain = GreenStrain(garment.rest_vertices, garment.faces, device=device)
         self.raster = None

@@ -128,22 +128,35 @@ def hessian_energy(rest_vertices: np.ndarray, faces: np.ndarray):
     return mass, B
 
 
+DENSE_MEMORY_SHARE = 0.25
+"""A CUDA device factorises the system densely (``BaseSmoother``) when twice its float64 matrix
+fits in this share of the device's free memory (17.8k vertices: 2 x 2.5 GB)."""
+
+
 class BaseSmoother:
     """Smooth wrinkled frames of one garment into its base surface (module docstring).
 
-    The system (M + t B) is built and factorised once from the rest mesh (scipy SuperLU,
-    minimum-degree ordering of AᵀA + A, which suits a symmetric matrix).
+    The system (M + t B) is built and factorised once from the rest mesh: on the host by scipy's
+    SuperLU (minimum-degree ordering of AᵀA + A, which suits a symmetric matrix), or on a CUDA
+    device as a dense float64 Cholesky factor (torch), solving a whole block of frames in two
+    dense triangular solves there: the sparse solves on the host took ~2.4 s for 120 frames of
+    a 17.8k-vertex garment (H200 host, ``bench_dataset``), longer than simulating them in a
+    batch. Both are direct float64 solves (equal to round-off: ``tests/test_smoothing.py``).
 
     Args:
         rest_vertices: rest positions [m], shape (V, 3).
         faces: (F, 3) int.
         length: smoothing length [m]: wavelengths well below it are removed, well above it kept
             (filter 1 / (1 + (length / λ)⁴) on a flat sheet).
+        device: where to solve: a CUDA device (Warp or torch name) factorises densely there when
+            it fits (``DENSE_MEMORY_SHARE``), anything else on the host.
+        dense: True: the dense factor on ``device`` (a torch device, "cpu" included); False: the
+            sparse one on the host; None: as ``device`` says.
     """
 
-    def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, *, length: float = SMOOTHING_LENGTH):
+    def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, *, length: float = SMOOTHING_LENGTH,
+                 device: str | None = None, dense: bool | None = None):
         import scipy.sparse as sp
-        from scipy.sparse.linalg import splu
 
         self.length = float(length)
         self.stiffness = smoothing_stiffness(length)
@@ -152,7 +165,39 @@ class BaseSmoother:
         # a vertex no face uses has no mass and no energy: give it its own position back
         self.mass = np.where(mass > 0, mass, max(float(mass.mean()), 1e-12))
         A = (sp.diags(self.mass) + self.stiffness * B).tocsc()
-        self._lu = splu(A, permc_spec="MMD_AT_PLUS_A")
+        self._lu = self._factor = None
+        if dense is None:
+            dense = _dense_fits(self.num_vertices, device)
+        if dense:
+            import torch
+
+            self._torch_device = torch.device(str(device or "cpu"))
+            coo = A.tocoo()  # made dense on the device: no V x V array on the host
+            dev = self._torch_device
+            full = torch.zeros(A.shape, dtype=torch.float64, device=dev)
+            full.index_put_((torch.as_tensor(coo.row.astype(np.int64), device=dev),
+                             torch.as_tensor(coo.col.astype(np.int64), device=dev)),
+                            torch.as_tensor(coo.data, dtype=torch.float64, device=dev), accumulate=True)
+            self._factor = torch.linalg.cholesky(full)
+            del full
+        else:
+            from scipy.sparse.linalg import splu
+
+            self._lu = splu(A, permc_spec="MMD_AT_PLUS_A")
+
+    @property
+    def dense(self) -> bool:
+        """Whether the system is solved with the dense factor (``device``)."""
+        return self._factor is not None
+
+    def _solve(self, rhs: np.ndarray) -> np.ndarray:
+        """A⁻¹ rhs for float64 (V, k) right-hand sides."""
+        if self._factor is None:
+            return self._lu.solve(np.asfortranarray(rhs))
+        import torch
+
+        b = torch.as_tensor(rhs, device=self._torch_device)
+        return torch.cholesky_solve(b, self._factor).cpu().numpy()
 
     def smooth(self, vertices: np.ndarray) -> np.ndarray:
         """Base surface of every frame.
@@ -167,14 +212,35 @@ class BaseSmoother:
         T, V = x.shape[:2]
         out = np.empty_like(x)
         m = self.mass[:, None]
-        for s in range(0, T, SOLVE_BLOCK):
-            blk = x[s:s + SOLVE_BLOCK].astype(np.float64)  # (k, V, 3)
+        block = SOLVE_BLOCK if self._factor is None else DENSE_SOLVE_BLOCK
+        for s in range(0, T, block):
+            blk = x[s:s + block].astype(np.float64)  # (k, V, 3)
             # remove each frame's centre first (reproduced exactly): round-off relative to the shape
             c = np.einsum("v,kvc->kc", self.mass, blk) / self.mass.sum()
             rhs = (blk - c[:, None]).transpose(1, 0, 2).reshape(V, -1) * m
-            sol = self._lu.solve(np.asfortranarray(rhs))
-            out[s:s + SOLVE_BLOCK] = sol.reshape(V, -1, 3).transpose(1, 0, 2) + c[:, None]
+            sol = self._solve(rhs)
+            out[s:s + block] = sol.reshape(V, -1, 3).transpose(1, 0, 2) + c[:, None]
         return out[0] if single else out
+
+
+DENSE_SOLVE_BLOCK = 256
+"""Frames per block of right-hand sides with the dense factor (~37 MB of float64 per 1000
+vertices on the device)."""
+
+
+def _dense_fits(vertices: int, device: str | None) -> bool:
+    """Whether ``BaseSmoother`` factorises densely on ``device``: a CUDA device with torch and
+    twice the float64 matrix within ``DENSE_MEMORY_SHARE`` of its free memory."""
+    if device is None or not str(device).startswith("cuda"):
+        return False
+    try:
+        import torch
+    except ImportError:  # pragma: no cover - torch is a dependency
+        return False
+    if not torch.cuda.is_available():
+        return False
+    free, _ = torch.cuda.mem_get_info(torch.device(str(device)))
+    return 2 * 8 * vertices**2 <= DENSE_MEMORY_SHARE * free
 
 
 def smooth_base(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray, *,
@@ -186,10 +252,10 @@ def smooth_base(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarr
         rest_vertices: rest positions [m], shape (V, 3).
         faces: (F, 3) int.
         length: smoothing length [m].
-        device: accepted for the interface every geometry function shares; the sparse solve
-            always runs on the host CPU (scipy).
+        device: a CUDA device solves there when the dense factor fits (``BaseSmoother``), else
+            the host (scipy).
 
     Returns:
         float32, the shape of ``vertices``.
     """
-    return BaseSmoother(rest_vertices, faces, length=length).smooth(vertices)
+    return BaseSmoother(rest_vertices, faces, length=length, device=device).smooth(vertices)
