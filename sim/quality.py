@@ -179,15 +179,34 @@ def inside_fraction(points: np.ndarray, body_vertices: np.ndarray, body_faces: n
     from sim import quality_kernels as K
 
     d = resolve_device(device)
-    T = points.shape[0]
-    inside = wp.empty(points.shape[1], dtype=int, device=d)
+    T, V = points.shape[:2]
+    chunks = _frame_chunks(points, d)
+    inside = wp.empty((min(T, FRAME_CHUNK), V), dtype=int, device=d)
     out = np.empty(T)
+    x = None
     for t, mesh in _body_meshes(body_vertices, body_faces, T, d):
-        x = wp.array(np.ascontiguousarray(points[t], np.float32), dtype=wp.vec3, device=d)
-        wp.launch(K.inside_mesh_kernel, dim=points.shape[1], inputs=[mesh.id, x, float(max_dist)],
-                  outputs=[inside], device=d)
-        out[t] = inside.numpy().mean()
+        k = t % FRAME_CHUNK
+        if k == 0:
+            x = next(chunks)
+        wp.launch(K.inside_mesh_kernel, dim=V, inputs=[mesh.id, x[k], float(max_dist)], outputs=[inside[k]],
+                  device=d)
+        if k == FRAME_CHUNK - 1 or t == T - 1:
+            out[t - k:t + 1] = inside.numpy()[:k + 1].mean(axis=1)
     return out
+
+
+FRAME_CHUNK = 64
+"""Frames a quality test moves to and from the device at once (``_frame_chunks``): one copy
+each way per chunk instead of a synchronising read per frame."""
+
+
+def _frame_chunks(points: np.ndarray, device: str):
+    """Consecutive ``FRAME_CHUNK``-frame blocks of ``points`` (T, V, 3) as (k, V) Warp vec3 arrays
+    on ``device``."""
+    wp = warp()
+    for s in range(0, points.shape[0], FRAME_CHUNK):
+        block = np.ascontiguousarray(points[s:s + FRAME_CHUNK], np.float32)
+        yield wp.array(block, dtype=wp.vec3, device=device)
 
 
 def push_outside(points: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, *,
@@ -232,16 +251,23 @@ def _edge_crossings(vertices: np.ndarray, faces: np.ndarray, device: str | None)
     edges = unique_edges(faces)
     edges_d = wp.array(edges, dtype=int, device=d)
     faces_d = wp.array(faces, dtype=int, device=d)
+    T = vertices.shape[0]
+    chunks = _frame_chunks(vertices, d)
     pts = wp.array(np.ascontiguousarray(vertices[0], np.float32), dtype=wp.vec3, device=d)
     mesh = wp.Mesh(points=pts, indices=wp.array(faces.ravel(), dtype=wp.int32, device=d))
-    per_edge = wp.empty(edges.shape[0], dtype=int, device=d)
-    for t in range(vertices.shape[0]):
+    per_edge = wp.empty((min(T, FRAME_CHUNK), edges.shape[0]), dtype=int, device=d)
+    x = None
+    for t in range(T):
+        k = t % FRAME_CHUNK
+        if k == 0:
+            x = next(chunks)
         if t > 0:
-            pts.assign(np.ascontiguousarray(vertices[t], np.float32))
+            wp.copy(pts, x[k])
             mesh.refit()
         wp.launch(K.self_intersection_kernel, dim=edges.shape[0],
-                  inputs=[mesh.id, pts, edges_d, faces_d], outputs=[per_edge], device=d)
-        yield per_edge.numpy()
+                  inputs=[mesh.id, pts, edges_d, faces_d], outputs=[per_edge[k]], device=d)
+        if k == FRAME_CHUNK - 1 or t == T - 1:
+            yield from per_edge.numpy()[:k + 1]
 
 
 def self_intersections(vertices: np.ndarray, faces: np.ndarray, *, device: str | None = None,

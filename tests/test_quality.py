@@ -235,3 +235,23 @@ def test_a_failure_in_the_prelude_is_named_as_such():
         "simulation failed 5 frames before the motion's first frame: while settling: x")
     assert str(SimulationError(-1, "x")) == "simulation failed 1 frame before the motion's first frame: x"
     assert SimulationError(-5, "x").frame == -5
+
+
+def test_sequences_longer_than_a_chunk_give_each_frames_own_result(device):
+    """Frames move to the device in blocks (``FRAME_CHUNK``): every frame of a longer sequence
+    gets what it gets alone, across the block boundary too."""
+    from sim.quality import FRAME_CHUNK
+
+    rng = np.random.default_rng(0)
+    v, f = grid(7)
+    T = FRAME_CHUNK + 3
+    seq = (v + 0.2 * rng.normal(size=(T,) + v.shape)).astype(np.float32)
+    per_frame = [int(self_intersections(seq[t:t + 1], f, device=device)[0]) for t in range(T)]
+    np.testing.assert_array_equal(self_intersections(seq, f, device=device), per_frame)
+    assert sum(per_frame) > 0
+    sphere = trimesh.creation.icosphere(2, radius=0.5)
+    body = (np.asarray(sphere.vertices)[None] * (1.0 + 0.02 * np.arange(T))[:, None, None]).astype(np.float32)
+    pts = (0.5 * rng.normal(size=(T, 40, 3))).astype(np.float32)
+    alone = [inside_fraction(pts[t:t + 1], body[t], sphere.faces, device=device)[0] for t in range(T)]
+    np.testing.assert_array_equal(inside_fraction(pts, body, sphere.faces, device=device), alone)
+    assert 0.0 < np.mean(alone) < 1.0
