@@ -147,6 +147,35 @@ def print_phases(name: str, phases: dict, wall: float) -> None:
     print(f"  {'(outside every phase)':<48} {rest:9.2f} s {'':11} {100.0 * rest / wall:6.1f} %")
 
 
+def run_case(text: str, name: str, args, device: str) -> dict:
+    """One case's figures: its dataset generated (``generate_in_temp``), and with ``--alone`` its
+    first group simulated alone (``simulation_alone``) for the end-to-end ratios."""
+    s, wall, manifest, phases, derive = generate_in_temp(text, f"bench_dataset:{name}", args.batch, device,
+                                                         phases=not args.no_phases)
+    seqs = list(manifest["sequences"].values())
+    frames = sum(e["frames"] for e in seqs)
+    made = s.accepted + s.rejected
+    clip = int(round(args.seconds * 30.0))  # every sequence's stored frames (accepted or not)
+    alone = simulation_alone(text, args.batch, device) if args.alone else None
+    return {
+        "sequences": made, "accepted": s.accepted, "rejected": s.rejected,
+        "rejections": {k: v["reasons"] for k, v in manifest["rejected"].items()},
+        "wall_s": wall, "sequences_per_hour": 3600.0 * made / wall,
+        "garment_frames_per_s": frames / wall if frames else 0.0,
+        "bytes_per_frame": s.bytes / max(frames, 1),
+        # the fields a reader derives from the stored ones, all at once, with their cache
+        "derive_on_read_s": derive["s"], "derived_bytes_per_frame": derive["bytes"] / max(frames, 1),
+        "vertices": sorted({e["vertices"] for e in seqs}),
+        "coarse_vertices": sorted({e["coarse_vertices"] for e in seqs if e.get("coarse_vertices")}),
+        "simulation_alone": alone,
+        # accepted fine frames per second over the same batch's simulation alone; "made" counts
+        # every sequence's clip, accepted or not (the engine's overhead without the gates)
+        "ratio_accepted": frames / wall / alone["fine_frames_per_s"] if alone else None,
+        "ratio_made": made * clip / wall / alone["fine_frames_per_s"] if alone else None,
+        "phases": phases,
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default="auto")
@@ -196,31 +225,8 @@ def main() -> None:
         fine = fine if args.resolution is None else args.resolution
         text = CONFIG.format(seed=0, sequences=args.sequences, seconds=args.seconds, fine=json.dumps(fine),
                              coarse=coarse, fit=args.fit)
-        s, wall, manifest, phases, derive = generate_in_temp(text, f"bench_dataset:{name}", args.batch,
-                                                             device,
-                                                     phases=not args.no_phases)
-        seqs = list(manifest["sequences"].values())
-        frames = sum(e["frames"] for e in seqs)
-        made = s.accepted + s.rejected
-        clip = int(round(args.seconds * 30.0))  # every sequence's stored frames (accepted or not)
-        alone = simulation_alone(text, args.batch, device) if args.alone else None
-        fig[name] = {
-            "sequences": made, "accepted": s.accepted, "rejected": s.rejected,
-            "rejections": {k: v["reasons"] for k, v in manifest["rejected"].items()},
-            "wall_s": wall, "sequences_per_hour": 3600.0 * made / wall,
-            "garment_frames_per_s": frames / wall if frames else 0.0,
-            "bytes_per_frame": s.bytes / max(frames, 1),
-            # the fields a reader derives from the stored ones, all at once, with their cache
-            "derive_on_read_s": derive["s"], "derived_bytes_per_frame": derive["bytes"] / max(frames, 1),
-            "vertices": sorted({e["vertices"] for e in seqs}),
-            "coarse_vertices": sorted({e["coarse_vertices"] for e in seqs if e.get("coarse_vertices")}),
-            "simulation_alone": alone,
-            # accepted fine frames per second over the same batch's simulation alone; "made" counts
-            # every sequence's clip, accepted or not (the engine's overhead without the gates)
-            "ratio_accepted": frames / wall / alone["fine_frames_per_s"] if alone else None,
-            "ratio_made": made * clip / wall / alone["fine_frames_per_s"] if alone else None,
-            "phases": phases,
-        }
+        fig[name] = run_case(text, name, args, device)
+        phases, wall = fig[name]["phases"], fig[name]["wall_s"]
         print(name, json.dumps({k: v for k, v in fig[name].items() if k != "phases"}), flush=True)
         if phases:
             print_phases(name, phases, wall)

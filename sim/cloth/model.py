@@ -21,6 +21,7 @@ bending coupling between them is a Jacobi step, every other coupling Gauss-Seide
 from __future__ import annotations
 
 import collections
+import hashlib
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -253,7 +254,7 @@ class ClothModelBuilder:
         n = parts.pop("particle_count")
         faces, hinges = parts["faces"], parts["hinges"]
         colors = np.concatenate([ins.colors for ins in self._instances])
-        adjacency = _adjacency(n, faces, hinges, colors, parts["particle_instance"])
+        adjacency = _adjacency(self._instances, parts)
         # merge per-instance colourings by colour index (see module docstring)
         color_order = np.argsort(colors, kind="stable").astype(np.int32)
         counts = np.bincount(colors)
@@ -283,13 +284,13 @@ def _stack_instances(instances: list[_Instance], contact_offset: float = 0.0) ->
         m = ins.material
         nv = len(ins.vertices)
         cols["starts"].append(offset)
-        dinv, a = triangle_rest_data(ins.rest, ins.faces) if ins.flat is None else flat_rest_data(ins.flat)
+        mesh = mesh_parts(ins)
+        dinv, a = mesh["dinv"], mesh["area"]
         cols["particle_q"].append(ins.vertices)
         cols["particle_rest"].append(ins.rest)
-        panel, flat = pattern_positions(nv, ins.faces, ins.flat)
-        cols["particle_panel"].append(panel)
-        cols["particle_flat"].append(flat)
-        cols["particle_mass"].append(m.density * lumped_areas(nv, ins.faces, a, ins.layers))
+        cols["particle_panel"].append(mesh["panel"])
+        cols["particle_flat"].append(mesh["flat"])
+        cols["particle_mass"].append(m.density * mesh["lumped"])
         cols["particle_flags"].append(ins.pinned.astype(np.int32))
         cols["particle_instance"].append(np.full(nv, k, dtype=np.int32))
         cols["faces"].append(ins.faces + offset)
@@ -300,9 +301,9 @@ def _stack_instances(instances: list[_Instance], contact_offset: float = 0.0) ->
         cols["tri_damping"].append(np.full(len(a), m.damping))
         if len(ins.hinges):
             cols["hinges"].append(ins.hinges + offset)
-            cols["edge_rest_angle"].append(hinge_rest_angles(ins))
-            cols["edge_stiffness"].append(hinge_factors(ins.rest, ins.faces, ins.hinges, a, ins.layers,
-                                                        m.bending))
+            cols["edge_rest_angle"].append(mesh["rest_angle"])
+            mean_layers, edge_len2, pair_area = mesh["hinge"]  # hinge_factors at the material's bending
+            cols["edge_stiffness"].append(m.bending * mean_layers * 3.0 * edge_len2 / pair_area)
             cols["edge_damping"].append(np.full(len(ins.hinges), m.damping))
         cols["instance_thickness"].append(m.thickness + contact_offset)
         cols["instance_friction"].append(m.friction)
@@ -327,30 +328,94 @@ def _stack_instances(instances: list[_Instance], contact_offset: float = 0.0) ->
     return out
 
 
-def _adjacency(n: int, faces: np.ndarray, hinges: np.ndarray, colors: np.ndarray,
-               particle_instance: np.ndarray) -> dict[str, tuple]:
+def _adjacency(instances: list[_Instance], parts: dict[str, Any]) -> dict[str, tuple]:
     """Vertex -> (triangle, corner), vertex -> (hinge, slot) and vertex -> (mesh edge, end) CSR
     adjacency (``local`` columns packed with the same-coloured vertices, ``local_packed``), every
     mesh edge (boundary included, for edge-edge self-contact) and the instance of every triangle
-    and mesh edge, as ``ClothModel`` field -> (numpy array, Warp dtype)."""
+    and mesh edge, as ``ClothModel`` field -> (numpy array, Warp dtype). Instances do not share
+    vertices, so each is its mesh's own adjacency (``mesh_parts``) with its vertices, triangles,
+    hinges and edges counted after the instances before it."""
     wp = warp()
-    tri_ids = np.repeat(np.arange(len(faces)), 3)
-    vt = _csr(n, faces.reshape(-1), [tri_ids, np.tile(np.arange(3), len(faces))])
-    edge_ids = np.repeat(np.arange(len(hinges)), 4)
-    ve = _csr(n, hinges.reshape(-1).astype(np.int64), [edge_ids, np.tile(np.arange(4), len(hinges))])
-    ve = (*ve[:2], local_packed(colors, hinges.reshape(-1, 4), ve))
-    vt = (*vt[:2], local_packed(colors, faces, vt))
-    me_all = mesh_edges(faces)
-    me_ids = np.repeat(np.arange(len(me_all)), 2)
-    vme = _csr(n, me_all.reshape(-1).astype(np.int64), [me_ids, np.tile(np.arange(2), len(me_all))])
+    starts = parts["instance_starts"]
+    meshes = [mesh_parts(ins) for ins in instances]
+    sizes = {"vertex_tri": [len(ins.faces) for ins in instances],
+             "vertex_edge": [len(ins.hinges) for ins in instances],
+             "vertex_mesh_edge": [len(mesh["mesh_edges"]) for mesh in meshes]}
     out = {}
-    for prefix, csr in (("vertex_tri", vt), ("vertex_edge", ve), ("vertex_mesh_edge", vme)):
-        for suffix, a in zip(("offsets", "ids", "local"), csr, strict=True):
-            out[f"{prefix}_{suffix}"] = (a, wp.int32)
+    for name, counts in sizes.items():
+        stacked = _stacked_csr([mesh[name] for mesh in meshes], counts)
+        for suffix, a in zip(("offsets", "ids", "local"), stacked, strict=True):
+            out[f"{name}_{suffix}"] = (a, wp.int32)
+    me_all = np.concatenate([mesh["mesh_edges"] + starts[k] for k, mesh in enumerate(meshes)])
     out["mesh_edge_indices"] = (me_all.astype(np.int32).reshape(-1, 2), wp.vec2i)
-    out["tri_instance"] = (particle_instance[faces[:, 0]].astype(np.int32), wp.int32)
-    out["mesh_edge_instance"] = (particle_instance[me_all[:, 0]].astype(np.int32), wp.int32)
+    out["tri_instance"] = (parts["particle_instance"][parts["faces"][:, 0]].astype(np.int32), wp.int32)
+    out["mesh_edge_instance"] = (parts["particle_instance"][me_all[:, 0]].astype(np.int32), wp.int32)
     return out
+
+
+def _stacked_csr(blocks: list[tuple[np.ndarray, ...]], counts: list[int]) -> tuple[np.ndarray, ...]:
+    """One CSR (offsets, ids, local; int32) of the block-diagonal stack of per-instance CSRs
+    ``blocks``: instance k's rows after the rows before it, its ids after the ``counts`` of
+    primitives before it."""
+    offsets, ids, local = [], [], []
+    entries = primitives = 0
+    for (o, i, loc), count in zip(blocks, counts, strict=True):
+        offsets.append(np.asarray(o[:-1], np.int64) + entries)
+        ids.append(np.asarray(i, np.int64) + primitives)
+        local.append(loc)
+        entries += len(i)
+        primitives += count
+    return (np.concatenate([*offsets, [entries]]).astype(np.int32), np.concatenate(ids).astype(np.int32),
+            np.concatenate(local).astype(np.int32))
+
+
+MESH_CACHE = 32
+"""Meshes whose ``mesh_parts`` a process keeps (least recently used dropped first)."""
+
+_MESH_PARTS: collections.OrderedDict = collections.OrderedDict()
+
+
+def mesh_parts(ins: _Instance) -> dict[str, Any]:
+    """What an instance's model arrays take from its mesh alone (rest shape, faces, hinges,
+    colours, fabric layers, sewing pattern), in the mesh's own indices: rest ``Dm^-1`` and areas,
+    pattern positions, lumped areas, hinge rest angles and ``hinge_pieces``, and the vertex ->
+    triangle / hinge / mesh-edge CSR adjacency with its mesh edges. Made once per mesh content
+    (a batch of sequences of one garment adds its mesh many times: a reference-fit dataset's
+    group of 32 fine and 32 coarse instances has two meshes)."""
+    key = _mesh_key(ins)
+    if key in _MESH_PARTS:
+        _MESH_PARTS.move_to_end(key)
+        return _MESH_PARTS[key]
+    nv, f, h = len(ins.rest), ins.faces, ins.hinges
+    dinv, a = triangle_rest_data(ins.rest, f) if ins.flat is None else flat_rest_data(ins.flat)
+    panel, flat = pattern_positions(nv, f, ins.flat)
+    p: dict[str, Any] = {"dinv": dinv, "area": a, "panel": panel, "flat": flat,
+                         "lumped": lumped_areas(nv, f, a, ins.layers)}
+    if len(h):
+        p["rest_angle"] = hinge_rest_angles(ins)
+        p["hinge"] = hinge_pieces(ins.rest, f, h, a, ins.layers)
+    vt = _csr(nv, f.reshape(-1), [np.repeat(np.arange(len(f)), 3), np.tile(np.arange(3), len(f))])
+    p["vertex_tri"] = (*vt[:2], local_packed(ins.colors, f, vt))
+    ve = _csr(nv, h.reshape(-1).astype(np.int64),
+              [np.repeat(np.arange(len(h)), 4), np.tile(np.arange(4), len(h))])
+    p["vertex_edge"] = (*ve[:2], local_packed(ins.colors, h.reshape(-1, 4), ve))
+    me = mesh_edges(f)
+    p["mesh_edges"] = me
+    p["vertex_mesh_edge"] = _csr(nv, me.reshape(-1).astype(np.int64),
+                                 [np.repeat(np.arange(len(me)), 2), np.tile(np.arange(2), len(me))])
+    _MESH_PARTS[key] = p
+    while len(_MESH_PARTS) > MESH_CACHE:
+        _MESH_PARTS.popitem(last=False)
+    return p
+
+
+def _mesh_key(ins: _Instance) -> str:
+    """The content of what ``mesh_parts`` reads from an instance (arrays with dtype and shape)."""
+    h = hashlib.sha1()
+    for a in (ins.rest, ins.faces, ins.hinges, ins.colors, ins.layers, ins.flat, ins.panels):
+        a = None if a is None else np.ascontiguousarray(a)
+        h.update(b"-" if a is None else f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
+    return h.hexdigest()
 
 
 def _warp_dtypes() -> dict[str, Any]:
@@ -403,9 +468,17 @@ def hinge_factors(rest: np.ndarray, faces: np.ndarray, hinges: np.ndarray, areas
     """Each hinge's stiffness ``k_b n 3 |e|^2 / (A_1 + A_2)`` (rest shape; Grinspun et al. 2003),
     ``n`` the mean fabric layers of its two faces, for a bending stiffness ``bending`` [N m]
     (1: the factor of ``k_b``)."""
+    mean_layers, edge_len2, pair_area = hinge_pieces(rest, faces, hinges, areas, layers)
+    return bending * mean_layers * 3.0 * edge_len2 / pair_area
+
+
+def hinge_pieces(rest: np.ndarray, faces: np.ndarray, hinges: np.ndarray, areas: np.ndarray,
+                 layers: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per hinge, what ``hinge_factors`` takes from the mesh: the mean fabric layers of its two
+    faces, its squared rest length [m^2] and the sum of its faces' rest areas [m^2]."""
     edge_len2 = np.sum((rest[hinges[:, 3]] - rest[hinges[:, 2]]) ** 2, axis=1)
     t_a, t_b = hinge_faces(faces, hinges)
-    return bending * (0.5 * (layers[t_a] + layers[t_b])) * 3.0 * edge_len2 / (areas[t_a] + areas[t_b])
+    return 0.5 * (layers[t_a] + layers[t_b]), edge_len2, areas[t_a] + areas[t_b]
 
 
 def hinge_faces(faces: np.ndarray, hinges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
