@@ -267,7 +267,7 @@ def _edge_crossings(vertices: np.ndarray, faces: np.ndarray, device: str | None)
         wp.launch(K.self_intersection_kernel, dim=edges.shape[0],
                   inputs=[mesh.id, pts, edges_d, faces_d], outputs=[per_edge[k]], device=d)
         if k == FRAME_CHUNK - 1 or t == T - 1:
-            yield from per_edge.numpy()[:k + 1]
+            yield from per_edge.numpy()[:k + 1].copy()  # rows the next block cannot overwrite
 
 
 def self_intersections(vertices: np.ndarray, faces: np.ndarray, *, device: str | None = None,

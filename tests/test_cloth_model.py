@@ -53,6 +53,9 @@ def test_a_batch_of_repeated_meshes_matches_the_whole_batch_computation(garments
     M._MESH_PARTS.clear()
     cold = build(garments)
     assert len(M._MESH_PARTS) == 2  # the t-shirt's parts serve its two instances
+    shared = next(iter(M._MESH_PARTS.values()))
+    with pytest.raises(ValueError, match="read-only"):
+        shared["area"][0] = 1.0  # shared by every model of the mesh: nobody writes into it
     want = stacked_adjacency(cold)
     for name, ref in want.items():
         np.testing.assert_array_equal(getattr(cold, name).numpy().reshape(ref.shape), ref, err_msg=name)

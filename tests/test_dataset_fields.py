@@ -173,3 +173,31 @@ def test_dataset_derive_fills_the_cache_of_every_sequence_once(tmp_path, capsys)
     cached = S.SequenceFile(tmp_path / FD.DERIVED_DIR / "seq-00001.safetensors")
     assert sorted(cached.keys()) == sorted(FD.FINE_DERIVED)  # no images at resolution 0, no coarse
     assert main(["dataset", "derive", str(tmp_path), "--split", "nope", "-q"]) == 2
+
+
+def test_a_generation_keeps_its_dense_smoothers_within_the_device_budget(monkeypatch):
+    """The derivers a generation keeps (one per garment mesh): at most ``DERIVERS``, and dense
+    base smoothers on a GPU only while their factors fit the device's budget, the least recently
+    used dropped first and the newest kept."""
+    from types import SimpleNamespace
+
+    import sim.geometry.smoothing as smoothing
+    from sim.datasets import generate as G
+    from sim.datasets.config import DatasetConfig
+
+    run = G._Run(DatasetConfig(), None, None, None, "cpu", G.GenerateSummary(), print)
+
+    def fake(nbytes):
+        return SimpleNamespace(smoother=SimpleNamespace(device_bytes=nbytes))
+
+    run.derivers.update({f"host{k}": fake(0) for k in range(G.DERIVERS + 3)})
+    run._evict()
+    assert list(run.derivers) == [f"host{k}" for k in range(3, G.DERIVERS + 3)]
+    monkeypatch.setattr(smoothing, "dense_budget", lambda device: 10)
+    run.derivers.clear()
+    run.derivers.update({"a": fake(4), "b": fake(4), "c": fake(4)})
+    run._evict()
+    assert list(run.derivers) == ["b", "c"]
+    run.derivers.update({"huge": fake(50)})
+    run._evict()
+    assert list(run.derivers) == ["huge"]

@@ -250,11 +250,12 @@ class ClothModelBuilder:
             raise ValueError("ClothModelBuilder.finalize: no cloth instances were added")
         wp = warp()
         d = resolve_device(device)
-        parts = _stack_instances(self._instances, self.contact_offset)
+        meshes = [mesh_parts(ins) for ins in self._instances]  # each mesh's own, made once
+        parts = _stack_instances(self._instances, meshes, self.contact_offset)
         n = parts.pop("particle_count")
         faces, hinges = parts["faces"], parts["hinges"]
         colors = np.concatenate([ins.colors for ins in self._instances])
-        adjacency = _adjacency(self._instances, parts)
+        adjacency = _adjacency(self._instances, meshes, parts)
         # merge per-instance colourings by colour index (see module docstring)
         color_order = np.argsort(colors, kind="stable").astype(np.int32)
         counts = np.bincount(colors)
@@ -274,17 +275,18 @@ class ClothModelBuilder:
         )
 
 
-def _stack_instances(instances: list[_Instance], contact_offset: float = 0.0) -> dict[str, Any]:
-    """The instances' per-particle, per-triangle, per-hinge and per-instance arrays, stacked in
-    instance order (float32 / int32 numpy), with ``particle_count``, ``instance_starts`` and the
-    stacked ``faces`` and ``hinges`` (global vertex indices)."""
+def _stack_instances(instances: list[_Instance], meshes: list[dict[str, Any]],
+                     contact_offset: float = 0.0) -> dict[str, Any]:
+    """The instances' per-particle, per-triangle, per-hinge and per-instance arrays (from their
+    materials and their meshes' ``mesh_parts``, ``meshes``), stacked in instance order (float32 /
+    int32 numpy), with ``particle_count``, ``instance_starts`` and the stacked ``faces`` and
+    ``hinges`` (global vertex indices)."""
     cols: dict[str, list] = collections.defaultdict(list)
     offset = 0
-    for k, ins in enumerate(instances):
+    for k, (ins, mesh) in enumerate(zip(instances, meshes, strict=True)):
         m = ins.material
         nv = len(ins.vertices)
         cols["starts"].append(offset)
-        mesh = mesh_parts(ins)
         dinv, a = mesh["dinv"], mesh["area"]
         cols["particle_q"].append(ins.vertices)
         cols["particle_rest"].append(ins.rest)
@@ -328,16 +330,16 @@ def _stack_instances(instances: list[_Instance], contact_offset: float = 0.0) ->
     return out
 
 
-def _adjacency(instances: list[_Instance], parts: dict[str, Any]) -> dict[str, tuple]:
+def _adjacency(instances: list[_Instance], meshes: list[dict[str, Any]],
+               parts: dict[str, Any]) -> dict[str, tuple]:
     """Vertex -> (triangle, corner), vertex -> (hinge, slot) and vertex -> (mesh edge, end) CSR
     adjacency (``local`` columns packed with the same-coloured vertices, ``local_packed``), every
     mesh edge (boundary included, for edge-edge self-contact) and the instance of every triangle
     and mesh edge, as ``ClothModel`` field -> (numpy array, Warp dtype). Instances do not share
-    vertices, so each is its mesh's own adjacency (``mesh_parts``) with its vertices, triangles,
-    hinges and edges counted after the instances before it."""
+    vertices, so each is its mesh's own adjacency (``meshes``: each instance's ``mesh_parts``)
+    with its vertices, triangles, hinges and edges counted after the instances before it."""
     wp = warp()
     starts = parts["instance_starts"]
-    meshes = [mesh_parts(ins) for ins in instances]
     sizes = {"vertex_tri": [len(ins.faces) for ins in instances],
              "vertex_edge": [len(ins.hinges) for ins in instances],
              "vertex_mesh_edge": [len(mesh["mesh_edges"]) for mesh in meshes]}
@@ -403,6 +405,8 @@ def mesh_parts(ins: _Instance) -> dict[str, Any]:
     p["mesh_edges"] = me
     p["vertex_mesh_edge"] = _csr(nv, me.reshape(-1).astype(np.int64),
                                  [np.repeat(np.arange(len(me)), 2), np.tile(np.arange(2), len(me))])
+    for a in (v for value in p.values() for v in (value if isinstance(value, tuple) else (value,))):
+        a.setflags(write=False)  # shared by every model the mesh goes into
     _MESH_PARTS[key] = p
     while len(_MESH_PARTS) > MESH_CACHE:
         _MESH_PARTS.popitem(last=False)

@@ -30,6 +30,7 @@ class Deriver:
     """
 
     def __init__(self, garment, config: DeriveConfig, *, device: str | None = None):
+        from sim.device import resolve_device, warp
         from sim.geometry.frames import SurfaceFrames
         from sim.geometry.smoothing import BaseSmoother
         from sim.geometry.strain import GreenStrain
@@ -37,7 +38,7 @@ class Deriver:
         self.garment = garment
         self.config = config
         self.smoother = BaseSmoother(garment.rest_vertices, garment.faces, length=config.smoothing_length,
-                                     device=device)
+                                     device=str(warp().get_device(resolve_device(device))))  # "cuda:N"
         self.frames = SurfaceFrames.from_garment(garment, device=device)
         self.strain = GreenStrain(garment.rest_vertices, garment.faces, device=device)
         self.raster = None

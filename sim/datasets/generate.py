@@ -144,9 +144,28 @@ class _Run:
             with phase("setup"):  # images are derived where they are read
                 settings = dataclasses.replace(self.cfg.derive, image_resolution=0)
                 self.derivers[key] = Deriver(garment, settings, device=self.device)
-            while len(self.derivers) > DERIVERS:
-                self.derivers.pop(next(iter(self.derivers)))
+            self._evict()
         return self.derivers[key]
+
+
+    def _evict(self) -> None:
+        """Drop the least recently used derivers beyond ``DERIVERS``, or while their dense
+        smoothers' device memory is over the device's ``dense_budget`` (the newest one stays)."""
+        from sim.geometry.smoothing import dense_budget
+
+        budget = dense_budget(str(warp_device(self.device)))
+        def held() -> int:
+            return sum(d.smoother.device_bytes for d in self.derivers.values())
+
+        while len(self.derivers) > DERIVERS or (len(self.derivers) > 1 and held() > budget):
+            self.derivers.pop(next(iter(self.derivers)))
+
+
+def warp_device(device: str):
+    """The Warp device ``device`` names ("cuda" as "cuda:N")."""
+    from sim.device import warp
+
+    return warp().get_device(device)
 
 
 DERIVERS = 16

@@ -130,7 +130,9 @@ def hessian_energy(rest_vertices: np.ndarray, faces: np.ndarray):
 
 DENSE_MEMORY_SHARE = 0.25
 """A CUDA device factorises the system densely (``BaseSmoother``) when twice its float64 matrix
-fits in this share of the device's free memory (17.8k vertices: 2 x 2.5 GB)."""
+fits in this share of the device's total memory (17.8k vertices: 2 x 2.5 GB). The total, not
+what is free now: the choice, and so the last bits of a base surface, depend on the device kind
+only, as a dataset's bytes must."""
 
 
 class BaseSmoother:
@@ -148,8 +150,9 @@ class BaseSmoother:
         faces: (F, 3) int.
         length: smoothing length [m]: wavelengths well below it are removed, well above it kept
             (filter 1 / (1 + (length / λ)⁴) on a flat sheet).
-        device: where to solve: a CUDA device (Warp or torch name) factorises densely there when
-            it fits (``DENSE_MEMORY_SHARE``), anything else on the host.
+        device: where to solve: a CUDA device with its ordinal ("cuda:0", as Warp and torch both
+            name it) factorises densely there when it fits (``DENSE_MEMORY_SHARE``), anything
+            else on the host.
         dense: True: the dense factor on ``device`` (a torch device, "cpu" included); False: the
             sparse one on the host; None: as ``device`` says.
     """
@@ -180,6 +183,8 @@ class BaseSmoother:
                             torch.as_tensor(coo.data, dtype=torch.float64, device=dev), accumulate=True)
             self._factor = torch.linalg.cholesky(full)
             del full
+            if self._torch_device.type == "cuda":  # the matrix's block back to the device, not torch's cache
+                torch.cuda.empty_cache()
         else:
             from scipy.sparse.linalg import splu
 
@@ -189,6 +194,11 @@ class BaseSmoother:
     def dense(self) -> bool:
         """Whether the system is solved with the dense factor (``device``)."""
         return self._factor is not None
+
+    @property
+    def device_bytes(self) -> int:
+        """Device memory the dense factor holds (0 on the host)."""
+        return 0 if self._factor is None else int(self._factor.numel() * self._factor.element_size())
 
     def _solve(self, rhs: np.ndarray) -> np.ndarray:
         """A⁻¹ rhs for float64 (V, k) right-hand sides."""
@@ -230,17 +240,25 @@ vertices on the device)."""
 
 def _dense_fits(vertices: int, device: str | None) -> bool:
     """Whether ``BaseSmoother`` factorises densely on ``device``: a CUDA device with torch and
-    twice the float64 matrix within ``DENSE_MEMORY_SHARE`` of its free memory."""
+    twice the float64 matrix within its ``dense_budget``."""
+    return 2 * 8 * vertices**2 <= dense_budget(device)
+
+
+def dense_budget(device: str | None) -> int:
+    """Bytes of ``device``'s memory dense factors may take: ``DENSE_MEMORY_SHARE`` of a CUDA
+    device's total (0 elsewhere, or without a torch that reaches it). A holder of several
+    smoothers (``sim.datasets.generate``) keeps their ``device_bytes`` within it."""
     if device is None or not str(device).startswith("cuda"):
-        return False
+        return 0
     try:
         import torch
-    except ImportError:  # pragma: no cover - torch is a dependency
-        return False
-    if not torch.cuda.is_available():
-        return False
-    free, _ = torch.cuda.mem_get_info(torch.device(str(device)))
-    return 2 * 8 * vertices**2 <= DENSE_MEMORY_SHARE * free
+
+        if not torch.cuda.is_available():
+            return 0
+        total = torch.cuda.get_device_properties(torch.device(str(device))).total_memory
+        return int(DENSE_MEMORY_SHARE * total)
+    except Exception:  # no torch, or one that cannot reach the device: the host solves
+        return 0
 
 
 def smooth_base(vertices: np.ndarray, rest_vertices: np.ndarray, faces: np.ndarray, *,
