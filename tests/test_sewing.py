@@ -137,3 +137,8 @@ def test_rest_edge_lengths_are_the_patterns_for_a_sewn_garment_and_the_meshs_oth
     plain = dataclasses.replace(g, uv_scale=None)
     sewn_lengths = np.linalg.norm(np.diff(g.rest_vertices[edges], axis=1)[:, 0], axis=1)
     np.testing.assert_allclose(plain.rest_edge_lengths(), sewn_lengths, rtol=1e-6)
+    # made once per mesh content, read-only: a copy of the garment in another material shares them
+    other = dataclasses.replace(g, material=get_material("jersey_knit"))
+    assert other.rest_edge_lengths() is lengths and not lengths.flags.writeable
+    doubled = dataclasses.replace(g, uv_scale=2.0 * g.uv_scale)
+    assert doubled.rest_edge_lengths()[k] == pytest.approx(2 * lengths[k])
