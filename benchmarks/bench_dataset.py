@@ -59,10 +59,12 @@ coarse = {coarse}
 """
 
 
-def generate_in_temp(text: str, source: str, batch: int, device: str, phases: bool = True):
+def generate_in_temp(text: str, source: str, batch: int, device: str, phases: bool = True, workers: int = 0):
     """Generate a dataset from the config TOML ``text`` in a temporary folder, removed after:
     (``GenerateSummary``, wall time [s] of the whole job, manifest, phases: ``PHASES.report()``
-    or None, the reader's derivation afterwards: ``{"s", "bytes"}``), each generated line printed."""
+    or None, the reader's derivation afterwards: ``{"s", "bytes"}``), each generated line printed.
+    ``workers`` > 0: on a local Dask cluster of that many worker processes, worker i on GPU i
+    (``sim.datasets.cluster``; no phases: they are timed in the workers)."""
     from sim.datasets import storage as S
     from sim.datasets.config import parse_config
     from sim.datasets.generate import generate
@@ -76,10 +78,17 @@ def generate_in_temp(text: str, source: str, batch: int, device: str, phases: bo
 
     root = tempfile.mkdtemp(prefix="wrinkles-bench-")
     try:
+        phases = phases and not workers
         if phases:
             PHASES.start(device)
         t0 = time.perf_counter()
-        s = generate(cfg, root, batch=batch, device=device, log=lambda m: print(m, flush=True))
+        if workers:
+            from sim.datasets.cluster import generate_on_cluster
+
+            s = generate_on_cluster(cfg, root, workers=workers, batch=batch, device=device,
+                                    log=lambda m: print(m, flush=True))
+        else:
+            s = generate(cfg, root, batch=batch, device=device, log=lambda m: print(m, flush=True))
         wall = time.perf_counter() - t0
         report = PHASES.report() if phases else None
         PHASES.stop()
@@ -151,7 +160,7 @@ def run_case(text: str, name: str, args, device: str) -> dict:
     """One case's figures: its dataset generated (``generate_in_temp``), and with ``--alone`` its
     first group simulated alone (``simulation_alone``) for the end-to-end ratios."""
     s, wall, manifest, phases, derive = generate_in_temp(text, f"bench_dataset:{name}", args.batch, device,
-                                                         phases=not args.no_phases)
+                                                         phases=not args.no_phases, workers=args.workers)
     seqs = list(manifest["sequences"].values())
     frames = sum(e["frames"] for e in seqs)
     made = s.accepted + s.rejected
@@ -189,6 +198,9 @@ def main() -> None:
     ap.add_argument("--fit", default="body", choices=("body", "reference"),
                     help="[garments] fit: body: a garment sewn for every sequence's shape; reference: one "
                     "per category on the mean shape, the body morphing to the sequence's shape in the settle")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="generate on a local Dask cluster of this many workers, worker i on GPU i (0: in "
+                    "this process; the speed-up over GPUs is the wall time of 1 worker over N's, same run)")
     ap.add_argument("--alone", type=int, default=1, choices=(0, 1),
                     help="1: also time the first group's simulation alone (prelude + clip) for the "
                     "end-to-end ratio")
@@ -234,6 +246,7 @@ def main() -> None:
         "machine": machine(device),
         "sizes": {"sequences": args.sequences, "seconds": args.seconds, "batch": args.batch, "fps": 30.0,
                   "image_resolution": 256, "resolution": args.resolution, "fit": args.fit,
+                  "workers": args.workers,
                   "edge_m": {c: {"coarse": TEMPLATES[c].coarse, "fine": TEMPLATES[c].fine}
                              for c in ("t_shirt", "straight_skirt")}},
         "warmup_s": warmup_s,

@@ -114,6 +114,21 @@ def test_dataset_generation(tmp_path):
                  "derive/base", "derive/wrinkle", "write"):
         assert phases[path]["calls"] >= 1 and phases[path]["s"] >= 0.0, path
     assert 0.0 < sum(p["self_s"] for p in phases.values()) <= case["wall_s"]
+    assert phases["simulation rung 1/steps/solver"]["calls"] >= 1  # the solver's share of the steps
+    # the only group simulated again alone: its 3 clip frames, and the job's wall time over its own
+    alone = case["simulation_alone"]
+    assert alone["fine_frames"] == 3 and alone["stopped"] in (0, 1)
+    assert case["ratio_made"] == pytest.approx(alone["s"] / case["wall_s"])
+
+
+@pytest.mark.slow
+def test_dataset_generation_on_a_local_cluster(tmp_path):
+    r = single_result("bench_dataset", "--device", "cpu", "--sequences", "2", "--seconds", "0.1",
+                      "--batch", "1", "--cases", "coarse", "--resolution", "0.07", "--warmup", "0",
+                      "--alone", "0", "--workers", "2", tmp_path=tmp_path)
+    case = r["figures"]["coarse"]
+    assert r["sizes"]["workers"] == 2 and case["sequences"] == 2
+    assert case["phases"] is None and case["ratio_made"] is None  # timed in the workers, not here
 
 
 @pytest.mark.slow
