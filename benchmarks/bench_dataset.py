@@ -59,6 +59,17 @@ coarse = {coarse}
 """
 
 
+def parse(text: str, source: str):
+    """The generator config of the TOML ``text`` (``source`` names it in errors)."""
+    from sim.datasets.config import parse_config
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover
+        import tomli as tomllib
+    return parse_config(tomllib.loads(text), source=source)
+
+
 def generate_in_temp(text: str, source: str, batch: int, device: str, phases: bool = True, workers: int = 0):
     """Generate a dataset from the config TOML ``text`` in a temporary folder, removed after:
     (``GenerateSummary``, wall time [s] of the whole job, manifest, phases: ``PHASES.report()``
@@ -66,15 +77,10 @@ def generate_in_temp(text: str, source: str, batch: int, device: str, phases: bo
     ``workers`` > 0: on a local Dask cluster of that many worker processes, worker i on GPU i
     (``sim.datasets.cluster``; no phases: they are timed in the workers)."""
     from sim.datasets import storage as S
-    from sim.datasets.config import parse_config
     from sim.datasets.generate import generate
-
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # pragma: no cover
-        import tomli as tomllib
-    cfg = parse_config(tomllib.loads(text), source=source)
     from sim.profiling import PHASES
+
+    cfg = parse(text, source)
 
     root = tempfile.mkdtemp(prefix="wrinkles-bench-")
     try:
@@ -107,16 +113,11 @@ def simulation_alone(text: str, batch: int, device: str) -> dict:
     from dataclasses import replace
 
     from sim.bodies import load_body
-    from sim.datasets.config import parse_config
     from sim.datasets.generate import group_jobs
     from sim.datasets.sampling import sample_sequences
     from sim.simulate import simulate_batch
 
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # pragma: no cover
-        import tomli as tomllib
-    cfg = parse_config(tomllib.loads(text), source="bench_dataset:alone")
+    cfg = parse(text, "bench_dataset:alone")
     group = sample_sequences(cfg)[:batch]
     jobs, meta = group_jobs(cfg, load_body(cfg.bodies.model), group, device)
     t0 = time.perf_counter()

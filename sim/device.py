@@ -61,6 +61,12 @@ def resolve_device(device: str | None = None) -> str:
     raise WrinklesInputError(f"--device {device}: unknown device (use auto, cpu, cuda or cuda:N)")
 
 
+def device_name(device: str | None = None) -> str:
+    """The full name of the Warp device ``device`` resolves to ("cuda:N" for "cuda" or "auto" on a
+    GPU machine, "cpu"), as torch names it too."""
+    return str(warp().get_device(resolve_device(device)))
+
+
 class SideStreams:
     """CUDA streams that fork from the device's current stream and join back into it, so
     independent latency-bound kernels of a step run side by side (in a CUDA graph captured on

@@ -180,33 +180,32 @@ def inside_fraction(points: np.ndarray, body_vertices: np.ndarray, body_faces: n
 
     d = resolve_device(device)
     T, V = points.shape[:2]
-    chunks = _frame_chunks(points, d)
     inside = wp.empty((min(T, FRAME_CHUNK), V), dtype=int, device=d)
     out = np.empty(T)
-    x = None
-    for t, mesh in _body_meshes(body_vertices, body_faces, T, d):
-        k = t % FRAME_CHUNK
-        if k == 0:
-            x = next(chunks)
-        wp.launch(K.inside_mesh_kernel, dim=V, inputs=[mesh.id, x[k], float(max_dist)], outputs=[inside[k]],
+    meshes = _body_meshes(body_vertices, body_faces, T, d)
+    for (t, mesh), (k, x, last) in zip(meshes, _frames_on(points, d), strict=True):
+        wp.launch(K.inside_mesh_kernel, dim=V, inputs=[mesh.id, x, float(max_dist)], outputs=[inside[k]],
                   device=d)
-        if k == FRAME_CHUNK - 1 or t == T - 1:
+        if last:
             out[t - k:t + 1] = inside.numpy()[:k + 1].mean(axis=1)
     return out
 
 
 FRAME_CHUNK = 64
-"""Frames a quality test moves to and from the device at once (``_frame_chunks``): one copy
-each way per chunk instead of a synchronising read per frame."""
+"""Frames a quality test moves to and from the device at once (``_frames_on``): one copy
+each way per block instead of a synchronising read per frame."""
 
 
-def _frame_chunks(points: np.ndarray, device: str):
-    """Consecutive ``FRAME_CHUNK``-frame blocks of ``points`` (T, V, 3) as (k, V) Warp vec3 arrays
-    on ``device``."""
+def _frames_on(points: np.ndarray, device: str):
+    """Each frame of ``points`` (T, V, 3) on ``device``, moved there ``FRAME_CHUNK`` frames at a
+    time: ``(k, x, last)``, x the frame (Warp vec3 (V,)), k its place in its block, ``last``
+    whether it ends the block (a caller reads a block's results back then)."""
     wp = warp()
     for s in range(0, points.shape[0], FRAME_CHUNK):
         block = np.ascontiguousarray(points[s:s + FRAME_CHUNK], np.float32)
-        yield wp.array(block, dtype=wp.vec3, device=device)
+        block = wp.array(block, dtype=wp.vec3, device=device)
+        for k in range(block.shape[0]):
+            yield k, block[k], k == block.shape[0] - 1
 
 
 def push_outside(points: np.ndarray, body_vertices: np.ndarray, body_faces: np.ndarray, *,
@@ -252,21 +251,16 @@ def _edge_crossings(vertices: np.ndarray, faces: np.ndarray, device: str | None)
     edges_d = wp.array(edges, dtype=int, device=d)
     faces_d = wp.array(faces, dtype=int, device=d)
     T = vertices.shape[0]
-    chunks = _frame_chunks(vertices, d)
     pts = wp.array(np.ascontiguousarray(vertices[0], np.float32), dtype=wp.vec3, device=d)
     mesh = wp.Mesh(points=pts, indices=wp.array(faces.ravel(), dtype=wp.int32, device=d))
     per_edge = wp.empty((min(T, FRAME_CHUNK), edges.shape[0]), dtype=int, device=d)
-    x = None
-    for t in range(T):
-        k = t % FRAME_CHUNK
-        if k == 0:
-            x = next(chunks)
+    for t, (k, x, last) in enumerate(_frames_on(vertices, d)):
         if t > 0:
-            wp.copy(pts, x[k])
+            wp.copy(pts, x)
             mesh.refit()
         wp.launch(K.self_intersection_kernel, dim=edges.shape[0],
                   inputs=[mesh.id, pts, edges_d, faces_d], outputs=[per_edge[k]], device=d)
-        if k == FRAME_CHUNK - 1 or t == T - 1:
+        if last:
             yield from per_edge.numpy()[:k + 1].copy()  # rows the next block cannot overwrite
 
 

@@ -7,8 +7,9 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 
+from sim.cloth import ClothModelBuilder
+from sim.garments.materials import get_material
 from sim.quality import unique_edges
 from sim.simulate import SimulationConfig
 from sim.simulate.screening import BatchScreen
@@ -28,25 +29,30 @@ def numpy_flags(x, x_prev, roots, inst, edges, rest, cfg) -> np.ndarray:
     return flags
 
 
-@pytest.fixture
-def batch():
+def batch(device):
+    """A model of six sheets (the screen reads its particle -> instance map and mesh edges), their
+    checkers' rest lengths, the sheets' positions and spans."""
     v, f = grid(6, 0.3)
     e = unique_edges(f)
     rest = np.linalg.norm(v[e[:, 1]] - v[e[:, 0]], axis=1)
     n, count = len(v), 6
-    tracks = [SimpleNamespace(span=slice(k * n, (k + 1) * n)) for k in range(count)]
-    checkers = [SimpleNamespace(edges=e, rest_len=rest) for _ in range(count)]
+    builder = ClothModelBuilder()
+    for _ in range(count):
+        builder.add_cloth(v, f, get_material("cotton"))
+    model = builder.finalize(device)
+    tracks = [SimpleNamespace(span=model.instance_slice(k)) for k in range(count)]
+    checkers = [SimpleNamespace(rest_len=rest) for _ in range(count)]
     x0 = np.concatenate([v + [0.0, 1.0, 0.0]] * count).astype(np.float32)
-    return tracks, checkers, x0, n, e, rest
+    return model, tracks, checkers, x0, n, e, rest
 
 
-def test_each_fault_flags_its_own_instance(batch, device):
+def test_each_fault_flags_its_own_instance(device):
     from sim.device import warp
 
     wp = warp()
-    tracks, checkers, x0, n, e, rest = batch
+    model, tracks, checkers, x0, n, e, rest = batch(device)
     cfg = SimulationConfig()
-    screen = BatchScreen(tracks, checkers, cfg, device)
+    screen = BatchScreen(model, checkers, cfg)
     roots = np.zeros((len(tracks), 3), np.float32)
     x = x0 + 0.01  # every vertex moves 1.7 cm in a frame: 0.5 m/s
     x[1 * n + 3, 1] = np.nan                               # 1: not finite

@@ -21,7 +21,6 @@ bending coupling between them is a Jacobi step, every other coupling Gauss-Seide
 from __future__ import annotations
 
 import collections
-import hashlib
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -30,6 +29,7 @@ import numpy as np
 from sim.cloth.pattern_distance import pattern_positions
 from sim.cloth.topology import mesh_topology
 from sim.device import resolve_device, warp
+from sim.memo import LRU, content_key, read_only
 from sim.types import face_layers_array
 
 
@@ -374,7 +374,7 @@ def _stacked_csr(blocks: list[tuple[np.ndarray, ...]], counts: list[int]) -> tup
 MESH_CACHE = 32
 """Meshes whose ``mesh_parts`` a process keeps (least recently used dropped first)."""
 
-_MESH_PARTS: collections.OrderedDict = collections.OrderedDict()
+_MESH_PARTS = LRU(MESH_CACHE)
 
 
 def mesh_parts(ins: _Instance) -> dict[str, Any]:
@@ -384,10 +384,11 @@ def mesh_parts(ins: _Instance) -> dict[str, Any]:
     triangle / hinge / mesh-edge CSR adjacency with its mesh edges. Made once per mesh content
     (a batch of sequences of one garment adds its mesh many times: a reference-fit dataset's
     group of 32 fine and 32 coarse instances has two meshes)."""
-    key = _mesh_key(ins)
-    if key in _MESH_PARTS:
-        _MESH_PARTS.move_to_end(key)
-        return _MESH_PARTS[key]
+    key = content_key(ins.rest, ins.faces, ins.hinges, ins.colors, ins.layers, ins.flat, ins.panels)
+    return _MESH_PARTS.get_or_make(key, lambda: _make_mesh_parts(ins))
+
+
+def _make_mesh_parts(ins: _Instance) -> dict[str, Any]:
     nv, f, h = len(ins.rest), ins.faces, ins.hinges
     dinv, a = triangle_rest_data(ins.rest, f) if ins.flat is None else flat_rest_data(ins.flat)
     panel, flat = pattern_positions(nv, f, ins.flat)
@@ -405,21 +406,10 @@ def mesh_parts(ins: _Instance) -> dict[str, Any]:
     p["mesh_edges"] = me
     p["vertex_mesh_edge"] = _csr(nv, me.reshape(-1).astype(np.int64),
                                  [np.repeat(np.arange(len(me)), 2), np.tile(np.arange(2), len(me))])
-    for a in (v for value in p.values() for v in (value if isinstance(value, tuple) else (value,))):
-        a.setflags(write=False)  # shared by every model the mesh goes into
-    _MESH_PARTS[key] = p
-    while len(_MESH_PARTS) > MESH_CACHE:
-        _MESH_PARTS.popitem(last=False)
+    for value in p.values():  # shared by every model the mesh goes into
+        for a in value if isinstance(value, tuple) else (value,):
+            read_only(a)
     return p
-
-
-def _mesh_key(ins: _Instance) -> str:
-    """The content of what ``mesh_parts`` reads from an instance (arrays with dtype and shape)."""
-    h = hashlib.sha1()
-    for a in (ins.rest, ins.faces, ins.hinges, ins.colors, ins.layers, ins.flat, ins.panels):
-        a = None if a is None else np.ascontiguousarray(a)
-        h.update(b"-" if a is None else f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
-    return h.hexdigest()
 
 
 def _warp_dtypes() -> dict[str, Any]:

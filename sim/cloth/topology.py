@@ -11,14 +11,13 @@ batch's run side by side on the host's cores (child processes), with the same re
 
 from __future__ import annotations
 
-import collections
-import hashlib
 import os
 from collections.abc import Sequence
 
 import numpy as np
 
 from sim.cloth.coloring import compact_coloring, vertex_adjacency, wheel_bound
+from sim.memo import LRU, content_key
 
 CACHE_SIZE = 64
 """Meshes whose topology ``mesh_topology`` keeps (least recently made dropped first)."""
@@ -26,7 +25,7 @@ PARALLEL_VERTICES = 20_000
 """A batch's new meshes are coloured in parallel processes from this many vertices in all
 (below, starting the processes costs more than it saves)."""
 
-_TOPOLOGY: collections.OrderedDict = collections.OrderedDict()
+_TOPOLOGY = LRU(CACHE_SIZE)
 
 
 def build_hinges(faces: np.ndarray) -> np.ndarray:
@@ -54,9 +53,8 @@ def build_hinges(faces: np.ndarray) -> np.ndarray:
     return np.asarray(hinges, dtype=np.int32).reshape(-1, 4)
 
 
-def _key(vertex_count: int, faces: np.ndarray, max_colors: int) -> tuple:
-    return (int(vertex_count), hashlib.sha1(np.ascontiguousarray(faces, np.int32).tobytes()).hexdigest(),
-            int(max_colors))
+def _key(vertex_count: int, faces: np.ndarray, max_colors: int) -> str:
+    return content_key(int(vertex_count), np.asarray(faces, np.int32), int(max_colors))
 
 
 def _compute(vertex_count: int, faces: np.ndarray, max_colors: int) -> tuple[np.ndarray, np.ndarray]:
@@ -65,13 +63,6 @@ def _compute(vertex_count: int, faces: np.ndarray, max_colors: int) -> tuple[np.
     colors = compact_coloring(vertex_adjacency(vertex_count, faces, no_hinges), max_colors=max_colors,
                               floor=wheel_bound(vertex_count, faces))
     return hinges, colors
-
-
-def _remember(key: tuple, value: tuple[np.ndarray, np.ndarray]) -> None:
-    _TOPOLOGY[key] = value
-    _TOPOLOGY.move_to_end(key)
-    while len(_TOPOLOGY) > CACHE_SIZE:
-        _TOPOLOGY.popitem(last=False)
 
 
 def mesh_topology(vertex_count: int, faces: np.ndarray, max_colors: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -105,7 +96,7 @@ def mesh_topologies(meshes: Sequence[tuple[int, np.ndarray]], max_colors: int = 
         hinges, colors = found[k] if k in found else _TOPOLOGY[k]
         out.append((hinges.copy(), colors.copy()))
     for k, v in found.items():
-        _remember(k, v)
+        _TOPOLOGY.put(k, v)
     return out
 
 

@@ -30,7 +30,7 @@ class Deriver:
     """
 
     def __init__(self, garment, config: DeriveConfig, *, device: str | None = None):
-        from sim.device import resolve_device, warp
+        from sim.device import device_name
         from sim.geometry.frames import SurfaceFrames
         from sim.geometry.smoothing import BaseSmoother
         from sim.geometry.strain import GreenStrain
@@ -38,7 +38,7 @@ class Deriver:
         self.garment = garment
         self.config = config
         self.smoother = BaseSmoother(garment.rest_vertices, garment.faces, length=config.smoothing_length,
-                                     device=str(warp().get_device(resolve_device(device))))  # "cuda:N"
+                                     device=device_name(device))
         self.frames = SurfaceFrames.from_garment(garment, device=device)
         self.strain = GreenStrain(garment.rest_vertices, garment.faces, device=device)
         self.raster = None

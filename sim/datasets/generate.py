@@ -27,6 +27,7 @@ from sim.datasets.config import DatasetConfig
 from sim.datasets.fields import DERIVE_META
 from sim.datasets.sampling import SequenceSpec, sample_sequences, select_indices
 from sim.errors import WrinklesInputError
+from sim.memo import LRU, content_key
 from sim.profiling import phase
 
 Log = Callable[[str], None]
@@ -123,49 +124,40 @@ class _Run:
     device: str
     summary: GenerateSummary
     log: Log
-    derivers: dict = dataclasses.field(default_factory=dict)
+    derivers: LRU = dataclasses.field(default_factory=lambda: LRU(DERIVERS))
 
     def deriver(self, garment):
         """The ``Deriver`` of ``garment``'s rest mesh (its base smoother's factorisation is ~2 s for
         a 20k-vertex garment), made once per mesh: sequences of a reference-fit garment share it.
         Keeps the ``DERIVERS`` meshes used last."""
-        import hashlib
+        g = garment
+        key = content_key(g.rest_vertices, g.faces, g.uvs, g.uv_faces, g.face_layers)
+        fresh = key not in self.derivers
+        made = self.derivers.get_or_make(key, lambda: self._new_deriver(garment))
+        if fresh:
+            self._evict()
+        return made
 
+    def _new_deriver(self, garment):
         from sim.datasets.derive import Deriver
 
-        h = hashlib.sha1()
-        for a in (garment.rest_vertices, garment.faces, garment.uvs, garment.uv_faces, garment.face_layers):
-            a = None if a is None else np.ascontiguousarray(a)
-            h.update(b"-" if a is None else f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
-        key = h.hexdigest()
-        if key in self.derivers:
-            self.derivers[key] = self.derivers.pop(key)  # the most recently used last
-        else:
-            with phase("setup"):  # images are derived where they are read
-                settings = dataclasses.replace(self.cfg.derive, image_resolution=0)
-                self.derivers[key] = Deriver(garment, settings, device=self.device)
-            self._evict()
-        return self.derivers[key]
-
+        with phase("setup"):  # images are derived where they are read
+            settings = dataclasses.replace(self.cfg.derive, image_resolution=0)
+            return Deriver(garment, settings, device=self.device)
 
     def _evict(self) -> None:
         """Drop the least recently used derivers beyond ``DERIVERS``, or while their dense
         smoothers' device memory is over the device's ``dense_budget`` (the newest one stays)."""
+        from sim.device import device_name
         from sim.geometry.smoothing import dense_budget
 
-        budget = dense_budget(str(warp_device(self.device)))
+        budget = dense_budget(device_name(self.device))
+
         def held() -> int:
             return sum(d.smoother.device_bytes for d in self.derivers.values())
 
-        while len(self.derivers) > DERIVERS or (len(self.derivers) > 1 and held() > budget):
-            self.derivers.pop(next(iter(self.derivers)))
-
-
-def warp_device(device: str):
-    """The Warp device ``device`` names ("cuda" as "cuda:N")."""
-    from sim.device import warp
-
-    return warp().get_device(device)
+        while len(self.derivers) > self.derivers.size or (len(self.derivers) > 1 and held() > budget):
+            self.derivers.popitem(last=False)
 
 
 DERIVERS = 16

@@ -183,16 +183,15 @@ def sew_patterns(jobs: list[SewingJob], *, config: SewingConfig | None = None,
 
 def _colliders(jobs: list[SewingJob], dev: str) -> list:
     """Each job's rest body as a collider, one per distinct body."""
-    import hashlib
-
     from sim.cloth import BodyCollider
+    from sim.memo import content_key
 
     made: dict[str, Any] = {}
     out = []
     for j in jobs:
         body = np.ascontiguousarray(j.body_vertices, np.float32)
         faces = np.ascontiguousarray(j.body_faces, np.int32)
-        key = hashlib.sha1(body.tobytes() + faces.tobytes()).hexdigest()
+        key = content_key(body, faces)
         if key not in made:
             made[key] = BodyCollider(body, faces, device=dev)
             made[key].set_frame(body, body)

@@ -8,11 +8,12 @@ import numpy as np
 
 from sim.errors import WrinklesInputError
 from sim.garments.materials import Material
+from sim.memo import LRU, content_key, read_only
 from sim.types import face_layers_array
 
 REST_LENGTHS_CACHE = 64
-"""Meshes whose ``Garment.rest_edge_lengths`` a process keeps (oldest dropped first)."""
-_REST_LENGTHS: dict[str, np.ndarray] = {}
+"""Meshes whose ``Garment.rest_edge_lengths`` a process keeps (least recently used dropped first)."""
+_REST_LENGTHS = LRU(REST_LENGTHS_CACHE)
 
 
 @dataclass(frozen=True)
@@ -103,20 +104,8 @@ class Garment:
         mean of its two sides), else between the ``rest_vertices``. Made once per mesh content
         (a batch's screen, its quality reports and a dataset's edge strain each ask for every
         sequence's: ~45 ms for 20k vertices on a 2-core host)."""
-        import hashlib
-
-        h = hashlib.sha1(f"{self.uv_scale}".encode())
-        for a in (self.rest_vertices, self.faces, self.uvs, self.uv_faces):
-            a = np.ascontiguousarray(a)
-            h.update(f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
-        key = h.hexdigest()
-        if key not in _REST_LENGTHS:
-            lengths = self._rest_edge_lengths()
-            lengths.setflags(write=False)
-            _REST_LENGTHS[key] = lengths
-            while len(_REST_LENGTHS) > REST_LENGTHS_CACHE:
-                _REST_LENGTHS.pop(next(iter(_REST_LENGTHS)))
-        return _REST_LENGTHS[key]
+        key = content_key(self.uv_scale, self.rest_vertices, self.faces, self.uvs, self.uv_faces)
+        return _REST_LENGTHS.get_or_make(key, lambda: read_only(self._rest_edge_lengths()))
 
     def _rest_edge_lengths(self) -> np.ndarray:
         from sim.quality import unique_edges

@@ -143,7 +143,7 @@ class _Batch:
         self.dt = 1.0 / cfg.fps
         with phase("screen"):
             self.checkers = [FrameChecker(tr.job.garment, cfg) for tr in tracks]
-            self.screen = BatchScreen(tracks, self.checkers, cfg, device)
+            self.screen = BatchScreen(self.model, self.checkers, cfg)
         self.graph = None
         self.use_graph = self.wp.get_device(device).is_cuda
         self.total = max(tr.length for tr in tracks) - 1

@@ -4,6 +4,8 @@ instance (the frame, the phase and the first vertex or edge at fault)."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from sim.garments.types import Garment
@@ -16,10 +18,15 @@ class FrameChecker:
     """Per-frame NaN / explosion tests of one garment (host, on the frame's positions)."""
 
     def __init__(self, garment: Garment, cfg: SimulationConfig):
-        self.edges = unique_edges(garment.faces)
+        self.faces = garment.faces
         self.rest_len = garment.rest_edge_lengths()
         self.mean_edge = float(self.rest_len.mean())
         self.cfg = cfg
+
+    @functools.cached_property
+    def edges(self) -> np.ndarray:
+        """The garment's edges (``rest_len`` order), made when an error is worded."""
+        return unique_edges(self.faces)
 
     def __call__(self, x: np.ndarray, x_prev: np.ndarray, root: np.ndarray, frame: int, phase: str) -> None:
         """Raise ``SimulationError(frame, phase + cause)`` if the garment's positions ``x`` (V, 3) [m]
@@ -56,21 +63,20 @@ class BatchScreen:
     for 32 fine garments (1.9M edges), about as long as the GPU's step. The per-garment checker
     runs only on an instance the screen flags, to word the error."""
 
-    def __init__(self, tracks: list[Track], checkers: list[FrameChecker], cfg: SimulationConfig, device: str):
+    def __init__(self, model, checkers: list[FrameChecker], cfg: SimulationConfig):
         from sim.device import warp
 
         wp = self.wp = warp()
-        self.cfg, self.device = cfg, device
-        self.count = len(tracks)
-        inst = np.concatenate([np.full(tr.span.stop - tr.span.start, k) for k, tr in enumerate(tracks)])
-        edges = np.concatenate([c.edges + tr.span.start for c, tr in zip(checkers, tracks, strict=True)])
-        self.inst = wp.array(inst.astype(np.int32), dtype=int, device=device)
-        self.edges = wp.array(edges.astype(np.int32), dtype=wp.vec2i, device=device)
+        self.cfg, self.device = cfg, model.device
+        self.count = model.instance_count
+        # the model's own particle -> instance map and mesh edges (each instance's in
+        # ``unique_edges`` order, as its checker's rest lengths)
+        self.inst, self.edges = model.particle_instance, model.mesh_edge_indices
         rest_len = np.concatenate([c.rest_len for c in checkers]).astype(np.float32)
-        self.rest_len = wp.array(rest_len, dtype=float, device=device)
-        self.x_prev = wp.empty(len(inst), dtype=wp.vec3, device=device)
-        self.roots = wp.empty(self.count, dtype=wp.vec3, device=device)
-        self.flags = wp.zeros(self.count, dtype=int, device=device)
+        self.rest_len = wp.array(rest_len, dtype=float, device=self.device)
+        self.x_prev = wp.empty(self.inst.shape[0], dtype=wp.vec3, device=self.device)
+        self.roots = wp.empty(self.count, dtype=wp.vec3, device=self.device)
+        self.flags = wp.zeros(self.count, dtype=int, device=self.device)
 
     def remember(self, x) -> None:
         """Keep positions ``x`` (the device's Warp array) as the frame before the next screened one."""
