@@ -182,9 +182,10 @@ def sequence_length(meshes: Sequence[PreviewMesh]) -> int:
 
 def sequence_bounds(meshes: Sequence[PreviewMesh]) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box [m] over every vertex of every frame: (low (3,), high (3,))."""
-    low = np.min([m.vertices.min(axis=(0, 1)) for m in meshes], axis=0).astype(np.float64)
-    high = np.max([m.vertices.max(axis=(0, 1)) for m in meshes], axis=0).astype(np.float64)
-    return low, high
+    from sim.geometry.points import coordinate_bounds
+
+    boxes = [coordinate_bounds(m.vertices) for m in meshes]
+    return np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from sim.geometry.points import coordinate_bounds
 from sim.types import BodyFrames
 
 PART_JOINTS: dict[str, tuple[str, ...]] = {
@@ -346,7 +347,7 @@ class PartSeparator:
     def _space(self, vertices: np.ndarray) -> _Space:
         """The side-by-side solids for chunks of ``vertices`` (T, V, 3): cells as far apart as
         the frames' largest extent plus twice ``max_depth`` and 10 cm."""
-        lo, hi = vertices.min(axis=(0, 1)).astype(np.float64), vertices.max(axis=(0, 1)).astype(np.float64)
+        lo, hi = coordinate_bounds(vertices)
         spacing = float((hi - lo).max()) + 2.0 * self.max_depth + 0.1
         frames = min(len(vertices), FRAME_CHUNK["cuda" if str(self.device).startswith("cuda") else "cpu"])
         return _Space(self.wp, self.parts, frames, spacing, lo, self.device)

@@ -17,6 +17,7 @@ import numpy as np
 
 from sim.errors import WrinklesInputError
 from sim.garments.types import Garment
+from sim.geometry.points import frame_centroids
 from sim.profiling import PHASES, phase
 from sim.quality import SimulationError
 from sim.simulate.config import SimulationConfig
@@ -34,7 +35,7 @@ def body_mean_velocities(vertices: np.ndarray, steps: int, fps: float) -> np.nda
     step ``t`` moves the body from frame ``min(t, L - 1)`` to ``min(t + 1, L - 1)`` of its ``L``
     frames ``vertices`` (L, B, 3) [m] (a shorter sequence holds its last frame). The body
     moves linearly within a step, so this is the velocity of its centroid over the step."""
-    c = np.asarray(vertices).mean(axis=1, dtype=np.float64)
+    c = frame_centroids(vertices)
     t = np.arange(steps)
     last = len(c) - 1
     return ((c[np.minimum(t + 1, last)] - c[np.minimum(t, last)]) * fps).astype(np.float32)

@@ -52,6 +52,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sim.errors import WrinklesInputError
+from sim.geometry.points import frame_centroids
 
 # Largest K handled by exact support enumeration (2^8 - 1 = 255 small solves per vertex).
 MAX_INFLUENCES = 8
@@ -160,7 +161,7 @@ class _Problem:
     def __init__(self, rest: np.ndarray, frames: np.ndarray):
         self.t, self.v = frames.shape[:2]
         self.rest_center = rest.mean(axis=0)
-        self.frame_center = frames.mean(axis=1, dtype=np.float64)  # (T, 3)
+        self.frame_center = frame_centroids(frames)  # (T, 3)
         self.rest = rest.astype(np.float64) - self.rest_center
         # (V, 3T), row v = trajectory of vertex v, float64 for the normal equations.
         self.x = (
