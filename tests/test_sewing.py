@@ -159,10 +159,12 @@ def test_a_settle_that_leaves_self_crossings_is_redone_at_more_substeps():
     rest = np.ascontiguousarray(body.rest_mesh(None), np.float32)
     pattern = designs()["t_shirt"].draft(BodyParts.of(body, None), design_params("t_shirt"))
     h = edge_length("coarse", "t_shirt")
-    jobs = [SewingJob(pattern, rest, np.asarray(body.faces), h, get_material(m)) for m in ("jersey_knit", "cotton")]
+    jobs = [SewingJob(pattern, rest, np.asarray(body.faces), h, get_material(m))
+            for m in ("jersey_knit", "cotton")]
     once = sew_patterns(jobs, config=SewingConfig(resettle_substeps=0), device="cpu")
     redone = sew_patterns(jobs, config=SewingConfig(), device="cpu")
-    crossing = [[int(crossing_edges(s.vertices, s.faces, device="cpu").sum()) for s in run] for run in (once, redone)]
+    crossing = [[int(crossing_edges(s.vertices, s.faces, device="cpu").sum()) for s in run]
+                for run in (once, redone)]
     assert crossing[0][0] > 0 and crossing[0][1] == 0  # jersey crosses at 8 substeps, cotton does not
     assert crossing[1] == [0, 0]
     np.testing.assert_array_equal(redone[1].vertices, once[1].vertices)
