@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.errors import WrinklesInputError
+from sim.geometry.points import coordinate_bounds
 from sim.types import BodyFrames
 
 #: default body colour, a neutral clay (RGB in [0, 1]).
@@ -182,8 +183,6 @@ def sequence_length(meshes: Sequence[PreviewMesh]) -> int:
 
 def sequence_bounds(meshes: Sequence[PreviewMesh]) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box [m] over every vertex of every frame: (low (3,), high (3,))."""
-    from sim.geometry.points import coordinate_bounds
-
     boxes = [coordinate_bounds(m.vertices) for m in meshes]
     return np.min([b[0] for b in boxes], axis=0), np.max([b[1] for b in boxes], axis=0)
 

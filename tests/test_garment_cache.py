@@ -122,3 +122,14 @@ def test_garments_of_a_batch_are_sewn_together_once_each(tmp_path, monkeypatch):
     np.testing.assert_array_equal(made[1].rest_vertices, alone.rest_vertices)
     assert made[1].num_vertices != made[0].num_vertices or not np.array_equal(made[1].rest_vertices,
                                                                                made[0].rest_vertices)
+
+
+def test_every_source_of_the_code_digest_exists():
+    """A misspelt entry would hash nothing, and a change to that code would read old garments."""
+    from pathlib import Path
+
+    root = Path(gc.__file__).resolve().parents[2]
+    for source in gc.SOURCES:
+        path = root / source
+        assert path.is_file() if source.endswith(".py") else any(path.rglob("*.py")), source
+    assert len(gc.source_digest()) == 64

@@ -14,6 +14,7 @@ from sim.quality import (
     edge_strain,
     evaluate_sequence,
     inside_fraction,
+    mesh_edges,
     push_outside,
     self_intersections,
     unique_edges,
@@ -255,3 +256,13 @@ def test_sequences_longer_than_a_chunk_give_each_frames_own_result(device):
     alone = [inside_fraction(pts[t:t + 1], body[t], sphere.faces, device=device)[0] for t in range(T)]
     np.testing.assert_array_equal(inside_fraction(pts, body, sphere.faces, device=device), alone)
     assert 0.0 < np.mean(alone) < 1.0
+
+
+def test_mesh_edges_are_unique_edges_made_once_per_mesh_content():
+    _, f = grid(7)
+    e = mesh_edges(f)
+    np.testing.assert_array_equal(e, unique_edges(f))
+    assert not e.flags.writeable  # shared by every caller
+    assert mesh_edges(f.copy()) is e  # equal content, the same array
+    other = mesh_edges(f[:-2])
+    assert other is not e and len(other) < len(e)

@@ -27,19 +27,21 @@ import numpy as np
 from sim.garments.materials import Material
 from sim.garments.types import Garment
 
-SOURCES = ("sim/garments", "sim/cloth", "sim/bodies")
-"""Packages whose code makes a sewn garment (drafting, meshing, sewing, the solver, the body):
-every key holds a digest of their source, so changed code never reads an older garment."""
+SOURCES = ("sim/garments", "sim/cloth", "sim/bodies", "sim/quality.py", "sim/quality_kernels.py")
+"""Packages and modules whose code makes a sewn garment (drafting, meshing, sewing, the solver,
+the body, the self-crossing test that decides a second settle): every key holds a digest of their
+source, so changed code never reads an older garment."""
 _MEMORY: dict[str, Garment] = {}
 
 
 @functools.lru_cache(maxsize=1)
 def source_digest() -> str:
-    """SHA-256 of the ``SOURCES`` packages' Python files (paths and contents, sorted)."""
+    """SHA-256 of the ``SOURCES`` Python files (a package's, sorted; paths and contents)."""
     root = Path(__file__).resolve().parents[2]
     h = hashlib.sha256()
-    for folder in SOURCES:
-        for f in sorted((root / folder).rglob("*.py")):
+    for source in SOURCES:
+        path = root / source
+        for f in [path] if path.suffix == ".py" else sorted(path.rglob("*.py")):
             h.update(str(f.relative_to(root)).encode())
             h.update(f.read_bytes())
     return h.hexdigest()
