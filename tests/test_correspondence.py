@@ -64,3 +64,24 @@ def test_a_panel_the_target_lacks_is_refused():
                     panel_names=("front", "cuff"), uv_scale=g.uv_scale)
     with pytest.raises(WrinklesInputError, match="no panel 'sleeve'"):
         pattern_locations(g, other)
+
+
+def test_a_point_outside_the_targets_outline_goes_to_the_nearest_border_triangle():
+    """Two opposite corners of the source's front 2 mm out along the diagonal (its centroid
+    stays): they lie outside the target and land on its corners; every other vertex inside."""
+    g = flat_garment(9, {"front": (0.05, 0.05), "sleeve": (0.6, 0.05)})
+    fine = flat_garment(17, {"front": (0.3, 0.3), "sleeve": (0.02, 0.02)})
+    uvs = np.array(g.uvs, dtype=np.float64)
+    front = np.unique(g.uv_faces[g.panel_ids == 0])
+    top, bottom = front[np.argmax(uvs[front].sum(axis=1))], front[np.argmin(uvs[front].sum(axis=1))]
+    step = 0.002 / np.sqrt(2.0) / g.uv_scale
+    uvs[top] += step
+    uvs[bottom] -= step
+    grown = Garment(g.rest_vertices, g.faces, uvs, g.uv_faces, g.material, panel_ids=g.panel_ids,
+                    panel_names=g.panel_names, uv_scale=g.uv_scale)
+    loc = pattern_locations(grown, fine)
+    outside = np.flatnonzero(~loc.inside)
+    assert sorted(outside.tolist()) == sorted([int(top), int(bottom)])
+    assert np.all(loc.barycentric >= 0) and np.allclose(loc.barycentric.sum(axis=1), 1.0)
+    at = loc.evaluate(fine.faces, fine.rest_vertices)
+    np.testing.assert_allclose(at, g.rest_vertices, atol=1e-6)  # the overhanging corners on the target's

@@ -47,7 +47,7 @@ def test_subspace_matches_numpys_svd_and_reconstructs_its_frames():
     sub = fit_subspace(frames, k=10)
     o = frames.reshape(n, -1).astype(np.float64) - frames.reshape(n, -1).astype(np.float64).mean(axis=0)
     _, s, vt = np.linalg.svd(o, full_matrices=False)
-    assert sub.size == 10
+    assert sub.size == 6  # k = 10 asked, the frames span 6 directions
     np.testing.assert_allclose(sub.singular_values[:6], s[:6], rtol=1e-6)
     for l in range(6):  # the same directions up to sign (fit_subspace fixes the sign)
         assert abs(float(sub.components[l] @ vt[l])) == pytest.approx(1.0, abs=1e-5)
@@ -64,14 +64,27 @@ def test_subspace_matches_numpys_svd_and_reconstructs_its_frames():
 
 def test_both_gram_sides_give_one_subspace():
     rng = np.random.default_rng(2)
-    frames = rng.normal(size=(12, 3, 3)).astype(np.float32)  # 12 frames > 9 coordinates
-    wide = fit_subspace(frames, k=9)  # coordinates' Gram (covariance)
-    assert wide.size == 9
-    tall = fit_subspace(frames[:, :, :].repeat(2, axis=1)[:5], k=4)  # 5 frames < 18 coordinates
-    assert tall.size == 4
-    o = frames.reshape(12, -1) - frames.reshape(12, -1).mean(axis=0)
-    np.testing.assert_allclose(wide.singular_values, np.linalg.svd(o, compute_uv=False), rtol=1e-6, atol=1e-9)
-    assert wide.total_variance == pytest.approx(float(np.sum(o.astype(np.float64) ** 2)), rel=1e-6)
+    for n, v in ((12, 3), (5, 6)):  # more frames than coordinates (covariance), fewer (frames' Gram)
+        frames = rng.normal(size=(n, v, 3)).astype(np.float32)
+        sub = fit_subspace(frames, k=20)
+        o = frames.reshape(n, -1).astype(np.float64) - frames.reshape(n, -1).astype(np.float64).mean(axis=0)
+        _, s, vt = np.linalg.svd(o, full_matrices=False)
+        rank = min(n - 1, 3 * v)
+        assert sub.size == rank
+        np.testing.assert_allclose(sub.singular_values, s[:rank], rtol=1e-6)
+        np.testing.assert_allclose(np.abs(np.sum(sub.components * vt[:rank], axis=1)), 1.0, atol=1e-5)
+        assert sub.total_variance == pytest.approx(float(np.sum(o ** 2)), rel=1e-6)
+
+
+def test_frames_spanning_fewer_directions_give_only_those():
+    rng = np.random.default_rng(5)
+    base, dirs = rng.normal(size=(1, 30)), rng.normal(size=(2, 30))
+    frames = (base + rng.normal(size=(5, 2)) @ dirs).reshape(5, 10, 3)
+    sub = fit_subspace(frames, k=4)
+    assert sub.size == 2
+    np.testing.assert_allclose(sub.components @ sub.components.T, np.eye(2), atol=1e-6)
+    with pytest.raises(WrinklesInputError, match="all the same shape"):
+        fit_subspace(np.repeat(frames[:1], 3, axis=0))
 
 
 def test_k_is_clipped_to_the_rank_bound_and_a_round_trip_through_a_file(tmp_path):

@@ -37,6 +37,15 @@ def test_the_identity_grid_keeps_the_template_and_weights_sum_to_one():
     np.testing.assert_allclose(grid.weights.sum(axis=1), 1.0)
     ident = np.tile(np.r_[np.eye(3).ravel(), 0, 0, 0], (len(grid.nodes), 1))
     np.testing.assert_allclose(_deform(grid, v * 1000.0, ident), v * 1000.0, atol=1e-9)
+    corners = np.einsum("vk,vkc->vc", grid.weights, grid.nodes[grid.vertex_nodes])
+    np.testing.assert_allclose(corners, v * 1000.0, atol=1e-6)  # trilinear weights reproduce the point
+    # every node carrying the same rigid motion x -> R x + c moves the template rigidly
+    rot = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))[0]
+    rot *= np.sign(np.linalg.det(rot))
+    c = np.array([10.0, -20.0, 5.0])
+    rigid = np.concatenate([np.tile(rot.ravel(), (len(grid.nodes), 1)),
+                            grid.nodes @ rot.T + c - grid.nodes], axis=1)
+    np.testing.assert_allclose(_deform(grid, v * 1000.0, rigid), v * 1000.0 @ rot.T + c, atol=1e-8)
 
 
 def test_the_jacobian_matches_finite_differences():

@@ -66,13 +66,44 @@ def test_depth_noise_is_gaussian_along_the_ray_and_dropout_drops_its_share():
 
 
 def test_grazing_rays_return_nothing():
+    """A sheet turned 80 degrees from facing the camera meets its rays at 78.7-81.0 degrees from
+    its normal: with the 10-degree cut-off only those under 80 degrees come back."""
     v, f = sheet()
-    edge_on = v[:, [2, 1, 0]]  # the sheet in the plane x = 0, containing the camera's axis
-    assert len(scan_garment(edge_on, f, np.zeros(3), config=ONE, device="cpu").points) == 0
-    tilted = v.copy()  # turned 75 degrees from facing the camera: 15 from tangent, still seen
-    a = np.radians(75.0)
+    a = np.radians(80.0)
+    tilted = v.copy()
     tilted[:, 0], tilted[:, 2] = v[:, 0] * np.cos(a), -v[:, 0] * np.sin(a)
-    assert len(scan_garment(tilted, f, np.zeros(3), config=ONE, device="cpu").points) > 0
+    normal = np.array([np.sin(a), 0.0, np.cos(a)])
+    camera = np.array([0.0, 0.0, 1.5])
+
+    def angles(scan):
+        ray = scan.points - camera
+        cos = np.abs(ray @ normal) / np.linalg.norm(ray, axis=1)
+        return np.degrees(np.arccos(cos))
+
+    grazing_off = ScanConfig(**{**ONE.__dict__, "grazing_deg": 0.0})
+    every = scan_garment(tilted, f, np.zeros(3), config=grazing_off, device="cpu")
+    cut = scan_garment(tilted, f, np.zeros(3), config=ONE, device="cpu")
+    assert angles(every).max() > 80.5 and 0 < len(cut.points) < len(every.points)
+    assert angles(cut).max() < 80.0 + 1e-3
+
+
+def test_a_hit_carries_warps_barycentrics_of_corners_0_and_1():
+    from sim.device import warp
+    from sim.scans import scanner_kernels as K
+
+    wp = warp()
+    tri = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], np.float32)
+    mesh = wp.Mesh(points=wp.array(tri, dtype=wp.vec3, device="cpu"),
+                   indices=wp.array(np.arange(3, dtype=np.int32), dtype=wp.int32, device="cpu"))
+    target = np.array([0.2, 0.5, 0.0])
+    out = [wp.zeros(1, dtype=float), wp.zeros(1, dtype=int), wp.zeros(1, dtype=wp.vec2),
+           wp.zeros(1, dtype=wp.vec3)]
+    wp.launch(K.first_hits_kernel, dim=1, device="cpu",
+              inputs=[mesh.id, mesh.id, 0, wp.array([target + [0, 0, 1]], dtype=wp.vec3, device="cpu"),
+                      wp.array([[0.0, 0.0, -1.0]], dtype=wp.vec3, device="cpu"), 5.0], outputs=out)
+    u, v = out[2].numpy()[0]
+    np.testing.assert_allclose(u * tri[0] + v * tri[1] + (1 - u - v) * tri[2], target, atol=1e-6)
+    assert out[0].numpy()[0] == pytest.approx(1.0)
 
 
 def test_the_marked_band_follows_the_open_border():

@@ -83,6 +83,8 @@ class LinearPoseToShape:
         controls (n, C), coefficients (n, k)."""
         th = np.asarray(controls, np.float64)
         lam = np.asarray(coefficients, np.float64)
+        if ridge < 0:
+            raise WrinklesInputError(f"LinearPoseToShape.fit: ridge must be >= 0, got {ridge}")
         if th.ndim != 2 or lam.ndim != 2 or len(th) != len(lam) or len(th) == 0:
             raise WrinklesInputError(f"LinearPoseToShape.fit: controls {th.shape} and coefficients "
                                      f"{lam.shape} need the same number of frames")
@@ -120,7 +122,8 @@ class PoseToShapeLSTM(nn.Module):
 
     The encoder reads a window's control vectors (B, W, C); the decoder, started from the
     encoder's state, reads them again and emits each frame's coefficients (B, W, k) through a
-    linear head, so a frame's shape depends on the window's motion before it.
+    linear head. Every output sees the whole window; the last frame's, which a sequence's
+    prediction uses (``windows``), depends on the motion up to that frame only.
 
     Args:
         controls: C, the control vector's size. coefficients: k.

@@ -31,6 +31,9 @@ FRAME_BLOCK = 256
 """Frames skinned, unposed or accumulated at once (bounds the (block, V, 3, 4) blends in memory)."""
 MAX_GRAM = 20_000
 """Largest side of the Gram matrix the fit forms (20k x 20k float64 is 3.2 GB)."""
+RANK_TOLERANCE = 1e-12
+"""Eigenvalues of the Gram matrix below this share of the largest (or of the frames' summed
+squares) are round-off, not directions."""
 
 
 def _blends(weights: np.ndarray, transforms: np.ndarray) -> np.ndarray:
@@ -127,7 +130,10 @@ class GarmentSubspace:
         x = np.asarray(rest, np.float64)
         if x.ndim != 3 or x.shape[1:] != self.mean.shape:
             raise WrinklesInputError(f"encode: expected (T, {self.mean.shape[0]}, 3), got {x.shape}")
-        c = self.components[: self.size if k is None else int(k)].astype(np.float64)
+        k = self.size if k is None else int(k)
+        if not 1 <= k <= self.size:
+            raise WrinklesInputError(f"encode: k must be in 1..{self.size}, got {k}")
+        c = self.components[:k].astype(np.float64)
         return ((x - self.mean).reshape(len(x), -1) @ c.T).astype(np.float32)
 
     def decode(self, coefficients: np.ndarray) -> np.ndarray:
@@ -157,11 +163,12 @@ class GarmentSubspace:
 def fit_subspace(rest: np.ndarray, k: int = 500, *, device: str = "cpu") -> GarmentSubspace:
     """The mean and the first ``k`` principal directions of pose-normalised frames ``rest`` [m]
     (n, V, 3) (``unpose`` of registered frames); k is clipped to the offsets' rank bound
-    min(n - 1, 3V) (n frames less their mean span at most n - 1 directions). Each component is
-    signed so that its largest entry is positive.
+    min(n - 1, 3V) (n frames less their mean span at most n - 1 directions) and to the directions
+    the offsets really span. Each component is signed so that its largest entry is positive.
 
     Raises:
-        WrinklesInputError: fewer than 2 frames, k < 1, or both Gram sides over ``MAX_GRAM``.
+        WrinklesInputError: fewer than 2 frames, k < 1, both Gram sides over ``MAX_GRAM``, or
+            frames all of one shape.
     """
     x = np.asarray(rest)
     if x.ndim != 3 or x.shape[-1] != 3 or len(x) < 2:
@@ -175,24 +182,27 @@ def fit_subspace(rest: np.ndarray, k: int = 500, *, device: str = "cpu") -> Garm
     dev = torch.device(device)
     mean = x.mean(axis=0, dtype=np.float64)
     k = min(int(k), n - 1, dim)
+    o = None
     if n <= dim:
         o = torch.as_tensor((x.reshape(n, dim) - mean.reshape(1, dim)), dtype=torch.float64, device=dev)
-        evals, evecs = torch.linalg.eigh(o @ o.T)  # ascending
-        total = float(evals.clamp_min(0).sum())
-        evals, evecs = evals.flip(0)[:k].clamp_min(0), evecs.flip(1)[:, :k]
-        sigma = evals.sqrt()
-        comps = (o.T @ evecs) / sigma.clamp_min(1e-300)  # (dim, k): right singular vectors
-        comps = comps.T
+        gram = o @ o.T
     else:
-        cov = torch.zeros(dim, dim, dtype=torch.float64, device=dev)
+        gram = torch.zeros(dim, dim, dtype=torch.float64, device=dev)
         for s in range(0, n, FRAME_BLOCK):
-            o = torch.as_tensor(x[s:s + FRAME_BLOCK].reshape(-1, dim) - mean.reshape(1, dim),
-                                dtype=torch.float64, device=dev)
-            cov += o.T @ o
-        evals, evecs = torch.linalg.eigh(cov)
-        total = float(evals.clamp_min(0).sum())
-        sigma = evals.flip(0)[:k].clamp_min(0).sqrt()
-        comps = evecs.flip(1)[:, :k].T
+            block = torch.as_tensor(x[s:s + FRAME_BLOCK].reshape(-1, dim) - mean.reshape(1, dim),
+                                    dtype=torch.float64, device=dev)
+            gram += block.T @ block
+    evals, evecs = torch.linalg.eigh(gram)  # ascending
+    evals, evecs = evals.flip(0).clamp_min(0), evecs.flip(1)
+    total = float(evals.sum())
+    # directions the offsets really span: repeated or static frames span fewer than n - 1
+    scale = float(np.sum(np.square(x, dtype=np.float64)))  # the frames' own size: round-off is relative
+    k = min(k, int((evals > RANK_TOLERANCE * max(float(evals[0]), scale, 1e-300)).sum()))
+    if k == 0:
+        raise WrinklesInputError("fit_subspace: the frames are all the same shape (no offsets to model)")
+    sigma = evals[:k].sqrt()
+    # the frames' side: right singular vectors from the left ones; the coordinates' side: direct
+    comps = ((o.T @ evecs[:, :k]) / sigma).T if o is not None else evecs[:, :k].T
     comps = comps.cpu().numpy()
     sign = np.sign(comps[np.arange(k), np.argmax(np.abs(comps), axis=1)])
     comps *= np.where(sign == 0, 1.0, sign)[:, None]

@@ -37,8 +37,9 @@ class SurfaceLocations:
     Attributes:
         face: int32 (N,), into the target's faces.
         barycentric: float64 (N, 3), non-negative, rows summing to 1.
-        inside: bool (N,): the point lay in its triangle (else it was moved to the nearest one,
-            a hair outside the target's panel outline).
+        inside: bool (N,): the point lay in its triangle (else, a hair outside the target's
+            panel outline, it went to the candidate triangle it lies least outside, its
+            negative weights clipped to 0).
     """
 
     face: np.ndarray
@@ -87,20 +88,26 @@ def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     """Barycentric weights of points p (..., 2) in triangles tri (..., 3, 2)."""
     e1, e2, d = tri[..., 1, :] - tri[..., 0, :], tri[..., 2, :] - tri[..., 0, :], p - tri[..., 0, :]
     det = e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]
-    det = np.where(np.abs(det) < 1e-30, 1e-30, det)
+    flat = np.abs(det) < 1e-30
+    det = np.where(flat, 1.0, det)
     v = (d[..., 0] * e2[..., 1] - d[..., 1] * e2[..., 0]) / det
     w = (e1[..., 0] * d[..., 1] - e1[..., 1] * d[..., 0]) / det
-    return np.stack([1.0 - v - w, v, w], axis=-1)
+    out = np.stack([1.0 - v - w, v, w], axis=-1)
+    out[flat] = -np.inf  # a triangle without area holds no point
+    return out
 
 
 def pattern_locations(source: Garment, target: Garment) -> SurfaceLocations:
     """Each source vertex's place on the target: the target triangle of the same panel that holds
     the vertex's flat pattern position (a seam vertex: its first face's panel), with weights;
-    a position a hair outside the target's outline goes to its nearest candidate triangle."""
+    a position a hair outside the target's outline goes to the candidate triangle it lies least
+    outside (``SurfaceLocations.inside``)."""
     offsets = panel_offsets(source, target)
     src_flat, tgt_flat = source.flat_corners(), target.flat_corners()
     n = source.num_vertices
     nf = len(source.faces)
+    if n == 0 or nf == 0:
+        raise WrinklesInputError(f"garment {source.name!r} has no faces to locate")
     first = np.full(n, nf, np.int64)  # each vertex's first face
     np.minimum.at(first, source.faces.ravel(), np.arange(3 * nf) // 3)
     if np.any(first == nf):

@@ -9,7 +9,9 @@ trilinear weights. Iterated closest points with Gauss-Newton steps minimise Eq. 
     E_reg = E_data + ω_r E_rigid + ω_s E_smooth + ω_b E_bound,
 
 E_data pulling each template vertex to its nearest scan point (pairs farther than
-``max_distance`` or with normals more than 60 degrees apart dropped), E_rigid keeping every A_j
+``max_distance`` dropped, and those whose normals' lines are more than 60 degrees apart: either
+orientation, since a scan normal faces its camera and an inner layer seen through an opening
+faces inwards), E_rigid keeping every A_j
 a rotation (Σ of (a_k·a_l)² and (a_k·a_k - 1)² over its columns), E_smooth making neighbouring
 nodes agree on where they carry each other, and E_bound pulling the template's border vertices
 to the scan's marked border points chosen by Eq. 2: each scan border point is given to its
@@ -238,10 +240,16 @@ def register(template: np.ndarray, faces: np.ndarray, scan, *, config: Registrat
     cfg = config or RegistrationConfig()
     x = np.asarray(template, np.float64) * MM
     f = np.asarray(faces, np.int64)
-    if x.ndim != 2 or x.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or f.max() >= len(x):
+    if (x.ndim != 2 or x.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0
+            or f.min() < 0 or f.max() >= len(x)):
         raise WrinklesInputError(f"register: template {x.shape} and faces {f.shape} do not form a mesh")
-    if len(scan.points) == 0:
-        raise WrinklesInputError("register: the scan has no points")
+    n = len(scan.points)
+    if n == 0 or len(scan.normals) != n or len(scan.boundary) != n:
+        raise WrinklesInputError(f"register: the scan needs points with one normal and one border mark "
+                                 f"each; got {n}, {len(scan.normals)}, {len(scan.boundary)}")
+    if cfg.cell <= 0 or cfg.max_distance <= 0:
+        raise WrinklesInputError(f"register: cell {cfg.cell} m and max_distance {cfg.max_distance} m "
+                                 "must be > 0")
     grid = _grid(x, cfg.cell * MM)
     params = np.tile(np.r_[np.eye(3).ravel(), 0.0, 0.0, 0.0], (len(grid.nodes), 1))
     pts = np.asarray(scan.points, np.float64) * MM

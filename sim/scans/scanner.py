@@ -58,9 +58,9 @@ class ScanConfig:
                                      f"resolution; got {self.cameras}, {self.heights}, {self.radius}, "
                                      f"{self.resolution}")
         if (not 0 < self.fov_deg < 180 or self.noise < 0 or not 0 <= self.dropout < 1
-                or self.boundary_band < 0):
+                or self.boundary_band < 0 or not 0 <= self.grazing_deg < 90):
             raise WrinklesInputError("scan config: fov_deg in (0, 180), noise >= 0, dropout in [0, 1), "
-                                     "boundary_band >= 0")
+                                     "boundary_band >= 0, grazing_deg in [0, 90)")
 
 
 @dataclass(frozen=True)
@@ -133,18 +133,19 @@ def scan_garment(vertices: np.ndarray, faces: np.ndarray, center: np.ndarray, *,
     d = resolve_device(device)
     v = np.ascontiguousarray(vertices, np.float32)
     f = np.ascontiguousarray(faces, np.int32)
-    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or f.max() >= len(v):
-        raise WrinklesInputError(f"scan_garment: garment vertices {v.shape} and faces {f.shape} "
-                                 "do not form a mesh")
+    _check_mesh(v, f, "garment")
     origins, dirs, cams = camera_rays(np.asarray(center, np.float64).reshape(3), cfg)
     garment = wp.Mesh(points=wp.array(v, dtype=wp.vec3, device=d),
                       indices=wp.array(f.ravel(), dtype=wp.int32, device=d))
     meshes = [garment]
+    if (body_vertices is None) != (body_faces is None):
+        raise WrinklesInputError("scan_garment: give the body's vertices and faces together")
     if body_vertices is not None:
-        meshes.append(wp.Mesh(points=wp.array(np.ascontiguousarray(body_vertices, np.float32), dtype=wp.vec3,
-                                              device=d),
-                              indices=wp.array(np.asarray(body_faces, np.int32).ravel(), dtype=wp.int32,
-                                               device=d)))
+        bv = np.ascontiguousarray(body_vertices, np.float32)
+        bf = np.ascontiguousarray(body_faces, np.int32)
+        _check_mesh(bv, bf, "body")
+        meshes.append(wp.Mesh(points=wp.array(bv, dtype=wp.vec3, device=d),
+                              indices=wp.array(bf.ravel(), dtype=wp.int32, device=d)))
     n = len(origins)
     t, face = wp.zeros(n, dtype=float, device=d), wp.zeros(n, dtype=int, device=d)
     bary, normal = wp.zeros(n, dtype=wp.vec2, device=d), wp.zeros(n, dtype=wp.vec3, device=d)
@@ -156,6 +157,13 @@ def scan_garment(vertices: np.ndarray, faces: np.ndarray, center: np.ndarray, *,
               outputs=[t, face, bary, normal], device=d)
     hits = (t.numpy(), face.numpy(), bary.numpy(), normal.numpy())
     return _points(v, f, origins, dirs, cams, hits, cfg, seed)
+
+
+def _check_mesh(v: np.ndarray, f: np.ndarray, what: str) -> None:
+    if (v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(f) == 0
+            or f.min() < 0 or f.max() >= len(v)):
+        raise WrinklesInputError(f"scan_garment: {what} vertices {v.shape} and faces {f.shape} "
+                                 "do not form a mesh")
 
 
 def _kernels():
