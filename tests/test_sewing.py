@@ -145,27 +145,38 @@ def test_rest_edge_lengths_are_the_patterns_for_a_sewn_garment_and_the_meshs_oth
 
 
 @pytest.mark.slow
-def test_a_settle_that_leaves_self_crossings_is_redone_at_more_substeps():
+def test_a_settle_that_leaves_self_crossings_is_redone_at_more_substeps(monkeypatch):
     """The coarse jersey t-shirt's sleeve underarm folds through itself in the 8-substep settle
-    (every sequence made with it would fail the self-intersection gate from frame 0); the
-    garment settles again at ``resettle_substeps`` and comes out with no crossing edge, and a
-    garment without crossings keeps its first settle bit for bit."""
+    (every sequence made with it would fail the self-intersection gate from frame 0); that
+    garment alone settles again at ``resettle_substeps`` and comes out with no crossing edge,
+    and the cotton one, clean at 8, keeps its first settle."""
     from sim.bodies import load_body
+    from sim.garments import sewing
     from sim.garments.designs import BodyParts, design_params, designs, edge_length
     from sim.garments.sewing import SewingJob, sew_patterns
     from sim.quality import crossing_edges
 
+    settles = []
+    original = sewing._settle_batch
+
+    def recorded(jobs, meshes, merged, colliders, cfg, dev):
+        out = original(jobs, meshes, merged, colliders, cfg, dev)
+        crossing = [int(crossing_edges(x, m.sewn_faces(), device=dev).sum())
+                    for x, m in zip(out, meshes, strict=True)]
+        settles.append((cfg.substeps, [j.material.name for j in jobs], crossing, out))
+        return out
+
+    monkeypatch.setattr(sewing, "_settle_batch", recorded)
     body = load_body()
     rest = np.ascontiguousarray(body.rest_mesh(None), np.float32)
     pattern = designs()["t_shirt"].draft(BodyParts.of(body, None), design_params("t_shirt"))
     h = edge_length("coarse", "t_shirt")
     jobs = [SewingJob(pattern, rest, np.asarray(body.faces), h, get_material(m))
             for m in ("jersey_knit", "cotton")]
-    once = sew_patterns(jobs, config=SewingConfig(resettle_substeps=0), device="cpu")
-    redone = sew_patterns(jobs, config=SewingConfig(), device="cpu")
-    crossing = [[int(crossing_edges(s.vertices, s.faces, device="cpu").sum()) for s in run]
-                for run in (once, redone)]
-    assert crossing[0][0] > 0 and crossing[0][1] == 0  # jersey crosses at 8 substeps, cotton does not
-    assert crossing[1] == [0, 0]
-    np.testing.assert_array_equal(redone[1].vertices, once[1].vertices)
-    assert np.abs(redone[0].vertices - once[0].vertices).max() > 1e-4
+    sewn = sew_patterns(jobs, config=SewingConfig(), device="cpu")
+    (first_sub, first_mats, first_cross, first_out), (again_sub, again_mats, again_cross, _) = settles
+    assert (first_sub, first_mats) == (8, ["jersey_knit", "cotton"])
+    assert first_cross[0] > 0 and first_cross[1] == 0  # jersey crosses at 8 substeps, cotton does not
+    assert (again_sub, again_mats, again_cross) == (16, ["jersey_knit"], [0])
+    assert [int(crossing_edges(s.vertices, s.faces, device="cpu").sum()) for s in sewn] == [0, 0]
+    np.testing.assert_array_equal(sewn[1].vertices, first_out[1].astype(np.float32))
