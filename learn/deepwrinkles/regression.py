@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from learn.methods.skinned_mlp import rotation_features
 from sim.errors import WrinklesInputError
 from sim.rotations import axis_angle_to_matrix
 
@@ -60,7 +61,7 @@ def control_vectors(poses: np.ndarray, trans: np.ndarray, fps: float) -> np.ndar
     rot = axis_angle_to_matrix(p.reshape(-1, 3)).reshape(*p.shape[:2], 3, 3)
     head = heading_rotations(rot[:, 0])
     rot[:, 0] = np.einsum("tba,tbc->tac", head, rot[:, 0])  # heading removed: head^T R_root
-    six = np.concatenate([rot[..., :, 0], rot[..., :, 1]], axis=-1).reshape(len(p), -1)
+    six = rotation_features(rot)
     vel = np.gradient(x, axis=0) * fps if len(x) > 1 else np.zeros_like(x)
     acc = np.gradient(vel, axis=0) * fps if len(x) > 1 else np.zeros_like(x)
     local = np.einsum("tba,tnb->tna", head, np.stack([vel, acc], axis=1)).reshape(len(p), ROOT_MOTION)

@@ -53,19 +53,17 @@ def _check_skinning(points: np.ndarray, weights: np.ndarray, transforms: np.ndar
 
 
 def repose(rest: np.ndarray, weights: np.ndarray, transforms: np.ndarray) -> np.ndarray:
-    """Linear blend skinning ``S``: pose-normalised points ``rest`` [m] (T, V, 3) (or (V, 3) for
-    every frame) with weights (V, J) and bone transforms (T, J, 3, 4); float32 (T, V, 3)."""
-    x = np.asarray(rest, np.float64)
-    t = np.asarray(transforms)
-    if x.ndim == 2:
-        x = np.broadcast_to(x, (t.shape[0], *x.shape))
-    w = np.asarray(weights)
-    _check_skinning(x, w, t, "repose")
-    out = np.empty(x.shape, np.float32)
-    for s in range(0, x.shape[0], FRAME_BLOCK):
-        m = _blends(w, t[s:s + FRAME_BLOCK])
-        out[s:s + FRAME_BLOCK] = np.einsum("tvab,tvb->tva", m[..., :3], x[s:s + FRAME_BLOCK]) + m[..., 3]
-    return out
+    """Linear blend skinning ``S`` (``learn.skinning.linear_blend_skinning``): pose-normalised
+    points ``rest`` [m] (T, V, 3) (or (V, 3) for every frame) with weights (V, J) and bone
+    transforms (T, J, 3, 4); float32 (T, V, 3)."""
+    from learn.skinning import linear_blend_skinning
+
+    x = np.asarray(rest, np.float32)
+    t = np.asarray(transforms, np.float32)
+    w = np.asarray(weights, np.float32)
+    _check_skinning(np.broadcast_to(x, (t.shape[0], *x.shape)) if x.ndim == 2 else x, w, t, "repose")
+    x, t, w = (torch.from_numpy(np.ascontiguousarray(a)) for a in (x, t, w))
+    return linear_blend_skinning(x, t, w).numpy()
 
 
 def unpose(posed: np.ndarray, weights: np.ndarray, transforms: np.ndarray) -> np.ndarray:

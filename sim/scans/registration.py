@@ -31,6 +31,8 @@ from scipy.sparse.linalg import spsolve
 from scipy.spatial import cKDTree
 
 from sim.errors import WrinklesInputError
+from sim.garments.hems import boundary_vertices
+from sim.geometry.frames import vertex_normals
 
 MM = 1000.0
 """Millimetres per metre (the solve's length unit)."""
@@ -172,21 +174,6 @@ class Registration:
     boundary_pairs: int
 
 
-def _vertex_normals(x: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    fn = np.cross(x[faces[:, 1]] - x[faces[:, 0]], x[faces[:, 2]] - x[faces[:, 0]])
-    n = np.zeros_like(x)
-    for k in range(3):
-        np.add.at(n, faces[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
-
-
-def _border_vertices(faces: np.ndarray) -> np.ndarray:
-    from sim.quality import unique_edges
-
-    edges, uses = unique_edges(faces, counts=True)
-    return np.unique(edges[uses == 1])
-
-
 def _system(grid: _Grid, x, params, data, bound, weights, point_weight: float = 1.0):
     """Residuals and sparse Jacobian of Eq. 1 at ``params``: data (vertex index, target [mm],
     target normal or None: point-to-point only), bound (vertex index, target [mm]), weights
@@ -196,21 +183,20 @@ def _system(grid: _Grid, x, params, data, bound, weights, point_weight: float = 
     cur = _deform(grid, x, params)
     blocks, res, row = [], [], 0
     (d_idx, d_target, d_normal), (b_idx, b_target) = data, bound
-    for idx, target, w in ((d_idx, d_target, point_weight if d_normal is not None else 1.0),
-                           (b_idx, b_target, w_b)):
-        if len(idx):
-            nodes = grid.vertex_nodes[idx]
-            r, c, v = _linear_rows(nodes, grid.weights[idx], x[idx][:, None] - grid.nodes[nodes], row)
-            blocks.append((r, c, np.sqrt(w) * v))
-            res.append(np.sqrt(w) * (cur[idx] - target).ravel())
-            row += 3 * len(idx)
-    if d_normal is not None and len(d_idx):  # the same entries, each coordinate's row times n_r
-        nodes = grid.vertex_nodes[d_idx]
-        r, c, v = _linear_rows(nodes, grid.weights[d_idx], x[d_idx][:, None] - grid.nodes[nodes], 0)
-        point, coord = r // 3, r % 3
-        blocks.append((row + point, c, v * d_normal[point, coord]))
-        res.append(np.sum((cur[d_idx] - d_target) * d_normal, axis=1))
-        row += len(d_idx)
+    for idx, target, w, normal in ((d_idx, d_target, point_weight if d_normal is not None else 1.0, d_normal),
+                                   (b_idx, b_target, w_b, None)):
+        if not len(idx):
+            continue
+        nodes = grid.vertex_nodes[idx]
+        r, c, v = _linear_rows(nodes, grid.weights[idx], x[idx][:, None] - grid.nodes[nodes], 0)
+        blocks.append((row + r, c, np.sqrt(w) * v))
+        res.append(np.sqrt(w) * (cur[idx] - target).ravel())
+        row += 3 * len(idx)
+        if normal is not None:  # point-to-plane: the same entries, each coordinate's row times n_r
+            point, coord = r // 3, r % 3
+            blocks.append((row + point, c, v * normal[point, coord]))
+            res.append(np.sum((cur[idx] - target) * normal, axis=1))
+            row += len(idx)
     if len(grid.edges):
         e = np.concatenate([grid.edges, grid.edges[:, ::-1]])
         j, k = e[:, 0], e[:, 1]
@@ -254,14 +240,14 @@ def register(template: np.ndarray, faces: np.ndarray, scan, *, config: Registrat
     params = np.tile(np.r_[np.eye(3).ravel(), 0.0, 0.0, 0.0], (len(grid.nodes), 1))
     pts = np.asarray(scan.points, np.float64) * MM
     tree = cKDTree(pts)
-    border = _border_vertices(f) if cfg.use_boundary else np.zeros(0, np.int64)
+    border = boundary_vertices(f) if cfg.use_boundary else np.zeros(0, np.int64)
     scan_border = pts[np.asarray(scan.boundary, bool)]
     rms, kept, nb = [], 0, 0
     for rnd in range(cfg.rounds):
         stiff = max(cfg.anneal / 2.0 ** rnd, 1.0)
         cur = _deform(grid, x, params)
         dist, idx = tree.query(cur)
-        agree = np.abs(np.sum(_vertex_normals(cur, f) * scan.normals[idx], axis=1)) > 0.5
+        agree = np.abs(np.sum(vertex_normals(cur, f, device="cpu") * scan.normals[idx], axis=1)) > 0.5
         keep = np.flatnonzero((dist < cfg.max_distance * MM) & agree)
         rms.append(float(np.sqrt(np.mean(dist[keep] ** 2))) / MM if len(keep) else float("nan"))
         t_idx, s_idx = boundary_pairs(cur[border], scan_border)

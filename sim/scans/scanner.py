@@ -106,10 +106,9 @@ def camera_rays(center: np.ndarray, cfg: ScanConfig) -> tuple[np.ndarray, np.nda
 def border_distance(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Each vertex's distance [m] to the nearest vertex of the mesh's open border (edges of one
     face), float64 (V,); inf for a closed mesh."""
-    from sim.quality import unique_edges
+    from sim.garments.hems import boundary_vertices
 
-    edges, uses = unique_edges(faces, counts=True)
-    border = np.unique(edges[uses == 1])
+    border = boundary_vertices(faces)
     if not len(border):
         return np.full(len(vertices), np.inf)
     return cKDTree(vertices[border]).query(vertices)[0]
