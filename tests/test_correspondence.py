@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sim.errors import WrinklesInputError
-from sim.garments.correspondence import panel_offsets, pattern_locations
+from sim.garments.correspondence import layout_locations, panel_offsets, pattern_locations
 from sim.garments.materials import get_material
 from sim.garments.types import Garment
 
@@ -86,3 +86,38 @@ def test_a_point_outside_the_targets_outline_goes_to_the_nearest_border_triangle
     np.testing.assert_allclose(loc.barycentric.sum(axis=1), 1.0)
     at = loc.evaluate(fine.faces, fine.rest_vertices)
     np.testing.assert_allclose(at, g.rest_vertices, atol=1e-6)  # the overhanging corners on the target's
+
+
+def test_layout_locations_match_pattern_locations_without_panel_names():
+    """Two meshings packed alike, the target's UVs 1 % larger: the UV layouts alone place every
+    source vertex where the named panels do."""
+    packing = {"front": (0.05, 0.05), "sleeve": (0.6, 0.05)}
+    coarse = flat_garment(7, packing)
+    fine = flat_garment(23, {k: (x * 1.01, y * 1.01) for k, (x, y) in packing.items()}, scale=2.0 / 1.01)
+    loc = layout_locations(coarse.faces, coarse.uvs, coarse.uv_faces, fine.uvs, fine.uv_faces)
+    assert loc.inside.all()
+    np.testing.assert_allclose(loc.evaluate(fine.faces, fine.rest_vertices), coarse.rest_vertices, atol=1e-5)
+
+
+def test_layout_locations_on_a_sewn_tshirt_agree_with_the_pattern():
+    """A real t-shirt's coarse and fine meshings (curved outlines, seams): the located points on
+    the fine rest surface within a millimetre of the named-panel locations."""
+    from sim.bodies import load_body
+    from sim.garments import make_garment
+
+    body = load_body()
+    coarse = make_garment("t_shirt", body, resolution=0.06)
+    fine = make_garment("t_shirt", body, resolution=0.03)
+    loc = layout_locations(coarse.faces, coarse.uvs, coarse.uv_faces, fine.uvs, fine.uv_faces)
+    ref = pattern_locations(coarse, fine)
+    at = [x.evaluate(fine.faces, fine.rest_vertices) for x in (loc, ref)]
+    d = np.linalg.norm(at[0] - at[1], axis=1)
+    assert d.max() < 1e-3, d.max()
+    assert loc.inside.mean() > 0.9
+
+
+def test_layouts_of_different_patterns_are_refused():
+    g = flat_garment(5, {"front": (0.05, 0.05), "sleeve": (0.6, 0.05)})
+    one = g.uv_faces[g.panel_ids == 0]
+    with pytest.raises(WrinklesInputError, match="not the same pattern"):
+        layout_locations(g.faces, g.uvs, g.uv_faces, g.uvs, one)

@@ -10,14 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from sim.datasets.config import DeriveConfig
+from sim.geometry.frames import tangent_basis, to_tangent
 from sim.profiling import phase
 
 CHUNK = 64
-
-
-def _unit(a: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(a, axis=-1, keepdims=True)
-    return a / np.maximum(n, 1e-12)
 
 
 class Deriver:
@@ -85,12 +81,9 @@ class Deriver:
         """``images/*`` of a chunk: strain, wrinkle and normals rasterised in UV space (f16)."""
         out = {}
         uvv = np.maximum(self.uv_vertex, 0)
-        fr = self.frames.frames(base)  # (T, U, 3, 3): columns t1, t2, n
-        n = _unit(fr[..., 2])
-        t1 = _unit(fr[..., 0] - np.sum(fr[..., 0] * n, axis=-1, keepdims=True) * n)
-        b = np.cross(n, t1)
+        basis = tangent_basis(self.frames.frames(base))  # (T, U, 3, 3): columns t1, n x t1, n
         nf = normals[:, uvv]  # fine normals at each UV vertex
-        tangent = np.stack([np.sum(nf * t1, -1), np.sum(nf * b, -1), np.sum(nf * n, -1)], axis=-1)
+        tangent = to_tangent(basis, nf)
         r = self.raster
         f16 = np.float16
         out["images/strain_norm"] = r.rasterize(st.vertex_norm[:, uvv, None], per="uv").astype(f16)

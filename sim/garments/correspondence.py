@@ -97,36 +97,22 @@ def _barycentric(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return out
 
 
-def pattern_locations(source: Garment, target: Garment) -> SurfaceLocations:
-    """Each source vertex's place on the target: the target triangle of the same panel that holds
-    the vertex's flat pattern position (a seam vertex: its first face's panel), with weights;
-    a position a hair outside the target's outline goes to the candidate triangle it lies least
-    outside (``SurfaceLocations.inside``)."""
-    offsets = panel_offsets(source, target)
-    src_flat, tgt_flat = source.flat_corners(), target.flat_corners()
-    n = source.num_vertices
-    nf = len(source.faces)
-    if n == 0 or nf == 0:
-        raise WrinklesInputError(f"garment {source.name!r} has no faces to locate")
-    first = np.full(n, nf, np.int64)  # each vertex's first face
-    np.minimum.at(first, source.faces.ravel(), np.arange(3 * nf) // 3)
-    if np.any(first == nf):
-        lone = int(np.argmax(first == nf))
-        raise WrinklesInputError(f"garment {source.name!r}: vertex {lone} is in no face")
-    corner = np.argmax(source.faces[first] == np.arange(n)[:, None], axis=1)
-    names = np.array(source.panel_names)[source.panel_ids[first]]
-    point = src_flat[first, corner] + np.stack([offsets[s] for s in names])
+def _locate(point: np.ndarray, group: np.ndarray, target: np.ndarray,
+            target_group: np.ndarray) -> SurfaceLocations:
+    """Each point (N, 2) in the target triangle (corners ``target`` (F, 3, 2)) of its own group
+    that holds it; a point a hair outside its group's outline goes to the candidate triangle it
+    lies least outside."""
+    n = len(point)
     face = np.zeros(n, np.int32)
     bary = np.zeros((n, 3))
     inside = np.zeros(n, bool)
-    tgt_names = np.array(target.panel_names)[target.panel_ids]
-    for name in np.unique(names):
-        mine = np.flatnonzero(names == name)
-        theirs = np.flatnonzero(tgt_names == name)
+    for g in np.unique(group):
+        mine = np.flatnonzero(group == g)
+        theirs = np.flatnonzero(target_group == g)
         k = min(CANDIDATES, len(theirs))
-        _, cand = cKDTree(tgt_flat[theirs].mean(axis=1)).query(point[mine], k=k)
+        _, cand = cKDTree(target[theirs].mean(axis=1)).query(point[mine], k=k)
         cand = theirs[cand.reshape(len(mine), k)]
-        w = _barycentric(point[mine][:, None], tgt_flat[cand])  # (m, k, 3)
+        w = _barycentric(point[mine][:, None], target[cand])  # (m, k, 3)
         best = np.argmax(w.min(axis=2), axis=1)
         pick = w[np.arange(len(mine)), best]
         inside[mine] = pick.min(axis=1) >= -INSIDE_TOLERANCE
@@ -134,3 +120,72 @@ def pattern_locations(source: Garment, target: Garment) -> SurfaceLocations:
         bary[mine] = pick / pick.sum(axis=1, keepdims=True)
         face[mine] = cand[np.arange(len(mine)), best]
     return SurfaceLocations(face=face, barycentric=bary, inside=inside)
+
+
+def _first_corners(faces: np.ndarray, n: int, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Each vertex's first face and its corner there."""
+    nf = len(faces)
+    if n == 0 or nf == 0:
+        raise WrinklesInputError(f"{what} has no faces to locate")
+    first = np.full(n, nf, np.int64)
+    np.minimum.at(first, faces.ravel(), np.arange(3 * nf) // 3)
+    if np.any(first == nf):
+        lone = int(np.argmax(first == nf))
+        raise WrinklesInputError(f"{what}: vertex {lone} is in no face")
+    return first, np.argmax(faces[first] == np.arange(n)[:, None], axis=1)
+
+
+def pattern_locations(source: Garment, target: Garment) -> SurfaceLocations:
+    """Each source vertex's place on the target: the target triangle of the same panel that holds
+    the vertex's flat pattern position (a seam vertex: its first face's panel), with weights;
+    a position a hair outside the target's outline goes to the candidate triangle it lies least
+    outside (``SurfaceLocations.inside``)."""
+    offsets = panel_offsets(source, target)
+    src_flat, tgt_flat = source.flat_corners(), target.flat_corners()
+    first, corner = _first_corners(np.asarray(source.faces), source.num_vertices, f"garment {source.name!r}")
+    names = np.array(source.panel_names)[source.panel_ids[first]]
+    point = src_flat[first, corner] + np.stack([offsets[s] for s in names])
+    tgt_names = np.array(target.panel_names)[target.panel_ids]
+    return _locate(point, names, tgt_flat, tgt_names)
+
+
+def _chart_centroids(corners: np.ndarray, face_chart: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Area centroid (C, 2) and area (C,) of each UV chart."""
+    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    nc = int(face_chart.max()) + 1
+    total = np.bincount(face_chart, area, nc)
+    mid = np.stack([np.bincount(face_chart, corners.mean(axis=1)[:, i] * area, nc) for i in range(2)], axis=1)
+    return mid / np.maximum(total, 1e-30)[:, None], total
+
+
+def layout_locations(source_faces: np.ndarray, source_uvs: np.ndarray, source_uv_faces: np.ndarray,
+                     target_uvs: np.ndarray, target_uv_faces: np.ndarray) -> SurfaceLocations:
+    """``pattern_locations`` from two UV layouts alone (a dataset's ``coarse/*`` and ``fine/*``
+    arrays, which keep no panel names): each UV chart is a panel; a source chart goes to the
+    target chart whose area centroid is nearest, both layouts are brought to one scale by their
+    total UV areas (two meshings tile the same panels) and each chart pair is aligned by its
+    centroids. Locations are of the source's 3D vertices (their first face's UV corner), on the
+    target's faces.
+
+    Raises:
+        WrinklesInputError: the layouts have different numbers of charts, or two source charts
+            claim one target chart (not the same pattern).
+    """
+    from sim.geometry.uv_raster import uv_charts
+
+    sf, suf, tuf = (np.asarray(a, np.int64) for a in (source_faces, source_uv_faces, target_uv_faces))
+    suv, tuv = np.asarray(source_uvs, np.float64), np.asarray(target_uvs, np.float64)
+    s_chart, _ = uv_charts(suf, len(suv))
+    t_chart, _ = uv_charts(tuf, len(tuv))
+    s_mid, s_area = _chart_centroids(suv[suf], s_chart)
+    t_mid, t_area = _chart_centroids(tuv[tuf], t_chart)
+    match = cKDTree(t_mid).query(s_mid)[1]
+    if len(s_mid) != len(t_mid) or len(np.unique(match)) != len(match):
+        raise WrinklesInputError(f"UV layouts of {len(s_mid)} and {len(t_mid)} charts do not match chart for "
+                                 "chart: not the same pattern")
+    scale = np.sqrt(t_area.sum() / s_area.sum())
+    first, corner = _first_corners(sf, int(sf.max()) + 1, "source mesh")
+    group = match[s_chart[first]]
+    point = (suv[suf[first, corner]] - s_mid[s_chart[first]]) * scale + t_mid[group]
+    return _locate(point, group, tuv[tuf], t_chart)

@@ -227,6 +227,38 @@ class SurfaceFrames:
         return a[0] if single else a
 
 
+def _unit(a: np.ndarray) -> np.ndarray:
+    return a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-12)
+
+
+def tangent_basis(frames: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+    """Orthonormal tangent bases, columns (t1', n x t1', n): n the unit normal (the frames' own n̂,
+    or ``normals``), t1' the unit part of the frames' t1 orthogonal to it. The basis of
+    tangent-space normal maps (the dataset's ``images/normal_tangent``).
+
+    Args:
+        frames: (..., U, 3, 3) from :meth:`SurfaceFrames.frames`, columns t1, t2, n̂.
+        normals: optional (..., U, 3) normals to use instead of n̂ (a smoother surface's).
+
+    Returns:
+        (..., U, 3, 3) float32.
+    """
+    f = np.asarray(frames, np.float32)
+    n = _unit(f[..., 2] if normals is None else np.asarray(normals, np.float32))
+    t1 = _unit(f[..., 0] - np.sum(f[..., 0] * n, axis=-1, keepdims=True) * n)
+    return np.stack([t1, np.cross(n, t1), n], axis=-1).astype(np.float32)
+
+
+def to_tangent(basis: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """World vectors (..., 3) as components in ``basis`` (..., 3, 3) (orthonormal columns)."""
+    return np.einsum("...ki,...k->...i", basis, vectors).astype(np.float32)
+
+
+def from_tangent(basis: np.ndarray, components: np.ndarray) -> np.ndarray:
+    """Components (..., 3) in ``basis`` (..., 3, 3) back to world vectors."""
+    return np.einsum("...ik,...k->...i", basis, components).astype(np.float32)
+
+
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray, *, device: str | None = None) -> np.ndarray:
     """Unit area-weighted vertex normals (zero where the incident faces cancel out).
 
