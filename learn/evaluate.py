@@ -226,6 +226,7 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         seq = {name: np.asarray(sf[name]) for name in sf.keys()}
         body_name = body_model_name(sf, manifest) or "default"
         seq["body/model"] = np.asarray(body_name)  # which body to re-pose (Method.predict_sequence)
+        seq["fps"] = np.asarray(float((manifest.get("config") or {}).get("fps") or 30.0))
         opts = dict(predict_options or {})
         if coarse is not None:
             opts["base"] = coarse[0].predict_sequence(coarse[1], seq, device=dev).vertices

@@ -276,6 +276,41 @@ def test_lfgd_baseline_trains_and_predicts(sample_dataset, tmp_path):
     assert item["cond"].shape == (7, 64, 64) and item["target"].shape == (3, 64, 64)
 
 
+@pytest.mark.slow
+def test_deepwrinkles_trains_predicts_and_is_evaluated(sample_dataset, tmp_path):
+    """DeepWrinkles end to end on the sample's t-shirts (the simulation as a perfect registration,
+    tiny networks): the fitted subspace reproduces the training shapes, the prediction is on the
+    fine topology with unit normal maps inside the UV charts, and ``evaluate`` gives its row."""
+    from learn.train.trainer import load_trained
+
+    out = tmp_path / "dw"
+    settings = ("garments=['t_shirt']", "source='simulation'", "resolution=32", "filters=4", "hidden=16",
+                "layers=1", "components=16")
+    small = [a for kv in settings for a in ("--set", f"model.{kv}")]
+    assert train_two_steps("deepwrinkles", sample_dataset, out, *small) == 0
+    method, model, _ = load_trained(out / "checkpoints" / "last.pt")
+    sub = method.subspace()
+    assert sub.size <= 16 and 0.0 < sub.variance_kept(1) <= sub.variance_kept() <= 1.0 + 1e-9
+    item = method.train_dataset(sample_dataset)[(3, 0)]
+    assert item["lr"].shape == (3, 32, 32) and item["controls"].shape[0] == 3
+    from learn.data import GarmentSequenceDataset
+
+    test = GarmentSequenceDataset(sample_dataset, "all", garments="t_shirt")
+    sf = test.open_sequence(test.sequence_ids[0])
+    seq = {k: np.asarray(sf[k]) for k in sf.keys()}
+    pred = method.predict_sequence(model, seq, device=torch.device("cpu"))
+    assert pred.vertices.shape == seq["fine/vertices"].shape and np.isfinite(pred.vertices).all()
+    hr = pred.extras["normal_maps"]
+    norms = np.linalg.norm(hr, axis=-1)
+    assert hr.shape[1:] == (32, 32, 3) and (norms > 0).mean() > 0.3
+    np.testing.assert_allclose(norms[norms > 0], 1.0, atol=1e-4)
+    ckpt = out / "checkpoints" / "last.pt"
+    assert cli("evaluate", "--model", ckpt, "--data", sample_dataset, "--split", "all",
+               "--out", tmp_path / "eval", "--no-images", "-q") == 0
+    row = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    assert row["summary"]["ev"] > 0 and {s["garment"] for s in row["sequences"]} == {"t_shirt"}
+
+
 # ------------------------------------------------------------------- evaluation, export, animate
 @pytest.mark.slow
 def test_evaluate_rows_with_the_coarse_base(runs, sample_dataset, tmp_path):

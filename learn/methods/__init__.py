@@ -7,6 +7,7 @@ evaluation harness look methods up here.
 from __future__ import annotations
 
 from learn.methods.base import LossOutput, Method, Prediction
+from learn.methods.deepwrinkles import DeepWrinklesMethod
 from learn.methods.displacement_regressor import DisplacementRegressorMethod
 from learn.methods.skeleton_cvae import SkeletonCVAEMethod
 from learn.methods.skinned_mlp import SkinnedMLPMethod
@@ -17,6 +18,7 @@ METHODS: dict[str, type[Method]] = {
     SkeletonCVAEMethod.name: SkeletonCVAEMethod,
     WrinkleDiffusionMethod.name: WrinkleDiffusionMethod,
     DisplacementRegressorMethod.name: DisplacementRegressorMethod,
+    DeepWrinklesMethod.name: DeepWrinklesMethod,
 }
 
 METHOD_ALIASES: dict[str, str] = {"coarse": SkeletonCVAEMethod.name, "wrinkles": WrinkleDiffusionMethod.name}

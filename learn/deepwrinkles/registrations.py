@@ -1,0 +1,197 @@
+"""DeepWrinkles' registered frames from simulated sequences (Lähner et al. 2018, Sec. 3.1).
+
+The paper registers one garment template to every frame of a 4D scan. Here a sequence's fine
+simulated garment plays the scanned garment: each frame is seen by the virtual camera ring of
+``sim.scans.scanner`` (the body occluding it, sensor noise, holes, marked borders, no
+correspondence), and the template — the sequence's coarse garment, one topology for every
+sequence of a reference-fit dataset — is registered to that point cloud
+(``sim.scans.registration``, Eq. 1-2). The template starts each frame skinned to the frame's
+body pose (linear blend skinning with weights from the nearest body vertices); with ``tracking``
+it starts from the previous frame's registration moved by the skinning's change between the two
+frames, as a tracker of a 4D sequence does.
+
+The simulation gives the truth the paper lacks: each template vertex's place on the fine frame,
+found through the shared sewing pattern (``sim.garments.correspondence.layout_locations``), so
+the registration error is measured, not guessed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.errors import WrinklesInputError
+
+
+@dataclass(frozen=True)
+class SequenceRig:
+    """A sequence's template and the skinning that poses it.
+
+    Attributes:
+        rest: template rest positions [m] (Vc, 3) (``coarse/rest_vertices``).
+        faces: template faces (Fc, 3).
+        weights: template skinning weights (Vc, J), from the nearest rest-body vertices.
+        transforms: bone transforms (T, J, 3, 4), rest pose to each frame's world.
+        local: the joints' local rotations (T, J, 3, 3).
+    """
+
+    rest: np.ndarray
+    faces: np.ndarray
+    weights: np.ndarray
+    transforms: np.ndarray
+    local: np.ndarray
+
+    def skinned(self, frames: np.ndarray | None = None) -> np.ndarray:
+        """The rest template skinned to frames (all by default): float32 (n, Vc, 3)."""
+        from learn.deepwrinkles.subspace import repose
+
+        t = self.transforms if frames is None else self.transforms[np.asarray(frames)]
+        return repose(self.rest, self.weights, t)
+
+
+def sequence_rig(
+    seq: Mapping[str, np.ndarray], body, *, garment_betas: np.ndarray | None = None, neighbours: int = 4
+) -> SequenceRig:
+    """The template rig of a dataset sequence (its ``coarse/*`` and ``body/*`` arrays) on the body
+    model it was simulated with.
+
+    A reference-fit garment is built on the body of ``garment_betas`` (None: the mean shape) and
+    worn by every shape; its rest template moves to the sequence's shape with the body surface
+    (each vertex bound to its closest point of the reference rest body, offset kept in that
+    triangle's frame: DeepWrinkles' Eq. 5, the mean shape plus the body's shape offsets).
+    """
+    from learn.methods.skinned_mlp import pose_transforms
+    from sim.dressing import bind_to_surface
+    from sim.skinning.transfer import transfer_skinning_weights
+
+    for key in ("coarse/rest_vertices", "coarse/faces", "body/betas", "body/poses", "body/joints"):
+        if key not in seq:
+            raise WrinklesInputError(
+                f"sequence has no {key!r}: DeepWrinkles needs the coarse garment "
+                "(a dataset made with coarse twins) and the body"
+            )
+    betas = np.asarray(seq["body/betas"], np.float32).reshape(-1)
+    shaped = body.rest_mesh(betas)
+    rest = np.asarray(seq["coarse/rest_vertices"], np.float32)
+    ref = body.rest_mesh(garment_betas)
+    if not np.allclose(ref, shaped, atol=1e-6):
+        rest = bind_to_surface(rest, ref, body.faces, device="cpu").targets(shaped)
+    weights = transfer_skinning_weights(rest, shaped, body.weights, k=neighbours)
+    A, local = pose_transforms(
+        np.asarray(seq["body/poses"], np.float32),
+        np.asarray(seq["body/joints"], np.float32),
+        body.rest_joints(betas),
+        np.asarray(body.parents),
+    )
+    return SequenceRig(
+        rest=rest,
+        faces=np.asarray(seq["coarse/faces"], np.int32),
+        weights=np.asarray(weights, np.float32),
+        transforms=A,
+        local=local,
+    )
+
+
+def template_truth(seq: Mapping[str, np.ndarray]):
+    """Where each template vertex lies on the fine garment (``SurfaceLocations``): its frames'
+    true template positions are ``.evaluate(seq["fine/faces"], seq["fine/vertices"])``."""
+    from sim.garments.correspondence import layout_locations
+
+    return layout_locations(
+        np.asarray(seq["coarse/faces"]),
+        np.asarray(seq["coarse/uvs"]),
+        np.asarray(seq["coarse/uv_faces"]),
+        np.asarray(seq["fine/uvs"]),
+        np.asarray(seq["fine/uv_faces"]),
+    )
+
+
+@dataclass(frozen=True)
+class RegisteredSequence:
+    """Registrations of a sequence's frames.
+
+    Attributes:
+        frames: the registered frame indices (n,).
+        vertices: registered template positions [m] (n, Vc, 3).
+        truth: the template's true positions on the simulated fine frames [m] (n, Vc, 3).
+        pairs: data pairs kept in each frame's last round (n,).
+    """
+
+    frames: np.ndarray
+    vertices: np.ndarray
+    truth: np.ndarray
+    pairs: np.ndarray
+
+    def errors(self) -> np.ndarray:
+        """Per frame and template vertex, the distance [m] to the truth (n, Vc)."""
+        return np.linalg.norm(self.vertices - self.truth, axis=-1)
+
+
+def register_sequence(
+    seq: Mapping[str, np.ndarray],
+    body,
+    *,
+    frames=None,
+    scan_config=None,
+    registration_config=None,
+    tracking: bool = True,
+    seed: int = 0,
+    device: str | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> RegisteredSequence:
+    """Scan and register frames of a dataset sequence (module docstring).
+
+    Args:
+        seq: the sequence's arrays (``fine/*``, ``coarse/*``, ``body/*``).
+        body: its ``BodyModel`` (the occluder and the template's skinning).
+        frames: frame indices, increasing (all by default).
+        scan_config, registration_config: ``ScanConfig`` / ``RegistrationConfig`` (defaults).
+        tracking: start each frame from the previous registered frame (when it is the one just
+            before), else from the skinned template.
+        seed: the scans' noise; frame t uses ``seed + t``.
+        device: Warp device of the scans and skinning.
+        progress: called with 1 after each frame.
+    """
+    from sim.scans.registration import register
+    from sim.scans.scanner import scan_garment
+
+    rig = sequence_rig(seq, body)
+    T = rig.transforms.shape[0]
+    idx = np.arange(T) if frames is None else np.asarray(frames, np.int64)
+    if idx.size == 0 or idx.min() < 0 or idx.max() >= T or np.any(np.diff(idx) <= 0):
+        raise WrinklesInputError(f"register_sequence: frames must increase within [0, {T - 1}]")
+    betas = np.asarray(seq["body/betas"], np.float32).reshape(-1)[: body.num_betas]
+    fine = np.asarray(seq["fine/vertices"])
+    fine_faces = np.asarray(seq["fine/faces"], np.int32)
+    joints = np.asarray(seq["body/joints"], np.float64)
+    skinned = rig.skinned(idx)
+    out = np.empty((len(idx), *rig.rest.shape), np.float32)
+    pairs = np.zeros(len(idx), np.int64)
+    for i, t in enumerate(idx):
+        pose = body.pose(
+            betas,
+            np.asarray(seq["body/poses"])[t : t + 1],
+            np.asarray(seq["body/trans"])[t : t + 1],
+            device=device,
+        )
+        scan = scan_garment(
+            fine[t],
+            fine_faces,
+            joints[t, 0],
+            body_vertices=pose.vertices[0],
+            body_faces=pose.faces,
+            config=scan_config,
+            seed=seed + int(t),
+            device=device,
+        )
+        start = skinned[i]
+        if tracking and i > 0 and idx[i - 1] == t - 1:
+            start = out[i - 1] + skinned[i] - skinned[i - 1]
+        reg = register(start, rig.faces, scan, config=registration_config)
+        out[i], pairs[i] = reg.vertices, reg.pairs
+        if progress is not None:
+            progress(1)
+    truth = template_truth(seq).evaluate(fine_faces, fine[idx])
+    return RegisteredSequence(frames=idx, vertices=out, truth=truth, pairs=pairs)

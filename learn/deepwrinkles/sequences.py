@@ -1,0 +1,83 @@
+"""One dataset sequence prepared for DeepWrinkles: its template rig, control vectors, registered
+global shapes and normal maps (the data side of ``learn.methods.deepwrinkles``)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from learn.deepwrinkles.global_shape import RegistrationSettings, normalise, pose, registrations
+from learn.deepwrinkles.normal_maps import DetailMaps
+from learn.deepwrinkles.registrations import sequence_rig
+
+KEYS = (
+    "fine/vertices",
+    "fine/faces",
+    "fine/uvs",
+    "fine/uv_faces",
+    "fine/rest_vertices",
+    "coarse/rest_vertices",
+    "coarse/faces",
+    "coarse/uvs",
+    "coarse/uv_faces",
+    "body/betas",
+    "body/poses",
+    "body/trans",
+    "body/joints",
+)
+"""The arrays a prepared sequence reads (``fine/vertices`` for training only)."""
+
+
+def sequence_fps(sf, manifest_config: Mapping) -> float:
+    """Frame rate of a sequence: its provenance's, else the generator config's, else 30."""
+    try:
+        fps = sf.json("provenance").get("config", {}).get("fps")
+    except (KeyError, ValueError, AttributeError):
+        fps = None
+    return float(fps or manifest_config.get("fps") or 30.0)
+
+
+class PreparedSequence:
+    """A sequence's rig, control vectors and maps operator (and, for training, its registered,
+    normalised global shapes).
+
+    Args:
+        seq: the sequence's arrays (``KEYS``).
+        body: its ``BodyModel``.
+        fps: frame rate of the control vectors' finite differences.
+        resolution: normal-map side [px].
+        device: Warp device.
+    """
+
+    def __init__(
+        self, seq: Mapping[str, np.ndarray], body, fps: float, resolution: int, *, device: str | None = None
+    ):
+        from learn.deepwrinkles.regression import control_vectors
+
+        self.seq = seq
+        self.body = body
+        self.rig = sequence_rig(seq, body)
+        self.reference_rest = np.asarray(seq["coarse/rest_vertices"], np.float32)
+        self.controls = control_vectors(np.asarray(seq["body/poses"]), np.asarray(seq["body/trans"]), fps)
+        self.maps = DetailMaps(seq, resolution, device=device)
+        self.normalised: np.ndarray | None = None
+
+    @property
+    def frames(self) -> int:
+        return int(self.controls.shape[0])
+
+    def register(
+        self, sf, settings: RegistrationSettings, *, device: str | None = None, progress=None
+    ) -> None:
+        """Registered frames of the sequence, pose- and shape-normalised (``self.normalised``)."""
+        reg = registrations(sf, self.seq, self.body, settings, device=device, progress=progress)
+        self.normalised = normalise(self.rig, self.reference_rest, reg, self.frames)
+
+    def posed(self, normalised: np.ndarray) -> np.ndarray:
+        """World template positions (T, Vc, 3) of normalised shapes of every frame (T, Vc, 3)."""
+        return pose(self.rig, self.reference_rest, normalised)
+
+    def skinned(self) -> np.ndarray:
+        """The reference template with the shape offset, skinned to every frame (T, Vc, 3)."""
+        return self.rig.skinned()

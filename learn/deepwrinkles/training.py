@@ -1,0 +1,172 @@
+"""DeepWrinkles' training data: the fitted state made before training and the training items
+(see ``learn.methods.deepwrinkles``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from sim.errors import WrinklesInputError
+
+SEQUENCE_CACHE = 128
+"""Prepared sequences a training process keeps (items come in random order; ~5 MB each at 6k
+vertices and 60 frames)."""
+
+
+def _sequences(method, root):
+    from learn.data import GarmentSequenceDataset
+
+    ds = GarmentSequenceDataset(
+        root,
+        "train",
+        window=max(2, method.config.window),
+        keys=("fine/vertices",),
+        garments=method.config.garments or None,
+    )
+    if len(ds.sequence_ids) == 0:
+        raise WrinklesInputError("no training sequences", path=ds.root)
+    return ds
+
+
+def _prepared(method, ds, sid: str, *, device: str | None = None):
+    from learn.deepwrinkles.sequences import KEYS, PreparedSequence, sequence_fps
+    from sim.datasets.storage import body_model_name
+
+    sf = ds.open_sequence(sid)
+    missing = [k for k in KEYS if k not in sf]
+    if missing:
+        raise WrinklesInputError(
+            f"sequence {sid} has no {missing[0]!r}: DeepWrinkles needs fine and coarse garments and the body",
+            path=sf.path,
+        )
+    seq = {k: sf[k] for k in KEYS}
+    body = method.body(body_model_name(sf, {"config": ds.generator_config}) or "default")
+    return sf, PreparedSequence(
+        seq, body, sequence_fps(sf, ds.generator_config), method.config.resolution, device=device
+    )
+
+
+def fit_state(method, root) -> dict[str, torch.Tensor]:
+    """Register the training sequences (cached), fit the subspace, the control statistics and the
+    linear pose-to-shape map: the method's fitted state (module docstring of
+    ``learn.methods.deepwrinkles``)."""
+    from learn.deepwrinkles.regression import LinearPoseToShape
+    from learn.deepwrinkles.subspace import fit_subspace
+    from pipelines.progress import progress_bar
+
+    cfg = method.config
+    ds = _sequences(method, root)
+    shapes, controls, template = [], [], None
+    total = sum(int(ds.entries[s]["frames"]) for s in ds.sequence_ids)
+    done = [0]
+    with progress_bar(total, "registering", unit="frame") as bar:
+
+        def step(n: int) -> None:
+            done[0] += n
+            bar(done[0])
+
+        for sid in ds.sequence_ids:
+            sf, prep = _prepared(method, ds, sid, device="cpu")
+            if template is None:
+                template = prep.rig.faces
+            elif not np.array_equal(template, prep.rig.faces):
+                raise WrinklesInputError(
+                    f"sequence {sid}: its template differs from the first sequence's; "
+                    "DeepWrinkles needs one garment topology (a reference-fit dataset of one "
+                    "category: set model.garments)",
+                    path=sf.path,
+                )
+            prep.register(sf, method.settings(), device="cpu", progress=step)
+            shapes.append(prep.normalised)
+            controls.append(prep.controls)
+    sub = fit_subspace(np.concatenate(shapes), cfg.components, device="cpu")
+    th = np.concatenate(controls).astype(np.float64)
+    mean, std = th.mean(0), np.maximum(th.std(0), 1e-6)
+    coeffs = np.concatenate([sub.encode(s) for s in shapes])
+    scale = np.maximum(coeffs.std(0), 1e-9)
+    linear = LinearPoseToShape.fit((th - mean) / std, coeffs, ridge=cfg.ridge)
+    f32 = torch.float32
+    return {
+        "mean": torch.from_numpy(sub.mean),
+        "components": torch.from_numpy(sub.components),
+        "singular_values": torch.from_numpy(sub.singular_values),
+        "total_variance": torch.tensor(sub.total_variance),
+        "frames": torch.tensor(sub.frames),
+        "control_mean": torch.tensor(mean, dtype=f32),
+        "control_std": torch.tensor(std, dtype=f32),
+        "coefficient_scale": torch.tensor(scale, dtype=f32),
+        "linear": torch.from_numpy(linear.matrix),
+        "template_faces": torch.from_numpy(template.astype(np.int64)),
+    }
+
+
+class TrainFrames(torch.utils.data.Dataset):
+    """Frames of the training split (module docstring of ``learn.methods.deepwrinkles``); item
+    ``(index, seed)`` draws nothing at random."""
+
+    def __init__(self, method, root):
+        self.method = method
+        self.root = root
+        self.ds = _sequences(method, root)
+        self._cache: dict = {}
+
+    def __len__(self) -> int:
+        return sum(int(self.ds.entries[s]["frames"]) for s in self.ds.sequence_ids)
+
+    def _locate(self, index: int) -> tuple[str, int]:
+        for sid in self.ds.sequence_ids:
+            n = int(self.ds.entries[sid]["frames"])
+            if index < n:
+                return sid, index
+            index -= n
+        raise IndexError(index)
+
+    def _sequence(self, sid: str):
+        if sid not in self._cache:
+            m = self.method
+            sf, prep = _prepared(m, self.ds, sid, device="cpu")
+            prep.register(sf, m.settings(), device="cpu")
+            sub = m.subspace()
+            k = m.config.lr_components or sub.size
+            coeffs = sub.encode(prep.normalised)
+            lr_shape = prep.normalised if m.config.lr_source == "registration" else sub.decode(coeffs[:, :k])
+            if len(self._cache) >= SEQUENCE_CACHE:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[sid] = (
+                prep,
+                coeffs,
+                prep.posed(lr_shape),
+                prep.skinned(),
+                np.asarray(prep.seq["fine/vertices"], np.float32),
+            )
+        return self._cache[sid]
+
+    def __getitem__(self, key: tuple[int, int]) -> dict:
+        from learn.deepwrinkles.regression import windows
+
+        index, _ = key
+        sid, t = self._locate(index)
+        prep, coeffs, global_shape, skinned, fine = self._sequence(sid)
+        s = self.method.state
+        ctl = (prep.controls - s["control_mean"].numpy()) / s["control_std"].numpy()
+        w = self.method.config.window
+        win = windows(ctl, w)[t]
+        lam = windows(coeffs / s["coefficient_scale"].numpy(), w)[t]
+        prev = max(t - 1, 0)
+        lr = prep.maps.lr(global_shape[[t]], skinned[[t]])[0]
+        hr = prep.maps.hr(fine[[prev, t]], global_shape[[prev, t]])
+
+        def chw(a: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(np.ascontiguousarray(a.transpose(2, 0, 1), dtype=np.float32))
+
+        return {
+            "controls": torch.from_numpy(win),
+            "coefficients": torch.from_numpy(lam.astype(np.float32)),
+            "lr": chw(lr),
+            "hr": chw(hr[1]),
+            "hr_prev": chw(hr[0]),
+            "mask": torch.from_numpy(prep.maps.mask[None].astype(np.float32)),
+        }
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_cache": {}}
