@@ -1,5 +1,6 @@
-"""``wrinkles animate``: a body motion in, a wrinkled garment out (learn.animate), written as USD
-(body + garment with UVs) and previews."""
+"""``wrinkles animate``: a body motion in, a wrinkled garment out, written as USD (body + garment
+with UVs) and previews: Guo et al. 2024's learned pipeline (learn.animate, ``--method diffusion``)
+or a DeepWrinkles checkpoint (pipelines.animate_deepwrinkles, ``--method deepwrinkles``)."""
 
 from __future__ import annotations
 
@@ -23,17 +24,29 @@ from pipelines.outputs import (
 from pipelines.progress import progress_bar
 from sim.errors import WrinklesInputError
 
-HELP = "animate a garment with learned wrinkles (virtual-skeleton CVAE + strain diffusion); USD + video"
+HELP = "animate a garment with learned wrinkles (CVAE + strain diffusion, or DeepWrinkles); USD + video"
 DESCRIPTION = """\
-Animate a garment on a moving body with Guo et al. 2024's learned pipeline, no simulation:
-body pose and shape -> CVAE -> 64 virtual bones -> LBS base mesh -> Green-Lagrange strain map ->
-DDIM wrinkle diffusion -> wrinkles decoded onto the base -> USD stage + preview.
+Animate a garment on a moving body with a learned model, no simulation. By default (--method
+diffusion) Guo et al. 2024's pipeline: body pose and shape -> CVAE -> 64 virtual bones -> LBS
+base mesh -> Green-Lagrange strain map -> DDIM wrinkle diffusion -> wrinkles decoded onto the
+base -> USD stage + preview.
 
 Without --coarse/--wrinkles the shipped default models of --garment are used (pretrained/, see
 pretrained/MODEL_CARD.md: t_shirt and straight_skirt). The garment is the models' own cut (the
 mean-shape template they were trained on), worn by the body --shape gives. --steps trades speed
 for detail (50 = the paper's setting; 10-20 is a good preview on a CPU). Frames share one initial
 noise and are guided toward their neighbours while denoising, so the wrinkles do not flicker.
+
+--method deepwrinkles animates a DeepWrinkles checkpoint (--model, 'wrinkles train deepwrinkles'):
+body motion -> LSTM -> global shape (the coarse template, posed) -> LR normal map -> cGAN -> HR
+normal map of the wrinkles. Its garment is the one of the dataset it was trained on: --data names
+that dataset (reference-fit: one garment for every body) and its first training sequence gives
+the fine and coarse garment meshes; the body is posed with the dataset's body model. The stage
+holds (--surface global, default) the global shape on the fine garment's mesh with the predicted
+normal maps on its material (per-frame 16-bit PNGs in <stage>_normals/ beside the stage: the
+wrinkles are in the shading, as DeepWrinkles renders them; Blender imports the first frame's
+map), or (--surface fine) the fine garment moved to match the maps (the wrinkles in the geometry,
+no maps: on that surface they would count twice). Previews draw the fine garment either way.
 
 --body/--shape/--motion/--motion-param/--rest/--duration/--fps are those of 'wrinkles body'.
 
@@ -45,6 +58,8 @@ examples:
       --out walk.usdc --sheet walk.png
   wrinkles animate --coarse runs/coarse/checkpoints/last.pt --wrinkles runs/wr/checkpoints/last.pt \\
       --motion run --out mine.usda
+  wrinkles animate --method deepwrinkles --model runs/dw/checkpoints/last.pt --data data/tshirts \\
+      --motion walk --shape height=0.6 --out out/dw_walk.usdc --preview out/dw_walk.mp4
 """
 
 
@@ -53,10 +68,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     g = p.add_argument_group("garment and models")
     g.add_argument(
+        "--method",
+        default="diffusion",
+        choices=("diffusion", "deepwrinkles"),
+        help="diffusion: Guo et al. 2024's CVAE + strain diffusion (--coarse/--wrinkles or the shipped "
+        "models); deepwrinkles: a DeepWrinkles checkpoint (--model, --data) (default: %(default)s)",
+    )
+    g.add_argument(
         "--garment",
         default="t_shirt",
         help="garment category of the shipped models: t_shirt (tshirt), straight_skirt (skirt) "
-        "(default: %(default)s; ignored with --coarse)",
+        "(default: %(default)s; ignored with --coarse and --method deepwrinkles)",
     )
     g.add_argument("--coarse", help="skeleton_cvae checkpoint (default: the shipped one of --garment)")
     g.add_argument("--wrinkles", help="wrinkle_diffusion checkpoint (default: the shipped one of --garment)")
@@ -68,6 +90,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="draw the CVAE latent z ~ N(0, I) instead of its mean (another plausible fit)",
     )
+    d = p.add_argument_group("--method deepwrinkles")
+    d.add_argument("--model", help="DeepWrinkles checkpoint ('wrinkles train deepwrinkles')")
+    d.add_argument("--data", help="the dataset the model was trained on: its first training sequence "
+                   "gives the garment meshes")
+    d.add_argument("--surface", choices=("global", "fine"), help="global: the global shape + normal maps; "
+                   "fine: the fine garment moved to match the maps, no maps (default: global)")
+    d.add_argument("--normal-map-bits", type=int, choices=(8, 16),
+                   help="bit depth of the normal-map PNGs (default: 16; 8: files several times smaller)")
     g.add_argument(
         "--clearance",
         type=float,
@@ -81,7 +111,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     o = p.add_argument_group("outputs")
     o.add_argument(
         "--out", help="USD stage to write: .usdc or .usd (binary crate) or .usda (text: larger and slower "
-        "to open, for reading and diffing) (default: out/<garment>_<motion>.usdc)"
+        "to open, for reading and diffing) (default: out/<garment>_<motion>.usdc; "
+        "out/deepwrinkles_<garment>_<motion>.usdc with --method deepwrinkles)"
     )
     add_body_points_option(o)
     o.add_argument("--preview", help="preview video to write (.mp4 or .gif)")
@@ -162,7 +193,26 @@ def _garment(pipe, material: str | None):
     )
 
 
+def _check_method_options(args: argparse.Namespace) -> None:
+    """The options of the other method are refused (one line)."""
+    if args.method == "deepwrinkles":
+        return
+    for key, flag in (("model", "--model"), ("data", "--data"), ("surface", "--surface"),
+                      ("normal_map_bits", "--normal-map-bits")):
+        if getattr(args, key) is not None:
+            raise WrinklesInputError(f"{flag} applies to --method deepwrinkles")
+
+
 def run(args: argparse.Namespace) -> int:
+    _check_method_options(args)
+    if args.method == "deepwrinkles":
+        from pipelines.animate_deepwrinkles import run as run_deepwrinkles
+
+        return run_deepwrinkles(args)
+    return _run_diffusion(args)
+
+
+def _run_diffusion(args: argparse.Namespace) -> int:
     import torch
 
     from learn.animate import WrinklePipeline

@@ -9,7 +9,10 @@ the project venv: it needs only ``bpy`` and ``numpy``::
 ``names`` (Blender object names = USD prim names) and per name ``points__<name>`` (T, V, 3)
 [m, Y up], ``faces__<name>`` (F, 3) and optionally ``corner_uvs__<name>`` (F, 3, 2); for a
 body written as a UsdSkel rig ``skinned`` (its name), ``joints`` (the skeleton's joint names)
-and ``shape_keys`` (how many pose blend shapes it has).
+and ``shape_keys`` (how many pose blend shapes it has); for a garment with normal maps
+``normal_map__<name>`` (H, W, 3): its first frame's image as values in [0, 1], row 0 the top,
+and ``tangents__<name>`` / ``bitangents__<name>`` (F, 3, 3) [Y up]: our tangent frame's t1 and
+n x t1 (``sim.geometry.frames.tangent_basis``) at each face corner at the first frame.
 
 Checks, each within ``TOL`` [m]:
   * every named mesh object exists and carries a Mesh Sequence Cache modifier (time-sampled
@@ -20,7 +23,11 @@ Checks, each within ``TOL`` [m]:
     armature and shape keys) equal our points at time code k, converted Y up -> Z up as
     Blender does on import ((x, y, z) -> (x, -z, y));
   * two different frames really differ (the animation is not frozen on one sample);
-  * loop topology and face-varying UVs (seams) equal ours.
+  * loop topology and face-varying UVs (seams) equal ours;
+  * a garment with normal maps: its material's Principled BSDF takes its Normal from a Normal
+    Map node (tangent space) fed by an Image Texture node whose image, read as non-colour data,
+    is our first frame's PNG pixel for pixel (Blender stores rows bottom first), and Blender's
+    MikkTSpace tangent and bitangent (sign * normal x tangent) point along our t1 and n x t1.
 
 Prints one line ``WRINKLES_CHECK_RESULT {json}`` and exits 0 when all checks pass, 1 if not.
 Blender 4.5 does not read ``timeCodesPerSecond`` on import (the scene keeps its fps, 24);
@@ -42,6 +49,12 @@ import numpy as np
 TOL = 1e-4
 #: UV tolerance: float32 UVs are copied unchanged.
 UV_TOL = 1e-6
+#: normal-map pixel tolerance: a 16-bit PNG read into Blender's float buffer (v / 65535).
+PIXEL_TOL = 1e-4
+#: smallest cosine between Blender's per-corner tangent (bitangent) and ours: MikkTSpace averages
+#: over the faces at a vertex and orthogonalises against Blender's normals, ours over the UV
+#: vertex's faces against the area-weighted normal; a flipped or swapped axis gives <= 0.
+TANGENT_COS = 0.95
 MARKER = "WRINKLES_CHECK_RESULT"
 
 
@@ -133,6 +146,72 @@ def check_positions(name: str, ours: np.ndarray, start: int, end: int,
     return info
 
 
+def linked_from(socket):
+    """The node feeding an input socket, or None."""
+    return socket.links[0].from_node if socket.is_linked else None
+
+
+def check_normal_map(ob, exp, name: str, problems: list[str]) -> dict:
+    """The material's normal-map chain, its image, and Blender's tangent frame against ours."""
+    mat = ob.active_material
+    nodes = [] if mat is None or not mat.use_nodes else list(mat.node_tree.nodes)
+    bsdf = next((n for n in nodes if n.type == "BSDF_PRINCIPLED"), None)
+    nmap = None if bsdf is None else linked_from(bsdf.inputs["Normal"])
+    tex = linked_from(nmap.inputs["Color"]) if nmap is not None and nmap.type == "NORMAL_MAP" else None
+    info: dict = {"chain": [getattr(n, "type", None) for n in (tex, nmap, bsdf)]}
+    if bsdf is None or nmap is None or nmap.type != "NORMAL_MAP" or tex is None or tex.type != "TEX_IMAGE":
+        problems.append(f"{name}: no Image Texture -> Normal Map -> BSDF Normal chain ({info['chain']})")
+        return info
+    info["space"] = nmap.space
+    image = tex.image
+    if nmap.space != "TANGENT" or image is None:
+        problems.append(f"{name}: normal map space {nmap.space}, image {image}")
+        return info
+    ours = exp[f"normal_map__{name}"]
+    h, w = ours.shape[:2]
+    info.update(image=bpy.path.abspath(image.filepath), colorspace=image.colorspace_settings.name,
+                size=list(image.size), float_buffer=bool(image.is_float), source=image.source)
+    if list(image.size) != [w, h]:
+        problems.append(f"{name}: image size {list(image.size)}, expected {[w, h]}")
+        return info
+    px = np.empty(w * h * 4, np.float32)
+    image.pixels.foreach_get(px)
+    theirs = px.reshape(h, w, 4)[::-1, :, :3]  # Blender's rows start at the bottom
+    info["pixel_max_err"] = float(np.abs(theirs - ours).max())
+    if info["pixel_max_err"] > PIXEL_TOL or info["colorspace"] != "Non-Color":
+        problems.append(f"{name}: image pixels differ by {info['pixel_max_err']:.3g} "
+                        f"(colour space {info['colorspace']})")
+    info.update(check_tangents(ob, exp, name, problems))
+    return info
+
+
+def check_tangents(ob, exp, name: str, problems: list[str]) -> dict:
+    """Blender's MikkTSpace frame at the first frame against ours, corner by corner."""
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    mesh = ob.evaluated_get(depsgraph).to_mesh()
+    mesh.calc_tangents()
+    n = len(mesh.loops)
+    t, normal, sign = np.empty(n * 3, np.float32), np.empty(n * 3, np.float32), np.empty(n, np.float32)
+    mesh.loops.foreach_get("tangent", t)
+    mesh.loops.foreach_get("normal", normal)
+    mesh.loops.foreach_get("bitangent_sign", sign)
+    ob.evaluated_get(depsgraph).to_mesh_clear()
+    # what the Normal Map node uses: bitangent = sign * (normal x tangent); in world axes
+    b = sign[:, None] * np.cross(normal.reshape(-1, 3), t.reshape(-1, 3))
+    rot = np.array(ob.matrix_world, dtype=np.float64)[:3, :3]
+    rot /= np.linalg.norm(rot, axis=0, keepdims=True)
+    t, b = t.reshape(-1, 3) @ rot.T, b @ rot.T
+    ours_t, ours_b = (y_up_to_blender(exp[f"{k}__{name}"].reshape(-1, 3)) for k in ("tangents", "bitangents"))
+    cos_t = np.einsum("ij,ij->i", t, ours_t)
+    cos_b = np.einsum("ij,ij->i", b, ours_b)
+    info = {"tangent_cos_min": float(cos_t.min()), "bitangent_cos_min": float(cos_b.min()),
+            "bitangent_signs": sorted({float(s) for s in sign})}
+    if min(info["tangent_cos_min"], info["bitangent_cos_min"]) < TANGENT_COS:
+        problems.append(f"{name}: Blender's tangent frame differs from ours (cosines "
+                        f"{info['tangent_cos_min']:.3f}, {info['bitangent_cos_min']:.3f})")
+    return info
+
+
 def check_mesh(exp, name: str, start: int, end: int, problems: list[str]) -> dict | None:
     """One named mesh: how it is animated, its positions per frame, topology and UVs."""
     ob = bpy.data.objects.get(name)
@@ -155,6 +234,10 @@ def check_mesh(exp, name: str, start: int, end: int, problems: list[str]) -> dic
         problems.append(f"{name}: loop topology differs from our faces")
     if corner is not None and (info["uv_max_err"] is None or info["uv_max_err"] > UV_TOL):
         problems.append(f"{name}: UVs differ ({info['uv_max_err']})")
+    if f"normal_map__{name}" in exp:
+        scene = bpy.context.scene
+        scene.frame_set(start)
+        info["normal_map"] = check_normal_map(ob, exp, name, problems)
     return info
 
 

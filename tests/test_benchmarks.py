@@ -262,3 +262,38 @@ def test_garments_refuses_an_unknown_shape(tmp_path):
     assert proc.returncode == 2 and not found
     assert proc.stderr.strip().splitlines()[-1].endswith(
         "error: --shapes: unknown 'giant'; expected mean, plus2, minus2, heavy, slim")
+
+
+@pytest.mark.slow
+def test_registration_against_the_simulation(sample_dataset, tmp_path):
+    r = single_result("bench_registration", "--data", str(sample_dataset), "--sequences", "1",
+                      "--frames", "2", "--variants", "default,no_tracking", "--device", "cpu",
+                      tmp_path=tmp_path)
+    assert r["benchmark"] == "registration_cpu" and r["sizes"]["frames"] == "consecutive"
+    fig = r["figures"]
+    assert list(fig) == ["skinned", "default", "no_tracking"]
+    (row,) = r["per_sequence"]
+    assert row["frames"] == [0, 1] and row["template_vertices"] in r["dataset"]["template_vertices"]
+    n = row["group_vertices"]
+    assert 0 < n["border"] <= n["band"] and n["band"] + n["interior"] == n["all"] == row["template_vertices"]
+    # frame 0 has no frame before it: tracking starts it from the skinned template too, on the same scan
+    tracked, alone = (row["variants"][v]["per_frame_mean_mm"] for v in ("default", "no_tracking"))
+    assert tracked[0] == alone[0]
+    for name, f in fig.items():
+        a = f["all"]
+        assert 0 < a["total_mean_mm"] <= a["total_p95_mm"] and a["surface_mean_mm"] >= 0, name
+        # the normal and tangential parts split each vertex's squared error
+        np.testing.assert_allclose(a["normal_rms_mm"] ** 2 + a["tangential_rms_mm"] ** 2,
+                                   a["total_rms_mm"] ** 2, rtol=1e-6)
+        if name != "skinned":
+            assert 0 < f["paired_share"] <= 1 and f["s_per_frame"] > 0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--variants", "default,icp"], "--variants: unknown ['icp']"),
+    (["--frames", "0"], "--frames and --sequences must be >= 1"),
+])
+def test_registration_refuses_bad_arguments(tmp_path, args, message):
+    proc, found = run_benchmark("bench_registration", "--data", str(tmp_path), *args, results=tmp_path)
+    assert proc.returncode == 2 and not found
+    assert message in proc.stderr.strip().splitlines()[-1]

@@ -1,5 +1,7 @@
 """Our USD stages import into Blender 4.5 with the right frames, positions and UVs; a body
-written as a UsdSkel rig comes in as an armature with a skinned mesh posed as our LBS.
+written as a UsdSkel rig comes in as an armature with a skinned mesh posed as our LBS; a
+garment's normal maps come in as an image texture through a tangent-space Normal Map node, in
+the tangent frame we encode them in.
 
 Runs tests/blender_import_check.py in Blender's Python (PyPI ``bpy``), found at
 ``$WRINKLES_BLENDER_PYTHON`` or ``.venv-blender/bin/python`` (make it with
@@ -8,6 +10,7 @@ scripts/setup-blender-venv.sh); skipped when neither exists.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -156,3 +159,49 @@ def test_blender_imports_the_rig_as_an_armature(tmp_path: Path, which: str) -> N
     assert max(res["meshes"]["Body"]["max_err_per_frame"]) <= 1e-4
     assert res["meshes"]["Body"]["first_last_max_diff"] > 1e-2
     assert "MESH_SEQUENCE_CACHE" in res["meshes"]["sheet"]["modifiers"]
+
+
+def normal_mapped_sheet() -> tuple[GarmentTrack, dict]:
+    """A waving sheet whose UVs wind counter-clockwise seen from its normal (as every garment
+    template's do), with T normal maps (32 x 24, a chart with zeros around it), and what Blender
+    should see: the first map's pixels and our tangent frame at every face corner."""
+    from sim.geometry.frames import SurfaceFrames, tangent_basis
+    from usd_io.textures import encode_normal_map
+
+    _, sheet = make_scene()
+    verts, faces = sheet.vertices, sheet.faces
+    x, z = verts[0, :, 0], verts[0, :, 2]
+    uvs = np.stack([x + 0.5, 0.5 - z], axis=-1).astype(np.float32)  # dP/du x dP/dv along +y
+    h, w = 32, 24
+    rows, cols = np.mgrid[0:h, 0:w].astype(np.float32)
+    maps = np.zeros((T, h, w, 3), np.float32)
+    for k in range(T):
+        n = np.stack([0.4 * np.sin(cols / 3 + k), 0.3 * (rows / h - 0.5), np.ones_like(rows)], -1)
+        maps[k] = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    maps[:, :3], maps[:, :, -2:] = 0.0, 0.0  # outside the chart
+    track = dataclasses.replace(sheet, uvs=uvs, uv_faces=None, normal_maps=maps)
+    basis = tangent_basis(SurfaceFrames(len(uvs), faces, uvs, faces, 1.0, device="cpu").frames(verts[0]))
+    corner = basis[faces]  # (F, 3, 3 xyz, 3 columns)
+    return track, {"normal_map__sheet": encode_normal_map(maps[0], 16) / 65535.0,
+                   "tangents__sheet": corner[..., 0], "bitangents__sheet": corner[..., 1]}
+
+
+def test_blender_imports_the_normal_map(tmp_path: Path) -> None:
+    """Blender turns the garment's UsdUVTexture into an Image Texture (our first frame's PNG,
+    non-colour) -> Normal Map (tangent space) -> Principled BSDF Normal, and its MikkTSpace
+    tangent frame on our UVs is ours (green = +v, no channel flip)."""
+    if blender_python() is None:
+        pytest.skip("Blender's Python not found: run scripts/setup-blender-venv.sh or set "
+                    "WRINKLES_BLENDER_PYTHON")
+    body, _ = make_scene()
+    sheet, expected = normal_mapped_sheet()
+    stage = write_stage(tmp_path / "maps.usdc", body=body, fps=FPS, garments=[sheet],
+                        start_time_code=START)
+    res = run_check(tmp_path, stage, {
+        "fps": FPS, "start": START, "end": START + T - 1, "names": np.array(["sheet"]),
+        "points__sheet": sheet.vertices, "faces__sheet": sheet.faces, **expected})
+    info = res["meshes"]["sheet"]["normal_map"]
+    assert info["chain"] == ["TEX_IMAGE", "NORMAL_MAP", "BSDF_PRINCIPLED"] and info["space"] == "TANGENT"
+    assert Path(info["image"]) == tmp_path / "maps_normals" / "sheet_0000.png"
+    assert info["pixel_max_err"] <= 1e-4 and info["bitangent_signs"] == [1.0]
+    assert min(info["tangent_cos_min"], info["bitangent_cos_min"]) >= 0.95

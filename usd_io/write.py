@@ -12,7 +12,9 @@ Stage layout::
                                 cache only; the skeleton carries them in a rig)
     /World/Garments/<name>      Mesh, time-sampled points, primvars:st, cloth material,
                                 primvars:fabricLayers (uniform float, per face) where it has hems
-    /World/Looks/<name>Material UsdPreviewSurface materials
+    /World/Looks/<name>Material UsdPreviewSurface materials; a garment with normal maps also
+                                has NormalTexture (UsdUVTexture, one image per frame) and
+                                NormalUVReader (its st) feeding the surface's normal
 
 Joints are a sibling of ``/World/Body`` rather than a child: a gprim nested in a gprim breaks
 ``usdGeomValidators:EncapsulationChecker``.
@@ -20,6 +22,12 @@ Joints are a sibling of ``/World/Body`` rather than a child: a gprim nested in a
 Units SI, Y up: ``upAxis = Y``, ``metersPerUnit = 1``, ``timeCodesPerSecond =
 framesPerSecond = fps``; frame ``k`` is time code ``start_time_code + k``. The file appears
 only when complete (written in a temporary directory beside it, then renamed).
+
+Normal maps (``GarmentTrack.normal_maps``, ``usd_io.textures``) are PNG images in the folder
+``<stem>_normals`` beside the stage (``<garment>_0000.png`` ..., referred to by paths relative to
+the stage; inside the package for ``.usdz``). The folder is written with the stage, in the same
+temporary directory, and renamed into place just before it, replacing a folder of that name.
+It is named after the file written, so write such a stage under its final name.
 """
 
 from __future__ import annotations
@@ -39,6 +47,15 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdShade, UsdUtils, Vt
 from sim.errors import WrinklesInputError
 from sim.types import BodyFrames, BodyRig, face_layers_array
 from usd_io.skel import RIG_SUFFIX, check_rig, define_skel_body
+from usd_io.textures import (
+    NORMALS_FOLDER_SUFFIX,
+    check_bits,
+    check_normal_maps,
+    define_normal_texture,
+    encode_normal_map,
+    normal_map_files,
+    write_png,
+)
 
 WORLD_PATH = "/World"
 BODY_PATH = "/World/Body"
@@ -82,6 +99,10 @@ class GarmentTrack:
         face_layers: fabric layers per face (hems, ``Garment.face_layers``), shape (F,), >= 1, or
             None. Written as ``primvars:fabricLayers`` (``FABRIC_LAYERS``, uniform float: one value
             per face) when any face has more than one: DCCs import it as a face attribute.
+        normal_maps: tangent-space normal maps over the UV layout, one per frame, shape
+            (T, H, W, 3), unit vectors, zero outside the UV charts (DeepWrinkles' maps), or None.
+            Needs ``uvs``. Written as PNG images applied by the material's ``normal`` input
+            (``usd_io.textures``: encoding, the tangent-frame convention).
     """
 
     name: str
@@ -92,6 +113,7 @@ class GarmentTrack:
     normals: np.ndarray | None = None
     color: tuple[float, float, float] = CLOTH_COLOR
     face_layers: np.ndarray | None = None
+    normal_maps: np.ndarray | None = None
 
 
 # ----------------------------------------------------------------------------- checks
@@ -149,7 +171,12 @@ def _check_garment(g: GarmentTrack) -> GarmentTrack:
     layers = g.face_layers
     if layers is not None:
         layers = face_layers_array(layers, faces.shape[0], f"garment {g.name!r}").astype(np.float32)
-    return GarmentTrack(g.name, verts, faces, uvs, uv_faces, normals, color, layers)
+    maps = g.normal_maps
+    if maps is not None:
+        if uvs is None:
+            raise WrinklesInputError(f"garment {g.name!r} has normal_maps but no uvs to map them with")
+        maps = check_normal_maps(maps, verts.shape[0], f"garment {g.name!r}")
+    return GarmentTrack(g.name, verts, faces, uvs, uv_faces, normals, color, layers, maps)
 
 
 def _metadata_json(metadata: dict | None) -> str:
@@ -229,6 +256,7 @@ def write_stage(
     progress: ProgressFn | None = None,
     rig: BodyRig | None = None,
     body_as: str | None = None,
+    normal_map_bits: int = 16,
 ) -> Path:
     """Write an animated body and garments to a USD file, atomically.
 
@@ -253,12 +281,14 @@ def write_stage(
         body_as: ``"skel"``: the body as a UsdSkel rig (needs ``rig``), a few hundred bytes of
             joint animation per frame; ``"points"``: a point cache, every vertex every frame.
             None: ``"skel"`` when a rig is given, else ``"points"``.
+        normal_map_bits: bit depth of the garments' normal-map PNGs, 16 or 8 (files several
+            times smaller; the normal's components within 1/255, ~0.2 degrees).
 
     Returns:
         The path written.
 
     Raises:
-        WrinklesInputError: unknown suffix.
+        WrinklesInputError: unknown suffix; bad normal maps or bit depth.
         ValueError: bad shapes, NaN/inf, mismatched frame counts, duplicate garment names,
             non-JSON metadata, non-positive fps, an unknown ``body_as``, ``"skel"`` without a
             rig, or a rig that does not reproduce the body.
@@ -272,12 +302,15 @@ def write_stage(
         c = dataclasses.replace(c, rig=check_rig(rig, dataclasses.replace(
             body, vertices=c.body_verts, faces=c.body_faces)))
     meta_json = _metadata_json(metadata)
+    maps = _MapsOut(final.stem + NORMALS_FOLDER_SUFFIX, check_bits(normal_map_bits))
 
-    def author(stage: Usd.Stage) -> None:
+    def author(stage: Usd.Stage, tmp_dir: Path) -> None:
         _author(stage, c, body=body, body_name=body_name, fps=float(fps),
-                start=int(start_time_code), meta_json=meta_json, progress=progress)
+                start=int(start_time_code), meta_json=meta_json, progress=progress,
+                maps=dataclasses.replace(maps, where=tmp_dir / maps.folder))
 
-    _write_layer(final, fmt, author)
+    has_maps = any(g.normal_maps is not None for g in c.tracks)
+    _write_layer(final, fmt, author, folder=maps.folder if has_maps else None)
     return final
 
 
@@ -290,6 +323,16 @@ def _body_as_skel(body_as: str | None, rig: BodyRig | None) -> bool:
     if body_as == "skel" and rig is None:
         raise ValueError("body_as='skel' needs the body's rig (BodyModel.rig(betas))")
     return body_as == "skel"
+
+
+@dataclass(frozen=True)
+class _MapsOut:
+    """Where a stage's normal maps go: ``folder`` beside the stage (its name in the asset
+    paths), written at ``where`` (inside the temporary directory), at ``bits`` per channel."""
+
+    folder: str
+    bits: int
+    where: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -333,9 +376,12 @@ def _content(body: BodyFrames | None, garments: Sequence[GarmentTrack], body_nam
     return _Content(body_verts, body_faces, joints, tracks, names, n_frames)
 
 
-def _write_layer(final: Path, fmt: str, author: Callable[[Usd.Stage], None]) -> None:
-    """A new layer of format ``fmt`` authored by ``author(stage)`` in a temporary directory
-    beside ``final`` (packaged for ``.usdz``), then renamed to ``final``; nothing is left on error."""
+def _write_layer(final: Path, fmt: str, author: Callable[[Usd.Stage, Path], None], *,
+                 folder: str | None = None) -> None:
+    """A new layer of format ``fmt`` authored by ``author(stage, tmp_dir)`` in a temporary
+    directory beside ``final`` (packaged for ``.usdz``), then renamed to ``final``; nothing is
+    left on error. ``folder``: a folder the author wrote in ``tmp_dir`` (files the layer refers
+    to by relative paths), packaged for ``.usdz``, else renamed beside ``final`` just before it."""
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp_dir = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".partial",
                                     dir=final.parent))
@@ -346,19 +392,39 @@ def _write_layer(final: Path, fmt: str, author: Callable[[Usd.Stage], None]) -> 
         if layer is None:
             raise OSError(f"{final}: cannot create a USD layer at {layer_path}")
         stage = Usd.Stage.Open(layer)
-        author(stage)
+        author(stage, tmp_dir)
         layer.Save()
         del stage, layer
         if final.suffix.lower() == ".usdz":
             packaged = tmp_dir / (final.stem + ".usdz")
             if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(layer_path)), str(packaged)):
                 raise OSError(f"{final}: could not create the usdz package")
-            layer_path = packaged
-        os.replace(layer_path, final)
+            layer_path, folder = packaged, None
+        _replace_with_folder(layer_path, final, tmp_dir, folder)
     finally:
         shutil.rmtree(tmp_dir, ignore_errors=True)
 
 
+def _replace_with_folder(layer_path: Path, final: Path, tmp_dir: Path, folder: str | None) -> None:
+    """Rename ``layer_path`` to ``final``, and first ``tmp_dir / folder`` beside it (whatever had
+    its name is moved into ``tmp_dir``, to be deleted with it, or put back if the stage's rename
+    fails)."""
+    if folder is None:
+        os.replace(layer_path, final)
+        return
+    dest, old = final.parent / folder, tmp_dir / ".previous"
+    had_old = os.path.lexists(dest)
+    if had_old:
+        os.replace(dest, old)
+    try:
+        os.replace(tmp_dir / folder, dest)
+        os.replace(layer_path, final)
+    except BaseException:
+        if os.path.lexists(dest) and not os.path.lexists(tmp_dir / folder):
+            os.replace(dest, tmp_dir / folder)
+        if had_old:
+            os.replace(old, dest)
+        raise
 
 
 #: per-frame values to author: (attribute, values (T, ...), Vt array constructor).
@@ -366,7 +432,7 @@ _Samples = list[tuple[Usd.Attribute, np.ndarray, Callable]]
 
 
 def _author(stage: Usd.Stage, c: _Content, *, body: BodyFrames | None, body_name: str, fps: float,
-            start: int, meta_json: str, progress: ProgressFn | None) -> None:
+            start: int, meta_json: str, progress: ProgressFn | None, maps: _MapsOut) -> None:
     """Author everything into ``stage`` (see ``write_stage``)."""
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -383,18 +449,24 @@ def _author(stage: Usd.Stage, c: _Content, *, body: BodyFrames | None, body_name
     UsdGeom.Scope.Define(stage, LOOKS_PATH)
 
     samples: _Samples = []
+    images: list[Callable[[int], None]] = []  # each writes frame k's image of one garment
     if c.body_verts is not None:
         samples += _author_body(stage, c, body, body_name)
     if c.tracks:
         UsdGeom.Scope.Define(stage, GARMENTS_PATH)
     for g, name in zip(c.tracks, c.names, strict=True):
         samples += _author_garment(stage, g, name)
+        if g.normal_maps is not None:
+            samples.append(_author_normal_maps(stage, g, name, maps))
+            images.append(_image_writer(g.normal_maps, name, maps))
 
     for k in range(c.n_frames):
         t = Usd.TimeCode(start + k)
         with Sdf.ChangeBlock():
             for attr, values, make in samples:
                 attr.Set(make(values[k]), t)
+        for write_image in images:
+            write_image(k)
         if progress is not None:
             progress(k + 1, c.n_frames)
 
@@ -448,3 +520,24 @@ def _author_garment(stage: Usd.Stage, g: GarmentTrack, name: str) -> _Samples:
         else:
             samples.append((normals, g.normals, Vt.Vec3fArray.FromNumpy))
     return samples
+
+
+def _author_normal_maps(stage: Usd.Stage, g: GarmentTrack, name: str, maps: _MapsOut) -> tuple:
+    """The garment material's normal texture (``usd_io.textures.define_normal_texture``); returns
+    the sample of its per-frame image paths."""
+    files = normal_map_files(maps.folder, name, len(g.normal_maps))
+    material = UsdShade.Material.Get(stage, f"{LOOKS_PATH}/{name}Material")
+    surface = UsdShade.Shader.Get(stage, f"{LOOKS_PATH}/{name}Material/PreviewSurface")
+    attr = define_normal_texture(stage, material, surface, files[0])
+    return attr, np.asarray(files), lambda f: Sdf.AssetPath(str(f))
+
+
+def _image_writer(normal_maps: np.ndarray, name: str, maps: _MapsOut) -> Callable[[int], None]:
+    """``write(k)``: frame k's normal map as a PNG in ``maps.where`` (made on first use)."""
+    files = normal_map_files(maps.folder, name, len(normal_maps))
+
+    def write(k: int) -> None:
+        maps.where.mkdir(exist_ok=True)
+        write_png(maps.where / Path(files[k]).name, encode_normal_map(normal_maps[k], maps.bits))
+
+    return write

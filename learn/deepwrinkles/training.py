@@ -3,11 +3,15 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import torch
 
 from sim.errors import WrinklesInputError
 
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+"""Thread pools a registration worker limits to one (many workers share the host's cores)."""
 SEQUENCE_CACHE = 128
 """Prepared sequences a training process keeps (items come in random order; ~5 MB each at 6k
 vertices and 60 frames)."""
@@ -46,6 +50,49 @@ def _prepared(method, ds, sid: str, *, device: str | None = None):
     )
 
 
+def _register_in_worker(job: tuple) -> int:
+    """A worker process's share of ``register_all``: one sequence's registrations into the cache;
+    returns its frame count."""
+    from learn.deepwrinkles.global_shape import registrations
+    from learn.methods.deepwrinkles import DeepWrinklesMethod
+
+    config, root, sid = job
+    method = DeepWrinklesMethod(config)
+    ds = _sequences(method, root)
+    sf, prep = _prepared(method, ds, sid, device="cpu")
+    registrations(sf, prep.seq, prep.body, method.settings(), device=None)
+    return prep.frames
+
+
+def register_all(method, root, *, progress=None) -> None:
+    """Make the registrations of every training sequence missing from the cache, in
+    ``config.workers`` processes (each scans on the default Warp device)."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    from learn.deepwrinkles.global_shape import cache_path
+
+    ds = _sequences(method, root)
+    todo = [s for s in ds.sequence_ids if not cache_path(ds.open_sequence(s), method.settings()).exists()]
+    if not todo or method.config.workers <= 1:
+        return
+    jobs = [(method.config, str(root), s) for s in todo]
+    spawn = mp.get_context("spawn")
+    saved = {k: os.environ.get(k) for k in THREAD_VARIABLES}
+    os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))  # one thread per worker, set before it starts
+    try:
+        with cf.ProcessPoolExecutor(min(method.config.workers, len(jobs)), mp_context=spawn) as pool:
+            for n in pool.map(_register_in_worker, jobs):
+                if progress is not None:
+                    progress(n)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
 def fit_state(method, root) -> dict[str, torch.Tensor]:
     """Register the training sequences (cached), fit the subspace, the control statistics and the
     linear pose-to-shape map: the method's fitted state (module docstring of
@@ -65,6 +112,7 @@ def fit_state(method, root) -> dict[str, torch.Tensor]:
             done[0] += n
             bar(done[0])
 
+        register_all(method, root, progress=step)
         for sid in ds.sequence_ids:
             sf, prep = _prepared(method, ds, sid, device="cpu")
             if template is None:

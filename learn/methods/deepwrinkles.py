@@ -79,6 +79,8 @@ class DeepWrinklesConfig:
     """Global-shape data: "registration" (scan + Eq. 1) or "simulation" (perfect registration)."""
     register_every: int = 1
     """Register every k-th frame, interpolate the normalised shapes between."""
+    workers: int = 1
+    """Processes that register the training sequences (each scans on the default Warp device)."""
     garments: tuple[str, ...] = ()
     """Garment categories to train on (empty: all; one template topology is required)."""
     infer_batch: int = 8
@@ -106,7 +108,9 @@ class DeepWrinklesMethod(Method):
 
     @classmethod
     def validate_config(cls, config: DeepWrinklesConfig, err) -> None:
-        for f in ("components", "hidden", "layers", "window", "filters", "register_every", "infer_batch"):
+        positive = ("components", "hidden", "layers", "window", "filters", "register_every", "infer_batch",
+                    "workers")
+        for f in positive:
             if getattr(config, f) < 1:
                 raise err(f"model.{f} must be >= 1, got {getattr(config, f)}")
         if config.resolution < 16 or config.resolution & (config.resolution - 1):
