@@ -198,3 +198,34 @@ def test_bad_settings_are_refused():
     ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             DeepWrinklesMethod.validate_config(DeepWrinklesConfig(**bad), ValueError)
+
+
+def test_the_template_moves_with_the_body_shape():
+    """Eq. 5 retargeting: a reference-fit template worn by another body shape keeps each vertex's
+    offset from its closest point of the body surface (in that triangle's frame), so its distance
+    to the new body equals its distance to the reference body."""
+    from learn.deepwrinkles.registrations import sequence_rig
+    from sim.bodies import load_body
+    from sim.dressing import bind_to_surface
+
+    body = load_body()
+    rng = np.random.default_rng(5)
+    ref = body.rest_mesh(None)
+    idx = rng.choice(len(ref), 60, replace=False)
+    normals = ref[idx] - ref.mean(axis=0)
+    rest = (ref[idx] + 0.02 * normals / np.linalg.norm(normals, axis=1, keepdims=True)).astype(np.float32)
+    betas = np.zeros(body.num_betas, np.float32)
+    betas[:2] = (2.5, -1.5)  # outside a dataset's usual +-2 range
+    seq = {"coarse/rest_vertices": rest, "coarse/faces": np.array([[0, 1, 2]], np.int32), "body/betas": betas,
+           "body/poses": np.zeros((1, 24, 3), np.float32), "body/joints": body.rest_joints(betas)[None]}
+    rig = sequence_rig(seq, body)
+    shaped = body.rest_mesh(betas)
+    before = bind_to_surface(rest, ref, body.faces, device="cpu")
+    after = bind_to_surface(rig.rest, shaped, body.faces, device="cpu")
+    gap = [np.linalg.norm(b.offset, axis=1) for b in (before, after)]
+    np.testing.assert_allclose(gap[1], gap[0], atol=2e-3)
+    assert np.linalg.norm(rig.rest - rest, axis=1).mean() > 0.01  # the shape change moved it
+    # and at the reference shape nothing moves
+    mean_shape = {"body/betas": np.zeros_like(betas), "body/joints": body.rest_joints(None)[None]}
+    same = sequence_rig({**seq, **mean_shape}, body)
+    np.testing.assert_array_equal(same.rest, rest)
