@@ -20,6 +20,10 @@ normal_fd           -      Frechet distance between features of predicted and gr
                            tangent-space normal maps, over the whole split, from the project's fixed
                            extractor (``learn.metrics.features``; NOT Inception FID, not comparable
                            with the papers' FID numbers)
+nm_l1, nm_l2        -      DeepWrinkles only (``Prediction.metrics``): mean absolute / squared pixel
+                           difference of its HR normal maps and the simulation's (Lähner et al.
+                           Table 1, "Data")
+nm_temporal         -      its Eq. 4 temporal term against the simulation's previous frame ("Temporal")
 ==================  =====  ==========================================================================
 
 Per-sequence values are means over frames; the summary averages sequences (each sequence counts
@@ -28,6 +32,7 @@ once) except ``normal_fd``, a distribution distance over all frames of the split
 
 from __future__ import annotations
 
+import inspect
 import os
 import time
 from dataclasses import dataclass, field
@@ -41,7 +46,8 @@ from sim.errors import WrinklesInputError
 
 METRIC_UNITS = {"ev": "m", "ecd": "m^2", "bending_error": "rad", "edge_abs": "-", "edge_abs_gt": "-",
                 "collision": "-", "collision_gt": "-", "flicker_ratio": "-", "spectrum_distance": "-",
-                "wavelength": "px", "wavelength_gt": "px", "normal_fd": "-"}
+                "wavelength": "px", "wavelength_gt": "px", "normal_fd": "-", "nm_l1": "-", "nm_l2": "-",
+                "nm_temporal": "-"}
 """Every metric key the harness reports, with its unit."""
 
 FD_NOTE = ("normal_fd: Frechet distance of features from the project's fixed normal-map extractor "
@@ -230,9 +236,12 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         opts = dict(predict_options or {})
         if coarse is not None:
             opts["base"] = coarse[0].predict_sequence(coarse[1], seq, device=dev).vertices
+        if "sequence_file" in inspect.signature(method.predict_sequence).parameters:
+            opts["sequence_file"] = sf  # methods that cache per-sequence work beside the data
         pred: Prediction = method.predict_sequence(model, seq, device=dev, **opts)
         m, maps = sequence_metrics(np.asarray(pred.vertices, np.float32), sf, entry, body_for(body_name),
                                    derive_config=derive_config, device=warp_device, extractor=extractor)
+        m.update(pred.metrics)
         if maps:
             fp.append(maps["features_pred"])
             fg.append(maps["features_gt"])
@@ -304,6 +313,11 @@ def _example(sid: str, seq: dict, pred: Prediction, maps: dict) -> dict:
     if maps:
         ex.update({key: maps[key][t] for key in ("normal_pred", "normal_gt", "wrinkle_pred", "wrinkle_gt")})
         ex["mask"] = maps["mask"]
+    T = seq["fine/vertices"].shape[0]
+    images = {k: np.asarray(v[t]) for k, v in pred.extras.items()
+              if np.ndim(v) == 4 and len(v) == T and np.shape(v)[-1] == 3}
+    if images:
+        ex["method_maps"] = images  # the method's own UV maps (e.g. DeepWrinkles' LR / HR normal maps)
     return ex
 
 

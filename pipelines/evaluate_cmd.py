@@ -40,6 +40,8 @@ examples:
       --data data/tshirt --split test_ood
   wrinkles evaluate --model base --coarse runs/coarse/checkpoints/last.pt --data data/tshirt --split test_ood
   wrinkles evaluate --model runs/mlp/checkpoints/last.pt --data data/big --split test_ood --max-sequences 50
+  wrinkles evaluate --model runs/dw/checkpoints/last.pt --data data/tshirt --predict lr_input=subspace \\
+      --predict components=200 --out runs/dw/eval-bs200
 """
 
 
@@ -52,6 +54,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=int,
                    help="DDIM steps of a wrinkle_diffusion model (default: its config's)")
     p.add_argument("--sample-seed", type=int, default=0, help="seed of the diffusion's noise (default: 0)")
+    p.add_argument("--predict", action="append", default=[], metavar="KEY=VALUE",
+                   help="a keyword of the method's prediction (repeatable; TOML values, bare words as text), "
+                   "e.g. DeepWrinkles' lr_input=registration|subspace|regression and components=200")
     p.add_argument("--data", required=True, help="dataset directory")
     p.add_argument("--split", default="test_id", choices=("train", "test_id", "test_ood", "all"),
                    help="dataset split (default: %(default)s)")
@@ -62,6 +67,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-ema", action="store_true", help="use the raw weights, not the EMA weights")
     p.add_argument("--no-images", action="store_true", help="skip the example pictures")
     add_common_arguments(p, seed=False)
+
+
+def _predict_options(items: list[str], method) -> dict:
+    """``--predict KEY=VALUE`` pairs as keyword arguments of ``method.predict_sequence``."""
+    import inspect
+
+    import tomllib
+
+    internal = {"self", "model", "sequence", "device", "base", "sequence_file"}  # the harness's own
+    known = set(inspect.signature(method.predict_sequence).parameters) - internal
+    out = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or key.strip() not in known:
+            raise WrinklesInputError(f"--predict {item!r}: expected KEY=VALUE with KEY one of "
+                                     f"{', '.join(sorted(known)) or '(none for this method)'}")
+        try:
+            value = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw
+        out[key.strip()] = value
+    return out
 
 
 def _default_out(model: Path, split: str) -> Path:
@@ -103,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
     opts = {}
     if method.name == "wrinkle_diffusion":
         opts = {"seed": args.sample_seed, **({"steps": args.steps} if args.steps else {})}
+    opts.update(_predict_options(args.predict, method))
     out = Path(args.out) if args.out else _default_out(model_path, args.split)
     from pipelines.dataset_cmd import derive_first
 
@@ -182,11 +210,36 @@ def write_example_images(examples: list[dict], out_dir: Path) -> list[Path]:
         written.append(out_dir / "uv_examples.png")
         fig.savefig(written[-1], dpi=100)
         plt.close(fig)
+    own = [e for e in examples if "method_maps" in e]
+    if own:
+        written.append(_method_maps(own, out_dir / "method_maps.png"))
     try:
         written.append(_renders(examples, out_dir / "renders.png"))
     except ImportError as e:  # pyvista missing: the UV pictures and numbers still stand
         print(f"note: no renders.png ({e})", file=sys.stderr)
     return written
+
+
+def _method_maps(examples: list[dict], path: Path) -> Path:
+    """``method_maps.png``: the method's own UV normal maps of each example frame side by side
+    (DeepWrinkles: LR input, predicted HR, the simulation's HR), one contrast gain per row."""
+    import matplotlib.pyplot as plt
+
+    names = list(examples[0]["method_maps"])
+    fig, axes = plt.subplots(len(examples), len(names), figsize=(2.8 * len(names), 2.9 * len(examples)),
+                             squeeze=False)
+    for row, e in zip(axes, examples, strict=True):
+        maps = e["method_maps"]
+        mask = np.linalg.norm(maps[names[0]], axis=-1) > 0.5
+        k = _normal_gain(maps[names[-1]], mask)
+        for ax, name in zip(row, names, strict=True):
+            ax.imshow(_normal_rgb(maps[name], mask, k))
+            ax.set_title(f"{e['sequence']} t={e['frame']}\n{name} (xy x{k:.1f})", fontsize=8)
+            ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
 ERROR_CMAP = "magma"

@@ -229,3 +229,35 @@ def test_the_template_moves_with_the_body_shape():
     mean_shape = {"body/betas": np.zeros_like(betas), "body/joints": body.rest_joints(None)[None]}
     same = sequence_rig({**seq, **mean_shape}, body)
     np.testing.assert_array_equal(same.rest, rest)
+
+
+def test_map_metrics_against_a_hand_computation():
+    from learn.deepwrinkles.prediction import map_metrics
+
+    mask = np.zeros((4, 4), bool)
+    mask[1:3, 1:3] = True  # 4 covered pixels
+    truth = np.zeros((2, 4, 4, 3), np.float32)
+    truth[..., 2] = 1.0
+    hr = truth.copy()
+    hr[1, 1, 1] = (0.6, 0.0, 0.8)  # one covered pixel of frame 1 differs
+    hr[:, 0, 0] = (1.0, 0.0, 0.0)  # an uncovered pixel counts for nothing
+    m = map_metrics(hr, truth, mask)
+    n = 2 * 4 * 3
+    assert m["nm_l1"] == pytest.approx((0.6 + 0.2) / n)
+    assert m["nm_l2"] == pytest.approx((0.36 + 0.04) / n)
+    # Eq. 4: |sum over pixels of (gen_t - gt_{t-1})| per channel, summed, over covered pixels
+    assert m["nm_temporal"] == pytest.approx((0.6 + 0.2) / 4)
+    assert map_metrics(truth, truth, mask)["nm_l1"] == 0.0
+
+
+def test_bad_prediction_options_are_refused():
+    from learn.methods.deepwrinkles import DeepWrinklesConfig, DeepWrinklesMethod
+    from pipelines.evaluate_cmd import _predict_options
+    from sim.errors import WrinklesInputError
+
+    method = DeepWrinklesMethod(DeepWrinklesConfig())
+    assert _predict_options(["lr_input=registration", "components=200"], method) == {
+        "lr_input": "registration", "components": 200}
+    for bad in ("steps=20", "lr_input", "sequence_file=x"):
+        with pytest.raises(WrinklesInputError, match="--predict"):
+            _predict_options([bad], method)

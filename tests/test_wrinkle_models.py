@@ -309,6 +309,13 @@ def test_deepwrinkles_trains_predicts_and_is_evaluated(sample_dataset, tmp_path)
                "--out", tmp_path / "eval", "--no-images", "-q") == 0
     row = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     assert row["summary"]["ev"] > 0 and {s["garment"] for s in row["sequences"]} == {"t_shirt"}
+    # the paper's Table 1 inputs: the registrations projected on 4 components ("BS 4")
+    assert cli("evaluate", "--model", ckpt, "--data", sample_dataset, "--split", "all", "--max-sequences", 1,
+               "--predict", "lr_input=subspace", "--predict", "components=4", "--out", tmp_path / "bs4",
+               "--no-images", "-q") == 0
+    bs4 = json.loads((tmp_path / "bs4" / "metrics.json").read_text())
+    assert bs4["predict_options"] == {"lr_input": "subspace", "components": 4}
+    assert 0 < bs4["summary"]["nm_l2"] < bs4["summary"]["nm_l1"] < 2.0 and bs4["summary"]["nm_temporal"] >= 0
 
 
 # ------------------------------------------------------------------- evaluation, export, animate

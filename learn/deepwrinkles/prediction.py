@@ -44,11 +44,72 @@ def generate(method, model, lr: np.ndarray, mask: np.ndarray, device: torch.devi
     return (y * mask[..., None]).astype(np.float32)
 
 
+LR_INPUTS = ("regression", "registration", "subspace")
+"""Where a prediction's global shape comes from (the paper's Table 1 columns): the pose-to-shape
+regression (the method's use), the sequence's registrations (needs its fine frames), or the
+registrations projected on the subspace's first ``components`` ("BS k")."""
+
+
+def global_shapes(method, model, prep, sf, lr_input: str, components: int, device) -> np.ndarray:
+    """Template positions (T, Vc, 3) of a sequence's global shape from ``lr_input``."""
+    from sim.errors import WrinklesInputError
+
+    if lr_input not in LR_INPUTS:
+        raise WrinklesInputError(f"lr_input {lr_input!r}: expected one of {', '.join(LR_INPUTS)}")
+    sub = method.subspace()
+    if lr_input == "regression":
+        return prep.posed(sub.decode(coefficients(method, model, prep.controls, device)))
+    if sf is None or "fine/vertices" not in prep.seq:
+        raise WrinklesInputError(f"lr_input {lr_input!r} registers the sequence's fine frames: it has none")
+    prep.register(sf, method.settings(), device="cpu")
+    if lr_input == "registration":
+        return prep.posed(prep.normalised)
+    k = components or sub.size
+    if not 1 <= k <= sub.size:
+        raise WrinklesInputError(f"components must be in 1..{sub.size}, got {k}")
+    return prep.posed(sub.decode(sub.encode(prep.normalised, k)))
+
+
+def map_metrics(hr: np.ndarray, truth: np.ndarray, mask: np.ndarray, temporal_kind: str = "eq4") -> dict:
+    """Pixel-wise errors of predicted HR maps against the simulation's (T, H, W, 3), the paper's
+    Table 1 rows: ``nm_l1`` / ``nm_l2`` (mean absolute / squared difference over covered pixels,
+    Eq. 4's data term) and ``nm_temporal`` (Eq. 4's temporal term: each frame against the
+    simulation's previous frame)."""
+    from learn.deepwrinkles.cgan import temporal_term
+
+    m = mask[None, ..., None].astype(np.float32)
+    n = max(float(m.sum()) * hr.shape[0] * 3, 1.0)
+    d = (hr - truth) * m
+    out = {"nm_l1": float(np.abs(d).sum() / n), "nm_l2": float((d * d).sum() / n)}
+    if len(hr) > 1:
+        g = torch.from_numpy(np.ascontiguousarray(hr[1:].transpose(0, 3, 1, 2)))
+        p = torch.from_numpy(np.ascontiguousarray(truth[:-1].transpose(0, 3, 1, 2)))
+        out["nm_temporal"] = float(
+            temporal_term(g, p, torch.from_numpy(mask.astype(np.float32)), kind=temporal_kind)
+        )
+    return out
+
+
 @torch.no_grad()
-def predict(method, model, sequence: Mapping[str, np.ndarray], *, device: torch.device) -> Prediction:
+def predict(
+    method,
+    model,
+    sequence: Mapping[str, np.ndarray],
+    *,
+    device: torch.device,
+    lr_input: str = "regression",
+    components: int = 0,
+    sequence_file=None,
+) -> Prediction:
     """A whole sequence (``Method.predict_sequence``): fine vertices from Guo et al.'s Eq. 10 on
     the global shape's fine surface, with ``extras``: ``normal_maps`` (HR, T x H x W x 3),
-    ``lr_maps`` and ``global_shape`` (template positions, T x Vc x 3)."""
+    ``lr_maps`` and ``global_shape`` (template positions, T x Vc x 3); where the sequence has its
+    simulated fine frames, also ``hr_truth`` and the map metrics (``map_metrics``).
+
+    Args:
+        lr_input, components: the global shape's source (``LR_INPUTS``) and, for "subspace", k.
+        sequence_file: the sequence's ``SequenceFile`` (registration inputs: their cache).
+    """
     from learn.deepwrinkles.sequences import PreparedSequence
     from sim.geometry.normal_geometry import deform_to_normals
 
@@ -58,8 +119,7 @@ def predict(method, model, sequence: Mapping[str, np.ndarray], *, device: torch.
     was_training = model.training
     model.eval()
     try:
-        lam = coefficients(method, model, prep.controls, device)
-        global_shape = prep.posed(method.subspace().decode(lam))
+        global_shape = global_shapes(method, model, prep, sequence_file, lr_input, components, device)
         lr = prep.maps.lr(global_shape, prep.skinned())
         hr = generate(method, model, lr, prep.maps.mask, device)
     finally:
@@ -68,7 +128,9 @@ def predict(method, model, sequence: Mapping[str, np.ndarray], *, device: torch.
     normals = prep.maps.decode(hr, global_shape)
     faces = prep.maps.faces
     verts = np.stack([deform_to_normals(b, faces, n) for b, n in zip(base, normals, strict=True)])
-    return Prediction(
-        vertices=verts.astype(np.float32),
-        extras={"normal_maps": hr, "lr_maps": lr, "global_shape": global_shape},
-    )
+    extras = {"lr_maps": lr, "normal_maps": hr, "global_shape": global_shape}
+    metrics = {}
+    if "fine/vertices" in sequence:
+        extras["hr_truth"] = prep.maps.hr(np.asarray(sequence["fine/vertices"], np.float32), global_shape)
+        metrics = map_metrics(hr, extras["hr_truth"], prep.maps.mask, method.config.temporal_kind)
+    return Prediction(vertices=verts.astype(np.float32), extras=extras, metrics=metrics)

@@ -55,10 +55,13 @@ class Prediction:
         vertices: garment positions [m], shape (T, V, 3), float32, on the sequence's fine garment
             topology (``fine/faces``).
         extras: optional method-specific arrays (e.g. ``"normal_maps"`` (T, H, W, 3)).
+        metrics: optional method-specific per-sequence metrics (keys of
+            ``learn.evaluate.METRIC_UNITS``), reported beside the harness's own.
     """
 
     vertices: np.ndarray
     extras: dict[str, np.ndarray] = field(default_factory=dict)
+    metrics: dict[str, float] = field(default_factory=dict)
 
 
 class Method:

@@ -198,8 +198,20 @@ class DeepWrinklesMethod(Method):
 
     @torch.no_grad()
     def predict_sequence(
-        self, model: nn.Module, sequence: Mapping[str, np.ndarray], *, device: torch.device
+        self,
+        model: nn.Module,
+        sequence: Mapping[str, np.ndarray],
+        *,
+        device: torch.device,
+        lr_input: str = "regression",
+        components: int = 0,
+        sequence_file=None,
     ) -> Prediction:
+        """``learn.deepwrinkles.prediction.predict``: ``lr_input`` "regression" (from the body
+        motion), "registration" or "subspace" (``components`` of it): the paper's Table 1 inputs."""
         from learn.deepwrinkles.prediction import predict
 
-        return predict(self, model, sequence, device=device)
+        return predict(
+            self, model, sequence, device=device, lr_input=lr_input, components=components,
+            sequence_file=sequence_file,
+        )
