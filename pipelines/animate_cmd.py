@@ -39,9 +39,9 @@ noise and are guided toward their neighbours while denoising, so the wrinkles do
 
 --method deepwrinkles animates a DeepWrinkles checkpoint (--model, 'wrinkles train deepwrinkles'):
 body motion -> LSTM -> global shape (the coarse template, posed) -> LR normal map -> cGAN -> HR
-normal map of the wrinkles. Its garment is the one of the dataset it was trained on: --data names
-that dataset (reference-fit: one garment for every body) and its first training sequence gives
-the fine and coarse garment meshes; the body is posed with the dataset's body model. The stage
+normal map of the wrinkles. Its garment is the one of the dataset it was trained on
+(reference-fit: one garment for every body), kept in the checkpoint, or taken from the first
+training sequence of --data; the body is posed with the training data's body model. The stage
 holds (--surface global, default) the global shape on the fine garment's mesh with the predicted
 normal maps on its material (per-frame 16-bit PNGs in <stage>_normals/ beside the stage: the
 wrinkles are in the shading, as DeepWrinkles renders them; Blender imports the first frame's
@@ -58,7 +58,7 @@ examples:
       --out walk.usdc --sheet walk.png
   wrinkles animate --coarse runs/coarse/checkpoints/last.pt --wrinkles runs/wr/checkpoints/last.pt \\
       --motion run --out mine.usda
-  wrinkles animate --method deepwrinkles --model runs/dw/checkpoints/last.pt --data data/tshirts \\
+  wrinkles animate --method deepwrinkles --model runs/dw/checkpoints/last.pt \\
       --motion walk --shape height=0.6 --out out/dw_walk.usdc --preview out/dw_walk.mp4
 """
 
@@ -72,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="diffusion",
         choices=("diffusion", "deepwrinkles"),
         help="diffusion: Guo et al. 2024's CVAE + strain diffusion (--coarse/--wrinkles or the shipped "
-        "models); deepwrinkles: a DeepWrinkles checkpoint (--model, --data) (default: %(default)s)",
+        "models); deepwrinkles: a DeepWrinkles checkpoint (--model) (default: %(default)s)",
     )
     g.add_argument(
         "--garment",
@@ -93,7 +93,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     d = p.add_argument_group("--method deepwrinkles")
     d.add_argument("--model", help="DeepWrinkles checkpoint ('wrinkles train deepwrinkles')")
     d.add_argument("--data", help="the dataset the model was trained on: its first training sequence "
-                   "gives the garment meshes")
+                   "gives the garment meshes (default: the garment the checkpoint keeps)")
     d.add_argument("--surface", choices=("global", "fine"), help="global: the global shape + normal maps; "
                    "fine: the fine garment moved to match the maps, no maps (default: global)")
     d.add_argument("--normal-map-bits", type=int, choices=(8, 16),

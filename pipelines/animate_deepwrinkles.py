@@ -4,10 +4,11 @@ on a body motion, written as USD with the predicted per-frame normal maps.
 DeepWrinkles predicts for its garment, from the body's motion, a global shape (the coarse
 template posed and deformed) and a tangent-space normal map over the fine garment's UV layout
 holding the wrinkles the global shape lacks. The fine and coarse garment meshes it predicts on
-are not in the checkpoint: they are those of the dataset it was trained on (``--data``), whose
-sequences all share one garment (a reference-fit dataset: every garment cut on the mean body
-and worn by every shape), so its first training sequence supplies them. The body and its motion
-are ``animate``'s usual options, posed with the dataset's body model.
+are those of the dataset it was trained on, whose sequences all share one garment (a
+reference-fit dataset: every garment cut on the mean body and worn by every shape): the
+checkpoint keeps its first training sequence's garment (``garment/*`` in its fitted state), or
+``--data`` names the dataset to take it from. The body and its motion are ``animate``'s usual
+options, posed with the training data's body model.
 
 What the stage holds (``--surface``):
 
@@ -73,9 +74,8 @@ def check_options(args: argparse.Namespace) -> None:
         raise WrinklesInputError(f"{given[0]} applies to --method diffusion, not deepwrinkles")
     args.surface = args.surface or "global"
     args.normal_map_bits = args.normal_map_bits or 16
-    if not args.model or not args.data:
-        raise WrinklesInputError("--method deepwrinkles needs --model (its checkpoint) and --data (the "
-                                 "dataset it was trained on, which holds its garment)")
+    if not args.model:
+        raise WrinklesInputError("--method deepwrinkles needs --model (its checkpoint)")
     if not Path(args.model).is_file():
         raise WrinklesInputError("no such model file", path=args.model)
     if not (args.clearance >= 0 and args.clearance < 0.1):
@@ -119,6 +119,20 @@ def dataset_garment(root: Path, method) -> DatasetGarment:
                           material=str(entry.get("material") or "cotton"),
                           body_model=body_model_name(sf, manifest) or "default",
                           fps=float((manifest.get("config") or {}).get("fps") or 30.0), sequence=sid)
+
+
+def checkpoint_garment(method) -> DatasetGarment | None:
+    """The garment a checkpoint keeps in its fitted state (``garment/*``), or None."""
+    from learn.deepwrinkles.training import GARMENT_KEYS, tensor_text
+
+    s = method.state
+    if any(f"garment/{k}" not in s for k in GARMENT_KEYS[:-1]):
+        return None
+    arrays = {k: s[f"garment/{k}"].numpy() for k in GARMENT_KEYS if f"garment/{k}" in s}
+    return DatasetGarment(arrays=arrays, category=tensor_text(s["garment/category"]),
+                          material=tensor_text(s["garment/material"]),
+                          body_model=tensor_text(s["garment/body_model"]), fps=float(s["garment/fps"]),
+                          sequence="(the checkpoint's)")
 
 
 def motion_sequence(garment: DatasetGarment, bm, frames, trans: np.ndarray) -> dict[str, np.ndarray]:
@@ -165,7 +179,10 @@ def _model(args: argparse.Namespace):
     method, model, _ = load_trained(args.model, device=dev)
     if method.name != "deepwrinkles":
         raise WrinklesInputError(f"expected a deepwrinkles model, got {method.name}", path=args.model)
-    garment = dataset_garment(Path(args.data), method)
+    garment = dataset_garment(Path(args.data), method) if args.data else checkpoint_garment(method)
+    if garment is None:
+        raise WrinklesInputError("this checkpoint keeps no garment: pass --data, the dataset it was "
+                                 "trained on", path=args.model)
     if args.body not in ("default", garment.body_model):
         raise WrinklesInputError(f"--body {args.body}: the model was trained on body model "
                                  f"{garment.body_model!r} (its dataset's), which poses its template")
@@ -230,7 +247,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: the model was trained at {garment.fps:g} fps; its LSTM reads windows of "
               f"{method.config.window} frames", file=sys.stderr)
     provenance = {"command": command_line(), "method": "deepwrinkles", "model": str(args.model),
-                  "data": str(args.data), "dataset_fps": garment.fps, "garment_sequence": garment.sequence,
+                  "data": str(args.data) if args.data else None, "dataset_fps": garment.fps,
+                  "garment_sequence": garment.sequence,
                   "surface": args.surface,
                   "normal_map_bits": args.normal_map_bits if maps is not None else None, "device": str(dev),
                   "seed": args.seed, "stage_seconds": {k: round(v, 3) for k, v in seconds.items()},

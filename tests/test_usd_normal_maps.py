@@ -218,7 +218,7 @@ def test_template_uvs_wind_like_their_faces(category: str) -> None:
 
 # ----------------------------------------------------------------- wrinkles animate --method deepwrinkles
 @pytest.mark.parametrize("args, says", [
-    (["--method", "deepwrinkles"], "needs --model (its checkpoint) and --data"),
+    (["--method", "deepwrinkles"], "needs --model (its checkpoint)"),
     (["--model", "m.pt"], "--model applies to --method deepwrinkles"),
     (["--surface", "fine"], "--surface applies to --method deepwrinkles"),
     (["--method", "deepwrinkles", "--model", "m.pt", "--data", "d", "--steps", "3"],
@@ -249,10 +249,11 @@ def test_animate_deepwrinkles_writes_the_global_shape_with_its_maps(sample_datas
              "--steps", "2", "--batch-size", "2", "-q", "--device", "cpu"]
     assert main([*train, *[a for kv in settings for a in ("--set", f"model.{kv}")]]) == 0
     model = tmp_path / "dw" / "checkpoints" / "last.pt"
-    common = ["animate", "--method", "deepwrinkles", "--model", str(model), "--data", str(sample_dataset),
+    common = ["animate", "--method", "deepwrinkles", "--model", str(model),
               "--motion", "walk", "--duration", "0.3", "--shape", "height=0.5", "-q", "--device", "cpu"]
     out = tmp_path / "anim" / "dw.usda"
-    assert main([*common, "--out", str(out), "--sheet", str(tmp_path / "anim" / "dw.png")]) == 0
+    data = ["--data", str(sample_dataset)]
+    assert main([*common, *data, "--out", str(out), "--sheet", str(tmp_path / "anim" / "dw.png")]) == 0
     stage = Usd.Stage.Open(str(out))
     shirt = stage.GetPrimAtPath("/World/Garments/t_shirt")
     assert shirt and stage.GetPrimAtPath("/World/BodyRig/Body")
@@ -267,7 +268,7 @@ def test_animate_deepwrinkles_writes_the_global_shape_with_its_maps(sample_datas
     meta = json.loads((tmp_path / "anim" / "dw.animate.json").read_text())
     assert meta["surface"] == "global" and meta["method"] == "deepwrinkles"
     assert (tmp_path / "anim" / "dw.png").stat().st_size > 1000
-    fine = tmp_path / "anim" / "fine.usdc"
+    fine = tmp_path / "anim" / "fine.usdc"  # the garment the checkpoint keeps: no --data
     assert main([*common, "--out", str(fine), "--surface", "fine"]) == 0
     stage = Usd.Stage.Open(str(fine))
     fine_shirt = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Garments/t_shirt"))

@@ -105,6 +105,35 @@ def subspace_report(sub) -> str:
     return f"subspace: {sub.size} components of {sub.frames} frames; variance kept at k = {kept}"
 
 
+GARMENT_KEYS = ("fine/faces", "fine/uvs", "fine/uv_faces", "fine/rest_vertices", "coarse/rest_vertices",
+                "coarse/faces", "coarse/uvs", "coarse/uv_faces", "fine/face_layers")
+"""The garment arrays a prediction needs (``fine/face_layers`` where stored), kept in the fitted
+state as ``garment/<key>`` so a checkpoint animates without its dataset."""
+
+
+def text_tensor(text: str) -> torch.Tensor:
+    """A string as a uint8 tensor (the fitted state holds tensors only)."""
+    return torch.tensor(list(text.encode()), dtype=torch.uint8)
+
+
+def tensor_text(t: torch.Tensor) -> str:
+    return bytes(t.to(torch.uint8).tolist()).decode()
+
+
+def garment_state(sf, sid: str, ds) -> dict[str, torch.Tensor]:
+    """The first training sequence's garment (``GARMENT_KEYS``, its category, material, body model
+    and frame rate) as fitted-state tensors."""
+    from sim.datasets.storage import body_model_name
+
+    entry = ds.entries[sid]
+    out = {f"garment/{k}": torch.from_numpy(np.array(sf[k])) for k in GARMENT_KEYS if k in sf}
+    out["garment/category"] = text_tensor(str(entry.get("garment") or "garment"))
+    out["garment/material"] = text_tensor(str(entry.get("material") or "cotton"))
+    out["garment/body_model"] = text_tensor(body_model_name(sf, {"config": ds.generator_config}) or "default")
+    out["garment/fps"] = torch.tensor(float(ds.generator_config.get("fps") or 30.0))
+    return out
+
+
 def fit_state(method, root) -> dict[str, torch.Tensor]:
     """Register the training sequences (cached), fit the subspace, the control statistics and the
     linear pose-to-shape map: the method's fitted state (module docstring of
@@ -115,8 +144,11 @@ def fit_state(method, root) -> dict[str, torch.Tensor]:
 
     cfg = method.config
     ds = _sequences(method, root)
-    shapes, controls, template = [], [], None
-    total = sum(int(ds.entries[s]["frames"]) for s in ds.sequence_ids)
+    from learn.deepwrinkles.global_shape import registered_frames
+
+    shapes, controls, template, garment = [], [], None, {}
+    every = method.settings().register_every
+    total = sum(len(registered_frames(int(ds.entries[s]["frames"]), every)) for s in ds.sequence_ids)
     done = [0]
     with progress_bar(total, "registering", unit="frame") as bar:
 
@@ -129,6 +161,7 @@ def fit_state(method, root) -> dict[str, torch.Tensor]:
             sf, prep = _prepared(method, ds, sid, device="cpu")
             if template is None:
                 template = prep.rig.faces
+                garment = garment_state(sf, sid, ds)
             elif not np.array_equal(template, prep.rig.faces):
                 raise WrinklesInputError(
                     f"sequence {sid}: its template differs from the first sequence's; "
@@ -158,6 +191,7 @@ def fit_state(method, root) -> dict[str, torch.Tensor]:
         "coefficient_scale": torch.tensor(scale, dtype=f32),
         "linear": torch.from_numpy(linear.matrix),
         "template_faces": torch.from_numpy(template.astype(np.int64)),
+        **garment,
     }
 
 
