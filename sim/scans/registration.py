@@ -52,6 +52,10 @@ class RegistrationConfig:
         anneal: the stiffness (ω_r, ω_s) of the first round over the last's; halves per round
             down to 1.
         max_distance: farthest data pair kept [m].
+        edge: ω_e of a term that keeps the template's edge lengths, Σ_e (|x_a - x_b| - l_e)² over
+            its mesh edges with l_e the starting template's (mm); 0: off (the paper's Eq. 1). The
+            grid's rigidity acts on its nodes, so a weakly regularised template can stretch between
+            them; this term holds the cloth's own lengths.
         use_boundary: include E_bound.
         point_to_plane: E_data measures each pair along the scan point's normal (the scan's
             point spacing does not bias it), plus ``point_weight`` times the full distance.
@@ -66,6 +70,7 @@ class RegistrationConfig:
     steps: int = 1
     anneal: float = 16.0
     max_distance: float = 0.05
+    edge: float = 0.0
     use_boundary: bool = True
     point_to_plane: bool = True
     point_weight: float = 0.1
@@ -174,11 +179,12 @@ class Registration:
     boundary_pairs: int
 
 
-def _system(grid: _Grid, x, params, data, bound, weights, point_weight: float = 1.0):
+def _system(grid: _Grid, x, params, data, bound, weights, point_weight: float = 1.0, edges=None):
     """Residuals and sparse Jacobian of Eq. 1 at ``params``: data (vertex index, target [mm],
     target normal or None: point-to-point only), bound (vertex index, target [mm]), weights
     (ω_r, ω_s, ω_b); with normals the data term is point-to-plane plus ``point_weight`` times
-    point-to-point."""
+    point-to-point; ``edges`` (vertex pairs (E, 2), lengths [mm] (E,), ω_e) adds the edge-length
+    term."""
     w_r, w_s, w_b = weights
     cur = _deform(grid, x, params)
     blocks, res, row = [], [], 0
@@ -210,6 +216,20 @@ def _system(grid: _Grid, x, params, data, bound, weights, point_weight: float = 
         blocks.append((r, c, np.sqrt(w_s) * v))
         res.append(np.sqrt(w_s) * r_s.ravel())
         row += 3 * len(e)
+    if edges is not None:
+        e_idx, e_len, w_e = edges
+        d = cur[e_idx[:, 0]] - cur[e_idx[:, 1]]
+        length = np.linalg.norm(d, axis=1)
+        u = d / np.maximum(length, 1e-9)[:, None]
+        nodes = np.concatenate([grid.vertex_nodes[e_idx[:, 0]], grid.vertex_nodes[e_idx[:, 1]]], axis=1)
+        wts = np.concatenate([grid.weights[e_idx[:, 0]], -grid.weights[e_idx[:, 1]]], axis=1)
+        offs = np.concatenate([x[e_idx[:, 0]][:, None] - grid.nodes[grid.vertex_nodes[e_idx[:, 0]]],
+                               x[e_idx[:, 1]][:, None] - grid.nodes[grid.vertex_nodes[e_idx[:, 1]]]], axis=1)
+        r, c, v = _linear_rows(nodes, wts, offs, 0)  # d(x_a - x_b), 3 rows an edge, along u
+        point, coord = r // 3, r % 3
+        blocks.append((row + point, c, np.sqrt(w_e) * v * u[point, coord]))
+        res.append(np.sqrt(w_e) * (length - e_len))
+        row += len(e_idx)
     r_r, r, c, v = _rigid_rows(params, row)
     blocks.append((r, c, np.sqrt(w_r) * v))
     res.append(np.sqrt(w_r) * r_r)
@@ -250,6 +270,12 @@ def register(template: np.ndarray, faces: np.ndarray, scan, *, config: Registrat
     tree = cKDTree(pts)
     border = boundary_vertices(f) if cfg.use_boundary else np.zeros(0, np.int64)
     scan_border = pts[np.asarray(scan.boundary, bool)]
+    edges = None
+    if cfg.edge > 0:
+        from sim.quality import unique_edges
+
+        e_idx = np.asarray(unique_edges(f), np.int64)
+        edges = (e_idx, np.linalg.norm(x[e_idx[:, 0]] - x[e_idx[:, 1]], axis=1), cfg.edge)
     rms, kept, nb = [], 0, 0
     for rnd in range(cfg.rounds):
         stiff = max(cfg.anneal / 2.0 ** rnd, 1.0)
@@ -264,7 +290,7 @@ def register(template: np.ndarray, faces: np.ndarray, scan, *, config: Registrat
         kept, nb = len(keep), len(t_idx)
         for _ in range(cfg.steps):
             res, jac = _system(grid, x, params, data, bound,
-                               (cfg.rigid * stiff, cfg.smooth * stiff, cfg.boundary), cfg.point_weight)
+                               (cfg.rigid * stiff, cfg.smooth * stiff, cfg.boundary), cfg.point_weight, edges)
             lhs = (jac.T @ jac + 1e-6 * sp.identity(params.size)).tocsc()
             params = params + _solve_spd(lhs, -(jac.T @ res)).reshape(params.shape)
     return Registration(vertices=(_deform(grid, x, params) / MM).astype(np.float32), data_rms=tuple(rms),
