@@ -12,6 +12,7 @@ from sim.scans.registration import (
     RegistrationConfig,
     _deform,
     _grid,
+    _solve_spd,
     _system,
     boundary_pairs,
     register,
@@ -149,3 +150,22 @@ def test_the_edge_term_keeps_the_templates_lengths():
         x = reg.vertices
         strain.append(np.abs(np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1) / l0 - 1).mean())
     assert strain[1] < 0.7 * strain[0], strain  # measured: 0.091 -> 0.057
+
+
+def test_the_dense_solve_matches_the_sparse_one():
+    """The normal equations of a registration step solved by SuperLU on the host and by a dense
+    Cholesky factor (torch; on a CUDA device in use) give the same step."""
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(3)
+    x = rng.random((60, 3)) * 100.0
+    grid = _grid(x, 40.0)
+    p = np.tile(np.r_[np.eye(3).ravel(), 0, 0, 0], (len(grid.nodes), 1))
+    p = p + rng.normal(scale=0.05, size=p.shape)
+    data = (np.arange(0, 60, 2), rng.random((30, 3)) * 100.0, None)
+    res, jac = _system(grid, x, p, data, (np.zeros(0, np.int64), np.zeros((0, 3))), (5.0, 5.0, 1.0), 1.0)
+    lhs = (jac.T @ jac + 1e-6 * sp.identity(p.size)).tocsc()
+    rhs = -(jac.T @ res)
+    sparse = _solve_spd(lhs, rhs)
+    np.testing.assert_allclose(lhs @ sparse, rhs, atol=1e-6 * np.abs(rhs).max())
+    np.testing.assert_allclose(_solve_spd(lhs, rhs, "cpu"), sparse, rtol=1e-6, atol=1e-9)

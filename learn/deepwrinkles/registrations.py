@@ -170,14 +170,17 @@ def register_sequence(
         tracking: start each frame from the previous registered frame (when it is the one just
             before), else from the skinned template.
         seed: the scans' noise; frame t uses ``seed + t``.
-        device: Warp device of the scans and skinning.
+        device: Warp device of the scans and skinning; a CUDA device also solves the registration's
+            normal equations (dense Cholesky, torch).
         progress: called with 1 after each frame.
     """
+    from sim.device import resolve_device
     from sim.scans.registration import register
     from sim.scans.scanner import scan_garment
 
     rig = sequence_rig(seq, body)
     T = rig.transforms.shape[0]
+    solve_device = resolve_device(device) if str(resolve_device(device)).startswith("cuda") else None
     idx = np.arange(T) if frames is None else np.asarray(frames, np.int64)
     if idx.size == 0 or idx.min() < 0 or idx.max() >= T or np.any(np.diff(idx) <= 0):
         raise WrinklesInputError(f"register_sequence: frames must increase within [0, {T - 1}]")
@@ -208,7 +211,8 @@ def register_sequence(
         start = skinned[i]
         if tracking and i > 0 and idx[i - 1] == t - 1:
             start = out[i - 1] + skinned[i] - skinned[i - 1]
-        reg = register(start, rig.faces, scan, config=registration_config or garment_registration())
+        reg = register(start, rig.faces, scan, config=registration_config or garment_registration(),
+                       solve_device=solve_device)
         out[i], pairs[i] = reg.vertices, reg.pairs
         if progress is not None:
             progress(1)
