@@ -32,7 +32,6 @@ once) except ``normal_fd``, a distribution distance over all frames of the split
 
 from __future__ import annotations
 
-import inspect
 import os
 import time
 from dataclasses import dataclass, field
@@ -233,11 +232,10 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         body_name = body_model_name(sf, manifest) or "default"
         seq["body/model"] = np.asarray(body_name)  # which body to re-pose (Method.predict_sequence)
         seq["fps"] = np.asarray(float((manifest.get("config") or {}).get("fps") or 30.0))
+        seq["sequence/path"] = np.asarray(str(sf.path))
         opts = dict(predict_options or {})
         if coarse is not None:
             opts["base"] = coarse[0].predict_sequence(coarse[1], seq, device=dev).vertices
-        if "sequence_file" in inspect.signature(method.predict_sequence).parameters:
-            opts["sequence_file"] = sf  # methods that cache per-sequence work beside the data
         pred: Prediction = method.predict_sequence(model, seq, device=dev, **opts)
         m, maps = sequence_metrics(np.asarray(pred.vertices, np.float32), sf, entry, body_for(body_name),
                                    derive_config=derive_config, device=warp_device, extractor=extractor)

@@ -160,7 +160,7 @@ def _check_options(args: argparse.Namespace) -> None:
         raise WrinklesInputError(f"--clearance must be in [0, 0.1) m, got {args.clearance}")
 
 
-def _grounded_frames(bm, device: str):
+def grounded_frames(bm, device: str):
     """The body posed by the motion, stood on the floor at frame 0, and the motion's root
     translations moved with it."""
     from sim.bodies.placement import floor_offset, translate_frames
@@ -238,7 +238,7 @@ def _run_diffusion(args: argparse.Namespace) -> int:
     body_name = pipe.coarse.state.get("body_model", "default")
     if body_name not in ("default", str(args.body)) and not args.coarse:
         print(f"note: the models were trained on body model {body_name!r}", file=sys.stderr)
-    frames, trans = _grounded_frames(bm, wdev)
+    frames, trans = grounded_frames(bm, wdev)
     T = len(trans)
     steps = args.steps or (pipe.wrinkles.config.sample_steps if pipe.wrinkles else 0)
     # the diffusion is nearly all of the time (the coarse stage, strain and decoding take ~1 %)

@@ -37,9 +37,6 @@ from sim.errors import WrinklesInputError
 
 SURFACES = ("global", "fine")
 """What ``--surface`` writes (module docstring)."""
-GARMENT_KEYS = ("fine/faces", "fine/uvs", "fine/uv_faces", "fine/rest_vertices", "coarse/rest_vertices",
-                "coarse/faces", "coarse/uvs", "coarse/uv_faces")
-"""The garment arrays a prediction needs from the dataset (``fine/face_layers`` is read too)."""
 DIFFUSION_ONLY = {"coarse": "--coarse", "wrinkles": "--wrinkles", "no_wrinkles": "--no-wrinkles",
                   "steps": "--steps", "material": "--material", "sample_latent": "--sample-latent"}
 """Options of ``--method diffusion`` that ``--method deepwrinkles`` refuses when given."""
@@ -50,7 +47,8 @@ class DatasetGarment:
     """The garment a DeepWrinkles model was trained on, from its dataset.
 
     Attributes:
-        arrays: ``GARMENT_KEYS`` (+ ``fine/face_layers`` when stored) as numpy arrays.
+        arrays: ``learn.deepwrinkles.sequences.STATE_GARMENT_KEYS`` (``fine/face_layers`` where
+            stored) as numpy arrays.
         category: the garment category (the prim name of the stage's garment).
         material: its material preset.
         body_model: the body model of the dataset (``"default"`` or a model file).
@@ -90,6 +88,7 @@ def dataset_garment(root: Path, method) -> DatasetGarment:
         WrinklesInputError: not a dataset, no such sequence, a body-fit dataset, missing arrays,
             or a template other than the model's.
     """
+    from learn.deepwrinkles.sequences import GARMENT_KEYS, STATE_GARMENT_KEYS
     from sim.datasets.storage import SequenceFile, body_model_name, read_manifest, sequence_path
 
     manifest = read_manifest(root)
@@ -109,7 +108,7 @@ def dataset_garment(root: Path, method) -> DatasetGarment:
     if missing:
         raise WrinklesInputError(f"sequence {sid} has no {missing[0]!r}: DeepWrinkles needs the fine and "
                                  "coarse garments", path=sf.path)
-    arrays = {k: np.asarray(sf[k]) for k in (*GARMENT_KEYS, "fine/face_layers") if k in sf}
+    arrays = {k: np.asarray(sf[k]) for k in STATE_GARMENT_KEYS if k in sf}
     template = method.state.get("template_faces")
     if template is not None and not np.array_equal(template.numpy(), arrays["coarse/faces"]):
         raise WrinklesInputError(f"the garment of sequence {sid} ({entry.get('garment')}) is not the "
@@ -123,12 +122,13 @@ def dataset_garment(root: Path, method) -> DatasetGarment:
 
 def checkpoint_garment(method) -> DatasetGarment | None:
     """The garment a checkpoint keeps in its fitted state (``garment/*``), or None."""
-    from learn.deepwrinkles.training import GARMENT_KEYS, tensor_text
+    from learn.deepwrinkles.sequences import GARMENT_KEYS, STATE_GARMENT_KEYS
+    from learn.deepwrinkles.training import tensor_text
 
     s = method.state
-    if any(f"garment/{k}" not in s for k in GARMENT_KEYS[:-1]):
+    if any(f"garment/{k}" not in s for k in GARMENT_KEYS):
         return None
-    arrays = {k: s[f"garment/{k}"].numpy() for k in GARMENT_KEYS if f"garment/{k}" in s}
+    arrays = {k: s[f"garment/{k}"].numpy() for k in STATE_GARMENT_KEYS if f"garment/{k}" in s}
     return DatasetGarment(arrays=arrays, category=tensor_text(s["garment/category"]),
                           material=tensor_text(s["garment/material"]),
                           body_model=tensor_text(s["garment/body_model"]), fps=float(s["garment/fps"]),
@@ -156,18 +156,16 @@ def outside(verts: np.ndarray, frames, clearance: float, wdev: str) -> np.ndarra
     return push_outside(verts, frames.vertices, frames.faces, clearance=clearance, device=wdev)
 
 
-def garment_geometry(method, pred, seq: dict, surface: str, frames, clearance: float, wdev: str):
+def garment_geometry(pred, fine: np.ndarray, seq: dict, surface: str, frames, clearance: float, wdev: str):
     """(vertices (T, V, 3), vertex normals (T, V, 3), normal maps (T, H, W, 3) or None) of the
-    stage's garment for ``--surface`` (module docstring), moved out of the body by ``clearance``."""
-    from learn.deepwrinkles.normal_maps import DetailMaps
+    stage's garment for ``--surface`` (module docstring), moved out of the body by ``clearance``;
+    ``fine``: the predicted fine garment already moved out."""
     from pipelines.preview import vertex_normals
 
     if surface == "global":
-        verts, normals = DetailMaps(seq, method.config.resolution, device="cpu").surface(
-            pred.extras["global_shape"])
-        return outside(verts, frames, clearance, wdev), normals, pred.extras["normal_maps"]
-    verts = outside(pred.vertices, frames, clearance, wdev)
-    return verts, np.stack([vertex_normals(v, seq["fine/faces"]) for v in verts]), None
+        verts = outside(pred.extras["global_surface"], frames, clearance, wdev)
+        return verts, pred.extras["global_normals"], pred.extras["normal_maps"]
+    return fine, np.stack([vertex_normals(v, seq["fine/faces"]) for v in fine]), None
 
 
 def _model(args: argparse.Namespace):
@@ -220,7 +218,7 @@ def run(args: argparse.Namespace) -> int:
     check_options(args)  # before the imports: a usage error answers at once
     import torch
 
-    from pipelines.animate_cmd import _grounded_frames
+    from pipelines.animate_cmd import grounded_frames
     from pipelines.options import load_body_and_motion
     from pipelines.outputs import OutputSet, check_stage_outputs, command_line, stage_rig, write_previews
     from pipelines.progress import progress_bar
@@ -237,12 +235,13 @@ def run(args: argparse.Namespace) -> int:
     torch.manual_seed(args.seed)
     wdev = resolve_device(args.device)
     bm = load_body_and_motion(argparse.Namespace(**{**vars(args), "body": garment.body_model}))
-    frames, trans = _grounded_frames(bm, wdev)
+    frames, trans = grounded_frames(bm, wdev)
     seq = motion_sequence(garment, bm, frames, trans)
     t1 = time.perf_counter()
     pred = method.predict_sequence(model, seq, device=dev)
     seconds = {"predict": time.perf_counter() - t1}
-    verts, normals, maps = garment_geometry(method, pred, seq, args.surface, frames, args.clearance, wdev)
+    fine = outside(pred.vertices, frames, args.clearance, wdev)
+    verts, normals, maps = garment_geometry(pred, fine, seq, args.surface, frames, args.clearance, wdev)
     if not args.quiet and abs(garment.fps - bm.motion.fps) > 1e-6:
         print(f"note: the model was trained at {garment.fps:g} fps; its LSTM reads windows of "
               f"{method.config.window} frames", file=sys.stderr)
@@ -258,8 +257,7 @@ def run(args: argparse.Namespace) -> int:
     T = len(verts)
     with OutputSet() as outputs:
         outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
-        write_previews(outputs, paths, lambda: preview_meshes(_preview_sequence(
-            garment, outside(pred.vertices, frames, args.clearance, wdev), frames, bm)),
+        write_previews(outputs, paths, lambda: preview_meshes(_preview_sequence(garment, fine, frames, bm)),
             num_frames=T, fps=float(bm.motion.fps), camera=args.camera, quiet=args.quiet)
         # last, under its final name: the stage names its maps' folder after itself, and
         # write_stage puts both in place atomically

@@ -73,9 +73,9 @@ def _predict_options(items: list[str], method) -> dict:
     """``--predict KEY=VALUE`` pairs as keyword arguments of ``method.predict_sequence``."""
     import inspect
 
-    import tomllib
+    from pipelines.options import toml_value
 
-    internal = {"self", "model", "sequence", "device", "base", "sequence_file"}  # the harness's own
+    internal = {"self", "model", "sequence", "device", "base"}  # the harness's own
     known = set(inspect.signature(method.predict_sequence).parameters) - internal
     out = {}
     for item in items:
@@ -83,11 +83,7 @@ def _predict_options(items: list[str], method) -> dict:
         if not sep or key.strip() not in known:
             raise WrinklesInputError(f"--predict {item!r}: expected KEY=VALUE with KEY one of "
                                      f"{', '.join(sorted(known)) or '(none for this method)'}")
-        try:
-            value = tomllib.loads(f"v = {raw}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = raw
-        out[key.strip()] = value
+        out[key.strip()] = toml_value(raw)
     return out
 
 

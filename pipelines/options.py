@@ -234,3 +234,16 @@ def load_body_and_motion(args: argparse.Namespace) -> BodyAndMotion:
     betas = resolve_betas(body, motion, shape)
     motion = place_pelvis(motion, body.rest_joints(betas)[body.body_joint_map[0]])
     return BodyAndMotion(body, betas, motion, params)
+
+
+def toml_value(raw: str):
+    """A command-line value as TOML reads it (numbers, booleans, quoted strings, lists); a bare
+    word that is not TOML is taken as text (``--set``, ``--predict``)."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+    try:
+        return tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        return raw

@@ -44,16 +44,10 @@ examples:
 def _parse_set(text: str) -> tuple[str, object]:
     if "=" not in text:
         raise argparse.ArgumentTypeError(f"--set {text!r}: expected key=value, e.g. optim.lr=3e-4")
+    from pipelines.options import toml_value
+
     key, raw = text.split("=", 1)
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
-    try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = raw  # a bare word: a string
-    return key.strip(), value
+    return key.strip(), toml_value(raw)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -49,13 +48,14 @@ class RegistrationSettings:
     seed: int = 0
 
     def digest(self) -> str:
-        from sim.scans.registration import RegistrationConfig
+        """Of the settings and of the scanner and registration configs the registrations use."""
+        from learn.deepwrinkles.registrations import garment_registration
         from sim.scans.scanner import ScanConfig
 
         record = {
             "settings": asdict(self),
             "scan": asdict(ScanConfig()),
-            "registration": asdict(RegistrationConfig()),
+            "registration": asdict(garment_registration()),
             "version": CACHE_VERSION,
         }
         return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
@@ -68,24 +68,24 @@ def registered_frames(T: int, every: int) -> np.ndarray:
 
 def cache_path(sf, settings: RegistrationSettings) -> Path:
     """Where a sequence file's registrations with ``settings`` are kept (module docstring)."""
-    from sim.datasets.fields import data_digest
+    from sim.datasets.fields import data_digest, local_derived_dir, user_cache_dir
 
-    folder = sf.path.parent
-    root = folder.parent if folder.name == "sequences" else folder
-    local = root / "derived" / CACHE_DIR
-    probe = next((p for p in (local, local.parent, root) if p.exists()), root)
-    if os.access(probe, os.W_OK):
-        return local / f"{sf.path.stem}-{settings.digest()}.npz"
-    base = Path(os.environ.get("WRINKLES_CACHE") or Path.home() / ".cache" / "wrinkles")
-    return base / CACHE_DIR / f"{data_digest(sf)[:24]}-{settings.digest()}.npz"
+    local = local_derived_dir(sf)
+    if local is not None:
+        return local / CACHE_DIR / f"{sf.path.stem}-{settings.digest()}.npz"
+    return user_cache_dir() / CACHE_DIR / f"{data_digest(sf)[:24]}-{settings.digest()}.npz"
 
 
 def _write_npz(path: Path, **arrays) -> None:
+    """``arrays`` as an .npz file at ``path``, written atomically."""
+    import io
+
+    from sim.datasets.storage import atomic_write_bytes
+
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, **arrays)
-    os.replace(tmp, path)
+    atomic_write_bytes(path, buf.getbuffer())
 
 
 def registrations(
@@ -96,8 +96,10 @@ def registrations(
     *,
     device: str | None = None,
     progress: Callable[[int], None] | None = None,
+    rig: SequenceRig | None = None,
 ) -> RegisteredSequence:
-    """A sequence's registrations (``RegisteredSequence``), from the cache or made and cached."""
+    """A sequence's registrations (``RegisteredSequence``), from the cache or made and cached
+    (``rig``: the sequence's template rig when the caller has it)."""
     from learn.deepwrinkles.registrations import register_sequence, template_truth
 
     path = cache_path(sf, settings)
@@ -129,6 +131,7 @@ def registrations(
             seed=settings.seed,
             device=device,
             progress=progress,
+            rig=rig,
         )
     _write_npz(path, frames=reg.frames, vertices=reg.vertices, truth=reg.truth, pairs=reg.pairs)
     return reg

@@ -28,10 +28,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from sim.errors import WrinklesInputError
-
-
-def _unit(a: np.ndarray) -> np.ndarray:
-    return (a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-12)).astype(np.float32)
+from sim.geometry.frames import unit_vectors
 
 
 class DetailMaps:
@@ -73,10 +70,10 @@ class DetailMaps:
         x = np.asarray(template, np.float32)
         if x.ndim != 3 or x.shape[-1] != 3:
             raise WrinklesInputError(f"template configurations must be (T, Vc, 3), got {x.shape}")
-        n = np.stack([vertex_normals(f, self.template_faces, device="cpu") for f in x])
+        n = vertex_normals(x, self.template_faces, device="cpu")
         return (
             self.on_template.evaluate(self.template_faces, x),
-            _unit(self.on_template.evaluate(self.template_faces, n)),
+            unit_vectors(self.on_template.evaluate(self.template_faces, n)),
         )
 
     def bases(self, template: np.ndarray) -> np.ndarray:
@@ -93,7 +90,7 @@ class DetailMaps:
         from sim.geometry.frames import to_tangent
 
         nt = to_tangent(self.bases(template), np.asarray(normals, np.float32)[:, self.uv_vertex])
-        return _unit(self.maps.raster.rasterize(nt, per="uv")) * self.mask[..., None]
+        return unit_vectors(self.maps.raster.rasterize(nt, per="uv")) * self.mask[..., None]
 
     def lr(self, global_shape: np.ndarray, skinned: np.ndarray) -> np.ndarray:
         """LR maps: the global shapes' (T, Vc, 3) normals against the skinned template (T, Vc, 3)."""
@@ -112,10 +109,10 @@ class DetailMaps:
         from sim.geometry.frames import from_tangent
 
         m = np.asarray(maps, np.float32)
-        world = from_tangent(self.bases(global_shape), _unit(self.maps.raster.sample(m)))
+        world = from_tangent(self.bases(global_shape), unit_vectors(self.maps.raster.sample(m)))
         V = self.maps.num_vertices
         out = np.zeros((len(m), V, 3), np.float32)
         uvv = self.maps.frames.uv_vertex
         used = uvv >= 0
         np.add.at(out, (slice(None), uvv[used]), world[:, used])
-        return _unit(out)
+        return unit_vectors(out)

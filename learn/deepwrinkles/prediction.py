@@ -18,7 +18,7 @@ def coefficients(method, model, controls: np.ndarray, device: torch.device) -> n
     from learn.deepwrinkles.regression import LinearPoseToShape, windows
 
     s = method.state
-    ctl = (controls - s["control_mean"].numpy()) / s["control_std"].numpy()
+    ctl = method.normalise_controls(controls)
     if method.config.regressor == "linear":
         return LinearPoseToShape(s["linear"].numpy())(ctl)
     win = torch.from_numpy(windows(ctl, method.config.window)).to(device)
@@ -50,8 +50,11 @@ regression (the method's use), the sequence's registrations (needs its fine fram
 registrations projected on the subspace's first ``components`` ("BS k")."""
 
 
-def global_shapes(method, model, prep, sf, lr_input: str, components: int, device) -> np.ndarray:
-    """Template positions (T, Vc, 3) of a sequence's global shape from ``lr_input``."""
+def global_shapes(method, model, prep, lr_input: str, components: int, device) -> np.ndarray:
+    """Template positions (T, Vc, 3) of a sequence's global shape from ``lr_input`` (the
+    registration inputs need the sequence's fine frames and its file, ``"sequence/path"``, for
+    the registrations' cache)."""
+    from sim.datasets.storage import SequenceFile
     from sim.errors import WrinklesInputError
 
     if lr_input not in LR_INPUTS:
@@ -59,9 +62,10 @@ def global_shapes(method, model, prep, sf, lr_input: str, components: int, devic
     sub = method.subspace()
     if lr_input == "regression":
         return prep.posed(sub.decode(coefficients(method, model, prep.controls, device)))
-    if sf is None or "fine/vertices" not in prep.seq:
-        raise WrinklesInputError(f"lr_input {lr_input!r} registers the sequence's fine frames: it has none")
-    prep.register(sf, method.settings(), device="cpu")
+    if "sequence/path" not in prep.seq or "fine/vertices" not in prep.seq:
+        raise WrinklesInputError(f"lr_input {lr_input!r} registers a dataset sequence's fine frames: "
+                                 "this sequence has none")
+    prep.register(SequenceFile(str(prep.seq["sequence/path"])), method.settings(), device="cpu")
     if lr_input == "registration":
         return prep.posed(prep.normalised)
     k = components or sub.size
@@ -99,16 +103,16 @@ def predict(
     device: torch.device,
     lr_input: str = "regression",
     components: int = 0,
-    sequence_file=None,
 ) -> Prediction:
     """A whole sequence (``Method.predict_sequence``): fine vertices from Guo et al.'s Eq. 10 on
     the global shape's fine surface, with ``extras``: ``normal_maps`` (HR, T x H x W x 3),
-    ``lr_maps`` and ``global_shape`` (template positions, T x Vc x 3); where the sequence has its
-    simulated fine frames, also ``hr_truth`` and the map metrics (``map_metrics``).
+    ``lr_maps``, ``global_shape`` (template positions, T x Vc x 3) and the global shape on the
+    fine mesh (``global_surface``, ``global_normals``, T x V x 3, what the maps apply to); where
+    the sequence has its simulated fine frames, also ``hr_truth`` and the map metrics
+    (``map_metrics``).
 
     Args:
         lr_input, components: the global shape's source (``LR_INPUTS``) and, for "subspace", k.
-        sequence_file: the sequence's ``SequenceFile`` (registration inputs: their cache).
     """
     from learn.deepwrinkles.sequences import PreparedSequence
     from sim.geometry.normal_geometry import deform_to_normals
@@ -119,16 +123,17 @@ def predict(
     was_training = model.training
     model.eval()
     try:
-        global_shape = global_shapes(method, model, prep, sequence_file, lr_input, components, device)
-        lr = prep.maps.lr(global_shape, prep.skinned())
+        global_shape = global_shapes(method, model, prep, lr_input, components, device)
+        lr = prep.maps.lr(global_shape, prep.rig.skinned())
         hr = generate(method, model, lr, prep.maps.mask, device)
     finally:
         model.train(was_training)
-    base, _ = prep.maps.surface(global_shape)
+    base, base_normals = prep.maps.surface(global_shape)
     normals = prep.maps.decode(hr, global_shape)
     faces = prep.maps.faces
     verts = np.stack([deform_to_normals(b, faces, n) for b, n in zip(base, normals, strict=True)])
-    extras = {"lr_maps": lr, "normal_maps": hr, "global_shape": global_shape}
+    extras = {"lr_maps": lr, "normal_maps": hr, "global_shape": global_shape, "global_surface": base,
+              "global_normals": base_normals}
     metrics = {}
     if "fine/vertices" in sequence:
         extras["hr_truth"] = prep.maps.hr(np.asarray(sequence["fine/vertices"], np.float32), global_shape)

@@ -158,6 +158,7 @@ def register_sequence(
     seed: int = 0,
     device: str | None = None,
     progress: Callable[[int], None] | None = None,
+    rig: SequenceRig | None = None,
 ) -> RegisteredSequence:
     """Scan and register frames of a dataset sequence (module docstring).
 
@@ -173,14 +174,16 @@ def register_sequence(
         device: Warp device of the scans and skinning; a CUDA device also solves the registration's
             normal equations (dense Cholesky, torch).
         progress: called with 1 after each frame.
+        rig: the sequence's ``sequence_rig`` when the caller has it.
     """
     from sim.device import resolve_device
     from sim.scans.registration import register
     from sim.scans.scanner import scan_garment
 
-    rig = sequence_rig(seq, body)
+    rig = rig or sequence_rig(seq, body)
     T = rig.transforms.shape[0]
-    solve_device = resolve_device(device) if str(resolve_device(device)).startswith("cuda") else None
+    where = resolve_device(device)
+    solve_device = where if where.startswith("cuda") else None
     idx = np.arange(T) if frames is None else np.asarray(frames, np.int64)
     if idx.size == 0 or idx.min() < 0 or idx.max() >= T or np.any(np.diff(idx) <= 0):
         raise WrinklesInputError(f"register_sequence: frames must increase within [0, {T - 1}]")
@@ -191,19 +194,15 @@ def register_sequence(
     skinned = rig.skinned(idx)
     out = np.empty((len(idx), *rig.rest.shape), np.float32)
     pairs = np.zeros(len(idx), np.int64)
+    poses, trans = np.asarray(seq["body/poses"])[idx], np.asarray(seq["body/trans"])[idx]
+    posed = body.pose(betas, poses, trans, device=device)  # the occluding body of every frame at once
     for i, t in enumerate(idx):
-        pose = body.pose(
-            betas,
-            np.asarray(seq["body/poses"])[t : t + 1],
-            np.asarray(seq["body/trans"])[t : t + 1],
-            device=device,
-        )
         scan = scan_garment(
             fine[t],
             fine_faces,
             joints[t, 0],
-            body_vertices=pose.vertices[0],
-            body_faces=pose.faces,
+            body_vertices=posed.vertices[i],
+            body_faces=posed.faces,
             config=scan_config,
             seed=seed + int(t),
             device=device,

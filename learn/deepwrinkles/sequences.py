@@ -3,6 +3,7 @@ global shapes and normal maps (the data side of ``learn.methods.deepwrinkles``).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 
 import numpy as np
@@ -11,8 +12,7 @@ from learn.deepwrinkles.global_shape import RegistrationSettings, normalise, pos
 from learn.deepwrinkles.normal_maps import DetailMaps
 from learn.deepwrinkles.registrations import sequence_rig
 
-KEYS = (
-    "fine/vertices",
+GARMENT_KEYS = (
     "fine/faces",
     "fine/uvs",
     "fine/uv_faces",
@@ -21,11 +21,13 @@ KEYS = (
     "coarse/faces",
     "coarse/uvs",
     "coarse/uv_faces",
-    "body/betas",
-    "body/poses",
-    "body/trans",
-    "body/joints",
 )
+"""The garment arrays a prediction needs (a checkpoint keeps them, ``fine/face_layers`` too where
+the data stores it)."""
+STATE_GARMENT_KEYS = (*GARMENT_KEYS, "fine/face_layers")
+"""What a checkpoint keeps of its garment (``fine/face_layers`` where the data stores it)."""
+BODY_KEYS = ("body/betas", "body/poses", "body/trans", "body/joints")
+KEYS = (*GARMENT_KEYS, "fine/vertices", *BODY_KEYS)
 """The arrays a prepared sequence reads (``fine/vertices`` for training only)."""
 
 
@@ -60,8 +62,13 @@ class PreparedSequence:
         self.rig = sequence_rig(seq, body)
         self.reference_rest = np.asarray(seq["coarse/rest_vertices"], np.float32)
         self.controls = control_vectors(np.asarray(seq["body/poses"]), np.asarray(seq["body/trans"]), fps)
-        self.maps = DetailMaps(seq, resolution, device=device)
         self.normalised: np.ndarray | None = None
+        self._resolution, self._device = resolution, device
+
+    @functools.cached_property
+    def maps(self) -> DetailMaps:
+        """The sequence's normal-map operator (made on first use: registering needs none)."""
+        return DetailMaps(self.seq, self._resolution, device=self._device)
 
     @property
     def frames(self) -> int:
@@ -71,13 +78,9 @@ class PreparedSequence:
         self, sf, settings: RegistrationSettings, *, device: str | None = None, progress=None
     ) -> None:
         """Registered frames of the sequence, pose- and shape-normalised (``self.normalised``)."""
-        reg = registrations(sf, self.seq, self.body, settings, device=device, progress=progress)
+        reg = registrations(sf, self.seq, self.body, settings, device=device, progress=progress, rig=self.rig)
         self.normalised = normalise(self.rig, self.reference_rest, reg, self.frames)
 
     def posed(self, normalised: np.ndarray) -> np.ndarray:
         """World template positions (T, Vc, 3) of normalised shapes of every frame (T, Vc, 3)."""
         return pose(self.rig, self.reference_rest, normalised)
-
-    def skinned(self) -> np.ndarray:
-        """The reference template with the shape offset, skinned to every frame (T, Vc, 3)."""
-        return self.rig.skinned()

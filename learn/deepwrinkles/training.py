@@ -24,7 +24,6 @@ def _sequences(method, root):
     ds = GarmentSequenceDataset(
         root,
         "train",
-        window=max(2, method.config.window),
         keys=("fine/vertices",),
         garments=method.config.garments or None,
     )
@@ -61,7 +60,7 @@ def _register_in_worker(job: tuple) -> int:
     method = DeepWrinklesMethod(config)
     ds = _sequences(method, root)
     sf, prep = _prepared(method, ds, sid, device="cpu")
-    registrations(sf, prep.seq, prep.body, method.settings(), device=None)
+    registrations(sf, prep.seq, prep.body, method.settings(), device=None, rig=prep.rig)
     return prep.frames
 
 
@@ -95,7 +94,7 @@ def register_all(method, root, *, progress=None) -> None:
 
 
 VARIANCE_REPORT = (100, 200, 500)
-"""Subspace sizes whose variance kept the fit reports (the paper's 500 and the issue's 100 / 200)."""
+"""Subspace sizes whose variance kept the fit reports (the paper's 500 and two smaller ones)."""
 
 
 def subspace_report(sub) -> str:
@@ -103,12 +102,6 @@ def subspace_report(sub) -> str:
     components (or fewer, where the registrations' rank is smaller)."""
     kept = ", ".join(f"{k}: {sub.variance_kept(min(k, sub.size)):.4f}" for k in VARIANCE_REPORT)
     return f"subspace: {sub.size} components of {sub.frames} frames; variance kept at k = {kept}"
-
-
-GARMENT_KEYS = ("fine/faces", "fine/uvs", "fine/uv_faces", "fine/rest_vertices", "coarse/rest_vertices",
-                "coarse/faces", "coarse/uvs", "coarse/uv_faces", "fine/face_layers")
-"""The garment arrays a prediction needs (``fine/face_layers`` where stored), kept in the fitted
-state as ``garment/<key>`` so a checkpoint animates without its dataset."""
 
 
 def text_tensor(text: str) -> torch.Tensor:
@@ -121,12 +114,14 @@ def tensor_text(t: torch.Tensor) -> str:
 
 
 def garment_state(sf, sid: str, ds) -> dict[str, torch.Tensor]:
-    """The first training sequence's garment (``GARMENT_KEYS``, its category, material, body model
-    and frame rate) as fitted-state tensors."""
+    """A training sequence's garment (``STATE_GARMENT_KEYS`` as ``garment/<key>``, its category,
+    material, body model and frame rate) as fitted-state tensors: a checkpoint animates without
+    its dataset."""
+    from learn.deepwrinkles.sequences import STATE_GARMENT_KEYS
     from sim.datasets.storage import body_model_name
 
     entry = ds.entries[sid]
-    out = {f"garment/{k}": torch.from_numpy(np.array(sf[k])) for k in GARMENT_KEYS if k in sf}
+    out = {f"garment/{k}": torch.from_numpy(np.array(sf[k])) for k in STATE_GARMENT_KEYS if k in sf}
     out["garment/category"] = text_tensor(str(entry.get("garment") or "garment"))
     out["garment/material"] = text_tensor(str(entry.get("material") or "cotton"))
     out["garment/body_model"] = text_tensor(body_model_name(sf, {"config": ds.generator_config}) or "default")
@@ -138,14 +133,13 @@ def fit_state(method, root) -> dict[str, torch.Tensor]:
     """Register the training sequences (cached), fit the subspace, the control statistics and the
     linear pose-to-shape map: the method's fitted state (module docstring of
     ``learn.methods.deepwrinkles``)."""
+    from learn.deepwrinkles.global_shape import registered_frames
     from learn.deepwrinkles.regression import LinearPoseToShape
     from learn.deepwrinkles.subspace import fit_subspace
     from pipelines.progress import progress_bar
 
     cfg = method.config
     ds = _sequences(method, root)
-    from learn.deepwrinkles.global_shape import registered_frames
-
     shapes, controls, template, garment = [], [], None, {}
     every = method.settings().register_every
     total = sum(len(registered_frames(int(ds.entries[s]["frames"]), every)) for s in ds.sequence_ids)
@@ -206,17 +200,13 @@ class TrainFrames(torch.utils.data.Dataset):
         self._cache: dict = {}
 
     def __len__(self) -> int:
-        return sum(int(self.ds.entries[s]["frames"]) for s in self.ds.sequence_ids)
-
-    def _locate(self, index: int) -> tuple[str, int]:
-        for sid in self.ds.sequence_ids:
-            n = int(self.ds.entries[sid]["frames"])
-            if index < n:
-                return sid, index
-            index -= n
-        raise IndexError(index)
+        return len(self.ds)
 
     def _sequence(self, sid: str):
+        """A sequence's prepared arrays: its rig and maps, the normalised control and coefficient
+        windows, the LR input's global shape, the skinned template, the fine frames."""
+        from learn.deepwrinkles.regression import windows
+
         if sid not in self._cache:
             m = self.method
             sf, prep = _prepared(m, self.ds, sid, device="cpu")
@@ -227,26 +217,21 @@ class TrainFrames(torch.utils.data.Dataset):
             lr_shape = prep.normalised if m.config.lr_source == "registration" else sub.decode(coeffs[:, :k])
             if len(self._cache) >= SEQUENCE_CACHE:
                 self._cache.pop(next(iter(self._cache)))
+            w = m.config.window
             self._cache[sid] = (
                 prep,
-                coeffs,
+                windows(m.normalise_controls(prep.controls), w),
+                windows(coeffs / m.state["coefficient_scale"].numpy(), w),
                 prep.posed(lr_shape),
-                prep.skinned(),
+                prep.rig.skinned(),
                 np.asarray(prep.seq["fine/vertices"], np.float32),
             )
         return self._cache[sid]
 
     def __getitem__(self, key: tuple[int, int]) -> dict:
-        from learn.deepwrinkles.regression import windows
-
         index, _ = key
-        sid, t = self._locate(index)
-        prep, coeffs, global_shape, skinned, fine = self._sequence(sid)
-        s = self.method.state
-        ctl = (prep.controls - s["control_mean"].numpy()) / s["control_std"].numpy()
-        w = self.method.config.window
-        win = windows(ctl, w)[t]
-        lam = windows(coeffs / s["coefficient_scale"].numpy(), w)[t]
+        sid, t = self.ds.locate(index)
+        prep, controls, coefficients, global_shape, skinned, fine = self._sequence(sid)
         prev = max(t - 1, 0)
         lr = prep.maps.lr(global_shape[[t]], skinned[[t]])[0]
         hr = prep.maps.hr(fine[[prev, t]], global_shape[[prev, t]])
@@ -255,8 +240,8 @@ class TrainFrames(torch.utils.data.Dataset):
             return torch.from_numpy(np.ascontiguousarray(a.transpose(2, 0, 1), dtype=np.float32))
 
         return {
-            "controls": torch.from_numpy(win),
-            "coefficients": torch.from_numpy(lam.astype(np.float32)),
+            "controls": torch.from_numpy(controls[t]),
+            "coefficients": torch.from_numpy(coefficients[t].astype(np.float32)),
             "lr": chw(lr),
             "hr": chw(hr[1]),
             "hr_prev": chw(hr[0]),

@@ -164,6 +164,11 @@ class DeepWrinklesMethod(Method):
             frames=int(s["frames"]),
         )
 
+    def normalise_controls(self, controls: np.ndarray) -> np.ndarray:
+        """Control vectors (T, C) in units of the training frames' mean and standard deviation,
+        what both pose-to-shape maps read."""
+        return (controls - self.state["control_mean"].numpy()) / self.state["control_std"].numpy()
+
     def build_model(self) -> nn.Module:
         if not self.state:
             raise WrinklesInputError("DeepWrinkles needs its fitted state (prepare or a checkpoint) to build")
@@ -205,13 +210,9 @@ class DeepWrinklesMethod(Method):
         device: torch.device,
         lr_input: str = "regression",
         components: int = 0,
-        sequence_file=None,
     ) -> Prediction:
         """``learn.deepwrinkles.prediction.predict``: ``lr_input`` "regression" (from the body
         motion), "registration" or "subspace" (``components`` of it): the paper's Table 1 inputs."""
         from learn.deepwrinkles.prediction import predict
 
-        return predict(
-            self, model, sequence, device=device, lr_input=lr_input, components=components,
-            sequence_file=sequence_file,
-        )
+        return predict(self, model, sequence, device=device, lr_input=lr_input, components=components)

@@ -127,19 +127,30 @@ def data_digest(sf) -> str:
     return h.hexdigest()
 
 
+def user_cache_dir() -> Path:
+    """The user's cache folder: ``$WRINKLES_CACHE``, default ``~/.cache/wrinkles``."""
+    return Path(os.environ.get("WRINKLES_CACHE") or Path.home() / ".cache" / "wrinkles")
+
+
+def local_derived_dir(sf) -> Path | None:
+    """``DIR/derived`` beside the ``sequences/`` folder of sequence file ``sf`` when the dataset
+    is writable there, else None (a read-only dataset: derived files go to the user's cache)."""
+    folder = sf.path.parent
+    root = folder.parent if folder.name == "sequences" else folder
+    local = root / DERIVED_DIR
+    return local if os.access(local if local.exists() else root, os.W_OK) else None
+
+
 def cache_path(sf) -> Path:
     """Where the derived fields of sequence file ``sf`` are kept: ``DIR/derived/<id>`` beside a
     dataset's ``sequences/`` folder when it is writable, else under ``$WRINKLES_CACHE/derived``
     (default ``~/.cache/wrinkles``) by data checksum."""
     from sim.datasets.storage import SUFFIX
 
-    folder = sf.path.parent
-    root = folder.parent if folder.name == "sequences" else folder
-    local = root / DERIVED_DIR
-    if os.access(local if local.exists() else root, os.W_OK):
+    local = local_derived_dir(sf)
+    if local is not None:
         return local / sf.path.name
-    base = Path(os.environ.get("WRINKLES_CACHE") or Path.home() / ".cache" / "wrinkles")
-    return base / DERIVED_DIR / f"{_cache_key(sf)['key']}{SUFFIX}"
+    return user_cache_dir() / DERIVED_DIR / f"{_cache_key(sf)['key']}{SUFFIX}"
 
 
 def _cache_key(sf) -> dict[str, str]:

@@ -227,7 +227,8 @@ class SurfaceFrames:
         return a[0] if single else a
 
 
-def _unit(a: np.ndarray) -> np.ndarray:
+def unit_vectors(a: np.ndarray) -> np.ndarray:
+    """Vectors (..., 3) scaled to unit length (zero vectors stay zero)."""
     return a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-12)
 
 
@@ -244,8 +245,8 @@ def tangent_basis(frames: np.ndarray, normals: np.ndarray | None = None) -> np.n
         (..., U, 3, 3) float32.
     """
     f = np.asarray(frames, np.float32)
-    n = _unit(f[..., 2] if normals is None else np.asarray(normals, np.float32))
-    t1 = _unit(f[..., 0] - np.sum(f[..., 0] * n, axis=-1, keepdims=True) * n)
+    n = unit_vectors(f[..., 2] if normals is None else np.asarray(normals, np.float32))
+    t1 = unit_vectors(f[..., 0] - np.sum(f[..., 0] * n, axis=-1, keepdims=True) * n)
     return np.stack([t1, np.cross(n, t1), n], axis=-1).astype(np.float32)
 
 
