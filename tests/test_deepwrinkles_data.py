@@ -261,3 +261,13 @@ def test_bad_prediction_options_are_refused():
     for bad in ("steps=20", "lr_input", "sequence_file=x"):
         with pytest.raises(WrinklesInputError, match="--predict"):
             _predict_options([bad], method)
+
+
+def test_the_registration_cache_follows_the_garment_settings(monkeypatch):
+    """Cached registrations are of the settings that made them: another garment registration
+    weight is another cache file."""
+    import learn.deepwrinkles.registrations as R
+
+    before = G.RegistrationSettings().digest()
+    monkeypatch.setitem(R.GARMENT_REGISTRATION_SETTINGS, "edge", R.GARMENT_REGISTRATION_SETTINGS["edge"] * 2)
+    assert G.RegistrationSettings().digest() != before
