@@ -65,7 +65,8 @@ def global_shapes(method, model, prep, lr_input: str, components: int, device) -
     if "sequence/path" not in prep.seq or "fine/vertices" not in prep.seq:
         raise WrinklesInputError(f"lr_input {lr_input!r} registers a dataset sequence's fine frames: "
                                  "this sequence has none")
-    prep.register(SequenceFile(str(prep.seq["sequence/path"])), method.settings(), device="cpu")
+    scan_device = str(device) if str(device).startswith("cuda") else "cpu"
+    prep.register(SequenceFile(str(prep.seq["sequence/path"])), method.settings(), device=scan_device)
     if lr_input == "registration":
         return prep.posed(prep.normalised)
     k = components or sub.size

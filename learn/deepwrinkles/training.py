@@ -18,17 +18,17 @@ SEQUENCE_CACHE = 128
 vertices and 60 frames)."""
 
 
-def _sequences(method, root):
+def _sequences(method, root, split: str = "train"):
     from learn.data import GarmentSequenceDataset
 
     ds = GarmentSequenceDataset(
         root,
-        "train",
+        split,
         keys=("fine/vertices",),
         garments=method.config.garments or None,
     )
     if len(ds.sequence_ids) == 0:
-        raise WrinklesInputError("no training sequences", path=ds.root)
+        raise WrinklesInputError(f"no {split} sequences", path=ds.root)
     return ds
 
 
@@ -56,27 +56,28 @@ def _register_in_worker(job: tuple) -> int:
     from learn.deepwrinkles.global_shape import registrations
     from learn.methods.deepwrinkles import DeepWrinklesMethod
 
-    config, root, sid = job
+    config, root, split, sid = job
     method = DeepWrinklesMethod(config)
-    ds = _sequences(method, root)
+    ds = _sequences(method, root, split)
     sf, prep = _prepared(method, ds, sid, device="cpu")
     registrations(sf, prep.seq, prep.body, method.settings(), device=None, rig=prep.rig)
     return prep.frames
 
 
-def register_all(method, root, *, progress=None) -> None:
-    """Make the registrations of every training sequence missing from the cache, in
-    ``config.workers`` processes (each scans on the default Warp device)."""
+def register_all(method, root, *, split: str = "train", progress=None) -> None:
+    """Make the registrations of every sequence of ``split`` missing from the cache, in
+    ``config.workers`` processes (each scans on the default Warp device). Registering a test split
+    ahead lets ``wrinkles evaluate --predict lr_input=registration`` read them from the cache."""
     import concurrent.futures as cf
     import multiprocessing as mp
 
     from learn.deepwrinkles.global_shape import cache_path
 
-    ds = _sequences(method, root)
+    ds = _sequences(method, root, split)
     todo = [s for s in ds.sequence_ids if not cache_path(ds.open_sequence(s), method.settings()).exists()]
     if not todo or method.config.workers <= 1:
         return
-    jobs = [(method.config, str(root), s) for s in todo]
+    jobs = [(method.config, str(root), split, s) for s in todo]
     spawn = mp.get_context("spawn")
     saved = {k: os.environ.get(k) for k in THREAD_VARIABLES}
     os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))  # one thread per worker, set before it starts
