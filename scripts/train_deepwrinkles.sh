@@ -9,9 +9,10 @@
 # continues; registrations are cached beside the data.
 #   bash scripts/train_deepwrinkles.sh WORKDIR [GEN_SECONDS] [TRAIN_SECONDS]
 # STAGES picks stages (default "generate register train export evaluate"); WORKERS registration
-# processes (default 14), EVERY registers every k-th frame (default 3), SEQUENCES caps the data.
+# processes (default 14), EVERY registers every k-th frame (default 6), MAXSEQ test sequences
+# per evaluation (default 6), EXTRA_SET more --set options of the trainings.
 set -u
-W=${1:?work directory}; GEN=${2:-150}; TRAIN=${3:-600}
+W=${1:?work directory}; GEN=${2:-400}; TRAIN=${3:-600}
 STAGES=" ${STAGES:-generate register train export evaluate} "
 for s in $STAGES; do
   case $s in generate|register|train|export|evaluate) ;; *) echo "STAGES: unknown stage '$s' (generate register train export evaluate)" >&2; exit 2;; esac
@@ -20,7 +21,7 @@ PY=${PYTHON:-python3}
 CLI="$PY -m pipelines.cli"
 D="$W/data/tshirt"
 CFG=pipelines/configs/train/deepwrinkles.toml
-SET="--set model.workers=${WORKERS:-14} --set model.register_every=${EVERY:-3}"
+SET="--set model.workers=${WORKERS:-14} --set model.register_every=${EVERY:-6} ${EXTRA_SET:-}"
 RELEASE_SET=${RELEASE_SET:-"--set model.filters=16 --set model.components=200 --set model.layers=2"}
 mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release"
 log() { echo "[$(date +%T)] $*" | tee -a "$W/logs/pipeline.log"; }
@@ -37,21 +38,10 @@ fi
 
 if stage register; then
   log "register"
-  $PY - "$D" ${WORKERS:-14} ${EVERY:-3} <<'EOF' 2>&1 | tail -4 | tee -a "$W/logs/pipeline.log"
-import sys
-import time
-
-from learn.deepwrinkles.training import register_all
-from learn.methods.deepwrinkles import DeepWrinklesConfig, DeepWrinklesMethod
-
-if __name__ == "__main__":
-    t0 = time.time()
-    method = DeepWrinklesMethod(DeepWrinklesConfig(workers=int(sys.argv[2]), register_every=int(sys.argv[3]),
-                                                   garments=("t_shirt",)))
-    for split in ("train", "test_id"):  # test_id: the registration inputs of the evaluation
-        register_all(method, sys.argv[1], split=split)
-        print(f"{split} registered after {time.time() - t0:.0f} s")
-EOF
+  register() { $PY -m learn.deepwrinkles.training "$D" --workers ${WORKERS:-14} --every ${EVERY:-6} --garment t_shirt "$@" \
+    2>&1 | tr '\r' '\n' | grep -v "^ *$" | tail -2 | tee -a "$W/logs/pipeline.log"; }
+  register --split train
+  register --split test_id --max-sequences ${MAXSEQ:-6}  # the evaluation's registration inputs
 fi
 
 if stage train; then
@@ -60,7 +50,7 @@ if stage train; then
     local name=$1; shift
     local resume=""; [ -f "$W/runs/$name/checkpoints/last.pt" ] && resume="--resume"
     timeout -s INT "$TRAIN" $CLI train deepwrinkles --data "$D" --out "$W/runs/$name" --config $CFG $SET \
-      --device cuda -q --set train.num_workers=6 "$@" $resume >"$W/logs/train-$name.log" 2>&1
+      --device cuda -q --set train.num_workers=4 "$@" $resume >"$W/logs/train-$name.log" 2>&1
   }
   train dw &
   train dw-notemp --set model.temporal_weight=0.0 &

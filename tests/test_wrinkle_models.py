@@ -291,7 +291,17 @@ def test_deepwrinkles_trains_predicts_and_is_evaluated(sample_dataset, tmp_path)
     method, model, _ = load_trained(out / "checkpoints" / "last.pt")
     sub = method.subspace()
     assert sub.size <= 16 and 0.0 < sub.variance_kept(1) <= sub.variance_kept() <= 1.0 + 1e-9
-    item = method.train_dataset(sample_dataset)[(3, 0)]
+    from learn.deepwrinkles.training import TrainFrames
+
+    frames = method.train_dataset(sample_dataset)  # warmed: prepared here, shared with forked workers
+    assert len(frames._cache) == len(frames.ds.sequence_ids)
+    assert len(frames._maps) == len({id(c[0].maps) for c in frames._cache.values()})
+    cold = TrainFrames(method, sample_dataset)
+    for key in ((3, 0), (len(frames) - 1, 0)):
+        warm_item, cold_item = frames[key], cold[key]
+        for k in warm_item:
+            torch.testing.assert_close(warm_item[k], cold_item[k])
+    item = frames[(3, 0)]
     assert item["lr"].shape == (3, 32, 32) and item["controls"].shape[0] == 3
     from learn.data import GarmentSequenceDataset
 
@@ -316,6 +326,34 @@ def test_deepwrinkles_trains_predicts_and_is_evaluated(sample_dataset, tmp_path)
     bs4 = json.loads((tmp_path / "bs4" / "metrics.json").read_text())
     assert bs4["predict_options"] == {"lr_input": "subspace", "components": 4}
     assert 0 < bs4["summary"]["nm_l2"] < bs4["summary"]["nm_l1"] < 2.0 and bs4["summary"]["nm_temporal"] >= 0
+
+
+@pytest.mark.slow
+def test_a_split_is_registered_ahead_by_worker_processes(sample_dataset, tmp_path, capsys):
+    """``python -m learn.deepwrinkles.training``: the first sequence of a split registered (scan +
+    registration) in a worker process into the cache that training and evaluation read."""
+    from learn.data import GarmentSequenceDataset
+    from learn.deepwrinkles.global_shape import cache_path
+    from learn.deepwrinkles.training import main
+    from learn.methods.deepwrinkles import DeepWrinklesConfig, DeepWrinklesMethod
+
+    ds = GarmentSequenceDataset(sample_dataset, "train", garments="t_shirt")
+    settings = DeepWrinklesMethod(DeepWrinklesConfig(register_every=40, garments=("t_shirt",))).settings()
+    first, second = (cache_path(ds.open_sequence(s), settings) for s in ds.sequence_ids[:2])
+    for p in (first, second):
+        p.unlink(missing_ok=True)
+    args = [str(sample_dataset), "--split", "train", "--max-sequences", "1", "--every", "40", "--garment", "t_shirt"]
+    assert main([*args, "--workers", "2"]) == 0
+    assert first.exists() and not second.exists()
+    import numpy as np
+
+    with np.load(first) as z:
+        frames = int(ds.entries[ds.sequence_ids[0]]["frames"])
+        assert z["frames"].tolist() == sorted({*range(0, frames, 40), frames - 1})
+        err = np.linalg.norm(z["vertices"] - z["truth"], axis=-1)
+        assert np.isfinite(err).all() and np.median(err) < 0.05  # registered, not the skinned start
+    assert main([str(tmp_path / "missing")]) == 2
+    assert "error:" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------- evaluation, export, animate

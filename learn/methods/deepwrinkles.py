@@ -179,7 +179,9 @@ class DeepWrinklesMethod(Method):
     def train_dataset(self, root) -> torch.utils.data.Dataset:
         from learn.deepwrinkles.training import TrainFrames
 
-        return TrainFrames(self, root)
+        frames = TrainFrames(self, root)
+        frames.warm()
+        return frames
 
     def training_loss(self, model: nn.Module, batch: dict, generator: torch.Generator) -> LossOutput:
         from learn.deepwrinkles.cgan import CGANWeights, cgan_loss
