@@ -342,7 +342,8 @@ def test_a_split_is_registered_ahead_by_worker_processes(sample_dataset, tmp_pat
     first, second = (cache_path(ds.open_sequence(s), settings) for s in ds.sequence_ids[:2])
     for p in (first, second):
         p.unlink(missing_ok=True)
-    args = [str(sample_dataset), "--split", "train", "--max-sequences", "1", "--every", "40", "--garment", "t_shirt"]
+    args = [str(sample_dataset), "--split", "train", "--max-sequences", "1", "--every", "40"]
+    args += ["--garment", "t_shirt"]
     assert main([*args, "--workers", "2"]) == 0
     assert first.exists() and not second.exists()
     import numpy as np

@@ -76,7 +76,8 @@ def register_all(method, root, *, split: str = "train", max_sequences: int | Non
     from learn.deepwrinkles.global_shape import cache_path
 
     ds = _sequences(method, root, split)
-    todo = [s for s in list(ds.sequence_ids)[:max_sequences] if not cache_path(ds.open_sequence(s), method.settings()).exists()]
+    settings = method.settings()
+    todo = [s for s in list(ds.sequence_ids)[:max_sequences] if not cache_path(ds.open_sequence(s), settings).exists()]
     if not todo or method.config.workers <= 1:
         return
     jobs = [(method.config, str(root), split, s) for s in todo]
@@ -311,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--every", type=int, default=3, help="register every k-th frame (model.register_every)")
     ap.add_argument("--garment", action="append", default=None, help="garment category (repeatable)")
     ap.add_argument("--max-sequences", type=int, default=None,
-                    help="register only the first N sequences of each split (those evaluate --max-sequences takes)")
+                    help="only the first N sequences of each split (those evaluate --max-sequences takes)")
     args = ap.parse_args(argv)
     method = DeepWrinklesMethod(DeepWrinklesConfig(
         workers=max(2, args.workers), register_every=args.every, garments=tuple(args.garment or ())))
