@@ -77,7 +77,8 @@ def register_all(method, root, *, split: str = "train", max_sequences: int | Non
 
     ds = _sequences(method, root, split)
     settings = method.settings()
-    todo = [s for s in list(ds.sequence_ids)[:max_sequences] if not cache_path(ds.open_sequence(s), settings).exists()]
+    first = list(ds.sequence_ids)[:max_sequences]
+    todo = [s for s in first if not cache_path(ds.open_sequence(s), settings).exists()]
     if not todo or method.config.workers <= 1:
         return
     jobs = [(method.config, str(root), split, s) for s in todo]
