@@ -302,6 +302,11 @@ class _BodyCache:
         return self.bodies[name]
 
 
+SURFACE_SHADINGS = (("global shape", "global_normals"), ("global shape + predicted HR map", "detail_normals"))
+"""Shadings of a prediction's base surface in the close-ups: (title, ``Prediction.extras`` key of
+its per-vertex normals)."""
+
+
 def _example(sid: str, seq: dict, pred: Prediction, maps: dict) -> dict:
     """The middle frame of a sequence for pictures: prediction, ground truth, error, UV maps."""
     t = seq["fine/vertices"].shape[0] // 2
@@ -316,6 +321,10 @@ def _example(sid: str, seq: dict, pred: Prediction, maps: dict) -> dict:
               if np.ndim(v) == 4 and len(v) == T and np.shape(v)[-1] == 3}
     if images:
         ex["method_maps"] = images  # the method's own UV maps (e.g. DeepWrinkles' LR / HR normal maps)
+    if "global_surface" in pred.extras:  # a base surface the maps shade (DeepWrinkles' global shape)
+        ex["surface"] = np.asarray(pred.extras["global_surface"][t])
+        ex["surface_normals"] = {name: np.asarray(pred.extras[key][t]) for name, key in SURFACE_SHADINGS
+                                 if key in pred.extras}
     return ex
 
 

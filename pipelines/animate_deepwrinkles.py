@@ -19,7 +19,8 @@ What the stage holds (``--surface``):
   the vertices ``wrinkles evaluate`` measures): the wrinkles are in the geometry, and no maps
   (applying them to this surface would add the wrinkles a second time).
 
-The preview draws the fine garment either way (a preview draws no normal maps).
+The preview draws what the stage holds: with ``global``, the global shape shaded by the normals
+of the predicted maps (sampled at the fine vertices); with ``fine``, the fine garment.
 """
 
 from __future__ import annotations
@@ -196,8 +197,21 @@ def _stage_track(garment: DatasetGarment, verts: np.ndarray, normals: np.ndarray
                         normal_maps=maps)
 
 
+def _preview(garment: DatasetGarment, verts: np.ndarray, shading, frames, bm) -> list:
+    """The preview's meshes: the body and the garment ``verts`` (T, V, 3), shaded by the per-vertex
+    normals ``shading`` (T, V, 3) where given."""
+    import dataclasses
+
+    from pipelines.simulate_cmd import preview_meshes
+
+    meshes = preview_meshes(_preview_sequence(garment, verts, frames, bm))
+    if shading is not None:
+        meshes[-1] = dataclasses.replace(meshes[-1], normals=shading)
+    return meshes
+
+
 def _preview_sequence(garment: DatasetGarment, fine: np.ndarray, frames, bm):
-    """The fine garment on the body, for ``preview_meshes``."""
+    """The garment on the body, for ``preview_meshes``."""
     from sim.garments.materials import get_material
     from sim.garments.types import Garment
     from sim.types import GarmentSequence
@@ -222,7 +236,6 @@ def run(args: argparse.Namespace) -> int:
     from pipelines.options import load_body_and_motion
     from pipelines.outputs import OutputSet, check_stage_outputs, command_line, stage_rig, write_previews
     from pipelines.progress import progress_bar
-    from pipelines.simulate_cmd import preview_meshes
     from sim.device import resolve_device
     from sim.versions import package_versions
     from usd_io import write_stage
@@ -257,7 +270,8 @@ def run(args: argparse.Namespace) -> int:
     T = len(verts)
     with OutputSet() as outputs:
         outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
-        write_previews(outputs, paths, lambda: preview_meshes(_preview_sequence(garment, fine, frames, bm)),
+        shading = pred.extras["detail_normals"] if maps is not None else None
+        write_previews(outputs, paths, lambda: _preview(garment, verts, shading, frames, bm),
             num_frames=T, fps=float(bm.motion.fps), camera=args.camera, quiet=args.quiet)
         # last, under its final name: the stage names its maps' folder after itself, and
         # write_stage puts both in place atomically

@@ -27,6 +27,10 @@ Writes into --out (default: <checkpoint dir>/../eval-<split>):
   uv_examples.png    predicted vs simulated UV normal and wrinkle maps of a few frames
   renders.png        predicted vs simulated garment, coloured by the per-vertex error, with a
                      colour bar in mm
+  method_maps.png    the method's own UV maps where it has them (DeepWrinkles: LR input,
+                     predicted HR, simulated HR normal maps)
+  closeups.png       DeepWrinkles: the simulated garment, the global shape, the LR and predicted
+                     HR maps, and the global shape shaded by the predicted HR map, side by side
 
 Guo et al.'s two stages: --model is the wrinkle model (wrinkle_diffusion or the
 displacement_regressor baseline) and --coarse the skeleton_cvae that makes the base from the body
@@ -211,9 +215,64 @@ def write_example_images(examples: list[dict], out_dir: Path) -> list[Path]:
         written.append(_method_maps(own, out_dir / "method_maps.png"))
     try:
         written.append(_renders(examples, out_dir / "renders.png"))
+        shaded = [e for e in examples if "surface" in e and "method_maps" in e]
+        if shaded:
+            written.append(_closeups(shaded, out_dir / "closeups.png"))
     except ImportError as e:  # pyvista missing: the UV pictures and numbers still stand
         print(f"note: no renders.png ({e})", file=sys.stderr)
     return written
+
+
+CLOSEUP_MAPS = (("LR map (input)", "lr_maps"), ("predicted HR map", "normal_maps"))
+"""The UV maps of a close-up row: (title, ``method_maps`` key)."""
+
+
+def _render_one(mesh, size=(360, 420)) -> np.ndarray:
+    from pipelines.preview import render_frames
+
+    frames = render_frames([mesh], [0], size=size, floor=False, shadows=False)
+    try:
+        return next(frames)
+    finally:
+        frames.close()
+
+
+def _closeups(examples: list[dict], path: Path) -> Path:
+    """``closeups.png``: per example frame, the simulated garment, the base surface under each of
+    its shadings (DeepWrinkles: the global shape, then shaded by the predicted HR map) and the
+    method's LR / HR maps, side by side (Lähner et al. 2018, Fig. 1 and 10)."""
+    import matplotlib.pyplot as plt
+
+    from pipelines.preview import PreviewMesh
+
+    colour = (0.78, 0.80, 0.86)
+    rows = []
+    for e in examples:
+
+        def render(vertices, normals=None, e=e):
+            return _render_one(PreviewMesh("garment", vertices, e["faces"], color=colour, normals=normals))
+
+        shadings = list(e["surface_normals"].items())
+        tiles = [("simulated", render(e["gt"])), (shadings[0][0], render(e["surface"], shadings[0][1]))]
+        maps = e["method_maps"]
+        mask = np.linalg.norm(maps[CLOSEUP_MAPS[-1][1]], axis=-1) > 0.5
+        k = _normal_gain(maps[CLOSEUP_MAPS[-1][1]], mask)
+        tiles += [(f"{name} (xy x{k:.1f})", _normal_rgb(maps[key], mask, k))
+                  for name, key in CLOSEUP_MAPS if key in maps]
+        tiles += [(name, render(e["surface"], n)) for name, n in shadings[1:]]
+        rows.append((e, tiles))
+    cols = max(len(t) for _, t in rows)
+    fig, axes = plt.subplots(len(rows), cols, figsize=(2.9 * cols, 3.3 * len(rows)), squeeze=False)
+    for ax_row, (e, tiles) in zip(axes, rows, strict=True):
+        for ax in ax_row:
+            ax.axis("off")
+        for ax, (name, img) in zip(ax_row, tiles, strict=False):
+            ax.imshow(img)
+            ax.set_title(f"{e['sequence']} t={e['frame']}\n{name}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def _method_maps(examples: list[dict], path: Path) -> Path:

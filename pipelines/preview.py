@@ -92,6 +92,8 @@ class PreviewMesh:
         smooth: smooth (Gouraud, per-vertex normals) or flat shading.
         cmap: matplotlib/pyvista colour map name for ``scalars``.
         clim: (low, high) colour range for ``scalars``; None = sequence min/max.
+        normals: optional shading normals, shape (T, V, 3) (or (V, 3)), e.g. decoded from a
+            normal map; None = the mesh's own vertex normals.
     """
 
     name: str
@@ -103,6 +105,7 @@ class PreviewMesh:
     smooth: bool = True
     cmap: str = "viridis"
     clim: tuple[float, float] | None = None
+    normals: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         where = f"mesh {self.name!r}"
@@ -142,6 +145,15 @@ class PreviewMesh:
                     f"got {np.shape(self.scalars)}")
             if not np.all(np.isfinite(scalars)):
                 raise WrinklesInputError(f"{where}: scalars have NaN/inf values")
+        if self.normals is not None:
+            normals = np.asarray(self.normals, dtype=np.float32)
+            normals = normals[None] if normals.ndim == 2 else normals
+            if normals.shape[1:] != verts.shape[1:] or normals.shape[0] not in (1, verts.shape[0]):
+                raise WrinklesInputError(f"{where}: normals must have shape ({verts.shape[0]}, "
+                                         f"{verts.shape[1]}, 3), got {np.shape(self.normals)}")
+            if not np.all(np.isfinite(normals)):
+                raise WrinklesInputError(f"{where}: normals have NaN/inf values")
+            object.__setattr__(self, "normals", normals)
         object.__setattr__(self, "vertices", verts)
         object.__setattr__(self, "faces", faces.astype(np.int32, copy=False))
         object.__setattr__(self, "color", color)
@@ -154,6 +166,12 @@ class PreviewMesh:
     def frame(self, t: int) -> np.ndarray:
         """Positions [m] of frame ``t``, shape (V, 3); a static mesh returns its only frame."""
         return self.vertices[t if self.num_frames > 1 else 0]
+
+    def frame_normals(self, t: int) -> np.ndarray:
+        """Shading normals of frame ``t`` (V, 3): the given ones, else the mesh's own."""
+        if self.normals is None:
+            return vertex_normals(self.frame(t), self.faces)
+        return self.normals[t if self.normals.shape[0] > 1 else 0]
 
     def frame_scalars(self, t: int) -> np.ndarray | None:
         if self.scalars is None:
@@ -360,7 +378,7 @@ class _Scene:
 
     def _add_mesh(self, pv, m: PreviewMesh):
         poly = self._polydata(pv, m.frame(0), m.faces)
-        poly.point_data.active_normals = vertex_normals(m.frame(0), m.faces)
+        poly.point_data.active_normals = m.frame_normals(0)
         kw = dict(opacity=m.opacity, smooth_shading=False, ambient=0.2, diffuse=0.8,
                   specular=0.12, specular_power=25.0, show_scalar_bar=False)
         if m.scalars is not None:
@@ -429,7 +447,7 @@ class _Scene:
                 v = m.frame(t)
                 poly.points[:] = v
                 poly.GetPoints().Modified()
-                poly.point_data["Normals"][:] = vertex_normals(v, m.faces)
+                poly.point_data["Normals"][:] = m.frame_normals(t)
                 poly.point_data.GetNormals().Modified()
                 if shadow is not None:
                     shadow.points[:] = project_to_floor(v, self.floor_y + SHADOW_LIFT,

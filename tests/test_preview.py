@@ -152,6 +152,26 @@ def test_static_mesh_beside_animated_one():
     assert (imgs[0] != imgs[1]).any()  # the frames differ
 
 
+def test_given_normals_shade_the_mesh_instead_of_its_own():
+    """Shading normals (a normal map's): the sphere's own normals reproduce the default render,
+    normals that all face the camera's side light it flat, unlike its own."""
+    v, f = _icosphere()
+    v = v + np.float32([0.0, 0.25, 0.0])
+    own = PreviewMesh("ball", v, f, color=RED)
+    radial = (v - np.float32([0.0, 0.25, 0.0])) / 0.25
+    same = PreviewMesh("ball", v, f, color=RED, normals=radial)
+    np.testing.assert_allclose(own.frame_normals(0), preview.vertex_normals(v, f))
+    np.testing.assert_array_equal(same.frame_normals(0), radial.astype(np.float32))
+    flat = PreviewMesh("ball", v, f, color=RED, normals=np.tile(np.float32([0, 0, 1]), (len(v), 1)))
+    a, b, c = (next(preview.render_frames([m], [0], size=(96, 96), floor=False, shadows=False))
+               for m in (own, same, flat))
+    inside = _red_mask(a)
+    assert inside.sum() > 500
+    assert np.abs(a.astype(int) - b.astype(int))[inside].mean() < 8  # own ~ radial normals
+    red_a, red_c = a[..., 0][inside].astype(float), c[..., 0][inside].astype(float)
+    assert red_c.std() < 0.5 * red_a.std()  # one normal everywhere: nearly one shade
+
+
 def test_rendering_is_deterministic():
     m = [_moving_sphere(3)]
     first = list(preview.render_frames(m, [1], size=(80, 64)))[0]
@@ -209,6 +229,7 @@ def test_frames_to_preview_meshes():
     lambda: PreviewMesh("m", np.zeros((3, 3)), np.int32([[0, 1, 3]])),
     lambda: PreviewMesh("m", np.zeros((3, 3)), np.int32([[0, 1, 2]]), color=(255, 0, 0)),
     lambda: PreviewMesh("m", np.zeros((2, 3, 3)), np.int32([[0, 1, 2]]), scalars=np.zeros((3, 3))),
+    lambda: PreviewMesh("m", np.zeros((2, 3, 3)), np.int32([[0, 1, 2]]), normals=np.zeros((3, 4, 3))),
     lambda: preview.sequence_length([]),
     lambda: preview.sequence_length([_moving_sphere(3), _moving_sphere(4)]),
     lambda: preview.view_direction("top"),

@@ -108,7 +108,8 @@ def predict(
     """A whole sequence (``Method.predict_sequence``): fine vertices from Guo et al.'s Eq. 10 on
     the global shape's fine surface, with ``extras``: ``normal_maps`` (HR, T x H x W x 3),
     ``lr_maps``, ``global_shape`` (template positions, T x Vc x 3) and the global shape on the
-    fine mesh (``global_surface``, ``global_normals``, T x V x 3, what the maps apply to); where
+    fine mesh (``global_surface``, ``global_normals``, T x V x 3, what the maps apply to) and its
+    normals from the HR maps (``detail_normals``: the normal-mapped look, T x V x 3); where
     the sequence has its simulated fine frames, also ``hr_truth`` and the map metrics
     (``map_metrics``).
 
@@ -134,7 +135,7 @@ def predict(
     faces = prep.maps.faces
     verts = np.stack([deform_to_normals(b, faces, n) for b, n in zip(base, normals, strict=True)])
     extras = {"lr_maps": lr, "normal_maps": hr, "global_shape": global_shape, "global_surface": base,
-              "global_normals": base_normals}
+              "global_normals": base_normals, "detail_normals": normals}
     metrics = {}
     if "fine/vertices" in sequence:
         extras["hr_truth"] = prep.maps.hr(np.asarray(sequence["fine/vertices"], np.float32), global_shape)
