@@ -72,13 +72,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="diffusion",
         choices=("diffusion", "deepwrinkles"),
         help="diffusion: Guo et al. 2024's CVAE + strain diffusion (--coarse/--wrinkles or the shipped "
-        "models); deepwrinkles: a DeepWrinkles checkpoint (--model) (default: %(default)s)",
+        "models); deepwrinkles: Lahner et al. 2018 (--model or the shipped t_shirt model) "
+        "(default: %(default)s)",
     )
     g.add_argument(
         "--garment",
         default="t_shirt",
         help="garment category of the shipped models: t_shirt (tshirt), straight_skirt (skirt) "
-        "(default: %(default)s; ignored with --coarse and --method deepwrinkles)",
+        "(default: %(default)s; ignored with --coarse, and with --method deepwrinkles --model)",
     )
     g.add_argument("--coarse", help="skeleton_cvae checkpoint (default: the shipped one of --garment)")
     g.add_argument("--wrinkles", help="wrinkle_diffusion checkpoint (default: the shipped one of --garment)")

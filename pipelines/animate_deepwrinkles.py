@@ -65,16 +65,29 @@ class DatasetGarment:
     sequence: str
 
 
+SHIPPED_SUFFIX = "deepwrinkles.pt"
+"""Shipped DeepWrinkles weights: ``pretrained/<category>-deepwrinkles.pt``."""
+
+
 def check_options(args: argparse.Namespace) -> None:
-    """``--model`` and ``--data`` given, no option of the diffusion method (one-line errors);
-    fills in the defaults of ``--surface`` (global) and ``--normal-map-bits`` (16)."""
+    """No option of the diffusion method (one-line errors); fills in the defaults of ``--model``
+    (the shipped weights of ``--garment``), ``--surface`` (global) and ``--normal-map-bits`` (16)."""
     given = [flag for key, flag in DIFFUSION_ONLY.items() if getattr(args, key, None)]
     if given:
         raise WrinklesInputError(f"{given[0]} applies to --method diffusion, not deepwrinkles")
     args.surface = args.surface or "global"
     args.normal_map_bits = args.normal_map_bits or 16
     if not args.model:
-        raise WrinklesInputError("--method deepwrinkles needs --model (its checkpoint)")
+        from learn.animate import PRETRAINED
+        from pipelines.simulate_cmd import resolve_template
+
+        category = resolve_template(args.garment)
+        args.model = str(PRETRAINED / f"{category}-{SHIPPED_SUFFIX}")
+        if not Path(args.model).is_file():
+            have = sorted(p.name[: -len(SHIPPED_SUFFIX) - 1] for p in PRETRAINED.glob(f"*-{SHIPPED_SUFFIX}"))
+            raise WrinklesInputError(f"no shipped DeepWrinkles model for {category} (shipped: "
+                                     f"{', '.join(have) or 'none'}); pass --model "
+                                     "(wrinkles train deepwrinkles)")
     if not Path(args.model).is_file():
         raise WrinklesInputError("no such model file", path=args.model)
     if not (args.clearance >= 0 and args.clearance < 0.1):

@@ -218,7 +218,7 @@ def test_template_uvs_wind_like_their_faces(category: str) -> None:
 
 # ----------------------------------------------------------------- wrinkles animate --method deepwrinkles
 @pytest.mark.parametrize("args, says", [
-    (["--method", "deepwrinkles"], "needs --model (its checkpoint)"),
+    (["--method", "deepwrinkles", "--garment", "skirt"], "no shipped DeepWrinkles model for straight_skirt"),
     (["--model", "m.pt"], "--model applies to --method deepwrinkles"),
     (["--surface", "fine"], "--surface applies to --method deepwrinkles"),
     (["--method", "deepwrinkles", "--model", "m.pt", "--data", "d", "--steps", "3"],

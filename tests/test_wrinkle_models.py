@@ -315,6 +315,17 @@ def test_deepwrinkles_trains_predicts_and_is_evaluated(sample_dataset, tmp_path)
     assert hr.shape[1:] == (32, 32, 3) and (norms > 0).mean() > 0.3
     np.testing.assert_allclose(norms[norms > 0], 1.0, atol=1e-4)
     ckpt = out / "checkpoints" / "last.pt"
+    from learn.train.checkpoint import load_checkpoint
+    from learn.train.export import export_model
+
+    release = export_model(ckpt, tmp_path / "dw.pt")  # the subspace's basis in float16 in the file
+    assert load_checkpoint(release)["method_state"]["components"].dtype == torch.float16
+    shipped, _, _ = load_trained(release)
+    assert shipped.state["components"].dtype == torch.float32
+    coeffs = np.random.default_rng(0).normal(size=(3, sub.size)) * sub.singular_values / np.sqrt(sub.frames)
+    full = sub.decode(coeffs)
+    err = np.abs(shipped.subspace().decode(coeffs) - full).max()
+    assert err <= 2e-3 * np.abs(full - sub.mean).max()
     assert cli("evaluate", "--model", ckpt, "--data", sample_dataset, "--split", "all",
                "--out", tmp_path / "eval", "--no-images", "-q") == 0
     row = json.loads((tmp_path / "eval" / "metrics.json").read_text())

@@ -70,6 +70,9 @@ class Method:
 
     name: ClassVar[str] = ""
     Config: ClassVar[type]
+    half_state: ClassVar[tuple[str, ...]] = ()
+    """Fitted-state entries a release file (``learn.train.export``) may keep in float16; loading
+    brings them back to float32."""
 
     def __init__(self, config: Any):
         self.config = config
@@ -81,8 +84,10 @@ class Method:
         return {}
 
     def load_state(self, state: Mapping[str, torch.Tensor]) -> None:
-        """Adopt a fitted state (from ``prepare`` or a checkpoint)."""
-        self.state = dict(state)
+        """Adopt a fitted state (from ``prepare`` or a checkpoint); float16 entries (``half_state``
+        of a release file) come back as float32."""
+        self.state = {k: v.float() if isinstance(v, torch.Tensor) and v.dtype == torch.float16 else v
+                      for k, v in state.items()}
 
     @classmethod
     def validate_config(cls, config: Any, err) -> None:

@@ -105,6 +105,7 @@ class DeepWrinklesMethod(Method):
 
     name = "deepwrinkles"
     Config = DeepWrinklesConfig
+    half_state = ("components",)  # the subspace's basis: 3.4 MB of a release file at k = 200 in float16
 
     @classmethod
     def validate_config(cls, config: DeepWrinklesConfig, err) -> None:

@@ -28,7 +28,7 @@ def export_model(src: str | os.PathLike, dst: str | os.PathLike, *, half: bool =
     Args:
         src: a training checkpoint.
         dst: output file.
-        half: store floating parameters as float16.
+        half: store floating parameters, and the method's ``half_state`` entries, as float16.
         extra: more entries for the file (e.g. ``"card"``: training facts for the model card).
     """
     from learn.train.trainer import load_trained
@@ -37,8 +37,10 @@ def export_model(src: str | os.PathLike, dst: str | os.PathLike, *, half: bool =
     params = {n for n, _ in model.named_parameters()}
     sd = {k: (v.half() if half and k in params and v.is_floating_point() else v).clone()
           for k, v in model.state_dict().items()}
+    state = {k: (v.half() if half and k in method.half_state and v.is_floating_point() else v)
+             for k, v in ckpt.get("method_state", {}).items()}
     payload = {"config": ckpt["config"], "step": ckpt["step"], "model": sd,
-               "method_state": ckpt.get("method_state", {}), "versions": ckpt.get("versions", {}),
+               "method_state": state, "versions": ckpt.get("versions", {}),
                "exported_from": os.fspath(src), **(extra or {})}
     save_checkpoint(dst, payload)
     return Path(dst)
