@@ -29,13 +29,15 @@ def pretrained_paths(category: str) -> tuple[Path, Path]:
     return PRETRAINED / f"{category}-coarse.pt", PRETRAINED / f"{category}-wrinkles.pt"
 
 
+def shipped_categories(kind: str) -> list[str]:
+    """Garment categories with a shipped ``pretrained/<category>-<kind>.pt``."""
+    suffix = f"-{kind}.pt"
+    return sorted(p.name[: -len(suffix)] for p in PRETRAINED.glob(f"*{suffix}"))
+
+
 def available_pretrained() -> list[str]:
     """Garment categories with both shipped models."""
-    return sorted(
-        p.name[: -len("-coarse.pt")]
-        for p in PRETRAINED.glob("*-coarse.pt")
-        if (PRETRAINED / p.name.replace("-coarse.pt", "-wrinkles.pt")).exists()
-    )
+    return sorted(set(shipped_categories("coarse")) & set(shipped_categories("wrinkles")))
 
 
 @dataclass

@@ -72,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="diffusion",
         choices=("diffusion", "deepwrinkles"),
         help="diffusion: Guo et al. 2024's CVAE + strain diffusion (--coarse/--wrinkles or the shipped "
-        "models); deepwrinkles: Lahner et al. 2018 (--model or the shipped t_shirt model) "
+        "models); deepwrinkles: Lahner et al. 2018 (--model, else the shipped one of --garment) "
         "(default: %(default)s)",
     )
     g.add_argument(

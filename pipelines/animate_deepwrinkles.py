@@ -65,7 +65,7 @@ class DatasetGarment:
     sequence: str
 
 
-SHIPPED_SUFFIX = "deepwrinkles.pt"
+SHIPPED_KIND = "deepwrinkles"
 """Shipped DeepWrinkles weights: ``pretrained/<category>-deepwrinkles.pt``."""
 
 
@@ -78,13 +78,13 @@ def check_options(args: argparse.Namespace) -> None:
     args.surface = args.surface or "global"
     args.normal_map_bits = args.normal_map_bits or 16
     if not args.model:
-        from learn.animate import PRETRAINED
+        from learn.animate import PRETRAINED, shipped_categories
         from pipelines.simulate_cmd import resolve_template
 
         category = resolve_template(args.garment)
-        args.model = str(PRETRAINED / f"{category}-{SHIPPED_SUFFIX}")
+        args.model = str(PRETRAINED / f"{category}-{SHIPPED_KIND}.pt")
         if not Path(args.model).is_file():
-            have = sorted(p.name[: -len(SHIPPED_SUFFIX) - 1] for p in PRETRAINED.glob(f"*-{SHIPPED_SUFFIX}"))
+            have = shipped_categories(SHIPPED_KIND)
             raise WrinklesInputError(f"no shipped DeepWrinkles model for {category} (shipped: "
                                      f"{', '.join(have) or 'none'}); pass --model "
                                      "(wrinkles train deepwrinkles)")

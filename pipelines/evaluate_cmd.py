@@ -179,8 +179,9 @@ def _normal_rgb(n: np.ndarray, mask: np.ndarray, gain: float = 1.0) -> np.ndarra
 
 
 def write_example_images(examples: list[dict], out_dir: Path) -> list[Path]:
-    """``uv_examples.png`` (normal and wrinkle maps, prediction vs simulation) and
-    ``renders.png`` (garments coloured by the per-vertex error) for a few example frames."""
+    """``uv_examples.png`` (normal and wrinkle maps, prediction vs simulation), ``renders.png``
+    (garments coloured by the per-vertex error) and, where the method has them, ``method_maps.png``
+    and ``closeups.png`` for a few example frames."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -215,7 +216,8 @@ def write_example_images(examples: list[dict], out_dir: Path) -> list[Path]:
         written.append(_method_maps(own, out_dir / "method_maps.png"))
     try:
         written.append(_renders(examples, out_dir / "renders.png"))
-        shaded = [e for e in examples if "surface" in e and "method_maps" in e]
+        shaded = [e for e in examples if e.get("surface_normals") and "method_maps" in e
+                  and all(key in e["method_maps"] for _, key in CLOSEUP_MAPS)]
         if shaded:
             written.append(_closeups(shaded, out_dir / "closeups.png"))
     except ImportError as e:  # pyvista missing: the UV pictures and numbers still stand
@@ -257,8 +259,7 @@ def _closeups(examples: list[dict], path: Path) -> Path:
         maps = e["method_maps"]
         mask = np.linalg.norm(maps[CLOSEUP_MAPS[-1][1]], axis=-1) > 0.5
         k = _normal_gain(maps[CLOSEUP_MAPS[-1][1]], mask)
-        tiles += [(f"{name} (xy x{k:.1f})", _normal_rgb(maps[key], mask, k))
-                  for name, key in CLOSEUP_MAPS if key in maps]
+        tiles += [(f"{name} (xy x{k:.1f})", _normal_rgb(maps[key], mask, k)) for name, key in CLOSEUP_MAPS]
         tiles += [(name, render(e["surface"], n)) for name, n in shadings[1:]]
         rows.append((e, tiles))
     cols = max(len(t) for _, t in rows)

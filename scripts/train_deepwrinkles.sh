@@ -10,8 +10,10 @@
 #   bash scripts/train_deepwrinkles.sh WORKDIR [GEN_SECONDS] [TRAIN_SECONDS]
 # STAGES picks stages (default "generate register train export evaluate"); WORKERS registration
 # processes (default 14), EVERY registers every k-th frame (default 6), MAXSEQ test sequences
-# per evaluation (default 6), EXTRA_SET more --set options of the trainings.
-set -u
+# per evaluation (default 6), EXTRA_SET more --set options of the trainings, DEVICE (default cuda),
+# DATA_CONFIG the generator config, LOADERS data-loader workers per training (default 4), SOURCE
+# the global shapes' data (registration, or simulation: no scans).
+set -u -o pipefail
 W=${1:?work directory}; GEN=${2:-400}; TRAIN=${3:-600}
 STAGES=" ${STAGES:-generate register train export evaluate} "
 for s in $STAGES; do
@@ -21,7 +23,10 @@ PY=${PYTHON:-python3}
 CLI="$PY -m pipelines.cli"
 D="$W/data/tshirt"
 CFG=pipelines/configs/train/deepwrinkles.toml
-SET="--set model.workers=${WORKERS:-14} --set model.register_every=${EVERY:-6} ${EXTRA_SET:-}"
+DATA_CONFIG=${DATA_CONFIG:-pipelines/configs/tshirt_deepwrinkles.toml}
+DEVICE=${DEVICE:-cuda}
+SOURCE=${SOURCE:-registration}
+SET="--set model.workers=${WORKERS:-14} --set model.register_every=${EVERY:-6} --set model.source='$SOURCE' ${EXTRA_SET:-}"
 RELEASE_SET=${RELEASE_SET:-"--set model.filters=16 --set model.components=200 --set model.layers=2"}
 mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release"
 log() { echo "[$(date +%T)] $*" | tee -a "$W/logs/pipeline.log"; }
@@ -30,16 +35,19 @@ stage() { [[ "$STAGES" == *" $1 "* ]]; }
 if stage generate; then
   log "generate (budget ${GEN}s)"
   resume=""; [ -d "$D/parts" ] && resume="--resume"
-  timeout -s INT "$GEN" $CLI dataset generate --config pipelines/configs/tshirt_deepwrinkles.toml --out "$D" \
-    --batch ${BATCH:-32} --device cuda -q $resume >>"$W/logs/gen.log" 2>&1
+  timeout -s INT "$GEN" $CLI dataset generate --config "$DATA_CONFIG" --out "$D" \
+    --batch ${BATCH:-32} --device $DEVICE -q $resume >>"$W/logs/gen.log" 2>&1
   $CLI dataset combine "$D" 2>&1 | tail -2 | tee -a "$W/logs/pipeline.log"
   $CLI dataset info "$D" 2>&1 | head -12 | tee -a "$W/logs/pipeline.log"
 fi
 
 if stage register; then
   log "register"
-  register() { $PY -m learn.deepwrinkles.training "$D" --workers ${WORKERS:-14} --every ${EVERY:-6} --garment t_shirt "$@" \
-    2>&1 | tr '\r' '\n' | grep -v "^ *$" | tail -2 | tee -a "$W/logs/pipeline.log"; }
+  register() {
+    $PY -m learn.deepwrinkles.training "$D" --workers ${WORKERS:-14} --every ${EVERY:-6} --source "$SOURCE" \
+      --garment t_shirt "$@" >>"$W/logs/register.log" 2>&1 || log "registration failed (see $W/logs/register.log)"
+    tr '\r' '\n' < "$W/logs/register.log" | grep "registered," | tail -1 | tee -a "$W/logs/pipeline.log"
+  }
   register --split train
   register --split test_id --max-sequences ${MAXSEQ:-6}  # the evaluation's registration inputs
 fi
@@ -50,7 +58,7 @@ if stage train; then
     local name=$1; shift
     local resume=""; [ -f "$W/runs/$name/checkpoints/last.pt" ] && resume="--resume"
     timeout -s INT "$TRAIN" $CLI train deepwrinkles --data "$D" --out "$W/runs/$name" --config $CFG $SET \
-      --device cuda -q --set train.num_workers=4 "$@" $resume >"$W/logs/train-$name.log" 2>&1
+      --device $DEVICE -q --set train.num_workers=${LOADERS:-4} "$@" $resume >"$W/logs/train-$name.log" 2>&1
   }
   train dw &
   train dw-notemp --set model.temporal_weight=0.0 &
@@ -74,7 +82,7 @@ if stage evaluate; then
   ev() {  # out-name split model args...
     local name=$1 split=$2 model=$3; shift 3
     OMP_NUM_THREADS=2 $CLI evaluate --model "$model" --data "$D" --split "$split" --out "$W/eval/$name-$split" \
-      --max-sequences ${MAXSEQ:-6} --device cuda $images -q "$@" >"$W/logs/eval-$name-$split.log" 2>&1 \
+      --max-sequences ${MAXSEQ:-6} --device $DEVICE $images -q "$@" >"$W/logs/eval-$name-$split.log" 2>&1 \
       || { log "evaluate $name $split failed"; touch "$W/.eval_failed"; }
   }
   M="$W/release/t_shirt-dw.pt"; N="$W/release/t_shirt-dw-notemp.pt"; R="$W/release/t_shirt-deepwrinkles.pt"

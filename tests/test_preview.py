@@ -299,3 +299,25 @@ def test_error_renders_carry_a_colour_bar_in_mm(tmp_path):
         np.testing.assert_allclose(column[::-1], preview.colour_ramp(ERROR_CMAP, y1 - y0), atol=1)
     # the two tiles' bars are stacked, each inside its own tile
     assert bars[0]["box"][3] <= bars[1]["box"][1] and pixels.shape[0] == 2 * 400
+
+
+def test_closeups_show_the_surface_under_each_shading_beside_the_maps(tmp_path):
+    """``wrinkles evaluate``'s closeups.png: per example, the simulated garment, the base surface
+    under its first shading, the LR and HR maps, then the surface under each further shading; a
+    shading whose normals all face one way draws that tile nearly flat."""
+    from pipelines.evaluate_cmd import _closeups
+
+    v, f = _icosphere()
+    v = v + np.float32([0.0, 0.25, 0.0])
+    own = preview.vertex_normals(v, f)
+    flat = np.tile(np.float32([0.0, 0.0, 1.0]), (len(v), 1))
+    rng = np.random.default_rng(0)
+    maps = {key: rng.normal(size=(16, 16, 3)).astype(np.float32) for key in ("lr_maps", "normal_maps")}
+    ex = {"sequence": "seq-00000", "frame": 3, "gt": v, "faces": f, "surface": 0.98 * v,
+          "surface_normals": {"global shape": own, "flat": flat}, "method_maps": maps}
+    path = _closeups([ex, ex], tmp_path / "closeups.png")
+    img = np.asarray(Image.open(path).convert("RGB"))
+    assert img.shape[1] > 3 * img.shape[0] / 2  # 5 tiles wide, 2 rows
+    tiles = np.array_split(img[: img.shape[0] // 2], 5, axis=1)
+    grey = [t.astype(float).std(axis=(0, 1)).mean() for t in tiles]
+    assert grey[4] < grey[1]  # the flat shading: less contrast than the surface's own normals

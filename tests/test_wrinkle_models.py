@@ -291,12 +291,19 @@ def test_deepwrinkles_trains_predicts_and_is_evaluated(sample_dataset, tmp_path)
     method, model, _ = load_trained(out / "checkpoints" / "last.pt")
     sub = method.subspace()
     assert sub.size <= 16 and 0.0 < sub.variance_kept(1) <= sub.variance_kept() <= 1.0 + 1e-9
-    from learn.deepwrinkles.training import TrainFrames
+    from learn.deepwrinkles.normal_maps import DetailMaps
+    from learn.deepwrinkles.sequences import GARMENT_KEYS
+    from learn.deepwrinkles.training import TrainFrames, layout_digest
 
     frames = method.train_dataset(sample_dataset)  # warmed: prepared here, shared with forked workers
-    assert len(frames._cache) == len(frames.ds.sequence_ids)
-    assert len(frames._maps) == len({id(c[0].maps) for c in frames._cache.values()})
-    cold = TrainFrames(method, sample_dataset)
+    assert set(frames._cache) == set(frames.ds.sequence_ids)
+    preps = [c[0] for c in frames._cache.values()]
+    digests = [layout_digest({k: p.seq[k] for k in GARMENT_KEYS}) for p in preps]
+    assert len(frames._maps) == len(set(digests))
+    for a, b in zip(range(len(preps)), range(1, len(preps)), strict=False):  # one operator per layout
+        assert (preps[a].maps is preps[b].maps) == (digests[a] == digests[b])
+    cold = TrainFrames(method, sample_dataset)  # an operator of its own for every sequence
+    cold._layout_maps = lambda prep: DetailMaps(prep.seq, 32, device="cpu")
     for key in ((3, 0), (len(frames) - 1, 0)):
         warm_item, cold_item = frames[key], cold[key]
         for k in warm_item:
@@ -310,6 +317,14 @@ def test_deepwrinkles_trains_predicts_and_is_evaluated(sample_dataset, tmp_path)
     seq = {k: np.asarray(sf[k]) for k in sf.keys()}
     pred = method.predict_sequence(model, seq, device=torch.device("cpu"))
     assert pred.vertices.shape == seq["fine/vertices"].shape and np.isfinite(pred.vertices).all()
+    from learn.evaluate import SURFACE_SHADINGS, _example
+
+    ex = _example("s", seq, pred, {})  # what closeups.png draws
+    assert ex["surface"].shape == seq["fine/vertices"].shape[1:]
+    assert list(ex["surface_normals"]) == [name for name, _ in SURFACE_SHADINGS]
+    detail = ex["surface_normals"]["global shape + predicted HR map"]
+    np.testing.assert_allclose(np.linalg.norm(detail, axis=-1), 1.0, atol=1e-4)
+    assert {"lr_maps", "normal_maps"} <= set(ex["method_maps"])
     hr = pred.extras["normal_maps"]
     norms = np.linalg.norm(hr, axis=-1)
     assert hr.shape[1:] == (32, 32, 3) and (norms > 0).mean() > 0.3
@@ -348,17 +363,19 @@ def test_a_split_is_registered_ahead_by_worker_processes(sample_dataset, tmp_pat
     from learn.deepwrinkles.training import main
     from learn.methods.deepwrinkles import DeepWrinklesConfig, DeepWrinklesMethod
 
-    ds = GarmentSequenceDataset(sample_dataset, "train", garments="t_shirt")
+    every = GarmentSequenceDataset(sample_dataset, "all", garments="t_shirt")
+    others = [s for s in every.sequence_ids if every.entries[s]["split"] != "train"]
+    split = every.entries[others[0]]["split"] if others else "train"
+    ds = GarmentSequenceDataset(sample_dataset, split, garments="t_shirt")
     settings = DeepWrinklesMethod(DeepWrinklesConfig(register_every=40, garments=("t_shirt",))).settings()
-    first, second = (cache_path(ds.open_sequence(s), settings) for s in ds.sequence_ids[:2])
-    for p in (first, second):
+    paths = {s: cache_path(every.open_sequence(s), settings) for s in every.sequence_ids}
+    for p in paths.values():
         p.unlink(missing_ok=True)
-    args = [str(sample_dataset), "--split", "train", "--max-sequences", "1", "--every", "40"]
+    args = [str(sample_dataset), "--split", split, "--max-sequences", "1", "--every", "40"]
     args += ["--garment", "t_shirt"]
     assert main([*args, "--workers", "2"]) == 0
-    assert first.exists() and not second.exists()
-    import numpy as np
-
+    first = paths[ds.sequence_ids[0]]
+    assert [s for s, p in paths.items() if p.exists()] == [ds.sequence_ids[0]]
     with np.load(first) as z:
         frames = int(ds.entries[ds.sequence_ids[0]]["frames"])
         assert z["frames"].tolist() == sorted({*range(0, frames, 40), frames - 1})
@@ -366,6 +383,9 @@ def test_a_split_is_registered_ahead_by_worker_processes(sample_dataset, tmp_pat
         assert np.isfinite(err).all() and np.median(err) < 0.05  # registered, not the skinned start
     assert main([str(tmp_path / "missing")]) == 2
     assert "error:" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as bad:
+        main([*args[:3], "--max-sequences", "0"])
+    assert bad.value.code == 2
 
 
 # ------------------------------------------------------------------- evaluation, export, animate

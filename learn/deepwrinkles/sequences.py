@@ -70,6 +70,10 @@ class PreparedSequence:
         """The sequence's normal-map operator (made on first use: registering needs none)."""
         return DetailMaps(self.seq, self._resolution, device=self._device)
 
+    def use_maps(self, maps: DetailMaps) -> None:
+        """Take ``maps``, an operator of the same garment layout made before, as ``self.maps``."""
+        self.__dict__["maps"] = maps
+
     @property
     def frames(self) -> int:
         return int(self.controls.shape[0])

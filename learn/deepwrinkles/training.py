@@ -134,6 +134,17 @@ def garment_state(sf, sid: str, ds) -> dict[str, torch.Tensor]:
     return out
 
 
+class FrameCount:
+    """A progress callback that adds up the frames it is told of and shows the sum on ``bar``."""
+
+    def __init__(self, bar):
+        self.bar, self.done = bar, 0
+
+    def __call__(self, n: int) -> None:
+        self.done += n
+        self.bar(self.done)
+
+
 def fit_state(method, root) -> dict[str, torch.Tensor]:
     """Register the training sequences (cached), fit the subspace, the control statistics and the
     linear pose-to-shape map: the method's fitted state (module docstring of
@@ -148,13 +159,8 @@ def fit_state(method, root) -> dict[str, torch.Tensor]:
     shapes, controls, template, garment = [], [], None, {}
     every = method.settings().register_every
     total = sum(len(registered_frames(int(ds.entries[s]["frames"]), every)) for s in ds.sequence_ids)
-    done = [0]
     with progress_bar(total, "registering", unit="frame") as bar:
-
-        def step(n: int) -> None:
-            done[0] += n
-            bar(done[0])
-
+        step = FrameCount(bar)
         register_all(method, root, progress=step)
         for sid in ds.sequence_ids:
             sf, prep = _prepared(method, ds, sid, device="cpu")
@@ -199,9 +205,9 @@ class TrainFrames(torch.utils.data.Dataset):
     ``(index, seed)`` draws nothing at random.
 
     ``warm`` prepares the first ``SEQUENCE_CACHE`` sequences in the calling process: data-loader
-    workers forked after it share them instead of each preparing every sequence again (with six
-    workers on 103 sequences the first 100 steps took 1.5 s each on an H200 host). Sequences of
-    one garment layout share one maps operator."""
+    workers started by fork (the default on Linux) share them instead of each preparing every
+    sequence again; workers started by spawn prepare their own (``__getstate__`` drops the
+    cache). Sequences of one garment layout share one maps operator."""
 
     def __init__(self, method, root):
         self.method = method
@@ -225,11 +231,14 @@ class TrainFrames(torch.utils.data.Dataset):
 
     def _layout_maps(self, prep):
         """The maps operator of the sequence's garment layout (one per distinct layout)."""
+        from learn.deepwrinkles.normal_maps import DetailMaps
         from learn.deepwrinkles.sequences import GARMENT_KEYS
 
         key = layout_digest({k: prep.seq[k] for k in GARMENT_KEYS})
         if key not in self._maps:
-            self._maps[key] = prep.maps
+            if len(self._maps) >= SEQUENCE_CACHE:
+                self._maps.pop(next(iter(self._maps)))
+            self._maps[key] = DetailMaps(prep.seq, self.method.config.resolution, device="cpu")
         return self._maps[key]
 
     def _sequence(self, sid: str):
@@ -240,7 +249,7 @@ class TrainFrames(torch.utils.data.Dataset):
         if sid not in self._cache:
             m = self.method
             sf, prep = _prepared(m, self.ds, sid, device="cpu")
-            prep.maps = self._layout_maps(prep)
+            prep.use_maps(self._layout_maps(prep))
             prep.register(sf, m.settings(), device="cpu")
             sub = m.subspace()
             k = m.config.lr_components or sub.size
@@ -310,25 +319,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", action="append", default=None,
                     help="split to register (repeatable; default: train and test_id)")
     ap.add_argument("--workers", type=int, default=max(2, (os.cpu_count() or 2) - 1), help="processes")
-    ap.add_argument("--every", type=int, default=3, help="register every k-th frame (model.register_every)")
+    defaults = DeepWrinklesConfig()
+    ap.add_argument("--every", type=int, default=defaults.register_every,
+                    help="register every k-th frame: model.register_every (default: %(default)s)")
+    ap.add_argument("--source", choices=("registration", "simulation"), default=defaults.source,
+                    help="the training's model.source (default: %(default)s)")
     ap.add_argument("--garment", action="append", default=None, help="garment category (repeatable)")
     ap.add_argument("--max-sequences", type=int, default=None,
                     help="only the first N sequences of each split (those evaluate --max-sequences takes)")
     args = ap.parse_args(argv)
+    if args.every < 1 or (args.max_sequences is not None and args.max_sequences < 1):
+        ap.error("--every and --max-sequences must be at least 1")
     method = DeepWrinklesMethod(DeepWrinklesConfig(
-        workers=max(2, args.workers), register_every=args.every, garments=tuple(args.garment or ())))
+        workers=max(2, args.workers), register_every=args.every, source=args.source,
+        garments=tuple(args.garment or ())))
     t0 = time.time()
     try:
         for split in args.split or ("train", "test_id"):
-            done = [0]
             with progress_bar(0, f"registering {split}", unit="frame") as bar:
-
-                def step(n: int, bar=bar, done=done) -> None:
-                    done[0] += n
-                    bar(done[0])
-
+                step = FrameCount(bar)
                 register_all(method, args.data, split=split, max_sequences=args.max_sequences, progress=step)
-            print(f"{split}: {done[0]} frames registered, {time.time() - t0:.0f} s", file=sys.stderr)
+            print(f"{split}: {step.done} frames registered, {time.time() - t0:.0f} s", file=sys.stderr)
     except WrinklesInputError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

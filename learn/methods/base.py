@@ -86,7 +86,7 @@ class Method:
     def load_state(self, state: Mapping[str, torch.Tensor]) -> None:
         """Adopt a fitted state (from ``prepare`` or a checkpoint); float16 entries (``half_state``
         of a release file) come back as float32."""
-        self.state = {k: v.float() if isinstance(v, torch.Tensor) and v.dtype == torch.float16 else v
+        self.state = {k: v.float() if k in self.half_state and v.dtype == torch.float16 else v
                       for k, v in state.items()}
 
     @classmethod

@@ -38,7 +38,7 @@ def export_model(src: str | os.PathLike, dst: str | os.PathLike, *, half: bool =
     sd = {k: (v.half() if half and k in params and v.is_floating_point() else v).clone()
           for k, v in model.state_dict().items()}
     state = {k: (v.half() if half and k in method.half_state and v.is_floating_point() else v)
-             for k, v in ckpt.get("method_state", {}).items()}
+             for k, v in method.state.items()}
     payload = {"config": ckpt["config"], "step": ckpt["step"], "model": sd,
                "method_state": state, "versions": ckpt.get("versions", {}),
                "exported_from": os.fspath(src), **(extra or {})}
