@@ -11,7 +11,9 @@ writes the tables (markdown) plus a figure:
 Table 1 (in distribution, ``test_id``, on the data's smoothed base): Ev, Ecd, normal-map FD.
 Table 2 (out of distribution, ``test_ood``, on the skeleton CVAE's base from the body): the same.
 Rows: base mesh alone, the LFGD-style displacement regressor, ours with normal / strain-tensor /
-strain-norm conditioning (t-shirt), ours (skirt). Also the flicker ratio and the DDIM step sweep.
+strain-norm conditioning (t-shirt), ours (skirt), DeepWrinkles (``scripts/train_deepwrinkles.sh``'s
+evaluations). Also the flicker ratio, the DDIM step sweep and DeepWrinkles' own Table 1 (pixel
+errors of its normal maps by temporal term and LR input).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ ROWS = [
     ("normal", "ours, normal conditioning"),
     ("tensor", "ours, strain-tensor conditioning"),
     ("ours", "ours, strain-norm conditioning (shipped)"),
+    ("deepwrinkles", "DeepWrinkles (Lähner et al. 2018; global shape from the body)"),
 ]
 METRICS = [
     ("ev", "Ev [mm]", 1e3),
@@ -37,6 +40,21 @@ METRICS = [
     ("flicker_ratio", "flicker ratio", 1.0),
     ("spectrum_distance", "spectrum dist.", 1.0),
 ]
+MAP_METRICS = [
+    ("nm_l1", "Data (L1)", 100.0),
+    ("nm_l2", "L2", 100.0),
+    ("nm_temporal", "Temporal (Eq. 4)", 100.0),
+]
+"""DeepWrinkles' Table 1 rows: pixel errors of its HR normal maps (x 100, as the paper prints them)."""
+MAP_COLUMNS = [
+    ("dw_registration", "Eq. 4 / Registr."),
+    ("dw_notemp_registration", "no temp / Registr."),
+    ("dw_bs500", "Eq. 4 / BS 500"),
+    ("dw_bs200", "Eq. 4 / BS 200"),
+    ("deepwrinkles", "Eq. 4 / Regre."),
+    ("dw_notemp", "no temp / Regre."),
+]
+"""DeepWrinkles' Table 1 columns: (evaluation row, training temporal term / input of the LR map)."""
 
 
 def _load(d: Path) -> dict | None:
@@ -70,7 +88,7 @@ def collect(root: Path) -> dict:
                         float(np.std([r[k] for r in runs if k in r])),
                         len(runs),
                     )
-                    for k, _, _ in METRICS
+                    for k, _, _ in METRICS + MAP_METRICS
                     if any(k in r for r in runs)
                 }
     return out
@@ -106,6 +124,7 @@ def markdown(tables: dict) -> str:
                         + " |"
                     )
             lines.append("")
+    lines += map_table(tables)
     if "steps" in tables:
         lines += [
             "### DDIM steps (t-shirt, test_id)",
@@ -120,6 +139,26 @@ def markdown(tables: dict) -> str:
             )
         lines.append("")
     return "\n".join(lines)
+
+
+def map_table(tables: dict) -> list[str]:
+    """Lähner et al.'s Table 1 on our test_id split (markdown lines; none without DeepWrinkles
+    rows): pixel errors of the predicted HR normal maps for models trained with and without Eq. 4's
+    temporal term and for the LR map's inputs (registration, blend shapes of 500 / 200 components,
+    regression)."""
+    lines = []
+    for garment in sorted(k for k in tables if k != "steps"):
+        rows = tables[garment].get("test_id", {})
+        cols = [(key, label) for key, label in MAP_COLUMNS if key in rows and "nm_l1" in rows[key]]
+        if not cols:
+            continue
+        lines += [f"### {garment}: DeepWrinkles' Table 1 (pixel errors x 100, test_id)", "",
+                  "| | " + " | ".join(label for _, label in cols) + " |", "|---|" + "---|" * len(cols)]
+        for m, label, scale in MAP_METRICS:
+            lines.append(f"| {label} | " + " | ".join(
+                _cell(rows[key][m], scale) if m in rows[key] else "–" for key, _ in cols) + " |")
+        lines.append("")
+    return lines
 
 
 def figure(tables: dict, path: Path) -> None:

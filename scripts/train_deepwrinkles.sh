@@ -85,19 +85,24 @@ if stage evaluate; then
       --max-sequences ${MAXSEQ:-6} --device $DEVICE $images -q "$@" >"$W/logs/eval-$name-$split.log" 2>&1 \
       || { log "evaluate $name $split failed"; touch "$W/.eval_failed"; }
   }
+  # folders EVAL/<garment>-<row>-<split>: python -m benchmarks.wrinkle_tables "$W/eval" makes the tables
   M="$W/release/t_shirt-dw.pt"; N="$W/release/t_shirt-dw-notemp.pt"; R="$W/release/t_shirt-deepwrinkles.pt"
-  ev dw test_id "$M" &
-  ev dw test_ood "$M" &
-  ev dw-registration test_id "$M" --predict lr_input=registration &
-  ev dw-bs500 test_id "$M" --predict lr_input=subspace --predict components=500 &
-  ev dw-bs200 test_id "$M" --predict lr_input=subspace --predict components=200 &
-  ev dw-notemp-registration test_id "$N" --predict lr_input=registration &
-  ev dw-notemp test_id "$N" &
-  ev release test_id "$R" &
-  ev release test_ood "$R" &
+  ev t_shirt-deepwrinkles test_id "$M" &
+  ev t_shirt-deepwrinkles test_ood "$M" &
+  ev t_shirt-dw_registration test_id "$M" --predict lr_input=registration &
+  ev t_shirt-dw_bs500 test_id "$M" --predict lr_input=subspace --predict components=500 &
+  ev t_shirt-dw_bs200 test_id "$M" --predict lr_input=subspace --predict components=200 &
+  ev t_shirt-dw_notemp_registration test_id "$N" --predict lr_input=registration &
+  ev t_shirt-dw_notemp test_id "$N" &
+  ev t_shirt-dw_release test_id "$R" &
+  ev t_shirt-dw_release test_ood "$R" &
   wait
 fi
 
+if stage evaluate; then
+  $PY -m benchmarks.wrinkle_tables "$W/eval" --out "$W/tables.md" --json "$W/tables.json" >/dev/null \
+    && log "tables: $W/tables.md"
+fi
 log "done"
 [ -f "$W/.eval_failed" ] && { log "some evaluations failed (see $W/logs/eval-*.log)"; exit 1; }
 exit 0
