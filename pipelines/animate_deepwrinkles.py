@@ -240,24 +240,47 @@ def _preview_sequence(garment: DatasetGarment, fine: np.ndarray, frames, bm):
     return GarmentSequence(vertices=fine, body=frames, garment=g, motion=bm.motion, fps=float(bm.motion.fps))
 
 
-def run(args: argparse.Namespace) -> int:
-    """The command (module docstring); returns the exit status."""
-    check_options(args)  # before the imports: a usage error answers at once
+@dataclass
+class Animated:
+    """A DeepWrinkles prediction on a body motion (``animate_motion``): what ``run`` writes.
+
+    Attributes:
+        garment, method: the model's garment and method.
+        bm: the body and its motion (``pipelines.options.BodyAndMotion``).
+        frames: the posed body (``BodyFrames``).
+        pred: the method's ``Prediction``.
+        verts, normals, maps: the stage's garment for ``--surface`` (``garment_geometry``).
+        fine: the Eq. 10 fine garment moved out of the body (the ``fine`` surface).
+        seconds: the prediction's time.
+    """
+
+    garment: DatasetGarment
+    method: object
+    bm: object
+    frames: object
+    pred: object
+    verts: np.ndarray
+    normals: np.ndarray
+    maps: np.ndarray | None
+    fine: np.ndarray
+    seconds: dict
+
+    @property
+    def shading(self) -> np.ndarray | None:
+        """Per-vertex normals of the maps on the global shape (None on the ``fine`` surface)."""
+        return self.pred.extras["detail_normals"] if self.maps is not None else None
+
+
+def animate_motion(args: argparse.Namespace, loaded=None) -> Animated:
+    """The model of ``args`` (``check_options`` done) on its body and motion; ``loaded``: the
+    ``_model(args)`` of an earlier call to reuse."""
     import torch
 
     from pipelines.animate_cmd import grounded_frames
     from pipelines.options import load_body_and_motion
-    from pipelines.outputs import OutputSet, check_stage_outputs, command_line, stage_rig, write_previews
-    from pipelines.progress import progress_bar
     from sim.device import resolve_device
-    from sim.versions import package_versions
-    from usd_io import write_stage
-    from usd_io.textures import NORMALS_FOLDER_SUFFIX
 
-    t0 = time.perf_counter()
-    method, model, garment, dev = _model(args)
-    out = args.out or f"out/deepwrinkles_{garment.category}_{Path(args.motion).stem}.usdc"
-    paths = check_stage_outputs(out, args.preview, args.sheet, sidecar=".animate.json")
+    method, model, garment, dev = loaded or _model(args)
     torch.manual_seed(args.seed)
     wdev = resolve_device(args.device)
     bm = load_body_and_motion(argparse.Namespace(**{**vars(args), "body": garment.body_model}))
@@ -268,6 +291,27 @@ def run(args: argparse.Namespace) -> int:
     seconds = {"predict": time.perf_counter() - t1}
     fine = outside(pred.vertices, frames, args.clearance, wdev)
     verts, normals, maps = garment_geometry(pred, fine, seq, args.surface, frames, args.clearance, wdev)
+    return Animated(garment=garment, method=method, bm=bm, frames=frames, pred=pred, verts=verts,
+                    normals=normals, maps=maps, fine=fine, seconds=seconds)
+
+
+def run(args: argparse.Namespace) -> int:
+    """The command (module docstring); returns the exit status."""
+    check_options(args)  # before the imports: a usage error answers at once
+    from pipelines.outputs import OutputSet, check_stage_outputs, command_line, stage_rig, write_previews
+    from pipelines.progress import progress_bar
+    from sim.versions import package_versions
+    from usd_io import write_stage
+    from usd_io.textures import NORMALS_FOLDER_SUFFIX
+
+    t0 = time.perf_counter()
+    loaded = _model(args)
+    method, _, garment, dev = loaded
+    out = args.out or f"out/deepwrinkles_{garment.category}_{Path(args.motion).stem}.usdc"
+    paths = check_stage_outputs(out, args.preview, args.sheet, sidecar=".animate.json")
+    anim = animate_motion(args, loaded)
+    bm, frames, verts, normals, maps = anim.bm, anim.frames, anim.verts, anim.normals, anim.maps
+    seconds = anim.seconds
     if not args.quiet and abs(garment.fps - bm.motion.fps) > 1e-6:
         print(f"note: the model was trained at {garment.fps:g} fps; its LSTM reads windows of "
               f"{method.config.window} frames", file=sys.stderr)
@@ -283,8 +327,7 @@ def run(args: argparse.Namespace) -> int:
     T = len(verts)
     with OutputSet() as outputs:
         outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
-        shading = pred.extras["detail_normals"] if maps is not None else None
-        write_previews(outputs, paths, lambda: _preview(garment, verts, shading, frames, bm),
+        write_previews(outputs, paths, lambda: _preview(garment, verts, anim.shading, frames, bm),
             num_frames=T, fps=float(bm.motion.fps), camera=args.camera, quiet=args.quiet)
         # last, under its final name: the stage names its maps' folder after itself, and
         # write_stage puts both in place atomically

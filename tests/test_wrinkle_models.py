@@ -4,7 +4,9 @@ the wrinkle diffusion method and its baselines, the evaluation rows, release exp
 
 from __future__ import annotations
 
+import importlib.util
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -349,9 +351,29 @@ def test_deepwrinkles_trains_predicts_and_is_evaluated(sample_dataset, tmp_path)
     assert cli("evaluate", "--model", ckpt, "--data", sample_dataset, "--split", "all", "--max-sequences", 1,
                "--predict", "lr_input=subspace", "--predict", "components=4", "--out", tmp_path / "bs4",
                "--no-images", "-q") == 0
+    retargeting_figure(ckpt, tmp_path)
     bs4 = json.loads((tmp_path / "bs4" / "metrics.json").read_text())
     assert bs4["predict_options"] == {"lr_input": "subspace", "components": 4}
     assert 0 < bs4["summary"]["nm_l2"] < bs4["summary"]["nm_l1"] < 2.0 and bs4["summary"]["nm_temporal"] >= 0
+
+
+def retargeting_figure(ckpt, tmp_path) -> None:
+    """tools/render_retargeting.py on a trained checkpoint: one column per body shape; a frame
+    outside the motion refused (exit 2, no file)."""
+    if importlib.util.find_spec("pyvista") is None:
+        return
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from render_retargeting import main as render_retargeting
+
+    out = tmp_path / "retargeting.png"
+    base = ["--model", str(ckpt), "--motion", "walk", "--duration", "0.2", "--out", str(out)]
+    assert render_retargeting([*base, "--shape", "0,0", "--shape=2.5,-2.5", "--frame", "3"]) == 0
+    from PIL import Image
+
+    img = np.asarray(Image.open(out).convert("RGB"))
+    assert img.shape[1] > img.shape[0]  # two columns
+    out.unlink()
+    assert render_retargeting([*base, "--shape", "0,0", "--frame", "99"]) == 2 and not out.exists()
 
 
 @pytest.mark.slow
