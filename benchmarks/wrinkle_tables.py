@@ -52,6 +52,7 @@ MAP_COLUMNS = [
     ("dw_bs500", "Eq. 4 / BS 500"),
     ("dw_bs200", "Eq. 4 / BS 200"),
     ("deepwrinkles", "Eq. 4 / Regre."),
+    ("dw_linear", "Eq. 4 / linear Regre."),
     ("dw_notemp", "no temp / Regre."),
 ]
 """DeepWrinkles' Table 1 columns: (evaluation row, training temporal term / input of the LR map)."""

@@ -92,6 +92,7 @@ if stage evaluate; then
   ev t_shirt-dw_registration test_id "$M" --predict lr_input=registration &
   ev t_shirt-dw_bs500 test_id "$M" --predict lr_input=subspace --predict components=500 &
   ev t_shirt-dw_bs200 test_id "$M" --predict lr_input=subspace --predict components=200 &
+  ev t_shirt-dw_linear test_id "$M" --predict regressor=linear &
   ev t_shirt-dw_notemp_registration test_id "$N" --predict lr_input=registration &
   ev t_shirt-dw_notemp test_id "$N" &
   ev t_shirt-dw_release test_id "$R" &

@@ -184,6 +184,22 @@ def test_training_loss_reaches_the_regressor_and_both_cgan_networks():
         assert g and sum(float(x.abs().sum()) for x in g) > 0, part
     assert {"coefficients", "data", "temporal", "gan_g", "gan_d"} <= set(out.scalars)
     assert out.scalars["coefficients"] > 0.5  # an untrained LSTM against unit-variance targets
+    # items with several regression windows (B, R, W, C): the LSTM's loss over all B x R windows
+    R = 4
+    many = {**batch, "controls": torch.randn(B, R, 3, 150), "coefficients": torch.randn(B, R, 3, 6)}
+    with torch.no_grad():
+        loss = method.training_loss(model, many, torch.Generator()).scalars["coefficients"]
+        pred = model.regressor(many["controls"].flatten(0, 1))
+    torch.testing.assert_close(loss, (pred - many["coefficients"].flatten(0, 1)).square().mean())
+    # prediction's regressor: the LSTM by default, the closed-form map on request (Sec. 5.3)
+    from learn.deepwrinkles.prediction import coefficients
+    from learn.deepwrinkles.regression import LinearPoseToShape
+
+    ctl = np.random.default_rng(1).normal(size=(5, 150))
+    linear = coefficients(method, model, ctl, torch.device("cpu"), "linear")
+    expected = LinearPoseToShape(method.state["linear"].numpy())(method.normalise_controls(ctl))
+    np.testing.assert_allclose(linear, expected, atol=1e-6)
+    assert not np.allclose(coefficients(method, model, ctl, torch.device("cpu")), linear)
 
 
 def test_bad_settings_are_refused():
@@ -195,6 +211,7 @@ def test_bad_settings_are_refused():
         {"source": "scan"},
         {"temporal_weight": -1.0},
         {"window": 0},
+        {"regression_windows": 0},
     ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             DeepWrinklesMethod.validate_config(DeepWrinklesConfig(**bad), ValueError)
@@ -258,6 +275,7 @@ def test_bad_prediction_options_are_refused():
     method = DeepWrinklesMethod(DeepWrinklesConfig())
     assert _predict_options(["lr_input=registration", "components=200"], method) == {
         "lr_input": "registration", "components": 200}
+    assert _predict_options(["regressor=linear"], method) == {"regressor": "linear"}
     for bad in ("steps=20", "lr_input", "sequence_file=x"):
         with pytest.raises(WrinklesInputError, match="--predict"):
             _predict_options([bad], method)

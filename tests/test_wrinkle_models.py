@@ -311,7 +311,17 @@ def test_deepwrinkles_trains_predicts_and_is_evaluated(sample_dataset, tmp_path)
         for k in warm_item:
             torch.testing.assert_close(warm_item[k], cold_item[k])
     item = frames[(3, 0)]
-    assert item["lr"].shape == (3, 32, 32) and item["controls"].shape[0] == 3
+    R = method.config.regression_windows
+    assert item["lr"].shape == (3, 32, 32) and item["controls"].shape[:2] == (R, 3)
+    sid, t = frames.ds.locate(3)  # the item's own window first, then windows of other frames
+    own = frames._cache[sid]
+    np.testing.assert_array_equal(item["controls"][0].numpy(), own[1][t])
+    np.testing.assert_allclose(item["coefficients"][0].numpy(), own[2][t], rtol=1e-6)
+    every = np.concatenate([c[1] for c in frames._cache.values()])
+    assert all((every == w.numpy()).all(axis=(1, 2)).any() for w in item["controls"][1:])
+    again, other = frames[(3, 0)], frames[(3, 1)]
+    torch.testing.assert_close(again["controls"], item["controls"])
+    assert not torch.equal(other["controls"][1:], item["controls"][1:])
     from learn.data import GarmentSequenceDataset
 
     test = GarmentSequenceDataset(sample_dataset, "all", garments="t_shirt")

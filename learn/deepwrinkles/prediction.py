@@ -12,14 +12,16 @@ from learn.methods.base import Prediction
 
 
 @torch.no_grad()
-def coefficients(method, model, controls: np.ndarray, device: torch.device) -> np.ndarray:
+def coefficients(method, model, controls: np.ndarray, device: torch.device,
+                 regressor: str = "") -> np.ndarray:
     """Subspace coefficients (T, k) of a sequence's control vectors (T, C): the LSTM's last output
-    of the window ending at each frame, or the linear map (``config.regressor``)."""
+    of the window ending at each frame, or the linear map (``regressor``, default
+    ``config.regressor``)."""
     from learn.deepwrinkles.regression import LinearPoseToShape, windows
 
     s = method.state
     ctl = method.normalise_controls(controls)
-    if method.config.regressor == "linear":
+    if (regressor or method.config.regressor) == "linear":
         return LinearPoseToShape(s["linear"].numpy())(ctl)
     win = torch.from_numpy(windows(ctl, method.config.window)).to(device)
     dtype = next(model.regressor.parameters()).dtype
@@ -50,7 +52,8 @@ regression (the method's use), the sequence's registrations (needs its fine fram
 registrations projected on the subspace's first ``components`` ("BS k")."""
 
 
-def global_shapes(method, model, prep, lr_input: str, components: int, device) -> np.ndarray:
+def global_shapes(method, model, prep, lr_input: str, components: int, device,
+                  regressor: str = "") -> np.ndarray:
     """Template positions (T, Vc, 3) of a sequence's global shape from ``lr_input`` (the
     registration inputs need the sequence's fine frames and its file, ``"sequence/path"``, for
     the registrations' cache)."""
@@ -61,7 +64,11 @@ def global_shapes(method, model, prep, lr_input: str, components: int, device) -
         raise WrinklesInputError(f"lr_input {lr_input!r}: expected one of {', '.join(LR_INPUTS)}")
     sub = method.subspace()
     if lr_input == "regression":
-        return prep.posed(sub.decode(coefficients(method, model, prep.controls, device)))
+        from learn.methods.deepwrinkles import REGRESSORS
+
+        if regressor and regressor not in REGRESSORS:
+            raise WrinklesInputError(f"regressor {regressor!r}: expected one of {', '.join(REGRESSORS)}")
+        return prep.posed(sub.decode(coefficients(method, model, prep.controls, device, regressor)))
     if "sequence/path" not in prep.seq or "fine/vertices" not in prep.seq:
         raise WrinklesInputError(f"lr_input {lr_input!r} registers a dataset sequence's fine frames: "
                                  "this sequence has none")
@@ -104,6 +111,7 @@ def predict(
     device: torch.device,
     lr_input: str = "regression",
     components: int = 0,
+    regressor: str = "",
 ) -> Prediction:
     """A whole sequence (``Method.predict_sequence``): fine vertices from Guo et al.'s Eq. 10 on
     the global shape's fine surface, with ``extras``: ``normal_maps`` (HR, T x H x W x 3),
@@ -115,6 +123,8 @@ def predict(
 
     Args:
         lr_input, components: the global shape's source (``LR_INPUTS``) and, for "subspace", k.
+        regressor: "lstm" or "linear" for the "regression" input (default: ``config.regressor``;
+            the paper compares the two in Sec. 5.3).
     """
     from learn.deepwrinkles.sequences import PreparedSequence
     from sim.geometry.normal_geometry import deform_to_normals
@@ -125,7 +135,7 @@ def predict(
     was_training = model.training
     model.eval()
     try:
-        global_shape = global_shapes(method, model, prep, lr_input, components, device)
+        global_shape = global_shapes(method, model, prep, lr_input, components, device, regressor)
         lr = prep.maps.lr(global_shape, prep.rig.skinned())
         hr = generate(method, model, lr, prep.maps.mask, device)
     finally:

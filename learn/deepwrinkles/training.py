@@ -202,7 +202,7 @@ def fit_state(method, root) -> dict[str, torch.Tensor]:
 
 class TrainFrames(torch.utils.data.Dataset):
     """Frames of the training split (module docstring of ``learn.methods.deepwrinkles``); item
-    ``(index, seed)`` draws nothing at random.
+    ``(index, seed)`` draws its extra regression windows from ``seed``.
 
     ``warm`` prepares the first ``SEQUENCE_CACHE`` sequences in the calling process: data-loader
     workers started by fork (the default on Linux) share them instead of each preparing every
@@ -268,10 +268,26 @@ class TrainFrames(torch.utils.data.Dataset):
             )
         return self._cache[sid]
 
+    def regression_windows(self, sid: str, t: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """(controls (R, W, C), coefficients (R, W, k)): the windows of frame ``t`` of ``sid``
+        and ``regression_windows - 1`` more of random frames of the prepared sequences (drawn
+        from ``seed``)."""
+        own = self._sequence(sid)
+        rows = [(own[1][t], own[2][t])]
+        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 7919])
+        cached = list(self._cache.values())
+        for _ in range(self.method.config.regression_windows - 1):
+            c = cached[int(rng.integers(len(cached)))]
+            u = int(rng.integers(len(c[1])))
+            rows.append((c[1][u], c[2][u]))
+        return (np.stack([r[0] for r in rows]),
+                np.stack([r[1] for r in rows]).astype(np.float32))
+
     def __getitem__(self, key: tuple[int, int]) -> dict:
-        index, _ = key
+        index, seed = key
         sid, t = self.ds.locate(index)
-        prep, controls, coefficients, global_shape, skinned, fine = self._sequence(sid)
+        prep, _, _, global_shape, skinned, fine = self._sequence(sid)
+        controls, coefficients = self.regression_windows(sid, t, seed)
         prev = max(t - 1, 0)
         lr = prep.maps.lr(global_shape[[t]], skinned[[t]])[0]
         hr = prep.maps.hr(fine[[prev, t]], global_shape[[prev, t]])
@@ -280,8 +296,8 @@ class TrainFrames(torch.utils.data.Dataset):
             return torch.from_numpy(np.ascontiguousarray(a.transpose(2, 0, 1), dtype=np.float32))
 
         return {
-            "controls": torch.from_numpy(controls[t]),
-            "coefficients": torch.from_numpy(coefficients[t].astype(np.float32)),
+            "controls": torch.from_numpy(controls),
+            "coefficients": torch.from_numpy(coefficients),
             "lr": chw(lr),
             "hr": chw(hr[1]),
             "hr_prev": chw(hr[0]),

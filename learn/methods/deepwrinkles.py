@@ -9,8 +9,9 @@
   (Sec. 3.3, 4 x 256, windows of 3) and the cGAN (Sec. 4): a pix2pix U-Net from the LR normal
   map to the HR one and a 70 x 70 PatchGAN, trained together with one optimizer
   (``learn.deepwrinkles.cgan.cgan_loss``).
-- an item: one frame t of a training sequence: the control windows and normalised
-  coefficients of frames t-2..t, the LR map of the global shape at t (the registration
+- an item: one frame t of a training sequence: the control window and normalised
+  coefficients of frames t-2..t with ``regression_windows - 1`` more windows of random training
+  frames (the LSTM's share of the batch), the LR map of the global shape at t (the registration
   projected on the subspace's ``lr_components``, the paper's "BS k" input, or the
   registration itself), and the HR maps at t and t-1 (Eq. 4's temporal term).
 - the loss: coefficient MSE (in units of each component's standard deviation) times
@@ -70,6 +71,11 @@ class DeepWrinklesConfig:
     """"eq4", or the Table 1 alternatives "l1" / "l2"."""
     coefficient_weight: float = 1.0
     """Weight of the LSTM's coefficient loss in the total."""
+    regression_windows: int = 16
+    """Control windows the LSTM trains on per item: the item's own and more of random training
+    frames, so the regression sees ``batch_size`` x this windows a step while the cGAN sees
+    ``batch_size`` images (its windows are cheap; with 16 a step it beat the closed-form map
+    only after many more steps)."""
     lr_source: str = "subspace"
     """Training LR maps from the registration projected on ``lr_components`` ("subspace") or
     from the registration itself ("registration")."""
@@ -110,7 +116,7 @@ class DeepWrinklesMethod(Method):
     @classmethod
     def validate_config(cls, config: DeepWrinklesConfig, err) -> None:
         positive = ("components", "hidden", "layers", "window", "filters", "register_every", "infer_batch",
-                    "workers")
+                    "workers", "regression_windows")
         for f in positive:
             if getattr(config, f) < 1:
                 raise err(f"model.{f} must be >= 1, got {getattr(config, f)}")
@@ -188,8 +194,11 @@ class DeepWrinklesMethod(Method):
         from learn.deepwrinkles.cgan import CGANWeights, cgan_loss
 
         cfg = self.config
-        coeff = model.regressor(batch["controls"])
-        coeff_loss = (coeff.float() - batch["coefficients"]).square().mean()
+        controls, target = batch["controls"], batch["coefficients"]
+        if controls.ndim == 4:  # (B, regression_windows, W, C): every item's windows in one batch
+            controls, target = controls.flatten(0, 1), target.flatten(0, 1)
+        coeff = model.regressor(controls)
+        coeff_loss = (coeff.float() - target).square().mean()
         w = CGANWeights(
             data=cfg.data_weight,
             temporal=cfg.temporal_weight,
@@ -213,9 +222,12 @@ class DeepWrinklesMethod(Method):
         device: torch.device,
         lr_input: str = "regression",
         components: int = 0,
+        regressor: str = "",
     ) -> Prediction:
         """``learn.deepwrinkles.prediction.predict``: ``lr_input`` "regression" (from the body
-        motion), "registration" or "subspace" (``components`` of it): the paper's Table 1 inputs."""
+        motion, by ``regressor``: "lstm" or "linear"), "registration" or "subspace" (``components``
+        of it): the paper's Table 1 inputs."""
         from learn.deepwrinkles.prediction import predict
 
-        return predict(self, model, sequence, device=device, lr_input=lr_input, components=components)
+        return predict(self, model, sequence, device=device, lr_input=lr_input, components=components,
+                       regressor=regressor)
