@@ -47,6 +47,7 @@ MAP_METRICS = [
 ]
 """DeepWrinkles' Table 1 rows: pixel errors of its HR normal maps (x 100, as the paper prints them)."""
 MAP_COLUMNS = [
+    ("dw_truth", "Eq. 4 / true places"),
     ("dw_registration", "Eq. 4 / Registr."),
     ("dw_notemp_registration", "no temp / Registr."),
     ("dw_bs500", "Eq. 4 / BS 500"),

@@ -1,18 +1,19 @@
 #!/usr/bin/env bash
 # DeepWrinkles on the t-shirt, end to end (docs/DEEPWRINKLES.md): generate the data
-# (pipelines/configs/tshirt_deepwrinkles.toml), register its training and test_id sequences, train
-# the paper-sized model with Eq. 4's temporal term and without it and the shipped one (RELEASE_SET:
-# 16 filters, 200 components, 2 LSTM layers: 15 MB in float16), export them, and evaluate: the
-# paper's Table 1 inputs (regression, registration, subspace 500 / 200) and the rows of Guo et
-# al.'s tables (test_id, test_ood). Needs a CUDA GPU. Time-boxed and resumable like
-# scripts/train_pretrained.sh: generation and training stop at their budgets (SIGINT), a rerun
-# continues; registrations are cached beside the data.
+# (pipelines/configs/tshirt_deepwrinkles.toml), train the paper-sized model with Eq. 4's temporal
+# term and without it and the shipped one (RELEASE_SET: 16 filters, 200 components, 2 LSTM layers:
+# 15 MB in float16) on the template's true places (SOURCE=simulation; SOURCE=registration trains
+# on scans registered first, as the paper), register the first test_id sequences' scans, export
+# the models and evaluate them: the paper's Table 1 inputs (registration of scans, the true places,
+# subspace 500 / 200, LSTM and linear regression) and the rows of Guo et al.'s tables (test_id,
+# test_ood), then the tables (benchmarks.wrinkle_tables). Needs a CUDA GPU. Time-boxed and
+# resumable like scripts/train_pretrained.sh: generation and training stop at their budgets
+# (SIGINT), a rerun continues; registrations are cached beside the data.
 #   bash scripts/train_deepwrinkles.sh WORKDIR [GEN_SECONDS] [TRAIN_SECONDS]
 # STAGES picks stages (default "generate register train export evaluate"); WORKERS registration
 # processes (default 14), EVERY registers every k-th frame (default 6), MAXSEQ test sequences
 # per evaluation (default 6), EXTRA_SET more --set options of the trainings, DEVICE (default cuda),
-# DATA_CONFIG the generator config, LOADERS data-loader workers per training (default 4), SOURCE
-# the global shapes' data (registration, or simulation: no scans).
+# DATA_CONFIG the generator config, LOADERS data-loader workers per training (default 4).
 set -u -o pipefail
 W=${1:?work directory}; GEN=${2:-400}; TRAIN=${3:-600}
 STAGES=" ${STAGES:-generate register train export evaluate} "
@@ -25,7 +26,7 @@ D="$W/data/tshirt"
 CFG=pipelines/configs/train/deepwrinkles.toml
 DATA_CONFIG=${DATA_CONFIG:-pipelines/configs/tshirt_deepwrinkles.toml}
 DEVICE=${DEVICE:-cuda}
-SOURCE=${SOURCE:-registration}
+SOURCE=${SOURCE:-simulation}
 SET="--set model.workers=${WORKERS:-14} --set model.register_every=${EVERY:-6} --set model.source='$SOURCE' ${EXTRA_SET:-}"
 RELEASE_SET=${RELEASE_SET:-"--set model.filters=16 --set model.components=200 --set model.layers=2"}
 mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release"
@@ -44,12 +45,12 @@ fi
 if stage register; then
   log "register"
   register() {
-    $PY -m learn.deepwrinkles.training "$D" --workers ${WORKERS:-14} --every ${EVERY:-6} --source "$SOURCE" \
+    $PY -m learn.deepwrinkles.training "$D" --workers ${WORKERS:-14} --every ${EVERY:-6} \
       --garment t_shirt "$@" >>"$W/logs/register.log" 2>&1 || log "registration failed (see $W/logs/register.log)"
     tr '\r' '\n' < "$W/logs/register.log" | grep "registered," | tail -1 | tee -a "$W/logs/pipeline.log"
   }
-  register --split train
-  register --split test_id --max-sequences ${MAXSEQ:-6}  # the evaluation's registration inputs
+  register --split train --source "$SOURCE"  # SOURCE=simulation: the true places, in seconds
+  register --split test_id --max-sequences ${MAXSEQ:-6} --source registration  # the scan rows
 fi
 
 if stage train; then
@@ -89,11 +90,13 @@ if stage evaluate; then
   M="$W/release/t_shirt-dw.pt"; N="$W/release/t_shirt-dw-notemp.pt"; R="$W/release/t_shirt-deepwrinkles.pt"
   ev t_shirt-deepwrinkles test_id "$M" &
   ev t_shirt-deepwrinkles test_ood "$M" &
-  ev t_shirt-dw_registration test_id "$M" --predict lr_input=registration &
+  scans="--predict lr_input=registration --predict source=registration"
+  ev t_shirt-dw_registration test_id "$M" $scans &
+  ev t_shirt-dw_truth test_id "$M" --predict lr_input=registration --predict source=simulation &
   ev t_shirt-dw_bs500 test_id "$M" --predict lr_input=subspace --predict components=500 &
   ev t_shirt-dw_bs200 test_id "$M" --predict lr_input=subspace --predict components=200 &
   ev t_shirt-dw_linear test_id "$M" --predict regressor=linear &
-  ev t_shirt-dw_notemp_registration test_id "$N" --predict lr_input=registration &
+  ev t_shirt-dw_notemp_registration test_id "$N" $scans &
   ev t_shirt-dw_notemp test_id "$N" &
   ev t_shirt-dw_release test_id "$R" &
   ev t_shirt-dw_release test_ood "$R" &

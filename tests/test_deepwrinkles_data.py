@@ -276,6 +276,15 @@ def test_bad_prediction_options_are_refused():
     assert _predict_options(["lr_input=registration", "components=200"], method) == {
         "lr_input": "registration", "components": 200}
     assert _predict_options(["regressor=linear"], method) == {"regressor": "linear"}
+    assert _predict_options(["source=registration"], method) == {"source": "registration"}
+    import types
+
+    from learn.deepwrinkles.prediction import global_shapes
+
+    method.load_state(fake_state())
+    prep = types.SimpleNamespace(seq={"sequence/path": "x.safetensors", "fine/vertices": np.zeros((1, 3, 3))})
+    with pytest.raises(WrinklesInputError, match="source 'scan'"):
+        global_shapes(method, None, prep, "registration", 0, torch.device("cpu"), source="scan")
     for bad in ("steps=20", "lr_input", "sequence_file=x"):
         with pytest.raises(WrinklesInputError, match="--predict"):
             _predict_options([bad], method)

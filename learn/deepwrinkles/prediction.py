@@ -3,6 +3,7 @@ body motion -> subspace coefficients -> global shape -> LR maps -> HR maps -> fi
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 
 import numpy as np
@@ -53,10 +54,12 @@ registrations projected on the subspace's first ``components`` ("BS k")."""
 
 
 def global_shapes(method, model, prep, lr_input: str, components: int, device,
-                  regressor: str = "") -> np.ndarray:
+                  regressor: str = "", source: str = "") -> np.ndarray:
     """Template positions (T, Vc, 3) of a sequence's global shape from ``lr_input`` (the
     registration inputs need the sequence's fine frames and its file, ``"sequence/path"``, for
-    the registrations' cache)."""
+    the registrations' cache; ``source`` "registration" or "simulation" overrides the model's
+    ``config.source`` for them)."""
+    from learn.methods.deepwrinkles import SOURCES
     from sim.datasets.storage import SequenceFile
     from sim.errors import WrinklesInputError
 
@@ -73,7 +76,10 @@ def global_shapes(method, model, prep, lr_input: str, components: int, device,
         raise WrinklesInputError(f"lr_input {lr_input!r} registers a dataset sequence's fine frames: "
                                  "this sequence has none")
     scan_device = str(device) if str(device).startswith("cuda") else "cpu"
-    prep.register(SequenceFile(str(prep.seq["sequence/path"])), method.settings(), device=scan_device)
+    if source and source not in SOURCES:
+        raise WrinklesInputError(f"source {source!r}: expected one of {', '.join(SOURCES)}")
+    settings = dataclasses.replace(method.settings(), source=source) if source else method.settings()
+    prep.register(SequenceFile(str(prep.seq["sequence/path"])), settings, device=scan_device)
     if lr_input == "registration":
         return prep.posed(prep.normalised)
     k = components or sub.size
@@ -112,6 +118,7 @@ def predict(
     lr_input: str = "regression",
     components: int = 0,
     regressor: str = "",
+    source: str = "",
 ) -> Prediction:
     """A whole sequence (``Method.predict_sequence``): fine vertices from Guo et al.'s Eq. 10 on
     the global shape's fine surface, with ``extras``: ``normal_maps`` (HR, T x H x W x 3),
@@ -125,6 +132,8 @@ def predict(
         lr_input, components: the global shape's source (``LR_INPUTS``) and, for "subspace", k.
         regressor: "lstm" or "linear" for the "regression" input (default: ``config.regressor``;
             the paper compares the two in Sec. 5.3).
+        source: the registration inputs' data: "registration" (scans of the fine frames,
+            registered) or "simulation" (the template's true places); default ``config.source``.
     """
     from learn.deepwrinkles.sequences import PreparedSequence
     from sim.geometry.normal_geometry import deform_to_normals
@@ -135,7 +144,7 @@ def predict(
     was_training = model.training
     model.eval()
     try:
-        global_shape = global_shapes(method, model, prep, lr_input, components, device, regressor)
+        global_shape = global_shapes(method, model, prep, lr_input, components, device, regressor, source)
         lr = prep.maps.lr(global_shape, prep.rig.skinned())
         hr = generate(method, model, lr, prep.maps.mask, device)
     finally:

@@ -36,6 +36,7 @@ from learn.methods.base import LossOutput, Method, Prediction
 from sim.errors import WrinklesInputError
 
 REGRESSORS = ("lstm", "linear")
+SOURCES = ("registration", "simulation")
 LR_SOURCES = ("subspace", "registration")
 
 
@@ -125,7 +126,7 @@ class DeepWrinklesMethod(Method):
         choices = {
             "regressor": REGRESSORS,
             "lr_source": LR_SOURCES,
-            "source": ("registration", "simulation"),
+            "source": SOURCES,
             "norm": ("batch", "instance"),
             "temporal_kind": ("eq4", "l1", "l2"),
         }
@@ -223,11 +224,12 @@ class DeepWrinklesMethod(Method):
         lr_input: str = "regression",
         components: int = 0,
         regressor: str = "",
+        source: str = "",
     ) -> Prediction:
         """``learn.deepwrinkles.prediction.predict``: ``lr_input`` "regression" (from the body
         motion, by ``regressor``: "lstm" or "linear"), "registration" or "subspace" (``components``
-        of it): the paper's Table 1 inputs."""
+        of it; from scans or the true places: ``source``): the paper's Table 1 inputs."""
         from learn.deepwrinkles.prediction import predict
 
         return predict(self, model, sequence, device=device, lr_input=lr_input, components=components,
-                       regressor=regressor)
+                       regressor=regressor, source=source)
