@@ -13,7 +13,8 @@
 # STAGES picks stages (default "generate register train export evaluate"); WORKERS registration
 # processes (default 14), EVERY registers every k-th frame (default 6), MAXSEQ test sequences
 # per evaluation (default 6), EXTRA_SET more --set options of the trainings, DEVICE (default cuda),
-# DATA_CONFIG the generator config, LOADERS data-loader workers per training (default 4).
+# DATA_CONFIG the generator config, LOADERS data-loader workers per training (default 4),
+# TRAIN_DEVICES the devices of the three trainings (e.g. "cuda:0 cuda:1 cuda:1" on two GPUs).
 set -u -o pipefail
 W=${1:?work directory}; GEN=${2:-400}; TRAIN=${3:-600}
 STAGES=" ${STAGES:-generate register train export evaluate} "
@@ -55,15 +56,16 @@ fi
 
 if stage train; then
   log "train (budget ${TRAIN}s)"
-  train() {  # name [overrides...]
-    local name=$1; shift
+  train() {  # name device [overrides...]
+    local name=$1 dev=$2; shift 2
     local resume=""; [ -f "$W/runs/$name/checkpoints/last.pt" ] && resume="--resume"
     timeout -s INT "$TRAIN" $CLI train deepwrinkles --data "$D" --out "$W/runs/$name" --config $CFG $SET \
-      --device $DEVICE -q --set train.num_workers=${LOADERS:-4} "$@" $resume >"$W/logs/train-$name.log" 2>&1
+      --device $dev -q --set train.num_workers=${LOADERS:-4} "$@" $resume >"$W/logs/train-$name.log" 2>&1
   }
-  train dw &
-  train dw-notemp --set model.temporal_weight=0.0 &
-  train release $RELEASE_SET &
+  read -r dev_dw dev_notemp dev_release <<< "${TRAIN_DEVICES:-$DEVICE $DEVICE $DEVICE}"
+  train dw "$dev_dw" &
+  train dw-notemp "$dev_notemp" --set model.temporal_weight=0.0 &
+  train release "$dev_release" $RELEASE_SET &
   wait
   for f in "$W"/logs/train-*.log; do log "$(basename $f): $(tail -1 $f)"; done
 fi
