@@ -24,9 +24,15 @@ PRETRAINED = Path(__file__).resolve().parent.parent / "pretrained"
 """Folder of the shipped default weights."""
 
 
+def pretrained_file(category: str, kind: str) -> Path:
+    """The shipped release file ``pretrained/<category>-<kind>.pt`` (kind: coarse, wrinkles,
+    deepwrinkles)."""
+    return PRETRAINED / f"{category}-{kind}.pt"
+
+
 def pretrained_paths(category: str) -> tuple[Path, Path]:
     """(coarse, wrinkles) release files of a garment category in :data:`PRETRAINED`."""
-    return PRETRAINED / f"{category}-coarse.pt", PRETRAINED / f"{category}-wrinkles.pt"
+    return pretrained_file(category, "coarse"), pretrained_file(category, "wrinkles")
 
 
 def shipped_categories(kind: str) -> list[str]:

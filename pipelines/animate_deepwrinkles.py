@@ -78,11 +78,11 @@ def check_options(args: argparse.Namespace) -> None:
     args.surface = args.surface or "global"
     args.normal_map_bits = args.normal_map_bits or 16
     if not args.model:
-        from learn.animate import PRETRAINED, shipped_categories
+        from learn.animate import pretrained_file, shipped_categories
         from pipelines.simulate_cmd import resolve_template
 
         category = resolve_template(args.garment)
-        args.model = str(PRETRAINED / f"{category}-{SHIPPED_KIND}.pt")
+        args.model = str(pretrained_file(category, SHIPPED_KIND))
         if not Path(args.model).is_file():
             have = shipped_categories(SHIPPED_KIND)
             raise WrinklesInputError(f"no shipped DeepWrinkles model for {category} (shipped: "
@@ -245,24 +245,21 @@ class Animated:
     """A DeepWrinkles prediction on a body motion (``animate_motion``): what ``run`` writes.
 
     Attributes:
-        garment, method: the model's garment and method.
+        garment: the model's garment.
         bm: the body and its motion (``pipelines.options.BodyAndMotion``).
         frames: the posed body (``BodyFrames``).
         pred: the method's ``Prediction``.
         verts, normals, maps: the stage's garment for ``--surface`` (``garment_geometry``).
-        fine: the Eq. 10 fine garment moved out of the body (the ``fine`` surface).
         seconds: the prediction's time.
     """
 
     garment: DatasetGarment
-    method: object
     bm: object
     frames: object
     pred: object
     verts: np.ndarray
     normals: np.ndarray
     maps: np.ndarray | None
-    fine: np.ndarray
     seconds: dict
 
     @property
@@ -291,8 +288,8 @@ def animate_motion(args: argparse.Namespace, loaded=None) -> Animated:
     seconds = {"predict": time.perf_counter() - t1}
     fine = outside(pred.vertices, frames, args.clearance, wdev)
     verts, normals, maps = garment_geometry(pred, fine, seq, args.surface, frames, args.clearance, wdev)
-    return Animated(garment=garment, method=method, bm=bm, frames=frames, pred=pred, verts=verts,
-                    normals=normals, maps=maps, fine=fine, seconds=seconds)
+    return Animated(garment=garment, bm=bm, frames=frames, pred=pred, verts=verts, normals=normals,
+                    maps=maps, seconds=seconds)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -373,7 +373,7 @@ def _load_tile(entry: SequenceEntry, manifest: dict, device: str | None) -> _Til
 
 
 def _render_tile(tile: _Tile, clim: tuple[float, float], size: tuple[int, int]) -> np.ndarray:
-    from pipelines.preview import PreviewMesh, render_frames, vertex_normals
+    from pipelines.preview import PreviewMesh, render_frame, vertex_normals
 
     meshes = []
     verts = tile.vertices
@@ -383,11 +383,7 @@ def _render_tile(tile: _Tile, clim: tuple[float, float], size: tuple[int, int]) 
         verts = verts + np.float32(CLOTH_LIFT) * vertex_normals(verts, tile.faces)
     meshes.append(PreviewMesh(name=str(tile.entry.path), vertices=verts, faces=tile.faces,
                               scalars=tile.strain, cmap=STRAIN_CMAP, clim=clim))
-    frames = render_frames(meshes, [0], size=size, camera=SHEET_CAMERA)
-    try:
-        return next(frames)
-    finally:
-        frames.close()
+    return render_frame(meshes, size=size, camera=SHEET_CAMERA)
 
 
 def contact_sheet_size(num_tiles: int, tile_size: tuple[int, int] = TILE_SIZE) -> tuple[int, int]:

@@ -229,30 +229,21 @@ CLOSEUP_MAPS = (("LR map (input)", "lr_maps"), ("predicted HR map", "normal_maps
 """The UV maps of a close-up row: (title, ``method_maps`` key)."""
 
 
-def _render_one(mesh, size=(360, 420)) -> np.ndarray:
-    from pipelines.preview import render_frames
-
-    frames = render_frames([mesh], [0], size=size, floor=False, shadows=False)
-    try:
-        return next(frames)
-    finally:
-        frames.close()
-
-
 def _closeups(examples: list[dict], path: Path) -> Path:
     """``closeups.png``: per example frame, the simulated garment, the base surface under each of
     its shadings (DeepWrinkles: the global shape, then shaded by the predicted HR map) and the
     method's LR / HR maps, side by side (Lähner et al. 2018, Fig. 1 and 10)."""
     import matplotlib.pyplot as plt
 
-    from pipelines.preview import PreviewMesh
+    from pipelines.preview import PreviewMesh, render_frame
 
     colour = (0.78, 0.80, 0.86)
     rows = []
     for e in examples:
 
         def render(vertices, normals=None, e=e):
-            return _render_one(PreviewMesh("garment", vertices, e["faces"], color=colour, normals=normals))
+            mesh = PreviewMesh("garment", vertices, e["faces"], color=colour, normals=normals)
+            return render_frame([mesh], size=(360, 420), floor=False, shadows=False)
 
         shadings = list(e["surface_normals"].items())
         tiles = [("simulated", render(e["gt"])), (shadings[0][0], render(e["surface"], shadings[0][1]))]
@@ -310,7 +301,7 @@ def _renders(examples: list[dict], path: Path) -> Path:
     from PIL import Image, ImageDraw
     from PIL.PngImagePlugin import PngInfo
 
-    from pipelines.preview import PreviewMesh, add_colour_bar, render_frames
+    from pipelines.preview import PreviewMesh, add_colour_bar, render_frame
 
     tiles, bars = [], []
     for e in examples:
@@ -321,11 +312,7 @@ def _renders(examples: list[dict], path: Path) -> Path:
                               faces=e["faces"], scalars=e["error"], cmap=ERROR_CMAP, clim=(0.0, vmax)),
                   PreviewMesh(name="simulated", vertices=np.asarray(e["gt"], np.float32) + offset / 2,
                               faces=e["faces"])]
-        frames = render_frames(meshes, [0], size=(640, 400))
-        try:
-            rendered = next(frames)
-        finally:
-            frames.close()
+        rendered = render_frame(meshes, size=(640, 400))
         rgb, bar = add_colour_bar(rendered, cmap=ERROR_CMAP, clim=(0.0, vmax * 1000.0), units="mm",
                                   label="error")
         img = Image.fromarray(rgb)

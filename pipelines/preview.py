@@ -514,6 +514,15 @@ def render_frames(meshes: Sequence[PreviewMesh], frame_indices: Iterable[int] | 
         scene.close()
 
 
+def render_frame(meshes: Sequence[PreviewMesh], t: int = 0, **kwargs) -> np.ndarray:
+    """Frame ``t`` of a scene as one RGB image (H, W, 3) uint8 (``render_frames``' options)."""
+    frames = render_frames(meshes, [t], **kwargs)
+    try:
+        return next(frames)
+    finally:
+        frames.close()
+
+
 # --------------------------------------------------------------------------- writers
 
 

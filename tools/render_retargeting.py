@@ -58,16 +58,12 @@ def animate_args(args: argparse.Namespace, shape: str) -> argparse.Namespace:
 def column(anim, frame: int, camera: str) -> list:
     """The column's two renders (RGB arrays): shaded by the map, then by the surface's own normals."""
     from pipelines.animate_deepwrinkles import _preview
-    from pipelines.preview import render_frames
+    from pipelines.preview import render_frame
 
     images = []
     for shading in (anim.shading, None):
         meshes = _preview(anim.garment, anim.verts, shading, anim.frames, anim.bm)
-        frames = render_frames(meshes, [frame], size=(420, 560), camera=camera)
-        try:
-            img = next(frames)
-        finally:
-            frames.close()
+        img = render_frame(meshes, frame, size=(420, 560), camera=camera)
         H, W = img.shape[:2]
         (y0, y1), (x0, x1) = CROP
         images.append(img[int(y0 * H): int(y1 * H), int(x0 * W): int(x1 * W)])

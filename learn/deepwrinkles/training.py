@@ -230,15 +230,15 @@ class TrainFrames(torch.utils.data.Dataset):
                 bar(n)
 
     def _layout_maps(self, prep):
-        """The maps operator of the sequence's garment layout (one per distinct layout)."""
-        from learn.deepwrinkles.normal_maps import DetailMaps
+        """The maps operator of the sequence's garment layout (one per distinct layout: the first
+        sequence of a layout makes it)."""
         from learn.deepwrinkles.sequences import GARMENT_KEYS
 
         key = layout_digest({k: prep.seq[k] for k in GARMENT_KEYS})
         if key not in self._maps:
             if len(self._maps) >= SEQUENCE_CACHE:
                 self._maps.pop(next(iter(self._maps)))
-            self._maps[key] = DetailMaps(prep.seq, self.method.config.resolution, device="cpu")
+            self._maps[key] = prep.maps
         return self._maps[key]
 
     def _sequence(self, sid: str):
