@@ -242,6 +242,20 @@ def test_sigint_finishes_step_writes_checkpoint_and_resumes(tmp_path):
     assert_same_tensors(state(tmp_path / "i")["model"], state(tmp_path / "ref")["model"])
 
 
+@pytest.mark.parametrize("device", ["cpu", "cuda"])
+def test_load_state_keeps_the_fitted_state_on_the_host_in_float32(device):
+    # a run resumed on a GPU reads its checkpoint there; the data loaders read the state with numpy
+    if device == "cuda" and not torch.cuda.is_available():
+        pytest.skip("no CUDA device")
+    m = ToyMethod(ToyConfig())
+    m.half_state = ("basis",)
+    basis = torch.tensor([[0.5, -0.25], [1.0, 2.0]], dtype=torch.float16, device=device)
+    m.load_state({"basis": basis, "count": torch.tensor([3], device=device)})
+    assert {v.device.type for v in m.state.values()} == {"cpu"}
+    assert m.state["basis"].dtype == torch.float32 and m.state["count"].dtype == torch.int64
+    np.testing.assert_array_equal(m.state["basis"].numpy(), [[0.5, -0.25], [1.0, 2.0]])
+
+
 def test_non_finite_loss_stops_with_the_step(tmp_path):
     cfg = run_config_from_dict({"method": "toy", "train": {"steps": 5, "device": "cpu"},
                                 "optim": {"lr": 1e30, "grad_clip": 0.0}}, methods=METHODS)

@@ -85,8 +85,9 @@ class Method:
 
     def load_state(self, state: Mapping[str, torch.Tensor]) -> None:
         """Adopt a fitted state (from ``prepare`` or a checkpoint); float16 entries (``half_state``
-        of a release file) come back as float32."""
-        self.state = {k: v.float() if k in self.half_state and v.dtype == torch.float16 else v
+        of a release file) come back as float32. The state lives on the CPU whatever device the
+        checkpoint was read to, as ``prepare`` leaves it: data loaders read it with numpy."""
+        self.state = {k: (v.float() if k in self.half_state and v.dtype == torch.float16 else v).cpu()
                       for k, v in state.items()}
 
     @classmethod
