@@ -32,3 +32,29 @@ def test_shipped_pipeline_animates_on_cpu(category):
     # wrinkles are displacements of millimetres to centimetres on the base, never metres
     d = np.linalg.norm(res.vertices - res.base, axis=-1)
     assert 0 < d.max() < 0.1
+
+
+def test_shipped_deepwrinkles_animates_the_t_shirt_with_its_maps(tmp_path):
+    """`wrinkles animate --method deepwrinkles` without --model takes the shipped t-shirt model:
+    the garment sits on the torso of the default body and its per-frame normal maps carry
+    wrinkles (tangent-space xy well away from a flat map) that follow the motion."""
+    from pxr import Usd, UsdGeom
+
+    from learn.animate import shipped_categories
+    from pipelines.cli import main
+    from usd_io.textures import decode_normal_map, normal_texture_files, read_png
+
+    if "t_shirt" not in shipped_categories("deepwrinkles"):
+        pytest.skip("no shipped DeepWrinkles t-shirt")
+    out = tmp_path / "dw.usda"
+    assert main(["animate", "--method", "deepwrinkles", "--garment", "t_shirt", "--motion", "walk",
+                 "--duration", "0.3", "--out", str(out), "-q", "--device", "cpu"]) == 0
+    stage = Usd.Stage.Open(str(out))
+    points = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/World/Garments/t_shirt")).GetPointsAttr().Get(0))
+    lo, hi = points.min(0), points.max(0)
+    assert 0.8 < lo[1] < hi[1] < 1.6 and hi[0] - lo[0] < 0.8, f"garment bounds {lo} .. {hi} m (y up)"
+    files = normal_texture_files(stage, "/World/Looks/t_shirtMaterial")
+    maps = [decode_normal_map(read_png(f)) for _, f in files]
+    assert len(maps) == 9 and maps[0].shape == (256, 256, 3)
+    assert min(float(m[..., :2].std()) for m in maps) > 0.03, "the maps are nearly flat"
+    assert float(np.abs(maps[-1] - maps[0]).mean()) > 0.005, "the maps do not change with the motion"

@@ -250,8 +250,9 @@ def test_load_state_keeps_the_fitted_state_on_the_host_in_float32(device):
     m = ToyMethod(ToyConfig())
     m.half_state = ("basis",)
     basis = torch.tensor([[0.5, -0.25], [1.0, 2.0]], dtype=torch.float16, device=device)
-    m.load_state({"basis": basis, "count": torch.tensor([3], device=device)})
-    assert {v.device.type for v in m.state.values()} == {"cpu"}
+    m.load_state({"basis": basis, "count": torch.tensor([3], device=device), "scale": 0.5})
+    assert m.state["scale"] == 0.5  # plain numbers stay as they are
+    assert {v.device.type for v in m.state.values() if torch.is_tensor(v)} == {"cpu"}
     assert m.state["basis"].dtype == torch.float32 and m.state["count"].dtype == torch.int64
     np.testing.assert_array_equal(m.state["basis"].numpy(), [[0.5, -0.25], [1.0, 2.0]])
 

@@ -87,8 +87,12 @@ class Method:
         """Adopt a fitted state (from ``prepare`` or a checkpoint); float16 entries (``half_state``
         of a release file) come back as float32. The state lives on the CPU whatever device the
         checkpoint was read to, as ``prepare`` leaves it: data loaders read it with numpy."""
-        self.state = {k: (v.float() if k in self.half_state and v.dtype == torch.float16 else v).cpu()
-                      for k, v in state.items()}
+        def host(k, v):
+            if not torch.is_tensor(v):
+                return v
+            return (v.float() if k in self.half_state and v.dtype == torch.float16 else v).cpu()
+
+        self.state = {k: host(k, v) for k, v in state.items()}
 
     @classmethod
     def validate_config(cls, config: Any, err) -> None:
