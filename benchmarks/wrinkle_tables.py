@@ -32,6 +32,7 @@ ROWS = [
     ("tensor", "ours, strain-tensor conditioning"),
     ("ours", "ours, strain-norm conditioning (shipped)"),
     ("deepwrinkles", "DeepWrinkles (Lähner et al. 2018; global shape from the body)"),
+    ("dw_release", "DeepWrinkles, shipped size (16 filters, k = 200, 2 LSTM layers)"),
 ]
 METRICS = [
     ("ev", "Ev [mm]", 1e3),

@@ -6,7 +6,10 @@
 # on scans registered first, as the paper), register the first test_id sequences' scans, export
 # the models and evaluate them: the paper's Table 1 inputs (registration of scans, the true places,
 # subspace 500 / 200, LSTM and linear regression) and the rows of Guo et al.'s tables (test_id,
-# test_ood), then the tables (benchmarks.wrinkle_tables). Needs a CUDA GPU. Time-boxed and
+# test_ood), then the tables (benchmarks.wrinkle_tables). With BASELINES=1 (the default) Guo et al.'s
+# coarse (skeleton_cvae) and wrinkle (wrinkle_diffusion) models train on the same data beside them
+# and are evaluated on the same test sequences, so the tables compare the methods on one split
+# (rows base, coarse, ours: 3 sampling seeds). Needs a CUDA GPU. Time-boxed and
 # resumable like scripts/train_pretrained.sh: generation and training stop at their budgets
 # (SIGINT), a rerun continues; registrations are cached beside the data.
 #   bash scripts/train_deepwrinkles.sh WORKDIR [GEN_SECONDS] [TRAIN_SECONDS]
@@ -14,7 +17,9 @@
 # processes (default 14), EVERY registers every k-th frame (default 6), MAXSEQ test sequences
 # per evaluation (default 6), EXTRA_SET more --set options of the trainings, DEVICE (default cuda),
 # DATA_CONFIG the generator config, LOADERS data-loader workers per training (default 4),
-# TRAIN_DEVICES the devices of the three trainings (e.g. "cuda:0 cuda:1 cuda:1" on two GPUs).
+# TRAIN_DEVICES the devices of the three trainings (e.g. "cuda:0 cuda:1 cuda:1" on two GPUs),
+# BASELINE_DEVICE the device of Guo et al.'s two (default: the first of TRAIN_DEVICES), BASELINE_SET
+# their --set options.
 set -u -o pipefail
 W=${1:?work directory}; GEN=${2:-400}; TRAIN=${3:-600}
 STAGES=" ${STAGES:-generate register train export evaluate} "
@@ -56,16 +61,21 @@ fi
 
 if stage train; then
   log "train (budget ${TRAIN}s)"
-  train() {  # name device [overrides...]
-    local name=$1 dev=$2; shift 2
+  train() {  # name method config device [overrides...]
+    local name=$1 method=$2 cfg=$3 dev=$4; shift 4
     local resume=""; [ -f "$W/runs/$name/checkpoints/last.pt" ] && resume="--resume"
-    timeout -s INT "$TRAIN" $CLI train deepwrinkles --data "$D" --out "$W/runs/$name" --config $CFG $SET \
+    timeout -s INT "$TRAIN" $CLI train "$method" --data "$D" --out "$W/runs/$name" --config "$cfg" \
       --device $dev -q --set train.num_workers=${LOADERS:-4} "$@" $resume >"$W/logs/train-$name.log" 2>&1
   }
   read -r dev_dw dev_notemp dev_release <<< "${TRAIN_DEVICES:-$DEVICE $DEVICE $DEVICE}"
-  train dw "$dev_dw" &
-  train dw-notemp "$dev_notemp" --set model.temporal_weight=0.0 &
-  train release "$dev_release" $RELEASE_SET &
+  train dw deepwrinkles $CFG "$dev_dw" $SET &
+  train dw-notemp deepwrinkles $CFG "$dev_notemp" $SET --set model.temporal_weight=0.0 &
+  train release deepwrinkles $CFG "$dev_release" $SET $RELEASE_SET &
+  if [ "${BASELINES:-1}" = 1 ]; then  # Guo et al.'s models with their configs' settings (BASELINE_SET: more)
+    bdev=${BASELINE_DEVICE:-$dev_dw}
+    train coarse coarse pipelines/configs/train/coarse.toml "$bdev" ${BASELINE_SET:-} &
+    train wrinkles wrinkles pipelines/configs/train/wrinkles.toml "$bdev" ${BASELINE_SET:-} &
+  fi
   wait
   for f in "$W"/logs/train-*.log; do log "$(basename $f): $(tail -1 $f)"; done
 fi
@@ -76,6 +86,11 @@ if stage export; then
     $PY -m learn.train.export "$W/runs/$name/checkpoints/last.pt" "$W/release/t_shirt-$name.pt"
   done
   cp "$W/release/t_shirt-release.pt" "$W/release/t_shirt-deepwrinkles.pt"
+  if [ "${BASELINES:-1}" = 1 ]; then
+    for name in coarse wrinkles; do
+      $PY -m learn.train.export "$W/runs/$name/checkpoints/last.pt" "$W/release/t_shirt-$name.pt"
+    done
+  fi
 fi
 
 if stage evaluate; then
@@ -102,6 +117,16 @@ if stage evaluate; then
   ev t_shirt-dw_notemp test_id "$N" &
   ev t_shirt-dw_release test_id "$R" &
   ev t_shirt-dw_release test_ood "$R" &
+  if [ "${BASELINES:-1}" = 1 ]; then  # Guo et al.'s rows on the same sequences
+    C="$W/release/t_shirt-coarse.pt"; G="$W/release/t_shirt-wrinkles.pt"
+    ev t_shirt-base test_id base &
+    ev t_shirt-base test_ood base --coarse "$C" &
+    ev t_shirt-coarse test_ood "$C" &
+    for s in 0 1 2; do
+      ev t_shirt-ours-s$s test_id "$G" --sample-seed $s &
+      ev t_shirt-ours-s$s test_ood "$G" --sample-seed $s --coarse "$C" &
+    done
+  fi
   wait
 fi
 
