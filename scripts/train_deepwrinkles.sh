@@ -18,6 +18,8 @@
 # per evaluation (default 6), EXTRA_SET more --set options of the trainings, DEVICE (default cuda),
 # DATA_CONFIG the generator config, LOADERS data-loader workers per training (default 4),
 # TRAIN_DEVICES the devices of the three trainings (e.g. "cuda:0 cuda:1 cuda:1" on two GPUs),
+# RELEASE_MODEL a release file (e.g. pretrained/t_shirt-deepwrinkles.pt) evaluated as the shipped-size
+# model instead of training one (its data is made again bit for bit from the same config),
 # BASELINE_DEVICE the device of Guo et al.'s two (default: the first of TRAIN_DEVICES), BASELINE_SET
 # their --set options.
 set -u -o pipefail
@@ -70,7 +72,7 @@ if stage train; then
   read -r dev_dw dev_notemp dev_release <<< "${TRAIN_DEVICES:-$DEVICE $DEVICE $DEVICE}"
   train dw deepwrinkles $CFG "$dev_dw" $SET &
   train dw-notemp deepwrinkles $CFG "$dev_notemp" $SET --set model.temporal_weight=0.0 &
-  train release deepwrinkles $CFG "$dev_release" $SET $RELEASE_SET &
+  [ -z "${RELEASE_MODEL:-}" ] && train release deepwrinkles $CFG "$dev_release" $SET $RELEASE_SET &
   if [ "${BASELINES:-1}" = 1 ]; then  # Guo et al.'s models with their configs' settings (BASELINE_SET: more)
     bdev=${BASELINE_DEVICE:-$dev_dw}
     train coarse coarse pipelines/configs/train/coarse.toml "$bdev" ${BASELINE_SET:-} &
@@ -82,10 +84,11 @@ fi
 
 if stage export; then
   log "export"
-  for name in dw dw-notemp release; do
+  names="dw dw-notemp"; [ -z "${RELEASE_MODEL:-}" ] && names="$names release"
+  for name in $names; do
     $PY -m learn.train.export "$W/runs/$name/checkpoints/last.pt" "$W/release/t_shirt-$name.pt"
   done
-  cp "$W/release/t_shirt-release.pt" "$W/release/t_shirt-deepwrinkles.pt"
+  cp "${RELEASE_MODEL:-$W/release/t_shirt-release.pt}" "$W/release/t_shirt-deepwrinkles.pt"
   if [ "${BASELINES:-1}" = 1 ]; then
     for name in coarse wrinkles; do
       $PY -m learn.train.export "$W/runs/$name/checkpoints/last.pt" "$W/release/t_shirt-$name.pt"
