@@ -33,6 +33,7 @@ ROWS = [
     ("ours", "ours, strain-norm conditioning (shipped)"),
     ("deepwrinkles", "DeepWrinkles (Lähner et al. 2018; global shape from the body)"),
     ("dw_release", "DeepWrinkles, shipped size (16 filters, k = 200, 2 LSTM layers)"),
+    ("dw_upper", "DeepWrinkles, upper-body joints as controls (Sec. 5.3)"),
 ]
 METRICS = [
     ("ev", "Ev [mm]", 1e3),

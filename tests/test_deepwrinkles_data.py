@@ -212,6 +212,7 @@ def test_bad_settings_are_refused():
         {"temporal_weight": -1.0},
         {"window": 0},
         {"regression_windows": 0},
+        {"control_joints": "arms"},
     ):
         with pytest.raises(ValueError, match=next(iter(bad))):
             DeepWrinklesMethod.validate_config(DeepWrinklesConfig(**bad), ValueError)

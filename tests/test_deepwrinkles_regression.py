@@ -13,6 +13,7 @@ from learn.deepwrinkles.regression import (
     ROOT_MOTION,
     LinearPoseToShape,
     PoseToShapeLSTM,
+    control_columns,
     control_vectors,
     windows,
 )
@@ -103,3 +104,24 @@ def test_windows_end_at_each_frame_and_bad_input_is_refused():
         LinearPoseToShape.fit(np.zeros((4, 2)), np.zeros((3, 1)))
     with pytest.raises(WrinklesInputError, match=r"\(B, W, 4\)"):
         PoseToShapeLSTM(4, 2, hidden=8, layers=1)(torch.zeros(2, 3, 5))
+
+
+def test_upper_body_controls_follow_the_arms_and_ignore_the_legs():
+    """Sec. 5.3's restriction for shirts: Θ keeps the upper body's joints and the root motion, so
+    bending a knee leaves it and bending an elbow or walking faster changes it."""
+    poses, trans = motion()
+    cols = control_columns("upper", 24)
+    assert len(cols) == 6 * 11 + ROOT_MOTION and len(control_columns("all", 24)) == 6 * 24 + ROOT_MOTION
+    base = control_vectors(poses, trans, 30.0)[:, cols]
+    knee, elbow = poses.copy(), poses.copy()
+    knee[:, 4] += [0.8, 0.0, 0.0]  # left knee
+    elbow[:, 18] += [0.0, 0.0, 0.8]  # left elbow
+    np.testing.assert_array_equal(control_vectors(knee, trans, 30.0)[:, cols], base)
+    assert np.abs(control_vectors(elbow, trans, 30.0)[:, cols] - base).max() > 0.1
+    faster = control_vectors(poses, 2 * trans, 30.0)[:, cols]  # twice the root velocity and acceleration
+    np.testing.assert_allclose(faster[:, -ROOT_MOTION:], 2 * base[:, -ROOT_MOTION:], rtol=1e-5, atol=1e-6)
+    lower = control_columns("lower", 24)
+    np.testing.assert_array_equal(control_vectors(elbow, trans, 30.0)[:, lower],
+                                  control_vectors(poses, trans, 30.0)[:, lower])
+    with pytest.raises(WrinklesInputError, match="need 20 joints, the motion has 10"):
+        control_columns("upper", 10)

@@ -318,16 +318,18 @@ def check_training_items(method, sample_dataset) -> None:
 @pytest.mark.slow
 def test_deepwrinkles_trains_predicts_and_is_evaluated(sample_dataset, tmp_path):
     """DeepWrinkles end to end on the sample's t-shirts (the simulation as a perfect registration,
-    tiny networks): the fitted subspace reproduces the training shapes, the prediction is on the
-    fine topology with unit normal maps inside the UV charts, and ``evaluate`` gives its row."""
+    tiny networks, the upper body's joints as controls): the fitted subspace reproduces the
+    training shapes, the prediction is on the fine topology with unit normal maps inside the UV
+    charts, and ``evaluate`` gives its row."""
     from learn.train.trainer import load_trained
 
     out = tmp_path / "dw"
     settings = ("garments=['t_shirt']", "source='simulation'", "resolution=32", "filters=4", "hidden=16",
-                "layers=1", "components=16")
+                "layers=1", "components=16", "control_joints='upper'")
     small = [a for kv in settings for a in ("--set", f"model.{kv}")]
     assert train_two_steps("deepwrinkles", sample_dataset, out, *small) == 0
     method, model, _ = load_trained(out / "checkpoints" / "last.pt")
+    assert method.state["control_mean"].numel() == 6 * 11 + 6  # 11 upper-body joints and the root motion
     sub = method.subspace()
     assert sub.size <= 16 and 0.0 < sub.variance_kept(1) <= sub.variance_kept() <= 1.0 + 1e-9
     check_training_items(method, sample_dataset)

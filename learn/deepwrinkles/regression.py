@@ -31,6 +31,30 @@ ROOT_MOTION = 6
 """Control-vector entries after the joints' 6D rotations: root velocity [m/s], acceleration [m/s²]."""
 
 
+CONTROL_JOINTS = {
+    "all": None,
+    "upper": (0, 3, 6, 9, 12, 13, 14, 16, 17, 18, 19),
+    "lower": (0, 1, 2, 3, 4, 5, 7, 8),
+}
+"""Joints whose rotations enter Θ (SMPL order: pelvis, spine 1-3, neck, collars, shoulders, elbows
+for "upper"; pelvis, hips, spine 1, knees, ankles for "lower"; None: every joint). Sec. 5.3:
+the joint parameters are restricted to those of the piece of clothing (the upper body for
+shirts) to lower the regression's dimension."""
+
+
+def control_columns(joints: str, num_joints: int) -> np.ndarray:
+    """Columns of the control vectors of ``control_vectors`` (``num_joints`` joints) that a
+    ``CONTROL_JOINTS`` set keeps: the 6D rotations of its joints and the root motion."""
+    keep = CONTROL_JOINTS[joints]
+    if keep is None:
+        return np.arange(6 * num_joints + ROOT_MOTION)
+    if max(keep) >= num_joints:
+        raise WrinklesInputError(f"control joints {joints!r} need {max(keep) + 1} joints, "
+                                 f"the motion has {num_joints}")
+    rot = (6 * np.asarray(keep)[:, None] + np.arange(6)).ravel()
+    return np.concatenate([rot, 6 * num_joints + np.arange(ROOT_MOTION)])
+
+
 def heading_rotations(root: np.ndarray) -> np.ndarray:
     """Rotations about +Y (up) that carry +Z to each root rotation's forward axis projected on the
     ground, (T, 3, 3), from root rotations (T, 3, 3); +Z where the forward axis points up or down."""

@@ -179,7 +179,7 @@ def fit_state(method, root) -> dict[str, torch.Tensor]:
             controls.append(prep.controls)
     sub = fit_subspace(np.concatenate(shapes), cfg.components, device="cpu")
     print(subspace_report(sub), file=sys.stderr)
-    th = np.concatenate(controls).astype(np.float64)
+    th = method.select_controls(np.concatenate(controls)).astype(np.float64)
     mean, std = th.mean(0), np.maximum(th.std(0), 1e-6)
     coeffs = np.concatenate([sub.encode(s) for s in shapes])
     scale = np.maximum(coeffs.std(0), 1e-9)

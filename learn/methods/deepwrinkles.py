@@ -54,6 +54,9 @@ class DeepWrinklesConfig:
     """LSTM layers of the encoder and the decoder (Sec. 5.3: 4)."""
     window: int = 3
     """Frames per LSTM window (Sec. 5.3: 3)."""
+    control_joints: str = "all"
+    """Joints of Θ (``regression.CONTROL_JOINTS``): "all", "upper" (Sec. 5.3's choice for shirts)
+    or "lower"."""
     ridge: float = 1e-3
     """Ridge of the linear map (on normalised controls)."""
     resolution: int = 256
@@ -130,6 +133,7 @@ class DeepWrinklesMethod(Method):
             "source": SOURCES,
             "norm": ("batch", "instance"),
             "temporal_kind": ("eq4", "l1", "l2"),
+            "control_joints": ("all", "upper", "lower"),  # regression.CONTROL_JOINTS
         }
         for f, allowed in choices.items():
             if getattr(config, f) not in allowed:
@@ -173,10 +177,18 @@ class DeepWrinklesMethod(Method):
             frames=int(s["frames"]),
         )
 
+    def select_controls(self, controls: np.ndarray) -> np.ndarray:
+        """The columns of control vectors (..., 6 J + 6) of ``config.control_joints``."""
+        from learn.deepwrinkles.regression import ROOT_MOTION, control_columns
+
+        num_joints = (controls.shape[-1] - ROOT_MOTION) // 6
+        return controls[..., control_columns(self.config.control_joints, num_joints)]
+
     def normalise_controls(self, controls: np.ndarray) -> np.ndarray:
-        """Control vectors (T, C) in units of the training frames' mean and standard deviation,
-        what both pose-to-shape maps read."""
-        return (controls - self.state["control_mean"].numpy()) / self.state["control_std"].numpy()
+        """Control vectors (T, 6 J + 6), their ``control_joints`` columns in units of the training
+        frames' mean and standard deviation: what both pose-to-shape maps read."""
+        s = self.state
+        return (self.select_controls(controls) - s["control_mean"].numpy()) / s["control_std"].numpy()
 
     def build_model(self) -> nn.Module:
         if not self.state:
