@@ -27,6 +27,7 @@ from pipelines import (
 )
 from pipelines.interrupts import interruption, restore_sigterm, terminate_as_interrupt
 from pipelines.options import join_negative_values
+from pipelines.progress import quiet_progress
 from sim import __version__
 from sim.errors import WrinklesInputError
 
@@ -73,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     previous = terminate_as_interrupt()
     try:
-        code = int(args._run(args) or 0)
+        with quiet_progress(getattr(args, "quiet", False)):  # also the bars of library code
+            code = int(args._run(args) or 0)
         sys.stdout.flush()  # here, where a closed pipe is caught, not at the interpreter's exit
         return code
     except WrinklesInputError as e:

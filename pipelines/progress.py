@@ -9,12 +9,15 @@ rate, the time spent and the time left::
 
     wrinkle sampling: 16/60 frames (27%), 3.25 s/frame, 0:52 elapsed, ETA 2:22
 
-``--quiet`` gives a callback that does nothing.
+``--quiet`` gives a callback that does nothing, also to library code that draws its own bars
+(a method's data preparation inside ``wrinkles train``): the CLI runs a quiet command inside
+``quiet_progress``.
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import sys
 import threading
 import time
@@ -176,6 +179,20 @@ def is_terminal(stream: TextIO) -> bool:
         return False
 
 
+_QUIET = contextvars.ContextVar("wrinkles_quiet_progress", default=False)
+
+
+@contextlib.contextmanager
+def quiet_progress(quiet: bool = True):
+    """Every ``progress_bar`` opened inside the block is quiet when ``quiet`` (a command's
+    ``--quiet`` reaching bars it does not open itself)."""
+    token = _QUIET.set(bool(quiet) or _QUIET.get())
+    try:
+        yield
+    finally:
+        _QUIET.reset(token)
+
+
 @contextlib.contextmanager
 def progress_bar(total: int, desc: str, *, quiet: bool = False, unit: str = "frame",
                  stream: TextIO | None = None):
@@ -183,7 +200,7 @@ def progress_bar(total: int, desc: str, *, quiet: bool = False, unit: str = "fra
     one stage: a tqdm bar on a terminal, progress lines elsewhere (``ProgressLines``), nothing
     when ``quiet``. ``total`` may be 0 when it is known only once the work starts; ``note`` is
     a short status shown after the count (e.g. "loss 0.012")."""
-    if quiet:
+    if quiet or _QUIET.get():
         yield lambda done, total=None, *, note=None: None
         return
     stream = sys.stderr if stream is None else stream

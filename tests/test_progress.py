@@ -113,6 +113,22 @@ def test_progress_bar_picks_tqdm_on_a_terminal_lines_elsewhere_nothing_when_quie
     assert quiet.getvalue() == ""
 
 
+def test_quiet_progress_silences_bars_opened_inside_it_and_only_there(monkeypatch):
+    """A command's --quiet reaches the bars of code it calls (a method preparing its data opens
+    its own): inside ``quiet_progress`` every bar is quiet, nested blocks cannot undo it, and
+    after the block bars write again."""
+    monkeypatch.setattr(P, "PROGRESS_INTERVAL", 0.0)
+    inside, after = io.StringIO(), io.StringIO()
+    with P.quiet_progress():
+        with P.quiet_progress(False):  # an inner block without --quiet stays quiet
+            with P.progress_bar(2, "preparing sequences", stream=inside) as progress:
+                progress(2, 2)
+    assert inside.getvalue() == ""
+    with P.quiet_progress(False), P.progress_bar(2, "preparing sequences", stream=after) as progress:
+        progress(2, 2)
+    assert after.getvalue().splitlines()[0] == "preparing sequences: 0/2 frames (0%), started"
+
+
 def test_lazy_bar_opens_at_the_first_callback_and_closes_with_its_block(monkeypatch):
     out = io.StringIO()
     monkeypatch.setattr(sys, "stderr", out)
