@@ -120,6 +120,8 @@ class DeepWrinklesMethod(Method):
 
     @classmethod
     def validate_config(cls, config: DeepWrinklesConfig, err) -> None:
+        from learn.deepwrinkles.regression import CONTROL_JOINTS
+
         positive = ("components", "hidden", "layers", "window", "filters", "register_every", "infer_batch",
                     "workers", "regression_windows")
         for f in positive:
@@ -133,7 +135,7 @@ class DeepWrinklesMethod(Method):
             "source": SOURCES,
             "norm": ("batch", "instance"),
             "temporal_kind": ("eq4", "l1", "l2"),
-            "control_joints": ("all", "upper", "lower"),  # regression.CONTROL_JOINTS
+            "control_joints": tuple(CONTROL_JOINTS),
         }
         for f, allowed in choices.items():
             if getattr(config, f) not in allowed:
