@@ -8,6 +8,7 @@ plain ``python`` run is world size 1 and touches no process group.
 
 from __future__ import annotations
 
+import gc
 import os
 from dataclasses import dataclass
 
@@ -70,10 +71,22 @@ def init_distributed(device: str = "auto") -> DistContext:
     return DistContext(rank=rank, world_size=world, local_rank=local, device=dev)
 
 
-def shutdown(ctx: DistContext) -> None:
-    """Leave the process group (if this run joined one)."""
+def shutdown(ctx: DistContext, *, together: bool = True) -> None:
+    """Leave the process group (if this run joined one).
+
+    The DDP wrapper sits in a reference cycle and holds the group: collecting it first frees the
+    group's worker threads while the interpreter is alive (a gloo group freed during interpreter
+    finalisation aborts the process: "terminate called without an active exception"). With
+    ``together`` (a run that finished on every process) a barrier first keeps one process from
+    tearing down its connections while another still works; a failed run leaves at once, since
+    the other processes may never reach a barrier.
+    """
     if ctx.distributed and dist.is_initialized():
+        gc.collect()
+        if together:
+            dist.barrier()
         dist.destroy_process_group()
+        gc.collect()
 
 
 def barrier(ctx: DistContext) -> None:

@@ -187,10 +187,13 @@ class Trainer:
     def fit(self) -> TrainSummary:
         """Train to ``config.train.steps`` (or until interrupted); returns a summary."""
         ctx = D.init_distributed(self.config.train.device)
+        finished = False
         try:
-            return self._fit(ctx)
+            summary = self._fit(ctx)
+            finished = True
+            return summary
         finally:
-            D.shutdown(ctx)
+            D.shutdown(ctx, together=finished)
 
     def _fit(self, ctx: D.DistContext) -> TrainSummary:
         t0 = time.perf_counter()
