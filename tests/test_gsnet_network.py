@@ -1,0 +1,157 @@
+"""GSNet's network (learn.gsnet.network): equivariance, batching, the untrained network's skinning."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from learn.graph import mesh_edges
+from learn.gsnet.data import Template, garment_batch
+from learn.gsnet.features import TEMPLATE_FEATURES
+from learn.gsnet.network import GarmentEncoder, GSNet, apply_transforms, blend
+from sim.rotations import axis_angle_to_matrix
+from tests.test_graph import grid_faces
+
+PARENTS = np.array([-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21])
+
+
+def template(nx: int, ny: int, seed: int) -> Template:
+    rng = np.random.default_rng(seed)
+    faces = grid_faces(nx, ny).astype(np.int32)
+    n = nx * ny
+    rest = np.stack(np.meshgrid(np.linspace(0, 0.4, nx), np.linspace(0, 0.3, ny)), -1).reshape(-1, 2)
+    rest = np.concatenate([rest, 0.05 * rng.normal(size=(n, 1))], 1).astype(np.float32)
+    w = rng.random((n, 24)).astype(np.float32) ** 4
+    feats = rng.normal(size=(n, TEMPLATE_FEATURES)).astype(np.float32)
+    return Template(feats, rest, faces, mesh_edges(faces), w / w.sum(1, keepdims=True))
+
+
+def motion(frames: int, garments: int, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
+    rng = np.random.default_rng(seed)
+    rot = axis_angle_to_matrix(0.3 * rng.normal(size=(garments * frames * 24, 3))).astype(np.float32)
+    a = np.concatenate([rot, 0.05 * rng.normal(size=(rot.shape[0], 3, 1)).astype(np.float32)], -1)
+    roots = np.cumsum(0.02 * rng.normal(size=(garments, frames, 3)), 1).astype(np.float32)
+    return torch.from_numpy(a.reshape(garments, frames, 24, 3, 4)), torch.from_numpy(roots)
+
+
+def net(**kw) -> GSNet:
+    torch.manual_seed(0)
+    return GSNet(TEMPLATE_FEATURES, width=32, node=8, parents=PARENTS, **kw)
+
+
+def randomise_heads(model: GSNet) -> None:
+    """Give the zero-initialised last layers values, so every path of the network matters."""
+    g = torch.Generator().manual_seed(5)
+    for head in [model.skinning.head[-1], *([model.regression.head[-1]] if model.regression else [])]:
+        with torch.no_grad():
+            head.weight.copy_(0.05 * torch.randn(head.weight.shape, generator=g))
+
+
+def permuted(t: Template, perm: np.ndarray) -> Template:
+    """The same garment with vertex i renamed inv[i] (new vertex k is old vertex perm[k])."""
+    inv = np.argsort(perm)
+    faces = inv[t.faces].astype(np.int32)
+    return Template(t.features[perm], t.rest[perm], faces, mesh_edges(faces), t.skin_weights[perm])
+
+
+@pytest.mark.parametrize("operator", ["laplacian", "adjacency"])
+def test_encoder_is_permutation_equivariant(operator):
+    t = template(5, 4, 0)
+    perm = np.random.default_rng(1).permutation(t.num_vertices)
+    model = net(operator=operator)
+    outs = []
+    for tt in (t, permuted(t, perm)):
+        enc = model.encode(garment_batch([tt]))
+        outs.append(enc.features)
+    torch.testing.assert_close(outs[1], outs[0][perm], atol=1e-5, rtol=1e-5)
+
+
+def test_rollout_is_permutation_equivariant():
+    t = template(5, 4, 0)
+    perm = np.random.default_rng(2).permutation(t.num_vertices)
+    model = net()
+    randomise_heads(model)
+    a, roots = motion(5, 1, 3)
+    outs = [model(garment_batch([tt]), a, roots, None)[1] for tt in (t, permuted(t, perm))]
+    torch.testing.assert_close(outs[1], outs[0][:, perm], atol=1e-5, rtol=1e-5)
+
+
+def test_a_batch_of_topologies_equals_each_garment_alone():
+    ts = [template(5, 4, 0), template(3, 6, 1), template(7, 2, 2)]
+    model = net()
+    randomise_heads(model)
+    a, roots = motion(4, 3, 4)
+    together = model(garment_batch(ts), a, roots, None)[1]
+    offsets = np.cumsum([0] + [t.num_vertices for t in ts])
+    for i, t in enumerate(ts):
+        alone = model(garment_batch([t]), a[i:i + 1], roots[i:i + 1], None)[1]
+        torch.testing.assert_close(together[:, offsets[i]:offsets[i + 1]], alone, atol=1e-5, rtol=1e-5)
+
+
+def test_untrained_network_is_blend_skinning_with_its_learned_edges():
+    t = template(4, 4, 0)
+    model = net()
+    a, roots = motion(4, 1, 5)
+    g = garment_batch([t])
+    skinned, final = model(g, a, roots, None)
+    enc = model.encode(g)
+    torch.testing.assert_close(enc.joint_edges.sum(1), torch.ones(16))  # a softmax over the joints
+    for k in range(2, 4):
+        ref = apply_transforms(blend(enc.joint_edges, a[:, k], g.segment), g.rest) + roots[0, k]
+        torch.testing.assert_close(skinned[k - 2], ref)
+    torch.testing.assert_close(final, skinned)
+
+
+def test_without_learned_edges_the_prior_is_the_bodys_skinning():
+    t = template(4, 4, 0)
+    model = net(learned_edges=False)
+    a, roots = motion(3, 1, 6)
+    g = garment_batch([t])
+    skinned, _ = model(g, a, roots, None)
+    w = torch.from_numpy(t.skin_weights)
+    ref = torch.einsum("nj,jab->nab", w, a[0, 2])
+    torch.testing.assert_close(skinned[0], apply_transforms(ref, g.rest) + roots[0, 2])
+
+
+def test_regression_moves_only_the_filtered_vertices():
+    t = template(4, 4, 0)
+    model = net()
+    randomise_heads(model)
+    a, roots = motion(3, 1, 7)
+    g = garment_batch([t])
+    inside = torch.zeros(16, dtype=torch.bool)
+    inside[[1, 5, 9]] = True
+
+    def anchors(x, k):  # a plane through each vertex, facing away for the "inside" ones
+        n = torch.zeros_like(x)
+        n[:, 1] = torch.where(inside, 1.0, -1.0)
+        return x - 0.01 * n * torch.where(inside, -1.0, 1.0)[:, None], n
+
+    skinned, final = model(g, a, roots, None, anchors=anchors, eps=0.0)
+    moved = (final[0] - skinned[0]).norm(dim=1) > 0
+    assert moved.tolist() == inside.tolist()
+
+
+def test_forward_is_deterministic():
+    t = template(5, 5, 0)
+    a, roots = motion(5, 1, 8)
+    outs = []
+    for _ in range(2):
+        model = net()
+        randomise_heads(model)
+        outs.append(model(garment_batch([t]), a, roots, None)[1])
+    assert torch.equal(outs[0], outs[1])
+
+
+def test_encoder_features_concatenate_the_global_maximum():
+    torch.manual_seed(0)
+    enc = GarmentEncoder(TEMPLATE_FEATURES, 16)
+    g = garment_batch([template(4, 3, 0), template(3, 3, 1)])
+    from learn.graph import normalised_operator
+
+    w = torch.ones(g.mesh[0].shape[0])
+    out = enc(normalised_operator(g.mesh[0], g.mesh[1], w, 21), g.features, g.segment, 2)
+    local, glob = out[:, :16], out[:, 16:]
+    torch.testing.assert_close(glob[:12], local[:12].max(0).values.expand(12, 16))
+    torch.testing.assert_close(glob[12:], local[12:].max(0).values.expand(9, 16))
