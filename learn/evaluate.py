@@ -233,6 +233,9 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         seq["body/model"] = np.asarray(body_name)  # which body to re-pose (Method.predict_sequence)
         seq["fps"] = np.asarray(float((manifest.get("config") or {}).get("fps") or 30.0))
         seq["sequence/path"] = np.asarray(str(sf.path))
+        seq["garment/material"] = np.asarray(str(entry.get("material") or ""))
+        if entry.get("garment_betas") is not None:
+            seq["garment/betas"] = np.asarray(entry["garment_betas"], np.float32)
         opts = dict(predict_options or {})
         if coarse is not None:
             opts["base"] = coarse[0].predict_sequence(coarse[1], seq, device=dev).vertices

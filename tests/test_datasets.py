@@ -89,6 +89,9 @@ def _load(tmp_path, text):
     (("ood_motions = [\"arm_raise\"]", "ood_motions = [\"jump\"]"), "not a configured motion"),
     (("ood_motions = [\"arm_raise\"]", "ood_motions = [\"arm_raise\", \"walk\"]"),
      "nothing is left to train"),
+    (("ood_motions = [\"arm_raise\"]", "ood_garments = [\"dress\"]"), "not a configured garment category"),
+    (("ood_motions = [\"arm_raise\"]", "ood_garments = [\"t_shirt\", \"straight_skirt\"]"),
+     "nothing is left to train"),
     (("test_fraction = 0.5", "test_fraction = 1.5"), "test_fraction"),
     (("substeps = 2", "substeps = -1"), "[simulation]"),
     (("substeps = 2", "substep = 2"), "unknown key"),
@@ -159,6 +162,11 @@ def test_sampling_is_deterministic_and_index_local(tmp_path):
             assert lo <= s.garment_params["length"] <= hi
         assert s.split == "test_ood" if s.motion == "arm_raise" else s.split in ("train", "test_id")
         assert len(s.betas) == 2 and all(abs(x) <= 2.5 for x in s.betas)
+    held = sample_sequences(replace(cfg, sequences=9, split=replace(cfg.split, ood_garments=("t_shirt",))))
+    for s, h in zip(more, held, strict=True):  # holding a garment out moves only its sequences
+        assert h.split == ("test_ood" if s.category == "t_shirt" else s.split)
+        assert (h.category, h.betas, h.motion) == (s.category, s.betas, s.motion)
+    assert {s.category for s in more} == {"t_shirt", "straight_skirt"}
     parts = [shard_indices(9, i, 4) for i in range(4)]
     assert sorted(sum(parts, [])) == list(range(9))
 

@@ -47,7 +47,8 @@ def make_template(seq: Mapping[str, np.ndarray], body, material: str, *, neighbo
 
     Args:
         seq: holds ``fine/rest_vertices``, ``fine/faces``, ``fine/uvs``, ``fine/uv_faces``,
-            ``body/betas`` (``fine/face_layers`` optional).
+            ``body/betas`` (``fine/face_layers`` optional; ``garment/betas``, the shape the garment
+            was made on, when it differs from the body's: a reference-fit dataset).
         body: the ``BodyModel`` the garment was made on; material: preset name.
         neighbours: body vertices blended for each garment vertex's skinning weights.
     """
@@ -55,7 +56,7 @@ def make_template(seq: Mapping[str, np.ndarray], body, material: str, *, neighbo
 
     rest = np.array(seq["fine/rest_vertices"], np.float32)
     faces = np.array(seq["fine/faces"], np.int32)
-    betas = np.asarray(seq["body/betas"], np.float32).reshape(-1)[: body.num_betas]
+    betas = rest_betas(seq, body)
     root = body.rest_joints(betas)[0]
     layers = seq.get("fine/face_layers")
     feats = template_features(rest, faces, np.asarray(seq["fine/uvs"]), np.asarray(seq["fine/uv_faces"]),
@@ -64,11 +65,21 @@ def make_template(seq: Mapping[str, np.ndarray], body, material: str, *, neighbo
     return Template(feats, rest, faces, mesh_edges(faces), np.asarray(weights, np.float32))
 
 
+def rest_betas(seq: Mapping[str, np.ndarray], body) -> np.ndarray:
+    """The body shape the sequence's garment was made on: ``garment/betas``, else ``body/betas``."""
+    b = seq.get("garment/betas")
+    b = seq["body/betas"] if b is None or np.asarray(b).size == 0 else b
+    return np.asarray(b, np.float32).reshape(-1)[: body.num_betas]
+
+
 def motion_of(seq: Mapping[str, np.ndarray], body) -> tuple[np.ndarray, np.ndarray]:
-    """Root-relative bone transforms (T, 24, 3, 4) and roots (T, 3) of a sequence's body."""
-    betas = np.asarray(seq["body/betas"], np.float32).reshape(-1)[: body.num_betas]
+    """Root-relative bone transforms (T, 24, 3, 4) and roots (T, 3) of a sequence's body.
+
+    The transforms carry the rest joints of the garment's shape (``rest_betas``) to the posed
+    joints, so a garment made on the mean body follows a shaped body's joints.
+    """
     return body_motion(np.asarray(seq["body/poses"]), np.asarray(seq["body/joints"]),
-                       body.rest_joints(betas), np.asarray(body.parents))
+                       body.rest_joints(rest_betas(seq, body)), np.asarray(body.parents))
 
 
 def garment_batch(templates: list[Template]) -> GarmentBatch:

@@ -37,6 +37,9 @@ JOINT_FEATURES = 24
 """Raw features of a joint per frame: its 3 x 4 bone transform (root-relative) at t and t-1."""
 PREVIOUS_FEATURES = 6
 """Raw temporal features of a vertex: previous position (root-relative at t) [m] and velocity [m/s]."""
+EDGE_PRIOR_FLOOR = 1.0e-4
+"""Smallest prior weight of a vertex-joint edge (log 1e-4 = -9.2: a joint the body's skinning
+ignores can still be learned)."""
 REGRESSION_FEATURES = 10
 """Geometric inputs of the regression: position, offset from and normal of the nearest body
 vertex, and the signed distance along that normal."""
@@ -111,11 +114,23 @@ class DeepSkinning(nn.Module):
                                     GraphConv(width, width, nn.ReLU())])
         self.head = mlp([width, width, width // 2, width // 4, 12], zero_last=True)
 
-    def joint_edges(self, encoded: torch.Tensor) -> torch.Tensor:
-        """Learned vertex-joint edge weights (N, 24), a softmax over the joints."""
+    def joint_edges(self, encoded: torch.Tensor, prior: torch.Tensor | None = None) -> torch.Tensor:
+        """Learned vertex-joint edge weights (N, 24), a softmax over the joints.
+
+        Args:
+            encoded: encoder features (N, C).
+            prior: weights (N, 24) whose logarithms offset the logits (the body's skinning weights
+                carried to the garment), None: none. With the prior the network learns how the
+                garment departs from the body's skinning rather than the skinning itself: an
+                untrained network's garment then follows the body instead of the mean of all 24
+                bones (at step 0 on the sample dataset 0.20 m from the simulation without it).
+        """
         if self.edges is None:
             raise RuntimeError("this network's vertex-joint edges are the body's skinning weights")
-        return torch.softmax(self.edges(encoded), dim=-1)
+        logits = self.edges(encoded)
+        if prior is not None:
+            logits = logits + prior.clamp_min(EDGE_PRIOR_FLOOR).log()
+        return torch.softmax(logits, dim=-1)
 
     def forward(self, graph: Graph, encoded: torch.Tensor, previous: torch.Tensor,
                 joints: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -211,15 +226,18 @@ class GSNet(nn.Module):
         width: graph feature width (the paper's 128); node: node width of the joint graphs.
         operator: "laplacian" (Eq. 2-3) or "adjacency" (``learn.graph.OPERATORS``).
         learned_edges: False: the vertex-joint edges are the body's transferred skinning weights.
+        edge_prior: the learned edges' logits are offset by the log of those weights
+            (``DeepSkinning.joint_edges``).
         regression: with the physical regression stage (Sec. 3.4).
         parents: the skeleton's parent indices (24,).
     """
 
     def __init__(self, in_features: int, *, width: int = 128, node: int = 32, operator: str = "laplacian",
-                 learned_edges: bool = True, regression: bool = True, parents=None):
+                 learned_edges: bool = True, edge_prior: bool = True, regression: bool = True, parents=None):
         super().__init__()
         self.operator = operator
         self.learned_edges = learned_edges
+        self.edge_prior = edge_prior
         self.encoder = GarmentEncoder(in_features, width)
         self.skinning = DeepSkinning(2 * width, width, node, learned_edges=learned_edges)
         self.regression = PhysicalRegression(width, node) if regression else None
@@ -235,7 +253,10 @@ class GSNet(nn.Module):
         w = torch.ones(garments.mesh[0].shape[0], dtype=feats.dtype, device=feats.device)
         mesh_op = normalised_operator(garments.mesh[0], garments.mesh[1], w, n, self.operator)
         encoded = self.encoder(mesh_op, garments.features, garments.segment, g)
-        edges = self.skinning.joint_edges(encoded) if self.learned_edges else garments.skin_weights
+        if self.learned_edges:
+            edges = self.skinning.joint_edges(encoded, garments.skin_weights if self.edge_prior else None)
+        else:
+            edges = garments.skin_weights
         graph = skinning_graph(garments.mesh, edges, garments.segment, self.parents, g, self.operator)
         return Encoded(encoded, edges, graph)
 
@@ -274,7 +295,7 @@ class GSNet(nn.Module):
 
     def forward(self, garments: GarmentBatch, transforms: torch.Tensor, roots: torch.Tensor,
                 history: torch.Tensor | None, *, anchors=None, fps: float = 30.0, temporal: bool = True,
-                cold: torch.Tensor | None = None, eps: float = 4.0e-3) -> tuple[torch.Tensor, torch.Tensor]:
+                cold: torch.Tensor | None = None, eps: float = 1.0e-3) -> tuple[torch.Tensor, torch.Tensor]:
         """Roll the garments out over frames 2 .. T-1 of their bodies' motion (Eq. 1, each frame
         fed the previous outputs).
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 from learn.methods.base import LossOutput, Method, Prediction
 from learn.methods.deepwrinkles import DeepWrinklesMethod
 from learn.methods.displacement_regressor import DisplacementRegressorMethod
+from learn.methods.gsnet import GSNetMethod
 from learn.methods.skeleton_cvae import SkeletonCVAEMethod
 from learn.methods.skinned_mlp import SkinnedMLPMethod
 from learn.methods.wrinkle_diffusion import WrinkleDiffusionMethod
@@ -19,6 +20,7 @@ METHODS: dict[str, type[Method]] = {
     WrinkleDiffusionMethod.name: WrinkleDiffusionMethod,
     DisplacementRegressorMethod.name: DisplacementRegressorMethod,
     DeepWrinklesMethod.name: DeepWrinklesMethod,
+    GSNetMethod.name: GSNetMethod,
 }
 
 METHOD_ALIASES: dict[str, str] = {"coarse": SkeletonCVAEMethod.name, "wrinkles": WrinkleDiffusionMethod.name}

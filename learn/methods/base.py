@@ -20,8 +20,10 @@ inference loop):
   (noise, timesteps) use ``generator``, a ``torch.Generator`` seeded per step and process;
 - ``predict_sequence(model, sequence, device)`` -> :class:`Prediction` for one whole sequence
   of a dataset (its arrays as numpy, ``sim.datasets.schema`` names, plus ``"body/model"``: the
-  body model's name or file as a 0-d string array, ``"fps"``, and ``"sequence/path"``: its file,
-  where a method caches per-sequence work); the evaluation harness
+  body model's name or file as a 0-d string array, ``"fps"``, ``"sequence/path"``: its file,
+  where a method caches per-sequence work, ``"garment/material"``: the material's preset
+  name, empty when unknown, and ``"garment/betas"`` where the garment was made on another shape
+  than the body's, a reference fit); the evaluation harness
   turns predictions into metrics, so every method is measured by the same code.
 """
 

@@ -40,6 +40,7 @@ shipped one)::
     test_fraction = 0.1      # in-distribution test share of the remaining sequences
     ood_motions = ["arm_raise"]   # these motions only in the out-of-distribution test
     ood_shape_norm = 2.0     # |betas| above this: out-of-distribution test
+    ood_garments = []        # garment categories only in the out-of-distribution test
 
     [simulation]             # sim.simulate.SimulationConfig fields
     substeps = 0             # 0: automatic, 12 (14 over 10k garment vertices)
@@ -152,11 +153,13 @@ class SplitConfig:
         test_fraction: share of the in-distribution sequences kept for the test_id split.
         ood_motions: motions (procedural names or file stems) only in test_ood.
         ood_shape_norm: sequences whose |betas| exceeds this go to test_ood (inf: none).
+        ood_garments: garment categories only in test_ood (a design no model trains on).
     """
 
     test_fraction: float = 0.1
     ood_motions: tuple[str, ...] = ()
     ood_shape_norm: float = float("inf")
+    ood_garments: tuple[str, ...] = ()
 
 
 POSITION_FORMATS = ("f32", "i16")
@@ -506,6 +509,11 @@ def _check_split(cfg: DatasetConfig, stems: list[str], err) -> None:
         raise err("[split] ood_motions holds every motion: nothing is left to train on")
     if not (isinstance(s.ood_shape_norm, (int, float)) and s.ood_shape_norm > 0):
         raise err(f"[split] ood_shape_norm must be > 0, got {s.ood_shape_norm!r}")
+    for name in s.ood_garments:
+        if name not in cfg.garments.categories:
+            raise err(f"[split] ood_garments: {name!r} is not a configured garment category")
+    if cfg.garments.categories and set(cfg.garments.categories) <= set(s.ood_garments):
+        raise err("[split] ood_garments holds every garment category: nothing is left to train on")
 
 
 def _check_derive(cfg: DatasetConfig, err) -> None:

@@ -86,7 +86,8 @@ def sample_sequence(cfg: DatasetConfig, index: int, files: list[Path] | None = N
         label = Path(motion).stem
     u = float(rng.random())
     s = cfg.split
-    if label in s.ood_motions or float(np.linalg.norm(betas)) > s.ood_shape_norm:
+    if (label in s.ood_motions or category in s.ood_garments
+            or float(np.linalg.norm(betas)) > s.ood_shape_norm):
         split = "test_ood"
     else:
         split = "test_id" if u < s.test_fraction else "train"
