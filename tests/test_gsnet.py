@@ -1,0 +1,120 @@
+"""GSNet as a method (learn.methods.gsnet, learn.gsnet.features / data) on the sample dataset."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from learn.gsnet.features import TEMPLATE_FEATURES, material_features, template_features, vertex_uvs
+from learn.methods.gsnet import GSNetConfig, GSNetMethod
+
+TINY = GSNetConfig(width=16, node=8)
+
+
+def test_vertex_uvs_take_each_vertexs_first_corner():
+    faces = np.array([[0, 1, 2], [2, 1, 3]])
+    uv_faces = np.array([[0, 1, 2], [4, 3, 5]])  # vertex 1 and 2 have a seam: two UV vertices each
+    uvs = np.arange(12, dtype=np.float32).reshape(6, 2)
+    got = vertex_uvs(faces, uvs, uv_faces, 5)
+    np.testing.assert_array_equal(got, [uvs[0], uvs[1], uvs[2], uvs[5], [0, 0]])
+
+
+def test_material_features_are_log_ratios_to_cotton():
+    from sim.garments.materials import get_material
+
+    np.testing.assert_array_equal(material_features("cotton"), np.zeros(3, np.float32))
+    d, c = get_material("denim"), get_material("cotton")
+    np.testing.assert_allclose(material_features("denim"),
+                               np.log10([d.density / c.density, d.youngs_modulus / c.youngs_modulus,
+                                         d.bending_stiffness / c.bending_stiffness]), rtol=1e-6)
+
+
+def test_template_features_of_a_flat_square():
+    rest = np.array([[0, 1, 0], [1, 1, 0], [0, 2, 0], [1, 2, 0]], np.float32)
+    faces = np.array([[0, 1, 2], [2, 1, 3]])
+    f = template_features(rest, faces, rest[:, :2] / 2, faces, "cotton", np.array([0, 1, 0]),
+                          face_layers=np.array([1.0, 3.0]))
+    assert f.shape == (4, TEMPLATE_FEATURES)
+    np.testing.assert_array_equal(f[:, :3], rest - [0, 1, 0])  # relative to the root
+    np.testing.assert_allclose(f[:, 3:6], np.tile([0, 0, 1], (4, 1)), atol=1e-6)  # counter-clockwise: +z
+    np.testing.assert_array_equal(f[:, 6:8], rest[:, :2] / 2)
+    np.testing.assert_array_equal(f[:, 11], [1, 2, 2, 3])  # mean layers of the faces around each vertex
+
+
+def test_rest_pose_keeps_the_template_where_it_was_made():
+    """Zero pose on the garment's own body shape: every bone transform is the identity, so the
+    untrained network's prior returns the rest garment, wherever the root stands."""
+    from learn.gsnet.data import garment_batch, make_template, motion_of
+    from sim.bodies import load_body
+
+    body = load_body("default")
+    betas = np.array([0.8, -0.4], np.float32)
+    rest = body.rest_mesh(betas)[::40] * 1.05  # a loose "garment" of body points
+    faces = np.array([[i, i + 1, i + 2] for i in range(0, len(rest) - 2, 3)], np.int32)
+    trans = np.array([[0.3, 1.1, -0.2], [0.3, 1.1, -0.2], [0.35, 1.1, -0.2]], np.float32)
+    poses = np.zeros((3, 24, 3), np.float32)
+    frames = body.pose(betas, poses, trans, device="cpu")
+    seq = {"fine/rest_vertices": rest, "fine/faces": faces, "fine/uvs": np.zeros((len(rest), 2), np.float32),
+           "fine/uv_faces": faces, "body/betas": betas, "body/poses": poses,
+           "body/joints": frames.joints[:, :24], "body/trans": trans}
+    t = make_template(seq, body, "cotton")
+    a, roots = motion_of(seq, body)
+    model = GSNetMethod(TINY).build_model()
+    g = garment_batch([t])
+    enc = model.encode(g)
+    x = model.prior(enc, g, torch.from_numpy(a[2])[None]) + torch.from_numpy(roots[2])
+    moved = rest + (frames.joints[2, 0] - body.rest_joints(betas)[0])
+    np.testing.assert_allclose(x.detach().numpy(), moved, atol=1e-5)
+
+
+def overfit_losses(root, steps: int, config: GSNetConfig = TINY) -> list[float]:
+    method = GSNetMethod(config)
+    ds = method.train_dataset(root)
+    batch = method.collate([ds[(i, i)] for i in range(0, len(ds), max(1, len(ds) // 4))][:4])
+    torch.manual_seed(0)
+    model = method.build_model()
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    losses = []
+    for _ in range(steps):
+        out = method.training_loss(model, batch, torch.Generator().manual_seed(0))
+        opt.zero_grad()
+        out.loss.backward()
+        opt.step()
+        losses.append(float(out.scalars["data"]))
+    return losses
+
+
+@pytest.mark.slow
+def test_tiny_overfit_lowers_the_data_term(sample_dataset):
+    losses = overfit_losses(sample_dataset, 100)  # 33 mm rms at step 0 (the skinning prior), 24 mm at 100
+    assert losses[-1] < 0.65 * losses[0]
+
+
+@pytest.mark.slow
+def test_a_garment_of_new_topology_runs_through_a_trained_network(sample_dataset, tmp_path):
+    """Trained on t-shirts only; a skirt (other topology, other body region) is animated too."""
+    from learn.evaluate import evaluate
+    from learn.train.config import RunConfig, TrainConfig
+    from learn.train.trainer import Trainer
+
+    cfg = RunConfig(method="gsnet", model=GSNetConfig(width=16, node=8, garments=("t_shirt",)),
+                    train=TrainConfig(steps=30, batch_size=2, device="cpu", log_every=10,
+                                      checkpoint_every=30))
+    trainer = Trainer(cfg, sample_dataset, tmp_path / "run")
+    trainer.fit()
+    model = trainer.method.build_model()
+    from learn.train.checkpoint import load_checkpoint
+
+    model.load_state_dict(load_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt")["model"])
+    ev = evaluate(trainer.method, model.eval(), sample_dataset, "all", garments=("straight_skirt",),
+                  image_resolution=0)
+    assert ev.sequences and all(s.garment == "straight_skirt" for s in ev.sequences)
+    assert np.isfinite(ev.summary["ev"]) and ev.summary["ev"] < 0.06  # the skirt follows the body
+    assert ev.summary["edge_abs"] < 0.2
+
+
+@pytest.mark.slow
+def test_training_is_deterministic(sample_dataset):
+    a, b = overfit_losses(sample_dataset, 3), overfit_losses(sample_dataset, 3)
+    assert a == b
