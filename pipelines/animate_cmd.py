@@ -48,6 +48,13 @@ wrinkles are in the shading, as DeepWrinkles renders them; Blender imports the f
 map), or (--surface fine) the fine garment moved to match the maps (the wrinkles in the geometry,
 no maps: on that surface they would count twice). Previews draw the fine garment either way.
 
+--method gsnet animates any garment with a GSNet checkpoint (--model, 'wrinkles train gsnet'):
+--garment is a template sewn for the body --shape gives (at --resolution), a garment file modelled
+around the rest body (as 'wrinkles simulate' takes it) or a GarmentCode pattern, in --material;
+the network reads the garment's own mesh, so a design it never saw needs no retraining. Body
+motion -> garment encoder + deep skinning (learned garment-joint edges) -> physical regression
+of the vertices inside the body, frame by frame from the previous frames.
+
 --body/--shape/--motion/--motion-param/--rest/--duration/--fps are those of 'wrinkles body'.
 
 examples:
@@ -60,6 +67,8 @@ examples:
       --motion run --out mine.usda
   wrinkles animate --method deepwrinkles --model runs/dw/checkpoints/last.pt \\
       --motion walk --shape height=0.6 --out out/dw_walk.usdc --preview out/dw_walk.mp4
+  wrinkles animate --method gsnet --model runs/gsnet/checkpoints/last.pt --garment flared_skirt \\
+      --motion run --material silk --out out/skirt_run.usdc --preview out/skirt_run.mp4
 """
 
 
@@ -70,29 +79,35 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--method",
         default="diffusion",
-        choices=("diffusion", "deepwrinkles"),
+        choices=("diffusion", "deepwrinkles", "gsnet"),
         help="diffusion: Guo et al. 2024's CVAE + strain diffusion (--coarse/--wrinkles or the shipped "
-        "models); deepwrinkles: Lahner et al. 2018 (--model, else the shipped one of --garment) "
+        "models); deepwrinkles: Lahner et al. 2018 (--model, else the shipped one of --garment); "
+        "gsnet: the graph skinning network, any garment (--model, else the shipped one) "
         "(default: %(default)s)",
     )
     g.add_argument(
         "--garment",
         default="t_shirt",
         help="garment category of the shipped models: t_shirt (tshirt), straight_skirt (skirt) "
-        "(default: %(default)s; ignored with --coarse, and with --method deepwrinkles --model)",
+        "(default: %(default)s; ignored with --coarse, and with --method deepwrinkles --model); "
+        "--method gsnet: any template (sewn for the body) or garment file around the rest body",
     )
     g.add_argument("--coarse", help="skeleton_cvae checkpoint (default: the shipped one of --garment)")
     g.add_argument("--wrinkles", help="wrinkle_diffusion checkpoint (default: the shipped one of --garment)")
     g.add_argument("--no-wrinkles", action="store_true", help="write the coarse base mesh only")
     g.add_argument("--steps", type=int, help="DDIM steps (default: the model's, 50)")
-    g.add_argument("--material", help="material label of the wrinkle model (default: its first)")
+    g.add_argument("--material", help="material label of the wrinkle model (default: its first); "
+                   "--method gsnet: the garment's material preset (default: cotton)")
     g.add_argument(
         "--sample-latent",
         action="store_true",
         help="draw the CVAE latent z ~ N(0, I) instead of its mean (another plausible fit)",
     )
-    d = p.add_argument_group("--method deepwrinkles")
-    d.add_argument("--model", help="DeepWrinkles checkpoint ('wrinkles train deepwrinkles')")
+    d = p.add_argument_group("--method deepwrinkles / gsnet")
+    d.add_argument("--model", help="DeepWrinkles or GSNet checkpoint or release file ('wrinkles train "
+                   "deepwrinkles' / 'wrinkles train gsnet')")
+    d.add_argument("--resolution", help="--method gsnet: edge length [m] a template garment is sewn at "
+                   "(default: 0.02, the shipped model's data)")
     d.add_argument("--data", help="the dataset the model was trained on: its first training sequence "
                    "gives the garment meshes (default: the garment the checkpoint keeps)")
     d.add_argument("--surface", choices=("global", "fine"), help="global: the global shape + normal maps; "
@@ -196,6 +211,10 @@ def _garment(pipe, material: str | None):
 
 def _check_method_options(args: argparse.Namespace) -> None:
     """The options of the other method are refused (one line)."""
+    if args.method == "gsnet":
+        return  # pipelines.animate_gsnet.check_options
+    if args.resolution is not None:
+        raise WrinklesInputError("--resolution applies to --method gsnet")
     if args.method == "deepwrinkles":
         return
     for key, flag in (("model", "--model"), ("data", "--data"), ("surface", "--surface"),
@@ -210,6 +229,10 @@ def run(args: argparse.Namespace) -> int:
         from pipelines.animate_deepwrinkles import run as run_deepwrinkles
 
         return run_deepwrinkles(args)
+    if args.method == "gsnet":
+        from pipelines.animate_gsnet import run as run_gsnet
+
+        return run_gsnet(args)
     return _run_diffusion(args)
 
 

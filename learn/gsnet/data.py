@@ -42,14 +42,14 @@ class Template:
         return int(self.rest.shape[0])
 
 
-def make_template(seq: Mapping[str, np.ndarray], body, material: str, *, neighbours: int = 4) -> Template:
+def make_template(seq: Mapping[str, np.ndarray], body, material, *, neighbours: int = 4) -> Template:
     """The template of a sequence's fine garment on its body (``sim.datasets.schema`` names).
 
     Args:
         seq: holds ``fine/rest_vertices``, ``fine/faces``, ``fine/uvs``, ``fine/uv_faces``,
             ``body/betas`` (``fine/face_layers`` optional; ``garment/betas``, the shape the garment
             was made on, when it differs from the body's: a reference-fit dataset).
-        body: the ``BodyModel`` the garment was made on; material: preset name.
+        body: the ``BodyModel`` the garment was made on; material: preset name or ``Material``.
         neighbours: body vertices blended for each garment vertex's skinning weights.
     """
     from sim.skinning.transfer import transfer_skinning_weights
@@ -70,6 +70,15 @@ def rest_betas(seq: Mapping[str, np.ndarray], body) -> np.ndarray:
     b = seq.get("garment/betas")
     b = seq["body/betas"] if b is None or np.asarray(b).size == 0 else b
     return np.asarray(b, np.float32).reshape(-1)[: body.num_betas]
+
+
+def garment_template(garment, body, betas: np.ndarray, *, neighbours: int = 4) -> Template:
+    """The template of a ``Garment`` made on (or fitted around) the rest body of shape ``betas``."""
+    seq = {"fine/rest_vertices": garment.rest_vertices, "fine/faces": garment.faces, "fine/uvs": garment.uvs,
+           "fine/uv_faces": garment.uv_faces, "body/betas": np.asarray(betas, np.float32)}
+    if getattr(garment, "face_layers", None) is not None:
+        seq["fine/face_layers"] = garment.face_layers
+    return make_template(seq, body, garment.material, neighbours=neighbours)
 
 
 def motion_of(seq: Mapping[str, np.ndarray], body) -> tuple[np.ndarray, np.ndarray]:

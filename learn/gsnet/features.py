@@ -24,9 +24,10 @@ REFERENCE_MATERIAL = "cotton"
 """The material whose density and stiffness are the zero of the material features."""
 
 
-def material_features(name: str) -> np.ndarray:
-    """log10 of density, Young's modulus and bending stiffness over cotton's, (3,) float32."""
-    m, ref = get_material(name or REFERENCE_MATERIAL), get_material(REFERENCE_MATERIAL)
+def material_features(material) -> np.ndarray:
+    """log10 of density, Young's modulus and bending stiffness over cotton's, (3,) float32, of a
+    preset name or a ``Material``."""
+    m, ref = get_material(material or REFERENCE_MATERIAL), get_material(REFERENCE_MATERIAL)
     return np.log10([m.density / ref.density, m.youngs_modulus / ref.youngs_modulus,
                      m.bending_stiffness / ref.bending_stiffness]).astype(np.float32)
 
@@ -69,13 +70,13 @@ def vertex_layers(faces: np.ndarray, face_layers: np.ndarray | None, num_vertice
 
 
 def template_features(rest: np.ndarray, faces: np.ndarray, uvs: np.ndarray, uv_faces: np.ndarray,
-                      material: str, rest_root: np.ndarray,
+                      material, rest_root: np.ndarray,
                       face_layers: np.ndarray | None = None) -> np.ndarray:
     """The template features of every vertex (V, ``TEMPLATE_FEATURES``) float32 (module docstring).
 
     Args:
         rest: rest garment on the rest body [m] (V, 3); faces (F, 3); uvs (U, 2), uv_faces (F, 3).
-        material: preset name; rest_root: the rest body's root joint [m] (3,).
+        material: preset name or ``Material``; rest_root: the rest body's root joint [m] (3,).
         face_layers: fabric layers per face (F,), None for one layer.
     """
     v = np.asarray(rest, np.float32)

@@ -259,31 +259,53 @@ class GSNetMethod(Method):
     @torch.no_grad()
     def predict_sequence(self, model: nn.Module, sequence: Mapping[str, np.ndarray], *,
                          device: torch.device) -> Prediction:
-        from learn.gsnet.data import garment_batch, make_template, motion_of
+        from learn.gsnet.data import make_template, motion_of
 
-        c = self.config
         body = self.body(str(sequence.get("body/model", "default")))
         material = str(sequence.get("garment/material", "") or "") or DEFAULT_MATERIAL
-        template = make_template(sequence, body, material, neighbours=c.skin_neighbours)
+        template = make_template(sequence, body, material, neighbours=self.config.skin_neighbours)
         transforms, roots = motion_of(sequence, body)
+        posed = None
+        if self.config.regression:
+            betas = np.asarray(sequence["body/betas"], np.float32).reshape(-1)[: body.num_betas]
+            posed = body.pose(betas, np.asarray(sequence["body/poses"]), np.asarray(sequence["body/trans"]))
+        fps = float(np.asarray(sequence.get("fps", 30.0)))
+        return Prediction(vertices=self.animate(
+            model, template, transforms, roots, fps=fps, device=device,
+            body_vertices=None if posed is None else posed.vertices, body_faces=np.asarray(body.faces)))
+
+    @torch.no_grad()
+    def animate(self, model: nn.Module, template, transforms: np.ndarray, roots: np.ndarray, *, fps: float,
+                device: torch.device, body_vertices: np.ndarray | None = None,
+                body_faces: np.ndarray | None = None) -> np.ndarray:
+        """A garment rolled out over a whole motion from the body alone, (T, V, 3) [m].
+
+        Args:
+            model: the trained network; template: ``learn.gsnet.data.Template`` of the garment.
+            transforms, roots: the body's root-relative bone transforms (T, 24, 3, 4) and roots (T, 3)
+                (``learn.gsnet.data.motion_of``).
+            fps: frame rate of the motion; device: torch device of the model.
+            body_vertices, body_faces: the posed body (T, Vb, 3) and its faces for the physical
+                regression's filter (None: no regression).
+        """
+        from learn.gsnet.data import garment_batch
+
+        c = self.config
         # frame 0 twice more in front: the history of the first frame is the prior at rest
         transforms = np.concatenate([transforms[:1], transforms[:1], transforms])
         roots = np.concatenate([roots[:1], roots[:1], roots])
         anchors = None
-        if c.regression:
-            betas = np.asarray(sequence["body/betas"], np.float32).reshape(-1)[: body.num_betas]
-            posed = body.pose(betas, np.asarray(sequence["body/poses"]), np.asarray(sequence["body/trans"]))
-            bodies = torch.from_numpy(np.asarray(posed.vertices, np.float32)).to(device)
-            ls = _Losses(template.rest, template.faces, np.asarray(body.faces), c.collision_eps)
+        if c.regression and body_vertices is not None:
+            bodies = torch.from_numpy(np.asarray(body_vertices, np.float32)).to(device)
+            ls = _Losses(template.rest, template.faces, np.asarray(body_faces), c.collision_eps)
 
             def anchors(x: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
                 a = ls.collision.nearest_anchors(x[None], bodies[k - 2][None])
                 return a.points[0], a.normals[0]
-        fps = float(np.asarray(sequence.get("fps", 30.0)))
         g = garment_batch([template]).to(device)
         a, r = torch.from_numpy(transforms)[None].to(device), torch.from_numpy(roots)[None].to(device)
         _, final = model(g, a, r, None, anchors=anchors, fps=fps, temporal=c.temporal, eps=c.collision_eps)
-        return Prediction(vertices=final.float().cpu().numpy())
+        return final.float().cpu().numpy()
 
 
 def _garment_mean(values: torch.Tensor, garments) -> torch.Tensor:

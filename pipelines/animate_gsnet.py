@@ -1,0 +1,123 @@
+"""``wrinkles animate --method gsnet``: any garment (a template sewn for the body, or a garment file
+modelled around the rest body) animated by a GSNet checkpoint from the body's motion alone, no
+simulation, no retraining: the network's garment encoder reads the garment's own mesh
+(learn.methods.gsnet). Written as the other methods: USD stage (body + garment with UVs), sidecar
+JSON, previews."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import types
+from pathlib import Path
+
+import numpy as np
+
+from sim.errors import WrinklesInputError
+
+DEFAULT_MODEL = Path(__file__).resolve().parents[1] / "pretrained" / "gsnet.pt"
+"""The shipped GSNet release file (pretrained/MODEL_CARD.md), used without ``--model``."""
+
+DEFAULT_RESOLUTION = 0.02
+"""Edge length [m] a template garment is sewn at without ``--resolution``: the shipped model's
+training data (pipelines/configs/gsnet.toml)."""
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """The other methods' options are refused, in one line."""
+    for key, flag in (("coarse", "--coarse"), ("wrinkles", "--wrinkles"), ("steps", "--steps"),
+                      ("data", "--data"), ("surface", "--surface"), ("normal_map_bits", "--normal-map-bits")):
+        if getattr(args, key, None) is not None:
+            raise WrinklesInputError(f"{flag} does not apply to --method gsnet")
+    if args.no_wrinkles or args.sample_latent:
+        raise WrinklesInputError("--no-wrinkles / --sample-latent do not apply to --method gsnet")
+    if not (args.clearance >= 0 and args.clearance < 0.1):
+        raise WrinklesInputError(f"--clearance must be in [0, 0.1) m, got {args.clearance}")
+
+
+def model_path(args: argparse.Namespace) -> Path:
+    path = Path(args.model) if args.model else DEFAULT_MODEL
+    if not path.is_file():
+        if args.model:
+            raise WrinklesInputError("no such model file", path=path)
+        raise WrinklesInputError("no shipped GSNet model in this checkout; train one (wrinkles train gsnet "
+                                 "--config pipelines/configs/train/gsnet.toml) and pass --model", path=path)
+    return path
+
+
+def load_garment(args: argparse.Namespace, body, betas: np.ndarray):
+    """The garment ``--garment`` names (template, garment file or GarmentCode pattern) on the rest
+    body of shape ``betas``, in ``--material`` (``pipelines.simulate_cmd.load_garment_arg``)."""
+    from pipelines.simulate_cmd import load_garment_arg
+
+    spec = types.SimpleNamespace(garment=args.garment, garment_param=[], material=args.material or "cotton",
+                                 material_param=[], resolution=args.resolution or str(DEFAULT_RESOLUTION),
+                                 quiet=args.quiet)
+    return load_garment_arg(spec, body, np.asarray(betas, np.float32))
+
+
+def run(args: argparse.Namespace) -> int:
+    """The command; returns the exit status."""
+    check_options(args)
+    from learn.gsnet.data import garment_template, motion_of
+    from learn.train.distributed import resolve_torch_device
+    from learn.train.trainer import load_trained
+    from pipelines.animate_cmd import grounded_frames
+    from pipelines.animate_deepwrinkles import outside
+    from pipelines.options import load_body_and_motion
+    from pipelines.outputs import check_stage_outputs
+    from sim.device import resolve_device
+
+    t0 = time.perf_counter()
+    path = model_path(args)
+    out = args.out or f"out/gsnet_{Path(args.garment).stem}_{Path(args.motion).stem}.usdc"
+    paths = check_stage_outputs(out, args.preview, args.sheet, sidecar=".animate.json")
+    bm = load_body_and_motion(args)
+    garment = load_garment(args, bm.body, bm.betas)
+    dev, wdev = resolve_torch_device(args.device), resolve_device(args.device)
+    method, model, _ = load_trained(path, device=dev)
+    if method.name != "gsnet":
+        raise WrinklesInputError(f"a {method.name} checkpoint; --method gsnet needs a gsnet one", path=path)
+    frames, trans = grounded_frames(bm, wdev)
+    template = garment_template(garment, bm.body, bm.betas, neighbours=method.config.skin_neighbours)
+    seq = {"body/poses": bm.motion.poses, "body/joints": frames.joints[:, :24], "body/betas": bm.betas}
+    transforms, roots = motion_of(seq, bm.body)
+    t1 = time.perf_counter()
+    verts = method.animate(model, template, transforms, roots, fps=float(bm.motion.fps), device=dev,
+                           body_vertices=frames.vertices, body_faces=frames.faces)
+    seconds = {"predict": time.perf_counter() - t1}
+    verts = outside(verts, frames, args.clearance, wdev)
+    provenance = {"method": "gsnet", "model": str(path), "device": str(dev), "garment": str(args.garment),
+                  "stage_seconds": {k: round(v, 3) for k, v in seconds.items()}}
+    write_animation(args, paths, garment, verts, bm, frames, provenance)
+    if not args.quiet:
+        print(f"gsnet {garment.name} ({verts.shape[1]} vertices) on {bm.motion.name}: {len(verts)} frames, "
+              f"{dev}, {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def write_animation(args: argparse.Namespace, paths, garment, verts: np.ndarray, bm, frames,
+                    provenance: dict) -> None:
+    """The stage, its sidecar JSON and the previews (``paths``: ``check_stage_outputs``) of an
+    animated garment, all or none."""
+    from pipelines.outputs import OutputSet, command_line, stage_rig, write_previews
+    from pipelines.simulate_cmd import preview_meshes, write_sequence_usd
+    from sim.types import GarmentSequence
+    from sim.versions import package_versions
+
+    provenance = {"command": command_line(), **provenance, "seed": args.seed,
+                  "versions": package_versions("usd-core")}
+    seq = GarmentSequence(vertices=verts, body=frames, garment=garment, motion=bm.motion,
+                          fps=float(bm.motion.fps), provenance=provenance)
+    betas = [float(b) for b in np.asarray(bm.betas).ravel()]
+    metadata = json.loads(json.dumps({**provenance, "motion_params": bm.params, "betas": betas}))
+    with OutputSet() as outputs:
+        write_sequence_usd(outputs.temp(paths.usd), seq, metadata, quiet=args.quiet,
+                           rig=stage_rig(bm.body, bm.betas, frames, points=args.body_points))
+        outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
+        write_previews(outputs, paths, lambda: preview_meshes(seq), num_frames=len(verts), fps=seq.fps,
+                       camera=args.camera, quiet=args.quiet)
+    if not args.quiet:
+        for p in paths.written():
+            print(f"  wrote {p}")
