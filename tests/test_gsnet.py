@@ -118,3 +118,61 @@ def test_a_garment_of_new_topology_runs_through_a_trained_network(sample_dataset
 def test_training_is_deterministic(sample_dataset):
     a, b = overfit_losses(sample_dataset, 3), overfit_losses(sample_dataset, 3)
     assert a == b
+
+
+@pytest.fixture(scope="module")
+def gsnet_checkpoint(sample_dataset, tmp_path_factory):
+    """A GSNet trained for a few steps on the sample dataset (t-shirts and skirts)."""
+    from tests.test_train_evaluate import run_cli
+
+    out = tmp_path_factory.mktemp("gsnet-run")
+    assert run_cli("train", "gsnet", "--data", sample_dataset, "--out", out, "--steps", "4",
+                   "--batch-size", "2", "--set", "model.width=16", "--set", "model.node=8", "--device", "cpu",
+                   "-q") == 0
+    return out / "checkpoints" / "last.pt"
+
+
+@pytest.mark.slow
+def test_animate_a_user_garment_file_with_gsnet(gsnet_checkpoint, tmp_path):
+    """A garment OBJ modelled around the rest body (``wrinkles garments --export``), a design the
+    network never saw (a tank top), is animated without retraining and written as USD."""
+    from tests.test_cli import run_cli
+
+    obj = tmp_path / "tank.obj"
+    proc = run_cli("garments", "--export", "tank_top", "--out", str(obj))
+    assert proc.returncode == 0, proc.stderr
+    usd = tmp_path / "tank.usda"
+    proc = run_cli("animate", "--method", "gsnet", "--model", str(gsnet_checkpoint), "--garment", str(obj),
+                   "--motion", "walk", "--duration", "0.3", "--device", "cpu", "--out", str(usd), "-q")
+    assert proc.returncode == 0, proc.stderr
+    from usd_io import read_stage
+
+    stage = read_stage(usd)
+    (garment,) = stage.garments.values()
+    pts, body = np.asarray(garment.points), np.asarray(stage.body.points)
+    assert pts.shape[0] == 9 and np.isfinite(pts).all()
+    # the top stays on the body as it walks: near the skin at the first frame and the last
+    from scipy.spatial import cKDTree
+
+    for t in (0, -1):
+        gap = cKDTree(body[t]).query(pts[t])[0]
+        assert gap.mean() < 0.04 and gap.max() < 0.12
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("extra, needle", [
+    (["--steps", "10"], "--steps does not apply to --method gsnet"),
+    (["--model", "missing.pt"], "missing.pt: no such model file"),
+    (["--resolution", "0.03", "--method", "diffusion"], "--resolution applies to --method gsnet"),
+])
+def test_animate_gsnet_refuses_bad_options_in_one_line(gsnet_checkpoint, tmp_path, extra, needle):
+    from tests.test_cli import assert_user_error, run_cli
+
+    args = ["animate", "--method", "gsnet", "--model", str(gsnet_checkpoint), "--garment", "t_shirt",
+            "--motion", "walk", "--duration", "0.2", "--device", "cpu", "--out", str(tmp_path / "a.usdc")]
+    if "--method" in extra:
+        args[2] = extra[extra.index("--method") + 1]
+        extra = extra[:-2]
+    proc = run_cli(*args, *extra)
+    assert_user_error(proc, needle)
+    assert not (tmp_path / "a.usdc").exists()
