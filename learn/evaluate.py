@@ -11,6 +11,9 @@ key                 unit   meaning
 ev                  m      mean L2 vertex distance (Guo et al. 2024 Sec. 4.1 ``Ev``)
 ecd                 m^2    symmetric squared Chamfer distance (``Ecd``)
 bending_error       rad    mean |angle - angle_gt| of adjacent-face normal angles (GSNet Sec. 4.3)
+normal_angle        rad    mean angle between the vertex normals at the ends of each edge, GSNet's
+                           "bending angle between vertex normals" (``normal_angle_gt``: of the
+                           ground truth)
 edge_abs            -      mean |l/l0 - 1| of the prediction (``edge_abs_gt``: of the ground truth)
 collision           -      fraction of garment vertices inside the body (``collision_gt``)
 flicker_ratio       -      second-difference flicker of the prediction over the ground truth's
@@ -43,7 +46,8 @@ import torch
 from learn.methods.base import Method, Prediction
 from sim.errors import WrinklesInputError
 
-METRIC_UNITS = {"ev": "m", "ecd": "m^2", "bending_error": "rad", "edge_abs": "-", "edge_abs_gt": "-",
+METRIC_UNITS = {"ev": "m", "ecd": "m^2", "bending_error": "rad", "normal_angle": "rad",
+                "normal_angle_gt": "rad", "edge_abs": "-", "edge_abs_gt": "-",
                 "collision": "-", "collision_gt": "-", "flicker_ratio": "-", "spectrum_distance": "-",
                 "wavelength": "px", "wavelength_gt": "px", "normal_fd": "-", "nm_l1": "-", "nm_l2": "-",
                 "nm_temporal": "-"}
@@ -141,6 +145,8 @@ def sequence_metrics(pred: np.ndarray, sf, entry: dict, body, *, derive_config, 
            "ecd": float(M.chamfer_distance(p, g).mean())}
     out["bending_error"] = float(M.bending_error(p, g, faces).mean())
     edges = M.mesh_edges(faces)
+    out["normal_angle"] = float(M.vertex_normal_angles(p, faces, edges=edges).mean())
+    out["normal_angle_gt"] = float(M.vertex_normal_angles(g, faces, edges=edges).mean())
     r = torch.from_numpy(rest).double()
     out["edge_abs"] = float(M.edge_elongation(p, r, edges).abs_mean.mean())
     out["edge_abs_gt"] = float(M.edge_elongation(g, r, edges).abs_mean.mean())

@@ -176,3 +176,24 @@ def test_animate_gsnet_refuses_bad_options_in_one_line(gsnet_checkpoint, tmp_pat
     proc = run_cli(*args, *extra)
     assert_user_error(proc, needle)
     assert not (tmp_path / "a.usdc").exists()
+
+
+@pytest.mark.slow
+def test_the_harness_measures_gsnets_normal_angles(sample_dataset):
+    """``normal_angle`` (GSNet Sec. 4.3's bending angle between vertex normals): the simulation
+    measured against itself gives its own value, and a crumpled copy a larger one."""
+    from learn.evaluate import sequence_metrics
+    from sim.datasets.config import DeriveConfig
+    from sim.datasets.storage import SequenceFile, read_manifest
+
+    manifest = read_manifest(sample_dataset)
+    sid, entry = next(iter(manifest["sequences"].items()))
+    sf = SequenceFile(sample_dataset / entry["file"])
+    gt = np.array(sf["fine/vertices"], np.float32)
+    dc = DeriveConfig(image_resolution=0)
+    same, _ = sequence_metrics(gt, sf, entry, None, derive_config=dc, device="cpu")
+    assert same["ev"] == 0 and same["normal_angle"] == same["normal_angle_gt"] > 0
+    noisy = gt + np.random.default_rng(0).normal(0, 0.02, gt.shape).astype(np.float32)
+    other, _ = sequence_metrics(noisy, sf, entry, None, derive_config=dc, device="cpu")
+    assert other["normal_angle"] > 1.5 * same["normal_angle"]
+    assert other["normal_angle_gt"] == same["normal_angle_gt"]
