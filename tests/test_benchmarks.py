@@ -193,6 +193,33 @@ def test_wrinkle_tables_gain_the_deepwrinkles_rows(tmp_path):
     assert "| Data (L1) | 5 | 6 | 8 | 10 |" in text and "| Temporal (Eq. 4) | 4.5 | 5.4 | 7.2 | 9 |" in text
 
 
+def test_gsnet_tables_split_by_garment_and_ablation(tmp_path):
+    """``gsnet_tables`` reads ``EVAL/<row>-<split>/metrics.json``: per-garment means of the
+    sequences, the simulation's physics row from the ``*_gt`` figures, the unseen designs tagged
+    and the ablations in their own table."""
+    def seq(garment, ev):
+        return {"garment": garment, "metrics": {"ev": ev, "edge_abs": 0.05, "edge_abs_gt": 0.01,
+                                                 "normal_angle": 0.3, "normal_angle_gt": 0.2,
+                                                 "collision": 0.02, "collision_gt": 0.001}}
+    for row, scale in (("gsnet", 1.0), ("gsnet_noreg", 2.0), ("skinned_mlp", 3.0)):
+        seqs = [seq("t_shirt", 0.01 * scale), seq("t_shirt", 0.03 * scale), seq("hoodie", 0.05 * scale)]
+        summary = {k: float(np.mean([s["metrics"][k] for s in seqs])) for k in seqs[0]["metrics"]}
+        (tmp_path / "eval" / f"{row}-test_ood").mkdir(parents=True)
+        (tmp_path / "eval" / f"{row}-test_ood" / "metrics.json").write_text(
+            json.dumps({"split": "test_ood", "summary": summary, "sequences": seqs}))
+    out, js = tmp_path / "tables.md", tmp_path / "tables.json"
+    proc, _ = run_benchmark("gsnet_tables", str(tmp_path / "eval"), "--out", str(out), "--json", str(js),
+                            "--unseen", "hoodie")
+    assert proc.returncode == 0, proc.stderr
+    text = out.read_text()
+    assert "| GSNet | 30 | 5 | 17.2 | 2 |" in text and "| simulation | – | 1 | 11.5 | 0.1 |" in text
+    assert "| t_shirt, 2 seq.: GSNet | 20 |" in text
+    assert "| hoodie (unseen design), 1 seq.: GSNet | 50 |" in text
+    assert "### Table 3: ablations, test_ood" in text and "| without physical regression | 60 |" in text
+    rows = json.loads(js.read_text())["test_ood"]
+    assert rows["skinned_mlp"]["garments"]["t_shirt"]["ev"] == pytest.approx(0.06)
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(importlib.util.find_spec("newton") is None, reason="newton is not installed (optional)")
 def test_newton_drops_a_sheet_onto_a_sphere(tmp_path):
