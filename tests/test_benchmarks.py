@@ -149,6 +149,16 @@ def test_wrinkle_inference(tmp_path):
     assert r["sizes"]["garment"] == "t_shirt" and r["machine"]["torch"]
 
 
+@pytest.mark.slow
+def test_gsnet_against_the_simulator(tmp_path):
+    r = single_result("bench_gsnet", "--device", "cpu", "--vertices", "700", "--seconds", "0.1",
+                      tmp_path=tmp_path)
+    (row,) = r["figures"]["rows"]
+    assert row["vertices"] > 500 and row["gsnet"]["frames"] == 3 and row["gsnet"]["fps"] > 0
+    assert row["simulation"]["ms_per_frame"] > 0 and row["speedup"] == pytest.approx(
+        row["simulation"]["ms_per_frame"] / row["gsnet"]["ms_per_frame"])
+
+
 def test_wrinkle_tables_average_the_seeds(tmp_path):
     """``wrinkle_tables`` reads ``EVAL/<garment>-<row>-<split>/metrics.json``: the seeds of ours
     are averaged (mean and standard deviation), the step sweep goes to its own table."""

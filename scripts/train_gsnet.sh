@@ -1,0 +1,93 @@
+#!/usr/bin/env bash
+# How GSNet's figures (docs/GSNET.md) and shipped weights are made: generate the multi-garment
+# dataset (pipelines/configs/gsnet.toml: seven designs in training, two held out), train GSNet, its
+# three ablations (no temporal input, no physical regression, no learned joint edges) and the
+# skinned_mlp baseline on the same data, export release weights (WORKDIR/release), evaluate every
+# row on test_id and test_ood (all sequences), write GSNet's Tables 1-3 and time GSNet against the
+# simulator. Needs a CUDA GPU (two are used when present). Time-boxed and resumable as
+# scripts/train_pretrained.sh: generation and training stop at their budgets; run it again to go on.
+#   bash scripts/train_gsnet.sh WORKDIR [GEN_SECONDS] [TRAIN_SECONDS]
+# STAGES picks stages (default "generate train export evaluate bench"); ABLATION_STEPS the ablations'
+# and the baseline's steps (default 3000); MAXSEQ limits the sequences evaluated per split (default: all);
+# DEVICE=cpu and DATA_CONFIG=sample (with --set overrides in EXTRA_SET) make a small CPU run of it.
+set -u
+W=${1:?work directory}; GEN=${2:-420}; TRAIN=${3:-600}
+STAGES=" ${STAGES:-generate train export evaluate bench} "
+for s in $STAGES; do
+  case $s in generate|train|export|evaluate|bench) ;; *) echo "STAGES: unknown stage '$s' (generate train export evaluate bench)" >&2; exit 2;; esac
+done
+PY=${PYTHON:-python3}
+CLI="$PY -m pipelines.cli"
+D="$W/data/gsnet"
+CFG=pipelines/configs/train/gsnet.toml
+DEVICE=${DEVICE:-cuda}; DATA_CONFIG=${DATA_CONFIG:-pipelines/configs/gsnet.toml}
+UNSEEN=flared_skirt,hoodie
+mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release"
+log() { echo "[$(date +%T)] $*" | tee -a "$W/logs/pipeline.log"; }
+stage() { [[ "$STAGES" == *" $1 "* ]]; }
+GPUS=$($PY -c "import torch; print(max(1, torch.cuda.device_count()))")
+gpu() { [ "$DEVICE" = cpu ] && echo cpu || echo "cuda:$(( $1 % GPUS ))"; }  # the k-th job's device
+
+if stage generate; then
+  log "generate (budget ${GEN}s)"
+  resume=""; [ -d "$D/parts" ] && resume="--resume"
+  timeout -s INT "$GEN" $CLI dataset generate --config "$DATA_CONFIG" --out "$D" \
+    --batch ${BATCH:-32} --device "$DEVICE" -q $resume >>"$W/logs/gen.log" 2>&1
+  $CLI dataset combine "$D" 2>&1 | tail -2 | tee -a "$W/logs/pipeline.log"
+  $CLI dataset info "$D" 2>&1 | head -24 | tee -a "$W/logs/pipeline.log"
+fi
+
+if stage train; then
+  log "train (budget ${TRAIN}s, $GPUS GPU(s))"
+  AB=${ABLATION_STEPS:-3000}
+  train() {  # name method device [overrides...]
+    local name=$1 method=$2 dev=$3; shift 3
+    local resume=""; [ -f "$W/runs/$name/checkpoints/last.pt" ] && resume="--resume"
+    local cfg=$CFG; [ "$method" = gsnet ] || cfg=pipelines/configs/train/gsnet_baseline.toml
+    timeout -s INT "$TRAIN" $CLI train "$method" --data "$D" --out "$W/runs/$name" --config "$cfg" \
+      --device "$dev" -q ${EXTRA_SET:-} "$@" $resume >"$W/logs/train-$name.log" 2>&1
+  }
+  train gsnet gsnet "$(gpu 0)" &
+  train gsnet_notemp gsnet "$(gpu 1)" --set model.temporal=false --set train.steps=$AB &
+  train gsnet_noreg gsnet "$(gpu 1)" --set model.regression=false --set train.steps=$AB &
+  train gsnet_noedges gsnet "$(gpu 0)" --set model.learned_edges=false --set train.steps=$AB &
+  train skinned_mlp skinned_mlp "$(gpu 1)" --set train.steps=$AB &
+  wait
+  for f in "$W"/logs/train-*.log; do log "$(basename $f): $(tail -1 $f)"; done
+fi
+
+if stage export; then
+  log "export"
+  $PY -m learn.train.export "$W/runs/gsnet/checkpoints/last.pt" "$W/release/gsnet.pt"
+  log "exported: $(du -h "$W/release/gsnet.pt" | cut -f1)"
+fi
+
+if stage evaluate; then
+  log "evaluate"
+  rm -f "$W/.eval_failed"
+  ev() {  # row split model device
+    local row=$1 split=$2 model=$3 dev=$4
+    $CLI evaluate --model "$model" --data "$D" --split "$split" --out "$W/eval/$row-$split" --no-images -q \
+      --image-resolution 0 ${MAXSEQ:+--max-sequences $MAXSEQ} --device "$dev" >"$W/logs/eval-$row-$split.log" 2>&1 \
+      || { log "evaluate $row $split failed"; touch "$W/.eval_failed"; }
+  }
+  k=0
+  for row in gsnet gsnet_notemp gsnet_noreg gsnet_noedges skinned_mlp; do
+    m="$W/runs/$row/checkpoints/last.pt"; [ "$row" = gsnet ] && [ -f "$W/release/gsnet.pt" ] && m="$W/release/gsnet.pt"
+    for split in test_id test_ood; do ev $row $split "$m" "$(gpu $k)" & k=$((k + 1)); done
+  done
+  wait
+  $PY -m benchmarks.gsnet_tables "$W/eval" --out "$W/tables.md" --json "$W/tables.json" --unseen $UNSEEN \
+    | tee -a "$W/logs/pipeline.log"
+fi
+
+if stage bench; then
+  log "bench"
+  m="$W/release/gsnet.pt"; [ -f "$m" ] || m="$W/runs/gsnet/checkpoints/last.pt"
+  $PY -m benchmarks.bench_gsnet --device "$DEVICE" --vertices ${BENCH_VERTICES:-5000,20000} --seconds 2 --model "$m" \
+    --results "$W/bench" >"$W/logs/bench.log" 2>&1 || log "bench failed (see $W/logs/bench.log)"
+fi
+
+log "done"
+stage evaluate && [ -f "$W/.eval_failed" ] && { log "some evaluations failed (see $W/logs/eval-*.log)"; exit 1; }
+exit 0
