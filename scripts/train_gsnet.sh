@@ -21,7 +21,7 @@ CLI="$PY -m pipelines.cli"
 D="$W/data/gsnet"
 CFG=pipelines/configs/train/gsnet.toml
 DEVICE=${DEVICE:-cuda}; DATA_CONFIG=${DATA_CONFIG:-pipelines/configs/gsnet.toml}
-UNSEEN=flared_skirt,hoodie
+UNSEEN=flared_skirt,long_sleeve
 mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release"
 log() { echo "[$(date +%T)] $*" | tee -a "$W/logs/pipeline.log"; }
 stage() { [[ "$STAGES" == *" $1 "* ]]; }

@@ -123,7 +123,7 @@ class DeepSkinning(nn.Module):
                 carried to the garment), None: none. With the prior the network learns how the
                 garment departs from the body's skinning rather than the skinning itself: an
                 untrained network's garment then follows the body instead of the mean of all 24
-                bones (at step 0 on the sample dataset 0.20 m from the simulation without it).
+                bones (on the sample dataset at step 0: 27 mm mean vertex error, 144 mm without).
         """
         if self.edges is None:
             raise RuntimeError("this network's vertex-joint edges are the body's skinning weights")
