@@ -49,6 +49,22 @@ sequence has images (manifest ``image_resolution`` not null)."""
 _PER_FRAME = frozenset(PER_FRAME_KEYS)
 
 
+def rest_betas(seq: Mapping[str, np.ndarray], num_betas: int) -> np.ndarray:
+    """The body shape a sequence's garment was made on: ``garment/betas`` (a reference fit: the
+    garment made on another shape than the body's), else ``body/betas``; at most ``num_betas``."""
+    b = seq.get("garment/betas")
+    b = seq["body/betas"] if b is None or np.asarray(b).size == 0 else b
+    return np.asarray(b, np.float32).reshape(-1)[:num_betas]
+
+
+def entry_arrays(entry: Mapping) -> dict[str, np.ndarray]:
+    """The arrays a dataset's manifest entry adds to its sequence (``garment/betas``)."""
+    if entry.get("garment_betas") is None:
+        return {}
+    return {"garment/betas": np.asarray(entry["garment_betas"], np.float32)}
+
+
+
 class GarmentSequenceDataset(Dataset):
     """Frame windows of a synthetic garment dataset, read from memory-mapped sequence files.
 

@@ -215,6 +215,7 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
     Raises:
         WrinklesInputError: unreadable dataset, an empty split.
     """
+    from learn.data import entry_arrays
     from learn.metrics import NormalMapFeatures
     from sim.datasets.storage import SequenceFile, body_model_name, read_manifest, sequence_path
 
@@ -240,8 +241,7 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
         seq["fps"] = np.asarray(float((manifest.get("config") or {}).get("fps") or 30.0))
         seq["sequence/path"] = np.asarray(str(sf.path))
         seq["garment/material"] = np.asarray(str(entry.get("material") or ""))
-        if entry.get("garment_betas") is not None:
-            seq["garment/betas"] = np.asarray(entry["garment_betas"], np.float32)
+        seq.update(entry_arrays(entry))
         opts = dict(predict_options or {})
         if coarse is not None:
             opts["base"] = coarse[0].predict_sequence(coarse[1], seq, device=dev).vertices

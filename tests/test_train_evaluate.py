@@ -192,3 +192,18 @@ def test_checkpoint_refusals_say_what_is_wrong_without_unsafe_advice(tmp_path, c
     for advice in UNSAFE_ADVICE:
         assert advice not in err.lower(), (advice, err)
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_skinned_mlp_skins_a_reference_fit_garment_from_the_shape_it_was_made_on(sample_dataset):
+    """The sample's garments are made on the mean body and worn by shaped ones (``garment/betas``):
+    the untrained baseline (linear blend skinning, a zero displacement) carries them from the mean
+    body's rest joints and stays within centimetres of the simulation on every sequence; from the
+    shaped body's rest joints it was 9-20 cm away."""
+    from learn.evaluate import evaluate
+    from learn.methods.skinned_mlp import SkinnedMLPConfig, SkinnedMLPMethod
+
+    method = SkinnedMLPMethod(SkinnedMLPConfig(hidden=16, layers=1))
+    torch.manual_seed(0)
+    ev = evaluate(method, method.build_model().eval(), sample_dataset, "all", image_resolution=0)
+    assert len(ev.sequences) >= 4 and max(s.metrics["ev"] for s in ev.sequences) < 0.06

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from learn.data import rest_betas
 from learn.graph import mesh_edges, symmetric
 from learn.gsnet.features import body_motion, template_features
 from learn.gsnet.network import GarmentBatch
@@ -56,20 +57,13 @@ def make_template(seq: Mapping[str, np.ndarray], body, material, *, neighbours: 
 
     rest = np.array(seq["fine/rest_vertices"], np.float32)
     faces = np.array(seq["fine/faces"], np.int32)
-    betas = rest_betas(seq, body)
+    betas = rest_betas(seq, body.num_betas)
     root = body.rest_joints(betas)[0]
     layers = seq.get("fine/face_layers")
     feats = template_features(rest, faces, np.asarray(seq["fine/uvs"]), np.asarray(seq["fine/uv_faces"]),
                               material, root, None if layers is None else np.asarray(layers))
     weights = transfer_skinning_weights(rest, body.rest_mesh(betas), body.weights, k=neighbours)
     return Template(feats, rest, faces, mesh_edges(faces), np.asarray(weights, np.float32))
-
-
-def rest_betas(seq: Mapping[str, np.ndarray], body) -> np.ndarray:
-    """The body shape the sequence's garment was made on: ``garment/betas``, else ``body/betas``."""
-    b = seq.get("garment/betas")
-    b = seq["body/betas"] if b is None or np.asarray(b).size == 0 else b
-    return np.asarray(b, np.float32).reshape(-1)[: body.num_betas]
 
 
 def garment_template(garment, body, betas: np.ndarray, *, neighbours: int = 4) -> Template:
@@ -88,7 +82,7 @@ def motion_of(seq: Mapping[str, np.ndarray], body) -> tuple[np.ndarray, np.ndarr
     joints, so a garment made on the mean body follows a shaped body's joints.
     """
     return body_motion(np.asarray(seq["body/poses"]), np.asarray(seq["body/joints"]),
-                       body.rest_joints(rest_betas(seq, body)), np.asarray(body.parents))
+                       body.rest_joints(rest_betas(seq, body.num_betas)), np.asarray(body.parents))
 
 
 def garment_batch(templates: list[Template]) -> GarmentBatch:

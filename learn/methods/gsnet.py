@@ -114,10 +114,11 @@ class _TrainItems(torch.utils.data.Dataset):
                 ["fine/face_layers"] if "fine/face_layers" in f else []))}
             name = body_model_name(f, {"config": self.windows.generator_config}) or "default"
             body = self.method.body(name)
+            from learn.data import entry_arrays
+
             entry = self.windows.entries[sid]
             material = entry.get("material") or DEFAULT_MATERIAL
-            if entry.get("garment_betas") is not None:
-                seq["garment/betas"] = np.asarray(entry["garment_betas"], np.float32)
+            seq.update(entry_arrays(entry))
             template = make_template(seq, body, material, neighbours=self.method.config.skin_neighbours)
             self._prepared[sid] = (template, *motion_of(seq, body), seq, name)
         return self._prepared[sid]

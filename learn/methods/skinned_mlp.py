@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from learn.data import entry_arrays, rest_betas
 from learn.methods.base import LossOutput, Method, Prediction
 from sim.rotations import axis_angle_to_matrix
 
@@ -133,13 +134,13 @@ class _Prepared:
 
         body = method.body(str(seq.get("body/model", "default")))
         betas = np.asarray(seq["body/betas"], np.float32).reshape(-1)
-        rest_body = body.rest_mesh(betas)
+        made_on = rest_betas(seq, body.num_betas)  # the garment's rest body, carried to the posed joints
         self.rest = np.array(seq["fine/rest_vertices"], np.float32)  # a writable copy
-        self.weights = transfer_skinning_weights(self.rest, rest_body, body.weights,
+        self.weights = transfer_skinning_weights(self.rest, body.rest_mesh(made_on), body.weights,
                                                  k=method.config.skin_neighbours).astype(np.float32)
         self.A, local = pose_transforms(np.asarray(seq["body/poses"], np.float32),
                                         np.asarray(seq["body/joints"], np.float32),
-                                        body.rest_joints(betas), np.asarray(body.parents))
+                                        body.rest_joints(made_on), np.asarray(body.parents))
         # A's translation already holds the root translation (joints are world positions)
         self.pose = rotation_features(local)
         nb = method.config.num_betas
@@ -171,6 +172,7 @@ class _TrainItems(torch.utils.data.Dataset):
             keys = [k for k in self.KEYS if k != "fine/vertices"]
             body = body_model_name(seq, {"config": self.frames.generator_config}) or "default"
             self._prepared[sid] = _Prepared(self.method, {**{k: seq[k] for k in keys},
+                                                          **entry_arrays(self.frames.entries[sid]),
                                                           "body/model": np.asarray(body)})
         return self._prepared[sid]
 
