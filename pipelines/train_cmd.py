@@ -25,6 +25,7 @@ Methods:
   wrinkle_diffusion  Guo et al. wrinkles (alias: wrinkles): strain-conditioned UV diffusion, DDIM
   displacement_regressor  LFGD-style baseline: world-frame displacement maps regressed from the base
   deepwrinkles       Lähner et al. 2018: registered subspace, pose-to-shape LSTM, normal-map cGAN
+  gsnet              GSNet: graph skinning network, one model for garments of any topology
 
 Multi-GPU (or multi-process CPU, gloo): launch through torchrun, the global batch is split:
   torchrun --nproc_per_node 4 -m pipelines.cli train skinned_mlp --data DIR --out RUN
@@ -35,6 +36,7 @@ examples:
   wrinkles train skinned_mlp --data data/sample --out runs/mlp --steps 2000
   wrinkles train deepwrinkles --data data/tshirt --out runs/dw \
       --config pipelines/configs/train/deepwrinkles.toml --device cuda
+  wrinkles train gsnet --data data/gsnet --out runs/gsnet --config pipelines/configs/train/gsnet.toml
   wrinkles train skinned_mlp --data data/sample --out runs/mlp --config my.toml --set optim.lr=3e-4
   wrinkles train skinned_mlp --data data/sample --out runs/mlp --resume --steps 4000
   wrinkles evaluate --model runs/mlp/checkpoints/last.pt --data data/sample --split test_id
