@@ -33,6 +33,7 @@ ABLATIONS = [
     ("gsnet_notemp", "without temporal input"),
     ("gsnet_noreg", "without physical regression"),
     ("gsnet_noedges", "without learned joint edges (body skinning weights)"),
+    ("gsnet_top4", "4 joint edges a vertex (joint_topk = 4)"),
 ]
 METRICS = [
     ("ev", "Euclidean error [mm]", 1e3, None),

@@ -155,3 +155,25 @@ def test_encoder_features_concatenate_the_global_maximum():
     local, glob = out[:, :16], out[:, 16:]
     torch.testing.assert_close(glob[:12], local[:12].max(0).values.expand(12, 16))
     torch.testing.assert_close(glob[12:], local[12:].max(0).values.expand(9, 16))
+
+
+def test_joint_topk_keeps_each_vertexs_strongest_joints():
+    t = template(4, 4, 0)
+    g = garment_batch([t])
+    dense, sparse = net(), net(joint_topk=4)
+    sparse.load_state_dict(dense.state_dict())
+    e_dense, e_sparse = dense.encode(g), sparse.encode(g)
+    assert ((e_sparse.joint_edges > 0).sum(1) == 4).all()
+    torch.testing.assert_close(e_sparse.joint_edges.sum(1), torch.ones(16))
+    kept = e_sparse.joint_edges > 0
+    strongest = e_dense.joint_edges.topk(4, dim=1).indices
+    assert kept.gather(1, strongest).all()
+    ratio = e_sparse.joint_edges[kept] / e_dense.joint_edges[kept]  # the same weights, renormalised
+    torch.testing.assert_close(ratio.reshape(16, 4), ratio.reshape(16, 4)[:, :1].expand(16, 4))
+    # 4 vertex-joint edges each way per vertex instead of 24
+    assert e_dense.graph.src.shape[0] - e_sparse.graph.src.shape[0] == 2 * 16 * 20
+    # with all 24 kept the network is the dense one
+    full = net(joint_topk=24)
+    full.load_state_dict(dense.state_dict())
+    a, roots = motion(3, 1, 9)
+    torch.testing.assert_close(full(g, a, roots, None)[1], dense(g, a, roots, None)[1])

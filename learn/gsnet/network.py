@@ -76,19 +76,23 @@ class GarmentEncoder(nn.Module):
 
 
 def skinning_graph(mesh: tuple[torch.Tensor, torch.Tensor], vertex_joint: torch.Tensor, segment: torch.Tensor,
-                   parents: torch.Tensor, num_graphs: int, kind: str) -> Graph:
+                   parents: torch.Tensor, num_graphs: int, kind: str,
+                   joints: torch.Tensor | None = None) -> Graph:
     """The normalised operator of the graph of garment vertices and body joints (Sec. 3.3).
 
     Nodes: the N garment vertices, then ``num_graphs`` blocks of 24 joints. Edges (both ways):
-    the mesh edges ``mesh`` (src, dst of the batched garments, weight 1), every vertex to the 24
-    joints of its garment's body with weight ``vertex_joint`` (N, 24), and each joint to its parent.
+    the mesh edges ``mesh`` (src, dst of the batched garments, weight 1), every vertex to the
+    joints of its garment's body with weight ``vertex_joint`` (N, 24) (all 24, or the (N, k) joint
+    indices ``joints``), and each joint to its parent.
     """
     n = vertex_joint.shape[0]
     dev = vertex_joint.device
-    v = torch.arange(n, device=dev).repeat_interleave(NUM_JOINTS)
-    j = (n + segment.repeat_interleave(NUM_JOINTS) * NUM_JOINTS
-         + torch.arange(NUM_JOINTS, device=dev).repeat(n))
-    w = vertex_joint.reshape(-1)
+    if joints is None:
+        joints = torch.arange(NUM_JOINTS, device=dev).expand(n, NUM_JOINTS)
+    k = joints.shape[1]
+    v = torch.arange(n, device=dev).repeat_interleave(k)
+    j = n + segment.repeat_interleave(k) * NUM_JOINTS + joints.reshape(-1)
+    w = vertex_joint.gather(1, joints).reshape(-1)
     child = torch.arange(1, NUM_JOINTS, device=dev)
     blocks = n + torch.arange(num_graphs, device=dev)[:, None] * NUM_JOINTS
     bc, bp = (blocks + child).reshape(-1), (blocks + parents[child].to(dev)).reshape(-1)
@@ -228,14 +232,18 @@ class GSNet(nn.Module):
         learned_edges: False: the vertex-joint edges are the body's transferred skinning weights.
         edge_prior: the learned edges' logits are offset by the log of those weights
             (``DeepSkinning.joint_edges``).
+        joint_topk: each vertex keeps its k strongest joint edges (renormalised) in the graph and
+            the blend; 0: all 24.
         regression: with the physical regression stage (Sec. 3.4).
         parents: the skeleton's parent indices (24,).
     """
 
     def __init__(self, in_features: int, *, width: int = 128, node: int = 32, operator: str = "laplacian",
-                 learned_edges: bool = True, edge_prior: bool = True, regression: bool = True, parents=None):
+                 learned_edges: bool = True, edge_prior: bool = True, regression: bool = True,
+                 joint_topk: int = 0, parents=None):
         super().__init__()
         self.operator = operator
+        self.joint_topk = int(joint_topk)
         self.learned_edges = learned_edges
         self.edge_prior = edge_prior
         self.encoder = GarmentEncoder(in_features, width)
@@ -257,7 +265,11 @@ class GSNet(nn.Module):
             edges = self.skinning.joint_edges(encoded, garments.skin_weights if self.edge_prior else None)
         else:
             edges = garments.skin_weights
-        graph = skinning_graph(garments.mesh, edges, garments.segment, self.parents, g, self.operator)
+        joints = None
+        if 0 < self.joint_topk < NUM_JOINTS:  # the k strongest joints of each vertex, renormalised
+            top, joints = edges.topk(self.joint_topk, dim=1)
+            edges = torch.zeros_like(edges).scatter(1, joints, top / top.sum(1, keepdim=True))
+        graph = skinning_graph(garments.mesh, edges, garments.segment, self.parents, g, self.operator, joints)
         return Encoded(encoded, edges, graph)
 
     def prior(self, enc: Encoded, garments: GarmentBatch, transforms: torch.Tensor) -> torch.Tensor:

@@ -47,6 +47,9 @@ class GSNetConfig:
     """Learned vertex-joint edges (Sec. 3.3); False: the body's transferred skinning weights."""
     edge_prior: bool = True
     """The learned edges start from the body's skinning weights (their logs offset the logits)."""
+    joint_topk: int = 0
+    """Joint edges each vertex keeps, its k strongest, renormalised (0: all 24, the paper's dense
+    N x 24 edges)."""
     regression: bool = True
     """The physical regression stage (Sec. 3.4)."""
     temporal: bool = True
@@ -170,6 +173,8 @@ class GSNetMethod(Method):
             raise err(f"model.width must be a multiple of 4, got {config.width}")
         if config.operator not in OPERATORS:
             raise err(f"model.operator must be one of {', '.join(OPERATORS)}, got {config.operator!r}")
+        if not 0 <= config.joint_topk <= 24:
+            raise err(f"model.joint_topk must be in [0, 24], got {config.joint_topk}")
         if not 0.0 <= config.cold_start <= 1.0:
             raise err(f"model.cold_start must be in [0, 1], got {config.cold_start}")
         for f in ("history_noise", "edge_weight", "bending_weight", "collision_weight", "collision_eps"):
@@ -190,7 +195,7 @@ class GSNetMethod(Method):
         c = self.config
         return GSNet(TEMPLATE_FEATURES, width=c.width, node=c.node, operator=c.operator,
                      learned_edges=c.learned_edges, edge_prior=c.edge_prior, regression=c.regression,
-                     parents=self.body().parents[:24])
+                     joint_topk=c.joint_topk, parents=self.body().parents[:24])
 
     def train_dataset(self, root) -> torch.utils.data.Dataset:
         return _TrainItems(self, root)
