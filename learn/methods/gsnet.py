@@ -109,19 +109,17 @@ class _TrainItems(torch.utils.data.Dataset):
 
     def _prep(self, sid: str) -> tuple:
         if sid not in self._prepared:
+            from learn.data import entry_arrays
             from learn.gsnet.data import make_template, motion_of
             from sim.datasets.storage import body_model_name
 
             f = self.windows.open_sequence(sid)
-            seq = {k: np.asarray(f[k]) for k in (*self.method.SEQUENCE_KEYS, *(
-                ["fine/face_layers"] if "fine/face_layers" in f else []))}
+            keys = [*self.method.SEQUENCE_KEYS, *(["fine/face_layers"] if "fine/face_layers" in f else [])]
+            entry = self.windows.entries[sid]
+            seq = {**{k: np.asarray(f[k]) for k in keys}, **entry_arrays(entry)}
             name = body_model_name(f, {"config": self.windows.generator_config}) or "default"
             body = self.method.body(name)
-            from learn.data import entry_arrays
-
-            entry = self.windows.entries[sid]
             material = entry.get("material") or DEFAULT_MATERIAL
-            seq.update(entry_arrays(entry))
             template = make_template(seq, body, material, neighbours=self.method.config.skin_neighbours)
             self._prepared[sid] = (template, *motion_of(seq, body), seq, name)
         return self._prepared[sid]
@@ -204,6 +202,8 @@ class GSNetMethod(Method):
         from learn.gsnet.data import garment_batch
 
         templates = [it["template"] for it in items]
+        if len({it["body_faces"].shape for it in items}) > 1:
+            raise ValueError("a GSNet batch needs one body model (the collision terms share its faces)")
         return {"keys": [it["key"] for it in items], "garments": garment_batch(templates),
                 "templates": templates,
                 "target": torch.from_numpy(np.concatenate([it["target"] for it in items], axis=1)),
