@@ -197,3 +197,38 @@ def test_the_harness_measures_gsnets_normal_angles(sample_dataset):
     other, _ = sequence_metrics(noisy, sf, entry, None, derive_config=dc, device="cpu")
     assert other["normal_angle"] > 1.5 * same["normal_angle"]
     assert other["normal_angle_gt"] == same["normal_angle_gt"]
+
+
+@pytest.mark.slow
+def test_the_physical_regression_learns_to_lift_vertices_out_of_the_body(sample_dataset):
+    """Sec. 3.4: after a short overfit with the collision term, fewer of the final output's vertices
+    are inside the body than of the deep skinning's (the regression moves the ones its filter marks)."""
+    from dataclasses import replace
+
+    config = replace(TINY, collision_weight=100.0, cold_start=0.0)
+    method = GSNetMethod(config)
+    ds = method.train_dataset(sample_dataset)
+    batch = method.collate([ds[(i, i)] for i in range(0, len(ds), max(1, len(ds) // 4))][:4])
+    torch.manual_seed(0)
+    model = method.build_model()
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    for _ in range(60):
+        out = method.training_loss(model, batch, torch.Generator().manual_seed(0))
+        opt.zero_grad()
+        out.loss.backward()
+        opt.step()
+    g = batch["garments"]
+    losses = [method.losses_of(k, t, batch["body_faces"])
+              for k, t in zip(batch["keys"], batch["templates"], strict=True)]
+    anchors = method._anchors(losses, g, batch["body"], 2)
+    with torch.no_grad():
+        skinned, final = model(g, batch["transforms"], batch["roots"], batch["history"], anchors=anchors,
+                               fps=batch["fps"], eps=config.collision_eps)
+
+    def inside(x):  # the share of vertices behind their nearest body vertex's tangent plane
+        fractions = []
+        for r, xr in enumerate(x):
+            p, n = anchors(xr, r + 2)
+            fractions.append(float(((xr - p) * n).sum(-1).lt(0).float().mean()))
+        return float(np.mean(fractions))
+    assert inside(final) < 0.7 * inside(skinned) and inside(skinned) > 0.01
