@@ -15,6 +15,7 @@ Without ``--model`` the network is an untrained one of the shipped configuration
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 
 import numpy as np
@@ -81,6 +82,10 @@ def main(argv: list[str] | None = None) -> int:
     from sim.simulate import SimulationConfig
 
     a = parse_args(argv)
+    topks = [int(v) for v in a.joint_topk.split(",")]
+    if not all(0 <= k <= 24 for k in topks):
+        print(f"bench_gsnet: --joint-topk values must be in [0, 24], got {a.joint_topk}", file=sys.stderr)
+        return 2
     body = load_default_body()
     method, model = load_method(a.model, a.device)
     motion = benchmark_motion("walk", body, a.seconds)
@@ -88,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     for n in [int(v) for v in a.vertices.split(",")]:
         garment, edge = build_garment(body, n)
         row = {"target_vertices": n, "vertices": int(len(garment.rest_vertices)), "edge_m": edge, "gsnet": {}}
-        for k in [int(v) for v in a.joint_topk.split(",")]:
+        for k in topks:
             model.joint_topk = k  # the weights do not change: a choice of inference
             row["gsnet"][str(k)] = time_gsnet(method, model, garment, body, motion, a.device)
         if not a.no_simulation:

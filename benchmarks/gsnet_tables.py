@@ -12,7 +12,7 @@ and writes the tables (markdown) and their JSON:
 - Table 2 (GSNet Table 2): the same by garment category, seen designs and the held-out ones
   (``--unseen``: in test_ood only).
 - Table 3 (GSNet Table 3): GSNet's ablations, without temporal input, without physical
-  regression, without learned joint edges.
+  regression, without learned joint edges; and 4 joint edges a vertex (``model.joint_topk``).
 """
 
 from __future__ import annotations

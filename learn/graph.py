@@ -120,7 +120,8 @@ def batch_graphs(graphs: list[Graph]) -> tuple[Graph, torch.Tensor]:
     src = torch.cat([g.src + int(o) for g, o in zip(graphs, offsets, strict=False)])
     dst = torch.cat([g.dst + int(o) for g, o in zip(graphs, offsets, strict=False)])
     weight = torch.cat([g.weight for g in graphs])
-    segment = torch.cat([torch.full((g.num_nodes,), i, dtype=torch.int64) for i, g in enumerate(graphs)])
+    segment = torch.cat([torch.full((g.num_nodes,), i, dtype=torch.int64, device=g.src.device)
+                         for i, g in enumerate(graphs)])
     return Graph(src, dst, weight, int(offsets[-1])), segment
 
 

@@ -25,7 +25,10 @@ training data (pipelines/configs/gsnet.toml)."""
 
 
 def check_options(args: argparse.Namespace) -> None:
-    """The other methods' options are refused, in one line."""
+    """The other methods' options are refused, and ``--garment`` / ``--resolution`` checked (a
+    garment file is animated with its own mesh), in one line, before anything is loaded."""
+    from pipelines.simulate_cmd import check_garment_spec
+
     for key, flag in (("coarse", "--coarse"), ("wrinkles", "--wrinkles"), ("steps", "--steps"),
                       ("data", "--data"), ("surface", "--surface"), ("normal_map_bits", "--normal-map-bits")):
         if getattr(args, key, None) is not None:
@@ -34,6 +37,7 @@ def check_options(args: argparse.Namespace) -> None:
         raise WrinklesInputError("--no-wrinkles / --sample-latent do not apply to --method gsnet")
     if not (args.clearance >= 0 and args.clearance < 0.1):
         raise WrinklesInputError(f"--clearance must be in [0, 0.1) m, got {args.clearance}")
+    check_garment_spec(types.SimpleNamespace(garment=args.garment, resolution=args.resolution))
 
 
 def model_path(args: argparse.Namespace) -> Path:
@@ -79,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     method, model, _ = load_trained(path, device=dev)
     if method.name != "gsnet":
         raise WrinklesInputError(f"a {method.name} checkpoint; --method gsnet needs a gsnet one", path=path)
-    frames, trans = grounded_frames(bm, wdev)
+    frames, _ = grounded_frames(bm, wdev)
     template = garment_template(garment, bm.body, bm.betas, neighbours=method.config.skin_neighbours)
     seq = {"body/poses": bm.motion.poses, "body/joints": frames.joints[:, :24], "body/betas": bm.betas}
     transforms, roots = motion_of(seq, bm.body)

@@ -4,14 +4,22 @@
 # ablations (no temporal input, no physical regression, no learned joint edges, 4 joint edges a
 # vertex) and the skinned_mlp baseline on the same data, export release weights (WORKDIR/release),
 # evaluate every row on test_id and test_ood (all sequences), write GSNet's Tables 1-3 and time
-# GSNet (all and 4 joint edges a vertex) against the simulator. Needs a CUDA GPU (two are used when present). Time-boxed and resumable as
-# scripts/train_pretrained.sh: generation and training stop at their budgets; run it again to go on.
+# GSNet (all and 4 joint edges a vertex) against the simulator. Needs a CUDA GPU (two are used
+# when present). Time-boxed and resumable as scripts/train_pretrained.sh: generation and training
+# stop at their budgets; run it again to go on. Exits 1 when a training, the export or an
+# evaluation failed.
 #   bash scripts/train_gsnet.sh WORKDIR [GEN_SECONDS] [TRAIN_SECONDS]
-# STAGES picks stages (default "generate train export evaluate bench"); ABLATION_STEPS the ablations'
-# and the baseline's steps (default 3000); MAXSEQ limits the sequences evaluated per split (default: all);
-# DEVICE=cpu and DATA_CONFIG=sample (with --set overrides in EXTRA_SET) make a small CPU run of it.
+# STAGES picks stages (default "generate train export evaluate bench"); ABLATION_STEPS the
+# ablations' and the baseline's steps (default 3000); MAXSEQ limits the sequences evaluated per
+# split (default: all). DEVICE=cpu and DATA_CONFIG=sample make a small CPU run of it; EXTRA_SET
+# holds --set overrides of every training (train.* and optim.* keys: the skinned_mlp baseline has
+# other model.* keys).
 set -u
-W=${1:?work directory}; GEN=${2:-420}; TRAIN=${3:-600}
+W=$(realpath -m "${1:?work directory}"); GEN=${2:-420}; TRAIN=${3:-600}
+cd "$(dirname "$0")/.."  # configs and `-m pipelines.cli` are the repository's
+for n in "$GEN" "$TRAIN"; do
+  [[ "$n" =~ ^[0-9]+$ ]] || { echo "GEN_SECONDS and TRAIN_SECONDS must be whole seconds, got '$n'" >&2; exit 2; }
+done
 STAGES=" ${STAGES:-generate train export evaluate bench} "
 for s in $STAGES; do
   case $s in generate|train|export|evaluate|bench) ;; *) echo "STAGES: unknown stage '$s' (generate train export evaluate bench)" >&2; exit 2;; esac
@@ -22,10 +30,10 @@ D="$W/data/gsnet"
 CFG=pipelines/configs/train/gsnet.toml
 DEVICE=${DEVICE:-cuda}; DATA_CONFIG=${DATA_CONFIG:-pipelines/configs/gsnet.toml}
 UNSEEN=flared_skirt,long_sleeve
-mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release"
+mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release"; rm -f "$W/.failed"
 log() { echo "[$(date +%T)] $*" | tee -a "$W/logs/pipeline.log"; }
 stage() { [[ "$STAGES" == *" $1 "* ]]; }
-GPUS=$($PY -c "import torch; print(max(1, torch.cuda.device_count()))")
+GPUS=$($PY -c "import torch; print(max(1, torch.cuda.device_count()))") || { echo "$PY cannot import torch" >&2; exit 2; }
 gpu() { [ "$DEVICE" = cpu ] && echo cpu || echo "cuda:$(( $1 % GPUS ))"; }  # the k-th job's device
 
 if stage generate; then
@@ -47,30 +55,32 @@ if stage train; then
     timeout -s INT "$TRAIN" $CLI train "$method" --data "$D" --out "$W/runs/$name" --config "$cfg" \
       --device "$dev" -q ${EXTRA_SET:-} "$@" $resume >"$W/logs/train-$name.log" 2>&1
   }
-  train gsnet gsnet "$(gpu 0)" &
-  train gsnet_notemp gsnet "$(gpu 1)" --set model.temporal=false --set train.steps=$AB &
-  train gsnet_noreg gsnet "$(gpu 1)" --set model.regression=false --set train.steps=$AB &
-  train gsnet_noedges gsnet "$(gpu 0)" --set model.learned_edges=false --set train.steps=$AB &
-  train skinned_mlp skinned_mlp "$(gpu 1)" --set train.steps=$AB &
-  train gsnet_top4 gsnet "$(gpu 0)" --set model.joint_topk=4 --set train.steps=$AB &
-  wait
+  pids=()
+  train gsnet gsnet "$(gpu 0)" & pids+=($!)
+  train gsnet_notemp gsnet "$(gpu 1)" --set model.temporal=false --set train.steps=$AB & pids+=($!)
+  train gsnet_noreg gsnet "$(gpu 1)" --set model.regression=false --set train.steps=$AB & pids+=($!)
+  train gsnet_noedges gsnet "$(gpu 0)" --set model.learned_edges=false --set train.steps=$AB & pids+=($!)
+  train skinned_mlp skinned_mlp "$(gpu 1)" --set train.steps=$AB & pids+=($!)
+  train gsnet_top4 gsnet "$(gpu 0)" --set model.joint_topk=4 --set train.steps=$AB & pids+=($!)
+  for p in "${pids[@]}"; do  # 124: stopped at the budget (timeout's SIGINT), resumable; else failed
+    wait "$p"; rc=$?; [ $rc -eq 0 ] || [ $rc -eq 124 ] || { log "a training failed ($rc)"; touch "$W/.failed"; }
+  done
   for f in "$W"/logs/train-*.log; do log "$(basename $f): $(tail -1 $f)"; done
 fi
 
 if stage export; then
   log "export"
-  $PY -m learn.train.export "$W/runs/gsnet/checkpoints/last.pt" "$W/release/gsnet.pt"
-  log "exported: $(du -h "$W/release/gsnet.pt" | cut -f1)"
+  $PY -m learn.train.export "$W/runs/gsnet/checkpoints/last.pt" "$W/release/gsnet.pt" \
+    && log "exported: $(du -h "$W/release/gsnet.pt" | cut -f1)" || { log "export failed"; touch "$W/.failed"; }
 fi
 
 if stage evaluate; then
   log "evaluate"
-  rm -f "$W/.eval_failed"
   ev() {  # row split model device
     local row=$1 split=$2 model=$3 dev=$4
     $CLI evaluate --model "$model" --data "$D" --split "$split" --out "$W/eval/$row-$split" --no-images -q \
       --image-resolution 0 ${MAXSEQ:+--max-sequences $MAXSEQ} --device "$dev" >"$W/logs/eval-$row-$split.log" 2>&1 \
-      || { log "evaluate $row $split failed"; touch "$W/.eval_failed"; }
+      || { log "evaluate $row $split failed"; touch "$W/.failed"; }
   }
   k=0
   for row in gsnet gsnet_notemp gsnet_noreg gsnet_noedges gsnet_top4 skinned_mlp; do
@@ -91,5 +101,5 @@ if stage bench; then
 fi
 
 log "done"
-stage evaluate && [ -f "$W/.eval_failed" ] && { log "some evaluations failed (see $W/logs/eval-*.log)"; exit 1; }
+[ -f "$W/.failed" ] && { log "some stages failed (see $W/logs/)"; exit 1; }
 exit 0

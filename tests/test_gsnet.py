@@ -164,6 +164,8 @@ def test_animate_a_user_garment_file_with_gsnet(gsnet_checkpoint, tmp_path):
     (["--steps", "10"], "--steps does not apply to --method gsnet"),
     (["--model", "missing.pt"], "missing.pt: no such model file"),
     (["--resolution", "0.03", "--method", "diffusion"], "--resolution applies to --method gsnet"),
+    (["--garment", "tee.obj", "--resolution", "0.03"], "--resolution applies to templates"),
+    (["--garment", "cape"], "unknown garment"),
 ])
 def test_animate_gsnet_refuses_bad_options_in_one_line(gsnet_checkpoint, tmp_path, extra, needle):
     from tests.test_cli import assert_user_error, run_cli
@@ -232,3 +234,16 @@ def test_the_physical_regression_learns_to_lift_vertices_out_of_the_body(sample_
             fractions.append(float(((xr - p) * n).sum(-1).lt(0).float().mean()))
         return float(np.mean(fractions))
     assert inside(final) < 0.7 * inside(skinned) and inside(skinned) > 0.01
+
+
+def test_a_body_with_more_than_smpls_24_joints_is_refused():
+    import types
+
+    from learn.gsnet.data import check_body
+    from sim.errors import WrinklesInputError
+
+    smplx = types.SimpleNamespace(weights=np.zeros((10, 55)), source="models/smplx.npz", name="smplx")
+    with pytest.raises(WrinklesInputError, match="24-joint SMPL bodies; this body model has 55 joints") as e:
+        check_body(smplx)
+    assert "models/smplx.npz" in str(e.value)
+    check_body(types.SimpleNamespace(weights=np.zeros((10, 24)), source=None, name="default"))

@@ -152,9 +152,10 @@ def test_encoder_features_concatenate_the_global_maximum():
 
     w = torch.ones(g.mesh[0].shape[0])
     out = enc(normalised_operator(g.mesh[0], g.mesh[1], w, 21), g.features, g.segment, 2)
-    local, glob = out[:, :16], out[:, 16:]
+    local, glob, raw = out[:, :16], out[:, 16:32], out[:, 32:]
     torch.testing.assert_close(glob[:12], local[:12].max(0).values.expand(12, 16))
     torch.testing.assert_close(glob[12:], local[12:].max(0).values.expand(9, 16))
+    torch.testing.assert_close(raw, g.features)  # the skip: template features unfiltered
 
 
 def test_joint_topk_keeps_each_vertexs_strongest_joints():

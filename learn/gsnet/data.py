@@ -20,7 +20,7 @@ import torch
 from learn.data import rest_betas
 from learn.graph import mesh_edges, symmetric
 from learn.gsnet.features import body_motion, template_features
-from learn.gsnet.network import GarmentBatch
+from learn.gsnet.network import NUM_JOINTS, GarmentBatch
 
 
 @dataclass
@@ -43,6 +43,16 @@ class Template:
         return int(self.rest.shape[0])
 
 
+def check_body(body) -> None:
+    """GSNet's joints are SMPL's 24 body joints: a body model with more (SMPL-H, SMPL-X: hands,
+    jaw, eyes) is refused in one line."""
+    from sim.errors import WrinklesInputError
+
+    if body.weights.shape[1] != NUM_JOINTS:
+        raise WrinklesInputError(f"GSNet animates garments on 24-joint SMPL bodies; this body model has "
+                                 f"{body.weights.shape[1]} joints", path=body.source or body.name)
+
+
 def make_template(seq: Mapping[str, np.ndarray], body, material, *, neighbours: int = 4) -> Template:
     """The template of a sequence's fine garment on its body (``sim.datasets.schema`` names).
 
@@ -55,6 +65,7 @@ def make_template(seq: Mapping[str, np.ndarray], body, material, *, neighbours: 
     """
     from sim.skinning.transfer import transfer_skinning_weights
 
+    check_body(body)
     rest = np.array(seq["fine/rest_vertices"], np.float32)
     faces = np.array(seq["fine/faces"], np.int32)
     betas = rest_betas(seq, body.num_betas)

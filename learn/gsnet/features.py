@@ -36,11 +36,8 @@ def vertex_uvs(faces: np.ndarray, uvs: np.ndarray, uv_faces: np.ndarray, num_ver
     """Each vertex's UV (the UV of its first face corner in face order), (V, 2) float32."""
     out = np.zeros((num_vertices, 2), np.float32)
     f, uf = np.asarray(faces).reshape(-1), np.asarray(uv_faces).reshape(-1)
-    first = np.full(num_vertices, -1, np.int64)
-    order = np.arange(f.size)[::-1]  # reversed, so the first corner's write lands last
-    first[f[order]] = order
-    have = first >= 0
-    out[have] = np.asarray(uvs, np.float32)[uf[first[have]]]
+    used, first = np.unique(f, return_index=True)  # each vertex's first corner
+    out[used] = np.asarray(uvs, np.float32)[uf[first]]
     return out
 
 

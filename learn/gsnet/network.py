@@ -5,7 +5,7 @@ block-diagonal graph; ``segment`` gives each vertex its garment):
 
 - :class:`GarmentEncoder` (Sec. 3.2): three graph convolutions (Eq. 4) over the garment's mesh with
   the normalised operator (Eq. 2-3) from per-vertex template features, then a max-pooled global
-  feature concatenated to every vertex: (N, 2 width).
+  feature concatenated to every vertex, and the template features again: (N, 2 width + C).
 - :class:`DeepSkinning` (Sec. 3.3): three fully connected layers turn the encoder's features into
   the edges between each garment vertex and the 24 body joints (a softmax over joints: learned
   attention, not nearest-bone weights). One graph of the garment's vertices and the joints (mesh
@@ -60,7 +60,10 @@ def mlp(widths: list[int], *, zero_last: bool = False) -> nn.Sequential:
 
 
 class GarmentEncoder(nn.Module):
-    """Sec. 3.2: template features (N, C) -> per-vertex latent features (N, 2 width)."""
+    """Sec. 3.2: template features (N, C) -> per-vertex latent features (N, 2 width + C): the
+    three graph convolutions' features, their maximum over the garment, and the template features
+    themselves (a skip the paper does not have: the normalised Laplacian nearly cancels what is
+    constant over a garment, the material features keep 4 % of their size through one layer)."""
 
     def __init__(self, in_features: int, width: int = 128):
         super().__init__()
@@ -70,10 +73,11 @@ class GarmentEncoder(nn.Module):
                                     GraphConv(width, width, nn.ReLU())])
 
     def forward(self, graph: Graph, x: torch.Tensor, segment: torch.Tensor, num_graphs: int) -> torch.Tensor:
+        raw = x
         for conv in self.convs:
             x = conv(graph, x)
         pooled = segment_max(x, segment, num_graphs)
-        return torch.cat([x, pooled.index_select(0, segment)], dim=1)
+        return torch.cat([x, pooled.index_select(0, segment), raw], dim=1)
 
 
 def skinning_graph(mesh: tuple[torch.Tensor, torch.Tensor], vertex_joint: torch.Tensor, segment: torch.Tensor,
@@ -168,6 +172,8 @@ class PhysicalRegression(nn.Module):
 
     def forward(self, graph: Graph, features: torch.Tensor, geometry: torch.Tensor,
                 joints: torch.Tensor) -> torch.Tensor:
+        """Corrections [m] (N, 3) from the skinning's vertex features (N, width), the geometry
+        (N, ``REGRESSION_FEATURES``) and the joint features (G * 24, 24), on ``graph``."""
         n = features.shape[0]
         h = torch.cat([self.vertices(torch.cat([features, geometry], dim=1)), self.joints(joints)])
         for conv in self.convs:
@@ -273,14 +279,12 @@ class GSNet(nn.Module):
         self.learned_edges = learned_edges
         self.edge_prior = edge_prior
         self.encoder = GarmentEncoder(in_features, width)
-        self.skinning = DeepSkinning(2 * width, width, node, learned_edges=learned_edges)
+        self.skinning = DeepSkinning(2 * width + in_features, width, node, learned_edges=learned_edges)
         self.regression = PhysicalRegression(width, node) if regression else None
         self.register_buffer("parents", torch.as_tensor(parents, dtype=torch.int64), persistent=False)
 
     def encode(self, garments: GarmentBatch) -> Encoded:
         """The per-garment work of a batch, done once for all its frames."""
-        from learn.graph import normalised_operator
-
         g = garments.num_graphs
         n = garments.features.shape[0]
         feats = garments.features
@@ -318,6 +322,8 @@ class GSNet(nn.Module):
     def regress(self, enc: Encoded, x: torch.Tensor, features: torch.Tensor, anchors: torch.Tensor,
                 normals: torch.Tensor, joints: torch.Tensor, eps: float) -> torch.Tensor:
         """Physical regression: ``x`` (N, 3) with the filtered vertices corrected (Sec. 3.4).
+
+        Positions ``x``, ``anchors`` are relative to the frame's root [m].
 
         Args:
             anchors, normals: nearest body vertex of each garment vertex and its unit normal (N, 3).

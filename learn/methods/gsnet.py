@@ -88,6 +88,9 @@ class _Losses:
         self.edge = GSNetEdgeLoss(topo, reduction="none")
         self.bending = GSNetBendingLoss(topo, reduction="none")
         self.collision = GSNetCollisionLoss(topo, body_faces=body_faces, eps=eps, reduction="none")
+        # the regression's body search, one frame at a time: an instance of its own, since an
+        # instance rebuilds its search structure whenever the batch size changes
+        self.search = GSNetCollisionLoss(topo, body_faces=body_faces, eps=eps, reduction="none")
         self.num_edges, self.num_vertices = len(topo.edges), topo.num_vertices
 
 
@@ -199,6 +202,10 @@ class GSNetMethod(Method):
         return _TrainItems(self, root)
 
     def collate(self, items: list) -> dict:
+        """B items -> a batch: ``garments`` (``GarmentBatch``, N vertices in all), ``templates`` and
+        ``keys`` (lists), ``target`` and ``history`` (R + 2, N, 3) and (2, N, 3) [m] (garments
+        concatenated along the vertex axis), ``cold`` (B,) bool, ``transforms`` (B, R + 2, 24, 3, 4),
+        ``roots`` (B, R + 2, 3) [m], ``body`` (B, R, Vb, 3) [m], ``body_faces``, ``fps``."""
         from learn.gsnet.data import garment_batch
 
         templates = [it["template"] for it in items]
@@ -230,12 +237,14 @@ class GSNetMethod(Method):
         from learn.gsnet.data import split_vertices
 
         def anchors(x: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-            found = [ls.collision.nearest_anchors(xb[None], body[b, k - first][None])
+            found = [ls.search.nearest_anchors(xb[None], body[b, k - first][None])
                      for b, (ls, xb) in enumerate(zip(losses, split_vertices(x, garments), strict=True))]
             return torch.cat([a.points[0] for a in found]), torch.cat([a.normals[0] for a in found])
         return anchors
 
     def training_loss(self, model: nn.Module, batch: dict, generator: torch.Generator) -> LossOutput:
+        """The rollout's loss (module docstring) on a ``collate`` batch; scalars: the terms and the
+        final output's mean vertex error [m]."""
         from learn.gsnet.data import split_vertices
 
         c = self.config
@@ -306,7 +315,7 @@ class GSNetMethod(Method):
             ls = _Losses(template.rest, template.faces, np.asarray(body_faces), c.collision_eps)
 
             def anchors(x: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-                a = ls.collision.nearest_anchors(x[None], bodies[k - 2][None])
+                a = ls.search.nearest_anchors(x[None], bodies[k - 2][None])
                 return a.points[0], a.normals[0]
         g = garment_batch([template]).to(device)
         a, r = torch.from_numpy(transforms)[None].to(device), torch.from_numpy(roots)[None].to(device)
