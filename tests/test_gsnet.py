@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -247,3 +249,14 @@ def test_a_body_with_more_than_smpls_24_joints_is_refused():
         check_body(smplx)
     assert "models/smplx.npz" in str(e.value)
     check_body(types.SimpleNamespace(weights=np.zeros((10, 24)), source=None, name="default"))
+
+
+@pytest.mark.skipif(Path(__file__).resolve().parents[1].joinpath("pretrained", "gsnet.pt").exists(),
+                    reason="this checkout ships GSNet's weights")
+def test_animate_gsnet_without_a_model_says_how_to_get_one(tmp_path):
+    from tests.test_cli import assert_user_error, run_cli
+
+    proc = run_cli("animate", "--method", "gsnet", "--garment", "t_shirt", "--motion", "walk",
+                   "--out", str(tmp_path / "a.usdc"))
+    assert_user_error(proc, "no shipped GSNet model", "wrinkles train gsnet", "--model")
+    assert not (tmp_path / "a.usdc").exists()
