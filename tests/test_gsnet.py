@@ -260,3 +260,30 @@ def test_animate_gsnet_without_a_model_says_how_to_get_one(tmp_path):
                    "--out", str(tmp_path / "a.usdc"))
     assert_user_error(proc, "no shipped GSNet model", "wrinkles train gsnet", "--model")
     assert not (tmp_path / "a.usdc").exists()
+
+
+@pytest.mark.slow
+def test_a_training_item_holds_the_frames_of_its_window(sample_dataset):
+    """Item = frames t-2 .. t+R-1 of one sequence: the simulated garment of all of them, the
+    history (the first two, plus noise), and the posed body of the rolled-out ones, which is the
+    body the evaluation poses (Warp skinning) to 1e-6 m."""
+    from sim.datasets.storage import SequenceFile
+
+    method = GSNetMethod(TINY)
+    ds = method.train_dataset(sample_dataset)
+    index = len(ds) - 1
+    it = ds[(index, 3)]
+    sid, t = ds.windows.locate(index)
+    sf = SequenceFile(sample_dataset / ds.windows.entries[sid]["file"])
+    r = TINY.rollout
+    gt = np.asarray(sf["fine/vertices"])[t:t + r + 2]
+    np.testing.assert_array_equal(it["target"], gt)
+    noise = it["history"] - gt[:2]
+    assert 0.5 * TINY.history_noise < noise.std() < 2 * TINY.history_noise
+    body = method.body("default")
+    betas = np.asarray(sf["body/betas"])[: body.num_betas]
+    posed = body.pose(betas, np.asarray(sf["body/poses"])[t + 2:t + r + 2],
+                      np.asarray(sf["body/trans"])[t + 2:t + r + 2], device="cpu").vertices
+    np.testing.assert_allclose(it["body"], posed, atol=1e-6)
+    assert it["transforms"].shape == (r + 2, 24, 3, 4) and it["roots"].shape == (r + 2, 3)
+    np.testing.assert_allclose(it["roots"], np.asarray(sf["body/joints"])[t:t + r + 2, 0], atol=1e-6)

@@ -133,15 +133,20 @@ class _TrainItems(torch.utils.data.Dataset):
         template, transforms, roots, seq, name = self._prep(sid)
         w = self.windows.window
         frames = self.windows[index]["fine/vertices"].numpy()
+        from sim.skinning.lbs import lbs_reference
+
         body = self.method.body(name)
         betas = np.asarray(seq["body/betas"], np.float32).reshape(-1)[: body.num_betas]
-        posed = body.pose(betas, seq["body/poses"][t + 2:t + w], seq["body/trans"][t + 2:t + w], device="cpu")
+        # numpy, not Warp: items are made in forked data-loader workers of a process that may
+        # hold a CUDA context
+        posed, _ = lbs_reference(body, betas, body.full_poses(seq["body/poses"][t + 2:t + w]),
+                                 seq["body/trans"][t + 2:t + w])
         rng = np.random.default_rng(seed)
         noise = rng.normal(0.0, self.method.config.history_noise, (2, *frames.shape[1:])).astype(np.float32)
         return {"key": sid, "template": template, "target": frames,
                 "history": frames[:2] + noise, "cold": bool(rng.random() < self.method.config.cold_start),
                 "transforms": transforms[t:t + w], "roots": roots[t:t + w],
-                "body": posed.vertices.astype(np.float32), "body_faces": np.asarray(body.faces),
+                "body": posed.astype(np.float32), "body_faces": np.asarray(body.faces),
                 "fps": self.fps}
 
     def __getstate__(self) -> dict:
