@@ -57,11 +57,28 @@ def rest_betas(seq: Mapping[str, np.ndarray], num_betas: int) -> np.ndarray:
     return np.asarray(b, np.float32).reshape(-1)[:num_betas]
 
 
-def entry_arrays(entry: Mapping) -> dict[str, np.ndarray]:
-    """The arrays a dataset's manifest entry adds to its sequence (``garment/betas``)."""
-    if entry.get("garment_betas") is None:
-        return {}
-    return {"garment/betas": np.asarray(entry["garment_betas"], np.float32)}
+def sequence_inputs(sf: SequenceFile, entry: Mapping, config: Mapping,
+                    keys: Iterable[str] | None = None) -> dict[str, np.ndarray]:
+    """A sequence as ``Method.predict_sequence`` reads it: its arrays (all, or those of ``keys`` it
+    has), ``body/model`` (the body's name or file), ``fps``, ``sequence/path``,
+    ``garment/material`` (empty when unknown) and, from the manifest entry, ``garment/betas``
+    where the garment was made on another shape than the body's (a reference fit).
+
+    Args:
+        sf: the sequence file; entry: its manifest entry; config: the manifest's generator config.
+        keys: array names to read (a missing one is left out); None: every one.
+    """
+    from sim.datasets.storage import body_model_name
+
+    names = sf.keys() if keys is None else [k for k in keys if k in sf]
+    seq = {k: np.asarray(sf[k]) for k in names}
+    seq["body/model"] = np.asarray(body_model_name(sf, {"config": config}) or "default")
+    seq["fps"] = np.asarray(float(config.get("fps") or 30.0))
+    seq["sequence/path"] = np.asarray(str(sf.path))
+    seq["garment/material"] = np.asarray(str(entry.get("material") or ""))
+    if entry.get("garment_betas") is not None:
+        seq["garment/betas"] = np.asarray(entry["garment_betas"], np.float32)
+    return seq
 
 
 

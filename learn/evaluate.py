@@ -215,9 +215,9 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
     Raises:
         WrinklesInputError: unreadable dataset, an empty split.
     """
-    from learn.data import entry_arrays
+    from learn.data import sequence_inputs
     from learn.metrics import NormalMapFeatures
-    from sim.datasets.storage import SequenceFile, body_model_name, read_manifest, sequence_path
+    from sim.datasets.storage import SequenceFile, read_manifest, sequence_path
 
     root = Path(data_root)
     manifest = read_manifest(root)
@@ -235,13 +235,8 @@ def evaluate(method: Method, model: torch.nn.Module, data_root: str | os.PathLik
     for k, (sid, entry) in enumerate(entries.items()):
         t0 = time.perf_counter()
         sf = SequenceFile(sequence_path(root, sid) if "file" not in entry else root / entry["file"])
-        seq = {name: np.asarray(sf[name]) for name in sf.keys()}
-        body_name = body_model_name(sf, manifest) or "default"
-        seq["body/model"] = np.asarray(body_name)  # which body to re-pose (Method.predict_sequence)
-        seq["fps"] = np.asarray(float((manifest.get("config") or {}).get("fps") or 30.0))
-        seq["sequence/path"] = np.asarray(str(sf.path))
-        seq["garment/material"] = np.asarray(str(entry.get("material") or ""))
-        seq.update(entry_arrays(entry))
+        seq = sequence_inputs(sf, entry, manifest.get("config") or {})
+        body_name = str(seq["body/model"])
         opts = dict(predict_options or {})
         if coarse is not None:
             opts["base"] = coarse[0].predict_sequence(coarse[1], seq, device=dev).vertices

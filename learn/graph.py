@@ -63,11 +63,11 @@ def propagate(graph: Graph, x: torch.Tensor) -> torch.Tensor:
 
 
 def mesh_edges(faces: np.ndarray) -> np.ndarray:
-    """Unique undirected edges ``(a, b)``, ``a < b``, of a triangle mesh, (E, 2) int64."""
-    f = np.asarray(faces, np.int64)
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    e.sort(axis=1)
-    return np.unique(e, axis=0)
+    """Unique undirected edges ``(a, b)``, ``a < b``, of a triangle mesh, (E, 2) int64, sorted
+    (``sim.quality.unique_edges``, as torch indexes)."""
+    from sim.quality import unique_edges
+
+    return unique_edges(faces).astype(np.int64)
 
 
 def symmetric(edges: torch.Tensor, weight: torch.Tensor | None = None) -> tuple[torch.Tensor, ...]:

@@ -188,6 +188,29 @@ def grounded_frames(bm, device: str):
     return frames, trans
 
 
+def write_animation(args: argparse.Namespace, paths, garment, verts: np.ndarray, bm, frames,
+                    provenance: dict) -> None:
+    """The stage, its sidecar JSON and the previews (``paths``: ``check_stage_outputs``) of a
+    garment animated on ``bm``'s body (``frames``), all or none; ``provenance`` gains the command
+    line, the seed and the versions."""
+    from pipelines.simulate_cmd import preview_meshes, write_sequence_usd
+    from sim.types import GarmentSequence
+    from sim.versions import package_versions
+
+    provenance = {"command": command_line(), **provenance, "seed": args.seed,
+                  "versions": package_versions("usd-core")}
+    seq = GarmentSequence(vertices=verts, body=frames, garment=garment, motion=bm.motion,
+                          fps=float(bm.motion.fps), provenance=provenance)
+    betas = [float(b) for b in np.asarray(bm.betas).ravel()]
+    metadata = json.loads(json.dumps({**provenance, "motion_params": bm.params, "betas": betas}))
+    with OutputSet() as outputs:
+        write_sequence_usd(outputs.temp(paths.usd), seq, metadata, quiet=args.quiet,
+                           rig=stage_rig(bm.body, bm.betas, frames, points=args.body_points))
+        outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
+        write_previews(outputs, paths, lambda: preview_meshes(seq), num_frames=len(verts), fps=seq.fps,
+                       camera=args.camera, quiet=args.quiet)
+
+
 def _garment(pipe, material: str | None):
     """The models' garment with the wrinkle model's material (its first unless named)."""
     from sim.garments.materials import get_material
@@ -242,10 +265,7 @@ def _run_diffusion(args: argparse.Namespace) -> int:
     from learn.animate import WrinklePipeline
     from learn.train.distributed import resolve_torch_device
     from pipelines.options import load_body_and_motion
-    from pipelines.simulate_cmd import preview_meshes, write_sequence_usd
     from sim.device import resolve_device
-    from sim.types import GarmentSequence
-    from sim.versions import package_versions
 
     t0 = time.perf_counter()
     _check_options(args)
@@ -281,27 +301,14 @@ def _run_diffusion(args: argparse.Namespace) -> int:
             body_faces=frames.faces,
             clearance=args.clearance,
         )
-    garment = _garment(pipe, args.material)
     provenance = {
-        "command": command_line(),
         "coarse_model": str(coarse),
         "wrinkle_model": None if wrinkles is None else str(wrinkles),
         "ddim_steps": steps,
-        "seed": args.seed,
         "device": str(dev),
         "stage_seconds": {k: round(v, 3) for k, v in res.seconds.items()},
-        "versions": package_versions("usd-core"),
     }
-    seq = GarmentSequence(vertices=res.vertices, body=frames, garment=garment, motion=bm.motion,
-                          fps=float(bm.motion.fps), provenance=provenance)
-    betas = [float(b) for b in np.asarray(bm.betas).ravel()]
-    metadata = json.loads(json.dumps({**provenance, "motion_params": bm.params, "betas": betas}))
-    with OutputSet() as outputs:
-        write_sequence_usd(outputs.temp(paths.usd), seq, metadata, quiet=args.quiet,
-                           rig=stage_rig(bm.body, bm.betas, frames, points=args.body_points))
-        outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
-        write_previews(outputs, paths, lambda: preview_meshes(seq), num_frames=T, fps=seq.fps,
-                       camera=args.camera, quiet=args.quiet)
+    write_animation(args, paths, _garment(pipe, args.material), res.vertices, bm, frames, provenance)
     if not args.quiet:
         what = f"{steps} DDIM steps" if wrinkles is not None else "base only"
         print(

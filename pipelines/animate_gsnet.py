@@ -7,7 +7,6 @@ JSON, previews."""
 from __future__ import annotations
 
 import argparse
-import json
 import time
 import types
 from pathlib import Path
@@ -67,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from learn.gsnet.data import garment_template, motion_of
     from learn.train.distributed import resolve_torch_device
     from learn.train.trainer import load_trained
-    from pipelines.animate_cmd import grounded_frames
+    from pipelines.animate_cmd import grounded_frames, write_animation
     from pipelines.animate_deepwrinkles import outside
     from pipelines.options import load_body_and_motion
     from pipelines.outputs import check_stage_outputs
@@ -98,30 +97,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"gsnet {garment.name} ({verts.shape[1]} vertices) on {bm.motion.name}: {len(verts)} frames, "
               f"{dev}, {time.perf_counter() - t0:.1f} s")
-    return 0
-
-
-def write_animation(args: argparse.Namespace, paths, garment, verts: np.ndarray, bm, frames,
-                    provenance: dict) -> None:
-    """The stage, its sidecar JSON and the previews (``paths``: ``check_stage_outputs``) of an
-    animated garment, all or none."""
-    from pipelines.outputs import OutputSet, command_line, stage_rig, write_previews
-    from pipelines.simulate_cmd import preview_meshes, write_sequence_usd
-    from sim.types import GarmentSequence
-    from sim.versions import package_versions
-
-    provenance = {"command": command_line(), **provenance, "seed": args.seed,
-                  "versions": package_versions("usd-core")}
-    seq = GarmentSequence(vertices=verts, body=frames, garment=garment, motion=bm.motion,
-                          fps=float(bm.motion.fps), provenance=provenance)
-    betas = [float(b) for b in np.asarray(bm.betas).ravel()]
-    metadata = json.loads(json.dumps({**provenance, "motion_params": bm.params, "betas": betas}))
-    with OutputSet() as outputs:
-        write_sequence_usd(outputs.temp(paths.usd), seq, metadata, quiet=args.quiet,
-                           rig=stage_rig(bm.body, bm.betas, frames, points=args.body_points))
-        outputs.temp(paths.sidecar).write_text(json.dumps(metadata, indent=2, sort_keys=True) + "\n")
-        write_previews(outputs, paths, lambda: preview_meshes(seq), num_frames=len(verts), fps=seq.fps,
-                       camera=args.camera, quiet=args.quiet)
-    if not args.quiet:
         for p in paths.written():
             print(f"  wrote {p}")
+    return 0
+

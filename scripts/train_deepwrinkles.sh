@@ -25,10 +25,7 @@
 # their --set options.
 set -u -o pipefail
 W=${1:?work directory}; GEN=${2:-400}; TRAIN=${3:-600}
-STAGES=" ${STAGES:-generate register train export evaluate} "
-for s in $STAGES; do
-  case $s in generate|register|train|export|evaluate) ;; *) echo "STAGES: unknown stage '$s' (generate register train export evaluate)" >&2; exit 2;; esac
-done
+source "$(dirname "$0")/stages.sh" "generate register train export evaluate" "generate register train export evaluate"
 PY=${PYTHON:-python3}
 CLI="$PY -m pipelines.cli"
 D="$W/data/tshirt"
@@ -39,8 +36,6 @@ SOURCE=${SOURCE:-simulation}
 SET="--set model.workers=${WORKERS:-14} --set model.register_every=${EVERY:-6} --set model.source='$SOURCE' ${EXTRA_SET:-}"
 RELEASE_SET=${RELEASE_SET:-"--set model.filters=16 --set model.components=200 --set model.layers=2"}
 mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release"
-log() { echo "[$(date +%T)] $*" | tee -a "$W/logs/pipeline.log"; }
-stage() { [[ "$STAGES" == *" $1 "* ]]; }
 
 if stage generate; then
   log "generate (budget ${GEN}s)"

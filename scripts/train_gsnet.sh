@@ -20,10 +20,7 @@ cd "$(dirname "$0")/.."  # configs and `-m pipelines.cli` are the repository's
 for n in "$GEN" "$TRAIN"; do
   [[ "$n" =~ ^[0-9]+$ ]] || { echo "GEN_SECONDS and TRAIN_SECONDS must be whole seconds, got '$n'" >&2; exit 2; }
 done
-STAGES=" ${STAGES:-generate train export evaluate bench} "
-for s in $STAGES; do
-  case $s in generate|train|export|evaluate|bench) ;; *) echo "STAGES: unknown stage '$s' (generate train export evaluate bench)" >&2; exit 2;; esac
-done
+source scripts/stages.sh "generate train export evaluate bench" "generate train export evaluate bench"
 PY=${PYTHON:-python3}
 CLI="$PY -m pipelines.cli"
 D="$W/data/gsnet"
@@ -31,8 +28,6 @@ CFG=pipelines/configs/train/gsnet.toml
 DEVICE=${DEVICE:-cuda}; DATA_CONFIG=${DATA_CONFIG:-pipelines/configs/gsnet.toml}
 UNSEEN=flared_skirt,long_sleeve
 mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release"; rm -f "$W/.failed"
-log() { echo "[$(date +%T)] $*" | tee -a "$W/logs/pipeline.log"; }
-stage() { [[ "$STAGES" == *" $1 "* ]]; }
 GPUS=$($PY -c "import torch; print(max(1, torch.cuda.device_count()))") || { echo "$PY cannot import torch" >&2; exit 2; }
 gpu() { [ "$DEVICE" = cpu ] && echo cpu || echo "cuda:$(( $1 % GPUS ))"; }  # the k-th job's device
 

@@ -14,15 +14,10 @@
 # templates have other vertices).
 set -u
 W=${1:?work directory}; GEN=${2:-420}; TRAIN=${3:-600}
-STAGES=" ${STAGES:-generate train export evaluate} "
-for s in $STAGES; do
-  case $s in generate|testdata|train|export|evaluate) ;; *) echo "STAGES: unknown stage '$s' (generate testdata train export evaluate, space-separated)" >&2; exit 2;; esac
-done
+source "$(dirname "$0")/stages.sh" "generate train export evaluate" "generate testdata train export evaluate"
 PY=${PYTHON:-python3}
 CLI="$PY -m pipelines.cli"
 mkdir -p "$W/logs" "$W/runs" "$W/eval" "$W/release/ablation"
-log() { echo "[$(date +%T)] $*" | tee -a "$W/logs/pipeline.log"; }
-stage() { [[ "$STAGES" == *" $1 "* ]]; }
 
 generate() {  # budget [extra dataset-generate args...]
   local budget=$1; shift

@@ -71,6 +71,12 @@ def test_rest_pose_keeps_the_template_where_it_was_made():
 
 
 def overfit_losses(root, steps: int, config: GSNetConfig = TINY) -> list[float]:
+    return overfit(root, steps, config)[3]
+
+
+def overfit(root, steps: int, config: GSNetConfig = TINY):
+    """A network trained ``steps`` steps on one batch of 4 windows: (method, model, batch, the data
+    term of every step)."""
     method = GSNetMethod(config)
     ds = method.train_dataset(root)
     batch = method.collate([ds[(i, i)] for i in range(0, len(ds), max(1, len(ds) // 4))][:4])
@@ -84,7 +90,7 @@ def overfit_losses(root, steps: int, config: GSNetConfig = TINY) -> list[float]:
         out.loss.backward()
         opt.step()
         losses.append(float(out.scalars["data"]))
-    return losses
+    return method, model, batch, losses
 
 
 @pytest.mark.slow
@@ -210,17 +216,7 @@ def test_the_physical_regression_learns_to_lift_vertices_out_of_the_body(sample_
     from dataclasses import replace
 
     config = replace(TINY, collision_weight=100.0, cold_start=0.0)
-    method = GSNetMethod(config)
-    ds = method.train_dataset(sample_dataset)
-    batch = method.collate([ds[(i, i)] for i in range(0, len(ds), max(1, len(ds) // 4))][:4])
-    torch.manual_seed(0)
-    model = method.build_model()
-    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
-    for _ in range(60):
-        out = method.training_loss(model, batch, torch.Generator().manual_seed(0))
-        opt.zero_grad()
-        out.loss.backward()
-        opt.step()
+    method, model, batch, _ = overfit(sample_dataset, 60, config)
     g = batch["garments"]
     losses = [method.losses_of(k, t, batch["body_faces"])
               for k, t in zip(batch["keys"], batch["templates"], strict=True)]

@@ -13,8 +13,10 @@
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from learn.methods.skinned_mlp import pose_transforms
+from learn.metrics.geometry import vertex_normals
 from sim.garments.materials import get_material
 
 TEMPLATE_FEATURES = 12
@@ -39,18 +41,6 @@ def vertex_uvs(faces: np.ndarray, uvs: np.ndarray, uv_faces: np.ndarray, num_ver
     used, first = np.unique(f, return_index=True)  # each vertex's first corner
     out[used] = np.asarray(uvs, np.float32)[uf[first]]
     return out
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unit area-weighted vertex normals (V, 3) float32 (zero for an unused vertex)."""
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.where(norm > 0, n / np.maximum(norm, 1e-30), 0.0).astype(np.float32)
 
 
 def vertex_layers(faces: np.ndarray, face_layers: np.ndarray | None, num_vertices: int) -> np.ndarray:
@@ -79,7 +69,8 @@ def template_features(rest: np.ndarray, faces: np.ndarray, uvs: np.ndarray, uv_f
     v = np.asarray(rest, np.float32)
     n = v.shape[0]
     mat = np.broadcast_to(material_features(material), (n, 3))
-    return np.concatenate([v - np.asarray(rest_root, np.float32), vertex_normals(v, faces),
+    normals = vertex_normals(torch.from_numpy(v), np.asarray(faces)).numpy()  # unit, area-weighted
+    return np.concatenate([v - np.asarray(rest_root, np.float32), normals,
                            vertex_uvs(faces, uvs, uv_faces, n), mat,
                            vertex_layers(faces, face_layers, n)[:, None]], axis=1).astype(np.float32)
 

@@ -360,17 +360,16 @@ class GSNet(nn.Module):
         """
         enc = self.encode(garments)
         seg = garments.segment
-        # an animation's first history is the prior at its first frame, twice (no velocity): so
-        # is a cold start's, at the frame before the rollout
-        rest = self.prior(enc, garments, transforms[:, 1]).detach() + roots[seg, 1]
-        prior = [rest, rest]
-        if history is None:
-            hist = prior
-        else:
-            hist = [history[0], history[1]]
-            if cold is not None:
+        hist = None if history is None else [history[0], history[1]]
+        if history is None or cold is not None:
+            # an animation's first history is the prior at its first frame, twice (no velocity):
+            # so is a cold start's, at the frame before the rollout
+            rest = self.prior(enc, garments, transforms[:, 1]).detach() + roots[seg, 1]
+            if hist is None:
+                hist = [rest, rest]
+            else:
                 c = cold.index_select(0, seg)[:, None]
-                hist = [torch.where(c, p, h) for p, h in zip(prior, hist, strict=True)]
+                hist = [torch.where(c, rest, h) for h in hist]
         skinned, final = [], []
         for k in range(2, transforms.shape[1]):
             root = roots[seg, k]

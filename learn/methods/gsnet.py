@@ -112,17 +112,14 @@ class _TrainItems(torch.utils.data.Dataset):
 
     def _prep(self, sid: str) -> tuple:
         if sid not in self._prepared:
-            from learn.data import entry_arrays
+            from learn.data import sequence_inputs
             from learn.gsnet.data import make_template, motion_of
-            from sim.datasets.storage import body_model_name
 
-            f = self.windows.open_sequence(sid)
-            keys = [*self.method.SEQUENCE_KEYS, *(["fine/face_layers"] if "fine/face_layers" in f else [])]
-            entry = self.windows.entries[sid]
-            seq = {**{k: np.asarray(f[k]) for k in keys}, **entry_arrays(entry)}
-            name = body_model_name(f, {"config": self.windows.generator_config}) or "default"
+            seq = sequence_inputs(self.windows.open_sequence(sid), self.windows.entries[sid],
+                                  self.windows.generator_config, self.method.SEQUENCE_KEYS)
+            name = str(seq["body/model"])
             body = self.method.body(name)
-            material = entry.get("material") or DEFAULT_MATERIAL
+            material = str(seq["garment/material"]) or DEFAULT_MATERIAL
             template = make_template(seq, body, material, neighbours=self.method.config.skin_neighbours)
             self._prepared[sid] = (template, *motion_of(seq, body), seq, name)
         return self._prepared[sid]
@@ -158,9 +155,9 @@ class GSNetMethod(Method):
 
     name = "gsnet"
     Config = GSNetConfig
-    SEQUENCE_KEYS = ("fine/rest_vertices", "fine/faces", "fine/uvs", "fine/uv_faces", "body/betas",
-                     "body/poses", "body/joints", "body/trans")
-    """Arrays of a sequence the method reads (plus ``fine/face_layers`` where present)."""
+    SEQUENCE_KEYS = ("fine/rest_vertices", "fine/faces", "fine/uvs", "fine/uv_faces", "fine/face_layers",
+                     "body/betas", "body/poses", "body/joints", "body/trans")
+    """Arrays of a sequence the method reads (``fine/face_layers`` where present)."""
     LOSS_CACHE = 256
     """Garments whose physics terms stay built (a dataset of body-fitted garments has one per sequence)."""
 

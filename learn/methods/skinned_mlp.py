@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from learn.data import entry_arrays, rest_betas
+from learn.data import rest_betas
 from learn.methods.base import LossOutput, Method, Prediction
 from sim.rotations import axis_angle_to_matrix
 
@@ -166,14 +166,12 @@ class _TrainItems(torch.utils.data.Dataset):
 
     def _prep(self, sid: str) -> _Prepared:
         if sid not in self._prepared:
-            from sim.datasets.storage import body_model_name
+            from learn.data import sequence_inputs
 
-            seq = self.frames.open_sequence(sid)
             keys = [k for k in self.KEYS if k != "fine/vertices"]
-            body = body_model_name(seq, {"config": self.frames.generator_config}) or "default"
-            self._prepared[sid] = _Prepared(self.method, {**{k: seq[k] for k in keys},
-                                                          **entry_arrays(self.frames.entries[sid]),
-                                                          "body/model": np.asarray(body)})
+            seq = sequence_inputs(self.frames.open_sequence(sid), self.frames.entries[sid],
+                                  self.frames.generator_config, keys)
+            self._prepared[sid] = _Prepared(self.method, seq)
         return self._prepared[sid]
 
     def __getitem__(self, key: tuple[int, int]) -> dict:
