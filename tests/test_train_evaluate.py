@@ -199,7 +199,7 @@ def test_skinned_mlp_skins_a_reference_fit_garment_from_the_shape_it_was_made_on
     """The sample's garments are made on the mean body and worn by shaped ones (``garment/betas``):
     the untrained baseline (linear blend skinning, a zero displacement) carries them from the mean
     body's rest joints and stays within centimetres of the simulation on every sequence; from the
-    shaped body's rest joints it was 9-20 cm away."""
+    shaped body's rest joints the same skinning is 9-20 cm away."""
     from learn.evaluate import evaluate
     from learn.methods.skinned_mlp import SkinnedMLPConfig, SkinnedMLPMethod
 
