@@ -43,11 +43,11 @@ fi
 if stage train; then
   log "train (budget ${TRAIN}s, $GPUS GPU(s))"
   AB=${ABLATION_STEPS:-3000}
-  train() {  # name method device [overrides...]
+  train() {  # name method device [overrides...]; 4 CPU threads each (six at once, as evaluate)
     local name=$1 method=$2 dev=$3; shift 3
     local resume=""; [ -f "$W/runs/$name/checkpoints/last.pt" ] && resume="--resume"
     local cfg=$CFG; [ "$method" = gsnet ] || cfg=pipelines/configs/train/gsnet_baseline.toml
-    timeout -s INT "$TRAIN" $CLI train "$method" --data "$D" --out "$W/runs/$name" --config "$cfg" \
+    OMP_NUM_THREADS=4 timeout -s INT "$TRAIN" $CLI train "$method" --data "$D" --out "$W/runs/$name" --config "$cfg" \
       --device "$dev" -q ${EXTRA_SET:-} "$@" $resume >"$W/logs/train-$name.log" 2>&1
   }
   pids=()
@@ -71,9 +71,12 @@ fi
 
 if stage evaluate; then
   log "evaluate"
+  # twelve evaluations at once, 2 CPU threads each: with torch's default (every core each) the
+  # CPU metrics oversubscribe the host, and 12 evaluations on an H200 x2 host (32 cores) did not
+  # finish 23 sequences in 356 s
   ev() {  # row split model device
     local row=$1 split=$2 model=$3 dev=$4
-    $CLI evaluate --model "$model" --data "$D" --split "$split" --out "$W/eval/$row-$split" --no-images -q \
+    OMP_NUM_THREADS=2 $CLI evaluate --model "$model" --data "$D" --split "$split" --out "$W/eval/$row-$split" --no-images \
       --image-resolution 0 ${MAXSEQ:+--max-sequences $MAXSEQ} --device "$dev" >"$W/logs/eval-$row-$split.log" 2>&1 \
       || { log "evaluate $row $split failed"; touch "$W/.failed"; }
   }

@@ -9,7 +9,8 @@ import torch
 from learn.graph import mesh_edges
 from learn.gsnet.data import Template, garment_batch
 from learn.gsnet.features import TEMPLATE_FEATURES
-from learn.gsnet.network import GarmentEncoder, GSNet, apply_transforms, blend
+from learn.gsnet.network import (OFFSET_SCALE, RATE_SCALE, GarmentEncoder, GSNet, apply_transforms, blend,
+                                 temporal_features)
 from sim.rotations import axis_angle_to_matrix
 from tests.test_graph import grid_faces
 
@@ -206,3 +207,32 @@ def test_previous_transforms_carry_the_roots_motion():
     prev = previous_transforms(a, roots, 2)
     torch.testing.assert_close(prev[..., :3], a[:, 2, ..., :3])
     torch.testing.assert_close(prev[..., 3] - a[:, 2, ..., 3], torch.tensor([0, 0, -0.05]).expand(2, 24, 3))
+
+
+def test_temporal_features_are_offsets_from_the_prior_bounded():
+    small = torch.tensor([[1e-3, -2e-3, 0.0]])
+    f = temporal_features([torch.zeros(1, 3), small], fps=30.0)
+    # offsets of mm pass nearly unchanged (tanh(x) = x - x^3/3: 1.3e-4 relative at 2 mm); the rate
+    # is the offset's change * fps
+    torch.testing.assert_close(f[:, :3], small, atol=1e-9, rtol=2e-4)
+    torch.testing.assert_close(f[:, 3:], RATE_SCALE * torch.tanh(small * 30.0 / RATE_SCALE))
+    huge = torch.tensor([[5.0, -1e6, 3e3]])
+    f = temporal_features([-huge, huge], fps=30.0)
+    bound = torch.tensor([OFFSET_SCALE] * 3 + [RATE_SCALE] * 3)  # float32, as the features
+    assert bool((f.abs() <= bound).all())
+    torch.testing.assert_close(f[:, :3].abs(), torch.full((1, 3), OFFSET_SCALE))
+
+
+def test_a_diverged_history_cannot_push_the_rollout_further():
+    """The output depends on its past only through bounded features: histories 1 km and 1,000 km
+    from the body give the same frames (to 1 mm: float32 offsets of 1,000 km keep 6 cm steps, and
+    the rate of two of them differs), near the body."""
+    t = template(4, 4, 0)
+    model = net()
+    randomise_heads(model)
+    a, roots = motion(6, 1, 9)
+    g = garment_batch([t])
+    far = [model(g, a, roots, torch.full((2, 16, 3), d))[1] for d in (1e3, 1e6)]
+    torch.testing.assert_close(far[0], far[1], atol=1e-3, rtol=0)
+    prior = model(g, a, roots, None)[0]
+    assert (far[1] - prior).norm(dim=-1).max() < 1.0
