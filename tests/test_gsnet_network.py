@@ -9,8 +9,15 @@ import torch
 from learn.graph import mesh_edges
 from learn.gsnet.data import Template, garment_batch
 from learn.gsnet.features import TEMPLATE_FEATURES
-from learn.gsnet.network import (OFFSET_SCALE, RATE_SCALE, GarmentEncoder, GSNet, apply_transforms, blend,
-                                 temporal_features)
+from learn.gsnet.network import (
+    OFFSET_SCALE,
+    RATE_SCALE,
+    GarmentEncoder,
+    GSNet,
+    apply_transforms,
+    blend,
+    temporal_features,
+)
 from sim.rotations import axis_angle_to_matrix
 from tests.test_graph import grid_faces
 
