@@ -283,3 +283,23 @@ def test_a_training_item_holds_the_frames_of_its_window(sample_dataset):
     np.testing.assert_allclose(it["body"], posed, atol=1e-6)
     assert it["transforms"].shape == (r + 2, 24, 3, 4) and it["roots"].shape == (r + 2, 3)
     np.testing.assert_allclose(it["roots"], np.asarray(sf["body/joints"])[t:t + r + 2, 0], atol=1e-6)
+
+
+@pytest.mark.slow
+def test_the_projection_takes_an_evaluated_garment_out_of_the_body(sample_dataset):
+    """The margin's projection runs in the evaluated prediction: fewer vertices inside the body,
+    the rest of the garment where it was."""
+    from dataclasses import replace
+
+    from learn.evaluate import evaluate
+
+    rows = {}
+    for margin in (0.0, 2e-3):
+        method = GSNetMethod(replace(TINY, regression=False, projection_margin=margin))
+        torch.manual_seed(0)
+        model = method.build_model().eval()
+        ev = evaluate(method, model, sample_dataset, "all", image_resolution=0, max_sequences=2)
+        rows[margin] = ev.summary
+    assert rows[0.0]["collision"] > 0.005  # the untrained network's skinning crosses the body
+    assert rows[2e-3]["collision"] < 0.2 * rows[0.0]["collision"]
+    assert abs(rows[2e-3]["ev"] - rows[0.0]["ev"]) < 0.002

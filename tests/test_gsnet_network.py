@@ -16,6 +16,7 @@ from learn.gsnet.network import (
     GSNet,
     apply_transforms,
     blend,
+    project_out,
     temporal_features,
 )
 from sim.rotations import axis_angle_to_matrix
@@ -243,3 +244,32 @@ def test_a_diverged_history_cannot_push_the_rollout_further():
     torch.testing.assert_close(far[0], far[1], atol=1e-3, rtol=0)
     prior = model(g, a, roots, None)[0]
     assert (far[1] - prior).norm(dim=-1).max() < 1.0
+
+
+def test_projection_puts_vertices_the_margin_outside_the_body_and_leaves_the_rest():
+    n = torch.tensor([[0.0, 0.0, 1.0]] * 3)
+    anchors = torch.zeros(3, 3)
+    x = torch.tensor([[0.1, 0.2, -0.05], [0.0, 0.3, 0.001], [0.4, 0.0, 0.01]])  # inside, close, clear
+    y = project_out(x, anchors, n, 2e-3)
+    torch.testing.assert_close(y[:2, 2], torch.full((2,), 2e-3))
+    torch.testing.assert_close(y[:2, :2], x[:2, :2])  # moved along the normal only
+    torch.testing.assert_close(y[2], x[2])
+
+
+def test_rollout_with_a_margin_keeps_every_vertex_outside():
+    t = template(4, 4, 0)
+    model = net(regression=False)
+    randomise_heads(model)
+    a, roots = motion(5, 1, 10)
+    g = garment_batch([t])
+
+    def anchors(x, k):  # a floor through the garment's mean height, facing up
+        n = torch.zeros_like(x)
+        n[:, 2] = 1.0
+        return x.mean(0).expand_as(x), n
+
+    skinned, final = model(g, a, roots, None, anchors=anchors, margin=0.01)
+    for s, f in zip(skinned, final, strict=True):
+        height = s[:, 2].mean()
+        assert bool((f[:, 2] >= height + 0.01 - 1e-6).all())
+        torch.testing.assert_close(f[s[:, 2] > height + 0.01], s[s[:, 2] > height + 0.01])

@@ -266,6 +266,14 @@ def temporal_features(offsets: list[torch.Tensor], fps: float) -> torch.Tensor:
                       RATE_SCALE * torch.tanh(rate / RATE_SCALE)], dim=1)
 
 
+def project_out(x: torch.Tensor, anchors: torch.Tensor, normals: torch.Tensor, margin: float) -> torch.Tensor:
+    """Positions (N, 3) closer than ``margin`` [m] to their anchor's tangent plane (nearest body
+    vertex ``anchors``, unit ``normals``, (N, 3) each), or behind it, moved along the normal onto
+    the plane offset by ``margin``; the others unchanged."""
+    s = ((x - anchors) * normals).sum(-1, keepdim=True)
+    return x + (margin - s).clamp_min(0.0) * normals
+
+
 def previous_transforms(transforms: torch.Tensor, roots: torch.Tensor, k: int) -> torch.Tensor:
     """Frame k-1's bone transforms relative to frame k's root (G, 24, 3, 4): the joints' motion
     including the root's own between the frames, in the frame the network works in at k."""
@@ -359,7 +367,8 @@ class GSNet(nn.Module):
 
     def forward(self, garments: GarmentBatch, transforms: torch.Tensor, roots: torch.Tensor,
                 history: torch.Tensor | None, *, anchors=None, fps: float = 30.0, temporal: bool = True,
-                cold: torch.Tensor | None = None, eps: float = 1.0e-3) -> tuple[torch.Tensor, torch.Tensor]:
+                cold: torch.Tensor | None = None, eps: float = 1.0e-3,
+                margin: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
         """Roll the garments out over frames 2 .. T-1 of their bodies' motion (Eq. 1, each frame
         fed the previous outputs).
 
@@ -369,11 +378,13 @@ class GSNet(nn.Module):
             history: garment positions of frames 0 and 1 (2, N, 3) [m]; None: every garment's
                 history is the prior (``prior``) at frame 1, twice, as at the start of an animation.
             anchors: ``anchors(x, k)`` -> nearest body vertices and their normals (N, 3) each for
-                positions ``x`` (N, 3) [m] at frame k; None: no physical regression.
+                positions ``x`` (N, 3) [m] at frame k; None: no regression, no projection.
             fps: frame rate (velocities in m/s); temporal: False: no previous-frame inputs (ablation).
             cold: (G,) bool, garments whose history is replaced by the prior at frame 1, twice
                 (training: the start of an animation, at rest).
             eps: threshold [m] of the regression's filter.
+            margin: the final positions are :func:`project_out` of the body by this margin [m]
+                (0: not projected; with ``anchors`` only).
 
         Returns:
             Deep skinning's and the final positions of frames 2 .. T-1, each (T-2, N, 3) [m].
@@ -405,9 +416,11 @@ class GSNet(nn.Module):
             joints = joints.reshape(-1, JOINT_FEATURES)
             x, hv = self.skin(enc, garments, cur, joints, previous)
             skinned.append(x + root)
-            if anchors is not None and self.regression is not None:
+            if anchors is not None and (self.regression is not None or margin > 0):
                 pts, nrm = anchors((x + root).detach(), k)
                 x = self.regress(enc, x, hv, pts - root, nrm, joints, eps)
+                if margin > 0:
+                    x = project_out(x, pts - root, nrm, margin)
             final.append(x + root)
             if temporal and k + 1 < transforms.shape[1]:
                 offsets = [offsets[-1], x - self.prior(enc, garments, cur)]
