@@ -66,12 +66,17 @@ def test_laplacian_of_a_regular_graph_kills_constants():
     assert out.abs().max() < 1e-12
 
 
-def test_propagate_matches_dense_product():
+@pytest.mark.parametrize("grad", [True, False])
+def test_propagate_matches_dense_product(grad):
+    """Both paths, the edge list's (autograd on) and the CSR product's (inference), with repeated
+    and unsorted edges."""
     rng = np.random.default_rng(0)
     g = Graph(torch.from_numpy(rng.integers(0, 9, 40)), torch.from_numpy(rng.integers(0, 9, 40)),
               torch.from_numpy(rng.normal(size=40)), 9)
     x = torch.from_numpy(rng.normal(size=(9, 5)))
-    torch.testing.assert_close(propagate(g, x), g.dense() @ x)
+    with torch.set_grad_enabled(grad):
+        torch.testing.assert_close(propagate(g, x), g.dense() @ x)
+        torch.testing.assert_close(propagate(g, x.float()), (g.dense() @ x).float())
 
 
 def test_batched_graphs_are_block_diagonal():

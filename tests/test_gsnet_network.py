@@ -273,3 +273,16 @@ def test_rollout_with_a_margin_keeps_every_vertex_outside():
         height = s[:, 2].mean()
         assert bool((f[:, 2] >= height + 0.01 - 1e-6).all())
         torch.testing.assert_close(f[s[:, 2] > height + 0.01], s[s[:, 2] > height + 0.01])
+
+
+def test_inference_products_give_the_training_rollout():
+    """Under no_grad the graph products go through CSR matrices: the same frames."""
+    ts = [template(4, 4, 0), template(3, 5, 1)]
+    model = net()
+    randomise_heads(model)
+    a, roots = motion(5, 2, 11)
+    g = garment_batch(ts)
+    trained = model(g, a, roots, None)[1]
+    with torch.no_grad():
+        inferred = model(g, a, roots, None)[1]
+    torch.testing.assert_close(inferred, trained.detach(), atol=1e-6, rtol=1e-5)
