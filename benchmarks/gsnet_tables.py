@@ -6,7 +6,8 @@ and writes the tables (markdown) and their JSON:
     python -m benchmarks.gsnet_tables EVAL --out /tmp/gsnet_tables.md \
         --json benchmarks/results/gsnet_tables.json --unseen flared_skirt,hoodie
 
-- Table 1 (GSNet Table 1): every row on test_id and test_ood, with GSNet's metrics: vertex error,
+- Table 1 (GSNet Table 1): every row on test_id and test_ood (with linear blend skinning of the
+  body's weights carried to the garment, what GSNet learns to improve on), with GSNet's metrics: vertex error,
   edge elongation / compression (mean |l/l0 - 1|), the bending angle between vertex normals, the
   collision rate; the simulation's own physics columns as the last row.
 - Table 2 (GSNet Table 2): the same by garment category, seen designs and the held-out ones
@@ -26,6 +27,7 @@ import numpy as np
 ROWS = [
     ("gsnet", "GSNet"),
     ("skinned_mlp", "skinning + displacement MLP (skinned_mlp)"),
+    ("lbs", "linear blend skinning (the body's weights, nothing learned)"),
     ("coarse", "CVAE coarse model (skeleton_cvae)"),
 ]
 ABLATIONS = [

@@ -2,12 +2,12 @@
 # How GSNet's figures (docs/GSNET.md) and shipped weights are made: generate the multi-garment
 # dataset (pipelines/configs/gsnet.toml: six designs in training, two held out), train GSNet, its
 # ablations (no temporal input, no physical regression, no learned joint edges, 4 joint edges a
-# vertex) and the skinned_mlp baseline on the same data, export release weights (WORKDIR/release),
-# evaluate every row on test_id and test_ood (all sequences), write GSNet's Tables 1-3 and time
-# GSNet (all and 4 joint edges a vertex) against the simulator. Needs a CUDA GPU (two are used
-# when present). Time-boxed and resumable as scripts/train_pretrained.sh: generation and training
-# stop at their budgets; run it again to go on. Exits 1 when a training, the export or an
-# evaluation failed.
+# vertex), the skinned_mlp baseline and linear blend skinning (lbs) on the same data, export
+# release weights (WORKDIR/release), evaluate every row on test_id and test_ood (all sequences),
+# write GSNet's Tables 1-3 and time GSNet (all and 4 joint edges a vertex) against the simulator.
+# Needs a CUDA GPU (two are used when present). Time-boxed and resumable as
+# scripts/train_pretrained.sh: generation and training stop at their budgets; run it again to go
+# on. Exits 1 when a training, the export or an evaluation failed.
 #   bash scripts/train_gsnet.sh WORKDIR [GEN_SECONDS] [TRAIN_SECONDS]
 # STAGES picks stages (default "generate train export evaluate bench"); ABLATION_STEPS the
 # ablations' and the baseline's steps (default 3000); MAXSEQ limits the sequences evaluated per
@@ -43,7 +43,7 @@ fi
 if stage train; then
   log "train (budget ${TRAIN}s, $GPUS GPU(s))"
   AB=${ABLATION_STEPS:-3000}
-  train() {  # name method device [overrides...]; 4 CPU threads each (six at once, as evaluate)
+  train() {  # name method device [overrides...]; 4 CPU threads each (seven at once, as evaluate)
     local name=$1 method=$2 dev=$3; shift 3
     local resume=""; [ -f "$W/runs/$name/checkpoints/last.pt" ] && resume="--resume"
     local cfg=$CFG; [ "$method" = gsnet ] || cfg=pipelines/configs/train/gsnet_baseline.toml
@@ -57,6 +57,10 @@ if stage train; then
   train gsnet_noedges gsnet "$(gpu 0)" --set model.learned_edges=false --set train.steps=$AB & pids+=($!)
   train skinned_mlp skinned_mlp "$(gpu 1)" --set train.steps=$AB & pids+=($!)
   train gsnet_top4 gsnet "$(gpu 0)" --set model.joint_topk=4 --set train.steps=$AB & pids+=($!)
+  # lbs: the body's skinning weights carried to the garment, nothing learned (one step at lr 1e-12
+  # writes the untrained network, whose zero-initialised heads leave the skinning as it is)
+  train lbs gsnet "$(gpu 1)" --set model.learned_edges=false --set model.regression=false \
+    --set train.steps=1 --set optim.lr=1e-12 & pids+=($!)
   for p in "${pids[@]}"; do  # 124: stopped at the budget (timeout's SIGINT), resumable; else failed
     wait "$p"; rc=$?; [ $rc -eq 0 ] || [ $rc -eq 124 ] || { log "a training failed ($rc)"; touch "$W/.failed"; }
   done
@@ -71,7 +75,7 @@ fi
 
 if stage evaluate; then
   log "evaluate"
-  # twelve evaluations at once, 2 CPU threads each: with torch's default (every core each) the
+  # fourteen evaluations at once, 2 CPU threads each: with torch's default (every core each) the
   # CPU metrics oversubscribe the host, and 12 evaluations on an H200 x2 host (32 cores) did not
   # finish 23 sequences in 356 s
   ev() {  # row split model device
@@ -81,7 +85,7 @@ if stage evaluate; then
       || { log "evaluate $row $split failed"; touch "$W/.failed"; }
   }
   k=0
-  for row in gsnet gsnet_notemp gsnet_noreg gsnet_noedges gsnet_top4 skinned_mlp; do
+  for row in gsnet gsnet_notemp gsnet_noreg gsnet_noedges gsnet_top4 skinned_mlp lbs; do
     m="$W/runs/$row/checkpoints/last.pt"; [ "$row" = gsnet ] && [ -f "$W/release/gsnet.pt" ] && m="$W/release/gsnet.pt"
     for split in test_id test_ood; do ev $row $split "$m" "$(gpu $k)" & k=$((k + 1)); done
   done
