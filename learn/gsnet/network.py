@@ -260,7 +260,7 @@ def temporal_features(offsets: list[torch.Tensor], fps: float) -> torch.Tensor:
     grow with the body's own speed; bounded, they keep a rollout's output bounded (the output
     depends on its past only through them). Raw positions and velocities as features feed a
     drifting frame's error back without limit: with them, a network trained on 3-frame rollouts
-    took a straight skirt to 1e10 m in 60 frames."""
+    diverged on 3 of 14 test sequences within 60 frames."""
     o, rate = offsets[-1], (offsets[-1] - offsets[-2]) * fps
     return torch.cat([OFFSET_SCALE * torch.tanh(o / OFFSET_SCALE),
                       RATE_SCALE * torch.tanh(rate / RATE_SCALE)], dim=1)
