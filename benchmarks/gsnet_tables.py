@@ -7,9 +7,11 @@ and writes the tables (markdown) and their JSON:
         --json benchmarks/results/gsnet_tables.json --unseen flared_skirt,hoodie
 
 - Table 1 (GSNet Table 1): every row on test_id and test_ood (with linear blend skinning of the
-  body's weights carried to the garment, what GSNet learns to improve on), with GSNet's metrics: vertex error,
-  edge elongation / compression (mean |l/l0 - 1|), the bending angle between vertex normals, the
-  collision rate; the simulation's own physics columns as the last row.
+  body's weights carried to the garment, what GSNet learns to improve on; it and every GSNet row
+  end with GSNet's projection out of the body, ``model.projection_margin``, skinned_mlp does
+  not), with GSNet's metrics: vertex error, edge elongation / compression (mean |l/l0 - 1|), the
+  bending angle between vertex normals, the collision rate; the simulation's own physics columns
+  as the last row.
 - Table 2 (GSNet Table 2): the same by garment category, seen designs and the held-out ones
   (``--unseen``: in test_ood only).
 - Table 3 (GSNet Table 3): GSNet's ablations, without temporal input, without physical
@@ -27,13 +29,13 @@ import numpy as np
 ROWS = [
     ("gsnet", "GSNet"),
     ("skinned_mlp", "skinning + displacement MLP (skinned_mlp)"),
-    ("lbs", "linear blend skinning (the body's weights, nothing learned)"),
+    ("lbs", "linear blend skinning (the body's weights, nothing learned; GSNet's projection)"),
     ("coarse", "CVAE coarse model (skeleton_cvae)"),
 ]
 ABLATIONS = [
     ("gsnet", "GSNet"),
     ("gsnet_notemp", "without temporal input"),
-    ("gsnet_noreg", "without physical regression"),
+    ("gsnet_noreg", "without physical regression (the projection kept)"),
     ("gsnet_noedges", "without learned joint edges (body skinning weights)"),
     ("gsnet_top4", "4 joint edges a vertex (joint_topk = 4)"),
 ]

@@ -43,7 +43,7 @@ fi
 if stage train; then
   log "train (budget ${TRAIN}s, $GPUS GPU(s))"
   AB=${ABLATION_STEPS:-3000}
-  train() {  # name method device [overrides...]; 4 CPU threads each (seven at once, as evaluate)
+  train() {  # name method device [overrides...]; 4 CPU threads each, seven at once
     local name=$1 method=$2 dev=$3; shift 3
     local resume=""; [ -f "$W/runs/$name/checkpoints/last.pt" ] && resume="--resume"
     local cfg=$CFG; [ "$method" = gsnet ] || cfg=pipelines/configs/train/gsnet_baseline.toml
@@ -58,7 +58,8 @@ if stage train; then
   train skinned_mlp skinned_mlp "$(gpu 1)" --set train.steps=$AB & pids+=($!)
   train gsnet_top4 gsnet "$(gpu 0)" --set model.joint_topk=4 --set train.steps=$AB & pids+=($!)
   # lbs: the body's skinning weights carried to the garment, nothing learned (one step at lr 1e-12
-  # writes the untrained network, whose zero-initialised heads leave the skinning as it is)
+  # writes the untrained network, whose zero-initialised heads leave the skinning as it is), then
+  # GSNet's projection out of the body, so its collision column compares with GSNet's
   train lbs gsnet "$(gpu 1)" --set model.learned_edges=false --set model.regression=false \
     --set train.steps=1 --set optim.lr=1e-12 & pids+=($!)
   for p in "${pids[@]}"; do  # 124: stopped at the budget (timeout's SIGINT), resumable; else failed

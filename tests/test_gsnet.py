@@ -303,3 +303,15 @@ def test_the_projection_takes_an_evaluated_garment_out_of_the_body(sample_datase
     assert rows[0.0]["collision"] > 0.005  # the untrained network's skinning crosses the body
     assert rows[2e-3]["collision"] < 0.2 * rows[0.0]["collision"]
     assert abs(rows[2e-3]["ev"] - rows[0.0]["ev"]) < 0.002
+
+
+@pytest.mark.parametrize("field, value", [("joint_topk", 25), ("cold_start", 1.5), ("width", 30),
+                                          ("projection_margin", -1e-3), ("projection_margin", float("nan"))])
+def test_a_bad_model_setting_is_refused_naming_it(field, value):
+    from dataclasses import replace
+
+    def err(message):
+        return ValueError(message)
+
+    with pytest.raises(ValueError, match=f"model.{field}"):
+        GSNetMethod.validate_config(replace(TINY, **{field: value}), err)

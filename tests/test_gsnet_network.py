@@ -286,3 +286,30 @@ def test_inference_products_give_the_training_rollout():
     with torch.no_grad():
         inferred = model(g, a, roots, None)[1]
     torch.testing.assert_close(inferred, trained.detach(), atol=1e-6, rtol=1e-5)
+
+
+def test_a_rollout_continued_from_its_own_frames_gives_the_same_frames():
+    """The offsets carried from frame to frame are those a history of the same positions gives."""
+    t = template(4, 4, 0)
+    model = net()
+    randomise_heads(model)
+    a, roots = motion(7, 1, 12)
+    g = garment_batch([t])
+    whole = model(g, a, roots, None)[1]  # frames 2 .. 6
+    tail = model(g, a[:, 2:], roots[:, 2:], whole[:2])[1]  # frames 4 .. 6 from frames 2, 3
+    torch.testing.assert_close(tail, whole[2:], atol=1e-5, rtol=1e-5)
+
+
+def test_an_animation_and_a_cold_start_begin_on_the_prior_whatever_came_before():
+    """No offset, no rate at the start: frame 0's pose and a cold item's history change nothing."""
+    t = template(4, 4, 0)
+    model = net()
+    randomise_heads(model)
+    a, roots = motion(5, 1, 13)
+    g = garment_batch([t])
+    start = model(g, a, roots, None)[1]
+    other = a.clone()
+    other[:, 0] = motion(1, 1, 14)[0][:, 0]
+    torch.testing.assert_close(model(g, other, roots, None)[1], start)
+    cold = model(g, a, roots, torch.full((2, 16, 3), 5.0), cold=torch.tensor([True]))[1]
+    torch.testing.assert_close(cold, start)

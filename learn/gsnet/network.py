@@ -375,13 +375,14 @@ class GSNet(nn.Module):
         Args:
             garments: the batch's templates.
             transforms: root-relative bone transforms (G, T, 24, 3, 4); roots: root positions (G, T, 3) [m].
-            history: garment positions of frames 0 and 1 (2, N, 3) [m]; None: every garment's
-                history is the prior (``prior``) at frame 1, twice, as at the start of an animation.
+            history: garment positions of frames 0 and 1 (2, N, 3) [m]; None: every garment
+                starts on the skinning prior (``prior``), as an animation starts: no offset from
+                it, no rate (``temporal_features``).
             anchors: ``anchors(x, k)`` -> nearest body vertices and their normals (N, 3) each for
                 positions ``x`` (N, 3) [m] at frame k; None: no regression, no projection.
             fps: frame rate (velocities in m/s); temporal: False: no previous-frame inputs (ablation).
-            cold: (G,) bool, garments whose history is replaced by the prior at frame 1, twice
-                (training: the start of an animation, at rest).
+            cold: (G,) bool, garments whose history is replaced by the start of an animation
+                (``history`` None's) in training.
             eps: threshold [m] of the regression's filter.
             margin: the final positions are :func:`project_out` of the body by this margin [m]
                 (0: not projected; with ``anchors`` only).
@@ -391,19 +392,14 @@ class GSNet(nn.Module):
         """
         enc = self.encode(garments)
         seg = garments.segment
-        hist = None if history is None else [history[0], history[1]]
-        if history is None or cold is not None:
-            # an animation's first history is the prior at its first frame, twice (no velocity):
-            # so is a cold start's, at the frame before the rollout
-            rest = self.prior(enc, garments, transforms[:, 1]).detach() + roots[seg, 1]
-            if hist is None:
-                hist = [rest, rest]
-            else:
-                c = cold.index_select(0, seg)[:, None]
-                hist = [torch.where(c, rest, h) for h in hist]
         skinned, final = [], []
-        if temporal:  # each history frame's offset from the skinning prior (temporal_features)
-            offsets = [hist[j] - self.prior(enc, garments, transforms[:, j]) - roots[seg, j] for j in (0, 1)]
+        offsets = [garments.rest.new_zeros(garments.rest.shape)] * 2  # the start: on the prior
+        if temporal and history is not None:  # each history frame's offset from the prior
+            offsets = [history[j] - self.prior(enc, garments, transforms[:, j]).detach() - roots[seg, j]
+                       for j in (0, 1)]
+            if cold is not None:
+                c = cold.index_select(0, seg)[:, None]
+                offsets = [torch.where(c, 0.0, o) for o in offsets]
         for k in range(2, transforms.shape[1]):
             root = roots[seg, k]
             cur, prev = transforms[:, k], previous_transforms(transforms, roots, k)
@@ -411,7 +407,7 @@ class GSNet(nn.Module):
                 previous = temporal_features(offsets, fps)
                 joints = torch.cat([cur.flatten(-2), prev.flatten(-2)], dim=-1)
             else:
-                previous = hist[-1].new_zeros(hist[-1].shape[0], PREVIOUS_FEATURES)
+                previous = offsets[0].new_zeros(offsets[0].shape[0], PREVIOUS_FEATURES)
                 joints = torch.cat([cur.flatten(-2), torch.zeros_like(prev.flatten(-2))], dim=-1)
             joints = joints.reshape(-1, JOINT_FEATURES)
             x, hv = self.skin(enc, garments, cur, joints, previous)
@@ -423,5 +419,5 @@ class GSNet(nn.Module):
                     x = project_out(x, pts - root, nrm, margin)
             final.append(x + root)
             if temporal and k + 1 < transforms.shape[1]:
-                offsets = [offsets[-1], x - self.prior(enc, garments, cur)]
+                offsets = [offsets[-1], x - self.prior(enc, garments, cur).detach()]
         return torch.stack(skinned), torch.stack(final)

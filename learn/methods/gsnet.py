@@ -188,7 +188,8 @@ class GSNetMethod(Method):
             raise err(f"model.joint_topk must be in [0, 24], got {config.joint_topk}")
         if not 0.0 <= config.cold_start <= 1.0:
             raise err(f"model.cold_start must be in [0, 1], got {config.cold_start}")
-        for f in ("history_noise", "edge_weight", "bending_weight", "collision_weight", "collision_eps"):
+        for f in ("history_noise", "edge_weight", "bending_weight", "collision_weight", "collision_eps",
+                  "projection_margin"):
             if not getattr(config, f) >= 0.0:
                 raise err(f"model.{f} must be >= 0, got {getattr(config, f)}")
 
@@ -316,7 +317,7 @@ class GSNetMethod(Method):
         from learn.gsnet.data import garment_batch
 
         c = self.config
-        # frame 0 twice more in front: the history of the first frame is the prior at rest
+        # frame 0 twice more in front, the rollout's history: frame 0's output is its first
         transforms = np.concatenate([transforms[:1], transforms[:1], transforms])
         roots = np.concatenate([roots[:1], roots[:1], roots])
         anchors = None
