@@ -57,6 +57,15 @@ def randomise_heads(model: GSNet) -> None:
             head.weight.copy_(0.05 * torch.randn(head.weight.shape, generator=g))
 
 
+def square_garment_scene(frames: int, seed: int, **kw):
+    """A 4 x 4 grid garment, a network with every path live (``randomise_heads``) and a motion of
+    ``frames`` frames: (model, garment batch, transforms, roots)."""
+    model = net(**kw)
+    randomise_heads(model)
+    a, roots = motion(frames, 1, seed)
+    return model, garment_batch([template(4, 4, 0)]), a, roots
+
+
 def permuted(t: Template, perm: np.ndarray) -> Template:
     """The same garment with vertex i renamed inv[i] (new vertex k is old vertex perm[k])."""
     inv = np.argsort(perm)
@@ -124,11 +133,7 @@ def test_without_learned_edges_the_prior_is_the_bodys_skinning():
 
 
 def test_regression_moves_only_the_filtered_vertices():
-    t = template(4, 4, 0)
-    model = net()
-    randomise_heads(model)
-    a, roots = motion(3, 1, 7)
-    g = garment_batch([t])
+    model, g, a, roots = square_garment_scene(3, 7)
     inside = torch.zeros(16, dtype=torch.bool)
     inside[[1, 5, 9]] = True
 
@@ -235,11 +240,7 @@ def test_a_diverged_history_cannot_push_the_rollout_further():
     """The output depends on its past only through bounded features: histories 1 km and 1,000 km
     from the body give the same frames (to 1 mm: float32 offsets of 1,000 km keep 6 cm steps, and
     the rate of two of them differs), near the body."""
-    t = template(4, 4, 0)
-    model = net()
-    randomise_heads(model)
-    a, roots = motion(6, 1, 9)
-    g = garment_batch([t])
+    model, g, a, roots = square_garment_scene(6, 9)
     far = [model(g, a, roots, torch.full((2, 16, 3), d))[1] for d in (1e3, 1e6)]
     torch.testing.assert_close(far[0], far[1], atol=1e-3, rtol=0)
     prior = model(g, a, roots, None)[0]
@@ -257,11 +258,7 @@ def test_projection_puts_vertices_the_margin_outside_the_body_and_leaves_the_res
 
 
 def test_rollout_with_a_margin_keeps_every_vertex_outside():
-    t = template(4, 4, 0)
-    model = net(regression=False)
-    randomise_heads(model)
-    a, roots = motion(5, 1, 10)
-    g = garment_batch([t])
+    model, g, a, roots = square_garment_scene(5, 10, regression=False)
 
     def anchors(x, k):  # a floor through the garment's mean height, facing up
         n = torch.zeros_like(x)
@@ -290,11 +287,7 @@ def test_inference_products_give_the_training_rollout():
 
 def test_a_rollout_continued_from_its_own_frames_gives_the_same_frames():
     """The offsets carried from frame to frame are those a history of the same positions gives."""
-    t = template(4, 4, 0)
-    model = net()
-    randomise_heads(model)
-    a, roots = motion(7, 1, 12)
-    g = garment_batch([t])
+    model, g, a, roots = square_garment_scene(7, 12)
     whole = model(g, a, roots, None)[1]  # frames 2 .. 6
     tail = model(g, a[:, 2:], roots[:, 2:], whole[:2])[1]  # frames 4 .. 6 from frames 2, 3
     torch.testing.assert_close(tail, whole[2:], atol=1e-5, rtol=1e-5)
@@ -302,11 +295,7 @@ def test_a_rollout_continued_from_its_own_frames_gives_the_same_frames():
 
 def test_an_animation_and_a_cold_start_begin_on_the_prior_whatever_came_before():
     """No offset, no rate at the start: frame 0's pose and a cold item's history change nothing."""
-    t = template(4, 4, 0)
-    model = net()
-    randomise_heads(model)
-    a, roots = motion(5, 1, 13)
-    g = garment_batch([t])
+    model, g, a, roots = square_garment_scene(5, 13)
     start = model(g, a, roots, None)[1]
     other = a.clone()
     other[:, 0] = motion(1, 1, 14)[0][:, 0]

@@ -332,20 +332,21 @@ class GSNet(nn.Module):
 
     def prior(self, enc: Encoded, garments: GarmentBatch, transforms: torch.Tensor) -> torch.Tensor:
         """Blend skinning of the templates with the vertex-joint edges (N, 3) [m]: the untrained
-        network's output, and the history of a sequence's first frame."""
+        network's output, what the temporal offsets are measured from."""
         return apply_transforms(blend(enc.joint_edges, transforms, garments.segment), garments.rest)
 
     def skin(self, enc: Encoded, garments: GarmentBatch, transforms: torch.Tensor, joints: torch.Tensor,
-             previous: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Deep skinning of one frame: positions (N, 3) [m] and the vertices' graph features.
+             previous: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Deep skinning of one frame: positions (N, 3) [m], the vertices' graph features and the
+        frame's skinning prior (``prior``, from the same blend).
 
         Args:
             transforms: root-relative bone transforms of each garment's body (G, 24, 3, 4).
             joints: joint features (G * 24, 24); previous: temporal features (N, 6).
         """
         delta, hv = self.skinning(enc.graph, enc.features, previous, joints)
-        m = blend(enc.joint_edges, transforms, garments.segment) + delta
-        return apply_transforms(m, garments.rest), hv
+        m = blend(enc.joint_edges, transforms, garments.segment)
+        return apply_transforms(m + delta, garments.rest), hv, apply_transforms(m, garments.rest)
 
     def regress(self, enc: Encoded, x: torch.Tensor, features: torch.Tensor, anchors: torch.Tensor,
                 normals: torch.Tensor, joints: torch.Tensor, eps: float) -> torch.Tensor:
@@ -410,7 +411,7 @@ class GSNet(nn.Module):
                 previous = offsets[0].new_zeros(offsets[0].shape[0], PREVIOUS_FEATURES)
                 joints = torch.cat([cur.flatten(-2), torch.zeros_like(prev.flatten(-2))], dim=-1)
             joints = joints.reshape(-1, JOINT_FEATURES)
-            x, hv = self.skin(enc, garments, cur, joints, previous)
+            x, hv, prior = self.skin(enc, garments, cur, joints, previous)
             skinned.append(x + root)
             if anchors is not None and (self.regression is not None or margin > 0):
                 pts, nrm = anchors((x + root).detach(), k)
@@ -419,5 +420,5 @@ class GSNet(nn.Module):
                     x = project_out(x, pts - root, nrm, margin)
             final.append(x + root)
             if temporal and k + 1 < transforms.shape[1]:
-                offsets = [offsets[-1], x - self.prior(enc, garments, cur).detach()]
+                offsets = [offsets[-1], x - prior.detach()]
         return torch.stack(skinned), torch.stack(final)

@@ -98,8 +98,15 @@ class _Losses:
         self.collision = GSNetCollisionLoss(topo, body_faces=body_faces, eps=eps, reduction="none")
         # the regression's body search, one frame at a time: an instance of its own, since an
         # instance rebuilds its search structure whenever the batch size changes
-        self.search = GSNetCollisionLoss(topo, body_faces=body_faces, eps=eps, reduction="none")
+        self.search = self.body_search(topo, body_faces, eps)
         self.num_edges, self.num_vertices = len(topo.edges), topo.num_vertices
+
+    @staticmethod
+    def body_search(topo, body_faces: np.ndarray, eps: float):
+        """The nearest-body-vertex search of the regression's filter and the projection."""
+        from learn.losses import GSNetCollisionLoss
+
+        return GSNetCollisionLoss(topo, body_faces=body_faces, eps=eps, reduction="none")
 
 
 class _TrainItems(torch.utils.data.Dataset):
@@ -282,6 +289,11 @@ class GSNetMethod(Method):
                                  "edge": edge.detach(), "bending": bend.detach(), "collision": col.detach(),
                                  "vertex_error": _garment_mean(err, g)})
 
+    @property
+    def uses_body(self) -> bool:
+        """Inference needs the posed body: for the regression's filter or the projection."""
+        return self.config.regression or self.config.projection_margin > 0
+
     @torch.no_grad()
     def predict_sequence(self, model: nn.Module, sequence: Mapping[str, np.ndarray], *,
                          device: torch.device) -> Prediction:
@@ -292,7 +304,7 @@ class GSNetMethod(Method):
         template = make_template(sequence, body, material, neighbours=self.config.skin_neighbours)
         transforms, roots = motion_of(sequence, body)
         posed = None
-        if self.config.regression or self.config.projection_margin > 0:
+        if self.uses_body:
             betas = np.asarray(sequence["body/betas"], np.float32).reshape(-1)[: body.num_betas]
             posed = body.pose(betas, np.asarray(sequence["body/poses"]), np.asarray(sequence["body/trans"]))
         fps = float(np.asarray(sequence.get("fps", 30.0)))
@@ -321,12 +333,15 @@ class GSNetMethod(Method):
         transforms = np.concatenate([transforms[:1], transforms[:1], transforms])
         roots = np.concatenate([roots[:1], roots[:1], roots])
         anchors = None
-        if (c.regression or c.projection_margin > 0) and body_vertices is not None:
+        if self.uses_body and body_vertices is not None:
+            from sim.losses.topology import garment_topology
+
             bodies = torch.from_numpy(np.asarray(body_vertices, np.float32)).to(device)
-            ls = _Losses(template.rest, template.faces, np.asarray(body_faces), c.collision_eps)
+            search = _Losses.body_search(garment_topology(template.rest, template.faces),
+                                         np.asarray(body_faces), c.collision_eps)
 
             def anchors(x: torch.Tensor, k: int) -> tuple[torch.Tensor, torch.Tensor]:
-                a = ls.search.nearest_anchors(x[None], bodies[k - 2][None])
+                a = search.nearest_anchors(x[None], bodies[k - 2][None])
                 return a.points[0], a.normals[0]
         g = garment_batch([template]).to(device)
         a, r = torch.from_numpy(transforms)[None].to(device), torch.from_numpy(roots)[None].to(device)
